@@ -1,0 +1,119 @@
+"""Errors raised for bad user input, and small validators that produce them.
+
+Every validator names the parameter, shows the offending value and states the allowed range, so that
+the CLI can print a one-line message (exit status 2) instead of a traceback from deep inside numpy.
+"""
+
+from __future__ import annotations
+
+import math
+import numbers
+from typing import Any
+
+
+class InputError(ValueError):
+    """Bad input from a user: the message names the parameter, the value and the allowed range.
+
+    Attributes
+    ----------
+    parameter: the parameter (or file key) that was wrong.
+    value: the value given.
+    allowed: a human-readable description of the allowed range.
+    source: optional origin (a file path) shown before the parameter.
+    """
+
+    def __init__(self, parameter: str, value: Any, allowed: str, source: str | None = None,
+                 detail: str | None = None):
+        self.parameter = parameter
+        self.value = value
+        self.allowed = allowed
+        self.source = source
+        where = f"{source}: " if source else ""
+        msg = f"{where}{parameter} = {value!r} is invalid; allowed: {allowed}"
+        if detail:
+            msg += f" ({detail})"
+        super().__init__(msg)
+
+
+class NotConvergedWarning(UserWarning):
+    """A numerical result did not reach the requested tolerance."""
+
+
+class PhysicsWarning(UserWarning):
+    """A design is valid but physically questionable (undersampled zones, substrate orders, ...)."""
+
+
+def as_float(name: str, value: Any, source: str | None = None) -> float:
+    """Convert ``value`` to a finite float or raise :class:`InputError` naming ``name``."""
+    if isinstance(value, bool) or value is None:
+        raise InputError(name, value, "a finite real number", source)
+    if isinstance(value, numbers.Real):
+        x = float(value)
+    elif isinstance(value, str):
+        try:
+            x = float(value.strip())
+        except ValueError:
+            raise InputError(name, value, "a finite real number", source) from None
+    else:
+        raise InputError(name, value, "a finite real number", source)
+    if not math.isfinite(x):
+        raise InputError(name, value, "a finite real number", source)
+    return x
+
+
+def check_range(name: str, value: Any, lo: float | None = None, hi: float | None = None, *,
+                lo_inclusive: bool = False, hi_inclusive: bool = True, unit: str = "",
+                source: str | None = None) -> float:
+    """Return ``value`` as float if ``lo < value <= hi`` (inclusiveness configurable), else raise.
+
+    ``None`` for a bound means unbounded on that side.
+    """
+    x = as_float(name, value, source)
+    ok = True
+    if lo is not None:
+        ok &= (x >= lo) if lo_inclusive else (x > lo)
+    if hi is not None:
+        ok &= (x <= hi) if hi_inclusive else (x < hi)
+    if not ok:
+        u = f" {unit}" if unit else ""
+        left = "" if lo is None else (f"{lo:g}{u} <= " if lo_inclusive else f"{lo:g}{u} < ")
+        right = "" if hi is None else (f" <= {hi:g}{u}" if hi_inclusive else f" < {hi:g}{u}")
+        raise InputError(name, value, f"{left}{name}{right}".strip(), source)
+    return x
+
+
+def check_positive(name: str, value: Any, unit: str = "", source: str | None = None,
+                   hi: float | None = None) -> float:
+    """Finite and strictly positive (optionally ``<= hi``)."""
+    return check_range(name, value, 0.0, hi, unit=unit, source=source)
+
+
+def check_int(name: str, value: Any, lo: int | None = None, hi: int | None = None,
+              source: str | None = None) -> int:
+    """An integer (bools and non-integral floats refused) within ``[lo, hi]``."""
+    if isinstance(value, bool):
+        raise InputError(name, value, "an integer", source)
+    if isinstance(value, numbers.Integral):
+        n = int(value)
+    elif isinstance(value, numbers.Real) and float(value).is_integer():
+        n = int(value)
+    elif isinstance(value, str):
+        try:
+            n = int(value.strip())
+        except ValueError:
+            raise InputError(name, value, "an integer", source) from None
+    else:
+        raise InputError(name, value, "an integer", source)
+    if (lo is not None and n < lo) or (hi is not None and n > hi):
+        rng = f"{'' if lo is None else f'{lo} <= '}{name}{'' if hi is None else f' <= {hi}'}"
+        raise InputError(name, value, f"integer {rng}", source)
+    return n
+
+
+def check_choice(name: str, value: Any, choices: tuple[str, ...], source: str | None = None) -> str:
+    """One of ``choices`` (case-insensitive for strings); returns the canonical choice."""
+    if isinstance(value, str):
+        for c in choices:
+            if value.strip().lower() == c.lower():
+                return c
+    raise InputError(name, value, "one of " + ", ".join(repr(c) for c in choices), source)

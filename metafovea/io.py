@@ -1,0 +1,138 @@
+"""Atomic, non-clobbering file output and small file-format helpers.
+
+Every file the toolkit writes goes through :func:`atomic_write_bytes` (temporary file in the same
+directory, fsync, ``os.replace``), so a crash or a full disk never leaves a partial file under the final
+name. :func:`prepare_output` refuses to overwrite existing output unless ``force`` is given.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import hashlib
+import io as _io
+import json
+import os
+import tempfile
+from pathlib import Path
+from typing import Any, Iterator
+
+import numpy as np
+
+from metafovea.errors import InputError
+
+SCHEMA_VERSION = 1
+
+
+@contextlib.contextmanager
+def atomic_open(path: str | os.PathLike, mode: str = "wb") -> Iterator[Any]:
+    """Open a temporary file next to ``path``; on success fsync and rename it to ``path``.
+
+    On any exception the temporary file is removed and ``path`` is untouched.
+    """
+    path = Path(path)
+    if mode not in ("wb", "w"):
+        raise ValueError("atomic_open supports modes 'wb' and 'w'")
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".part", dir=path.parent)
+    try:
+        kw = {} if "b" in mode else {"encoding": "utf-8", "newline": "\n"}
+        with os.fdopen(fd, mode, **kw) as fh:
+            yield fh
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        with contextlib.suppress(FileNotFoundError):
+            os.unlink(tmp)
+        raise
+
+
+def atomic_write_bytes(path: str | os.PathLike, data: bytes) -> Path:
+    with atomic_open(path, "wb") as fh:
+        fh.write(data)
+    return Path(path)
+
+
+def atomic_write_text(path: str | os.PathLike, text: str) -> Path:
+    with atomic_open(path, "w") as fh:
+        fh.write(text)
+    return Path(path)
+
+
+def _json_default(o: Any) -> Any:
+    if isinstance(o, np.ndarray):
+        return o.tolist()
+    if isinstance(o, (np.floating,)):
+        return float(o)
+    if isinstance(o, (np.integer,)):
+        return int(o)
+    if isinstance(o, (np.bool_,)):
+        return bool(o)
+    if isinstance(o, complex):
+        return {"re": o.real, "im": o.imag}
+    if isinstance(o, Path):
+        return str(o)
+    raise TypeError(f"not JSON serialisable: {type(o).__name__}")
+
+
+def to_json(obj: Any, indent: int | None = 2) -> str:
+    """JSON with numpy scalars/arrays and paths converted; NaN/inf refused (they are bugs here)."""
+    return json.dumps(obj, indent=indent, default=_json_default, allow_nan=False)
+
+
+def atomic_write_json(path: str | os.PathLike, obj: Any) -> Path:
+    return atomic_write_text(path, to_json(obj) + "\n")
+
+
+def atomic_save_npz(path: str | os.PathLike, meta: dict[str, Any] | None = None, **arrays: np.ndarray) -> Path:
+    """Save arrays (compressed) plus JSON metadata under key ``__meta__`` atomically."""
+    buf = _io.BytesIO()
+    payload = dict(arrays)
+    if meta is not None:
+        m = dict(meta)
+        m.setdefault("schema_version", SCHEMA_VERSION)
+        payload["__meta__"] = np.frombuffer(to_json(m, indent=None).encode(), dtype=np.uint8)
+    np.savez_compressed(buf, **payload)
+    return atomic_write_bytes(path, buf.getvalue())
+
+
+def load_npz(path: str | os.PathLike) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
+    """Load a file written by :func:`atomic_save_npz`: (arrays, meta)."""
+    p = Path(path)
+    if not p.is_file():
+        raise InputError("path", str(p), "an existing .npz file")
+    with np.load(p, allow_pickle=False) as z:
+        arrays = {k: z[k] for k in z.files if k != "__meta__"}
+        meta = json.loads(bytes(z["__meta__"]).decode()) if "__meta__" in z.files else {}
+    return arrays, meta
+
+
+def input_hash(obj: Any) -> str:
+    """Stable short hash of JSON-serialisable inputs (cache keys)."""
+    return hashlib.sha256(to_json(obj, indent=None).encode()).hexdigest()[:16]
+
+
+def prepare_output(path: str | os.PathLike, force: bool = False, *, is_dir: bool = False,
+                   name: str = "--out") -> Path:
+    """Check that ``path`` can be written without clobbering anything.
+
+    A directory is accepted if it does not exist or is empty; a file if it does not exist. With
+    ``force`` existing output may be replaced. Raises :class:`InputError` otherwise, or when the
+    parent cannot be created or written.
+    """
+    p = Path(path)
+    if p.exists() and not force:
+        if is_dir and p.is_dir() and not any(p.iterdir()):
+            pass
+        else:
+            raise InputError(name, str(p), "a path that does not exist yet (or pass --force to overwrite)")
+    if is_dir and p.exists() and not p.is_dir():
+        raise InputError(name, str(p), "a directory path (a file is in the way)")
+    target = p if is_dir else p.parent
+    try:
+        target.mkdir(parents=True, exist_ok=True)
+    except OSError as e:
+        raise InputError(name, str(p), "a writable location", detail=e.strerror) from None
+    if not os.access(target, os.W_OK):
+        raise InputError(name, str(p), "a writable location", detail="permission denied")
+    return p

@@ -1,0 +1,89 @@
+"""One executor interface for sweeps and tiles: local processes by default, Dask when asked.
+
+``get_executor(workers=None, scheduler=None)`` returns a ``concurrent.futures.Executor``-like object
+with ``submit`` and ``map``; with a scheduler address (``tcp://host:8786``) it is a
+``dask.distributed.Client`` (whose ``submit``/``map`` return futures with ``.result()``), otherwise a
+``ProcessPoolExecutor`` (or a serial in-process executor when ``workers == 1``, which keeps tests and
+debugging simple). Use :func:`run_tasks` to map a function over items with a progress bar and ordered
+results.
+"""
+
+from __future__ import annotations
+
+import concurrent.futures as cf
+import os
+from typing import Any, Callable, Iterable, Iterator
+
+from metafovea.errors import InputError
+
+
+class SerialExecutor(cf.Executor):
+    """Runs tasks in the calling process when submitted (workers = 1)."""
+
+    def submit(self, fn: Callable, /, *args: Any, **kwargs: Any) -> cf.Future:  # type: ignore[override]
+        fut: cf.Future = cf.Future()
+        try:
+            fut.set_result(fn(*args, **kwargs))
+        except BaseException as e:  # noqa: BLE001 - delivered through the future
+            fut.set_exception(e)
+        return fut
+
+
+def default_workers() -> int:
+    return max(1, len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1))
+
+
+def get_executor(workers: int | None = None, scheduler: str | None = None):
+    """Executor for ``workers`` local processes, or a Dask client for ``scheduler``."""
+    if scheduler:
+        try:
+            from dask.distributed import Client  # type: ignore
+        except ImportError:
+            raise InputError("scheduler", scheduler,
+                             "a Dask scheduler address usable with dask.distributed installed "
+                             "(pip install 'dask[distributed]')") from None
+        return Client(scheduler)
+    if workers is None:
+        workers = default_workers()
+    if not isinstance(workers, int) or workers < 1:
+        raise InputError("workers", workers, "an integer >= 1")
+    if workers == 1:
+        return SerialExecutor()
+    return cf.ProcessPoolExecutor(max_workers=workers)
+
+
+def run_tasks(fn: Callable, items: Iterable[Any], *, workers: int | None = None,
+              scheduler: str | None = None, progress: bool = False, desc: str = "",
+              executor=None) -> Iterator[tuple[int, Any]]:
+    """Yield ``(index, fn(item))`` as tasks complete (not in order), with an optional tqdm bar.
+
+    Callers that need resumability write each result as it arrives.
+    """
+    items = list(items)
+    own = executor is None
+    ex = executor if executor is not None else get_executor(workers, scheduler)
+    bar = None
+    if progress:
+        from tqdm.auto import tqdm
+        bar = tqdm(total=len(items), desc=desc, unit="task")
+    try:
+        futs = {ex.submit(fn, it): i for i, it in enumerate(items)}
+        if hasattr(ex, "gather") and not isinstance(ex, cf.Executor):  # dask client
+            from dask.distributed import as_completed as das_completed  # type: ignore
+            it = das_completed(list(futs))
+        else:
+            it = cf.as_completed(futs)
+        for fut in it:
+            i = futs[fut]
+            res = fut.result()
+            if bar is not None:
+                bar.update(1)
+            yield i, res
+    finally:
+        if bar is not None:
+            bar.close()
+        if own:
+            if isinstance(ex, cf.Executor):
+                ex.shutdown(wait=True, cancel_futures=True)
+            else:
+                ex.close()
