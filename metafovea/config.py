@@ -1,0 +1,393 @@
+"""Design files (TOML) -> validated frozen dataclasses.
+
+The paper's prototype is the built-in default: ``LensDesign.foveal()``, ``LensDesign.perifoveal()``,
+``PlatformDesign()`` and ``SystemDesign.paper()`` equal what ``designs/*.toml`` spell out (a test keeps
+them in step), so the default runs from any directory after ``pip install``.
+
+Every value is checked on load; an error names the file, the key, the value and the allowed range
+(:class:`metafovea.errors.InputError` with ``source`` = file path).
+
+Units: lens-scale lengths are written in millimetres in the files (keys end in ``_mm``) and stored in
+micrometres in the dataclasses (fields end in ``_um``).
+"""
+
+from __future__ import annotations
+
+import math
+import tomllib
+from dataclasses import asdict, dataclass, field, replace
+from pathlib import Path
+from typing import Any, Callable
+
+from metafovea.errors import InputError, check_choice, check_int, check_positive, check_range
+from metafovea.units import LAMBDA0_UM, PHASE_SIGN, UM_PER_MM
+
+POLARIZATIONS = ("x", "y")
+
+
+# ----------------------------------------------------------------------------------------------
+# dataclasses
+# ----------------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class PlatformDesign:
+    """Nanopost platform: square lattice of rectangular posts on a substrate.
+
+    n_post / n_substrate / n_superstrate are refractive indices at the design wavelength.
+    """
+
+    period_um: float = 4.0
+    post_height_um: float = 10.0
+    post_material: str = "Si"
+    n_post: float = 3.42
+    n_substrate: float = 3.42
+    n_superstrate: float = 1.0
+    substrate_thickness_um: float = 500.0
+    min_feature_um: float = 0.5
+    wavelength_um: float = LAMBDA0_UM
+
+    def __post_init__(self) -> None:
+        check_positive("period_um", self.period_um, "um", hi=1e4)
+        check_positive("post_height_um", self.post_height_um, "um", hi=1e4)
+        check_range("n_post", self.n_post, 1.0, 10.0, lo_inclusive=True)
+        check_range("n_substrate", self.n_substrate, 1.0, 10.0, lo_inclusive=True)
+        check_range("n_superstrate", self.n_superstrate, 1.0, 10.0, lo_inclusive=True)
+        check_positive("substrate_thickness_um", self.substrate_thickness_um, "um")
+        check_range("min_feature_um", self.min_feature_um, 0.0, self.period_um, hi_inclusive=False)
+        check_positive("wavelength_um", self.wavelength_um, "um", hi=1e4)
+
+
+@dataclass(frozen=True)
+class LensDesign:
+    """One metalens: hyperbolic phase, square lattice, N phase levels, acting on one polarisation."""
+
+    name: str
+    f_um: float
+    diameter_um: float
+    wavelength_um: float = LAMBDA0_UM
+    polarization: str = "x"
+    period_um: float = 4.0
+    post_height_um: float = 10.0
+    levels: int = 8
+    phase_sign: int = PHASE_SIGN
+    lattice: str = "integer"  # sites at integer multiples of the period ('integer') or half-integer ('half')
+    n_substrate: float = 3.42
+
+    def __post_init__(self) -> None:
+        validate_lens_numbers(self.f_um, self.diameter_um, self.wavelength_um, self.period_um,
+                              self.levels, self.polarization)
+        check_positive("post_height_um", self.post_height_um, "um")
+        if self.phase_sign not in (-1, 1):
+            raise InputError("phase_sign", self.phase_sign, "-1 (focusing under exp(-i omega t)) or +1")
+        check_choice("lattice", self.lattice, ("integer", "half"))
+        check_range("n_substrate", self.n_substrate, 1.0, 10.0, lo_inclusive=True)
+
+    # convenience -------------------------------------------------------------------------
+    @property
+    def f_mm(self) -> float:
+        return self.f_um / UM_PER_MM
+
+    @property
+    def diameter_mm(self) -> float:
+        return self.diameter_um / UM_PER_MM
+
+    @property
+    def radius_um(self) -> float:
+        return 0.5 * self.diameter_um
+
+    @property
+    def na(self) -> float:
+        r = self.radius_um
+        return r / math.hypot(r, self.f_um)
+
+    def with_(self, **kw: Any) -> "LensDesign":
+        return replace(self, **kw)
+
+    @classmethod
+    def foveal(cls, platform: PlatformDesign | None = None) -> "LensDesign":
+        p = platform or PlatformDesign()
+        return cls("foveal", 150.0 * UM_PER_MM, 75.0 * UM_PER_MM, p.wavelength_um, "x", p.period_um,
+                   p.post_height_um, 8, n_substrate=p.n_substrate)
+
+    @classmethod
+    def perifoveal(cls, platform: PlatformDesign | None = None) -> "LensDesign":
+        p = platform or PlatformDesign()
+        return cls("perifoveal", 25.0 * UM_PER_MM, 25.0 * UM_PER_MM, p.wavelength_um, "y", p.period_um,
+                   p.post_height_um, 8, n_substrate=p.n_substrate)
+
+
+def validate_lens_numbers(f_um: Any, diameter_um: Any, wavelength_um: Any, period_um: Any, levels: Any,
+                          polarization: Any, source: str | None = None,
+                          names: tuple[str, ...] = ("f_um", "diameter_um", "wavelength_um", "period_um",
+                                                    "levels", "polarization")) -> None:
+    """Shared checks for lens parameters (used by the dataclass and the CLI with its own names)."""
+    f = check_positive(names[0], f_um, source=source)
+    d = check_positive(names[1], diameter_um, source=source)
+    check_positive(names[2], wavelength_um, "um", source=source, hi=1e4)
+    check_positive(names[3], period_um, "um", source=source, hi=1e4)
+    check_int(names[4], levels, 2, 256, source=source)
+    check_choice(names[5], polarization, POLARIZATIONS, source=source)
+    na = (d / 2) / math.hypot(d / 2, f)
+    if not na < 1.0:  # only reachable through rounding for absurd D/f ratios
+        raise InputError("NA", na, "NA < 1 (D/2 / sqrt((D/2)^2 + f^2))", source)
+
+
+@dataclass(frozen=True)
+class SensorDesign:
+    pixel_pitch_um: float = 17.0
+    pitch_variants_um: tuple[float, ...] = (17.0, 24.0)
+    pixels: tuple[int, int] = (480, 640)  # (H, W)
+    crop: tuple[int, int] = (290, 290)  # working crop (H, W)
+    frame_rate_hz: float = 12.0
+    netd_k: float = 0.05
+    fpn_rank: int = 20
+    fpn_amplitude: float = 0.1  # bound on the FPN term, fraction of the scene's dynamic range
+    adc_bits: int = 14
+
+
+@dataclass(frozen=True)
+class SystemDesign:
+    """The paper's two-channel camera.
+
+    lens_to_sensor_um: (foveal, perifoveal) distances f1, f2 (um). relay_magnification: the selected
+    relay (variants listed). polarizer_hz: rotation rate of the polariser (alpha_t = cos^2 theta_t
+    repeats at twice this rate). band_um: spectral band without filter; filter_* a narrow-band filter.
+    """
+
+    foveal: LensDesign = field(default_factory=LensDesign.foveal)
+    perifoveal: LensDesign = field(default_factory=LensDesign.perifoveal)
+    platform: PlatformDesign = field(default_factory=PlatformDesign)
+    lens_to_sensor_um: tuple[float, float] = (150.0 * UM_PER_MM, 25.0 * UM_PER_MM)
+    relay_magnification: float = 0.5
+    relay_variants: tuple[float, ...] = (0.5, 0.3)
+    polarizer_hz: float = 2.0
+    polarizer_extinction: float = 0.0  # leaked fraction of the blocked polarisation (0 = ideal)
+    sensor: SensorDesign = field(default_factory=SensorDesign)
+    band_um: tuple[float, float] = (8.0, 14.0)
+    filter_enabled: bool = False
+    filter_center_um: float = 10.0
+    filter_bandwidth_um: float = 0.5
+    scene_temperature_k: float = 300.0
+
+    @property
+    def expansion(self) -> float:
+        """Field-of-view ratio of the two channels (f1 / f2; 6 for the paper)."""
+        return self.lens_to_sensor_um[0] / self.lens_to_sensor_um[1]
+
+    @classmethod
+    def paper(cls) -> "SystemDesign":
+        return cls()
+
+
+# ----------------------------------------------------------------------------------------------
+# TOML loading
+# ----------------------------------------------------------------------------------------------
+def _read_toml(path: str | Path) -> dict[str, Any]:
+    p = Path(path)
+    if not p.is_file():
+        raise InputError("design file", str(p), "an existing TOML file")
+    try:
+        with open(p, "rb") as fh:
+            return tomllib.load(fh)
+    except tomllib.TOMLDecodeError as e:
+        raise InputError("design file", str(p), "valid TOML", detail=str(e)) from None
+    except UnicodeDecodeError:
+        raise InputError("design file", str(p), "a UTF-8 TOML text file") from None
+
+
+class _Reader:
+    """Pulls keys out of a TOML table, validating each and remembering which were used."""
+
+    def __init__(self, table: dict[str, Any], source: str, prefix: str = ""):
+        self.t, self.src, self.prefix, self.used = table, source, prefix, set()
+
+    def _key(self, k: str) -> str:
+        return f"{self.prefix}{k}"
+
+    def get(self, key: str, default: Any, check: Callable[[str, Any], Any]) -> Any:
+        self.used.add(key)
+        if key not in self.t:
+            if default is _REQUIRED:
+                raise InputError(self._key(key), "<missing>", "a value must be given", self.src)
+            return default
+        return check(self._key(key), self.t[key])
+
+    def num(self, key: str, default: Any, lo: float | None = 0.0, hi: float | None = None,
+            unit: str = "", lo_inclusive: bool = False) -> float:
+        return self.get(key, default, lambda k, v: check_range(k, v, lo, hi, unit=unit, source=self.src,
+                                                              lo_inclusive=lo_inclusive))
+
+    def int(self, key: str, default: Any, lo: int, hi: int) -> int:
+        return self.get(key, default, lambda k, v: check_int(k, v, lo, hi, source=self.src))
+
+    def choice(self, key: str, default: Any, choices: tuple[str, ...]) -> str:
+        return self.get(key, default, lambda k, v: check_choice(k, v, choices, source=self.src))
+
+    def boolean(self, key: str, default: bool) -> bool:
+        def chk(k: str, v: Any) -> bool:
+            if not isinstance(v, bool):
+                raise InputError(k, v, "true or false", self.src)
+            return v
+        return self.get(key, default, chk)
+
+    def text(self, key: str, default: Any) -> str:
+        def chk(k: str, v: Any) -> str:
+            if not isinstance(v, str) or not v.strip():
+                raise InputError(k, v, "a non-empty string", self.src)
+            return v
+        return self.get(key, default, chk)
+
+    def nums(self, key: str, default: Any, n: int | None, lo: float = 0.0, hi: float | None = None,
+             integer: bool = False) -> tuple:
+        def chk(k: str, v: Any) -> tuple:
+            if not isinstance(v, list) or (n is not None and len(v) != n) or not v:
+                raise InputError(k, v, f"a list of {n if n else 'one or more'} numbers", self.src)
+            if integer:
+                return tuple(check_int(k, x, int(lo) + 1, None if hi is None else int(hi), self.src) for x in v)
+            return tuple(check_range(k, x, lo, hi, source=self.src) for x in v)
+        return self.get(key, default, chk)
+
+    def table(self, key: str) -> "_Reader":
+        self.used.add(key)
+        v = self.t.get(key, {})
+        if not isinstance(v, dict):
+            raise InputError(self._key(key), v, "a TOML table [" + key + "]", self.src)
+        return _Reader(v, self.src, f"{self.prefix}{key}.")
+
+    def done(self) -> None:
+        extra = sorted(set(self.t) - self.used)
+        if extra:
+            raise InputError(self._key(extra[0]), self.t[extra[0]],
+                             "one of the known keys: " + ", ".join(sorted(self.used)), self.src)
+
+
+_REQUIRED = object()
+
+
+def load_platform(path: str | Path) -> PlatformDesign:
+    """Load ``platform.toml``."""
+    t = _read_toml(path)
+    r = _Reader(t, str(path))
+    d = PlatformDesign()
+    r.text("name", "platform")
+    period = r.num("period_um", d.period_um, hi=1e4, unit="um")
+    out = PlatformDesign(
+        period_um=period,
+        post_height_um=r.num("post_height_um", d.post_height_um, hi=1e4, unit="um"),
+        post_material=r.text("post_material", d.post_material),
+        n_post=r.num("n_post", d.n_post, 1.0, 10.0, lo_inclusive=True),
+        n_substrate=r.num("n_substrate", d.n_substrate, 1.0, 10.0, lo_inclusive=True),
+        n_superstrate=r.num("n_superstrate", d.n_superstrate, 1.0, 10.0, lo_inclusive=True),
+        substrate_thickness_um=r.num("substrate_thickness_um", d.substrate_thickness_um, unit="um"),
+        min_feature_um=r.num("min_feature_um", d.min_feature_um, 0.0, period, unit="um"),
+        wavelength_um=r.num("wavelength_um", d.wavelength_um, hi=1e4, unit="um"),
+    )
+    r.done()
+    return out
+
+
+def load_lens(path: str | Path, platform: PlatformDesign | None = None) -> LensDesign:
+    """Load a lens TOML (``foveal.toml``/``perifoveal.toml``).
+
+    Keys: name, f_mm, diameter_mm, wavelength_um, polarization ('x'|'y'), levels, lattice, and
+    optionally period_um / post_height_um (default: the platform's).
+    """
+    t = _read_toml(path)
+    src = str(path)
+    r = _Reader(t, src)
+    p = platform or PlatformDesign()
+    name = r.text("name", Path(path).stem)
+    f_mm = r.num("f_mm", _REQUIRED, unit="mm")
+    d_mm = r.num("diameter_mm", _REQUIRED, unit="mm")
+    wl = r.num("wavelength_um", p.wavelength_um, hi=1e4, unit="um")
+    pol = r.choice("polarization", _REQUIRED, POLARIZATIONS)
+    period = r.num("period_um", p.period_um, hi=1e4, unit="um")
+    height = r.num("post_height_um", p.post_height_um, hi=1e4, unit="um")
+    levels = r.int("levels", 8, 2, 256)
+    lattice = r.choice("lattice", "integer", ("integer", "half"))
+    r.done()
+    validate_lens_numbers(f_mm, d_mm, wl, period, levels, pol, source=src,
+                          names=("f_mm", "diameter_mm", "wavelength_um", "period_um", "levels", "polarization"))
+    return LensDesign(name, f_mm * UM_PER_MM, d_mm * UM_PER_MM, wl, pol, period, height, levels,
+                      lattice=lattice, n_substrate=p.n_substrate)
+
+
+def load_system(path: str | Path) -> SystemDesign:
+    """Load ``system.toml``; lens and platform files are resolved relative to it."""
+    path = Path(path)
+    t = _read_toml(path)
+    src = str(path)
+    r = _Reader(t, src)
+    r.text("name", "system")
+    files = r.table("files")
+    base = path.parent
+    plat_file = files.text("platform", "platform.toml")
+    fov_file = files.text("foveal", "foveal.toml")
+    per_file = files.text("perifoveal", "perifoveal.toml")
+    files.done()
+    platform = load_platform(base / plat_file)
+    foveal = load_lens(base / fov_file, platform)
+    perifoveal = load_lens(base / per_file, platform)
+    if foveal.polarization == perifoveal.polarization:
+        raise InputError("files.perifoveal", per_file,
+                         f"a lens acting on the other polarisation than the foveal lens ('{foveal.polarization}')",
+                         src)
+    dd = SystemDesign()
+    dist = r.table("distances")
+    f1 = dist.num("foveal_lens_to_sensor_mm", dd.lens_to_sensor_um[0] / UM_PER_MM, unit="mm")
+    f2 = dist.num("perifoveal_lens_to_sensor_mm", dd.lens_to_sensor_um[1] / UM_PER_MM, unit="mm")
+    dist.done()
+    relay = r.table("relay")
+    variants = relay.nums("variants", dd.relay_variants, None, 0.0, 10.0)
+    mag = relay.num("magnification", dd.relay_magnification, 0.0, 10.0)
+    relay.done()
+    pol = r.table("polarizer")
+    hz = pol.num("rotation_hz", dd.polarizer_hz, 0.0, 1000.0)
+    ext = pol.num("extinction_leak", dd.polarizer_extinction, 0.0, 0.5, lo_inclusive=True)
+    pol.done()
+    s = r.table("sensor")
+    ds = dd.sensor
+    pitch = s.num("pixel_pitch_um", ds.pixel_pitch_um, 0.0, 1000.0, unit="um")
+    sensor = SensorDesign(
+        pixel_pitch_um=pitch,
+        pitch_variants_um=s.nums("pitch_variants_um", ds.pitch_variants_um, None, 0.0, 1000.0),
+        pixels=s.nums("pixels", ds.pixels, 2, 0, 100000, integer=True),
+        crop=s.nums("crop", ds.crop, 2, 0, 100000, integer=True),
+        frame_rate_hz=s.num("frame_rate_hz", ds.frame_rate_hz, 0.0, 1e5),
+        netd_k=s.num("netd_k", ds.netd_k, 0.0, 10.0, lo_inclusive=True),
+        fpn_rank=s.int("fpn_rank", ds.fpn_rank, 0, 1000),
+        fpn_amplitude=s.num("fpn_amplitude", ds.fpn_amplitude, 0.0, 1.0, lo_inclusive=True),
+        adc_bits=s.int("adc_bits", ds.adc_bits, 1, 32),
+    )
+    s.done()
+    if sensor.crop[0] > sensor.pixels[0] or sensor.crop[1] > sensor.pixels[1]:
+        raise InputError("sensor.crop", list(sensor.crop), f"at most sensor.pixels = {list(sensor.pixels)}", src)
+    sp = r.table("spectral")
+    band = sp.nums("band_um", dd.band_um, 2, 0.0, 1e4)
+    if not band[0] < band[1]:
+        raise InputError("spectral.band_um", list(band), "[low, high] with low < high", src)
+    fe = sp.boolean("filter_enabled", dd.filter_enabled)
+    fc = sp.num("filter_center_um", dd.filter_center_um, 0.0, 1e4, unit="um")
+    fb = sp.num("filter_bandwidth_um", dd.filter_bandwidth_um, 0.0, 1e4, unit="um")
+    temp = sp.num("scene_temperature_k", dd.scene_temperature_k, 0.0, 1e4, unit="K")
+    sp.done()
+    r.done()
+    return SystemDesign(foveal, perifoveal, platform, (f1 * UM_PER_MM, f2 * UM_PER_MM), mag, variants, hz, ext,
+                        sensor, band, fe, fc, fb, temp)
+
+
+def load_design(path: str | Path) -> LensDesign | SystemDesign | PlatformDesign:
+    """Load any design file, deciding by its content (``[files]`` -> system, ``f_mm`` -> lens)."""
+    t = _read_toml(path)
+    if "files" in t:
+        return load_system(path)
+    if "f_mm" in t:
+        plat = Path(path).parent / "platform.toml"
+        return load_lens(path, load_platform(plat) if plat.is_file() else None)
+    if "period_um" in t or "post_height_um" in t:
+        return load_platform(path)
+    raise InputError("design file", str(path), "a lens (f_mm, diameter_mm, ...), platform or system ([files]) TOML")
+
+
+def as_dict(obj: Any) -> dict[str, Any]:
+    """Dataclass to a plain dict (for JSON output)."""
+    return asdict(obj)

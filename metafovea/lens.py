@@ -1,0 +1,382 @@
+"""Metalens phase profiles on the square lattice, evaluated tile by tile, and the numbers a designer checks.
+
+Phase convention (see :mod:`metafovea.units`): a lens multiplies the field by ``exp(i phi)``; the
+focusing hyperbolic profile is ``phi(r) = sign * (2 pi / lambda0) * (sqrt(r^2 + f^2) - f)`` with
+``sign = -1`` under ``exp(-i omega t)``. Wrapped phases are in ``[0, 2 pi)``; level ``k`` of an
+N-level design carries phase ``2 pi k / N`` and site levels are ``round(wrapped / (2 pi / N)) mod N``.
+
+Lattice: posts sit at ``x = (ix + o) * p``, ``y = (iy + o) * p`` with ``o = 0`` (``lattice='integer'``,
+a post at the centre) or ``o = 0.5`` (``'half'``); a site is inside the aperture when its centre has
+``r <= D/2``. A 75 mm lens has ~276 million sites, so nothing here builds the whole lens: phases are
+functions of lattice coordinates, :func:`iter_tiles` yields bounded tiles, counts are exact per row.
+
+Arrays: tiles are ``(rows, cols)`` with row = y index increasing with y.
+"""
+
+from __future__ import annotations
+
+import math
+import warnings
+from dataclasses import dataclass, field
+from fractions import Fraction
+from typing import Any, Iterator
+
+import numpy as np
+
+from metafovea.config import LensDesign
+from metafovea.errors import InputError, PhysicsWarning, check_int
+from metafovea.units import TWO_PI, UM_PER_MM
+
+EMPTY = -1  #: level value of lattice sites outside the aperture
+
+
+# ----------------------------------------------------------------------------------------------
+# phase profiles
+# ----------------------------------------------------------------------------------------------
+def hyperbolic_phase(r_um: Any, f_um: float, wavelength_um: float, sign: int = -1) -> np.ndarray:
+    """Unwrapped hyperbolic phase (rad) at radius ``r_um``; 0 at the centre.
+
+    Evaluated as ``r^2 / (sqrt(r^2 + f^2) + f)`` to avoid cancellation for r << f.
+    """
+    r2 = np.square(np.asarray(r_um, dtype=float))
+    return sign * (TWO_PI / wavelength_um) * r2 / (np.sqrt(r2 + f_um * f_um) + f_um)
+
+
+def paraxial_phase(r_um: Any, f_um: float, wavelength_um: float, sign: int = -1) -> np.ndarray:
+    """Paraxial (quadratic) phase ``sign * k r^2 / (2 f)`` for comparison."""
+    r2 = np.square(np.asarray(r_um, dtype=float))
+    return sign * (TWO_PI / wavelength_um) * r2 / (2.0 * f_um)
+
+
+def wrap_phase(phi: Any) -> np.ndarray:
+    """Wrap to ``[0, 2 pi)`` (exactly: values that round to 2 pi are mapped to 0)."""
+    w = np.mod(np.asarray(phi, dtype=float), TWO_PI)
+    return np.where(w >= TWO_PI, 0.0, w)
+
+
+def quantize_phase(phi: Any, levels: int) -> np.ndarray:
+    """Level index ``k in [0, N)`` nearest to the wrapped phase (ties to the upper level, mod N)."""
+    n = check_int("levels", levels, 2, 256)
+    k = np.floor(wrap_phase(phi) * (n / TWO_PI) + 0.5).astype(np.int64)
+    return np.mod(k, n)
+
+
+def level_phase(k: Any, levels: int) -> np.ndarray:
+    """Phase (rad) carried by level ``k``."""
+    return TWO_PI * np.asarray(k, dtype=float) / levels
+
+
+def design_phase(design: LensDesign, x_um: Any, y_um: Any) -> np.ndarray:
+    """Unwrapped design phase at positions (um); broadcasting."""
+    return hyperbolic_phase(np.hypot(x_um, y_um), design.f_um, design.wavelength_um, design.phase_sign)
+
+
+def posts_per_2pi(design: LensDesign, r_um: Any) -> np.ndarray:
+    """Local zone width divided by the lattice period at radius r (inf at the centre)."""
+    r = np.asarray(r_um, dtype=float)
+    with np.errstate(divide="ignore"):
+        zone = design.wavelength_um * np.sqrt(r * r + design.f_um ** 2) / r
+    return zone / design.period_um
+
+
+def zone_width_um(design: LensDesign, r_um: Any) -> np.ndarray:
+    """Local 2 pi zone width (um) = 2 pi / |d phi / d r| = lambda sqrt(r^2+f^2) / r."""
+    return posts_per_2pi(design, r_um) * design.period_um
+
+
+# ----------------------------------------------------------------------------------------------
+# lattice
+# ----------------------------------------------------------------------------------------------
+def _offset(design: LensDesign) -> Fraction:
+    return Fraction(0) if design.lattice == "integer" else Fraction(1, 2)
+
+
+def site_index_range(design: LensDesign) -> tuple[int, int]:
+    """Inclusive range ``(lo, hi)`` of site indices (same for rows and columns) that can be inside."""
+    rho = Fraction(design.radius_um) / Fraction(design.period_um)
+    o = _offset(design)
+    hi = math.floor(rho - o)
+    lo = -math.floor(rho + o)
+    return lo, hi
+
+
+def row_half_counts(design: LensDesign, iy: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """For each row index ``iy``: the inclusive column range ``[lo, hi]`` of sites inside the aperture.
+
+    Exact for any size (rational arithmetic on the float inputs, integer square roots). Rows with no
+    site get ``lo > hi``. Returns ``(lo, hi)`` arrays of int64 aligned with ``iy`` (default: all rows).
+    """
+    lo_all, hi_all = site_index_range(design)
+    if iy is None:
+        iy = np.arange(lo_all, hi_all + 1)
+    rho = Fraction(design.radius_um) / Fraction(design.period_um)
+    a, b = rho.numerator, rho.denominator  # rho = a/b
+    o2 = 2 * _offset(design)  # 0 or 1
+    lo = np.empty(len(iy), dtype=np.int64)
+    hi = np.empty(len(iy), dtype=np.int64)
+    # condition for column ix: (2 ix + o2)^2 <= 4 rho^2 - (2 iy + o2)^2 =: S (exact rational)
+    for n, j in enumerate(np.asarray(iy).tolist()):
+        yy = (2 * j + int(o2)) ** 2
+        num = 4 * a * a - yy * b * b  # S = num / b^2
+        if num < 0:
+            lo[n], hi[n] = 1, 0
+            continue
+        m = math.isqrt(num // (b * b))  # floor(sqrt(S)): largest |2 ix + o2| allowed
+        if o2 == 0:
+            h = m // 2
+            lo[n], hi[n] = -h, h
+        else:
+            # 2 ix + 1 in [-m, m] and odd
+            h = (m - 1) // 2 if m >= 1 else -1
+            lo[n], hi[n] = -h - 1, h
+    return lo, hi
+
+
+def count_posts(design: LensDesign) -> int:
+    """Exact number of lattice sites with centre inside the aperture (r <= D/2)."""
+    lo, hi = row_half_counts(design)
+    return int(np.maximum(hi - lo + 1, 0).sum())
+
+
+def site_positions_um(design: LensDesign, ix: Any, iy: Any) -> tuple[np.ndarray, np.ndarray]:
+    o = float(_offset(design))
+    return (np.asarray(ix, dtype=float) + o) * design.period_um, (np.asarray(iy, dtype=float) + o) * design.period_um
+
+
+@dataclass(frozen=True)
+class Tile:
+    """One rectangular block of lattice sites.
+
+    iy0, ix0: site index of the first row / column. levels: (rows, cols) int16, -1 outside the
+    aperture. phase: (rows, cols) wrapped design phase (rad) when requested, else None.
+    """
+
+    iy0: int
+    ix0: int
+    levels: np.ndarray
+    phase: np.ndarray | None = None
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return self.levels.shape  # type: ignore[return-value]
+
+    @property
+    def count(self) -> int:
+        return int((self.levels >= 0).sum())
+
+
+def tile_grid(design: LensDesign, tile_sites: int = 1024) -> list[tuple[int, int, int, int]]:
+    """Tiles ``(iy0, ix0, rows, cols)`` covering the aperture; tiles entirely outside are skipped."""
+    ts = check_int("tile_sites", tile_sites, 1, 1 << 16)
+    lo, hi = site_index_range(design)
+    starts = range(lo, hi + 1, ts)
+    out = []
+    rho_p = design.radius_um / design.period_um + 1.0
+    for iy0 in starts:
+        ny = min(ts, hi + 1 - iy0)
+        ymin = 0.0 if iy0 <= 0 < iy0 + ny else min(abs(iy0), abs(iy0 + ny - 1))
+        for ix0 in starts:
+            nx = min(ts, hi + 1 - ix0)
+            xmin = 0.0 if ix0 <= 0 < ix0 + nx else min(abs(ix0), abs(ix0 + nx - 1))
+            if math.hypot(xmin, ymin) <= rho_p:
+                out.append((iy0, ix0, ny, nx))
+    return out
+
+
+def evaluate_tile(design: LensDesign, iy0: int, ix0: int, rows: int, cols: int, *,
+                  with_phase: bool = False, levels: int | None = None) -> Tile:
+    """Levels (and optionally wrapped phase) of one tile; sites outside the aperture are ``EMPTY``."""
+    n = design.levels if levels is None else check_int("levels", levels, 2, 256)
+    iy = np.arange(iy0, iy0 + rows)
+    ix = np.arange(ix0, ix0 + cols)
+    x, y = site_positions_um(design, ix[None, :], iy[:, None])
+    phi = design_phase(design, x, y)
+    lev = quantize_phase(phi, n).astype(np.int16)
+    lo, hi = row_half_counts(design, iy)
+    inside = (ix[None, :] >= lo[:, None]) & (ix[None, :] <= hi[:, None])
+    lev[~inside] = EMPTY
+    return Tile(iy0, ix0, lev, wrap_phase(phi) if with_phase else None)
+
+
+def iter_tiles(design: LensDesign, tile_sites: int = 1024, *, with_phase: bool = False,
+               levels: int | None = None) -> Iterator[Tile]:
+    """Yield the lens tile by tile (bounded memory: one tile of ``tile_sites^2`` sites at a time)."""
+    for iy0, ix0, ny, nx in tile_grid(design, tile_sites):
+        yield evaluate_tile(design, iy0, ix0, ny, nx, with_phase=with_phase, levels=levels)
+
+
+# ----------------------------------------------------------------------------------------------
+# efficiency estimates
+# ----------------------------------------------------------------------------------------------
+def scalar_efficiency(levels: int) -> float:
+    """Point-sampled N-level focusing efficiency estimate ``sinc^2(pi / N)``."""
+    n = check_int("levels", levels, 2, 256)
+    x = math.pi / n
+    return (math.sin(x) / x) ** 2
+
+
+def _site_terms(design: LensDesign, x: np.ndarray, y: np.ndarray, levels: int | None) -> np.ndarray:
+    """Per-site contribution to the on-axis focal field, relative to a continuous-phase lens.
+
+    Each post imposes a constant phase over its p x p cell; the focal field of a cell is the ideal
+    phase at its centre times ``sinc`` of the local phase gradient across the cell, and the post's
+    phase differs from the ideal by the quantisation error.
+    """
+    r2 = x * x + y * y
+    rr = np.sqrt(r2 + design.f_um ** 2)
+    k = TWO_PI / design.wavelength_um
+    phi = design_phase(design, x, y)
+    err = 0.0 if levels is None else level_phase(quantize_phase(phi, levels), levels) - wrap_phase(phi)
+    p = design.period_um
+    gx = k * x / rr * p / TWO_PI
+    gy = k * y / rr * p / TWO_PI
+    return np.exp(1j * err) * np.sinc(gx) * np.sinc(gy)
+
+
+@dataclass(frozen=True)
+class EfficiencyEstimate:
+    value: float  #: focal peak intensity relative to a continuous-phase lens (same aperture)
+    stderr: float  #: 1-sigma statistical error (0 when exact)
+    sites: int  #: number of sites evaluated
+    exact: bool
+
+
+def lattice_efficiency(design: LensDesign, levels: int | None = None, *, samples: int = 1 << 20,
+                       exact: bool | None = None, rng: Any = 0, tile_sites: int = 1024) -> EfficiencyEstimate:
+    """Focal-peak ratio of the lattice-sampled, N-level lens to the continuous-phase lens.
+
+    ``levels=None`` means the design's levels; ``levels=0`` evaluates lattice sampling alone
+    (continuous phase per post). ``exact`` sums over every site (tile by tile); by default it is used
+    when the lens has at most ``samples`` sites, otherwise ``samples`` sites are drawn uniformly from
+    the aperture (seeded by ``rng``) and the standard error is reported.
+    """
+    n = design.levels if levels is None else levels
+    lv = None if n == 0 else check_int("levels", n, 2, 256)
+    total = count_posts(design)
+    if exact is None:
+        exact = total <= samples
+    if exact:
+        acc = 0j
+        for t in iter_tiles(design, tile_sites):
+            iy, ix = np.nonzero(t.levels >= 0)
+            x, y = site_positions_um(design, ix + t.ix0, iy + t.iy0)
+            acc += _site_terms(design, x, y, lv).sum()
+        amp = abs(acc) / total
+        return EfficiencyEstimate(amp * amp, 0.0, total, True)
+    g = np.random.default_rng(rng)
+    lo_r, hi_r = site_index_range(design)
+    rows = np.arange(lo_r, hi_r + 1)
+    lo, hi = row_half_counts(design, rows)
+    cnt = np.maximum(hi - lo + 1, 0).astype(float)
+    ridx = g.choice(len(rows), size=samples, p=cnt / cnt.sum())
+    col = lo[ridx] + np.floor(g.random(samples) * cnt[ridx]).astype(np.int64)
+    x, y = site_positions_um(design, col, rows[ridx])
+    terms = _site_terms(design, x, y, lv)
+    m = terms.mean()
+    se_amp = terms.std() / math.sqrt(samples)
+    return EfficiencyEstimate(abs(m) ** 2, 2 * abs(m) * se_amp, samples, False)
+
+
+# ----------------------------------------------------------------------------------------------
+# summary
+# ----------------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class LensSummary:
+    """The numbers a designer checks (lengths in um unless the name says otherwise)."""
+
+    name: str
+    f_mm: float
+    diameter_mm: float
+    wavelength_um: float
+    polarization: str
+    period_um: float
+    levels: int
+    lattice: str
+    na: float
+    f_number: float
+    zones_2pi: float
+    rim_phase_rad: float
+    rim_zone_width_um: float
+    rim_posts_per_2pi: float
+    posts_in_aperture: int
+    airy_first_zero_paraxial_um: float
+    airy_first_zero_na_um: float
+    fwhm_um: float
+    mtf_cutoff_cyc_per_mm: float
+    scalar_efficiency: float
+    lattice_efficiency: float
+    lattice_efficiency_stderr: float
+    lattice_efficiency_sites: int
+    lattice_sampling_efficiency: float
+    radius_below_4_posts_um: float | None
+    substrate_orders: bool
+    warnings: tuple[str, ...] = field(default_factory=tuple)
+    posts: tuple[dict[str, Any], ...] = field(default_factory=tuple)
+
+
+def design_warnings(design: LensDesign, n_superstrate: float = 1.0) -> list[str]:
+    """Physics warnings for a design (also emitted as :class:`PhysicsWarning` by :func:`summarize`)."""
+    out = []
+    rim = float(posts_per_2pi(design, design.radius_um))
+    if rim < 4.0:
+        out.append(f"only {rim:.2f} posts per 2 pi at the rim (< 4): the outer zones are undersampled; "
+                   f"expect lower efficiency and stray orders beyond r = {radius_below_posts(design, 4.0) / UM_PER_MM:.2f} mm")
+    lam_sub = design.wavelength_um / design.n_substrate
+    if design.period_um > lam_sub:
+        out.append(f"lattice period {design.period_um:g} um > lambda / n_substrate = {lam_sub:.3f} um: "
+                   "diffraction orders propagate in the substrate; use the RCWA zero-order transmission and "
+                   "account for the power in the other orders")
+    if design.period_um > design.wavelength_um / n_superstrate:
+        out.append(f"lattice period {design.period_um:g} um > lambda = {design.wavelength_um:g} um: "
+                   "diffraction orders propagate in air (not a metasurface regime)")
+    return out
+
+
+def radius_below_posts(design: LensDesign, n_posts: float) -> float:
+    """Radius (um) beyond which a 2 pi zone spans fewer than ``n_posts`` posts (inf if never)."""
+    # lambda sqrt(r^2+f^2)/r = n p  ->  r = f / sqrt((n p / lambda)^2 - 1)
+    q = n_posts * design.period_um / design.wavelength_um
+    if q <= 1.0:
+        return math.inf
+    return design.f_um / math.sqrt(q * q - 1.0)
+
+
+def summarize(design: LensDesign, *, post_set: Any = None, samples: int = 1 << 20, rng: Any = 0,
+              emit_warnings: bool = True) -> LensSummary:
+    """Compute the design summary (exact post count, sampled lattice efficiency)."""
+    R = design.radius_um
+    wl = design.wavelength_um
+    na = design.na
+    rim_phase = float(hyperbolic_phase(R, design.f_um, wl, design.phase_sign))
+    eff = lattice_efficiency(design, samples=samples, rng=rng)
+    eff0 = lattice_efficiency(design, levels=0, samples=samples, rng=rng)
+    r4 = radius_below_posts(design, 4.0)
+    warn = design_warnings(design)
+    if emit_warnings:
+        for w in warn:
+            warnings.warn(w, PhysicsWarning, stacklevel=2)
+    posts: tuple[dict[str, Any], ...] = ()
+    if post_set is not None:
+        if post_set.levels != design.levels:
+            raise InputError("levels", design.levels, f"the post set's number of levels ({post_set.levels})")
+        tf = post_set.t_focus
+        posts = tuple({"level": k, "target_phase_rad": TWO_PI * k / design.levels,
+                       "wx_um": float(post_set.widths_um[k, 0]), "wy_um": float(post_set.widths_um[k, 1]),
+                       "t_focus_abs": float(abs(tf[k])), "t_focus_phase_rad": float(np.angle(tf[k]) % TWO_PI),
+                       "t_pass_abs": float(abs(post_set.t_pass[k])),
+                       "t_pass_phase_rad": float(np.angle(post_set.t_pass[k]) % TWO_PI)}
+                      for k in range(post_set.levels))
+    return LensSummary(
+        name=design.name, f_mm=design.f_mm, diameter_mm=design.diameter_mm, wavelength_um=wl,
+        polarization=design.polarization, period_um=design.period_um, levels=design.levels,
+        lattice=design.lattice, na=na, f_number=design.f_um / design.diameter_um,
+        zones_2pi=abs(rim_phase) / TWO_PI, rim_phase_rad=rim_phase,
+        rim_zone_width_um=float(zone_width_um(design, R)), rim_posts_per_2pi=float(posts_per_2pi(design, R)),
+        posts_in_aperture=count_posts(design),
+        airy_first_zero_paraxial_um=1.21967 * wl * design.f_um / design.diameter_um,
+        airy_first_zero_na_um=0.60983 * wl / na, fwhm_um=0.51446 * wl / na,
+        mtf_cutoff_cyc_per_mm=2 * na / wl * UM_PER_MM, scalar_efficiency=scalar_efficiency(design.levels),
+        lattice_efficiency=eff.value, lattice_efficiency_stderr=eff.stderr, lattice_efficiency_sites=eff.sites,
+        lattice_sampling_efficiency=eff0.value,
+        radius_below_4_posts_um=None if math.isinf(r4) or r4 >= R else r4,
+        substrate_orders=design.period_um > wl / design.n_substrate, warnings=tuple(warn), posts=posts)
