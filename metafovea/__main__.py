@@ -1,0 +1,3 @@
+from metafovea.cli import main
+
+raise SystemExit(main())

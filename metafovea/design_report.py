@@ -1,0 +1,144 @@
+"""Design bundle for one lens: numbers (JSON + TOML), radial profile (CSV) and figures (PNG).
+
+Pure functions over :mod:`metafovea.lens`; the CLI ``metafovea design`` calls :func:`write_design_bundle`.
+"""
+
+from __future__ import annotations
+
+import io as _io
+from dataclasses import asdict
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from metafovea.config import LensDesign
+from metafovea.io import atomic_write_bytes, atomic_write_json, atomic_write_text
+from metafovea.lens import (LensSummary, evaluate_tile, hyperbolic_phase, paraxial_phase, posts_per_2pi,
+                            quantize_phase, site_index_range, wrap_phase, zone_width_um)
+from metafovea.units import TWO_PI, UM_PER_MM
+
+
+def summary_dict(s: LensSummary) -> dict[str, Any]:
+    d = asdict(s)
+    d["warnings"] = list(s.warnings)
+    d["posts"] = list(s.posts)
+    return d
+
+
+def format_summary(s: LensSummary) -> str:
+    """Human-readable table."""
+    rows = [
+        ("lens", f"{s.name}  (focuses {s.polarization}-polarised light)"),
+        ("focal length f", f"{s.f_mm:g} mm"),
+        ("diameter D", f"{s.diameter_mm:g} mm"),
+        ("design wavelength", f"{s.wavelength_um:g} um"),
+        ("NA", f"{s.na:.4f}"),
+        ("F-number f/D", f"F/{s.f_number:.3g}"),
+        ("lattice", f"{s.period_um:g} um square, sites at {'integer' if s.lattice == 'integer' else 'half-integer'} multiples"),
+        ("posts in aperture (exact)", f"{s.posts_in_aperture:,}"),
+        ("2 pi zones", f"{s.zones_2pi:.2f}  (rim phase {s.rim_phase_rad:.1f} rad)"),
+        ("zone width at rim", f"{s.rim_zone_width_um:.2f} um = {s.rim_posts_per_2pi:.2f} posts per 2 pi"),
+        ("Airy first zero", f"{s.airy_first_zero_paraxial_um:.2f} um (1.22 lambda F#), {s.airy_first_zero_na_um:.2f} um (0.61 lambda/NA)"),
+        ("PSF FWHM (0.514 lambda/NA)", f"{s.fwhm_um:.2f} um"),
+        ("MTF cutoff 2 NA / lambda", f"{s.mtf_cutoff_cyc_per_mm:.2f} cycles/mm"),
+        ("phase levels", f"{s.levels}"),
+        ("efficiency, point-sampled", f"{s.scalar_efficiency:.4f}  (sinc^2(pi/{s.levels}))"),
+        ("efficiency, on the lattice", f"{s.lattice_efficiency:.4f} +- {s.lattice_efficiency_stderr:.4f}  "
+                                       f"({s.levels} levels, {s.lattice_efficiency_sites:,} sites sampled; "
+                                       f"lattice sampling alone {s.lattice_sampling_efficiency:.4f})"),
+    ]
+    if s.posts:
+        for p in s.posts:
+            rows.append((f"post level {p['level']}",
+                         f"wx {p['wx_um']:.3f} um, wy {p['wy_um']:.3f} um, |t| {p['t_focus_abs']:.3f}, "
+                         f"phase {p['t_focus_phase_rad']:.3f} rad, pass-through phase {p['t_pass_phase_rad']:.3f} rad"))
+    w = max(len(a) for a, _ in rows)
+    lines = [f"  {a.ljust(w)}  {b}" for a, b in rows]
+    for msg in s.warnings:
+        lines.append(f"  WARNING: {msg}")
+    return "\n".join(lines)
+
+
+def design_toml(design: LensDesign) -> str:
+    return (f'# written by metafovea design\nname = "{design.name}"\nf_mm = {design.f_mm!r}\n'
+            f'diameter_mm = {design.diameter_mm!r}\nwavelength_um = {design.wavelength_um!r}\n'
+            f'polarization = "{design.polarization}"\nperiod_um = {design.period_um!r}\n'
+            f'post_height_um = {design.post_height_um!r}\nlevels = {design.levels}\nlattice = "{design.lattice}"\n')
+
+
+def radial_profile(design: LensDesign, n: int = 2001) -> dict[str, np.ndarray]:
+    """Radial samples (um) of the phase, its wrapped value, level, zone width and posts per 2 pi."""
+    r = np.linspace(0.0, design.radius_um, n)
+    phi = hyperbolic_phase(r, design.f_um, design.wavelength_um, design.phase_sign)
+    return {"r_um": r, "phase_rad": phi,
+            "paraxial_phase_rad": paraxial_phase(r, design.f_um, design.wavelength_um, design.phase_sign),
+            "wrapped_rad": wrap_phase(phi), "level": quantize_phase(phi, design.levels),
+            "zone_width_um": zone_width_um(design, r), "posts_per_2pi": posts_per_2pi(design, r)}
+
+
+def _png(fig) -> bytes:
+    buf = _io.BytesIO()
+    fig.savefig(buf, format="png", dpi=110, bbox_inches="tight")
+    return buf.getvalue()
+
+
+def write_design_bundle(design: LensDesign, summary: LensSummary, out_dir: Path, patch_sites: int = 200) -> list[Path]:
+    """Write summary.json, design.toml, radial_profile.csv and three figures into ``out_dir``."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    out_dir.mkdir(parents=True, exist_ok=True)
+    written = [atomic_write_json(out_dir / "summary.json", summary_dict(summary)),
+               atomic_write_text(out_dir / "design.toml", design_toml(design))]
+    prof = radial_profile(design)
+    keys = list(prof)
+    table = np.column_stack([prof[k] for k in keys])
+    buf = _io.StringIO()
+    np.savetxt(buf, table, delimiter=",", header=",".join(keys), comments="", fmt="%.10g")
+    written.append(atomic_write_text(out_dir / "radial_profile.csv", buf.getvalue()))
+
+    # wrapped phase of a central patch and of a patch at the rim (where zones are narrowest)
+    lo, hi = site_index_range(design)
+    n = min(patch_sites, hi - lo + 1)
+    fig, axes = plt.subplots(1, 2, figsize=(10, 4.4))
+    rim_ix = max(lo, hi - n + 1)
+    for ax, (iy0, ix0, title) in zip(axes, [(-(n // 2), -(n // 2), "centre"), (-(n // 2), rim_ix, "rim (+x edge)")]):
+        t = evaluate_tile(design, iy0, ix0, n, n, with_phase=True)
+        ph = np.where(t.levels >= 0, t.phase, np.nan)
+        x0 = ix0 * design.period_um / UM_PER_MM
+        y0 = iy0 * design.period_um / UM_PER_MM
+        ext = (x0, x0 + n * design.period_um / UM_PER_MM, y0, y0 + n * design.period_um / UM_PER_MM)
+        im = ax.imshow(ph, origin="lower", extent=ext, cmap="twilight", vmin=0, vmax=TWO_PI, interpolation="nearest")
+        ax.set_title(f"wrapped phase, {title}: {n}x{n} posts")
+        ax.set_xlabel("x (mm)")
+        ax.set_ylabel("y (mm)")
+    fig.colorbar(im, ax=axes, label="phase (rad)")
+    written.append(atomic_write_bytes(out_dir / "phase_patch.png", _png(fig)))
+    plt.close(fig)
+
+    r_mm = prof["r_um"] / UM_PER_MM
+    fig, ax = plt.subplots(figsize=(6.5, 4))
+    ax.plot(r_mm, prof["phase_rad"] / TWO_PI, label="hyperbolic")
+    ax.plot(r_mm, prof["paraxial_phase_rad"] / TWO_PI, "--", label="paraxial (quadratic)")
+    ax.set_xlabel("radius (mm)")
+    ax.set_ylabel("phase / 2 pi (zones)")
+    ax.set_title(f"{design.name}: f = {design.f_mm:g} mm, D = {design.diameter_mm:g} mm, NA {design.na:.3f}")
+    ax.legend()
+    ax.grid(alpha=0.3)
+    written.append(atomic_write_bytes(out_dir / "radial_profile.png", _png(fig)))
+    plt.close(fig)
+
+    fig, ax = plt.subplots(figsize=(6.5, 4))
+    m = r_mm > 0
+    ax.semilogy(r_mm[m], prof["posts_per_2pi"][m])
+    ax.axhline(4, color="r", ls="--", label="4 posts per 2 pi")
+    ax.set_xlabel("radius (mm)")
+    ax.set_ylabel("posts per 2 pi zone")
+    ax.set_title(f"{design.name}: rim {summary.rim_posts_per_2pi:.2f} posts per 2 pi ({design.period_um:g} um lattice)")
+    ax.legend()
+    ax.grid(alpha=0.3, which="both")
+    written.append(atomic_write_bytes(out_dir / "posts_per_2pi.png", _png(fig)))
+    plt.close(fig)
+    return written

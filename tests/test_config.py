@@ -1,0 +1,95 @@
+"""Design files load, match the built-in defaults, and bad values name file, key, value and range."""
+
+import shutil
+from pathlib import Path
+
+import pytest
+
+from metafovea.config import (LensDesign, PlatformDesign, SystemDesign, load_design, load_lens, load_platform,
+                              load_system)
+from metafovea.errors import InputError
+
+
+def test_design_files_equal_builtin_defaults(designs_dir):
+    assert load_platform(designs_dir / "platform.toml") == PlatformDesign()
+    assert load_lens(designs_dir / "foveal.toml") == LensDesign.foveal()
+    assert load_lens(designs_dir / "perifoveal.toml") == LensDesign.perifoveal()
+    assert load_system(designs_dir / "system.toml") == SystemDesign.paper()
+
+
+def test_system_numbers(designs_dir):
+    s = load_system(designs_dir / "system.toml")
+    assert s.expansion == 6.0
+    assert s.foveal.polarization != s.perifoveal.polarization
+    assert s.sensor.crop == (290, 290)
+    assert s.sensor.pitch_variants_um == (17.0, 24.0)
+    assert s.relay_variants == (0.5, 0.3)
+    assert s.polarizer_hz == 2.0 and s.sensor.frame_rate_hz == 12.0
+    assert s.filter_center_um == 10.0 and s.filter_bandwidth_um == 0.5
+
+
+def test_load_design_dispatch(designs_dir):
+    assert isinstance(load_design(designs_dir / "system.toml"), SystemDesign)
+    assert isinstance(load_design(designs_dir / "foveal.toml"), LensDesign)
+    assert isinstance(load_design(designs_dir / "platform.toml"), PlatformDesign)
+
+
+def write(tmp_path: Path, name: str, text: str) -> Path:
+    p = tmp_path / name
+    p.write_text(text)
+    return p
+
+
+@pytest.mark.parametrize("body,key", [
+    ('f_mm = -1\ndiameter_mm = 5\npolarization = "x"\n', "f_mm"),
+    ('f_mm = 10\ndiameter_mm = 0\npolarization = "x"\n', "diameter_mm"),
+    ('f_mm = "abc"\ndiameter_mm = 5\npolarization = "x"\n', "f_mm"),
+    ('f_mm = nan\ndiameter_mm = 5\npolarization = "x"\n', "f_mm"),
+    ('f_mm = inf\ndiameter_mm = 5\npolarization = "x"\n', "f_mm"),
+    ('f_mm = 10\ndiameter_mm = 5\npolarization = "z"\n', "polarization"),
+    ('f_mm = 10\ndiameter_mm = 5\npolarization = "x"\nlevels = 1\n', "levels"),
+    ('f_mm = 10\ndiameter_mm = 5\npolarization = "x"\nperiod_um = 0\n', "period_um"),
+    ('f_mm = 10\ndiameter_mm = 5\npolarization = "x"\nwavelength_um = -3\n', "wavelength_um"),
+    ('f_mm = 10\ndiameter_mm = 5\npolarization = "x"\nfoo = 1\n', "foo"),
+    ('diameter_mm = 5\npolarization = "x"\n', "f_mm"),
+])
+def test_bad_lens_values_name_file_and_key(tmp_path, body, key):
+    p = write(tmp_path, "lens.toml", body)
+    with pytest.raises(InputError) as ei:
+        load_lens(p)
+    msg = str(ei.value)
+    assert str(p) in msg and key in msg and "allowed" in msg
+
+
+def test_malformed_and_missing_toml(tmp_path):
+    p = write(tmp_path, "bad.toml", "f_mm = = 3\n")
+    with pytest.raises(InputError, match="valid TOML"):
+        load_lens(p)
+    with pytest.raises(InputError, match="existing TOML"):
+        load_lens(tmp_path / "missing.toml")
+
+
+def test_system_errors(tmp_path, designs_dir):
+    for f in ("platform.toml", "foveal.toml", "perifoveal.toml", "system.toml"):
+        shutil.copy(designs_dir / f, tmp_path / f)
+    sysf = tmp_path / "system.toml"
+    text = sysf.read_text()
+    sysf.write_text(text.replace("band_um = [8.0, 14.0]", "band_um = [14.0, 8.0]"))
+    with pytest.raises(InputError, match="spectral.band_um"):
+        load_system(sysf)
+    sysf.write_text(text.replace("crop = [290, 290]", "crop = [290, 9000]"))
+    with pytest.raises(InputError, match="sensor.crop"):
+        load_system(sysf)
+    sysf.write_text(text.replace('perifoveal = "perifoveal.toml"', 'perifoveal = "foveal.toml"'))
+    with pytest.raises(InputError, match="other polarisation"):
+        load_system(sysf)
+    sysf.write_text(text.replace("netd_k = 0.05", "netd_k = -0.05"))
+    with pytest.raises(InputError, match="sensor.netd_k"):
+        load_system(sysf)
+
+
+def test_dataclass_validation():
+    with pytest.raises(InputError, match="period_um"):
+        PlatformDesign(period_um=0)
+    with pytest.raises(InputError, match="polarization"):
+        LensDesign("a", 1000.0, 100.0, polarization="s")

@@ -1,0 +1,44 @@
+import numpy as np
+import pytest
+
+from metafovea.errors import InputError
+from metafovea.io import atomic_open, atomic_save_npz, atomic_write_text, load_npz, prepare_output
+
+
+def test_atomic_write_leaves_no_partial_file(tmp_path):
+    p = tmp_path / "a.txt"
+    atomic_write_text(p, "old")
+    with pytest.raises(RuntimeError):
+        with atomic_open(p, "w") as fh:
+            fh.write("new partial")
+            raise RuntimeError("crash")
+    assert p.read_text() == "old"
+    assert [x.name for x in tmp_path.iterdir()] == ["a.txt"]
+
+
+def test_npz_roundtrip(tmp_path):
+    p = tmp_path / "x.npz"
+    atomic_save_npz(p, {"k": 1.5}, a=np.arange(4, dtype=np.float32))
+    arrays, meta = load_npz(p)
+    assert arrays["a"].dtype == np.float32 and meta["k"] == 1.5 and meta["schema_version"] == 1
+
+
+def test_prepare_output_refuses_overwrite(tmp_path):
+    f = tmp_path / "f.txt"
+    f.write_text("x")
+    with pytest.raises(InputError, match="--force"):
+        prepare_output(f)
+    assert prepare_output(f, force=True) == f
+    d = tmp_path / "d"
+    d.mkdir()
+    assert prepare_output(d, is_dir=True) == d  # empty dir is fine
+    (d / "x").write_text("1")
+    with pytest.raises(InputError, match="--force"):
+        prepare_output(d, is_dir=True)
+
+
+def test_prepare_output_unwritable(tmp_path):
+    blocker = tmp_path / "file"
+    blocker.write_text("a file where a directory should be")
+    with pytest.raises(InputError, match="writable"):
+        prepare_output(blocker / "sub" / "f.txt")
