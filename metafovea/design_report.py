@@ -101,19 +101,20 @@ def write_design_bundle(design: LensDesign, summary: LensSummary, out_dir: Path,
 
     # wrapped phase of a central patch and of a patch at the rim (where zones are narrowest)
     lo, hi = site_index_range(design)
-    n = min(patch_sites, hi - lo + 1)
-    fig, axes = plt.subplots(1, 2, figsize=(10, 4.4))
-    rim_ix = max(lo, hi - n + 1)
-    for ax, (iy0, ix0, title) in zip(axes, [(-(n // 2), -(n // 2), "centre"), (-(n // 2), rim_ix, "rim (+x edge)")]):
-        t = evaluate_tile(design, iy0, ix0, n, n, with_phase=True)
-        ph = np.where(t.levels >= 0, t.phase, np.nan)
+    n_c = min(patch_sites, hi - lo + 1)
+    n_r = min(64, hi - lo + 1)
+    fig, axes = plt.subplots(1, 2, figsize=(11, 4.6))
+    for ax, (n, iy0, ix0, title) in zip(axes, [(n_c, -(n_c // 2), -(n_c // 2), "centre"),
+                                               (n_r, -(n_r // 2), max(lo, hi - n_r + 1), "rim (+x edge)")]):
+        t = evaluate_tile(design, iy0, ix0, n, n)
+        ph = np.where(t.levels >= 0, TWO_PI * t.levels / design.levels, np.nan)
         x0 = ix0 * design.period_um / UM_PER_MM
         y0 = iy0 * design.period_um / UM_PER_MM
         ext = (x0, x0 + n * design.period_um / UM_PER_MM, y0, y0 + n * design.period_um / UM_PER_MM)
         im = ax.imshow(ph, origin="lower", extent=ext, cmap="twilight", vmin=0, vmax=TWO_PI, interpolation="nearest")
-        ax.set_title(f"wrapped phase, {title}: {n}x{n} posts")
+        ax.set_title(f"post phase ({design.levels} levels), {title}\n{n}x{n} posts")
         ax.set_xlabel("x (mm)")
-        ax.set_ylabel("y (mm)")
+    axes[0].set_ylabel("y (mm)")
     fig.colorbar(im, ax=axes, label="phase (rad)")
     written.append(atomic_write_bytes(out_dir / "phase_patch.png", _png(fig)))
     plt.close(fig)
