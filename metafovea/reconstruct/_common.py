@@ -1,0 +1,108 @@
+"""Shared helpers of the reconstruction stage: input validation, random generators, timers."""
+
+from __future__ import annotations
+
+import time
+from contextlib import contextmanager
+from typing import Any, Iterator, Sequence
+
+import numpy as np
+
+from metafovea.errors import InputError, check_choice, check_int  # noqa: F401  (re-exported)
+
+
+def as_rng(rng: Any) -> np.random.Generator:
+    """A :class:`numpy.random.Generator` from a seed, ``None`` or a generator."""
+    if isinstance(rng, np.random.Generator):
+        return rng
+    if rng is None or (isinstance(rng, (int, np.integer)) and not isinstance(rng, bool)):
+        return np.random.default_rng(rng)
+    raise InputError("rng", rng, "an integer seed, None or a numpy.random.Generator")
+
+
+def image_dtype(a: np.ndarray) -> np.dtype:
+    """float32 stays float32; everything else computes in float64."""
+    return np.dtype(np.float32) if a.dtype == np.float32 else np.dtype(np.float64)
+
+
+def as_frames(frames: Any, *, min_frames: int = 1, name: str = "frames") -> np.ndarray:
+    """Validate a frame stack and return it as a float ``(T, H, W)`` array (float32 preserved).
+
+    A list of 2-D arrays is stacked (all must have one shape); a single 2-D frame becomes ``T = 1``.
+    NaN/inf values are *not* refused here (solvers mask them); non-numeric input is.
+    """
+    if isinstance(frames, (list, tuple)):
+        if len(frames) == 0:
+            raise InputError(name, "[]", "a non-empty sequence of 2-D frames")
+        arrs = [np.asarray(f) for f in frames]
+        shapes = sorted({a.shape for a in arrs})
+        if len(shapes) != 1:
+            raise InputError(name, f"frames of shapes {shapes}", "frames that all have the same (H, W) shape")
+        if arrs[0].ndim != 2:
+            raise InputError(name, f"frames of shape {shapes[0]}", "a sequence of 2-D (H, W) frames")
+        frames = np.stack(arrs)
+    a = np.asarray(frames)
+    if a.dtype == object or not (np.issubdtype(a.dtype, np.number) or a.dtype == np.bool_):
+        raise InputError(name, f"array of dtype {a.dtype}", "a numeric array")
+    if np.iscomplexobj(a):
+        raise InputError(name, f"array of dtype {a.dtype}", "a real-valued array")
+    if a.ndim == 2:
+        a = a[None]
+    if a.ndim != 3:
+        raise InputError(name, f"array of shape {a.shape}", "an array of shape (T, H, W) or (H, W)")
+    if a.shape[1] < 2 or a.shape[2] < 2:
+        raise InputError(name, f"array of shape {a.shape}", "frames at least 2 x 2 pixels")
+    if a.shape[0] < min_frames:
+        raise InputError(name, f"{a.shape[0]} frame(s)", f"at least {min_frames} frames")
+    if a.dtype not in (np.float32, np.float64):
+        a = a.astype(np.float64)
+    return a
+
+
+def as_alpha(alpha: Any, n: int, *, name: str = "alpha", tol: float = 1e-6) -> np.ndarray:
+    """Mixing ratios ``(T,)`` in [0, 1] (float64), one per frame."""
+    try:
+        a = np.asarray(alpha, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise InputError(name, alpha, "a sequence of real numbers in [0, 1]") from None
+    if a.ndim == 0:
+        a = np.full(n, float(a))
+    if a.ndim != 1 or a.shape[0] != n:
+        raise InputError(name, f"array of shape {a.shape}", f"one value per frame, shape ({n},)")
+    if not np.all(np.isfinite(a)):
+        raise InputError(name, a.tolist(), "finite values in [0, 1]")
+    if a.min() < -tol or a.max() > 1 + tol:
+        raise InputError(name, [round(float(v), 6) for v in a], "values in [0, 1] (alpha = cos^2 theta)")
+    return np.clip(a, 0.0, 1.0)
+
+
+def valid_mask(frames: np.ndarray, saturation: float | None = None) -> np.ndarray | None:
+    """Boolean ``(T, H, W)`` mask of usable samples, or ``None`` when every sample is usable."""
+    bad = ~np.isfinite(frames)
+    if saturation is not None:
+        with np.errstate(invalid="ignore"):
+            bad |= frames >= saturation
+    if not bad.any():
+        return None
+    return ~bad
+
+
+class Timings(dict):
+    """A dict of named wall-clock durations in seconds, filled by :meth:`measure`."""
+
+    @contextmanager
+    def measure(self, name: str) -> Iterator[None]:
+        t0 = time.perf_counter()
+        try:
+            yield
+        finally:
+            self[name] = self.get(name, 0.0) + (time.perf_counter() - t0)
+
+
+def shape_hw(x: np.ndarray) -> tuple[int, int]:
+    return int(x.shape[-2]), int(x.shape[-1])
+
+
+def check_same_shape(name: str, a: np.ndarray, shape: Sequence[int]) -> None:
+    if tuple(a.shape) != tuple(shape):
+        raise InputError(name, f"array of shape {a.shape}", f"shape {tuple(shape)}")

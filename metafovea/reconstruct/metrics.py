@@ -1,0 +1,69 @@
+"""Image-quality metrics (PSNR, SSIM) on top of scikit-image, usable by the report stage."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from metafovea.errors import InputError
+
+
+def _pair(est: np.ndarray, ref: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    est = np.asarray(est, dtype=np.float64)
+    ref = np.asarray(ref, dtype=np.float64)
+    if est.shape != ref.shape:
+        raise InputError("estimate", f"array of shape {est.shape}", f"the reference's shape {ref.shape}")
+    return est, ref
+
+
+def _data_range(ref: np.ndarray, data_range: float | None) -> float:
+    if data_range is not None:
+        return float(data_range)
+    r = float(np.nanmax(ref) - np.nanmin(ref))
+    return r if r > 0 else 1.0
+
+
+def psnr(est: np.ndarray, ref: np.ndarray, data_range: float | None = None) -> float:
+    """Peak signal-to-noise ratio in dB (``data_range`` defaults to the reference's range).
+
+    Non-finite estimate pixels count as errors (the result is ``-inf`` dB... reported as 0 dB floor
+    would hide them), so they are refused: mask them before calling.
+    """
+    from skimage.metrics import peak_signal_noise_ratio
+
+    est, ref = _pair(est, ref)
+    if not np.all(np.isfinite(est)):
+        raise InputError("estimate", "array with NaN/inf", "finite values (mask invalid pixels first)")
+    mse = float(np.mean((est - ref) ** 2))
+    if mse == 0.0:
+        return float("inf")
+    return float(peak_signal_noise_ratio(ref, est, data_range=_data_range(ref, data_range)))
+
+
+def ssim(est: np.ndarray, ref: np.ndarray, data_range: float | None = None) -> float:
+    """Structural similarity (scikit-image, Gaussian-free default 7x7 window)."""
+    from skimage.metrics import structural_similarity
+
+    est, ref = _pair(est, ref)
+    if not np.all(np.isfinite(est)):
+        raise InputError("estimate", "array with NaN/inf", "finite values (mask invalid pixels first)")
+    win = min(7, *(s if s % 2 else s - 1 for s in ref.shape[-2:]))
+    return float(structural_similarity(ref, est, data_range=_data_range(ref, data_range), win_size=win))
+
+
+def score(rec: Any, truth_x1: np.ndarray | None = None, truth_x2: np.ndarray | None = None,
+          data_range: float | None = None) -> dict[str, float]:
+    """PSNR/SSIM of a :class:`~metafovea.reconstruct.Reconstruction` (or ``(x1, x2)`` tuple) against
+    truth; a video (``(K, H, W)``) is scored window by window and averaged."""
+    x1, x2 = (rec.x1, rec.x2) if hasattr(rec, "x1") else rec
+    out: dict[str, float] = {}
+    for name, est, ref in (("x1", x1, truth_x1), ("x2", x2, truth_x2)):
+        if ref is None:
+            continue
+        est = np.asarray(est)
+        ests = est if est.ndim == 3 else est[None]
+        refs = np.asarray(ref) if np.ndim(ref) == 3 else np.broadcast_to(ref, ests.shape)
+        out[f"psnr_{name}"] = float(np.mean([psnr(e, r, data_range) for e, r in zip(ests, refs)]))
+        out[f"ssim_{name}"] = float(np.mean([ssim(e, r, data_range) for e, r in zip(ests, refs)]))
+    return out

@@ -1,0 +1,149 @@
+"""The foveal constraint as explicit linear operators.
+
+The foveal image ``x1`` is a ``scale``-times magnified view of the centre of the perifoveal image ``x2``
+(``scale = f1 / f2 = 150 / 25 = 6`` for the paper's lenses). With both images on the same ``(H, W)``
+sensor grid, the relation is
+
+    D x1 == C x2
+
+* ``D`` (downsampling): area-weighted mean of ``x1`` over boxes of ``scale x scale`` pixels, giving an
+  ``(h, w) = (floor(H / scale), floor(W / scale))`` image. The boxes tile the centred region of ``x1``
+  of size ``h * scale`` (all of ``x1`` when ``scale`` divides ``H``); for an integer ``scale`` that
+  divides the shape, ``D`` is the plain block mean. A non-integer ``scale`` is exact too: a sensor
+  pixel that straddles two boxes is split by area.
+* ``C`` (crop): the centred ``(h, w)`` window of ``x2``, optionally displaced by a (sub-pixel)
+  ``offset`` in ``x2`` pixels (registration); a fractional offset interpolates linearly (box
+  overlap weights).
+
+Both operators are separable, ``D x = Dy @ x @ Dx.T``, so their adjoints are exact and cheap. They act
+on any leading batch axes ``(..., H, W)``.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from metafovea.errors import InputError, as_float
+
+
+def _box_weights(n_out: int, n_in: int, starts: np.ndarray, width: float) -> np.ndarray:
+    """Matrix ``(n_out, n_in)``: row k holds the overlap of pixel j = [j, j+1) with
+    [starts[k], starts[k] + width), divided by ``width`` (rows sum to 1 inside the grid)."""
+    j = np.arange(n_in, dtype=np.float64)
+    lo = np.maximum(starts[:, None], j[None, :])
+    hi = np.minimum(starts[:, None] + width, j[None, :] + 1.0)
+    return np.clip(hi - lo, 0.0, None) / width
+
+
+def _check_scale(scale: float) -> float:
+    s = as_float("scale", scale)
+    if not (1.0 <= s <= 1000.0):
+        raise InputError("scale", scale, "1 <= scale <= 1000 (f1/f2, 6 for the paper's lenses)")
+    return s
+
+
+@dataclass(frozen=True)
+class FovealOperator:
+    """``D`` (downsample x1) and ``C`` (centred crop of x2) for one sensor shape, scale and offset."""
+
+    shape: tuple[int, int]
+    scale: float = 6.0
+    offset: tuple[float, float] = (0.0, 0.0)
+    low: tuple[int, int] | None = None
+    Dy: np.ndarray = field(init=False, repr=False, compare=False)
+    Dx: np.ndarray = field(init=False, repr=False, compare=False)
+    Cy: np.ndarray = field(init=False, repr=False, compare=False)
+    Cx: np.ndarray = field(init=False, repr=False, compare=False)
+
+    def __post_init__(self) -> None:
+        H, W = (int(v) for v in self.shape)
+        s = _check_scale(self.scale)
+        oy, ox = (as_float("offset", v) for v in self.offset)
+        h, w = int(math.floor(H / s + 1e-9)), int(math.floor(W / s + 1e-9))
+        if self.low is not None:  # fixed constraint size (registration refines scale at fixed size)
+            h, w = min(h, int(self.low[0])), min(w, int(self.low[1]))
+        if h < 2 or w < 2:
+            raise InputError("scale", self.scale, f"a scale that leaves at least 2 x 2 foveal-constraint "
+                             f"pixels for frames of shape {(H, W)} (scale <= {min(H, W) / 2:g})")
+        mats = {}
+        for axis, (n, m, o) in {"y": (H, h, oy), "x": (W, w, ox)}.items():
+            k = np.arange(m, dtype=np.float64)
+            d_starts = n / 2.0 + (k - m / 2.0) * s
+            c_starts = n / 2.0 - m / 2.0 + k + o
+            if c_starts[0] < -1e-9 or c_starts[-1] + 1.0 > n + 1e-9:
+                raise InputError("offset", self.offset, f"an offset that keeps the {m}-pixel crop inside "
+                                 f"the {n}-pixel frame (|offset| <= {(n - m) / 2:g})")
+            mats["D" + axis] = _box_weights(m, n, d_starts, s)
+            mats["C" + axis] = _box_weights(m, n, c_starts, 1.0)
+        object.__setattr__(self, "shape", (H, W))
+        object.__setattr__(self, "scale", s)
+        object.__setattr__(self, "offset", (oy, ox))
+        for k2, v in mats.items():
+            object.__setattr__(self, k2, v)
+
+    @property
+    def low_shape(self) -> tuple[int, int]:
+        return self.Dy.shape[0], self.Dx.shape[0]
+
+    def _mats(self, x: np.ndarray, a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        dt = np.float32 if x.dtype == np.float32 else np.float64
+        return a.astype(dt, copy=False), b.astype(dt, copy=False)
+
+    def D(self, x1: np.ndarray) -> np.ndarray:
+        """Downsample ``x1 (..., H, W) -> (..., h, w)`` (area mean over scale x scale boxes)."""
+        my, mx = self._mats(x1, self.Dy, self.Dx)
+        return my @ x1 @ mx.T
+
+    def DT(self, u: np.ndarray) -> np.ndarray:
+        """Adjoint of :meth:`D`: ``(..., h, w) -> (..., H, W)``."""
+        my, mx = self._mats(u, self.Dy, self.Dx)
+        return my.T @ u @ mx
+
+    def C(self, x2: np.ndarray) -> np.ndarray:
+        """Centred (offset) crop of ``x2 (..., H, W) -> (..., h, w)``."""
+        my, mx = self._mats(x2, self.Cy, self.Cx)
+        return my @ x2 @ mx.T
+
+    def CT(self, u: np.ndarray) -> np.ndarray:
+        """Adjoint of :meth:`C`: zero-padded embedding ``(..., h, w) -> (..., H, W)``."""
+        my, mx = self._mats(u, self.Cy, self.Cx)
+        return my.T @ u @ mx
+
+    def upsample(self, u: np.ndarray) -> np.ndarray:
+        """Each low-res pixel spread over its box (area-weighted), pixels outside the covered region
+        take the nearest box value. ``D(upsample(u)) == u`` exactly when boxes align with pixels
+        (integer scale); otherwise it is the normalised adjoint (a mild blur)."""
+        my, mx = self._mats(u, self.Dy, self.Dx)
+        ny = my.T / np.maximum(my.T.sum(1, keepdims=True), 1e-300)
+        nx = mx.T / np.maximum(mx.T.sum(1, keepdims=True), 1e-300)
+        out = ny @ u @ nx.T
+        # rows/columns outside the covered region (only when scale does not divide the shape)
+        ry = np.where(my.sum(0) > 0)[0]
+        rx = np.where(mx.sum(0) > 0)[0]
+        if ry.size < out.shape[-2] or rx.size < out.shape[-1]:
+            iy = np.clip(np.arange(out.shape[-2]), ry[0], ry[-1])
+            ix = np.clip(np.arange(out.shape[-1]), rx[0], rx[-1])
+            out = out[..., iy, :][..., :, ix]
+        return out
+
+    def residual(self, x1: np.ndarray, x2: np.ndarray) -> np.ndarray:
+        """``D x1 - C x2`` (zero when the foveal constraint holds)."""
+        return self.D(x1) - self.C(x2)
+
+
+def downsample(x1: np.ndarray, scale: float = 6.0) -> np.ndarray:
+    """Block-mean (area) downsampling ``D`` of ``x1 (..., H, W)`` by ``scale``."""
+    return FovealOperator(x1.shape[-2:], scale).D(np.asarray(x1))
+
+
+def downsample_adjoint(u: np.ndarray, shape: tuple[int, int], scale: float = 6.0) -> np.ndarray:
+    """Adjoint ``D^T`` of :func:`downsample` onto a full ``shape`` grid."""
+    return FovealOperator(shape, scale).DT(np.asarray(u))
+
+
+def centre_crop(x2: np.ndarray, scale: float = 6.0, offset: tuple[float, float] = (0.0, 0.0)) -> np.ndarray:
+    """Centred crop ``C`` of ``x2`` matching :func:`downsample` (size ``floor(H/scale) x floor(W/scale)``)."""
+    return FovealOperator(x2.shape[-2:], scale, offset).C(np.asarray(x2))

@@ -1,0 +1,88 @@
+"""Synthetic scenes and measurements for tests and benchmarks.
+
+:func:`scene` makes a foveal/perifoveal pair from scikit-image's bundled images with the foveal
+constraint ``D x1 == C x2`` holding exactly (the centre crop of ``x2`` is replaced by the downsampled
+``x1``); :func:`measure` mixes them as the sensor does.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from metafovea.reconstruct._common import as_alpha, as_rng
+from metafovea.reconstruct.operators import FovealOperator
+from metafovea.errors import InputError, check_int
+
+
+def _gray(name: str) -> np.ndarray:
+    from skimage import color, data
+
+    img = getattr(data, name)()
+    if img.ndim == 3:
+        img = color.rgb2gray(img[..., :3])
+    img = img.astype(np.float64)
+    return (img - img.min()) / max(img.max() - img.min(), 1e-12)
+
+
+def _fit(img: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
+    from skimage.transform import resize
+
+    H, W = shape
+    h, w = img.shape
+    s = min(h / H, w / W)
+    ch, cw = int(round(H * s)), int(round(W * s))
+    y0, x0 = (h - ch) // 2, (w - cw) // 2
+    return resize(img[y0:y0 + ch, x0:x0 + cw], shape, order=1, anti_aliasing=True)
+
+
+def scene(shape: tuple[int, int] | int = 96, scale: float = 6.0, *, offset: tuple[float, float] = (0.0, 0.0),
+          foveal: str = "camera", perifoveal: str = "astronaut", lo: float = 0.0, hi: float = 1.0,
+          dtype: Any = np.float64) -> tuple[np.ndarray, np.ndarray]:
+    """``(x1, x2)`` of ``shape`` in ``[lo, hi]`` with ``D x1 == C x2`` exactly (``C`` offset by ``offset``)."""
+    if isinstance(shape, (int, np.integer)):
+        shape = (int(shape), int(shape))
+    H, W = (check_int("shape", v, 8, 8192) for v in shape)
+    x1 = lo + (hi - lo) * _fit(_gray(foveal), (H, W))
+    x2 = lo + (hi - lo) * _fit(_gray(perifoveal), (H, W))
+    op = FovealOperator((H, W), scale, offset)
+    # replace C x2 by D x1: x2 += C^+ (D x1 - C x2) with C^+ the pseudo-inverse (exact for any offset)
+    r = op.D(x1) - op.C(x2)
+    py, px = np.linalg.pinv(op.Cy), np.linalg.pinv(op.Cx)
+    x2 = x2 + py @ r @ px.T
+    return x1.astype(dtype), x2.astype(dtype)
+
+
+def polariser_alpha(n: int, *, rate_hz: float = 2.0, fps: float = 12.0, phase: float = 0.3,
+                    start: int = 0) -> np.ndarray:
+    """``alpha_t = cos^2(2 pi rate t / fps + phase)`` (the reference anchors' polariser)."""
+    t = np.arange(start, start + n, dtype=np.float64)
+    return np.cos(2 * np.pi * rate_hz * t / fps + phase) ** 2
+
+
+def measure(x1: np.ndarray, x2: np.ndarray, alpha: Any, *, sigma: float = 0.01, fpn: np.ndarray | None = None,
+            rng: Any = None, dtype: Any = None) -> np.ndarray:
+    """Frames ``alpha_t x1 + (1 - alpha_t) x2 + fpn + N(0, sigma^2)``, shape ``(T, H, W)``."""
+    rng = as_rng(rng)
+    a = as_alpha(alpha, np.size(alpha))
+    if x1.shape != x2.shape:
+        raise InputError("x2", f"array of shape {x2.shape}", f"x1's shape {x1.shape}")
+    y = a[:, None, None] * x1[None] + (1 - a)[:, None, None] * x2[None]
+    if fpn is not None:
+        y = y + fpn[None]
+    if sigma > 0:
+        y = y + rng.normal(0.0, sigma, size=y.shape)
+    return y.astype(dtype or x1.dtype)
+
+
+def lowrank_fpn(shape: tuple[int, int], *, rank: int = 3, amplitude: float = 0.05, rng: Any = None) -> np.ndarray:
+    """A zero-mean, low-rank (column/row stripe-like) fixed pattern with ``max |fpn| == amplitude``."""
+    rng = as_rng(rng)
+    H, W = shape
+    f = np.zeros(shape)
+    f += rng.normal(size=(1, W))  # column offsets (the usual readout stripes)
+    for _ in range(max(rank - 1, 0)):
+        f += 0.5 * np.outer(rng.normal(size=H), rng.normal(size=W)) / 2
+    f -= f.mean()
+    return amplitude * f / np.abs(f).max()

@@ -1,0 +1,141 @@
+"""Video: sliding windows over a whole sequence, and the real-time known-alpha path.
+
+:func:`video` reconstructs every window ``frames[k*stride : k*stride + window]``. With known alpha
+and ``method='lsq'`` each window is one ``(2, window) @ (window, H*W)`` BLAS call into a
+preallocated output (the per-window weights ``N^-1 A^T`` are computed once per window from the
+scalars), which is the throughput path (see BENCHMARKS). For a live camera use
+:class:`~metafovea.reconstruct.lsq.SlidingLSQ`, which updates running sums frame by frame.
+"""
+
+from __future__ import annotations
+
+import logging
+from typing import Any
+
+import numpy as np
+
+from metafovea.errors import InputError, check_choice, check_int
+from metafovea.reconstruct._common import Timings, as_alpha, as_frames, image_dtype, valid_mask
+from metafovea.reconstruct.lsq import MAX_CONDITION, lsq_known_alpha, solve_weights
+from metafovea.reconstruct.result import Reconstruction
+
+log = logging.getLogger(__name__)
+
+
+def window_starts(n_frames: int, window: int, stride: int) -> np.ndarray:
+    window = check_int("window", window, 2, 1_000_000)
+    stride = check_int("stride", stride, 1, 1_000_000)
+    if window > n_frames:
+        raise InputError("window", window, f"2 <= window <= number of frames ({n_frames})")
+    return np.arange(0, n_frames - window + 1, stride)
+
+
+def video(frames: Any, alpha: Any = None, *, window: int = 8, stride: int = 1, method: str = "lsq",
+          denoise: str | None = None, max_condition: float = MAX_CONDITION,
+          regularize: str | float | None = None, saturation: float | None = None,
+          progress: bool = False, **kw: Any) -> Reconstruction:
+    """Reconstruct every sliding window of ``frames (T, H, W)``.
+
+    ``method``: ``'lsq'`` (needs ``alpha``), ``'alternating'`` (alpha estimated per window; extra
+    keywords go to :func:`~metafovea.reconstruct.alternating.alternating`) or ``'dip'``.
+    Returns a :class:`Reconstruction` whose ``x1``, ``x2`` are ``(K, H, W)``; ``info`` holds
+    ``window_starts``, per-window ``condition`` (and, for unknown alpha, ``alpha_windows``).
+    A window whose normal matrix is too ill-conditioned raises :class:`InputError` naming the window
+    unless ``regularize`` is given.
+    """
+    method = check_choice("method", method, ("lsq", "alternating", "dip"))
+    tm = Timings()
+    Y = as_frames(frames, min_frames=2)
+    T, H, W = Y.shape
+    starts = window_starts(T, window, stride)
+    K = len(starts)
+    dt = image_dtype(Y)
+    info: dict[str, Any] = {"window": int(window), "stride": int(stride), "window_starts": starts.tolist()}
+    it = range(K)
+    if progress:
+        from tqdm import tqdm
+
+        it = tqdm(it, desc=f"reconstruct ({method})", unit="window")
+    if method == "lsq":
+        if alpha is None:
+            raise InputError("alpha", None, "mixing ratios (T,) for method='lsq' (or use method='alternating')")
+        a = as_alpha(alpha, T)
+        M = valid_mask(Y, saturation)
+        with tm.measure("solve"):
+            out = np.empty((K, 2, H * W), dtype=dt)
+            conds = np.empty(K)
+            Yf = Y.reshape(T, -1)
+            for k in it:
+                s = starts[k]
+                try:
+                    Wt, rep = solve_weights(a[s:s + window], max_condition=max_condition, regularize=regularize,
+                                            quiet=True)
+                except InputError as e:
+                    raise InputError("alpha", f"window {k} (frames {s}..{s + window - 1})", e.allowed,
+                                     detail=str(e)) from None
+                conds[k] = rep["condition"]
+                if M is None:
+                    np.matmul(Wt.astype(dt), Yf[s:s + window], out=out[k])
+                else:
+                    r = lsq_known_alpha(Y[s:s + window], a[s:s + window], max_condition=max_condition,
+                                        regularize=regularize, saturation=saturation)
+                    out[k, 0], out[k, 1] = r.x1.ravel(), r.x2.ravel()
+        out = out.reshape(K, 2, H, W)
+        x1, x2 = out[:, 0], out[:, 1]
+        info["condition"] = conds.tolist()
+        gains = None
+        if denoise:
+            from metafovea.reconstruct.lsq import residual_sigma
+
+            with tm.measure("denoise"):
+                s0 = starts[0]
+                sig = (residual_sigma(Y[s0:s0 + window], a[s0:s0 + window], x1[0], x2[0])
+                       if window > 2 and M is None else None)
+                if sig is not None:
+                    gains = [solve_weights(a[s:s + window], max_condition=max_condition, regularize=regularize,
+                                           quiet=True)[1]["noise_gain"] for s in starts]
+                    info["noise_sigma"] = sig
+        if np.max(conds) > 100:
+            log.warning("video: %d window(s) with condition number > 100 (max %.3g)", int(np.sum(conds > 100)),
+                        float(np.max(conds)))
+        alpha_out = a
+    else:
+        x1 = np.empty((K, H, W), dtype=dt)
+        x2 = np.empty((K, H, W), dtype=dt)
+        aw = []
+        gains = None
+        with tm.measure("solve"):
+            for k in it:
+                s = starts[k]
+                if method == "alternating":
+                    from metafovea.reconstruct.alternating import alternating
+
+                    try:
+                        r = alternating(Y[s:s + window], saturation=saturation, **kw)
+                    except InputError as e:
+                        raise InputError("frames", f"window {k} (frames {s}..{s + window - 1})", e.allowed,
+                                         detail=str(e)) from None
+                else:
+                    from metafovea.reconstruct.dip import dip
+
+                    r = dip(Y[s:s + window], alpha=None if alpha is None else np.asarray(alpha)[s:s + window], **kw)
+                x1[k], x2[k] = r.x1, r.x2
+                aw.append(np.asarray(r.alpha).tolist())
+        info["alpha_windows"] = aw
+        alpha_out = np.asarray(alpha, dtype=np.float64) if alpha is not None else np.full(T, np.nan)
+    if denoise:
+        from metafovea.reconstruct.denoise import denoise as _dn
+
+        with tm.measure("denoise"):
+            if method == "lsq" and gains is not None:
+                x1 = np.stack([_dn(x1[k], denoise, sigma=sig * gains[k][0]) for k in range(K)])
+                x2 = np.stack([_dn(x2[k], denoise, sigma=sig * gains[k][1]) for k in range(K)])
+            else:
+                x1 = _dn(x1, denoise)
+                x2 = _dn(x2, denoise)
+        info["denoise"] = denoise
+    total = sum(tm.values())
+    info["windows"] = K
+    info["windows_per_s"] = float(K / total) if total > 0 else None
+    return Reconstruction(x1=x1, x2=x2, alpha=alpha_out, fpn=None, method=f"video/{method}",
+                          timings=dict(tm), info=info)
