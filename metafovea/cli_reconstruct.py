@@ -1,0 +1,223 @@
+"""``metafovea reconstruct``: separate a Measurement file into foveal and perifoveal images.
+
+Wired into :mod:`metafovea.cli` by ``add_parser(subparsers)``; ``run(args)`` returns the exit status
+(0 ok, 2 bad input with a one-line message).
+
+The Measurement file is an ``.npz`` written by :func:`metafovea.io.atomic_save_npz` with arrays
+``frames (T, H, W)``, ``times_s (T,)``, optionally ``alpha (T,)``, ``truth_x1``, ``truth_x2``,
+``calibration (Tc, H, W)``, and JSON meta (``scale``, pixel pitch, ...).
+"""
+
+from __future__ import annotations
+
+import argparse
+import io
+import json
+import logging
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from metafovea.errors import InputError
+
+log = logging.getLogger(__name__)
+
+HELP = "separate foveal and perifoveal images from a measurement (.npz)"
+
+
+def add_parser(subparsers: Any) -> argparse.ArgumentParser:
+    p = subparsers.add_parser("reconstruct", help=HELP, description=HELP)
+    p.add_argument("measurement", help="Measurement .npz (frames, times_s, optional alpha / truth_x1 / truth_x2)")
+    p.add_argument("--method", default="lsq", choices=("lsq", "alternating", "dip", "snapshot"),
+                   help="solver (default lsq; lsq needs the file's alpha)")
+    p.add_argument("--known-alpha", action="store_true",
+                   help="use the file's alpha (implied by --method lsq; holds alpha fixed for dip)")
+    p.add_argument("--window", type=int, default=8, help="frames per window (default 8); longer sequences "
+                   "are reconstructed window by window")
+    p.add_argument("--stride", type=int, default=1, help="window stride in frames (default 1)")
+    p.add_argument("--denoise", default=None, choices=("tv", "bilateral", "nlm"), help="denoise the outputs")
+    p.add_argument("--fpn", default="none", choices=("none", "prior", "calibration"),
+                   help="fixed-pattern noise handling (calibration uses the file's 'calibration' frames)")
+    p.add_argument("--scale", type=float, default=None, help="f1/f2 of the foveal constraint (default: file meta "
+                   "'scale', else 6)")
+    p.add_argument("--frame", type=int, default=0, help="frame index for --method snapshot (default 0)")
+    p.add_argument("--steps", type=int, default=2000, help="DIP optimisation steps (default 2000)")
+    p.add_argument("--channels", type=int, default=32, help="DIP network channels (default 32)")
+    p.add_argument("--seed", type=int, default=0, help="random seed (DIP)")
+    p.add_argument("--out", default=None, help="output .npz (default: <measurement>_rec.npz); figures next to it")
+    p.add_argument("--no-figures", action="store_true", help="do not write PNG figures")
+    p.add_argument("--json", action="store_true", help="print the summary as JSON")
+    p.add_argument("--force", action="store_true", help="overwrite existing output")
+    p.set_defaults(func=run)
+    return p
+
+
+def _figure(x1: np.ndarray, x2: np.ndarray, title: str) -> bytes:
+    import matplotlib
+
+    matplotlib.use("Agg", force=False)
+    import matplotlib.pyplot as plt
+
+    fig, axs = plt.subplots(1, 2, figsize=(9, 4.2), constrained_layout=True)
+    for ax, img, name in ((axs[0], x1, "foveal x1"), (axs[1], x2, "perifoveal x2")):
+        im = ax.imshow(img, cmap="inferno")
+        ax.set_title(name)
+        ax.set_axis_off()
+        fig.colorbar(im, ax=ax, shrink=0.8)
+    fig.suptitle(title)
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=110)
+    plt.close(fig)
+    return buf.getvalue()
+
+
+def _image_png(img: np.ndarray) -> bytes:
+    import matplotlib.pyplot as plt
+
+    buf = io.BytesIO()
+    x = np.nan_to_num(np.asarray(img, dtype=np.float64))
+    plt.imsave(buf, x, cmap="inferno", format="png")
+    return buf.getvalue()
+
+
+def _summary(args: argparse.Namespace) -> dict[str, Any]:
+    from metafovea.io import atomic_write_bytes, load_npz, prepare_output
+    from metafovea.reconstruct import reconstruct, video
+    from metafovea.reconstruct.metrics import score
+
+    src = Path(args.measurement)
+    arrays, meta = load_npz(src)
+    if "frames" not in arrays:
+        raise InputError("measurement", str(src), "a Measurement .npz holding a 'frames' (T, H, W) array")
+    frames = arrays["frames"]
+    if frames.ndim != 3:
+        raise InputError("frames", f"array of shape {frames.shape}", "(T, H, W)", source=str(src))
+    T = frames.shape[0]
+    out = Path(args.out) if args.out else src.with_name(src.stem + "_rec.npz")
+    out = prepare_output(out, args.force)
+    scale = args.scale if args.scale is not None else float(meta.get("scale", 6.0))
+    use_alpha = args.known_alpha or args.method == "lsq"
+    alpha = None
+    if use_alpha:
+        if "alpha" not in arrays:
+            raise InputError("--known-alpha", str(src), "a measurement with an 'alpha' array (or --method "
+                             "alternating / dip / snapshot for unknown alpha)")
+        alpha = arrays["alpha"]
+    if args.method == "alternating" and args.known_alpha:
+        raise InputError("--known-alpha", True, "not with --method alternating (it estimates alpha; use lsq)")
+    fpn_kw: dict[str, Any] = {}
+    if args.fpn == "calibration":
+        if "calibration" not in arrays:
+            raise InputError("--fpn", "calibration", "a measurement with a 'calibration' frame array", source=str(src))
+        fpn_kw = {"fpn": "calibration", "calibration": arrays["calibration"]}
+    elif args.fpn == "prior":
+        fpn_kw = {"fpn": "prior"}
+    t0 = time.perf_counter()
+    if args.method == "snapshot":
+        if not 0 <= args.frame < T:
+            raise InputError("--frame", args.frame, f"0 <= frame < {T}")
+        a = None if alpha is None else alpha[args.frame:args.frame + 1]
+        rec = reconstruct(frames[args.frame][None], a, method="snapshot", scale=scale, **fpn_kw)
+        n_out = 1
+    else:
+        method_kw: dict[str, Any] = {}
+        if args.method == "alternating":
+            method_kw = {"scale": scale}
+        elif args.method == "dip":
+            method_kw = {"steps": args.steps, "channels": args.channels, "rng": args.seed}
+        if args.window > T:
+            raise InputError("--window", args.window, f"2 <= window <= number of frames ({T})", source=str(src))
+        if T > args.window:
+            if args.fpn != "none":
+                raise InputError("--fpn", args.fpn, "'none' for multi-window sequences (estimate FPN on one window)")
+            rec = video(frames, alpha, window=args.window, stride=args.stride, method=args.method,
+                        denoise=args.denoise, progress=sys.stderr.isatty(), **method_kw)
+        else:
+            if args.denoise and args.method == "lsq":
+                method_kw["denoise"] = args.denoise
+            rec = reconstruct(frames, alpha, method=args.method, **method_kw, **fpn_kw)
+            if args.denoise and args.method != "lsq":
+                from metafovea.reconstruct import Reconstruction, denoise
+
+                rec = Reconstruction(x1=denoise(rec.x1, args.denoise), x2=denoise(rec.x2, args.denoise),
+                                     alpha=rec.alpha, fpn=rec.fpn, method=rec.method, timings=rec.timings,
+                                     info=rec.info)
+        n_out = rec.x1.shape[0] if rec.is_video else 1
+    elapsed = time.perf_counter() - t0
+    rec.save(out)
+    files = [str(out)]
+    x1_last = rec.x1[-1] if rec.is_video else rec.x1
+    x2_last = rec.x2[-1] if rec.is_video else rec.x2
+    if not args.no_figures:
+        stem = out.with_suffix("")
+        for name, data in ((f"{stem}_x1.png", _image_png(x1_last)), (f"{stem}_x2.png", _image_png(x2_last)),
+                           (f"{stem}.png", _figure(x1_last, x2_last, f"{rec.method}: {src.name}"))):
+            if Path(name).exists() and not args.force:
+                raise InputError("--out", name, "a path that does not exist yet (or pass --force to overwrite)")
+            atomic_write_bytes(name, data)
+            files.append(name)
+    summary: dict[str, Any] = {"measurement": str(src), "method": rec.method, "frames": int(T),
+                               "outputs": int(n_out), "seconds": elapsed,
+                               "ms_per_output": 1e3 * elapsed / max(n_out, 1),
+                               "timings": rec.timings, "files": files}
+    for key in ("condition", "alpha_identified", "iterations"):
+        if key in rec.info:
+            v = rec.info[key]
+            summary[key] = (float(np.nanmax(np.asarray(v, dtype=float))) if isinstance(v, list) else v)
+    if "gauge" in rec.info:
+        summary["gauge"] = {k: rec.info["gauge"].get(k) for k in ("applied", "reason")}
+    if "fpn" in rec.info:
+        summary["fpn"] = rec.info["fpn"].get("identified")
+    if "truth_x1" in arrays or "truth_x2" in arrays:
+        x1s = rec.x1 if rec.is_video else rec.x1[None]
+        finite = np.all(np.isfinite(x1s)) and np.all(np.isfinite(rec.x2))
+        if finite:
+            summary["metrics"] = score(rec, arrays.get("truth_x1"), arrays.get("truth_x2"))
+        else:
+            summary["metrics"] = "not computed: NaN pixels in the reconstruction"
+    return summary
+
+
+def _json_safe(obj: Any) -> Any:
+    from metafovea.reconstruct.result import _jsonable
+
+    return _jsonable(obj)
+
+
+def run(args: argparse.Namespace) -> int:
+    """Run the subcommand; 0 on success, 2 on bad input (one-line message on stderr)."""
+    try:
+        s = _summary(args)
+    except InputError as e:
+        print(f"metafovea reconstruct: error: {e}", file=sys.stderr)
+        return 2
+    if args.json:
+        print(json.dumps(_json_safe(s), indent=2))
+    else:
+        print(f"{s['method']}: {s['frames']} frames -> {s['outputs']} reconstruction(s) in {s['seconds']:.3f} s "
+              f"({s['ms_per_output']:.3f} ms each)")
+        if "condition" in s:
+            print(f"  normal-matrix condition number: {s['condition']:.3g}")
+        if "gauge" in s:
+            print(f"  alpha gauge fixed by the foveal constraint: {s['gauge']['applied']} ({s['gauge']['reason']})")
+        if isinstance(s.get("metrics"), dict):
+            print("  " + ", ".join(f"{k} {v:.4g}" for k, v in s["metrics"].items()))
+        print("  wrote " + ", ".join(s["files"]))
+    return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Stand-alone entry point (``python -m metafovea.cli_reconstruct``) until cli.py wires it in."""
+    parser = argparse.ArgumentParser(prog="metafovea")
+    sub = parser.add_subparsers(dest="command", required=True)
+    add_parser(sub)
+    args = parser.parse_args(argv)
+    logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
+    return run(args)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
