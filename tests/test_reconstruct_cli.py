@@ -51,6 +51,7 @@ def test_cli_video_and_alternating(meas, tmp_path, capsys):
     out = tmp_path / "v.npz"
     assert cli_reconstruct.run(_parse([str(meas), "--out", str(out), "--no-figures"])) == 0
     assert Reconstruction.load(out).x1.shape == (3, 64, 64)
+    assert "3 reconstruction(s)" in capsys.readouterr().out
     out2 = tmp_path / "alt.npz"
     assert cli_reconstruct.run(_parse([str(meas), "--method", "alternating", "--window", "10", "--out",
                                        str(out2), "--json", "--no-figures"])) == 0
