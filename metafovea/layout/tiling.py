@@ -1,0 +1,342 @@
+"""Layout specification, file coordinates and the lens as a sequence of bands of lattice sites.
+
+Conventions (all files written by :mod:`metafovea.layout`)
+---------------------------------------------------------
+* Database unit 1 nm (``UNITS`` 1e-3 user unit = 1 um, 1e-9 m). Inside the package lengths are um.
+* Origin: the lower-left corner of the chip frame (the bounding box of the alignment marks) is
+  ``(0, 0)``; the lens centre is at ``(C, C)`` with ``C`` = :attr:`LayoutSpec.centre_nm`, so every
+  coordinate in the file is >= 0 (OASIS repetitions and DWL tools are happy with that).
+* Site ``(ix, iy)`` (see :mod:`metafovea.lens`) has its post centred at
+  ``C + snap((ix + o) p)``, ``C + snap((iy + o) p)`` (nm), ``snap`` rounding to the manufacturing grid.
+* Post sizes: ``post_set.widths_um[k]`` (wx, wy) rounded to twice the grid, so that a post centred
+  on a grid point has its edges on the grid.
+* Layers (layer, datatype): posts (1, 0), aluminium aperture ring (2, 0), alignment marks (3, 0),
+  text label (10, 0). One cell per post type named ``P000``..``P{N-1}`` holding one rectangle centred
+  at the cell origin, one top cell (``<NAME>_LENS``) holding the ring, the marks, the label and one
+  reference per post.
+* Bands: the lens is generated in bands of ``band_rows`` site rows across the window's columns; a band
+  is a tile of :mod:`metafovea.lens` (``evaluate_tile``), evaluated on the half with x >= 0 and
+  mirrored (the phase is even in x, so the mirror is exact).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from metafovea.config import LensDesign
+from metafovea.errors import InputError, check_int
+from metafovea.lens import EMPTY, evaluate_tile, row_half_counts, site_index_range
+from metafovea.library import PostSet
+from metafovea.units import NM_PER_UM
+
+DBU_UM = 1e-3  #: database unit in um (1 nm)
+
+
+@dataclass(frozen=True)
+class Layers:
+    posts: tuple[int, int] = (1, 0)
+    aperture: tuple[int, int] = (2, 0)
+    marks: tuple[int, int] = (3, 0)
+    label: tuple[int, int] = (10, 0)
+
+
+@dataclass(frozen=True)
+class LayoutSpec:
+    """Everything that fixes the content of an exported layout (hashable into a resume key).
+
+    patch_um: optional ``(x, y, w)`` (um, relative to the lens centre): only sites with centre in
+    ``[x - w/2, x + w/2) x [y - w/2, y + w/2)`` are written, at their positions in the full lens,
+    without ring and marks.
+    """
+
+    design: LensDesign
+    post_set: PostSet
+    levels: int
+    grid_nm: int = 5
+    layers: Layers = field(default_factory=Layers)
+    ring_gap_um: float | None = None  # clearance between the aperture and the ring (default: one period)
+    ring_width_um: float = 1000.0
+    mark_offset_um: float = 500.0  # from the ring's outer edge to the mark centre
+    mark_size_um: float = 200.0  # cross arm length
+    mark_width_um: float = 20.0
+    patch_um: tuple[float, float, float] | None = None
+    band_rows: int = 64
+
+    # -- derived -----------------------------------------------------------------------------
+    @property
+    def dbu_um(self) -> float:
+        return DBU_UM
+
+    @property
+    def top_name(self) -> str:
+        n = "".join(ch if ch.isalnum() else "_" for ch in self.design.name.upper())
+        return f"{n}_LENS"
+
+    @property
+    def post_names(self) -> list[str]:
+        return [f"P{k:03d}" for k in range(self.levels)]
+
+    @property
+    def ring_inner_um(self) -> float:
+        gap = self.design.period_um if self.ring_gap_um is None else self.ring_gap_um
+        return self.design.radius_um + gap
+
+    @property
+    def ring_outer_um(self) -> float:
+        return self.ring_inner_um + self.ring_width_um
+
+    @property
+    def frame_half_um(self) -> float:
+        """Half-size of the chip frame (marks' bounding box), um, on the 1 um grid."""
+        return float(math.ceil(self.ring_outer_um + self.mark_offset_um + self.mark_size_um / 2))
+
+    @property
+    def centre_nm(self) -> int:
+        return int(round(self.frame_half_um * NM_PER_UM))
+
+    @property
+    def frame_bbox_nm(self) -> tuple[int, int, int, int]:
+        s = 2 * self.centre_nm
+        return (0, 0, s, s)
+
+    def snap(self, v_nm: Any) -> np.ndarray:
+        g = self.grid_nm
+        return (np.rint(np.asarray(v_nm, dtype=float) / g) * g).astype(np.int64)
+
+    @property
+    def post_sizes_nm(self) -> np.ndarray:
+        """(N, 2) int64 post widths (wx, wy) in nm, on a 2 * grid raster (>= 2 * grid)."""
+        g2 = 2 * self.grid_nm
+        w = np.rint(self.post_set.widths_um * NM_PER_UM / g2).astype(np.int64) * g2
+        return np.maximum(w, g2)
+
+    def site_x_nm(self, ix: Any) -> np.ndarray:
+        o = 0.0 if self.design.lattice == "integer" else 0.5
+        return self.centre_nm + self.snap((np.asarray(ix, dtype=float) + o) * self.design.period_um * NM_PER_UM)
+
+    site_y_nm = site_x_nm
+
+    @property
+    def period_nm(self) -> int | None:
+        """Lattice period in nm when every site lies exactly on ``C + (i + o) P`` (else None)."""
+        p = self.design.period_um * NM_PER_UM
+        o = 0.0 if self.design.lattice == "integer" else 0.5
+        P = int(round(p))
+        if abs(p - P) < 1e-9 and P % self.grid_nm == 0 and (o * P) % self.grid_nm == 0:
+            return P
+        return None
+
+    # -- window -----------------------------------------------------------------------------
+    def window(self) -> tuple[int, int, int, int]:
+        """Inclusive site index window ``(iy_lo, iy_hi, ix_lo, ix_hi)``."""
+        lo, hi = site_index_range(self.design)
+        if self.patch_um is None:
+            return lo, hi, lo, hi
+        x, y, w = self.patch_um
+        p = self.design.period_um
+        o = 0.0 if self.design.lattice == "integer" else 0.5
+        ix_lo = max(lo, math.ceil((x - w / 2) / p - o))
+        ix_hi = min(hi, math.ceil((x + w / 2) / p - o) - 1)
+        iy_lo = max(lo, math.ceil((y - w / 2) / p - o))
+        iy_hi = min(hi, math.ceil((y + w / 2) / p - o) - 1)
+        return iy_lo, iy_hi, ix_lo, ix_hi
+
+    def bands(self) -> list[tuple[int, int, int, int]]:
+        """Bands ``(iy0, rows, ix0, cols)`` covering the window, in increasing y; empty rows trimmed."""
+        iy_lo, iy_hi, ix_lo, ix_hi = self.window()
+        if iy_lo > iy_hi or ix_lo > ix_hi:
+            return []
+        rows = np.arange(iy_lo, iy_hi + 1)
+        lo, hi = row_half_counts(self.design, rows)
+        lo = np.maximum(lo, ix_lo)
+        hi = np.minimum(hi, ix_hi)
+        nonempty = rows[lo <= hi]
+        if nonempty.size == 0:
+            return []
+        out = []
+        br = self.band_rows
+        y0, y1 = int(nonempty[0]), int(nonempty[-1])
+        for iy0 in range(y0, y1 + 1, br):
+            n = min(br, y1 + 1 - iy0)
+            sel = slice(iy0 - iy_lo, iy0 - iy_lo + n)
+            ok = lo[sel] <= hi[sel]
+            if not ok.any():
+                continue
+            c0 = int(lo[sel][ok].min())
+            c1 = int(hi[sel][ok].max())
+            out.append((iy0, n, c0, c1 - c0 + 1))
+        return out
+
+    def key(self) -> dict[str, Any]:
+        """JSON-able description of everything that determines the file content."""
+        from dataclasses import asdict
+        return {"design": asdict(self.design), "widths_um": self.post_set.widths_um.tolist(),
+                "levels": self.levels, "grid_nm": self.grid_nm, "layers": asdict(self.layers),
+                "ring": [self.ring_inner_um, self.ring_outer_um], "marks": [self.mark_offset_um,
+                self.mark_size_um, self.mark_width_um], "patch_um": self.patch_um, "band_rows": self.band_rows}
+
+    def label_text(self) -> str:
+        d = self.design
+        s = (f"metafovea {d.name} f={d.f_mm:g}mm D={d.diameter_mm:g}mm lambda={d.wavelength_um:g}um "
+             f"pol={d.polarization} p={d.period_um:g}um N={self.levels} lattice={d.lattice} "
+             f"grid={self.grid_nm}nm dbu=1nm centre=({self.centre_nm},{self.centre_nm})nm")
+        if self.patch_um is not None:
+            s += " patch=({:g},{:g},{:g})um".format(*self.patch_um)
+        return s
+
+    def label_position_nm(self) -> tuple[int, int]:
+        if self.patch_um is None:
+            c = self.centre_nm - int(round(self.ring_outer_um * NM_PER_UM))
+            return c, c
+        x, y, w = self.patch_um
+        return (self.centre_nm + int(round((x - w / 2) * NM_PER_UM)),
+                self.centre_nm + int(round((y - w / 2) * NM_PER_UM)))
+
+
+def make_spec(design: LensDesign, post_set: PostSet | None = None, levels: int | None = None, *,
+              grid_nm: int = 5, patch_mm: tuple[float, float, float] | None = None,
+              band_rows: int = 64, **kw: Any) -> LayoutSpec:
+    """Validated :class:`LayoutSpec` (``patch_mm`` = centre x, centre y, width in mm)."""
+    n = design.levels if levels is None else check_int("--levels", levels, 2, 256)
+    if post_set is None:
+        post_set = PostSet.ideal(n, period_um=design.period_um, polarization=design.polarization,
+                                 height_um=design.post_height_um, wavelength_um=design.wavelength_um)
+    if post_set.levels != n:
+        raise InputError("--levels", n, f"the number of posts in the post set ({post_set.levels})")
+    if abs(post_set.period_um - design.period_um) > 1e-9:
+        raise InputError("--post-set", post_set.period_um, f"a post set for period {design.period_um:g} um")
+    grid_nm = check_int("--grid-nm", grid_nm, 1, 1000)
+    band_rows = check_int("band_rows", band_rows, 1, 1 << 16)
+    patch = None
+    if patch_mm is not None:
+        if len(patch_mm) != 3:
+            raise InputError("--patch", patch_mm, "X,Y,W in mm (patch centre and width)")
+        x, y, w = (float(v) for v in patch_mm)
+        if not all(math.isfinite(v) for v in (x, y, w)) or w <= 0:
+            raise InputError("--patch", patch_mm, "finite X,Y and W > 0 (mm)")
+        patch = (x * 1000.0, y * 1000.0, w * 1000.0)
+    spec = LayoutSpec(design, post_set, n, grid_nm=grid_nm, patch_um=patch, band_rows=band_rows, **kw)
+    if np.any(spec.post_sizes_nm >= spec.design.period_um * NM_PER_UM):
+        raise InputError("--grid-nm", grid_nm, "a grid on which the post widths stay below the period")
+    if patch is not None and not spec.bands():
+        raise InputError("--patch", patch_mm, f"a square that overlaps the lens aperture (radius "
+                         f"{design.radius_um / 1000:g} mm around 0,0)")
+    return spec
+
+
+# ----------------------------------------------------------------------------------------------
+# site levels per band
+# ----------------------------------------------------------------------------------------------
+def band_levels(design: LensDesign, iy0: int, rows: int, ix0: int, cols: int, levels: int) -> np.ndarray:
+    """Same as ``evaluate_tile(design, iy0, ix0, rows, cols, levels=levels).levels`` (int16), computed
+    on the columns with x >= 0 and mirrored (site ``ix`` mirrors to ``-ix - 2o``)."""
+    two_o = 0 if design.lattice == "integer" else 1
+    ix = np.arange(ix0, ix0 + cols)
+    j = np.where(2 * ix + two_o >= 0, ix, -ix - two_o)
+    j0, j1 = int(j.min()), int(j.max())
+    half = evaluate_tile(design, iy0, j0, rows, j1 - j0 + 1, levels=levels).levels
+    if j0 == ix0 and j1 == ix0 + cols - 1 and np.all(np.diff(j) == 1):
+        return half
+    return half[:, j - j0]
+
+
+@dataclass
+class Expected:
+    """Expected content of a layout: posts per type and the posts' bounding box (nm)."""
+
+    counts: np.ndarray
+    posts_bbox_nm: tuple[int, int, int, int] | None
+
+    @property
+    def total(self) -> int:
+        return int(self.counts.sum())
+
+
+def _band_summary(spec: LayoutSpec, band: tuple[int, int, int, int]) -> tuple[np.ndarray, list[int]]:
+    iy0, rows, ix0, cols = band
+    lev = band_levels(spec.design, iy0, rows, ix0, cols, spec.levels)
+    iy_lo, iy_hi, ix_lo, ix_hi = spec.window()
+    # restrict to the window (a patch)
+    c_lo, c_hi = max(ix0, ix_lo), min(ix0 + cols - 1, ix_hi)
+    lev = lev[:, c_lo - ix0:c_hi - ix0 + 1]
+    counts = np.bincount(lev[lev >= 0].astype(np.int64), minlength=spec.levels)
+    sz = spec.post_sizes_nm
+    xs = spec.site_x_nm(np.arange(c_lo, c_hi + 1))
+    ys = spec.site_y_nm(np.arange(iy0, iy0 + rows))
+    r, c = np.nonzero(lev >= 0)
+    if r.size == 0:
+        return counts, [0, 0, -1, -1]
+    k = lev[r, c]
+    x0 = xs[c] - sz[k, 0] // 2
+    x1 = xs[c] + sz[k, 0] // 2
+    y0 = ys[r] - sz[k, 1] // 2
+    y1 = ys[r] + sz[k, 1] // 2
+    return counts, [int(x0.min()), int(y0.min()), int(x1.max()), int(y1.max())]
+
+
+def expected_content(spec: LayoutSpec, *, workers: int | None = 1, scheduler: str | None = None,
+                     progress: bool = False) -> Expected:
+    """Count posts per type and the posts' bounding box from the design (band by band)."""
+    from functools import partial
+
+    from metafovea.parallel import run_tasks
+
+    bands = spec.bands()
+    counts = np.zeros(spec.levels, dtype=np.int64)
+    bb = [None, None, None, None]
+    for _, (c, b) in run_tasks(partial(_band_summary, spec), bands, workers=workers, scheduler=scheduler,
+                               progress=progress, desc="expected"):
+        counts += c
+        if b[2] < b[0]:
+            continue
+        bb = [b[0] if bb[0] is None else min(bb[0], b[0]), b[1] if bb[1] is None else min(bb[1], b[1]),
+              b[2] if bb[2] is None else max(bb[2], b[2]), b[3] if bb[3] is None else max(bb[3], b[3])]
+    return Expected(counts, None if bb[0] is None else tuple(bb))  # type: ignore[arg-type]
+
+
+# ----------------------------------------------------------------------------------------------
+# frame geometry (ring, marks, label), in nm
+# ----------------------------------------------------------------------------------------------
+def ring_polygons_nm(spec: LayoutSpec, tolerance_um: float = 0.05) -> list[np.ndarray]:
+    """The aluminium ring as four quarter-annulus polygons (each (n, 2) int64 nm, snapped)."""
+    import gdstk
+
+    c = spec.centre_nm / NM_PER_UM
+    out = []
+    for q in range(4):
+        a0 = q * math.pi / 2
+        poly = gdstk.ellipse((c, c), spec.ring_outer_um, inner_radius=spec.ring_inner_um,
+                             initial_angle=a0, final_angle=a0 + math.pi / 2, tolerance=tolerance_um)
+        pts = spec.snap(poly.points * NM_PER_UM)
+        keep = np.ones(len(pts), bool)
+        keep[1:] = np.any(pts[1:] != pts[:-1], axis=1)
+        pts = pts[keep]
+        if np.all(pts[0] == pts[-1]):
+            pts = pts[:-1]
+        out.append(pts)
+    return out
+
+
+def mark_boxes_nm(spec: LayoutSpec) -> list[tuple[int, int, int, int]]:
+    """Alignment crosses (two boxes each) at the four compass points outside the ring."""
+    c = spec.centre_nm
+    d = int(round((spec.ring_outer_um + spec.mark_offset_um) * NM_PER_UM))
+    a = int(round(spec.mark_size_um * NM_PER_UM / 2))
+    w = int(round(spec.mark_width_um * NM_PER_UM / 2))
+    boxes = []
+    for mx, my in ((c + d, c), (c - d, c), (c, c + d), (c, c - d)):
+        boxes.append((mx - a, my - w, mx + a, my + w))
+        boxes.append((mx - w, my - a, mx + w, my + a))
+    return boxes
+
+
+def has_frame(spec: LayoutSpec) -> bool:
+    return spec.patch_um is None
+
+
+__all__ = ["DBU_UM", "EMPTY", "Expected", "Layers", "LayoutSpec", "band_levels", "expected_content",
+           "has_frame", "make_spec", "mark_boxes_nm", "ring_polygons_nm"]

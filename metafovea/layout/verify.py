@@ -1,0 +1,644 @@
+"""Read an exported layout back with an independent reader and compare it with the design.
+
+Readers
+-------
+* ``klayout``: KLayout's Python module (``klayout.db``), what fabs use; GDSII and OASIS.
+* ``gdstk``: gdstk's readers (fast for large OASIS files).
+* ``stream``: :class:`GdsScanner`, a streaming GDSII record scanner written here (it shares no code
+  with the writer), for GDSII files too large to load whole: runs of 28-byte SREF groups and 64-byte
+  5-point BOUNDARY groups are checked and reduced with numpy, everything else is parsed record by
+  record. Memory is one read buffer.
+
+Checks: one top cell with the expected name; database unit 1 nm; each post cell holds exactly one
+rectangle on the posts layer of the expected size, centred at the cell origin; posts per type equal
+the design's counts; every post on a lattice site; bounding box of the posts and (full lens) of the
+whole layout; the set of layers used.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import struct
+import time
+from collections import Counter
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from metafovea.errors import InputError, check_choice
+from metafovea.layout.tiling import Expected, LayoutSpec, expected_content, has_frame, mark_boxes_nm
+
+READERS = ("auto", "klayout", "gdstk", "stream")
+STREAM_THRESHOLD_BYTES = 256 << 20
+
+
+@dataclass
+class Observed:
+    """What a reader found (coordinates in database units)."""
+
+    reader: str
+    format: str
+    dbu_um: float = 0.0
+    top_cells: list[str] = field(default_factory=list)
+    cell_rects: dict[str, list[tuple[int, int, int, int, int, int]]] = field(default_factory=dict)
+    ref_counts: Counter = field(default_factory=Counter)  # child cell name -> references in the top cell
+    flat_counts: Counter = field(default_factory=Counter)  # (w, h) of posts-layer rectangles in the top cell
+    posts_bbox: tuple[int, int, int, int] | None = None
+    bbox: tuple[int, int, int, int] | None = None
+    layers: set = field(default_factory=set)
+    off_lattice: int = 0
+    anomalies: list[str] = field(default_factory=list)
+
+
+@dataclass
+class VerifyReport:
+    ok: bool
+    file: str
+    reader: str
+    format: str
+    posts: int
+    expected_posts: int
+    counts: list[int]
+    expected_counts: list[int]
+    posts_bbox_nm: Any
+    expected_posts_bbox_nm: Any
+    bbox_nm: Any
+    layers: list[list[int]]
+    mismatches: list[str]
+    seconds_read: float
+    seconds_expected: float
+    file_bytes: int
+
+    def as_dict(self) -> dict[str, Any]:
+        return dict(self.__dict__)
+
+
+def _union(a, b):
+    if a is None:
+        return b
+    if b is None:
+        return a
+    return (min(a[0], b[0]), min(a[1], b[1]), max(a[2], b[2]), max(a[3], b[3]))
+
+
+def sniff_format(path: Path) -> str:
+    with open(path, "rb") as fh:
+        head = fh.read(16)
+    if head.startswith(b"%SEMI-OASIS\r\n"):
+        return "oas"
+    if len(head) >= 4 and head[2:4] == b"\x00\x02":
+        return "gds"
+    raise InputError("FILE", str(path), "a GDSII or OASIS file")
+
+
+# ----------------------------------------------------------------------------------------------
+# KLayout
+# ----------------------------------------------------------------------------------------------
+def read_klayout(path: Path, lattice: tuple[int, int, int] | None, posts_layer: tuple[int, int]) -> Observed:
+    import klayout.db as db
+
+    fmt = sniff_format(path)
+    ly = db.Layout()
+    ly.read(str(path))
+    ob = Observed("klayout", fmt, dbu_um=ly.dbu)
+    tops = ly.top_cells()
+    ob.top_cells = [c.name for c in tops]
+    if len(tops) != 1:
+        return ob
+    top = tops[0]
+    li_posts = None
+    for li in ly.layer_indexes():
+        info = ly.get_info(li)
+        if not top.begin_shapes_rec(li).at_end():
+            ob.layers.add((info.layer, info.datatype))
+        if (info.layer, info.datatype) == posts_layer:
+            li_posts = li
+    for ci in top.each_child_cell():
+        c = ly.cell(ci)
+        rects = []
+        for li in ly.layer_indexes():
+            info = ly.get_info(li)
+            for sh in c.shapes(li).each():
+                b = sh.bbox()
+                is_rect = sh.is_box() or (sh.is_polygon() and sh.polygon.is_box())
+                if not is_rect:
+                    ob.anomalies.append(f"cell {c.name}: a non-rectangular shape on {info.layer}/{info.datatype}")
+                rects.append((info.layer, info.datatype, b.width(), b.height(), b.center().x, b.center().y))
+        if c.child_cells():
+            ob.anomalies.append(f"cell {c.name} has child cells")
+        ob.cell_rects[c.name] = rects
+    names = {ci: ly.cell(ci).name for ci in top.each_child_cell()}
+    off = 0
+    if lattice is not None:
+        cx, oP, P = lattice
+    for inst in top.each_inst():
+        arr = inst.cell_inst
+        n = arr.size()
+        nm = names[inst.cell_index]
+        ob.ref_counts[nm] += n
+        if arr.is_complex():
+            ob.anomalies.append(f"a reference to {nm} is rotated, mirrored or magnified")
+        if lattice is not None:
+            if n == 1:
+                d = inst.trans.disp
+                off += ((d.x - cx - oP) % P != 0) or ((d.y - cx - oP) % P != 0)
+            else:
+                for t in arr.each_trans():
+                    d = t.disp
+                    off += ((d.x - cx - oP) % P != 0) or ((d.y - cx - oP) % P != 0)
+    if li_posts is not None:
+        for sh in top.shapes(li_posts).each():
+            b = sh.bbox()
+            if not (sh.is_box() or (sh.is_polygon() and sh.polygon.is_box())):
+                ob.anomalies.append("a non-rectangular post in the top cell")
+            ob.flat_counts[(b.width(), b.height())] += 1
+            if lattice is not None:
+                c = b.center()
+                off += ((c.x - cx - oP) % P != 0) or ((c.y - cx - oP) % P != 0)
+        pb = top.bbox_per_layer(li_posts)
+        if not pb.empty():
+            ob.posts_bbox = (pb.left, pb.bottom, pb.right, pb.top)
+    b = top.bbox()
+    if not b.empty():
+        ob.bbox = (b.left, b.bottom, b.right, b.top)
+    ob.off_lattice = int(off)
+    return ob
+
+
+# ----------------------------------------------------------------------------------------------
+# gdstk
+# ----------------------------------------------------------------------------------------------
+def read_gdstk(path: Path, lattice: tuple[int, int, int] | None, posts_layer: tuple[int, int]) -> Observed:
+    import gdstk
+
+    fmt = sniff_format(path)
+    if fmt == "oas":
+        lib = gdstk.read_oas(str(path), unit=1e-6)
+    else:
+        lib = gdstk.read_gds(str(path), unit=1e-6)
+    ob = Observed("gdstk", fmt, dbu_um=lib.precision / lib.unit)
+    tops = lib.top_level()
+    ob.top_cells = [c.name for c in tops]
+    if len(tops) != 1:
+        return ob
+    top = tops[0]
+    s = 1e3  # um -> nm
+    for c in top.dependencies(True):
+        rects = []
+        for p in c.polygons:
+            pts = np.rint(p.points * s).astype(np.int64)
+            x0, y0 = pts.min(0)
+            x1, y1 = pts.max(0)
+            if len(pts) != 4 or len(set(pts[:, 0].tolist())) != 2 or len(set(pts[:, 1].tolist())) != 2:
+                ob.anomalies.append(f"cell {c.name}: a non-rectangular shape")
+            rects.append((p.layer, p.datatype, int(x1 - x0), int(y1 - y0), int(x0 + x1) // 2, int(y0 + y1) // 2))
+        if c.references:
+            ob.anomalies.append(f"cell {c.name} has child cells")
+        ob.cell_rects[c.name] = rects
+        for p in c.polygons:
+            ob.layers.add((p.layer, p.datatype))
+    for p in top.polygons:
+        ob.layers.add((p.layer, p.datatype))
+    for lb in top.labels:
+        ob.layers.add((lb.layer, lb.texttype))
+    off = 0
+    pbb = None
+    for r in top.references:
+        nm = r.cell.name if hasattr(r.cell, "name") else str(r.cell)
+        o = np.array([r.origin[0], r.origin[1]])
+        if r.repetition.size:
+            pos = np.asarray(r.repetition.get_offsets()) + o
+        else:
+            pos = o[None, :]
+        pos = np.rint(pos * s).astype(np.int64)
+        ob.ref_counts[nm] += len(pos)
+        if r.rotation or r.magnification != 1 or r.x_reflection:
+            ob.anomalies.append(f"a reference to {nm} is rotated, mirrored or magnified")
+        if lattice is not None:
+            cx, oP, P = lattice
+            off += int(np.count_nonzero(((pos - cx - oP) % P != 0).any(axis=1)))
+        for (l_, d_, w, h, ccx, ccy) in ob.cell_rects.get(nm, []):
+            if (l_, d_) == posts_layer:
+                bb = (int(pos[:, 0].min()) + ccx - w // 2, int(pos[:, 1].min()) + ccy - h // 2,
+                      int(pos[:, 0].max()) + ccx + w // 2, int(pos[:, 1].max()) + ccy + h // 2)
+                pbb = _union(pbb, bb)
+    for p in top.polygons:
+        if (p.layer, p.datatype) == posts_layer:
+            pts = np.rint(p.points * s).astype(np.int64)
+            x0, y0 = pts.min(0)
+            x1, y1 = pts.max(0)
+            ob.flat_counts[(int(x1 - x0), int(y1 - y0))] += 1
+            pbb = _union(pbb, (int(x0), int(y0), int(x1), int(y1)))
+            if lattice is not None:
+                cx, oP, P = lattice
+                off += ((int(x0 + x1) // 2 - cx - oP) % P != 0) or ((int(y0 + y1) // 2 - cx - oP) % P != 0)
+    ob.posts_bbox = pbb
+    (a, b), (c2, d) = top.bounding_box()
+    ob.bbox = (int(round(a * s)), int(round(b * s)), int(round(c2 * s)), int(round(d * s)))
+    ob.off_lattice = int(off)
+    return ob
+
+
+# ----------------------------------------------------------------------------------------------
+# streaming GDSII scanner
+# ----------------------------------------------------------------------------------------------
+def _real8(b: bytes) -> float:
+    v = int.from_bytes(b, "big")
+    sign = -1.0 if v >> 63 else 1.0
+    exp = (v >> 56) & 0x7F
+    mant = v & ((1 << 56) - 1)
+    return sign * mant / float(1 << 56) * 16.0 ** (exp - 64)
+
+
+_SREF_T = np.array([0x00040A00, 0x00081206, 0, 0x000C1003, 0, 0, 0x00041100], dtype=np.uint32)
+_BND_DTYPE = np.dtype({"names": ["h", "lh", "layer", "dh", "dt", "xyh", "xy", "end"],
+                       "formats": [">u4", ">u4", ">i2", ">u4", ">i2", ">u4", (">i4", (10,)), ">u4"],
+                       "offsets": [0, 4, 8, 10, 14, 16, 20, 60], "itemsize": 64})
+
+
+class GdsScanner:
+    """Streaming GDSII reader reducing a file to an :class:`Observed` with bounded memory."""
+
+    CHUNK = 32 << 20
+
+    def __init__(self, path: Path, lattice: tuple[int, int, int] | None, posts_layer: tuple[int, int],
+                 progress: bool = False):
+        self.path, self.lattice, self.posts_layer, self.progress = path, lattice, posts_layer, progress
+
+    def run(self) -> Observed:
+        ob = Observed("stream", "gds")
+        structs: dict[str, dict[str, Any]] = {}
+        refs: dict[str, dict[str, Any]] = {}  # structure -> sname -> {"n", "min", "max"}
+        flat: dict[str, dict[tuple[int, int], list]] = {}  # structure -> (w,h) -> [n, bbox]
+        texts: dict[str, list] = {}
+        cur = None
+        el: dict[str, Any] | None = None
+        off: dict[str, int] = {}  # posts off the lattice, per structure
+        lat = self.lattice
+        size = self.path.stat().st_size
+        bar = None
+        if self.progress:
+            from tqdm.auto import tqdm
+            bar = tqdm(total=size, unit="B", unit_scale=True, desc=f"scan {self.path.name}")
+        with open(self.path, "rb") as fh:
+            buf = b""
+            pos = 0
+            eof = False
+            consumed = 0
+            while True:
+                if len(buf) - pos < 65536 + 8 and not eof:
+                    chunk = fh.read(self.CHUNK)
+                    if not chunk:
+                        eof = True
+                    consumed += len(chunk)
+                    buf = buf[pos:] + chunk
+                    pos = 0
+                    if bar is not None:
+                        bar.update(len(chunk))
+                if len(buf) - pos < 4:
+                    if len(buf) - pos:
+                        ob.anomalies.append("trailing bytes after the last record")
+                    break
+                ln = (buf[pos] << 8) | buf[pos + 1]
+                rt = buf[pos + 2]
+                if ln < 4 or pos + ln > len(buf):
+                    ob.anomalies.append(f"corrupt record at byte {consumed - (len(buf) - pos)}")
+                    break
+                # ---- fast paths -------------------------------------------------------------
+                if cur is not None and el is None and rt in (0x0A, 0x08) and len(buf) - pos >= 4096:
+                    if rt == 0x0A:
+                        nmax = (len(buf) - pos) // 28
+                        v = np.frombuffer(buf, dtype=">u4", count=nmax * 7, offset=pos).reshape(nmax, 7)
+                        okm = (v[:, 0] == _SREF_T[0]) & (v[:, 1] == _SREF_T[1]) & (v[:, 3] == _SREF_T[3]) & \
+                              (v[:, 6] == _SREF_T[6])
+                        m = nmax if okm.all() else int(np.argmin(okm))
+                        if m > 0:
+                            v = v[:m]
+                            words = v[:, 2]
+                            xy = v[:, 4:6].astype(np.uint32).view(np.int32).astype(np.int64)
+                            uw, inv = np.unique(words, return_inverse=True)
+                            dref = refs.setdefault(cur, {})
+                            for j, w in enumerate(uw.tolist()):
+                                nm = int(w).to_bytes(4, "big").rstrip(b"\0").decode("ascii", "replace")
+                                sel = xy[inv == j] if len(uw) > 1 else xy
+                                rr = dref.setdefault(nm, {"n": 0, "min": None, "max": None})
+                                rr["n"] += len(sel)
+                                mn, mx = sel.min(0), sel.max(0)
+                                rr["min"] = mn if rr["min"] is None else np.minimum(rr["min"], mn)
+                                rr["max"] = mx if rr["max"] is None else np.maximum(rr["max"], mx)
+                            if lat is not None:
+                                cx, oP, P = lat
+                                off[cur] = off.get(cur, 0) + int(np.count_nonzero(((xy - cx - oP) % P != 0).any(axis=1)))
+                            pos += 28 * m
+                            continue
+                    else:
+                        nmax = (len(buf) - pos) // 64
+                        v = np.frombuffer(buf, dtype=_BND_DTYPE, count=nmax, offset=pos)
+                        okm = (v["h"] == 0x00040800) & (v["lh"] == 0x00060D02) & (v["dh"] == 0x00060E02) & \
+                              (v["xyh"] == 0x002C1003) & (v["end"] == 0x00041100)
+                        m = nmax if okm.all() else int(np.argmin(okm))
+                        if m > 0:
+                            v = v[:m]
+                            xy = v["xy"].astype(np.int64)
+                            x, y = xy[:, 0::2], xy[:, 1::2]
+                            x0, x1, y0, y1 = x.min(1), x.max(1), y.min(1), y.max(1)
+                            rect = ((np.count_nonzero(x == x0[:, None], axis=1) == 3)
+                                    & (np.count_nonzero(y == y0[:, None], axis=1) == 3)
+                                    & (x[:, 0] == x[:, 4]) & (y[:, 0] == y[:, 4])
+                                    & ((x[:, :4] == x0[:, None]) | (x[:, :4] == x1[:, None])).all(1))
+                            if not rect.all():
+                                ob.anomalies.append(f"{int((~rect).sum())} non-rectangular boundaries in {cur}")
+                            ld = v["layer"].astype(np.int64) * 65536 + v["dt"].astype(np.int64)
+                            key = ((x1 - x0) << 32) + (y1 - y0)
+                            comb = np.stack([ld, key], 1)
+                            uk, inv = np.unique(comb, axis=0, return_inverse=True)
+                            inv = inv.reshape(-1)
+                            fd = flat.setdefault(cur, {})
+                            for j, (ldj, kj) in enumerate(uk.tolist()):
+                                sel = inv == j
+                                lay = (ldj >> 16, ldj & 0xFFFF)
+                                ob.layers.add(lay)
+                                wh = (kj >> 32, kj & 0xFFFFFFFF)
+                                bb = (int(x0[sel].min()), int(y0[sel].min()), int(x1[sel].max()), int(y1[sel].max()))
+                                e = fd.setdefault((lay, wh), [0, None])
+                                e[0] += int(sel.sum())
+                                e[1] = _union(e[1], bb)
+                            if lat is not None:
+                                cx, oP, P = lat
+                                onposts = ld == self.posts_layer[0] * 65536 + self.posts_layer[1]
+                                ccx = (x0 + x1) // 2
+                                ccy = (y0 + y1) // 2
+                                bad = ((ccx - cx - oP) % P != 0) | ((ccy - cx - oP) % P != 0)
+                                off[cur] = off.get(cur, 0) + int(np.count_nonzero(bad & onposts))
+                            pos += 64 * m
+                            continue
+                # ---- generic record ---------------------------------------------------------
+                data = buf[pos + 4:pos + ln]
+                pos += ln
+                if rt == 0x03:  # UNITS
+                    ob.dbu_um = _real8(data[:8])
+                elif rt == 0x05:  # BGNSTR
+                    cur = ""
+                elif rt == 0x06:  # STRNAME
+                    cur = data.rstrip(b"\0").decode("ascii", "replace")
+                    structs[cur] = {"rects": [], "other": 0}
+                elif rt == 0x07:  # ENDSTR
+                    cur = None
+                elif rt in (0x08, 0x09, 0x0A, 0x0B, 0x0C, 0x15, 0x2D):
+                    el = {"type": rt}
+                elif rt == 0x0D and el is not None:
+                    el["layer"] = struct.unpack(">h", data[:2])[0]
+                elif rt in (0x0E, 0x16, 0x2E) and el is not None:
+                    el["dt"] = struct.unpack(">h", data[:2])[0]
+                elif rt == 0x12 and el is not None:
+                    el["sname"] = data.rstrip(b"\0").decode("ascii", "replace")
+                elif rt == 0x13 and el is not None:
+                    el["colrow"] = struct.unpack(">hh", data[:4])
+                elif rt == 0x10 and el is not None:
+                    el["xy"] = np.frombuffer(data, dtype=">i4").astype(np.int64).reshape(-1, 2)
+                elif rt == 0x1A and el is not None:
+                    el["strans"] = struct.unpack(">H", data[:2])[0]
+                elif rt in (0x1B, 0x1C) and el is not None:
+                    el["magangle"] = True
+                elif rt == 0x11 and el is not None:  # ENDEL
+                    off[cur] = off.get(cur, 0) + self._element(ob, cur, el, structs, refs, flat, texts)
+                    el = None
+        if bar is not None:
+            bar.close()
+        # ---- reduce -------------------------------------------------------------------------
+        children = {n for s in refs.values() for n in s}
+        tops = [n for n in structs if n not in children]
+        ob.top_cells = tops
+        for name, s in structs.items():
+            if name in tops:
+                continue
+            rects = list(s["rects"])
+            for (lay, wh), (n, bb) in flat.get(name, {}).items():
+                rects += [(lay[0], lay[1], wh[0], wh[1], (bb[0] + bb[2]) // 2, (bb[1] + bb[3]) // 2)] * n
+            ob.cell_rects[name] = rects
+            if name in refs:
+                ob.anomalies.append(f"cell {name} has child cells")
+        if len(tops) == 1:
+            top = tops[0]
+            pbb = None
+            bb = None
+            for nm, rr in refs.get(top, {}).items():
+                ob.ref_counts[nm] += rr["n"]
+                for (l_, d_, w, h, ccx, ccy) in ob.cell_rects.get(nm, []):
+                    b = (int(rr["min"][0]) + ccx - w // 2, int(rr["min"][1]) + ccy - h // 2,
+                         int(rr["max"][0]) + ccx + w // 2, int(rr["max"][1]) + ccy + h // 2)
+                    bb = _union(bb, b)
+                    if (l_, d_) == self.posts_layer:
+                        pbb = _union(pbb, b)
+                    ob.layers.add((l_, d_))
+            for (lay, wh), (n, b) in flat.get(top, {}).items():
+                ob.layers.add(lay)
+                bb = _union(bb, b)
+                if lay == self.posts_layer:
+                    ob.flat_counts[wh] += n
+                    pbb = _union(pbb, b)
+            for (lay, x, y) in texts.get(top, []):
+                ob.layers.add(lay)
+                bb = _union(bb, (x, y, x, y))
+            ob.posts_bbox = pbb
+            ob.bbox = bb
+            ob.off_lattice = off.get(top, 0)
+        return ob
+
+    def _element(self, ob, cur, el, structs, refs, flat, texts) -> int:
+        t = el["type"]
+        xy = el.get("xy")
+        if cur is None or xy is None:
+            return 0
+        if t == 0x0A:  # SREF
+            rr = refs.setdefault(cur, {}).setdefault(el.get("sname", "?"), {"n": 0, "min": None, "max": None})
+            rr["n"] += 1
+            p = xy[0]
+            rr["min"] = p if rr["min"] is None else np.minimum(rr["min"], p)
+            rr["max"] = p if rr["max"] is None else np.maximum(rr["max"], p)
+            if el.get("strans") or el.get("magangle"):
+                ob.anomalies.append(f"a reference to {el.get('sname')} is rotated, mirrored or magnified")
+            if self.lattice is not None:
+                cx, oP, P = self.lattice
+                return int(((p[0] - cx - oP) % P != 0) or ((p[1] - cx - oP) % P != 0))
+            return 0
+        if t == 0x0B:  # AREF
+            cols, rows = el.get("colrow", (1, 1))
+            o, pc, pr = xy[0], xy[1], xy[2]
+            dc = (pc - o) // max(cols, 1)
+            dr = (pr - o) // max(rows, 1)
+            rr = refs.setdefault(cur, {}).setdefault(el.get("sname", "?"), {"n": 0, "min": None, "max": None})
+            rr["n"] += cols * rows
+            corners = np.array([o, o + dc * (cols - 1), o + dr * (rows - 1), o + dc * (cols - 1) + dr * (rows - 1)])
+            mn, mx = corners.min(0), corners.max(0)
+            rr["min"] = mn if rr["min"] is None else np.minimum(rr["min"], mn)
+            rr["max"] = mx if rr["max"] is None else np.maximum(rr["max"], mx)
+            if self.lattice is not None:
+                cx, oP, P = self.lattice
+                bad = any(((q - cx - oP) % P != 0).any() for q in (o, dc, dr) if q is not o) or \
+                    bool(((o - cx - oP) % P != 0).any())
+                return cols * rows if bad else 0
+            return 0
+        lay = (el.get("layer", -1), el.get("dt", 0))
+        if t == 0x0C:
+            texts.setdefault(cur, []).append((lay, int(xy[0][0]), int(xy[0][1])))
+            return 0
+        x0, y0 = xy.min(0)
+        x1, y1 = xy.max(0)
+        b = (int(x0), int(y0), int(x1), int(y1))
+        is_rect = t in (0x08, 0x2D) and len(xy) == 5 and len(set(xy[:4, 0].tolist())) == 2 and \
+            len(set(xy[:4, 1].tolist())) == 2 and (xy[0] == xy[4]).all()
+        fd = flat.setdefault(cur, {})
+        bad = 0
+        if is_rect and lay == self.posts_layer and self.lattice is not None:
+            cx, oP, P = self.lattice
+            bad = int((((b[0] + b[2]) // 2 - cx - oP) % P != 0) or (((b[1] + b[3]) // 2 - cx - oP) % P != 0))
+        if is_rect:
+            e = fd.setdefault((lay, (b[2] - b[0], b[3] - b[1])), [0, None])
+            e[0] += 1
+            e[1] = _union(e[1], b)
+        else:
+            # a general polygon: keep it as a (layer, bbox) entry with a unique key
+            e = fd.setdefault((lay, ("poly", len(fd))), [0, None])
+            e[0] += 1
+            e[1] = _union(e[1], b)
+        return bad
+
+
+def read_stream(path: Path, lattice, posts_layer, progress: bool = False) -> Observed:
+    if sniff_format(path) != "gds":
+        raise InputError("--reader", "stream", "klayout or gdstk for OASIS files (the scanner reads GDSII)")
+    return GdsScanner(path, lattice, posts_layer, progress).run()
+
+
+# ----------------------------------------------------------------------------------------------
+# comparison
+# ----------------------------------------------------------------------------------------------
+def lattice_of(spec: LayoutSpec) -> tuple[int, int, int] | None:
+    P = spec.period_nm
+    if P is None:
+        return None
+    o = 0 if spec.design.lattice == "integer" else P // 2
+    return spec.centre_nm, o, P
+
+
+def compare(ob: Observed, spec: LayoutSpec, exp: Expected, *, top_name: str | None = None,
+            frame: bool | None = None, expected_layers: set | None = None) -> tuple[list[str], np.ndarray]:
+    """Mismatches between what was read and what the design implies, and the counts per type."""
+    mm: list[str] = []
+    top_name = top_name or spec.top_name
+    frame = has_frame(spec) if frame is None else frame
+    if abs(ob.dbu_um - 1e-3) > 1e-12:
+        mm.append(f"database unit {ob.dbu_um:g} um, expected 0.001 um (1 nm)")
+    if ob.top_cells != [top_name]:
+        mm.append(f"top cells {ob.top_cells}, expected exactly one named {top_name!r}")
+    sizes = spec.post_sizes_nm
+    names = spec.post_names
+    counts = np.zeros(spec.levels, dtype=np.int64)
+    hier = bool(ob.ref_counts)
+    if hier:
+        for nm, n in ob.ref_counts.items():
+            if nm not in names:
+                mm.append(f"{n} references to an unexpected cell {nm!r}")
+                continue
+            k = names.index(nm)
+            counts[k] += n
+            rects = ob.cell_rects.get(nm, [])
+            want = (spec.layers.posts[0], spec.layers.posts[1], int(sizes[k, 0]), int(sizes[k, 1]), 0, 0)
+            if [tuple(int(v) for v in r) for r in rects] != [want]:
+                mm.append(f"post cell {nm}: shapes {rects}, expected one rectangle {want[2]}x{want[3]} nm "
+                          f"on layer {want[0]}/{want[1]} centred at the origin")
+    if ob.flat_counts:
+        if hier:
+            mm.append("both references and flat rectangles on the posts layer in the top cell")
+        lookup = {(int(w), int(h)): k for k, (w, h) in enumerate(sizes.tolist())}
+        if len(lookup) != spec.levels:
+            mm.append("two post types have the same size: flat counts per type are ambiguous")
+        for wh, n in ob.flat_counts.items():
+            k = lookup.get((int(wh[0]), int(wh[1])))
+            if k is None:
+                mm.append(f"{n} posts of unexpected size {wh[0]}x{wh[1]} nm")
+            else:
+                counts[k] += n
+    for k in range(spec.levels):
+        if counts[k] != exp.counts[k]:
+            mm.append(f"{names[k]}: {counts[k]:,} posts, expected {exp.counts[k]:,}")
+    if ob.off_lattice:
+        mm.append(f"{ob.off_lattice:,} posts off the lattice")
+    if ob.posts_bbox != (None if exp.posts_bbox_nm is None else tuple(exp.posts_bbox_nm)):
+        mm.append(f"posts bounding box {ob.posts_bbox} nm, expected {exp.posts_bbox_nm}")
+    if frame:
+        boxes = mark_boxes_nm(spec)
+        fb = (min(b[0] for b in boxes), min(b[1] for b in boxes), max(b[2] for b in boxes), max(b[3] for b in boxes))
+        if ob.bbox != fb:
+            mm.append(f"layout bounding box {ob.bbox} nm, expected {fb} (the alignment marks)")
+    if ob.bbox is not None and min(ob.bbox[:2]) < 0:
+        mm.append(f"negative coordinates in the layout bounding box {ob.bbox}")
+    L = spec.layers
+    if expected_layers is None:
+        expected_layers = {L.posts, L.label} | ({L.aperture, L.marks} if frame else set())
+    if set(ob.layers) != set(expected_layers):
+        mm.append(f"layers {sorted(ob.layers)}, expected {sorted(expected_layers)}")
+    mm += ob.anomalies[:20]
+    return mm, counts
+
+
+def verify_layout(path: str | os.PathLike, spec: LayoutSpec, *, reader: str = "auto", test_array: Any = None,
+                  workers: int | None = 1, progress: bool = False, expected: Expected | None = None) -> VerifyReport:
+    """Read ``path`` back and compare it with ``spec`` (or with the calibration array ``test_array``)."""
+    path = Path(path)
+    if not path.is_file():
+        raise InputError("FILE", str(path), "an existing GDSII or OASIS file")
+    reader = check_choice("--reader", reader, READERS)
+    fmt = sniff_format(path)
+    size = path.stat().st_size
+    if reader == "auto":
+        if fmt == "gds":
+            reader = "stream" if size > STREAM_THRESHOLD_BYTES else "klayout"
+        else:
+            reader = "klayout" if size < (16 << 20) else "gdstk"
+    lat = lattice_of(spec)
+    t0 = time.perf_counter()
+    if test_array is not None:
+        exp = _expected_test_array(test_array)
+        lat = None
+    else:
+        exp = expected or expected_content(spec, workers=workers, progress=progress)
+    t_exp = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    if reader == "klayout":
+        ob = read_klayout(path, lat, spec.layers.posts)
+    elif reader == "gdstk":
+        ob = read_gdstk(path, lat, spec.layers.posts)
+    else:
+        ob = read_stream(path, lat, spec.layers.posts, progress)
+    t_read = time.perf_counter() - t0
+    if test_array is not None:
+        name = f"{spec.top_name.rsplit('_', 1)[0]}_CAL"
+        mm, counts = compare(ob, spec, exp, top_name=name, frame=False,
+                             expected_layers={spec.layers.posts, spec.layers.label})
+    else:
+        mm, counts = compare(ob, spec, exp)
+    return VerifyReport(not mm, str(path), ob.reader, fmt, int(counts.sum()), exp.total, counts.tolist(),
+                        exp.counts.tolist(), ob.posts_bbox, exp.posts_bbox_nm, ob.bbox,
+                        sorted([list(x) for x in ob.layers]), mm, t_read, t_exp, size)
+
+
+def _expected_test_array(ta: Any) -> Expected:
+    s = ta.spec
+    n = ta.block * ta.block
+    counts = np.full(s.levels, n, dtype=np.int64)
+    p = int(round(s.design.period_um * 1000))
+    bb = None
+    for k in range(s.levels):
+        x, y = ta.block_origin_nm(k)
+        w, h = (int(v) for v in s.post_sizes_nm[k])
+        bb = _union(bb, (x - w // 2, y - h // 2, x + (ta.block - 1) * p + w // 2, y + (ta.block - 1) * p + h // 2))
+    return Expected(counts, bb)
+
+
+__all__ = ["GdsScanner", "Observed", "READERS", "VerifyReport", "compare", "read_gdstk", "read_klayout",
+           "read_stream", "sniff_format", "verify_layout"]
