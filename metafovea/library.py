@@ -107,3 +107,364 @@ class PostSet:
         return cls(meta["polarization"], meta["period_um"], meta["height_um"], meta["wavelength_um"],
                    arrays["widths_um"], arrays["t_x"], arrays["t_y"], source=meta["source"],
                    info=meta.get("info", {}))
+
+
+# ================================================================================================
+# Scatterer library: RCWA sweep of (wx, wy) posts
+# ================================================================================================
+#
+# Polarisation naming (the paper's text and equations disagree on "s" and "p"; we avoid both):
+# 'x' is light with E along the lattice x axis, 'y' along y. The foveal lens focuses 'x' and passes
+# 'y'; the perifoveal lens focuses 'y' and passes 'x'. (At normal incidence with azimuth 0, metafovea.rcwa
+# calls x 'p' and y 's'.)
+#
+# Physical set-up (metafovea.rcwa.posts): Si posts on the Si wafer, air above; light enters through
+# the wafer by default (posts face the sensor) so only the zero order is transmitted into air at 10 um.
+# Phases are referenced at the post-layer faces; t is power normalised (|t|^2 = zero-order efficiency).
+
+import logging
+import math
+import os
+import time
+import warnings
+from typing import Iterable, Sequence
+
+from metafovea.errors import NotConvergedWarning, check_range
+from metafovea.io import input_hash
+from metafovea.parallel import run_tasks
+
+log = logging.getLogger(__name__)
+
+LIBRARY_ARRAYS = ("t_x", "t_y", "T_x", "T_y", "R_x", "R_y", "other_x", "other_y", "err_x", "err_y")
+DEFAULT_HARMONICS = 10
+
+
+@dataclass
+class Library:
+    """Zero-order responses of posts on a (wx, wy) grid for one or more wavelengths.
+
+    Arrays of shape (n_wavelengths, n_wx, n_wy): ``t_x``/``t_y`` complex power-normalised
+    transmission for x/y-polarised light (exp(-i omega t), reference planes at the post-layer faces),
+    ``T_*`` = |t|^2, ``R_*`` total reflection, ``other_*`` power in all other orders (mostly reflected
+    first orders inside the wafer), ``err_*`` convergence estimate |t(M) - t(M-2)|.
+    ``meta``: every input (platform, harmonics, factorisation, entry side), timing, cache key.
+    """
+
+    wx_um: np.ndarray
+    wy_um: np.ndarray
+    wavelengths_um: np.ndarray
+    arrays: dict[str, np.ndarray]
+    meta: dict[str, Any] = field(default_factory=dict)
+
+    def __getattr__(self, name: str) -> np.ndarray:
+        arrays = self.__dict__.get("arrays", {})
+        if name in arrays:
+            return arrays[name]
+        raise AttributeError(name)
+
+    def index_of_wavelength(self, wavelength_um: float) -> int:
+        d = np.abs(self.wavelengths_um - wavelength_um)
+        i = int(np.argmin(d))
+        if d[i] > 1e-9:
+            raise InputError("wavelength_um", wavelength_um,
+                             f"one of the library wavelengths {self.wavelengths_um.tolist()}")
+        return i
+
+    def save(self, path: str | Path) -> Path:
+        meta = dict(self.meta, type="Library", units="um")
+        return atomic_save_npz(path, meta, wx_um=self.wx_um, wy_um=self.wy_um,
+                               wavelengths_um=self.wavelengths_um, **self.arrays)
+
+    @classmethod
+    def load(cls, path: str | Path) -> "Library":
+        arrays, meta = load_npz(path)
+        if meta.get("type") != "Library":
+            raise InputError("path", str(path), "a Library file written by Library.save")
+        return cls(arrays.pop("wx_um"), arrays.pop("wy_um"), arrays.pop("wavelengths_um"), arrays, meta)
+
+
+def width_grid(period_um: float = 4.0, step_um: float = 0.1, min_feature_um: float = 0.5) -> np.ndarray:
+    """Post widths from ``min_feature`` to ``period - min_feature`` (both posts and gaps >= min feature)."""
+    p = check_positive("period_um", period_um, "um")
+    step = check_positive("grid_step_um", step_um, "um", hi=p)
+    mf = check_range("min_feature_um", min_feature_um, 0.0, p / 2, hi_inclusive=False)
+    lo, hi = max(mf, step), p - max(mf, step)
+    if hi < lo:
+        raise InputError("grid_step_um", step_um, f"small enough to fit posts between {lo:g} and {hi:g} um")
+    n = int(math.floor((hi - lo) / step + 1e-9)) + 1
+    if n < 2:
+        raise InputError("grid_step_um", step_um, "a step giving at least 2 widths")
+    if n > 2001:
+        raise InputError("grid_step_um", step_um, "a step giving at most 2001 widths per axis")
+    return np.round(lo + step * np.arange(n), 10)
+
+
+def _material_key(v: Any, wl: np.ndarray) -> Any:
+    from metafovea.materials import Material, index_of
+    if isinstance(v, Material):
+        n = index_of(v.name, v, wl)
+        return {"material": v.name, "n": [[float(z.real), float(z.imag)] for z in n]}
+    z = complex(v)
+    return [z.real, z.imag]
+
+
+def _row_task(job: dict) -> dict:
+    """One sweep task: x-polarised (and y if needed) responses for one wx at all wy, one wavelength."""
+    from metafovea.rcwa.posts import post_response
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", NotConvergedWarning)
+        kw = job["kw"]
+        out: dict[str, np.ndarray] = {}
+        pols = ("x",) if job["symmetric"] else ("x", "y")
+        r = post_response(job["wx"], job["wy"], job["wl"], estimate=job["estimate"], polarizations=pols, **kw)
+        for k in LIBRARY_ARRAYS:
+            if k.endswith("_y") and job["symmetric"]:
+                continue
+            out[k] = np.asarray(getattr(r, k))
+        out["energy_error"] = np.array(r.info.get("energy_error") or 0.0)
+    return out
+
+
+def default_cache_dir() -> Path:
+    env = os.environ.get("METAFOVEA_CACHE")
+    return Path(env) if env else Path.home() / ".cache" / "metafovea" / "library"
+
+
+def compute_library(wx_um: Sequence[float], wy_um: Sequence[float] | None = None,
+                    wavelengths_um: Iterable[float] = (10.0,), *, period_um: float = 4.0,
+                    height_um: float = 10.0, n_post: Any = 3.42, n_surround: Any = 1.0,
+                    n_substrate: Any = 3.42, n_superstrate: Any = 1.0, harmonics: int = DEFAULT_HARMONICS,
+                    factorization: str = "li", incidence: str = "substrate", estimate: bool = True,
+                    tol: float | None = 0.02, cache_dir: str | Path | None = None, use_cache: bool = True,
+                    workers: int | None = None, scheduler: str | None = None,
+                    progress: bool = True) -> Library:
+    """Sweep the post widths (wx, wy) for each wavelength with :func:`metafovea.rcwa.posts.post_response`.
+
+    The result is cached in ``cache_dir`` under a hash of every input; finished rows are written as
+    they arrive (``<key>.parts/``), so an interrupted sweep resumes where it stopped. Work runs through
+    :func:`metafovea.parallel.run_tasks` (local processes, or Dask with ``scheduler``). When the wx and
+    wy grids coincide (square lattice), only x-polarised light is solved and
+    ``t_y(wx, wy) = t_x(wy, wx)``. With ``tol``, a :class:`NotConvergedWarning` reports posts whose
+    convergence estimate exceeds it.
+    """
+    from metafovea.rcwa.solve import FACTORIZATIONS, SIDES
+    period = check_positive("period_um", period_um, "um")
+    height = check_positive("height_um", height_um, "um")
+    wx = np.asarray(wx_um, dtype=float).ravel()
+    wy = wx.copy() if wy_um is None else np.asarray(wy_um, dtype=float).ravel()
+    for name, w in (("wx_um", wx), ("wy_um", wy)):
+        if w.size < 1 or not np.all(np.isfinite(w)) or np.any(w <= 0) or np.any(w >= period):
+            raise InputError(name, w.tolist()[:5], f"widths with 0 < w < period_um = {period:g} um")
+    wls = np.asarray(list(np.atleast_1d(wavelengths_um)), dtype=float).ravel()
+    if wls.size < 1 or not np.all(np.isfinite(wls)) or np.any(wls <= 0):
+        raise InputError("wavelengths_um", wls.tolist(), "positive wavelengths (um)")
+    M = check_int("harmonics", harmonics, 5 if estimate else 3, 40)
+    factorization = check_choice("factorization", factorization, FACTORIZATIONS)
+    incidence = check_choice("incidence", incidence, SIDES)
+    if tol is not None:
+        tol = check_positive("tol", tol)
+    # validate materials up front (clear errors before any work is queued)
+    from metafovea.materials import index_of
+    for nm, v in (("n_post", n_post), ("n_surround", n_surround), ("n_substrate", n_substrate),
+                  ("n_superstrate", n_superstrate)):
+        index_of(nm, v, wls)
+    symmetric = wx.shape == wy.shape and bool(np.all(wx == wy))
+    inputs = {"schema": 1, "wx_um": wx, "wy_um": wy, "wavelengths_um": wls, "period_um": period,
+              "height_um": height, "n_post": _material_key(n_post, wls),
+              "n_surround": _material_key(n_surround, wls), "n_substrate": _material_key(n_substrate, wls),
+              "n_superstrate": _material_key(n_superstrate, wls), "harmonics": M,
+              "factorization": factorization, "incidence": incidence, "estimate": bool(estimate)}
+    key = input_hash(inputs)
+    cdir = Path(cache_dir) if cache_dir is not None else default_cache_dir()
+    final = cdir / f"library-{key}.npz"
+    if use_cache and final.is_file():
+        log.info("library loaded from cache %s", final)
+        lib = Library.load(final)
+        lib.meta["from_cache"] = True
+        _warn_convergence(lib, tol)
+        return lib
+    parts = cdir / f"library-{key}.parts"
+    kw = dict(period_um=period, height_um=height, n_post=n_post, n_surround=n_surround,
+              n_substrate=n_substrate, n_superstrate=n_superstrate, harmonics=M,
+              factorization=factorization, incidence=incidence)
+    jobs, todo = [], []
+    shape = (wls.size, wx.size, wy.size)
+    arrays = {k: np.full(shape, np.nan, dtype=complex if k.startswith("t_") else float) for k in LIBRARY_ARRAYS}
+    energy = 0.0
+    for il, wl in enumerate(wls):
+        for ix, a in enumerate(wx):
+            job = dict(wx=np.full(wy.size, a), wy=wy, wl=float(wl), kw=kw, estimate=bool(estimate),
+                       symmetric=symmetric, il=il, ix=ix)
+            pf = parts / f"row-{il}-{ix}.npz"
+            if use_cache and pf.is_file():
+                try:
+                    got, _ = load_npz(pf)
+                    _store(arrays, got, il, ix)
+                    energy = max(energy, float(got.get("energy_error", 0.0)))
+                    continue
+                except Exception:  # noqa: BLE001 - a damaged part is recomputed
+                    log.warning("recomputing damaged cache part %s", pf)
+            jobs.append(job)
+            todo.append(pf)
+    log.info("library %s: %d of %d rows to compute (M=%d, %s)", key, len(jobs), wls.size * wx.size, M,
+             factorization)
+    t0 = time.perf_counter()
+    for i, res in run_tasks(_row_task, jobs, workers=workers, scheduler=scheduler, progress=progress,
+                            desc="RCWA library"):
+        job = jobs[i]
+        _store(arrays, res, job["il"], job["ix"])
+        energy = max(energy, float(res.get("energy_error", 0.0)))
+        if use_cache:
+            atomic_save_npz(todo[i], None, **res)
+    elapsed = time.perf_counter() - t0
+    if symmetric:
+        for k in LIBRARY_ARRAYS:
+            if k.endswith("_y"):
+                arrays[k] = np.swapaxes(arrays[k[:-2] + "_x"], 1, 2).copy()
+    meta = dict(inputs, key=key, elapsed_s=elapsed, rows_computed=len(jobs), energy_error=energy,
+                symmetric_grid=symmetric, workers=workers, scheduler=scheduler,
+                conventions="exp(-i omega t); power-normalised zero-order t; phase planes at the post-layer faces; "
+                            f"light enters from the {incidence}")
+    meta = {k: (v.tolist() if isinstance(v, np.ndarray) else v) for k, v in meta.items()}
+    lib = Library(wx, wy, wls, arrays, meta)
+    if use_cache:
+        lib.save(final)
+        for pf in todo + [parts / f"row-{il}-{ix}.npz" for il in range(wls.size) for ix in range(wx.size)]:
+            try:
+                pf.unlink()
+            except FileNotFoundError:
+                pass
+        try:
+            parts.rmdir()
+        except OSError:
+            pass
+    _warn_convergence(lib, tol)
+    return lib
+
+
+def _store(arrays: dict, res: dict, il: int, ix: int) -> None:
+    for k in LIBRARY_ARRAYS:
+        if k in res:
+            arrays[k][il, ix, :] = res[k]
+
+
+def _warn_convergence(lib: Library, tol: float | None) -> None:
+    err = np.fmax(lib.err_x, lib.err_y)
+    if np.all(np.isnan(err)):
+        lib.meta["max_error_estimate"] = None
+        return
+    worst = float(np.nanmax(err))
+    lib.meta["max_error_estimate"] = worst
+    lib.meta["median_error_estimate"] = float(np.nanmedian(err))
+    if tol is not None and worst > tol:
+        n_bad = int(np.sum(err > tol))
+        warnings.warn(f"library: {n_bad} of {err.size} posts are not converged to {tol:g} "
+                      f"(estimate up to {worst:.3g}; increase harmonics)", NotConvergedWarning, stacklevel=3)
+
+
+# ================================================================================================
+# Birefringent post selection (the paper's Fig. 7c)
+# ================================================================================================
+
+def _wrap(a: np.ndarray) -> np.ndarray:
+    """Wrap to (-pi, pi]."""
+    return np.angle(np.exp(1j * a))
+
+
+def select_posts(lib: Library, polarization: str, levels: int = 8, *, wavelength_um: float | None = None,
+                 pass_weight: float = 1.0, transmission_weight: float = 0.5, max_error: float | None = 0.05,
+                 n_offsets: int = 72) -> PostSet:
+    """Choose ``levels`` posts for the lens that focuses ``polarization``.
+
+    Level k must give the focusing polarisation the phase ``phi0 + 2 pi k / N`` (phi0 free), while the
+    pass-through polarisation keeps a phase ``psi`` (free) as constant as possible and both
+    transmissions are high. For every (phi0, psi) on an ``n_offsets`` x ``n_offsets`` grid each level
+    takes the post minimising
+
+        wrap(arg t_f - phi0 - 2 pi k/N)^2 + pass_weight * wrap(arg t_p - psi)^2
+        + transmission_weight * ((1 - |t_f|^2) + (1 - |t_p|^2))
+
+    and the (phi0, psi) with the smallest total wins. Posts whose convergence estimate exceeds
+    ``max_error`` are not used. The stored t are rotated by the offsets (``t_f e^{-i phi0}``,
+    ``t_p e^{-i psi}``), so level k has arg t_focus ~ 2 pi k / N; the offsets and figures of merit are
+    in ``info``: per-level phase errors (rad), pass-through phase spread (max - min, rad, and rms),
+    zero-order efficiencies, and the expected focusing efficiency
+    ``|mean_k t_f,k e^{-i 2 pi k/N}|^2 sinc^2(1/N)`` (equal-area levels; the sinc is the N-level
+    quantisation loss) and pass-through coherent transmission ``|mean_k t_p,k|^2``.
+    """
+    pol = check_choice("polarization", polarization, POLARIZATIONS)
+    N = check_int("levels", levels, 2, 64)
+    pw = check_range("pass_weight", pass_weight, 0.0, None, lo_inclusive=True)
+    tw = check_range("transmission_weight", transmission_weight, 0.0, None, lo_inclusive=True)
+    n_off = check_int("n_offsets", n_offsets, 4, 720)
+    il = 0 if wavelength_um is None and lib.wavelengths_um.size == 1 else \
+        lib.index_of_wavelength(float(lib.meta.get("design_wavelength_um", 10.0) if wavelength_um is None
+                                      else wavelength_um))
+    tf_all = (lib.t_x if pol == "x" else lib.t_y)[il]
+    tp_all = (lib.t_y if pol == "x" else lib.t_x)[il]
+    WX, WY = np.meshgrid(lib.wx_um, lib.wy_um, indexing="ij")
+    ok = np.isfinite(tf_all) & np.isfinite(tp_all)
+    if max_error is not None:
+        err = np.fmax(lib.err_x[il], lib.err_y[il])
+        ok &= ~(err > max_error)
+    if np.count_nonzero(ok) < N:
+        raise InputError("library", int(np.count_nonzero(ok)), f"at least levels = {N} usable (converged) posts")
+    tf, tp = tf_all[ok], tp_all[ok]
+    wxc, wyc = WX[ok], WY[ok]
+    af, ap = np.angle(tf), np.angle(tp)
+    loss = tw * ((1 - np.abs(tf) ** 2) + (1 - np.abs(tp) ** 2))
+    targets = 2 * np.pi * np.arange(N) / N
+    offs = 2 * np.pi * np.arange(n_off) / n_off
+    # pass-through cost for every psi: (n_off, C)
+    cp = pw * _wrap(ap[None, :] - offs[:, None]) ** 2 + loss[None, :]
+    best = (np.inf, 0, 0, None)
+    for i0, phi0 in enumerate(offs):
+        cf = _wrap(af[None, :] - phi0 - targets[:, None]) ** 2          # (N, C)
+        tot = cf[None, :, :] + cp[:, None, :]                            # (n_off psi, N, C)
+        idx = np.argmin(tot, axis=-1)                                    # (n_off, N)
+        val = np.take_along_axis(tot, idx[..., None], -1)[..., 0].sum(-1)
+        j = int(np.argmin(val))
+        if val[j] < best[0]:
+            best = (float(val[j]), i0, j, idx[j].copy())
+    _, i0, j0, choice = best
+    # refine the offsets for the chosen posts (circular means)
+    phi0 = float(np.angle(np.sum(np.exp(1j * (af[choice] - targets)))))
+    psi = float(np.angle(np.sum(np.exp(1j * ap[choice]))))
+    tfs = tf[choice] * np.exp(-1j * phi0)
+    tps = tp[choice] * np.exp(-1j * psi)
+    widths = np.stack([wxc[choice], wyc[choice]], 1)
+    t_x, t_y = (tfs, tps) if pol == "x" else (tps, tfs)
+    ph_err = _wrap(np.angle(tfs) - targets)
+    pass_ph = _wrap(np.angle(tps))
+    eff_focus = float(abs(np.mean(tfs * np.exp(-1j * targets))) ** 2 * np.sinc(1.0 / N) ** 2)
+    info = {
+        "method": "grid search over (phi0, psi); per-level argmin of phase + pass + transmission cost",
+        "wavelength_um": float(lib.wavelengths_um[il]), "levels": N,
+        "phase_offset_focus_rad": phi0 % (2 * np.pi), "phase_offset_pass_rad": psi % (2 * np.pi),
+        "phase_error_rad": ph_err.tolist(), "max_abs_phase_error_rad": float(np.max(np.abs(ph_err))),
+        "rms_phase_error_rad": float(np.sqrt(np.mean(ph_err ** 2))),
+        "pass_phase_rad": pass_ph.tolist(),
+        "pass_phase_spread_rad": float(np.max(pass_ph) - np.min(pass_ph)),
+        "pass_phase_rms_rad": float(np.sqrt(np.mean(pass_ph ** 2))),
+        "T_focus": (np.abs(tfs) ** 2).tolist(), "T_pass": (np.abs(tps) ** 2).tolist(),
+        "mean_T_focus": float(np.mean(np.abs(tfs) ** 2)), "mean_T_pass": float(np.mean(np.abs(tps) ** 2)),
+        "expected_focusing_efficiency": eff_focus,
+        "pass_coherent_transmission": float(abs(np.mean(tps)) ** 2),
+        "weights": {"pass": pw, "transmission": tw}, "max_error": max_error,
+        "library_key": lib.meta.get("key"), "harmonics": lib.meta.get("harmonics"),
+        "incidence": lib.meta.get("incidence"),
+    }
+    return PostSet(pol, float(lib.meta.get("period_um", 4.0)), float(lib.meta.get("height_um", 10.0)),
+                   float(lib.wavelengths_um[il]), widths, t_x, t_y, source="rcwa", info=info)
+
+
+def postset_table(ps: PostSet) -> list[dict[str, float]]:
+    """Per-level rows (for `metafovea design` and reports): widths, phases, transmissions."""
+    rows = []
+    for k in range(ps.levels):
+        rows.append({"level": k, "wx_um": float(ps.widths_um[k, 0]), "wy_um": float(ps.widths_um[k, 1]),
+                     "target_phase_rad": float(2 * np.pi * k / ps.levels),
+                     "phase_focus_rad": float(np.angle(ps.t_focus[k]) % (2 * np.pi)),
+                     "T_focus": float(abs(ps.t_focus[k]) ** 2),
+                     "phase_pass_rad": float(np.angle(ps.t_pass[k])), "T_pass": float(abs(ps.t_pass[k]) ** 2)})
+    return rows

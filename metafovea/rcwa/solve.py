@@ -137,7 +137,14 @@ def _layer_modes(basis: Basis, lay: _LayerData, px: float, py: float, factorizat
         Eyy[..., i, i] += eb[..., 0]
     P = basis.P(G)
     Q = basis.Q(Exx, Eyy)
-    lam, W = np.linalg.eig(P @ Q)
+    PQ = P @ Q
+    if np.iscomplexobj(PQ) and not np.any(PQ.imag):
+        # lossless, normal incidence, centred inclusions: P Q is real and the real eigen-solver is
+        # several times faster (complex-conjugate eigenpairs come back as complex anyway)
+        PQ = PQ.real
+        if not np.any(Q.imag):
+            Q = Q.real
+    lam, W = np.linalg.eig(PQ)
     g = branch(lam)
     V = (Q @ W) / g[..., None, :]
     return W, V, g
