@@ -1,0 +1,166 @@
+"""The Measurement file: frames from the camera (simulated or real) plus what is known about them.
+
+Written with :func:`metafovea.io.atomic_save_npz` (compressed ``.npz`` + JSON metadata under
+``__meta__``); the format is documented in ``docs/measurement_format.md``. Arrays:
+
+``frames`` (T, H, W) float32 (required)
+    Sensor frames in ``meta['units']`` (simulator: ADC digital numbers, DN).
+``times_s`` (T,) float64 (required)
+    Frame times in seconds.
+``alpha`` (T,) float64 (optional: absent or NaN when unknown)
+    Effective mixing ratio of the foveal (x-polarised) image per frame, so that
+    ``frames = alpha * truth_x1 + (1 - alpha) * truth_x2 + fpn + noise``.
+``truth_x1``, ``truth_x2`` (H, W) or (T, H, W) float32 (optional)
+    Noise-free foveal and perifoveal images on the sensor, same units as ``frames`` ((T, H, W) for
+    scenes that change in time).
+``fpn`` (H, W) float32 (optional)
+    The fixed pattern (of frame 0 when it drifts); ``fpn_u`` (H, r), ``fpn_v`` (W, r), ``fpn_s`` (r,)
+    its factors, ``fpn_weights`` (T, r) the per-frame weights when it drifts
+    (``fpn_t = (fpn_u * fpn_weights[t]) @ fpn_v.T``).
+``theta_rad`` (T,) (optional)
+    Polariser angle per frame.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from metafovea.errors import InputError
+from metafovea.io import atomic_save_npz, load_npz, prepare_output
+
+KIND = "measurement"
+OPTIONAL = ("alpha", "truth_x1", "truth_x2", "fpn", "fpn_u", "fpn_v", "fpn_s", "fpn_weights", "theta_rad")
+
+
+@dataclass(frozen=True)
+class Measurement:
+    """Frames plus known mixing ratios, ground truth and metadata (see module docstring)."""
+
+    frames: np.ndarray
+    times_s: np.ndarray
+    alpha: np.ndarray | None = None
+    truth_x1: np.ndarray | None = None
+    truth_x2: np.ndarray | None = None
+    fpn: np.ndarray | None = None
+    meta: dict[str, Any] = field(default_factory=dict)
+    extras: dict[str, np.ndarray] = field(default_factory=dict)  # fpn_u, fpn_v, fpn_s, fpn_weights, theta_rad
+
+    def __post_init__(self) -> None:
+        f = np.asarray(self.frames)
+        if f.ndim == 2:
+            f = f[None]
+        if f.ndim != 3 or f.shape[0] < 1 or min(f.shape[1:]) < 1:
+            raise InputError("frames", f"array of shape {np.shape(self.frames)}", "a (T, H, W) array with T >= 1")
+        if not np.issubdtype(f.dtype, np.number) or np.iscomplexobj(f):
+            raise InputError("frames", str(f.dtype), "real numbers")
+        f = f.astype(np.float32, copy=False)
+        T, H, W = f.shape
+        t = np.asarray(self.times_s, dtype=np.float64).reshape(-1)
+        if t.shape != (T,) or not np.all(np.isfinite(t)):
+            raise InputError("times_s", f"array of shape {t.shape}", f"({T},) finite times in seconds")
+        object.__setattr__(self, "frames", f)
+        object.__setattr__(self, "times_s", t)
+        if self.alpha is not None:
+            a = np.asarray(self.alpha, dtype=np.float64).reshape(-1)
+            if a.shape != (T,):
+                raise InputError("alpha", f"array of shape {a.shape}", f"({T},) mixing ratios")
+            fin = a[np.isfinite(a)]
+            if fin.size and (fin.min() < -1e-9 or fin.max() > 1 + 1e-9):
+                raise InputError("alpha", float(fin.min() if fin.min() < 0 else fin.max()), "values in [0, 1]")
+            object.__setattr__(self, "alpha", a)
+        for name in ("truth_x1", "truth_x2"):
+            v = getattr(self, name)
+            if v is not None:
+                v = np.asarray(v, dtype=np.float32)
+                if v.shape not in ((H, W), (T, H, W)):
+                    raise InputError(name, f"array of shape {v.shape}", f"({H}, {W}) or ({T}, {H}, {W})")
+                object.__setattr__(self, name, v)
+        if self.fpn is not None:
+            v = np.asarray(self.fpn, dtype=np.float32)
+            if v.shape != (H, W):
+                raise InputError("fpn", f"array of shape {v.shape}", f"({H}, {W})")
+            object.__setattr__(self, "fpn", v)
+        bad = set(self.extras) - set(OPTIONAL)
+        if bad:
+            raise InputError("extras", sorted(bad), "keys among " + ", ".join(OPTIONAL[4:]))
+
+    # ----------------------------------------------------------------------------------------------
+    @property
+    def shape(self) -> tuple[int, int, int]:
+        return tuple(self.frames.shape)  # type: ignore[return-value]
+
+    @property
+    def alpha_known(self) -> bool:
+        return self.alpha is not None and bool(np.all(np.isfinite(self.alpha)))
+
+    @property
+    def scale(self) -> float:
+        """Foveal expansion f1 / f2 (6 for the paper)."""
+        return float(self.meta.get("scale", 6.0))
+
+    def fpn_frame(self, k: int) -> np.ndarray | None:
+        """The fixed pattern in frame ``k`` (drifting or not), or None if not stored."""
+        w = self.extras.get("fpn_weights")
+        if w is not None and "fpn_u" in self.extras and "fpn_v" in self.extras:
+            return ((self.extras["fpn_u"] * w[k]) @ self.extras["fpn_v"].T).astype(np.float32)
+        return self.fpn
+
+    def truth(self, k: int) -> tuple[np.ndarray, np.ndarray] | None:
+        """Noise-free (x1, x2) for frame ``k``, or None."""
+        if self.truth_x1 is None or self.truth_x2 is None:
+            return None
+        x1 = self.truth_x1[k] if self.truth_x1.ndim == 3 else self.truth_x1
+        x2 = self.truth_x2[k] if self.truth_x2.ndim == 3 else self.truth_x2
+        return x1, x2
+
+    # ----------------------------------------------------------------------------------------------
+    def save(self, path: str | Path, force: bool = False) -> Path:
+        """Write atomically (refuses to overwrite unless ``force``)."""
+        p = prepare_output(path, force)
+        arrays: dict[str, np.ndarray] = {"frames": self.frames, "times_s": self.times_s}
+        for name in ("alpha", "truth_x1", "truth_x2", "fpn"):
+            v = getattr(self, name)
+            if v is not None:
+                arrays[name] = v
+        arrays.update(self.extras)
+        meta = dict(self.meta)
+        meta["kind"] = KIND
+        meta.setdefault("units", "DN")
+        return atomic_save_npz(p, meta, **arrays)
+
+    @classmethod
+    def load(cls, path: str | Path) -> "Measurement":
+        """Read a file written by :meth:`save` (or converted from a real camera, see the docs)."""
+        p = Path(path)
+        if not p.is_file():
+            raise InputError("measurement", str(p), "an existing measurement .npz file")
+        try:
+            arrays, meta = load_npz(p)
+        except (OSError, ValueError, KeyError) as e:
+            raise InputError("measurement", str(p), "a readable .npz measurement file", detail=str(e)) from None
+        if "frames" not in arrays:
+            raise InputError("measurement", str(p), "an .npz with an array 'frames' (T, H, W)")
+        times = arrays.get("times_s")
+        if times is None:
+            fps = float(meta.get("frame_rate_hz", 12.0))
+            times = np.arange(arrays["frames"].shape[0]) / fps
+        extras = {k: arrays[k] for k in OPTIONAL[4:] if k in arrays}
+        return cls(frames=arrays["frames"], times_s=times, alpha=arrays.get("alpha"), truth_x1=arrays.get("truth_x1"),
+                   truth_x2=arrays.get("truth_x2"), fpn=arrays.get("fpn"), meta=meta, extras=extras)
+
+    def summary(self) -> dict[str, Any]:
+        T, H, W = self.shape
+        out = {"frames": T, "shape": [H, W], "units": self.meta.get("units", "DN"),
+               "duration_s": float(self.times_s[-1] - self.times_s[0]) if T > 1 else 0.0,
+               "alpha_known": self.alpha_known, "has_truth": self.truth_x1 is not None,
+               "frame_min": float(self.frames.min()), "frame_max": float(self.frames.max())}
+        if self.alpha_known:
+            out["alpha_range"] = [float(self.alpha.min()), float(self.alpha.max())]
+        if not math.isfinite(out["frame_min"]):
+            out["frame_min"] = None
+        return out

@@ -1,0 +1,616 @@
+"""Scenes: temperature (K) and emissivity fields over field angle and time.
+
+A scene is a function of the field angles ``(ax, ay)`` in radians and the time ``t`` in seconds:
+``ax`` grows to the right, ``ay`` grows *downward* (image rows), ``(0, 0)`` is the optical axis. The
+camera maps a pixel at focal-plane position ``(x, y)`` of a lens with focal length ``f`` to
+``(atan(x / f), atan(y / f))``, so the same scene is seen by both channels, the foveal one 6x
+magnified. Scenes are *not* rasters: :meth:`Scene.sample` is evaluated on each channel's own
+(super-sampled) pixel grid, so a scene is sampled only as finely as each channel needs (the Siemens
+star's spokes are exact at the foveal channel's 0.23 mrad pixels without a 1740 x 1740 raster).
+Image scenes (scikit-image's bundled pictures, user files) are rasters interpolated bilinearly: their
+detail is limited by the picture's own resolution.
+
+Every scene also returns an emissivity per region; the radiometry adds the reflected surroundings,
+``eps L(T) + (1 - eps) L(T_refl)`` with the scene's ``reflected_k`` (sky for outdoor scenes).
+
+Built-in scenes (``make_scene(name)``, ``list_scenes()``): natural images from scikit-image mapped to
+temperatures, ``siemens-star``, ``bars``, ``hand``, ``parking-lot``, ``heater-5s``/``-10s``/``-20s``,
+``uniform``. Any name that is an existing file loads it (``.npy``/``.npz`` temperatures in K,
+``.tif``/``.png``/``.jpg`` pictures mapped to temperatures, see :func:`load_scene_file`).
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Callable
+
+import numpy as np
+
+from metafovea.errors import InputError, check_positive, check_range
+
+log = logging.getLogger(__name__)
+
+#: Perifoveal full field of view of the paper's camera (rad): 290 px x 17 um / 0.5 relay / 25 mm.
+PAPER_FOV_RAD = 2 * math.atan(145 * 34.0 / 25_000.0)
+AMBIENT_K = 294.0
+
+
+@dataclass(frozen=True)
+class SceneGeometry:
+    """Field of view hints a scene uses to lay itself out (radians, full widths)."""
+
+    fov_rad: float = PAPER_FOV_RAD  # perifoveal (wide) channel
+    expansion: float = 6.0  # f1 / f2: the foveal field is fov_rad / expansion
+    duration_s: float = 8.0  # length of the recording (for videos that should fit in it)
+
+    @property
+    def half(self) -> float:
+        return 0.5 * self.fov_rad
+
+    @property
+    def fovea_half(self) -> float:
+        return 0.5 * self.fov_rad / self.expansion
+
+
+class Scene:
+    """Base class. Subclasses implement :meth:`_sample` returning ``(temperature_k, emissivity)``."""
+
+    name: str = "scene"
+    static: bool = True
+    reflected_k: float = AMBIENT_K
+    description: str = ""
+
+    def sample(self, ax: np.ndarray, ay: np.ndarray, t: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+        """Temperature (K) and emissivity at field angles ``ax, ay`` (radians, same shape) at time ``t``."""
+        ax = np.asarray(ax, dtype=np.float64)
+        ay = np.asarray(ay, dtype=np.float64)
+        temp, eps = self._sample(ax, ay, float(t))
+        temp = np.broadcast_to(np.asarray(temp, dtype=np.float64), ax.shape)
+        eps = np.broadcast_to(np.asarray(eps, dtype=np.float64), ax.shape)
+        lo = float(np.min(temp)) if temp.size else 0.0
+        if not np.isfinite(lo) or lo < 0.0 or not np.all(np.isfinite(temp)):
+            raise InputError(f"scene '{self.name}' temperature", lo, "finite temperatures >= 0 K")
+        if eps.size and (float(np.min(eps)) < 0.0 or float(np.max(eps)) > 1.0):
+            raise InputError(f"scene '{self.name}' emissivity", float(np.min(eps)), "0 <= emissivity <= 1")
+        return temp, eps
+
+    def _sample(self, ax: np.ndarray, ay: np.ndarray, t: float) -> tuple[Any, Any]:  # pragma: no cover
+        raise NotImplementedError
+
+    def summary(self) -> dict[str, Any]:
+        return {"name": self.name, "static": self.static, "reflected_k": self.reflected_k,
+                "description": self.description}
+
+
+# ----------------------------------------------------------------------------------------------
+# helpers
+# ----------------------------------------------------------------------------------------------
+def _paint(temp: np.ndarray, eps: np.ndarray, mask: np.ndarray, t_k: float, e: float) -> None:
+    temp[mask] = t_k
+    eps[mask] = e
+
+
+def _capsule(ax: np.ndarray, ay: np.ndarray, p0: tuple[float, float], p1: tuple[float, float],
+             r: float) -> np.ndarray:
+    """Points within ``r`` of the segment p0-p1."""
+    dx, dy = p1[0] - p0[0], p1[1] - p0[1]
+    ll = dx * dx + dy * dy
+    s = np.clip(((ax - p0[0]) * dx + (ay - p0[1]) * dy) / max(ll, 1e-300), 0.0, 1.0)
+    return (ax - p0[0] - s * dx) ** 2 + (ay - p0[1] - s * dy) ** 2 <= r * r
+
+
+def _box(ax: np.ndarray, ay: np.ndarray, x0: float, y0: float, x1: float, y1: float) -> np.ndarray:
+    return (ax >= x0) & (ax < x1) & (ay >= y0) & (ay < y1)
+
+
+def _bbox_view(ax: np.ndarray, ay: np.ndarray, x0: float, y0: float, x1: float, y1: float):
+    """Boolean mask of points inside a bounding box (to evaluate small objects only where they are)."""
+    return (ax >= x0) & (ax <= x1) & (ay >= y0) & (ay <= y1)
+
+
+# ----------------------------------------------------------------------------------------------
+# analytic scenes
+# ----------------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class UniformScene(Scene):
+    """A blackbody-like wall at one temperature (for tests and calibration)."""
+
+    temperature_k: float = 300.0
+    emissivity: float = 1.0
+    name: str = "uniform"
+    description: str = "uniform temperature"
+
+    def __post_init__(self) -> None:
+        check_range("temperature_k", self.temperature_k, 0.0, 3000.0, lo_inclusive=True, unit="K")
+        check_range("emissivity", self.emissivity, 0.0, 1.0, lo_inclusive=True)
+
+    def _sample(self, ax, ay, t):
+        return np.full(ax.shape, self.temperature_k), np.full(ax.shape, self.emissivity)
+
+
+@dataclass(frozen=True)
+class SiemensStar(Scene):
+    """The paper's wooden Siemens-star cut-out in front of a sheet of heated paper.
+
+    Spokes are wood near room temperature; between them the heated paper shows through; the paper
+    sheet (a square of half-width ``paper_half_rad``) hangs on a wall.
+    """
+
+    radius_rad: float = 0.8 * 0.5 * PAPER_FOV_RAD
+    spokes: int = 36
+    wood_k: float = 297.0
+    wood_emissivity: float = 0.90
+    paper_k: float = 320.0
+    paper_emissivity: float = 0.93
+    wall_k: float = AMBIENT_K
+    paper_half_rad: float = 0.92 * 0.5 * PAPER_FOV_RAD
+    name: str = "siemens-star"
+    description: str = "wooden Siemens star (36 spokes) in front of heated paper"
+
+    def _sample(self, ax, ay, t):
+        temp = np.full(ax.shape, self.wall_k)
+        eps = np.full(ax.shape, 0.9)
+        paper = (np.abs(ax) <= self.paper_half_rad) & (np.abs(ay) <= self.paper_half_rad)
+        _paint(temp, eps, paper, self.paper_k, self.paper_emissivity)
+        r = np.hypot(ax, ay)
+        phi = np.arctan2(ay, ax)
+        wood = (r <= self.radius_rad) & (np.sin(self.spokes * 0.5 * phi) ** 2 >= 0.5)
+        # a thin wooden rim holds the spokes together, as in a cut-out
+        rim = (r <= self.radius_rad) & (r >= 0.94 * self.radius_rad)
+        _paint(temp, eps, wood | rim, self.wood_k, self.wood_emissivity)
+        return temp, eps
+
+
+@dataclass(frozen=True)
+class BarTargets(Scene):
+    """Four-bar thermal targets (hot bars on an ambient plate), finest at the centre.
+
+    ``frequencies`` are in cycles/rad. A central 2 x 2 cluster inside the foveal field spans the foveal
+    channel's resolution; a ring of eight groups in the periphery spans the perifoveal channel's.
+    """
+
+    central: tuple[float, ...] = ()
+    ring: tuple[float, ...] = ()
+    plate_k: float = 295.0
+    delta_k: float = 10.0
+    emissivity: float = 0.95
+    fovea_half_rad: float = 0.5 * PAPER_FOV_RAD / 6
+    half_rad: float = 0.5 * PAPER_FOV_RAD
+    name: str = "bars"
+    description: str = "four-bar targets (hot bars, +10 K), finest in the fovea"
+
+    def _groups(self) -> list[tuple[float, float, float, bool]]:
+        """(centre x, centre y, frequency, vertical bars?) for each group."""
+        out = []
+        fh = self.fovea_half_rad
+        for k, (f, (sx, sy)) in enumerate(zip(self.central, ((-1, -1), (1, -1), (-1, 1), (1, 1)))):
+            out.append((0.5 * fh * sx, 0.5 * fh * sy, f, k % 2 == 0))
+        n = len(self.ring)
+        for k, f in enumerate(self.ring):
+            a = 2 * np.pi * k / max(n, 1) + np.pi / 8
+            rr = 0.55 * self.half_rad
+            out.append((rr * np.cos(a), rr * np.sin(a), f, k % 2 == 0))
+        return out
+
+    def _sample(self, ax, ay, t):
+        temp = np.full(ax.shape, self.plate_k)
+        for cx, cy, f, vertical in self._groups():
+            w = 0.5 / f  # bar width = half a period
+            half = 3.5 * w  # 4 bars + 3 gaps = 7 w, bars 7 w long
+            sel = _bbox_view(ax, ay, cx - half, cy - half, cx + half, cy + half)
+            if not np.any(sel):
+                continue
+            u = (ax[sel] - (cx - half)) if vertical else (ay[sel] - (cy - half))
+            k = np.floor(u / w)
+            hot = (k % 2 == 0) & (k >= 0) & (k <= 6)
+            sub = temp[sel]
+            sub[hot] = self.plate_k + self.delta_k
+            temp[sel] = sub
+        return temp, np.full(ax.shape, self.emissivity)
+
+
+@dataclass(frozen=True)
+class WavingHand(Scene):
+    """A person's forearm and hand waving (rotating about the elbow) in front of an indoor wall."""
+
+    half_rad: float = 0.5 * PAPER_FOV_RAD
+    wave_hz: float = 0.8
+    wave_amplitude_deg: float = 25.0
+    skin_k: float = 307.0
+    finger_k: float = 304.5
+    sleeve_k: float = 301.0
+    wall_k: float = AMBIENT_K
+    name: str = "hand"
+    description: str = "a waving hand (0.8 Hz, +-25 deg) in front of a wall"
+    static: bool = False
+
+    def _sample(self, ax, ay, t):
+        h = self.half_rad
+        temp = np.full(ax.shape, self.wall_k)
+        eps = np.full(ax.shape, 0.92)
+        # a radiator panel on the wall (warm) and a cold window, for context
+        _paint(temp, eps, _box(ax, ay, 0.55 * h, -0.8 * h, 0.95 * h, -0.2 * h), 312.0, 0.9)
+        _paint(temp, eps, _box(ax, ay, -0.95 * h, -0.9 * h, -0.55 * h, -0.35 * h), 285.0, 0.85)
+        # torso and head of the person (lower left)
+        _paint(temp, eps, _capsule(ax, ay, (-0.55 * h, 0.75 * h), (-0.55 * h, 1.6 * h), 0.32 * h), 300.0, 0.95)
+        _paint(temp, eps, _capsule(ax, ay, (-0.55 * h, 0.05 * h), (-0.55 * h, 0.12 * h), 0.17 * h), 306.5, 0.98)
+        # forearm from the elbow, rotating
+        elbow = (0.05 * h, 0.95 * h)
+        ang = np.deg2rad(self.wave_amplitude_deg) * np.sin(2 * np.pi * self.wave_hz * t)
+        c, s = np.cos(ang), np.sin(ang)
+
+        def rot(px: float, py: float) -> tuple[float, float]:  # hand frame (x right, y up from elbow)
+            return elbow[0] + c * px + s * py, elbow[1] - (-s * px + c * py)
+
+        L = 0.85 * h  # elbow to wrist
+        _paint(temp, eps, _capsule(ax, ay, rot(0, 0), rot(0, 0.55 * L), 0.1 * h), self.sleeve_k, 0.95)
+        _paint(temp, eps, _capsule(ax, ay, rot(0, 0.5 * L), rot(0, L), 0.07 * h), self.skin_k, 0.98)
+        # palm: a capsule plus fingers fanning out
+        _paint(temp, eps, _capsule(ax, ay, rot(0, L + 0.06 * h), rot(0, L + 0.16 * h), 0.13 * h), self.skin_k, 0.98)
+        fw = 0.028 * h
+        for k, (dx, ln, tilt) in enumerate(((-0.09, 0.20, -0.12), (-0.03, 0.25, -0.04), (0.03, 0.27, 0.0),
+                                           (0.09, 0.24, 0.05))):
+            base = (dx * h, L + 0.22 * h)
+            tip = (base[0] + np.sin(tilt) * ln * h, base[1] + np.cos(tilt) * ln * h)
+            _paint(temp, eps, _capsule(ax, ay, rot(*base), rot(*tip), fw), self.finger_k, 0.98)
+        # thumb
+        _paint(temp, eps, _capsule(ax, ay, rot(0.11 * h, L + 0.08 * h), rot(0.24 * h, L + 0.22 * h), 1.1 * fw),
+               self.finger_k, 0.98)
+        return temp, eps
+
+
+@dataclass(frozen=True)
+class ParkingLot(Scene):
+    """Cars crossing a sunlit parking lot, seen from a raised position (outdoor: cold sky reflected)."""
+
+    half_rad: float = 0.5 * PAPER_FOV_RAD
+    duration_s: float = 8.0
+    asphalt_k: float = 308.0
+    reflected_k: float = 255.0  # clear sky
+    name: str = "parking-lot"
+    description: str = "two cars with warm engines crossing a parking lot"
+    static: bool = False
+
+    def _car(self, temp, eps, ax, ay, x, y, size, direction, engine_k, parked=False):
+        h = size
+        x0, x1 = x - 1.0 * h, x + 1.0 * h
+        sel = _bbox_view(ax, ay, x0 - 0.1 * h, y - 0.75 * h, x1 + 0.3 * h, y + 0.3 * h)
+        if not np.any(sel):
+            return
+        bx, by = ax[sel], ay[sel]
+        tt, ee = temp[sel], eps[sel]
+        body = _box(bx, by, x0, y - 0.3 * h, x1, y + 0.05 * h)
+        cabin = _box(bx, by, x - 0.55 * h, y - 0.62 * h, x + 0.45 * h, y - 0.3 * h)
+        front = 1.0 if direction > 0 else -1.0
+        hood = body & ((bx - x) * front > 0.45 * h)
+        glass = cabin & ~_box(bx, by, x - 0.08 * h, y - 0.62 * h, x + 0.02 * h, y - 0.3 * h)
+        tt[body | cabin], ee[body | cabin] = 300.0 if parked else 303.0, 0.9
+        tt[glass], ee[glass] = 296.0, 0.84  # glass reflects the cold sky
+        if not parked:
+            tt[hood] = engine_k
+        for wx in (x - 0.6 * h, x + 0.6 * h):
+            wheel = (bx - wx) ** 2 + (by - y - 0.05 * h) ** 2 <= (0.2 * h) ** 2
+            tt[wheel], ee[wheel] = (306.0 if parked else 318.0), 0.95
+        if not parked:  # exhaust at the rear
+            ex = x - front * 1.08 * h
+            plume = (bx - ex) ** 2 / (0.12 * h) ** 2 + (by - y) ** 2 / (0.05 * h) ** 2 <= 1.0
+            tt[plume], ee[plume] = 345.0, 0.95
+        temp[sel], eps[sel] = tt, ee
+
+    def _sample(self, ax, ay, t):
+        h = self.half_rad
+        temp = np.full(ax.shape, self.asphalt_k)
+        eps = np.full(ax.shape, 0.95)
+        # painted parking lines (paint has a lower emissivity: looks colder, reflecting the sky)
+        for k in range(-6, 7):
+            _paint(temp, eps, _box(ax, ay, k * 0.32 * h - 0.012 * h, -0.95 * h, k * 0.32 * h + 0.012 * h, -0.5 * h),
+                   self.asphalt_k, 0.82)
+            _paint(temp, eps, _box(ax, ay, k * 0.32 * h - 0.012 * h, 0.55 * h, k * 0.32 * h + 0.012 * h, 1.0 * h),
+                   self.asphalt_k, 0.82)
+        # a shaded strip (tree shadow) is cooler
+        _paint(temp, eps, _box(ax, ay, -1.2 * h, -1.2 * h, 1.2 * h, -0.97 * h), 298.0, 0.95)
+        # parked cars
+        for k in (-2, 0, 1, 3):
+            self._car(temp, eps, ax, ay, (k + 0.5) * 0.32 * h, -0.62 * h, 0.13 * h, 1, 0, parked=True)
+        for k in (-3, -1, 2):
+            self._car(temp, eps, ax, ay, (k + 0.5) * 0.32 * h, 0.88 * h, 0.13 * h, 1, 0, parked=True)
+        # moving cars: one left-to-right through the fovea, one right-to-left lower down
+        d = max(self.duration_s, 1.0)
+        x_a = -1.3 * h + 2.6 * h * (t / d)
+        x_b = 1.3 * h - 2.6 * h * (t / d) * 0.8
+        self._car(temp, eps, ax, ay, x_a, 0.05 * h, 0.16 * h, 1, 330.0)
+        self._car(temp, eps, ax, ay, x_b, 0.38 * h, 0.2 * h, -1, 326.0)
+        return temp, eps
+
+
+@dataclass(frozen=True)
+class CoilHeater(Scene):
+    """A coil heater switched on at ``t_on_s`` for ``on_duration_s`` (heating then cooling transients).
+
+    Coil temperature above ambient: ``dT_max (1 - exp(-(t - t_on) / tau_heat))`` while on, then an
+    exponential decay with ``tau_cool`` after switch-off.
+    """
+
+    on_duration_s: float = 5.0
+    t_on_s: float = 1.0
+    dt_max_k: float = 250.0
+    tau_heat_s: float = 2.0
+    tau_cool_s: float = 4.0
+    loops: int = 9
+    half_rad: float = 0.5 * PAPER_FOV_RAD
+    wall_k: float = AMBIENT_K
+    name: str = "heater"
+    description: str = "coil heater switched on for a while: heating and cooling transients"
+    static: bool = False
+
+    def __post_init__(self) -> None:
+        check_positive("on_duration_s", self.on_duration_s, "s")
+        check_positive("tau_heat_s", self.tau_heat_s, "s")
+        check_positive("tau_cool_s", self.tau_cool_s, "s")
+
+    def coil_temperature(self, t: float) -> float:
+        t_off = self.t_on_s + self.on_duration_s
+        if t < self.t_on_s:
+            h = 0.0
+        elif t <= t_off:
+            h = 1.0 - math.exp(-(t - self.t_on_s) / self.tau_heat_s)
+        else:
+            h = (1.0 - math.exp(-self.on_duration_s / self.tau_heat_s)) * math.exp(-(t - t_off) / self.tau_cool_s)
+        return self.wall_k + self.dt_max_k * h
+
+    def _sample(self, ax, ay, t):
+        h = self.half_rad
+        tc = self.coil_temperature(t)
+        temp = np.full(ax.shape, self.wall_k)
+        eps = np.full(ax.shape, 0.9)
+        # ceramic holder (warms to a fraction of the coil's excess) and two terminals
+        t_holder = self.wall_k + 0.12 * (tc - self.wall_k)
+        length = 0.5 * h
+        _paint(temp, eps, _box(ax, ay, -length - 0.08 * h, -0.09 * h, -length, 0.09 * h), t_holder, 0.92)
+        _paint(temp, eps, _box(ax, ay, length, -0.09 * h, length + 0.08 * h, 0.09 * h), t_holder, 0.92)
+        # the helix seen side-on: a row of tilted elliptical loops of wire
+        a, b, wire = 0.6 * length / self.loops, 0.07 * h, 0.006 * h
+        sel = _bbox_view(ax, ay, -length, -b - 2 * wire, length, b + 2 * wire)
+        if np.any(sel):
+            x, y = ax[sel], ay[sel]
+            pitch = 2 * length / self.loops
+            k = np.clip(np.floor((x + length) / pitch), 0, self.loops - 1)
+            cx = -length + (k + 0.5) * pitch
+            u = (x - cx) + 0.35 * y  # slant of the helix turns
+            rr = np.sqrt((u / a) ** 2 + (y / b) ** 2)
+            on = np.abs(rr - 1.0) * min(a, b) <= wire
+            tt, ee = temp[sel], eps[sel]
+            tt[on], ee[on] = tc, 0.85
+            temp[sel], eps[sel] = tt, ee
+        return temp, eps
+
+
+# ----------------------------------------------------------------------------------------------
+# raster scenes
+# ----------------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class RasterScene(Scene):
+    """Temperatures on a raster spanning ``half_width_rad`` horizontally (aspect kept), centred.
+
+    ``temperature_k``: (h, w) or (T, h, w) kelvin; ``emissivity``: scalar or same spatial shape;
+    ``frame_rate_hz``: the rate of a (T, h, w) raster (nearest earlier frame is used; the video
+    repeats after its end). Outside the raster: ``background_k``.
+    """
+
+    temperature_k: np.ndarray = field(default_factory=lambda: np.full((2, 2), 300.0))
+    emissivity: Any = 0.95
+    half_width_rad: float = 0.5 * PAPER_FOV_RAD
+    background_k: float = AMBIENT_K
+    frame_rate_hz: float = 12.0
+    name: str = "raster"
+    description: str = "temperature raster"
+    static: bool = True
+
+    def __post_init__(self) -> None:
+        t = np.asarray(self.temperature_k, dtype=np.float64)
+        if t.ndim not in (2, 3) or min(t.shape[-2:]) < 2:
+            raise InputError("temperature_k", f"array of shape {t.shape}", "a (h, w) or (T, h, w) array, h, w >= 2")
+        if not np.all(np.isfinite(t)) or float(t.min()) < 0:
+            raise InputError("temperature_k", float(np.nanmin(t)), "finite temperatures >= 0 K (kelvin, not Celsius)")
+        check_positive("half_width_rad", self.half_width_rad, "rad", hi=math.pi / 2)
+        e = np.asarray(self.emissivity, dtype=np.float64)
+        if e.ndim and e.shape != t.shape[-2:]:
+            raise InputError("emissivity", f"array of shape {e.shape}", f"a scalar or shape {t.shape[-2:]}")
+        if e.size and (float(e.min()) < 0 or float(e.max()) > 1):
+            raise InputError("emissivity", float(e.min()), "0 <= emissivity <= 1")
+        object.__setattr__(self, "temperature_k", t)
+        object.__setattr__(self, "emissivity", e)
+        object.__setattr__(self, "static", t.ndim == 2 or t.shape[0] == 1)
+
+    def _coords(self, ax, ay):
+        h, w = self.temperature_k.shape[-2:]
+        px = self.half_width_rad * 2 / w  # angle per raster pixel
+        col = ax / px + (w - 1) / 2
+        row = ay / px + (h - 1) / 2
+        return row, col
+
+    def _sample(self, ax, ay, t):
+        from scipy.ndimage import map_coordinates
+
+        tk = self.temperature_k
+        if tk.ndim == 3:
+            tk = tk[int(math.floor(t * self.frame_rate_hz + 1e-9)) % tk.shape[0]]
+        row, col = self._coords(ax, ay)
+        temp = map_coordinates(tk, [row.ravel(), col.ravel()], order=1, mode="constant",
+                               cval=self.background_k).reshape(ax.shape)
+        if self.emissivity.ndim:
+            eps = map_coordinates(self.emissivity, [row.ravel(), col.ravel()], order=1, mode="constant",
+                                  cval=0.95).reshape(ax.shape)
+        else:
+            eps = np.full(ax.shape, float(self.emissivity))
+        return temp, eps
+
+
+#: scikit-image pictures bundled inside the package (no download needed).
+SKIMAGE_IMAGES = ("astronaut", "camera", "coffee", "chelsea", "rocket", "coins", "moon", "brick", "grass",
+                  "gravel", "text", "page", "horse", "clock", "immunohistochemistry", "hubble_deep_field",
+                  "motorcycle", "logo", "retina", "cat")
+
+
+def gray_to_temperature(gray: np.ndarray, t_range_k: tuple[float, float] = (288.0, 312.0),
+                        gamma: float = 1.0) -> np.ndarray:
+    """Map a picture's luminance in [0, 1] linearly (after ``gamma``) to ``t_range_k`` (kelvin).
+
+    Bright surfaces are taken as warm: a plausible but not physical assignment (a visible image does
+    not know temperatures); the range spans a typical indoor/outdoor 24 K contrast.
+    """
+    lo, hi = t_range_k
+    check_range("t_range_k", lo, 0.0, 3000.0, lo_inclusive=True, unit="K")
+    check_range("t_range_k", hi, lo, 3000.0, unit="K")
+    g = np.clip(np.asarray(gray, dtype=np.float64), 0.0, 1.0) ** gamma
+    return lo + (hi - lo) * g
+
+
+def _to_gray(img: np.ndarray) -> np.ndarray:
+    img = np.asarray(img)
+    if img.ndim == 3 and img.shape[-1] in (3, 4):
+        from skimage.color import rgb2gray
+        g = rgb2gray(img[..., :3])
+    elif img.ndim == 2:
+        g = img.astype(np.float64)
+        if np.issubdtype(img.dtype, np.integer):
+            g = g / float(np.iinfo(img.dtype).max)
+    else:
+        raise InputError("image", f"array of shape {img.shape}", "a grey (h, w) or colour (h, w, 3|4) picture")
+    g = np.asarray(g, dtype=np.float64)
+    if g.max() > 1.0 or g.min() < 0.0:
+        g = (g - g.min()) / max(g.max() - g.min(), 1e-12)
+    return g
+
+
+def image_scene(name: str, geometry: SceneGeometry | None = None, *,
+                t_range_k: tuple[float, float] = (288.0, 312.0), emissivity: float = 0.95,
+                fill: float = 1.0) -> RasterScene:
+    """A scikit-image picture mapped to temperatures, spanning ``fill`` x the perifoveal field width."""
+    from skimage import data
+
+    if name not in SKIMAGE_IMAGES:
+        raise InputError("scene", name, "one of the bundled scikit-image pictures: " + ", ".join(SKIMAGE_IMAGES))
+    g = geometry or SceneGeometry()
+    img = getattr(data, name)()
+    if name == "motorcycle":  # stereo pair helper returns a tuple
+        img = img[0]
+    gray = _to_gray(img)
+    temp = gray_to_temperature(gray, t_range_k)
+    return RasterScene(temperature_k=temp, emissivity=emissivity, half_width_rad=fill * g.half,
+                       name=name, description=f"scikit-image '{name}' picture mapped to "
+                                              f"{t_range_k[0]:g}-{t_range_k[1]:g} K")
+
+
+def load_scene_file(path: str | Path, geometry: SceneGeometry | None = None, *,
+                    t_range_k: tuple[float, float] = (288.0, 312.0), frame_rate_hz: float = 12.0) -> RasterScene:
+    """A scene from a file.
+
+    * ``.npy``: (h, w) or (T, h, w) temperatures in kelvin.
+    * ``.npz``: array ``temperature_k`` (as .npy), optional ``emissivity`` (h, w) and scalar
+      ``half_width_deg`` (field half-width the raster spans; default the perifoveal field).
+    * ``.tif``/``.tiff``: float data is kelvin; integer data is a picture (mapped like below).
+    * ``.png``/``.jpg``/``.jpeg``/``.bmp``: a picture; luminance mapped to ``t_range_k``.
+    """
+    p = Path(path)
+    if not p.is_file():
+        raise InputError("scene", str(p), "a built-in scene name (see list_scenes()) or an existing file")
+    g = geometry or SceneGeometry()
+    suffix = p.suffix.lower()
+    half = g.half
+    emis: Any = 0.95
+    try:
+        if suffix == ".npy":
+            temp = np.load(p, allow_pickle=False)
+        elif suffix == ".npz":
+            with np.load(p, allow_pickle=False) as z:
+                if "temperature_k" not in z.files:
+                    raise InputError("scene", str(p), "an .npz with an array 'temperature_k' (kelvin)")
+                temp = z["temperature_k"]
+                if "emissivity" in z.files:
+                    emis = z["emissivity"]
+                if "half_width_deg" in z.files:
+                    half = math.radians(float(z["half_width_deg"]))
+        elif suffix in (".tif", ".tiff"):
+            import tifffile
+            arr = tifffile.imread(p)
+            temp = arr.astype(np.float64) if np.issubdtype(arr.dtype, np.floating) else \
+                gray_to_temperature(_to_gray(arr), t_range_k)
+        elif suffix in (".png", ".jpg", ".jpeg", ".bmp", ".gif"):
+            from skimage import io as skio
+            temp = gray_to_temperature(_to_gray(skio.imread(p)), t_range_k)
+        else:
+            raise InputError("scene", str(p), "a file ending in .npy, .npz, .tif, .tiff, .png, .jpg, .jpeg or .bmp")
+    except InputError:
+        raise
+    except (OSError, ValueError) as e:
+        raise InputError("scene", str(p), "a readable scene file", detail=str(e)) from None
+    temp = np.asarray(temp)
+    if not np.issubdtype(temp.dtype, np.number) or np.iscomplexobj(temp):
+        raise InputError("scene", str(p), "real-valued temperatures in kelvin")
+    return RasterScene(temperature_k=temp, emissivity=emis, half_width_rad=half, frame_rate_hz=frame_rate_hz,
+                       name=p.stem, description=f"file {p.name}")
+
+
+# ----------------------------------------------------------------------------------------------
+# registry
+# ----------------------------------------------------------------------------------------------
+def _bars(g: SceneGeometry, **kw: Any) -> BarTargets:
+    # Nyquist of each channel for the paper's 290-pixel field: 290 / (2 fov) cycles/rad
+    nyq_p = 290 / (2 * g.fov_rad)
+    nyq_f = nyq_p * g.expansion
+    central = tuple(nyq_f * np.array([0.25, 0.4, 0.6, 0.85]))
+    ring = tuple(nyq_p * np.array([0.1, 0.15, 0.2, 0.3, 0.4, 0.55, 0.7, 0.85]))
+    return BarTargets(central=central, ring=ring, fovea_half_rad=g.fovea_half, half_rad=g.half, **kw)
+
+
+SCENES: dict[str, tuple[Callable[..., Scene], str]] = {
+    "siemens-star": (lambda g, **kw: SiemensStar(radius_rad=0.8 * g.half, paper_half_rad=0.92 * g.half, **kw),
+                     "wooden Siemens star cut-out in front of heated paper (static)"),
+    "bars": (_bars, "four-bar targets, +10 K, finest in the fovea (static)"),
+    "hand": (lambda g, **kw: WavingHand(half_rad=g.half, **kw), "a waving hand in front of a wall (video)"),
+    "parking-lot": (lambda g, **kw: ParkingLot(half_rad=g.half, duration_s=g.duration_s, **kw),
+                    "cars crossing a parking lot (video)"),
+    "heater-5s": (lambda g, **kw: CoilHeater(on_duration_s=5.0, half_rad=g.half, name="heater-5s", **kw),
+                  "coil heater on for 5 s from t = 1 s (video)"),
+    "heater-10s": (lambda g, **kw: CoilHeater(on_duration_s=10.0, half_rad=g.half, name="heater-10s", **kw),
+                   "coil heater on for 10 s from t = 1 s (video)"),
+    "heater-20s": (lambda g, **kw: CoilHeater(on_duration_s=20.0, half_rad=g.half, name="heater-20s", **kw),
+                   "coil heater on for 20 s from t = 1 s (video)"),
+    "uniform": (lambda g, **kw: UniformScene(**kw), "uniform 300 K blackbody (static)"),
+}
+for _n in ("astronaut", "camera", "coffee", "chelsea", "rocket", "coins", "moon", "brick"):
+    SCENES[_n] = (lambda g, _n=_n, **kw: image_scene(_n, g, **kw), f"scikit-image '{_n}' picture, 288-312 K")
+
+
+def list_scenes() -> dict[str, str]:
+    """Built-in scene names and one-line descriptions (any of SKIMAGE_IMAGES also works as
+    ``skimage:NAME``)."""
+    return {k: v[1] for k, v in SCENES.items()}
+
+
+def make_scene(name: str | Path | Scene, geometry: SceneGeometry | None = None, **params: Any) -> Scene:
+    """A scene by built-in name, ``skimage:NAME``, or file path (see :func:`load_scene_file`).
+
+    ``params`` are passed to the scene's constructor (e.g. ``temperature_k=310`` for ``uniform``).
+    """
+    if isinstance(name, Scene):
+        return name
+    g = geometry or SceneGeometry()
+    key = str(name).strip()
+    try:
+        if key.lower() in SCENES:
+            return SCENES[key.lower()][0](g, **params)
+        if key.lower().startswith("skimage:"):
+            return image_scene(key.split(":", 1)[1], g, **params)
+    except TypeError as e:
+        raise InputError("scene parameters", sorted(params), f"parameters accepted by scene '{key}'",
+                         detail=str(e)) from None
+    p = Path(key)
+    if p.suffix and (p.exists() or "/" in key or "\\" in key or p.suffix.lower() in
+                     (".npy", ".npz", ".tif", ".tiff", ".png", ".jpg", ".jpeg", ".bmp")):
+        return load_scene_file(p, g, **params)
+    raise InputError("scene", key, "one of " + ", ".join(sorted(SCENES)) + ", skimage:NAME, or an existing file")

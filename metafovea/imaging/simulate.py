@@ -1,0 +1,329 @@
+"""End-to-end simulation: scene -> radiance -> two channel images -> polariser mixing -> sensor frames.
+
+:func:`simulate` returns a :class:`~metafovea.imaging.measurement.Measurement` in digital numbers with
+the true mixing ratios and the noise-free foveal/perifoveal images, so that (exactly, before noise,
+FPN and quantisation)
+
+    frames[t] = alpha[t] * truth_x1 + (1 - alpha[t]) * truth_x2
+
+:func:`write_tiff` exports the frames as an ImageJ TIFF stack and :func:`write_preview` draws the
+"iron" preview figure.
+"""
+
+from __future__ import annotations
+
+import io as _io
+import json
+import logging
+import math
+import time
+from dataclasses import asdict, dataclass, field, replace
+from pathlib import Path
+from typing import Any, Callable
+
+import numpy as np
+
+from metafovea.config import SystemDesign
+from metafovea.errors import InputError, check_int, check_range
+from metafovea.imaging.measurement import Measurement
+from metafovea.imaging.radiometry import BandRadiance
+from metafovea.imaging.scene import Scene, SceneGeometry, make_scene
+from metafovea.imaging.sensor import SensorModel, as_rng
+from metafovea.imaging.system import Polarizer, build_channel_optics, channels_for, render_channel, resolve_provider
+from metafovea.io import atomic_write_bytes, prepare_output
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class SimulationOptions:
+    """Knobs of :func:`simulate`; ``None`` means "from the system design" (or the documented default)."""
+
+    frames: int = 96
+    supersample: int | None = None  # samples per pixel per axis: default 3 (static), 2 (video)
+    psf: Any = "auto"  # 'auto' | 'optics' | 'airy' | 'gaussian:SIGMA_UM' | {channel: kernel} | callable
+    psf_cache_dir: str | None = None
+    psf_size_px: int | None = None
+    field_patches: int | str = 1  # 1 = shift-invariant, n = n x n patches, 'auto' = decide from the PSFs
+    patch_threshold: float = 0.2
+    haze: bool = True
+    relative_illumination: bool = True
+    filter_enabled: bool | None = None
+    pixel_pitch_um: float | None = None
+    relay_magnification: float | None = None
+    polarizer_mode: str = "sync"
+    polarizer_phase_deg: float | None = None
+    polarizer_hz: float | None = None
+    extinction: float | None = None
+    bolometer_tau_s: float = 0.0
+    netd_k: float | None = None
+    counts_per_k: float = 40.0
+    dark_dn: float = 1000.0
+    fpn_rank: int | None = None
+    fpn_amplitude: float | None = None
+    fpn_drift: float = 0.0
+    noise: bool = True
+    quantize: bool = True
+    t0_s: float = 0.0
+    scene_params: dict[str, Any] = field(default_factory=dict)
+    progress: bool = False
+
+
+def _child_rngs(rng: Any, n: int) -> list[np.random.Generator]:
+    g = as_rng(rng)
+    seeds = g.integers(0, 2 ** 63 - 1, size=n)
+    return [np.random.default_rng(int(s)) for s in seeds]
+
+
+def simulate(system: SystemDesign, scene: str | Path | Scene, options: SimulationOptions | None = None,
+             rng: Any = 0, **overrides: Any) -> Measurement:
+    """Simulate ``options.frames`` frames of ``scene`` through ``system``.
+
+    ``rng``: seed or Generator (same seed -> identical frames). ``overrides`` replace fields of
+    ``options`` (``simulate(sys, 'bars', frames=12, noise=False)``).
+    """
+    t_start = time.perf_counter()
+    opt = options or SimulationOptions()
+    if overrides:
+        bad = set(overrides) - set(SimulationOptions.__dataclass_fields__)
+        if bad:
+            raise InputError("option", sorted(bad)[0], "a field of SimulationOptions")
+        opt = replace(opt, **overrides)
+    n_frames = check_int("frames", opt.frames, 1, 100_000)
+    r_pol, r_fpn, r_noise = _child_rngs(rng, 3)
+
+    # ---- system -------------------------------------------------------------------------------------
+    sensor = SensorModel.from_design(system.sensor, pixel_pitch_um=opt.pixel_pitch_um, netd_k=opt.netd_k,
+                                     fpn_rank=opt.fpn_rank, fpn_amplitude=opt.fpn_amplitude, fpn_drift=opt.fpn_drift,
+                                     counts_per_k=opt.counts_per_k, dark_dn=opt.dark_dn, noise=opt.noise,
+                                     quantize=opt.quantize)
+    ch1, ch2 = channels_for(system, pixel_pitch_um=sensor.pixel_pitch_um, relay_magnification=opt.relay_magnification,
+                            shape=sensor.shape)
+    fe = system.filter_enabled if opt.filter_enabled is None else bool(opt.filter_enabled)
+    radiance = BandRadiance.for_system(system, filter_enabled=fe)
+    dl_dt = radiance.derivative(300.0)
+    pol = Polarizer(rate_hz=system.polarizer_hz if opt.polarizer_hz is None else opt.polarizer_hz,
+                    mode=opt.polarizer_mode,
+                    phase_rad=None if opt.polarizer_phase_deg is None else math.radians(opt.polarizer_phase_deg),
+                    extinction=system.polarizer_extinction if opt.extinction is None else opt.extinction,
+                    tau_s=opt.bolometer_tau_s)
+
+    # ---- scene ----------------------------------------------------------------------------------------
+    times = sensor.frame_times(n_frames, opt.t0_s)
+    geom = SceneGeometry(fov_rad=2 * ch2.half_fov_rad[1], expansion=system.expansion,
+                         duration_s=float(times[-1] - times[0]) + 1.0 / sensor.frame_rate_hz)
+    sc = make_scene(scene, geom, **opt.scene_params)
+    ss = opt.supersample if opt.supersample is not None else (3 if sc.static else 2)
+    ss = check_int("supersample", ss, 1, 8)
+
+    # ---- optics ---------------------------------------------------------------------------------------
+    t_psf = time.perf_counter()
+    provider, provider_name = resolve_provider(opt.psf, opt.psf_cache_dir)
+    optics = [build_channel_optics(ch, provider, radiance, ss=ss, psf_size_px=opt.psf_size_px,
+                                   field_patches=opt.field_patches, patch_threshold=opt.patch_threshold,
+                                   scene_temperature_k=system.scene_temperature_k, haze=opt.haze)
+              for ch in (ch1, ch2)]
+    t_psf = time.perf_counter() - t_psf
+    for o in optics:
+        log.info("%s channel PSF: %s", o.channel.name, o.info)
+
+    # ---- radiometric gains ------------------------------------------------------------------------------
+    ext_gain = 1.0 + pol.extinction
+    g = [(ch.na / ch2.na) ** 2 for ch in (ch1, ch2)]
+    gains = [gi * ext_gain for gi in g]
+
+    def truth_at(t: float) -> tuple[np.ndarray, np.ndarray]:
+        out = []
+        for o, gi in zip(optics, gains):
+            img = render_channel(sc, o, radiance, t, opt.relative_illumination)
+            out.append(sensor.to_dn(img, gi, dl_dt).astype(np.float32))
+        return out[0], out[1]
+
+    t_render = time.perf_counter()
+    H, W = sensor.shape
+    if sc.static:
+        x1, x2 = truth_at(float(times[0]))
+    else:
+        x1 = np.empty((n_frames, H, W), np.float32)
+        x2 = np.empty((n_frames, H, W), np.float32)
+        it = range(n_frames)
+        if opt.progress:
+            from tqdm import tqdm
+            it = tqdm(it, desc=f"rendering {sc.name}", unit="frame", leave=False)
+        for k in it:
+            x1[k], x2[k] = truth_at(float(times[k]))
+    t_render = time.perf_counter() - t_render
+
+    # ---- polariser, FPN, mixing, noise ------------------------------------------------------------------
+    theta, pol_info = pol.angles(times, r_pol)
+    alpha_nom, alpha, _ = pol.mixing(theta)
+    # the scene's dynamic range as seen by the sensor: the larger of the two channels' own ranges
+    dyn = max(float(x1.max() - x1.min()), float(x2.max() - x2.min()))
+    fpn = sensor.make_fpn(dyn, times, r_fpn)
+    t_mix = time.perf_counter()
+    frames = np.empty((n_frames, H, W), np.float32)
+    drift = fpn.w is not None and fpn.rank > 0
+    fpn0 = fpn.frame(None) if fpn.rank else None
+    a32 = alpha.astype(np.float32)
+    for k in range(n_frames):
+        f = frames[k]
+        a = a32[k]
+        if sc.static:
+            np.multiply(x1, a, out=f)
+            f += (np.float32(1) - a) * x2
+        else:
+            np.multiply(x1[k], a, out=f)
+            f += (np.float32(1) - a) * x2[k]
+        if drift:
+            f += fpn.frame(k)
+        elif fpn0 is not None:
+            f += fpn0
+    sensor.add_noise_and_digitise(frames, r_noise)
+    t_mix = time.perf_counter() - t_mix
+
+    # ---- metadata ------------------------------------------------------------------------------------------
+    r = g[0] / g[1]
+    extras: dict[str, np.ndarray] = {"theta_rad": theta}
+    if fpn.rank:
+        extras.update(fpn_u=fpn.u, fpn_v=fpn.v, fpn_s=fpn.s)
+        if drift:
+            extras["fpn_weights"] = np.stack([fpn.weights(k) for k in range(n_frames)])
+    saturated = float(np.mean(frames >= sensor.full_scale_dn)) if sensor.quantize else 0.0
+    if saturated > 0:
+        log.warning("%.2f %% of the pixels are saturated at %d DN", 100 * saturated, sensor.full_scale_dn)
+    meta = {
+        "kind": "measurement",
+        "units": "DN",
+        "units_note": "ADC digital numbers: DN = dark_dn + counts_per_k * gain * L / dL_dT_300K "
+                      "(L = in-band radiance W m^-2 sr^-1 after the PSF; gain per channel below)",
+        "scene": sc.name,
+        "scene_info": sc.summary(),
+        "seed": rng if isinstance(rng, (int, np.integer)) else None,
+        "scale": system.expansion,
+        "foveal_constraint": {
+            "scale": system.expansion, "gain": r, "offset_dn": (1.0 - r) * sensor.dark_dn,
+            "relation": "downsample(truth_x1, scale) ~= gain * centre_crop(truth_x2) + offset_dn",
+        },
+        "channel_gain": {"x1": gains[0], "x2": gains[1]},
+        "dn_per_k_300K": {"x1": sensor.counts_per_k * gains[0], "x2": sensor.counts_per_k * gains[1]},
+        "netd_effective_k": {"x1": sensor.netd_k / gains[0], "x2": sensor.netd_k / gains[1]},
+        "pixel_pitch_um": sensor.pixel_pitch_um,
+        "frame_rate_hz": sensor.frame_rate_hz,
+        "polarizer_hz": pol.rate_hz,
+        "polarizer": {**pol_info, "extinction": pol.extinction, "tau_s": pol.tau_s,
+                      "alpha_nominal_range": [float(alpha_nom.min()), float(alpha_nom.max())]},
+        "netd_k": sensor.netd_k,
+        "sensor": sensor.summary(),
+        "dark_dn": sensor.dark_dn,
+        "counts_per_k": sensor.counts_per_k,
+        "radiometry": {**radiance.summary(), "filter_enabled": fe,
+                       "band_um": list(system.band_um),
+                       "filter": [system.filter_center_um, system.filter_bandwidth_um] if fe else None},
+        "relay_magnification": sensor.pixel_pitch_um / ch1.focal_pitch_um,
+        "supersample": ss,
+        "relative_illumination": opt.relative_illumination,
+        "psf": {"provider": provider_name, "foveal": optics[0].info, "perifoveal": optics[1].info},
+        "system": {"foveal": ch1.summary(), "perifoveal": ch2.summary(), "expansion": system.expansion,
+                   "band_um": list(system.band_um), "filter_enabled": fe},
+        "saturated_fraction": saturated,
+        "truth_is_video": not sc.static,
+        "timing_s": {"psf": t_psf, "render": t_render, "mix_noise": t_mix,
+                     "total": time.perf_counter() - t_start},
+    }
+    return Measurement(frames=frames, times_s=times, alpha=alpha, truth_x1=x1, truth_x2=x2, fpn=fpn0, meta=meta,
+                       extras=extras)
+
+
+# ----------------------------------------------------------------------------------------------
+# exports
+# ----------------------------------------------------------------------------------------------
+def iron_colormap():
+    """The "iron" (ironbow) palette of thermal cameras: black - indigo - magenta - orange - yellow - white."""
+    from matplotlib.colors import LinearSegmentedColormap
+
+    stops = [(0.0, "#000000"), (0.12, "#1b0c5a"), (0.28, "#6a0a8f"), (0.42, "#a51a8a"), (0.55, "#d8344e"),
+             (0.68, "#f0641c"), (0.8, "#fb9d07"), (0.9, "#fdd33c"), (1.0, "#ffffe6")]
+    return LinearSegmentedColormap.from_list("iron", stops, N=256)
+
+
+def write_tiff(m: Measurement, path: str | Path, force: bool = False) -> Path:
+    """ImageJ-compatible TIFF stack (T, H, W): uint16 DN when the frames are integers in range, else
+    float32. The JSON summary (times, alpha) goes into the ImageJ 'Info' property."""
+    import tifffile
+
+    p = prepare_output(path, force, name="--tiff")
+    f = m.frames
+    data = f
+    if float(f.min()) >= 0 and float(f.max()) <= 65535 and np.array_equal(f, np.rint(f)):
+        data = f.astype(np.uint16)
+    info = {"units": m.meta.get("units", "DN"), "scene": m.meta.get("scene"), "times_s": m.times_s.tolist(),
+            "alpha": None if m.alpha is None else np.round(m.alpha, 6).tolist()}
+    buf = _io.BytesIO()
+    tifffile.imwrite(buf, data, imagej=True,
+                     metadata={"axes": "TYX", "finterval": 1.0 / float(m.meta.get("frame_rate_hz", 12.0)),
+                               "Info": json.dumps(info)})
+    return atomic_write_bytes(p, buf.getvalue())
+
+
+def write_preview(m: Measurement, path: str | Path, force: bool = False, dpi: int = 90) -> Path:
+    """PNG: four frames (highest, middle and lowest alpha) and the two truth images in the iron palette,
+    and alpha(t)."""
+    from matplotlib.figure import Figure
+
+    p = prepare_output(path, force, name="--preview")
+    cmap = iron_colormap()
+    T = m.frames.shape[0]
+    if m.alpha is not None and np.all(np.isfinite(m.alpha)):
+        # highest and lowest alpha and two in between, preferring distinct alpha values
+        order = [int(k) for k in np.argsort(m.alpha)[::-1]]
+        picks = []
+        for k in order:
+            if all(abs(m.alpha[k] - m.alpha[j]) > 1e-3 for j in picks):
+                picks.append(k)
+        if len(picks) > 4:
+            picks = [picks[0], picks[len(picks) // 3], picks[(2 * len(picks)) // 3], picks[-1]]
+        for k in [int(v) for v in np.linspace(0, T - 1, 4)]:
+            if len(picks) < 4 and k not in picks:
+                picks.append(k)
+        while len(picks) < 4:
+            picks.append(picks[-1])
+    else:
+        picks = [int(v) for v in np.linspace(0, T - 1, 4)]
+    fig = Figure(figsize=(13, 6.6), dpi=dpi)
+    axs = fig.subplots(2, 4)
+    for a, k in zip(axs[0], picks):
+        # per-frame automatic gain control (0.5-99.5 % percentiles), as a thermal camera displays
+        vmin, vmax = np.percentile(m.frames[k], [0.5, 99.5])
+        a.imshow(m.frames[k], cmap=cmap, vmin=vmin, vmax=max(vmax, vmin + 1), interpolation="nearest")
+        lab = f"frame {k}, t = {m.times_s[k]:.2f} s, {vmin:.0f}-{vmax:.0f} DN"
+        if m.alpha is not None:
+            lab += f"\nalpha = {m.alpha[k]:.2f}"
+        a.set_title(lab, fontsize=9)
+        a.set_axis_off()
+    tr = m.truth(picks[0])
+    if tr is not None:
+        for a, img, name in zip(axs[1][:2], tr, ("truth x1 (foveal, x-pol)", "truth x2 (perifoveal, y-pol)")):
+            lo, hi = np.percentile(img, [0.5, 99.5])
+            a.imshow(img, cmap=cmap, vmin=lo, vmax=hi if hi > lo else lo + 1, interpolation="nearest")
+            a.set_title(name, fontsize=9)
+            a.set_axis_off()
+    else:
+        for a in axs[1][:2]:
+            a.set_axis_off()
+    a = axs[1][2]
+    if m.alpha is not None:
+        a.plot(m.times_s, m.alpha, ".-", lw=0.8, ms=3)
+    a.set_xlabel("t (s)")
+    a.set_ylabel("alpha")
+    a.set_ylim(-0.05, 1.05)
+    a.set_title("mixing ratio", fontsize=9)
+    a = axs[1][3]
+    a.plot(m.times_s, m.frames.reshape(T, -1).mean(1), lw=0.8)
+    a.set_xlabel("t (s)")
+    a.set_ylabel("mean " + m.meta.get("units", "DN"))
+    a.set_title("frame mean", fontsize=9)
+    fig.suptitle(f"metafovea simulate: scene '{m.meta.get('scene', '?')}', {T} frames "
+                 f"{m.frames.shape[1]}x{m.frames.shape[2]}, seed {m.meta.get('seed')}", fontsize=11)
+    buf = _io.BytesIO()
+    fig.savefig(buf, format="png")
+    return atomic_write_bytes(p, buf.getvalue())
