@@ -1,0 +1,23 @@
+"""Optics stage: pupil fields of the metalenses, propagation engines, PSFs, MTF and spectral weights.
+
+Public API::
+
+    PSF, psf, sensor_psf                    (metafovea.optics.psf)
+    build_pupils, Pupil, max_field_deg      (metafovea.optics.pupil)
+    asm_propagate, mft_field, hankel_field  (metafovea.optics.propagate)
+    mtf_2d, mtf_radial, mtf_slices, encircled_energy, strehl, fwhm_um, diffraction_mtf, pixel_mtf
+    spectral_weights, planck_radiance       (metafovea.optics.radiometry)
+"""
+
+from .propagate import AliasingWarning, SamplingError, asm_propagate, hankel_field, mft_field
+from .psf import PSF, diffraction_radius_um, nyquist_pitch_um, psf, sensor_psf
+from .pupil import Pupil, build_pupils, field_direction, max_field_deg
+from .radiometry import planck_radiance, spectral_weights
+from .mtf import (diffraction_mtf, encircled_energy, fwhm_um, mtf_2d, mtf_radial, mtf_slices, pixel_mtf,
+                  pupil_mtf, strehl)
+
+__all__ = ["PSF", "psf", "sensor_psf", "Pupil", "build_pupils", "field_direction", "max_field_deg",
+           "asm_propagate", "mft_field", "hankel_field", "AliasingWarning", "SamplingError",
+           "diffraction_radius_um", "nyquist_pitch_um", "planck_radiance", "spectral_weights",
+           "diffraction_mtf", "encircled_energy", "fwhm_um", "mtf_2d", "mtf_radial", "mtf_slices",
+           "pixel_mtf", "pupil_mtf", "strehl"]

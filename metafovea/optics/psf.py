@@ -1,0 +1,540 @@
+"""Point spread functions of the metalenses: monochromatic, polychromatic, and on the sensor pixel grid.
+
+Normalisation: ``PSF.intensity[i, j]`` is the fraction of the power incident on the lens aperture (in the
+polarisation considered, unit-intensity plane wave) that falls into sample cell (i, j) (a cell of
+``pitch_um`` x ``pitch_um``); ``intensity.sum()`` is therefore the fraction that lands in the window and
+equals ``energy_fraction``. Arrays are (H, W), row = y, x and y increasing with the index; the array
+centre sits at ``center_um`` on the focal plane.
+
+Engine choice (``engine='auto'``), per wavelength:
+
+* ``hankel``  on axis, when the pupil is rotationally symmetric to within the requested error;
+* ``mft``     otherwise (any field, any window; nodes from the aberration and the window);
+* ``geometric`` (sensor PSFs only) when the ray spread is so much larger than the diffraction spot that
+  the geometric approximation meets the requested error, or the wave engines would exceed the cost budget
+  (then a warning states the achieved error).
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import time
+import warnings
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from metafovea.config import LensDesign
+from metafovea.errors import InputError, NotConvergedWarning, check_choice, check_int, check_positive, check_range
+from metafovea.io import atomic_save_npz, load_npz
+from metafovea.library import PostSet
+
+from . import propagate as prop
+from .pupil import Pupil, PupilSet, build_pupils, field_direction, max_field_deg
+
+log = logging.getLogger(__name__)
+
+ENGINES = ("auto", "hankel", "mft", "geometric")
+#: Largest complex-exponential work (nodes x outputs) the auto engine spends on one wavelength.
+MFT_BUDGET = 2e8
+
+
+@dataclass(frozen=True)
+class PSF:
+    """A sampled PSF (see the module docstring for the normalisation)."""
+
+    intensity: np.ndarray
+    pitch_um: float
+    center_um: tuple[float, float]
+    wavelengths_um: np.ndarray
+    weights: np.ndarray
+    field_deg: tuple[float, float]
+    polarization: str
+    engine: str
+    error_estimate: float
+    energy_fraction: float
+    info: dict[str, Any] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        a = np.asarray(self.intensity, dtype=np.float64)
+        if a.ndim != 2:
+            raise InputError("intensity", a.shape, "a 2-D (H, W) array")
+        object.__setattr__(self, "intensity", a)
+        object.__setattr__(self, "wavelengths_um", np.atleast_1d(np.asarray(self.wavelengths_um, float)))
+        object.__setattr__(self, "weights", np.atleast_1d(np.asarray(self.weights, float)))
+        object.__setattr__(self, "center_um", tuple(float(v) for v in self.center_um))
+        object.__setattr__(self, "field_deg", tuple(float(v) for v in self.field_deg))
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return self.intensity.shape  # type: ignore[return-value]
+
+    def coords(self) -> tuple[np.ndarray, np.ndarray]:
+        """(xs, ys) of the sample centres on the focal plane (um)."""
+        H, W = self.shape
+        xs = self.center_um[0] + (np.arange(W) - 0.5 * (W - 1)) * self.pitch_um
+        ys = self.center_um[1] + (np.arange(H) - 0.5 * (H - 1)) * self.pitch_um
+        return xs, ys
+
+    def normalized(self) -> np.ndarray:
+        """Intensity scaled to unit sum (for convolution kernels)."""
+        s = self.intensity.sum()
+        return self.intensity / s if s > 0 else self.intensity
+
+    def centroid_um(self) -> tuple[float, float]:
+        xs, ys = self.coords()
+        s = self.intensity.sum()
+        return float((self.intensity.sum(0) * xs).sum() / s), float((self.intensity.sum(1) * ys).sum() / s)
+
+    def save(self, path: str | Path) -> Path:
+        meta = {"type": "PSF", "pitch_um": self.pitch_um, "center_um": list(self.center_um),
+                "field_deg": list(self.field_deg), "polarization": self.polarization, "engine": self.engine,
+                "error_estimate": self.error_estimate, "energy_fraction": self.energy_fraction,
+                "info": _jsonable(self.info), "units": "um; intensity = fraction of incident power per cell"}
+        return atomic_save_npz(path, meta, intensity=self.intensity, wavelengths_um=self.wavelengths_um,
+                               weights=self.weights)
+
+    @classmethod
+    def load(cls, path: str | Path) -> "PSF":
+        arrays, meta = load_npz(path)
+        if meta.get("type") != "PSF":
+            raise InputError("path", str(path), "a PSF file written by PSF.save")
+        return cls(arrays["intensity"], meta["pitch_um"], tuple(meta["center_um"]), arrays["wavelengths_um"],
+                   arrays["weights"], tuple(meta["field_deg"]), meta["polarization"], meta["engine"],
+                   meta["error_estimate"], meta["energy_fraction"], meta.get("info", {}))
+
+
+def _jsonable(o: Any) -> Any:
+    if isinstance(o, dict):
+        return {str(k): _jsonable(v) for k, v in o.items()}
+    if isinstance(o, (list, tuple)):
+        return [_jsonable(v) for v in o]
+    if isinstance(o, np.ndarray):
+        return o.tolist()
+    if isinstance(o, (np.floating, float)):
+        return float(o) if math.isfinite(float(o)) else None
+    if isinstance(o, (np.integer,)):
+        return int(o)
+    return o
+
+
+# ----------------------------------------------------------------------------------------------
+# input checks
+# ----------------------------------------------------------------------------------------------
+def _field_pair(field_deg: Any) -> tuple[float, float]:
+    s = field_direction(field_deg)  # validates
+    del s
+    if np.ndim(field_deg) == 0:
+        return float(field_deg), 0.0
+    a = np.asarray(field_deg, float).reshape(-1)
+    return float(a[0]), float(a[1])
+
+
+def check_wavelengths(lens: LensDesign, wavelengths_um: Any, weights: Any) -> tuple[np.ndarray, np.ndarray]:
+    """Wavelength array (um, > 0) and weights (>= 0, normalised to sum 1)."""
+    if wavelengths_um is None:
+        wl = np.array([lens.wavelength_um])
+    else:
+        try:
+            wl = np.atleast_1d(np.asarray(wavelengths_um, dtype=float)).reshape(-1)
+        except (TypeError, ValueError):
+            raise InputError("wavelengths_um", wavelengths_um, "positive numbers (um)") from None
+    if wl.size == 0 or np.any(~np.isfinite(wl)) or np.any(wl <= 0) or np.any(wl > 1e4):
+        raise InputError("wavelengths_um", wl.tolist() if wl.size < 10 else f"array of {wl.size}",
+                         "wavelengths 0 < lambda <= 1e4 um")
+    if weights is None:
+        w = np.full(wl.size, 1.0 / wl.size)
+    else:
+        try:
+            w = np.atleast_1d(np.asarray(weights, dtype=float)).reshape(-1)
+        except (TypeError, ValueError):
+            raise InputError("weights", weights, "non-negative numbers, one per wavelength") from None
+        if w.size != wl.size or np.any(~np.isfinite(w)) or np.any(w < 0) or not w.sum() > 0:
+            raise InputError("weights", w.tolist() if w.size < 10 else f"array of {w.size}",
+                             f"{wl.size} non-negative numbers with a positive sum")
+        w = w / w.sum()
+    return wl, w
+
+
+def _check_field(lens: LensDesign, field_deg: Any, wl: np.ndarray) -> None:
+    s0 = field_direction(field_deg)
+    lim = max_field_deg(lens, float(wl.max()))
+    ang = math.degrees(math.asin(min(1.0, float(np.hypot(*s0)))))
+    if ang > lim:
+        raise InputError("field_deg", field_deg,
+                         f"|field| <= {lim:.3f} deg for lens '{lens.name}' (NA {lens.na:.4f}) at "
+                         f"{wl.max():g} um: beyond it the rim of the lens sends light into evanescent directions")
+
+
+def diffraction_radius_um(lens: LensDesign) -> float:
+    """First-zero radius of the focusing order (um): 0.61 lambda0 / NA, the same at every wavelength."""
+    return 0.60983 * lens.wavelength_um / lens.na
+
+
+def nyquist_pitch_um(lens: LensDesign) -> float:
+    """Largest sample pitch that samples the intensity without aliasing: lambda0 / (4 NA)."""
+    return lens.wavelength_um / (4.0 * lens.na)
+
+
+# ----------------------------------------------------------------------------------------------
+# one wavelength on a grid
+# ----------------------------------------------------------------------------------------------
+def _wave_engine(pupil: Pupil, xs: np.ndarray, ys: np.ndarray, error: float, engine: str) -> tuple[str, float]:
+    """(engine, cost) for a wave-optical evaluation at this pupil and grid."""
+    on_axis = float(np.hypot(*pupil.s0)) == 0.0
+    aniso = pupil.lattice_anisotropy()
+    if engine == "hankel" or (engine == "auto" and on_axis and aniso * 0.1 <= error):
+        if not on_axis:
+            raise InputError("engine", engine, "'hankel' only on axis (field_deg = 0)")
+        return "hankel", float(xs.size * ys.size / 8 * prop.hankel_nodes(pupil, 1.0, error))
+    nt, nr = prop.mft_nodes(pupil, xs, ys, error * 1e-3)
+    return "mft", float(nt * nr * xs.size + nt * xs.size * ys.size)
+
+
+def focus_intensity(pupil: Pupil, xs: np.ndarray, ys: np.ndarray, *, error: float = 1e-4,
+                    engine: str = "auto") -> tuple[np.ndarray, str, float]:
+    """Intensity (power per um^2 for unit incident intensity) of the focusing order on the grid.
+
+    Returns (I, engine, error estimate relative to the ideal in-focus peak).
+    """
+    eng, _ = _wave_engine(pupil, xs, ys, error, engine)
+    if eng == "hankel":
+        U = prop.hankel_grid(pupil, xs, ys, error=error * 1e-3)
+        est = 0.1 * pupil.lattice_anisotropy() + error * 1e-3
+    else:
+        U = prop.mft_field(pupil, xs, ys, error=error * 1e-3)
+        est = error * 1e-3
+    return np.abs(U) ** 2, eng, est
+
+
+def _ideal_peak(pupil: Pupil) -> float:
+    """In-focus on-axis peak intensity of an aberration-free pupil with this support (upper bound)."""
+    lens = pupil.lens
+    # |int P d^2s| with |P| = f0 alpha / (lambda c_w^2) over |w| <= NA: (pi f0 / (lambda alpha)) (-ln(1-NA^2))
+    a = pupil.alpha
+    val = math.pi * lens.f_um / (pupil.wavelength_um * a) * (-math.log(1.0 - lens.na ** 2))
+    return (abs(pupil.amplitude_factor) * val) ** 2
+
+
+def _auto_window(pupils: list[Pupil], lens: LensDesign, margin_um: float) -> tuple[np.ndarray, float]:
+    """Centre and half-size (um) of a window holding every ray plus a diffraction margin."""
+    boxes = np.array([prop.ray_extent(p) for p in pupils])
+    x0, x1 = boxes[:, 0].min(), boxes[:, 1].max()
+    y0, y1 = boxes[:, 2].min(), boxes[:, 3].max()
+    c = np.array([0.5 * (x0 + x1), 0.5 * (y0 + y1)])
+    half = max(x1 - x0, y1 - y0) / 2 + margin_um
+    return c, half
+
+
+def psf(lens: LensDesign, *, wavelengths_um: Any = None, weights: Any = None, field_deg: Any = 0.0,
+        window_um: float | None = None, center_um: tuple[float, float] | None = None,
+        pitch_um: float | None = None, post_set: PostSet | None = None, polarization: str | None = None,
+        quantize: bool = False, lattice: bool = False, z_um: float | None = None, error: float = 1e-4,
+        engine: str = "auto", allow_truncation: bool = False, max_samples: int = 1200) -> PSF:
+    """Wave-optical PSF of the focusing order on a fine square grid.
+
+    Defaults model the continuous-phase lens (``quantize=False, lattice=False``); set them (or pass a
+    post set) for the fabricated lens: the focal peak then drops by the order efficiency. The window is
+    centred on the geometric spot and sized from the ray aberration plus 8 diffraction radii unless
+    ``window_um`` (full width) is given; ``pitch_um`` defaults to a third of the diffraction radius
+    (below the intensity Nyquist pitch lambda0/(4 NA)).
+
+    Raises :class:`InputError` for bad input and :class:`metafovea.optics.propagate.SamplingError` when
+    ``pitch_um`` undersamples the intensity or ``window_um`` truncates the PSF above ``error`` (unless
+    ``allow_truncation``).
+    """
+    t0 = time.perf_counter()
+    wl, w = check_wavelengths(lens, wavelengths_um, weights)
+    error = check_range("error", error, 0.0, 0.5)
+    engine = check_choice("engine", engine, ENGINES)
+    if engine == "geometric":
+        raise InputError("engine", engine, "'auto', 'hankel' or 'mft' for a fine-grid PSF (geometric: sensor_psf)")
+    _check_field(lens, field_deg, wl)
+    fpair = _field_pair(field_deg)
+    sets = [build_pupils(lens, float(l), field_deg=field_deg, post_set=post_set, polarization=polarization,
+                         quantize=quantize, lattice=lattice, z_um=z_um) for l in wl]
+    pupils = [s.focus for s in sets if s.focus is not None]
+    if not pupils:
+        raise InputError("polarization", polarization, "a polarisation with a focusing component")
+    r_diff = diffraction_radius_um(lens)
+    nyq = nyquist_pitch_um(lens)
+    if pitch_um is None:
+        pitch = min(nyq, r_diff / 3.0)
+    else:
+        pitch = check_positive("pitch_um", pitch_um, "um")
+        if pitch > nyq * (1 + 1e-9):
+            raise prop.SamplingError("pitch_um", pitch, f"<= lambda0/(4 NA) = {nyq:.4g} um (the intensity's "
+                                     "Nyquist pitch); use sensor_psf for pixel-integrated PSFs")
+    c_auto, half_auto = _auto_window(pupils, lens, 8 * r_diff)
+    c = c_auto if center_um is None else np.asarray(center_um, float)
+    if window_um is None:
+        half = half_auto
+        if center_um is not None:
+            half += float(np.abs(c - c_auto).max())
+    else:
+        half = 0.5 * check_positive("window_um", window_um, "um")
+        if half < 2 * r_diff:
+            raise prop.SamplingError("window_um", window_um,
+                                     f">= {4 * r_diff:.3g} um (4 diffraction radii) to resolve the PSF core")
+    n = int(math.ceil(2 * half / pitch))
+    n += (n % 2 == 0)
+    if n > max_samples:
+        raise prop.SamplingError("window_um", 2 * half, f"a window of at most {max_samples} samples at "
+                                 f"{pitch:.3g} um (= {max_samples * pitch:.4g} um); the aberrated PSF needs "
+                                 f"{2 * half:.4g} um: use sensor_psf (pixel grid) or a coarser window")
+    ax = (np.arange(n) - (n - 1) / 2) * pitch
+    xs, ys = c[0] + ax, c[1] + ax
+    total = np.zeros((n, n))
+    engines, est = [], 0.0
+    ideal_peak = 0.0
+    for wi, s in zip(w, sets):
+        if s.focus is None:
+            continue
+        I, eng, e = focus_intensity(s.focus, xs, ys, error=error, engine=engine)
+        ip = _ideal_peak(s.focus)
+        ideal_peak = max(ideal_peak, ip)
+        total += wi * I
+        est += wi * e * ip
+        engines.append(eng)
+    P_in = math.pi * lens.radius_um ** 2
+    inten = total * pitch * pitch / P_in
+    peak = float(inten.max())
+    est_rel = est * pitch * pitch / P_in / peak if peak > 0 else float("inf")
+    edge = max(inten[0].max(), inten[-1].max(), inten[:, 0].max(), inten[:, -1].max()) / peak
+    if window_um is not None and edge > error and not allow_truncation:
+        raise prop.SamplingError("window_um", window_um,
+                                 f">= {2 * half_auto:.4g} um for error {error:g}: the PSF at the window edge is "
+                                 f"{edge:.2g} of its peak (pass allow_truncation=True to accept)")
+    eng_name = "+".join(sorted(set(engines)))
+    info = {"window_um": float(n * pitch), "samples": n, "edge_to_peak": float(edge),
+            "engines": engines, "seconds": time.perf_counter() - t0, "requested_error": error,
+            "order_efficiency": [s.info["order_efficiency"] for s in sets],
+            "haze_power": [s.info["haze_power"] for s in sets], "quantize": quantize, "lattice": lattice,
+            "ideal_peak_fraction": ideal_peak * pitch * pitch / P_in,
+            "chief_ray_um": pupils[0].chief_ray_um().tolist(), "z_um": pupils[0].z_um,
+            "error_definition": "max abs error / PSF peak (quadrature bound)"}
+    log.info("psf %s: %s, %d^2 samples at %.3g um, %.3f s", lens.name, eng_name, n, pitch, info["seconds"])
+    return PSF(inten, pitch, (float(c[0]), float(c[1])), wl, w, fpair, sets[0].info["polarization"],
+               eng_name, float(max(est_rel, 1e-16)), float(inten.sum()), info)
+
+
+# ----------------------------------------------------------------------------------------------
+# sensor PSF (pixel-integrated)
+# ----------------------------------------------------------------------------------------------
+def _box_integrate(I: np.ndarray, n_sub: int) -> np.ndarray:
+    """Integrate a band-limited intensity sampled n_sub times per pixel over the pixels (sum of cells).
+
+    The samples sit at the centres of n_sub x n_sub sub-cells of each pixel. The box filter of one pixel
+    is applied exactly in the Fourier domain (valid for intensities band-limited below the sample
+    Nyquist frequency), then every pixel's value is read at its centre.
+    """
+    out = I
+    for axis in (0, 1):
+        N = out.shape[axis]
+        pad = N + 2 * n_sub
+        f = np.fft.rfftfreq(pad)  # cycles per sample
+        # box of width n_sub samples, centred between samples when n_sub is even
+        shift = 0.5 if n_sub % 2 == 0 else 0.0
+        H = n_sub * np.sinc(f * n_sub) * np.exp(2j * np.pi * f * shift)
+        spec = np.fft.rfft(out, n=pad, axis=axis)
+        shape = [1, 1]
+        shape[axis] = -1
+        conv = np.fft.irfft(spec * H.reshape(shape), n=pad, axis=axis)
+        conv = np.take(conv, np.arange(N), axis=axis)
+        start = (n_sub - 1) // 2
+        out = np.take(conv, np.arange(start, N, n_sub), axis=axis)
+    return out
+
+
+def _sunflower(n: int) -> tuple[np.ndarray, np.ndarray]:
+    """n points uniformly covering the unit disk (golden-angle spiral), equal area each."""
+    i = np.arange(n) + 0.5
+    r = np.sqrt(i / n)
+    th = i * (math.pi * (3.0 - math.sqrt(5.0)))
+    return r * np.cos(th), r * np.sin(th)
+
+
+def geometric_pixels(pupil: Pupil, x_edges0: float, y_edges0: float, pitch: float, size: int,
+                     n_rays: int) -> np.ndarray:
+    """Geometric PSF binned on pixels: power (unit incident intensity, um^2 units) per pixel."""
+    lens = pupil.lens
+    R = lens.radius_um
+    px, py = _sunflower(n_rays)
+    rx, ry = R * px, R * py
+    r0 = np.sqrt(rx * rx + ry * ry + lens.f_um ** 2)
+    wx, wy = -rx / r0, -ry / r0  # design direction sines
+    sx = pupil.s0[0] + wx / pupil.alpha
+    sy = pupil.s0[1] + wy / pupil.alpha
+    ok = sx * sx + sy * sy < 1.0
+    amp2 = np.abs(pupil.amplitude_factor) ** 2 * np.ones_like(sx)
+    if pupil.lattice:
+        q = lens.period_um / lens.wavelength_um
+        amp2 = amp2 * (np.sinc(q * wx) * np.sinc(q * wy)) ** 2
+    X, Y = pupil.ray_landing(np.where(ok, sx, 0), np.where(ok, sy, 0))
+    ix = np.floor((X - x_edges0) / pitch).astype(np.int64)
+    iy = np.floor((Y - y_edges0) / pitch).astype(np.int64)
+    m = ok & (ix >= 0) & (ix < size) & (iy >= 0) & (iy < size)
+    per_ray = math.pi * R * R / n_rays
+    return np.bincount(iy[m] * size + ix[m], weights=amp2[m] * per_ray, minlength=size * size).reshape(size, size)
+
+
+def _spread_um(pupil: Pupil) -> float:
+    e = prop.ray_extent(pupil, 16)
+    c = pupil.chief_ray_um()
+    return float(max(abs(e[0] - c[0]), abs(e[1] - c[0]), abs(e[2] - c[1]), abs(e[3] - c[1])))
+
+
+def sensor_psf(lens: LensDesign, *, pixel_pitch_um: float, field_deg: float | tuple[float, float] = 0.0,
+               wavelengths_um: Any = None, weights: Any = None, post_set: PostSet | None = None,
+               size_px: int | None = None, error: float = 1e-4, polarization: str | None = None,
+               quantize: bool = True, lattice: bool = True, z_um: float | None = None,
+               engine: str = "auto", max_size_px: int = 255) -> PSF:
+    """PSF integrated over square pixels of ``pixel_pitch_um`` on the lens' focal plane.
+
+    The pixel grid is centred on the chief ray (``center_um`` = chief ray landing point; with an odd
+    ``size_px`` a pixel is centred on it). ``intensity.sum()`` is the fraction of the incident power in
+    the polarisation (default: the lens' own) that lands in the window, including the diffraction orders
+    other than the focusing one (uniform geometric disks) and the quantisation / lattice / chromatic
+    losses, so broadband haze shows as a small sum. ``size_px=None`` sizes the window from the ray spread
+    of the wavelengths that carry 99 % of the weight (capped at ``max_size_px``).
+
+    Wavelengths whose PSF is a wide geometric blur (ray spread >> diffraction radius) are traced as rays
+    (``geometric``) when that meets ``error`` or when the wave engines would exceed the cost budget; the
+    achieved error (max abs / peak) is in ``error_estimate`` and a :class:`NotConvergedWarning` is raised
+    when it exceeds ``error``.
+    """
+    t0 = time.perf_counter()
+    p = check_positive("pixel_pitch_um", pixel_pitch_um, "um", hi=1e4)
+    wl, w = check_wavelengths(lens, wavelengths_um, weights)
+    error = check_range("error", error, 0.0, 0.5)
+    engine = check_choice("engine", engine, ENGINES)
+    _check_field(lens, field_deg, wl)
+    fpair = _field_pair(field_deg)
+    sets: list[PupilSet] = [build_pupils(lens, float(l), field_deg=field_deg, post_set=post_set,
+                                         polarization=polarization, quantize=quantize, lattice=lattice,
+                                         z_um=z_um) for l in wl]
+    pol = sets[0].info["polarization"]
+    z = lens.f_um if z_um is None else float(z_um)
+    s0 = field_direction(field_deg)
+    chief = z * s0 / math.sqrt(1.0 - float(s0 @ s0))
+    r_diff = diffraction_radius_um(lens)
+    spreads = np.array([_spread_um(s.focus) if s.focus is not None else 0.0 for s in sets])
+    if size_px is None:
+        order = np.argsort(-w)
+        keep = order[: int(np.searchsorted(np.cumsum(w[order]), 0.99) + 1)]
+        half = float(spreads[keep].max()) + 6 * r_diff + p
+        size = min(max_size_px, 2 * int(math.ceil(half / p)) + 1)
+    else:
+        size = check_int("size_px", size_px, 1, 8192)
+    L = size * p
+    x_e0, y_e0 = chief[0] - L / 2, chief[1] - L / 2
+    nyq = nyquist_pitch_um(lens)
+    n_sub = max(1, int(math.ceil(p / (0.95 * nyq))))
+    nf = size * n_sub
+    dx = p / n_sub
+    ax = (np.arange(nf) - (nf - 1) / 2) * dx
+    xs, ys = chief[0] + ax, chief[1] + ax
+    P_in = math.pi * lens.radius_um ** 2
+
+    # classify wavelengths
+    plans = []
+    for l, wi, s, sp in zip(wl, w, sets, spreads):
+        if s.focus is None or wi == 0:
+            plans.append(("none", 0.0, 0.0))
+            continue
+        ratio = r_diff / max(sp, 1e-9)
+        geo_err = min(1.0, 70.0 * ratio)  # relative to its own pixel peak; 5 deg F/1 coma: 0.82 at ratio 0.012
+        if engine in ("hankel", "mft"):
+            eng, cost = _wave_engine(s.focus, xs, ys, error, engine)
+            plans.append((eng, cost, 0.0))
+            continue
+        if engine == "geometric":
+            plans.append(("geometric", 0.0, geo_err))
+            continue
+        ex = prop.ray_extent(s.focus, 16)
+        mg = 30 * r_diff + 2 * p
+        sub_x = xs[(xs >= ex[0] - mg) & (xs <= ex[1] + mg)]
+        sub_y = ys[(ys >= ex[2] - mg) & (ys <= ex[3] + mg)]
+        if sub_x.size == 0 or sub_y.size == 0:
+            plans.append(("geometric", 0.0, geo_err))
+            continue
+        eng, cost = _wave_engine(s.focus, sub_x, sub_y, error, "auto")
+        plans.append((eng, cost, geo_err))
+    # estimate of the peak pixel (ideal-peak bound) to convert geometric errors into the PSF's scale
+    peak_guess = 0.0
+    for (eng, cost, ge), wi, s, sp in zip(plans, w, sets, spreads):
+        if s.focus is None:
+            continue
+        ee_core = min(1.0, (p / 2) ** 2 / max(sp, r_diff) ** 2)  # power share in the central pixel, rough
+        peak_guess += wi * s.info["order_efficiency"] * ee_core
+    total_f = np.zeros((nf, nf))
+    pix = np.zeros((size, size))
+    engines: dict[str, int] = {}
+    est_abs = 0.0
+    budget_used = 0.0
+    for k in np.argsort(-w):  # heaviest wavelengths get the wave engines first
+        eng, cost, ge = plans[k]
+        s = sets[k]
+        if eng == "none":
+            continue
+        pu = s.focus
+        use_geo = engine == "geometric"
+        if engine == "auto":
+            own_peak = w[k] * s.info["order_efficiency"] * min(1.0, (p / 2) ** 2 / max(spreads[k], r_diff) ** 2)
+            geo_ok = spreads[k] > 8 * r_diff and ge * own_peak <= 0.1 * error * max(peak_guess, 1e-300)
+            over = budget_used + cost > MFT_BUDGET * 4 or cost > MFT_BUDGET
+            use_geo = geo_ok or (over and spreads[k] > 4 * r_diff)
+        if use_geo:
+            area = math.pi * (spreads[k] + p) ** 2
+            n_rays = int(min(3e5, max(2e4, 50 * area / (p * p))))
+            g = geometric_pixels(pu, x_e0, y_e0, p, size, n_rays)
+            pix += w[k] * g / P_in
+            est_abs += w[k] * ge * float(g.max()) / P_in
+            engines["geometric"] = engines.get("geometric", 0) + 1
+        else:
+            # compute only where light lands: the ray box plus a diffraction margin (tails beyond
+            # 30 diffraction radii carry < 0.3 % of the power)
+            ex = prop.ray_extent(pu, 16)
+            mg = 30 * r_diff + 2 * p
+            i0 = int(np.searchsorted(xs, ex[0] - mg)); i1 = int(np.searchsorted(xs, ex[1] + mg))
+            j0 = int(np.searchsorted(ys, ex[2] - mg)); j1 = int(np.searchsorted(ys, ex[3] + mg))
+            if i1 <= i0 or j1 <= j0:
+                continue
+            I, e_name, e = focus_intensity(pu, xs[i0:i1], ys[j0:j1], error=error, engine=eng)
+            total_f[j0:j1, i0:i1] += w[k] * I
+            est_abs += w[k] * e * _ideal_peak(pu) * dx * dx / P_in
+            budget_used += cost
+            engines[e_name] = engines.get(e_name, 0) + 1
+    if total_f.any():
+        pix += _box_integrate(total_f, n_sub) * dx * dx / P_in
+        edge = max(total_f[0].max(), total_f[-1].max(), total_f[:, 0].max(), total_f[:, -1].max())
+        est_abs += 0.05 * edge * dx * dx / P_in * n_sub  # truncation of the band-limited box filter
+    # haze orders: uniform disks
+    xc = x_e0 + (np.arange(size) + 0.5) * p
+    yc = y_e0 + (np.arange(size) + 0.5) * p
+    haze_total = 0.0
+    for wi, s in zip(w, sets):
+        for h in s.haze:
+            inside = ((xc[None, :] - h.center_um[0]) ** 2 + (yc[:, None] - h.center_um[1]) ** 2) <= h.radius_um ** 2
+            dens = h.power_fraction / (math.pi * h.radius_um ** 2)
+            pix += wi * inside * dens * p * p
+            haze_total += wi * h.power_fraction
+    peak = float(pix.max())
+    est_rel = est_abs / peak if peak > 0 else float("inf")
+    if est_rel > error:
+        warnings.warn(f"sensor PSF of '{lens.name}' at field {fpair} deg: estimated error {est_rel:.2g} of the "
+                      f"peak exceeds the requested {error:g} (geometric haze or cost budget); raise error or "
+                      "reduce wavelengths", NotConvergedWarning, stacklevel=2)
+    eng_name = "+".join(f"{k}" for k in sorted(engines))
+    info = {"engines": engines, "n_sub": n_sub, "fine_pitch_um": dx, "size_px": size,
+            "haze_power": haze_total, "seconds": time.perf_counter() - t0, "requested_error": error,
+            "order_efficiency": float(np.dot(w, [s.info["order_efficiency"] for s in sets])),
+            "quantize": quantize, "lattice": lattice, "z_um": z,
+            "error_definition": "max abs error / PSF peak pixel (estimate)"}
+    log.info("sensor_psf %s field %s: %s, %d px, sum %.4g, err %.2g, %.3f s", lens.name, fpair, eng_name, size,
+             pix.sum(), est_rel, info["seconds"])
+    return PSF(pix, p, (float(chief[0]), float(chief[1])), wl, w, fpair, pol, eng_name, float(est_rel),
+               float(pix.sum()), info)

@@ -1,0 +1,297 @@
+"""Pupil fields of a metalens in direction-sine space, from the design and the post set.
+
+Model (scalar, thin element, stationary phase; valid for Fresnel numbers a^2/(lambda f) >> 1, i.e. for
+every lens of this project: 625 for the 25 mm F/1 lens, 937 for the 75 mm F/2 lens)
+-----------------------------------------------------------------------------------------------
+A lens of focal length f0 designed at lambda0 imposes the phase ``phi0(rho)`` (hyperbolic, see
+:mod:`metafovea.units`). Under a plane wave of direction sines ``s0`` (field angle) at wavelength
+lambda, its field is decomposed into diffraction orders of the wrapped, N-level profile:
+``t(rho) = sum_m c_m exp(i m phi0(rho))`` with
+
+    c_m = sinc(m / N) * (1/N) * sum_k tau_k(lambda) exp(-2 pi i k m / N)      (normalised sinc)
+
+where ``tau_k`` is level k's transmission in the polarisation considered (the lens' own polarisation:
+``PostSet.t_focus``; the other one: ``PostSet.t_pass``). Away from lambda0 a post's phase scales as
+``arg(tau_k) * lambda0 / lambda`` (propagation phase of a nanopost waveguide), which gives the familiar
+order efficiency ``sinc^2(1 - lambda0/lambda)`` for ideal posts. Order m = 1 focuses at
+``f0 lambda0 / lambda`` (chromatic focal shift); the other orders are broad haze.
+
+Each order is mapped to direction-sine space by stationary phase: the lens point ``rho`` sends its light
+into the direction ``s = s0 + m (lambda/lambda0) w`` with ``w = -rho / sqrt(rho^2 + f0^2)`` (the design
+direction sine), and the angular spectrum at a plane z behind the lens is
+
+    U(x, y) = integral P(s) exp(i [Phi(s) + k s.(x, y)]) d^2 s
+
+    Phi(s)  = k0 f0 (1 - sqrt(1 - |w|^2)) + k z sqrt(1 - |s|^2),   w = (lambda0/lambda)(s - s0) / m
+    |P(s)|  = |a| f0 (lambda0/lambda) / (lambda sqrt(1-|w|^2)^2)   (so that int |U|^2 = power through
+              the aperture for an incident intensity of 1)
+
+The ideal spherical term is therefore handled analytically: for lambda = lambda0, z = f0 and s0 = 0 the
+phase Phi is constant and the PSF is the Fourier transform of a smooth amplitude over a disk. The disk is
+``|w| <= NA``; directions with ``|s| >= 1`` are evanescent and lost.
+
+Lattice sampling (posts on a square lattice of period p, each post carrying its own phase) multiplies the
+local zero-order amplitude by ``sinc(p w_x / lambda0) sinc(p w_y / lambda0)`` (lens.py's site model). With
+the design's quantisation the focal peak relative to a continuous phase is then ~0.935 (F/2) and ~0.90
+(F/1) for 8 levels, matching :func:`metafovea.lens.lattice_efficiency`.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from metafovea.config import LensDesign
+from metafovea.errors import InputError, check_choice, check_int, check_positive
+from metafovea.library import PostSet
+
+#: Smallest distance of the pupil disk from the evanescent circle |s| = 1 that is accepted.
+EVANESCENT_MARGIN = 1e-3
+
+
+def field_direction(field_deg: float | tuple[float, float] | Any) -> np.ndarray:
+    """Direction sines (sx, sy) of the incident plane wave for a field angle in degrees.
+
+    A scalar is an angle along +x; a pair (ax, ay) is the direction whose chief ray lands at
+    ``(z tan ax, z tan ay)`` on a plane at distance z. The chief ray of a lens lands there at every
+    wavelength (the centre of a thin lens does not deflect).
+    """
+    if np.ndim(field_deg) == 0:
+        ax, ay = float(field_deg), 0.0
+    else:
+        v = list(np.asarray(field_deg, dtype=float).reshape(-1))
+        if len(v) != 2:
+            raise InputError("field_deg", field_deg, "a number or a pair (x, y) of angles in degrees")
+        ax, ay = v
+    for name, a in (("field_deg", ax), ("field_deg", ay)):
+        if not math.isfinite(a) or abs(a) >= 89.0:
+            raise InputError(name, field_deg, "finite angles with |angle| < 89 deg")
+    tx, ty = math.tan(math.radians(ax)), math.tan(math.radians(ay))
+    n = math.sqrt(1.0 + tx * tx + ty * ty)
+    return np.array([tx / n, ty / n])
+
+
+def max_field_deg(lens: LensDesign, wavelength_um: float | None = None) -> float:
+    """Largest field angle (deg) for which every ray of the focusing order propagates.
+
+    The rim of the pupil disk sits at ``|s0| + NA lambda/lambda0``; beyond 1 light is evanescent (and
+    the hyperbolic lens is far outside its useful field long before). This is the lens' field.
+    """
+    wl = lens.wavelength_um if wavelength_um is None else wavelength_um
+    r = 1.0 - lens.na * wl / lens.wavelength_um - EVANESCENT_MARGIN
+    if r <= 0:
+        return 0.0
+    return math.degrees(math.asin(min(r, 1.0)))
+
+
+def _sinc(x: np.ndarray | float) -> np.ndarray:
+    return np.sinc(x)
+
+
+def level_transmissions(lens: LensDesign, post_set: PostSet | None, polarization: str,
+                        wavelength_um: float, quantize: bool = True) -> np.ndarray | None:
+    """(N,) transmissions tau_k at ``wavelength_um`` for the polarisation, or None for a continuous phase.
+
+    Without a post set the posts are ideal (exact phases, unit transmission for the lens' polarisation,
+    unit pass-through). Phases scale with lambda0 / lambda away from the design wavelength.
+    """
+    alpha = lens.wavelength_um / wavelength_um
+    if post_set is None:
+        if not quantize:
+            return None
+        post_set = PostSet.ideal(lens.levels, period_um=lens.period_um, wavelength_um=lens.wavelength_um,
+                                 polarization=lens.polarization)
+    if post_set.polarization != lens.polarization:
+        raise InputError("post_set.polarization", post_set.polarization,
+                         f"the lens' polarisation '{lens.polarization}'")
+    if post_set.levels != lens.levels:
+        raise InputError("post_set.levels", post_set.levels, f"the lens' number of levels ({lens.levels})")
+    t = post_set.t_focus if polarization == lens.polarization else post_set.t_pass
+    ph = np.angle(t)
+    if polarization == lens.polarization:
+        # unwrap the focusing phases onto the ramp 2 pi k / N before scaling with wavelength
+        target = 2 * np.pi * np.arange(lens.levels) / lens.levels
+        ph = target + np.angle(np.exp(1j * (ph - target)))
+    return np.abs(t) * np.exp(1j * ph * alpha)
+
+
+def order_coefficients(tau: np.ndarray | None, levels: int, orders: np.ndarray) -> np.ndarray:
+    """Complex amplitudes c_m of the diffraction orders exp(i m phi0) of an N-level element.
+
+    ``tau=None`` is a continuous phase (c_1 = 1, all others 0).
+    """
+    orders = np.asarray(orders, dtype=int)
+    if tau is None:
+        return (orders == 1).astype(complex)
+    n = levels
+    k = np.arange(n)
+    ph = np.exp(-2j * np.pi * np.outer(orders, k) / n)
+    return _sinc(orders / n) * (ph @ tau) / n
+
+
+@dataclass(frozen=True)
+class Pupil:
+    """One focusing diffraction order in direction-sine space, at one wavelength and field.
+
+    All lengths um. ``center``: centre of the support disk in s (= s0); ``radius``: its radius
+    (NA lambda / lambda0 / m). ``amplitude_factor``: complex order coefficient c_m (post set,
+    quantisation, chromatic order efficiency). ``lattice``: include the lattice-sampling factor.
+    ``z_um``: the plane where the field is evaluated (the sensor, default the design focal length).
+    """
+
+    lens: LensDesign
+    wavelength_um: float
+    s0: np.ndarray
+    z_um: float
+    order: int = 1
+    amplitude_factor: complex = 1.0 + 0j
+    lattice: bool = False
+
+    @property
+    def k(self) -> float:
+        return 2 * np.pi / self.wavelength_um
+
+    @property
+    def alpha(self) -> float:
+        """lambda0 / lambda / m: s - s0 = w / alpha."""
+        return self.lens.wavelength_um / self.wavelength_um / self.order
+
+    @property
+    def center(self) -> np.ndarray:
+        return np.asarray(self.s0, dtype=float)
+
+    @property
+    def radius(self) -> float:
+        return self.lens.na / self.alpha
+
+    def w_of(self, sx: np.ndarray, sy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        a = self.alpha
+        return a * (sx - self.s0[0]), a * (sy - self.s0[1])
+
+    def phase(self, sx: np.ndarray, sy: np.ndarray) -> np.ndarray:
+        """Phi(s) (rad) up to a constant (the constant k z is dropped for precision)."""
+        wx, wy = self.w_of(sx, sy)
+        w2 = wx * wx + wy * wy
+        k0m = 2 * np.pi / self.lens.wavelength_um * self.order
+        s2 = sx * sx + sy * sy
+        cs = np.sqrt(np.maximum(1.0 - s2, 0.0))
+        cw = np.sqrt(1.0 - w2)
+        # m k0 f0 (1 - c_w) + k z (c_s - 1), each written without cancellation; the constant k z is dropped
+        return k0m * self.lens.f_um * w2 / (1.0 + cw) - self.k * self.z_um * s2 / (1.0 + cs)
+
+    def amplitude(self, sx: np.ndarray, sy: np.ndarray) -> np.ndarray:
+        """Complex amplitude P(s) inside the support disk (caller restricts to the disk)."""
+        wx, wy = self.w_of(sx, sy)
+        w2 = wx * wx + wy * wy
+        cw2 = 1.0 - w2
+        amp = self.lens.f_um * self.alpha / (self.wavelength_um * cw2)
+        if self.lattice:
+            q = self.lens.period_um / self.lens.wavelength_um
+            amp = amp * _sinc(q * self.order * wx) * _sinc(q * self.order * wy)
+        return self.amplitude_factor * amp
+
+    def ray_landing(self, sx: np.ndarray, sy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Where the geometric ray of direction s meets the plane z (um): -(1/k) grad Phi."""
+        wx, wy = self.w_of(sx, sy)
+        cw = np.sqrt(1.0 - wx * wx - wy * wy)
+        cs = np.sqrt(1.0 - sx * sx - sy * sy)
+        # -(1/k) grad Phi; the factor m k0 f0 alpha / k equals f0 exactly
+        f0 = self.lens.f_um
+        return (-f0 * wx / cw + self.z_um * sx / cs, -f0 * wy / cw + self.z_um * sy / cs)
+
+    def chief_ray_um(self) -> np.ndarray:
+        s = self.s0
+        cs = math.sqrt(1.0 - float(s @ s))
+        return self.z_um * s / cs
+
+    def incident_power(self) -> float:
+        """Power through the aperture for unit incident intensity (um^2): pi R^2."""
+        return math.pi * self.lens.radius_um ** 2
+
+    def evanescent_gap(self) -> float:
+        """1 - (|s0| + radius): > 0 when the whole disk propagates."""
+        return 1.0 - (float(np.hypot(*self.s0)) + self.radius)
+
+    def lattice_anisotropy(self) -> float:
+        """Largest relative azimuthal variation of the lattice factor at the rim (0 without lattice)."""
+        if not self.lattice:
+            return 0.0
+        q = self.lens.period_um / self.lens.wavelength_um * self.order
+        w = self.lens.na
+        a = float(np.sinc(q * w))
+        b = float(np.sinc(q * w / math.sqrt(2)) ** 2)
+        return abs(a - b) / max(a, b)
+
+
+@dataclass(frozen=True)
+class HazeOrder:
+    """A non-focusing order drawn as a uniform geometric disk on the sensor plane."""
+
+    order: int
+    power_fraction: float  #: |c_m|^2 (times the mean lattice factor): fraction of the incident power
+    radius_um: float  #: geometric blur radius on the plane z
+    center_um: tuple[float, float]
+
+
+@dataclass(frozen=True)
+class PupilSet:
+    """Everything a lens sends to the plane z at one wavelength and field for one polarisation."""
+
+    focus: Pupil | None  #: the focusing order (None when its coefficient vanishes)
+    haze: tuple[HazeOrder, ...]
+    coefficients: dict[int, complex] = field(default_factory=dict)
+    info: dict[str, Any] = field(default_factory=dict)
+
+
+def build_pupils(lens: LensDesign, wavelength_um: float, *, field_deg: Any = 0.0,
+                 post_set: PostSet | None = None, polarization: str | None = None,
+                 quantize: bool = True, lattice: bool = True, z_um: float | None = None,
+                 orders: int = 6) -> PupilSet:
+    """Pupil of the focusing order plus haze orders for one wavelength, field and polarisation.
+
+    ``polarization`` defaults to the lens' own; for the other one the lens acts through its pass-through
+    transmission (``PostSet.t_pass``): mostly an unfocused plane wave (order 0, haze) plus whatever
+    level-to-level variation of ``t_pass`` focuses. ``quantize=False`` with no post set gives the
+    continuous-phase lens (c_1 = 1). ``lattice`` applies the lattice-sampling factor to the focusing
+    order. ``orders``: haze orders -orders..orders are kept (their power is tiny per pixel).
+    """
+    wl = check_positive("wavelength_um", wavelength_um, "um", hi=1e4)
+    pol = lens.polarization if polarization is None else check_choice("polarization", polarization, ("x", "y"))
+    s0 = field_direction(field_deg)
+    z = lens.f_um if z_um is None else check_positive("z_um", z_um, "um")
+    n = check_int("orders", orders, 1, 64)
+    tau = level_transmissions(lens, post_set, pol, wl, quantize)
+    if tau is None and pol != lens.polarization:
+        tau = np.ones(lens.levels, dtype=complex)  # continuous lens, ideal pass-through
+    ms = np.arange(-n, n + 1)
+    c = order_coefficients(tau, lens.levels, ms)
+    coeffs = {int(m): complex(v) for m, v in zip(ms, c)}
+    c1 = coeffs.get(1, 0j)
+    focus = None
+    if abs(c1) > 1e-9:
+        focus = Pupil(lens, wl, s0, z, 1, c1, lattice)
+        gap = focus.evanescent_gap()
+        if gap < EVANESCENT_MARGIN:
+            lim = max_field_deg(lens, wl)
+            raise InputError("field_deg", field_deg,
+                             f"|field| <= {lim:.3f} deg for lens '{lens.name}' at {wl:g} um "
+                             "(beyond it the rim of the lens sends light into evanescent directions)")
+    cs = math.sqrt(1.0 - float(s0 @ s0))
+    chief = tuple(float(v) for v in z * s0 / cs)
+    haze = []
+    R = lens.radius_um
+    for m, v in coeffs.items():
+        if m == 1 or abs(v) ** 2 < 1e-14:
+            continue
+        if m == 0:
+            rad = R
+        else:
+            fm = lens.f_um * lens.wavelength_um / (wl * m)  # signed focal length of order m
+            rad = R * abs(1.0 - z / fm)
+        haze.append(HazeOrder(int(m), float(abs(v) ** 2), float(max(rad, 1e-9)), chief))
+    info = {"order_efficiency": float(abs(c1) ** 2), "haze_power": float(sum(h.power_fraction for h in haze)),
+            "polarization": pol}
+    return PupilSet(focus, tuple(haze), coeffs, info)
