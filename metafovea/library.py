@@ -211,7 +211,8 @@ def _material_key(v: Any, wl: np.ndarray) -> Any:
 def _row_task(job: dict) -> dict:
     """One sweep task: x-polarised (and y if needed) responses for one wx at all wy, one wavelength."""
     from metafovea.rcwa.posts import post_response
-    with warnings.catch_warnings():
+    from metafovea.rcwa.threads import blas_threads
+    with warnings.catch_warnings(), blas_threads(1):
         warnings.simplefilter("ignore", NotConvergedWarning)
         kw = job["kw"]
         out: dict[str, np.ndarray] = {}

@@ -1,10 +1,26 @@
 """In-house RCWA (Fourier modal method) for 2-D periodic stacks of rectangular-post layers.
 
-See :mod:`metafovea.rcwa.solve` for the conventions (time dependence, reference planes, power
-normalisation, entry side) and :mod:`metafovea.rcwa.basis` for the formulation.
+Public API
+----------
+* :class:`Stack`, :class:`Layer`, :class:`Rectangle` - geometry (z from substrate to superstrate).
+* :func:`solve` - general solver: any stack, angle, polarisation; all orders, both entry sides.
+* :func:`post_response` - fast batched zero-order response of centred posts at normal incidence
+  (parity-adapted basis, x-pol only, y from the swapped post), used by :mod:`metafovea.library`.
+
+Conventions (details in :mod:`metafovea.rcwa.solve` and :mod:`metafovea.rcwa.posts`)
+------------------------------------------------------------------------------------
+* ``exp(-i omega t)``; plane waves ``exp(+i k z)``; loss ``Im n > 0``.
+* Reference planes of phases: the faces of the layer stack (z = 0 and z = total thickness).
+* Amplitudes are power normalised (``|t|^2`` = efficiency); ``t_field = t sqrt(n_in / n_out)``.
+* Polarisations 'p' (index 0) and 's' (index 1); at normal incidence with phi = 0, p = x, s = y.
+* Factorisation: 'li' (Li's rules for crossed gratings: inverse rule across each discontinuity,
+  Laurent along it) or 'laurent' (plain Laurent rule, for comparison).
+* Default entry side for posts: the substrate (through the wafer; posts face the sensor).
 """
 
 from metafovea.rcwa.geometry import Layer, Rectangle, Stack
+from metafovea.rcwa.posts import PostResponse, post_response
 from metafovea.rcwa.solve import FACTORIZATIONS, SIDES, Result, n_harmonics, solve
 
-__all__ = ["Layer", "Rectangle", "Stack", "Result", "solve", "n_harmonics", "FACTORIZATIONS", "SIDES"]
+__all__ = ["Layer", "Rectangle", "Stack", "Result", "solve", "n_harmonics", "FACTORIZATIONS", "SIDES",
+           "post_response", "PostResponse"]
