@@ -15,6 +15,8 @@ import contextlib
 import errno
 import json
 import os
+import queue
+import threading
 import time
 from dataclasses import dataclass, field
 from functools import partial
@@ -91,6 +93,43 @@ def _ordered_map(fn: Callable, items: list, workers: int | None, scheduler: str 
             ex.close()
 
 
+class _Writer(threading.Thread):
+    """Writes band data in a background thread (overlaps disk writes with the band computation)."""
+
+    def __init__(self, fh, on_written: Callable[[int, np.ndarray], None], depth: int = 3):
+        super().__init__(daemon=True)
+        self.fh, self.on_written = fh, on_written
+        self.q: queue.Queue = queue.Queue(maxsize=depth)
+        self.exc: BaseException | None = None
+        self.start()
+
+    def run(self) -> None:
+        while True:
+            item = self.q.get()
+            if item is None:
+                return
+            if self.exc is not None:
+                continue
+            try:
+                data, c = item
+                self.fh.write(data)
+                self.on_written(memoryview(data).nbytes, c)
+            except BaseException as e:  # noqa: BLE001 - re-raised in the caller
+                self.exc = e
+
+    def put(self, data: Any, c: np.ndarray) -> None:
+        if self.exc is not None:
+            raise self.exc
+        self.q.put((data, c))
+
+    def close(self) -> None:
+        self.q.put(None)
+        self.join()
+        if self.exc is not None:
+            exc, self.exc = self.exc, None
+            raise exc
+
+
 def part_paths(path: Path) -> tuple[Path, Path]:
     return path.parent / f".{path.name}.part", path.parent / f".{path.name}.part.json"
 
@@ -162,27 +201,32 @@ def export_layout(spec: LayoutSpec, path: str | os.PathLike, fmt: str = "gds", *
         if progress:
             from tqdm.auto import tqdm
             bar = tqdm(total=len(bands), initial=start, unit="band", desc=f"export {path.name}")
-        done = start
-        last_j = time.perf_counter()
+        st = {"done": start, "offset": offset, "last": time.perf_counter()}
+
+        def written(nbytes: int, c: np.ndarray) -> None:  # runs in the writer thread
+            st["offset"] += nbytes
+            counts[:] += c
+            st["done"] += 1
+            now = time.perf_counter()
+            if now - st["last"] > 0.5 or st["done"] == len(bands) or _stop_after is not None:
+                fh.flush()
+                _write_journal(jpath, {"key": key, "bands_done": st["done"], "offset": st["offset"],
+                                       "counts": counts.tolist(), "total_bands": len(bands)})
+                st["last"] = now
+            if bar is not None:
+                bar.update(1)
+                bar.set_postfix(posts=f"{int(counts.sum()):,}", refresh=False)
+
+        writer = _Writer(fh, written)
         try:
             todo = bands[start:] if _stop_after is None else bands[start:start + _stop_after]
             for data, c in _ordered_map(enc, todo, workers, scheduler, inflight):
-                fh.write(data)
-                offset += len(data)
-                counts += c
-                done += 1
-                now = time.perf_counter()
-                if now - last_j > 0.5 or done == len(bands) or _stop_after is not None:
-                    fh.flush()
-                    _write_journal(jpath, {"key": key, "bands_done": done, "offset": offset,
-                                           "counts": counts.tolist(), "total_bands": len(bands)})
-                    last_j = now
-                if bar is not None:
-                    bar.update(1)
-                    bar.set_postfix(posts=f"{int(counts.sum()):,}", refresh=False)
+                writer.put(data, c)
         finally:
+            writer.close()
             if bar is not None:
                 bar.close()
+        done, offset = st["done"], st["offset"]
         if done < len(bands):
             fh.close()
             fh = None

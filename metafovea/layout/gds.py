@@ -93,37 +93,48 @@ def _name_words(spec: LayoutSpec) -> np.ndarray:
     return np.array(words, dtype=np.uint32)
 
 
-def band_sites(spec: LayoutSpec, band: tuple[int, int, int, int]):
-    """Levels of one band restricted to the window: (k, x_nm, y_nm) of the posts, row-major."""
+def band_index(spec: LayoutSpec, band: tuple[int, int, int, int]):
+    """Posts of one band restricted to the window, row-major: ``(k, r, c, xs, ys)`` with post type
+    ``k`` (uint8), row/column indices into the band and the site positions ``xs`` (per column) and
+    ``ys`` (per row) in nm (int64)."""
     iy0, rows, ix0, cols = band
     lev = band_levels(spec.design, iy0, rows, ix0, cols, spec.levels)
     _, _, ix_lo, ix_hi = spec.window()
     if ix0 < ix_lo or ix0 + cols - 1 > ix_hi:
         a, b = max(ix0, ix_lo), min(ix0 + cols - 1, ix_hi)
-        lev = lev[:, a - ix0:b - ix0 + 1]
+        lev = np.ascontiguousarray(lev[:, a - ix0:b - ix0 + 1])
         ix0 = a
-    r, c = np.nonzero(lev >= 0)
-    k = lev[r, c].astype(np.intp)
-    xs = spec.site_x_nm(np.arange(ix0, ix0 + lev.shape[1]))
+    ncol = lev.shape[1]
+    flat = lev.reshape(-1)
+    fi = np.flatnonzero(flat >= 0)
+    k = flat[fi].astype(np.uint8)
+    r = fi // ncol
+    c = fi - r * ncol
+    xs = spec.site_x_nm(np.arange(ix0, ix0 + ncol))
     ys = spec.site_y_nm(np.arange(iy0, iy0 + rows))
-    return k, xs[c], ys[r], lev, ix0
+    return k, r, c, xs, ys
 
 
-def encode_band_gds(spec: LayoutSpec, flat: bool, band: tuple[int, int, int, int]) -> tuple[bytes, np.ndarray]:
-    """GDSII records of one band's posts and the number of posts per type."""
-    k, x, y, _, _ = band_sites(spec, band)
+def band_sites(spec: LayoutSpec, band: tuple[int, int, int, int]):
+    """Posts of one band: ``(k, x_nm, y_nm)`` (row-major)."""
+    k, r, c, xs, ys = band_index(spec, band)
+    return k.astype(np.intp), xs[c], ys[r]
+
+
+def encode_band_gds(spec: LayoutSpec, flat: bool, band: tuple[int, int, int, int]) -> tuple[np.ndarray, np.ndarray]:
+    """GDSII records of one band's posts (a uint8 array) and the number of posts per type."""
+    k, r, c, xs, ys = band_index(spec, band)
     n = k.size
     counts = np.bincount(k, minlength=spec.levels)
     if not flat:
         rec = np.empty((n, 7), dtype=">u4")
-        rec[:, 0] = _SREF
-        rec[:, 1] = _SNAME4
-        rec[:, 2] = _name_words(spec)[k]
-        rec[:, 3] = _XY1
-        rec[:, 4] = x.astype(np.int32).view(np.uint32)
-        rec[:, 5] = y.astype(np.int32).view(np.uint32)
-        rec[:, 6] = _ENDEL
-        return rec.tobytes(), counts
+        rec[:] = np.array([_SREF, _SNAME4, 0, _XY1, 0, 0, _ENDEL], dtype=">u4")
+        rec[:, 2] = _name_words(spec).astype(">u4")[k]
+        rec[:, 4] = xs.astype(">i4").view(">u4")[c]
+        rec[:, 5] = ys.astype(">i4").view(">u4")[r]
+        return rec.view(np.uint8).reshape(-1), counts
+    x, y = xs[c], ys[r]
+    k = k.astype(np.intp)
     rec = np.empty(n, dtype=_BOUNDARY_DTYPE)
     rec["h"] = _BOUNDARY
     rec["lh"] = _LAYER
@@ -142,5 +153,4 @@ def encode_band_gds(spec: LayoutSpec, flat: bool, band: tuple[int, int, int, int
     xy[:, 4], xy[:, 5] = x1, y1
     xy[:, 6], xy[:, 7] = x0, y1
     xy[:, 8], xy[:, 9] = x0, y0
-    rec["xy"] = xy
-    return rec.tobytes(), counts
+    return rec.view(np.uint8).reshape(-1), counts

@@ -44,7 +44,7 @@ def patch_mesh(spec: LayoutSpec, substrate_thickness_um: float | None = None):
         raise InputError("--patch", None, "a patch X,Y,W (mm) for a mesh export (a whole lens is too large)")
     ks, xs, ys = [], [], []
     for band in spec.bands():
-        k, x, y, _, _ = band_sites(spec, band)
+        k, x, y = band_sites(spec, band)
         ks.append(k), xs.append(x), ys.append(y)
     k = np.concatenate(ks)
     if k.size > MAX_POSTS:

@@ -18,7 +18,7 @@ import zlib
 
 import numpy as np
 
-from metafovea.layout.gds import band_sites
+from metafovea.layout.gds import band_index
 from metafovea.layout.tiling import LayoutSpec, has_frame, mark_boxes_nm, ring_polygons_nm
 
 MAGIC = b"%SEMI-OASIS\r\n"
@@ -59,23 +59,27 @@ def uints(v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     nb = np.ones(v.size, dtype=np.int64)
     if v.size == 0:
         return np.zeros(0, np.uint8), nb
-    t = v >> np.uint64(7)
-    while np.any(t):
-        nb += t > 0
-        t >>= np.uint64(7)
-    if np.all(nb == 1):
+    big = np.flatnonzero(v >= 128)
+    if big.size == 0:
         return v.astype(np.uint8), nb
+    vb = v[big]
+    nbb = np.ones(big.size, dtype=np.int64)
+    t = vb >> np.uint64(7)
+    while np.any(t):
+        nbb += t > 0
+        t >>= np.uint64(7)
+    nb[big] = nbb
     end = np.cumsum(nb)
     start = end - nb
     out = np.empty(int(end[-1]), dtype=np.uint8)
-    rem = v.copy()
-    for j in range(int(nb.max())):
-        sel = nb > j
-        idx = start[sel] + j
-        byte = (rem[sel] & np.uint64(0x7F)).astype(np.uint8)
-        more = nb[sel] > j + 1
-        out[idx] = byte | (more.astype(np.uint8) << 7)
-        rem[sel] >>= np.uint64(7)
+    small = np.ones(v.size, dtype=bool)
+    small[big] = False
+    out[start[small]] = v[small].astype(np.uint8)
+    sb = start[big]
+    for j in range(int(nbb.max())):
+        sel = nbb > j
+        byte = ((vb[sel] >> np.uint64(7 * j)) & np.uint64(0x7F)).astype(np.uint8)
+        out[sb[sel] + j] = byte | ((nbb[sel] > j + 1).astype(np.uint8) << 7)
     return out, nb
 
 
@@ -139,44 +143,48 @@ def cblock(raw: bytes, level: int = 1) -> bytes:
 
 def encode_band_oas(spec: LayoutSpec, compress: int, band: tuple[int, int, int, int]) -> tuple[bytes, np.ndarray]:
     """PLACEMENT records of one band (one per row and post type), in a CBLOCK when ``compress > 0``."""
-    k, x, y, lev, ix0 = band_sites(spec, band)
+    k, r, c, xs, ys = band_index(spec, band)
     n = k.size
     counts = np.bincount(k, minlength=spec.levels)
     if n == 0:
         return b"", counts
-    # stable sort by type, keeping row-major order inside a type
+    # stable sort by type (radix sort on uint8), keeping row-major order inside a type
     order = np.argsort(k, kind="stable")
-    ks, xs, ys = k[order], x[order], y[order]
+    ks, rs, cs = k[order], r[order], c[order]
     new = np.ones(n, dtype=bool)
-    new[1:] = (ks[1:] != ks[:-1]) | (ys[1:] != ys[:-1])
+    new[1:] = (ks[1:] != ks[:-1]) | (rs[1:] != rs[:-1])
     starts = np.flatnonzero(new)
     ends = np.append(starts[1:], n)
-    dx = np.diff(xs)
+    cont = ~new[1:]  # element i+1 continues the group of element i
     P = spec.period_nm
-    cont = ~new[1:]  # dx[i] belongs to a group when element i+1 continues it
-    spaces = dx[cont]
-    grid = P if (P and spaces.size and np.all(spaces % P == 0)) else 1
-    enc, nbytes = uints(spaces // grid)
-    # byte offsets of each group's spaces inside enc
+    if P is not None:  # sites exactly on the lattice: spaces in periods on a grid of P
+        spaces = np.diff(cs)[cont]
+        grid = P
+    else:
+        spaces = np.diff(xs[cs])[cont]
+        grid = 1
+    enc, nbytes = uints(spaces)
     boff = np.concatenate([[0], np.cumsum(nbytes)])
-    # space index of group g's first space: number of continuing elements before starts[g]
+    # index of group g's first space: continuing elements before starts[g] = starts[g] - g
     sidx = starts - np.arange(starts.size)
     enc_b = enc.tobytes()
-    parts = []
     grid_b = uint(grid)
-    rep_type = 5 if grid > 1 else 4
-    for g, (a, b) in enumerate(zip(starts.tolist(), ends.tolist())):
-        cnt = b - a
-        head = bytes([17, 0xF8 if cnt > 1 else 0xF0]) + uint(int(ks[a])) + sint(int(xs[a])) + sint(int(ys[a]))
+    rep = (bytes([5]), grid_b) if grid > 1 else (bytes([4]), b"")
+    parts = []
+    xg = xs[cs[starts]].tolist()
+    yg = ys[rs[starts]].tolist()
+    kg = ks[starts].tolist()
+    cnt_a = ends - starts
+    cnts = cnt_a.tolist()
+    b0 = boff[sidx].tolist()
+    b1 = boff[sidx + np.maximum(cnt_a - 1, 0)].tolist()
+    for g in range(starts.size):
+        cnt = cnts[g]
+        head = bytes([17, 0xF8 if cnt > 1 else 0xF0]) + uint(kg[g]) + sint(xg[g]) + sint(yg[g])
         if cnt == 1:
             parts.append(head)
-            continue
-        s0 = int(sidx[g])
-        body = enc_b[boff[s0]:boff[s0 + cnt - 1]]
-        if rep_type == 5:
-            parts.append(head + bytes([5]) + uint(cnt - 2) + grid_b + body)
         else:
-            parts.append(head + bytes([4]) + uint(cnt - 2) + body)
+            parts.append(head + rep[0] + uint(cnt - 2) + rep[1] + enc_b[b0[g]:b1[g]])
     raw = b"".join(parts)
     if compress > 0:
         return cblock(raw, compress), counts

@@ -254,6 +254,8 @@ def _real8(b: bytes) -> float:
 
 
 _SREF_T = np.array([0x00040A00, 0x00081206, 0, 0x000C1003, 0, 0, 0x00041100], dtype=np.uint32)
+_SREF_N = np.frombuffer(_SREF_T.astype(">u4").tobytes(), dtype=np.uint32)  # raw big-endian bytes, native view
+_SLACK_DBU = 100_000  # exact posts bbox for cells up to 200 um wide (see GdsScanner._sref_run)
 _BND_DTYPE = np.dtype({"names": ["h", "lh", "layer", "dh", "dt", "xyh", "xy", "end"],
                        "formats": [">u4", ">u4", ">i2", ">u4", ">i2", ">u4", (">i4", (10,)), ">u4"],
                        "offsets": [0, 4, 8, 10, 14, 16, 20, 60], "itemsize": 64})
@@ -277,6 +279,7 @@ class GdsScanner:
         cur = None
         el: dict[str, Any] | None = None
         off: dict[str, int] = {}  # posts off the lattice, per structure
+        cand: dict[str, list] = {}  # SREF bounding-box candidates per structure
         lat = self.lattice
         size = self.path.stat().st_size
         bar = None
@@ -311,27 +314,13 @@ class GdsScanner:
                 if cur is not None and el is None and rt in (0x0A, 0x08) and len(buf) - pos >= 4096:
                     if rt == 0x0A:
                         nmax = (len(buf) - pos) // 28
-                        v = np.frombuffer(buf, dtype=">u4", count=nmax * 7, offset=pos).reshape(nmax, 7)
-                        okm = (v[:, 0] == _SREF_T[0]) & (v[:, 1] == _SREF_T[1]) & (v[:, 3] == _SREF_T[3]) & \
-                              (v[:, 6] == _SREF_T[6])
+                        v = np.frombuffer(buf, dtype=np.uint32, count=nmax * 7, offset=pos).reshape(nmax, 7)
+                        okm = (v[:, 0] == _SREF_N[0]) & (v[:, 1] == _SREF_N[1]) & (v[:, 3] == _SREF_N[3]) & \
+                              (v[:, 6] == _SREF_N[6])
                         m = nmax if okm.all() else int(np.argmin(okm))
                         if m > 0:
                             v = v[:m]
-                            words = v[:, 2]
-                            xy = v[:, 4:6].astype(np.uint32).view(np.int32).astype(np.int64)
-                            uw, inv = np.unique(words, return_inverse=True)
-                            dref = refs.setdefault(cur, {})
-                            for j, w in enumerate(uw.tolist()):
-                                nm = int(w).to_bytes(4, "big").rstrip(b"\0").decode("ascii", "replace")
-                                sel = xy[inv == j] if len(uw) > 1 else xy
-                                rr = dref.setdefault(nm, {"n": 0, "min": None, "max": None})
-                                rr["n"] += len(sel)
-                                mn, mx = sel.min(0), sel.max(0)
-                                rr["min"] = mn if rr["min"] is None else np.minimum(rr["min"], mn)
-                                rr["max"] = mx if rr["max"] is None else np.maximum(rr["max"], mx)
-                            if lat is not None:
-                                cx, oP, P = lat
-                                off[cur] = off.get(cur, 0) + int(np.count_nonzero(((xy - cx - oP) % P != 0).any(axis=1)))
+                            self._sref_run(cur, v[:, 2], v[:, 4:6].byteswap().view(np.int32), refs, cand, off)
                             pos += 28 * m
                             continue
                     else:
@@ -409,6 +398,17 @@ class GdsScanner:
         if bar is not None:
             bar.close()
         # ---- reduce -------------------------------------------------------------------------
+        for sname, cl in cand.items():
+            if not cl:
+                continue
+            w, xy = _prune(cl)
+            for word in np.unique(w).tolist():
+                nm = int(word).to_bytes(4, "little").rstrip(b"\0").decode("ascii", "replace")
+                pts = xy[w == word]
+                rr = refs[sname][nm]
+                mn, mx = pts.min(0), pts.max(0)
+                rr["min"] = mn if rr["min"] is None else np.minimum(rr["min"], mn)
+                rr["max"] = mx if rr["max"] is None else np.maximum(rr["max"], mx)
         children = {n for s in refs.values() for n in s}
         tops = [n for n in structs if n not in children]
         ob.top_cells = tops
@@ -447,6 +447,38 @@ class GdsScanner:
             ob.bbox = bb
             ob.off_lattice = off.get(top, 0)
         return ob
+
+    def _sref_run(self, cur, words, xy32, refs, cand, off) -> None:
+        """A run of plain SREFs: counts per cell name (hashed bincount, collision-checked) and the refs
+        within ``_SLACK_DBU`` of the run's extremes as bounding-box candidates."""
+        words = np.ascontiguousarray(words)
+        bins = ((words ^ (words >> np.uint32(16))) & np.uint32(0xFFFF)).astype(np.intp)
+        rep = np.zeros(65536, dtype=np.uint32)
+        rep[bins] = words
+        dref = refs.setdefault(cur, {})
+        if np.any(rep[bins] != words):  # hash collision: exact but slower
+            uw, inv = np.unique(words, return_inverse=True)
+            cnt = np.bincount(inv.reshape(-1), minlength=len(uw))
+            pairs = zip(uw.tolist(), cnt.tolist())
+        else:
+            cnt = np.bincount(bins, minlength=65536)
+            nz = np.flatnonzero(cnt)
+            pairs = zip(rep[nz].tolist(), cnt[nz].tolist())
+        for w, n in pairs:
+            nm = int(w).to_bytes(4, "little").rstrip(b"\0").decode("ascii", "replace")
+            rr = dref.setdefault(nm, {"n": 0, "min": None, "max": None})
+            rr["n"] += int(n)
+        xy = xy32.astype(np.int64)
+        x, y = xy[:, 0], xy[:, 1]
+        sel = ((x <= x.min() + _SLACK_DBU) | (x >= x.max() - _SLACK_DBU) | (y <= y.min() + _SLACK_DBU)
+               | (y >= y.max() - _SLACK_DBU))
+        cl = cand.setdefault(cur, [])
+        cl.append((words[sel], xy[sel]))
+        if sum(len(c[0]) for c in cl) > 1_000_000:
+            cl[:] = [_prune(cl)]
+        if self.lattice is not None:
+            cx, oP, P = self.lattice
+            off[cur] = off.get(cur, 0) + int(np.count_nonzero(((xy - cx - oP) % P != 0).any(axis=1)))
 
     def _element(self, ob, cur, el, structs, refs, flat, texts) -> int:
         t = el["type"]
@@ -506,6 +538,15 @@ class GdsScanner:
             e[0] += 1
             e[1] = _union(e[1], b)
         return bad
+
+
+def _prune(cl):
+    w = np.concatenate([c[0] for c in cl])
+    xy = np.concatenate([c[1] for c in cl])
+    x, y = xy[:, 0], xy[:, 1]
+    sel = ((x <= x.min() + _SLACK_DBU) | (x >= x.max() - _SLACK_DBU) | (y <= y.min() + _SLACK_DBU)
+           | (y >= y.max() - _SLACK_DBU))
+    return w[sel], xy[sel]
 
 
 def read_stream(path: Path, lattice, posts_layer, progress: bool = False) -> Observed:

@@ -1,0 +1,180 @@
+"""Layout export benchmark: 25 mm (perifoveal) and 75 mm (foveal) lenses, GDSII and OASIS.
+
+Each measurement runs in its own Python process (peak memory = that process's max RSS). Per lens:
+the disk's sequential write speed (a file of --disk-gb GB, fsynced), our GDSII export (fsynced) and its
+streaming verification, gdstk's streamed GDSII writer (GdsWriter, one cell per band holding one
+reference per post type with an explicit-offset repetition, which gdstk writes as one SREF per post),
+our OASIS export and its read-back (gdstk; klayout with --klayout-oas). Files go to --dir (default /tmp)
+and are deleted after each step.
+
+    python benchmarks/bench_layout.py --lens perifoveal foveal --dir /tmp/bench_layout --json out.json
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import shutil
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+
+CHILD = r"""
+import json, os, resource, sys, time
+args = json.loads(sys.argv[1])
+kind = args["kind"]
+out = {}
+t0 = time.perf_counter()
+if kind == "disk":
+    buf = os.urandom(1 << 20) * 64
+    n = int(args["gb"] * (1 << 30)) // len(buf)
+    with open(args["path"], "wb") as fh:
+        for _ in range(n):
+            fh.write(buf)
+        fh.flush(); os.fsync(fh.fileno())
+    out["bytes"] = n * len(buf)
+else:
+    from metafovea.config import load_lens
+    from metafovea.layout import make_spec, export_layout
+    d = load_lens(args["design"])
+    spec = make_spec(d)
+    if kind == "export":
+        r = export_layout(spec, args["path"], args["fmt"], workers=args.get("workers", 1), force=True)
+        out.update(posts=r.posts, bytes=r.bytes)
+    elif kind == "verify":
+        from metafovea.layout.verify import verify_layout
+        r = verify_layout(args["path"], spec, reader=args["reader"], workers=args.get("workers", 1))
+        out.update(ok=r.ok, posts=r.posts, mismatches=r.mismatches[:5], seconds_read=r.seconds_read,
+                   seconds_expected=r.seconds_expected)
+    elif kind == "gdstk":
+        import gdstk, numpy as np
+        from metafovea.layout.gds import band_sites
+        names = spec.post_names
+        sz = spec.post_sizes_nm / 1000.0
+        w = gdstk.GdsWriter(args["path"], unit=1e-6, precision=1e-9)
+        cells = []
+        for nm, (wx, wy) in zip(names, sz):
+            c = gdstk.Cell(nm)
+            c.add(gdstk.rectangle((-wx / 2, -wy / 2), (wx / 2, wy / 2), layer=1))
+            w.write(c)
+            cells.append(c)
+        top = gdstk.Cell(spec.top_name)
+        n = 0
+        for i, band in enumerate(spec.bands()):
+            k, x, y = band_sites(spec, band)
+            bc = gdstk.Cell(f"B{i:05d}")
+            order = np.argsort(k, kind="stable")
+            k, x, y = k[order], x[order] / 1000.0, y[order] / 1000.0
+            bounds = np.searchsorted(k, np.arange(len(names) + 1))
+            for t in range(len(names)):
+                a, b = bounds[t], bounds[t + 1]
+                if b > a:
+                    offs = np.stack([x[a:b] - x[a], y[a:b] - y[a]], 1)
+                    ref = gdstk.Reference(cells[t], (x[a], y[a]))
+                    if b - a > 1:
+                        ref.repetition = gdstk.Repetition(offsets=offs)
+                    bc.add(ref)
+            w.write(bc)
+            top.add(gdstk.Reference(bc))
+            n += len(k)
+        w.write(top)
+        w.close()
+        fd = os.open(args["path"], os.O_RDONLY); os.fsync(fd); os.close(fd)
+        out.update(posts=n, bytes=os.path.getsize(args["path"]))
+out["seconds"] = time.perf_counter() - t0
+out["peak_rss_gb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2**20
+print("RESULT " + json.dumps(out))
+"""
+
+
+def child(**kw) -> dict:
+    r = subprocess.run([sys.executable, "-c", CHILD, json.dumps(kw)], capture_output=True, text=True, cwd=ROOT)
+    for line in r.stdout.splitlines():
+        if line.startswith("RESULT "):
+            return json.loads(line[7:])
+    raise RuntimeError(f"{kw['kind']} failed:\n{r.stdout[-2000:]}\n{r.stderr[-4000:]}")
+
+
+def rm(p: Path) -> None:
+    if p.exists():
+        p.unlink()
+
+
+def bench_lens(name: str, d: Path, disk_gb: float, klayout_oas: bool, workers: int, oas_workers: int,
+               log) -> dict:
+    design = str(ROOT / "designs" / f"{name}.toml")
+    res: dict = {"lens": name}
+    p = d / f"{name}.disk"
+    r = child(kind="disk", path=str(p), gb=disk_gb)
+    rm(p)
+    res["disk_MBps"] = r["bytes"] / r["seconds"] / 1e6
+    log(f"{name}: disk {res['disk_MBps']:.0f} MB/s")
+    p = d / f"{name}.gds"
+    r = child(kind="export", design=design, path=str(p), fmt="gds", workers=workers)
+    res["gds"] = r
+    r["posts_per_s"] = r["posts"] / r["seconds"]
+    r["bytes_per_post"] = r["bytes"] / r["posts"]
+    r["disk_limit_s"] = r["bytes"] / (res["disk_MBps"] * 1e6)
+    r["x_disk_limit"] = r["seconds"] / r["disk_limit_s"]
+    log(f"{name}: gds {r}")
+    v = child(kind="verify", design=design, path=str(p), reader="stream", workers=workers)
+    res["gds_verify_stream"] = v
+    log(f"{name}: gds verify (stream) {v}")
+    rm(p)
+    p = d / f"{name}_gdstk.gds"
+    r = child(kind="gdstk", design=design, path=str(p))
+    r["posts_per_s"] = r["posts"] / r["seconds"]
+    r["bytes_per_post"] = r["bytes"] / r["posts"]
+    res["gdstk_gds"] = r
+    log(f"{name}: gdstk streamed gds {r}")
+    rm(p)
+    p = d / f"{name}.oas"
+    r = child(kind="export", design=design, path=str(p), fmt="oas", workers=oas_workers)
+    r["posts_per_s"] = r["posts"] / r["seconds"]
+    r["bytes_per_post"] = r["bytes"] / r["posts"]
+    res["oas"] = r
+    log(f"{name}: oas {r}")
+    v = child(kind="verify", design=design, path=str(p), reader="gdstk", workers=workers)
+    res["oas_verify_gdstk"] = v
+    log(f"{name}: oas verify (gdstk) {v}")
+    if klayout_oas:
+        v = child(kind="verify", design=design, path=str(p), reader="klayout", workers=workers)
+        res["oas_verify_klayout"] = v
+        log(f"{name}: oas verify (klayout) {v}")
+    rm(p)
+    return res
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--lens", nargs="+", default=["perifoveal"], choices=["perifoveal", "foveal"])
+    ap.add_argument("--dir", default="/tmp/bench_layout")
+    ap.add_argument("--disk-gb", type=float, default=3.0)
+    ap.add_argument("--workers", type=int, default=1, help="GDSII export and verify workers")
+    ap.add_argument("--oas-workers", type=int, default=2, help="OASIS export workers")
+    ap.add_argument("--klayout-oas", nargs="*", default=["perifoveal"],
+                    help="lenses whose OASIS is also read back by klayout (slow, GBs for the 75 mm lens)")
+    ap.add_argument("--json", default=None)
+    a = ap.parse_args(argv)
+    d = Path(a.dir)
+    d.mkdir(parents=True, exist_ok=True)
+    free = shutil.disk_usage(d).free / 1e9
+    need = 20.0 if "foveal" in a.lens else 4.0
+    if free < need:
+        print(f"only {free:.0f} GB free in {d}; need ~{need:.0f} GB", file=sys.stderr)
+        return 2
+    out = []
+    log = lambda s: print(s, flush=True)  # noqa: E731
+    for name in a.lens:
+        out.append(bench_lens(name, d, a.disk_gb, name in a.klayout_oas, a.workers, a.oas_workers, log))
+    if a.json:
+        Path(a.json).write_text(json.dumps(out, indent=2))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
