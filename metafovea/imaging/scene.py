@@ -80,6 +80,17 @@ class Scene:
     def _sample(self, ax: np.ndarray, ay: np.ndarray, t: float) -> tuple[Any, Any]:  # pragma: no cover
         raise NotImplementedError
 
+    # Video scenes can declare what changes, so that a renderer re-renders only there: the static
+    # background (``sample_background``) and the angular boxes that differ from it at time t
+    # (``dynamic_regions``). ``None`` (the default) means "unknown: re-render everything".
+    def dynamic_regions(self, t: float) -> list[tuple[float, float, float, float]] | None:
+        """Boxes ``(x0, y0, x1, y1)`` (rad) outside which ``sample(..., t)`` equals the background."""
+        return None
+
+    def sample_background(self, ax: np.ndarray, ay: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The static part of a video scene (only meaningful when :meth:`dynamic_regions` is not None)."""
+        return self.sample(ax, ay, 0.0)
+
     def summary(self) -> dict[str, Any]:
         return {"name": self.name, "static": self.static, "reflected_k": self.reflected_k,
                 "description": self.description}
@@ -227,8 +238,10 @@ class WavingHand(Scene):
     description: str = "a waving hand (0.8 Hz, +-25 deg) in front of a wall"
     static: bool = False
 
-    def _sample(self, ax, ay, t):
+    def sample_background(self, ax, ay):
         h = self.half_rad
+        ax = np.asarray(ax, dtype=np.float64)
+        ay = np.asarray(ay, dtype=np.float64)
         temp = np.full(ax.shape, self.wall_k)
         eps = np.full(ax.shape, 0.92)
         # a radiator panel on the wall (warm) and a cold window, for context
@@ -237,14 +250,33 @@ class WavingHand(Scene):
         # torso and head of the person (lower left)
         _paint(temp, eps, _capsule(ax, ay, (-0.55 * h, 0.75 * h), (-0.55 * h, 1.6 * h), 0.32 * h), 300.0, 0.95)
         _paint(temp, eps, _capsule(ax, ay, (-0.55 * h, 0.05 * h), (-0.55 * h, 0.12 * h), 0.17 * h), 306.5, 0.98)
-        # forearm from the elbow, rotating
+        return temp, eps
+
+    def _pose(self, t: float):
+        h = self.half_rad
         elbow = (0.05 * h, 0.95 * h)
         ang = np.deg2rad(self.wave_amplitude_deg) * np.sin(2 * np.pi * self.wave_hz * t)
         c, s = np.cos(ang), np.sin(ang)
 
         def rot(px: float, py: float) -> tuple[float, float]:  # hand frame (x right, y up from elbow)
             return elbow[0] + c * px + s * py, elbow[1] - (-s * px + c * py)
+        return rot
 
+    def dynamic_regions(self, t):
+        h = self.half_rad
+        rot = self._pose(t)
+        L = 0.85 * h
+        box = None
+        # the arm, palm and fingers lie in this rectangle of the hand frame (plus their radii)
+        pts = [rot(px, py) for px in (-0.2 * h, 0.3 * h) for py in (-0.12 * h, 0.12 * h + L, L + 0.52 * h)]
+        xs, ys = [p[0] for p in pts], [p[1] for p in pts]
+        box = (min(xs) - 0.05 * h, min(ys) - 0.05 * h, max(xs) + 0.05 * h, max(ys) + 0.05 * h)
+        return [box]
+
+    def _sample(self, ax, ay, t):
+        h = self.half_rad
+        temp, eps = self.sample_background(ax, ay)
+        rot = self._pose(t)
         L = 0.85 * h  # elbow to wrist
         _paint(temp, eps, _capsule(ax, ay, rot(0, 0), rot(0, 0.55 * L), 0.1 * h), self.sleeve_k, 0.95)
         _paint(temp, eps, _capsule(ax, ay, rot(0, 0.5 * L), rot(0, L), 0.07 * h), self.skin_k, 0.98)
@@ -277,7 +309,7 @@ class ParkingLot(Scene):
     def _car(self, temp, eps, ax, ay, x, y, size, direction, engine_k, parked=False):
         h = size
         x0, x1 = x - 1.0 * h, x + 1.0 * h
-        sel = _bbox_view(ax, ay, x0 - 0.1 * h, y - 0.75 * h, x1 + 0.3 * h, y + 0.3 * h)
+        sel = _bbox_view(ax, ay, x0 - 0.3 * h, y - 0.75 * h, x1 + 0.3 * h, y + 0.3 * h)
         if not np.any(sel):
             return
         bx, by = ax[sel], ay[sel]
@@ -300,7 +332,26 @@ class ParkingLot(Scene):
             tt[plume], ee[plume] = 345.0, 0.95
         temp[sel], eps[sel] = tt, ee
 
+    def _moving(self, t: float) -> list[tuple[float, float, float, int, float]]:
+        """(x, y, size, direction, engine temperature) of the moving cars at time t."""
+        h = self.half_rad
+        d = max(self.duration_s, 1.0)
+        return [(-1.3 * h + 2.6 * h * (t / d), 0.05 * h, 0.16 * h, 1, 330.0),
+                (1.3 * h - 2.6 * h * (t / d) * 0.8, 0.38 * h, 0.2 * h, -1, 326.0)]
+
+    def dynamic_regions(self, t):
+        boxes = []
+        for x, y, size, _, _ in self._moving(t):
+            boxes.append((x - 1.3 * size, y - 0.8 * size, x + 1.3 * size, y + 0.35 * size))
+        return boxes
+
+    def sample_background(self, ax, ay):
+        return self._paint_all(np.asarray(ax, dtype=np.float64), np.asarray(ay, dtype=np.float64), None)
+
     def _sample(self, ax, ay, t):
+        return self._paint_all(ax, ay, t)
+
+    def _paint_all(self, ax, ay, t):
         h = self.half_rad
         temp = np.full(ax.shape, self.asphalt_k)
         eps = np.full(ax.shape, 0.95)
@@ -318,11 +369,9 @@ class ParkingLot(Scene):
         for k in (-3, -1, 2):
             self._car(temp, eps, ax, ay, (k + 0.5) * 0.32 * h, 0.88 * h, 0.13 * h, 1, 0, parked=True)
         # moving cars: one left-to-right through the fovea, one right-to-left lower down
-        d = max(self.duration_s, 1.0)
-        x_a = -1.3 * h + 2.6 * h * (t / d)
-        x_b = 1.3 * h - 2.6 * h * (t / d) * 0.8
-        self._car(temp, eps, ax, ay, x_a, 0.05 * h, 0.16 * h, 1, 330.0)
-        self._car(temp, eps, ax, ay, x_b, 0.38 * h, 0.2 * h, -1, 326.0)
+        if t is not None:
+            for x, y, size, direction, engine in self._moving(t):
+                self._car(temp, eps, ax, ay, x, y, size, direction, engine)
         return temp, eps
 
 
@@ -361,11 +410,19 @@ class CoilHeater(Scene):
             h = (1.0 - math.exp(-self.on_duration_s / self.tau_heat_s)) * math.exp(-(t - t_off) / self.tau_cool_s)
         return self.wall_k + self.dt_max_k * h
 
+    def dynamic_regions(self, t):
+        h = self.half_rad
+        length = 0.5 * h
+        return [(-length - 0.09 * h, -0.1 * h, length + 0.09 * h, 0.1 * h)]
+
+    def sample_background(self, ax, ay):
+        ax = np.asarray(ax, dtype=np.float64)
+        return np.full(ax.shape, self.wall_k), np.full(ax.shape, 0.9)
+
     def _sample(self, ax, ay, t):
         h = self.half_rad
         tc = self.coil_temperature(t)
-        temp = np.full(ax.shape, self.wall_k)
-        eps = np.full(ax.shape, 0.9)
+        temp, eps = self.sample_background(ax, ay)
         # ceramic holder (warms to a fraction of the coil's excess) and two terminals
         t_holder = self.wall_k + 0.12 * (tc - self.wall_k)
         length = 0.5 * h

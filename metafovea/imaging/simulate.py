@@ -29,7 +29,8 @@ from metafovea.imaging.measurement import Measurement
 from metafovea.imaging.radiometry import BandRadiance
 from metafovea.imaging.scene import Scene, SceneGeometry, make_scene
 from metafovea.imaging.sensor import SensorModel, as_rng
-from metafovea.imaging.system import Polarizer, build_channel_optics, channels_for, render_channel, resolve_provider
+from metafovea.imaging.system import (ChannelRenderer, Polarizer, build_channel_optics, channels_for,
+                                      resolve_provider)
 from metafovea.io import atomic_write_bytes, prepare_output
 
 log = logging.getLogger(__name__)
@@ -132,11 +133,12 @@ def simulate(system: SystemDesign, scene: str | Path | Scene, options: Simulatio
     g = [(ch.na / ch2.na) ** 2 for ch in (ch1, ch2)]
     gains = [gi * ext_gain for gi in g]
 
+    renderers = [ChannelRenderer(sc, o, radiance, opt.relative_illumination) for o in optics]
+
     def truth_at(t: float) -> tuple[np.ndarray, np.ndarray]:
         out = []
-        for o, gi in zip(optics, gains):
-            img = render_channel(sc, o, radiance, t, opt.relative_illumination)
-            out.append(sensor.to_dn(img, gi, dl_dt).astype(np.float32))
+        for rd, gi in zip(renderers, gains):
+            out.append(sensor.to_dn(rd.render(t), gi, dl_dt).astype(np.float32))
         return out[0], out[1]
 
     t_render = time.perf_counter()
