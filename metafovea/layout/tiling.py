@@ -31,7 +31,7 @@ from metafovea.config import LensDesign
 from metafovea.errors import InputError, check_int
 from metafovea.lens import EMPTY, evaluate_tile, row_half_counts, site_index_range
 from metafovea.library import PostSet
-from metafovea.units import NM_PER_UM
+from metafovea.units import NM_PER_UM, TWO_PI
 
 DBU_UM = 1e-3  #: database unit in um (1 nm)
 
@@ -231,6 +231,35 @@ def make_spec(design: LensDesign, post_set: PostSet | None = None, levels: int |
 # ----------------------------------------------------------------------------------------------
 # site levels per band
 # ----------------------------------------------------------------------------------------------
+def _levels_inplace(design: LensDesign, iy0: int, rows: int, ix0: int, cols: int, levels: int) -> np.ndarray:
+    """Bit-identical to ``evaluate_tile(...).levels`` (same floating-point operations in the same order,
+    see :func:`metafovea.lens.evaluate_tile`), computed in place with few temporaries."""
+    n = levels
+    o = 0.0 if design.lattice == "integer" else 0.5
+    p = design.period_um
+    x = (np.arange(ix0, ix0 + cols, dtype=float) + o) * p
+    y = (np.arange(iy0, iy0 + rows, dtype=float) + o) * p
+    a = np.hypot(x[None, :], y[:, None])  # r
+    np.square(a, out=a)  # r2
+    b = a + design.f_um * design.f_um
+    np.sqrt(b, out=b)
+    b += design.f_um
+    a *= design.phase_sign * (TWO_PI / design.wavelength_um)
+    a /= b  # phi
+    np.mod(a, TWO_PI, out=a)
+    a[a >= TWO_PI] = 0.0  # wrap_phase
+    a *= n / TWO_PI
+    a += 0.5
+    np.floor(a, out=a)
+    k = a.astype(np.int64)
+    np.mod(k, n, out=k)
+    lev = k.astype(np.int16)
+    lo, hi = row_half_counts(design, np.arange(iy0, iy0 + rows))
+    ix = np.arange(ix0, ix0 + cols)
+    lev[(ix[None, :] < lo[:, None]) | (ix[None, :] > hi[:, None])] = EMPTY
+    return lev
+
+
 def band_levels(design: LensDesign, iy0: int, rows: int, ix0: int, cols: int, levels: int) -> np.ndarray:
     """Same as ``evaluate_tile(design, iy0, ix0, rows, cols, levels=levels).levels`` (int16), computed
     on the columns with x >= 0 and mirrored (site ``ix`` mirrors to ``-ix - 2o``)."""
@@ -238,7 +267,7 @@ def band_levels(design: LensDesign, iy0: int, rows: int, ix0: int, cols: int, le
     ix = np.arange(ix0, ix0 + cols)
     j = np.where(2 * ix + two_o >= 0, ix, -ix - two_o)
     j0, j1 = int(j.min()), int(j.max())
-    half = evaluate_tile(design, iy0, j0, rows, j1 - j0 + 1, levels=levels).levels
+    half = _levels_inplace(design, iy0, rows, j0, j1 - j0 + 1, levels)
     if j0 == ix0 and j1 == ix0 + cols - 1 and np.all(np.diff(j) == 1):
         return half
     return half[:, j - j0]
