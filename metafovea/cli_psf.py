@@ -1,0 +1,75 @@
+"""``metafovea psf DESIGN.toml``: PSF/MTF report (PNG, JSON, one HTML page) for one or more lenses."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+from pathlib import Path
+from typing import Any
+
+from metafovea.config import load_lens
+from metafovea.errors import InputError, check_positive
+from metafovea.io import prepare_output, to_json
+
+log = logging.getLogger(__name__)
+
+
+def add_parser(subparsers: Any) -> argparse.ArgumentParser:
+    p = subparsers.add_parser("psf", help="PSF/MTF report of metalens designs",
+                              description="PSF, MTF, encircled energy and chromatic behaviour of lens designs; "
+                                          "writes PNG figures, JSON numbers and a self-contained HTML page.")
+    p.add_argument("designs", nargs="+", help="lens TOML files (e.g. designs/foveal.toml)")
+    p.add_argument("--field-deg", type=float, nargs="+", default=None,
+                   help="field angles in degrees (default: 9 points from 0 to the sensor corner / lens field)")
+    g = p.add_mutually_exclusive_group()
+    g.add_argument("--band-um", type=float, nargs=2, metavar=("LO", "HI"), default=None,
+                   help="spectral band in um (default 8 14)")
+    g.add_argument("--filter-um", type=float, nargs=2, metavar=("CENTER", "FWHM"), default=None,
+                   help="narrow-band filter (Gaussian) centre and width in um")
+    p.add_argument("--temperature-k", type=float, default=300.0, help="scene temperature for Planck weights")
+    p.add_argument("--wavelengths", type=int, default=61, help="wavelengths across the band (plus a cluster "
+                   "around the design wavelength)")
+    p.add_argument("--pixel-um", type=float, default=17.0, help="sensor pixel pitch (um)")
+    p.add_argument("--error", type=float, default=1e-4, help="requested max abs error relative to the peak")
+    p.add_argument("--out", default="psf_report", help="output directory (must be new or empty)")
+    p.add_argument("--force", action="store_true", help="overwrite existing output")
+    p.add_argument("--json", action="store_true", help="print the numbers as JSON")
+    p.set_defaults(func=run)
+    return p
+
+
+def run(args: argparse.Namespace) -> int:
+    from metafovea.optics.radiometry import check_band
+    from metafovea.optics.report import psf_report
+
+    band = check_band(args.band_um, "--band-um") if args.band_um is not None else (8.0, 14.0)
+    filt = None
+    if args.filter_um is not None:
+        c = check_positive("--filter-um center", args.filter_um[0], "um")
+        w = check_positive("--filter-um width", args.filter_um[1], "um")
+        filt = (c, w)
+    check_positive("--temperature-k", args.temperature_k, "K", hi=1e5)
+    check_positive("--error", args.error, hi=0.5)
+    check_positive("--pixel-um", args.pixel_um, "um")
+    if args.wavelengths < 1:
+        raise InputError("--wavelengths", args.wavelengths, ">= 1")
+    lenses = [load_lens(d) for d in args.designs]
+    out = prepare_output(args.out, args.force, is_dir=True)
+    summary = {}
+    for lens in lenses:
+        res = psf_report(lens, out, fields_deg=args.field_deg, band_um=band, filter_um=filt,
+                         temperature_k=args.temperature_k, n_wavelengths=args.wavelengths,
+                         pixel_pitch_um=args.pixel_um, error=args.error)
+        summary[lens.name] = {"seconds": res["seconds"], "monochromatic": res["monochromatic"],
+                              "sensor": res["sensor"], "warnings": res["warnings"],
+                              "html": str(Path(out) / f"{lens.name}_psf_report.html")}
+    if args.json:
+        print(to_json(summary))
+    else:
+        for name, s in summary.items():
+            m0 = s["monochromatic"][0]
+            print(f"{name}: on-axis {m0['engine']} (err {m0['error_estimate']:.1g}), "
+                  f"{len(s['sensor'])} fields, {s['seconds']:.1f} s -> {s['html']}"
+                  + (f"  [{len(set(s['warnings']))} warnings]" if s["warnings"] else ""))
+    return 0
