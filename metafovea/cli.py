@@ -47,6 +47,9 @@ def _add_design(sub: Any) -> None:
     p.add_argument("--lattice", help="site positions: integer (post at the centre) or half")
     p.add_argument("--name", help="lens name (default: lens)")
     p.add_argument("--post-set", help="a PostSet .npz (from `metafovea library`) to list posts per level")
+    p.add_argument("--library", action="store_true",
+                   help="select the posts from the platform's RCWA library (computed on first use, ~1 min on "
+                        "2 cores, then cached) and list post widths per level and the expected efficiency")
     p.add_argument("--samples", default=str(1 << 20), help="sites sampled for the lattice efficiency (default 2^20)")
     p.add_argument("--out", help="write the design bundle (JSON, TOML, CSV, PNG figures) into this directory")
     p.add_argument("--force", action="store_true", help="overwrite existing output")
@@ -110,12 +113,29 @@ def _run_design(args: argparse.Namespace) -> int:
     lenses = design_from_args(args)
     samples = check_int("--samples", args.samples, 1000, 1 << 26)
     post_set = None
+    if args.post_set and args.library:
+        raise InputError("--library", True, "either --post-set FILE or --library, not both")
     if args.post_set:
         from metafovea.library import PostSet
         post_set = PostSet.load(args.post_set)
     out_root = prepare_output(args.out, args.force, is_dir=True) if args.out else None
+    lib_sets = None
+    if args.library:
+        from metafovea.config import PlatformDesign
+        from metafovea.library import platform_post_sets
+        l0 = lenses[0]
+        for lens in lenses[1:]:
+            if (lens.period_um, lens.post_height_um, lens.wavelength_um, lens.levels) != \
+                    (l0.period_um, l0.post_height_um, l0.wavelength_um, l0.levels):
+                raise InputError("--library", True, "lenses sharing one platform (period, height, wavelength, levels)")
+        plat = PlatformDesign(period_um=l0.period_um, post_height_um=l0.post_height_um,
+                              wavelength_um=l0.wavelength_um, n_substrate=l0.n_substrate, n_post=l0.n_substrate,
+                              min_feature_um=min(0.5, 0.125 * l0.period_um))
+        lib_sets, _ = platform_post_sets(plat, l0.levels, progress=sys.stderr.isatty())
     results = []
     for lens in lenses:
+        if lib_sets is not None:
+            post_set = lib_sets[lens.polarization]
         ps = post_set if (post_set is not None and post_set.polarization == lens.polarization) else None
         if post_set is not None and ps is None and len(lenses) == 1:
             raise InputError("--post-set", args.post_set, f"a post set for {lens.polarization}-polarisation "

@@ -48,6 +48,16 @@ def format_summary(s: LensSummary) -> str:
                                        f"({s.levels} levels, {s.lattice_efficiency_sites:,} sites sampled; "
                                        f"lattice sampling alone {s.lattice_sampling_efficiency:.4f})"),
     ]
+    if s.post_set:
+        ps = s.post_set
+        if "expected_focusing_efficiency" in ps:
+            rows.append(("post set", f"{ps['source']}: expected efficiency {ps['expected_focusing_efficiency']:.3f} "
+                                     f"(zero order x quantisation), {ps['expected_lens_efficiency']:.3f} with lattice "
+                                     f"sampling; max phase error {ps['max_abs_phase_error_rad']:.3f} rad; pass-through "
+                                     f"phase spread {ps['pass_phase_spread_rad']:.3f} rad, transmission "
+                                     f"{ps['pass_coherent_transmission']:.3f}"))
+        else:
+            rows.append(("post set", f"{ps['source']} (no RCWA figures)"))
     if s.posts:
         for p in s.posts:
             rows.append((f"post level {p['level']}",

@@ -312,6 +312,7 @@ class LensSummary:
     substrate_orders: bool
     warnings: tuple[str, ...] = field(default_factory=tuple)
     posts: tuple[dict[str, Any], ...] = field(default_factory=tuple)
+    post_set: dict[str, Any] | None = None  #: source and figures of merit of the post set used, if any
 
 
 def design_warnings(design: LensDesign, n_superstrate: float = 1.0) -> list[str]:
@@ -356,7 +357,17 @@ def summarize(design: LensDesign, *, post_set: Any = None, samples: int = 1 << 2
         for w in warn:
             warnings.warn(w, PhysicsWarning, stacklevel=2)
     posts: tuple[dict[str, Any], ...] = ()
+    ps_info: dict[str, Any] | None = None
     if post_set is not None:
+        if post_set.polarization != design.polarization:
+            raise InputError("post_set", f"focuses {post_set.polarization}",
+                             f"a post set that focuses the lens' polarisation ({design.polarization})")
+        keys = ("expected_focusing_efficiency", "max_abs_phase_error_rad", "rms_phase_error_rad",
+                "pass_phase_spread_rad", "pass_coherent_transmission", "mean_T_focus", "mean_T_pass")
+        ps_info = {"source": post_set.source, **{k: post_set.info[k] for k in keys if k in post_set.info}}
+        if "expected_focusing_efficiency" in ps_info:
+            # RCWA post-set efficiency (zero order, equal-area levels) times the lattice sampling factor
+            ps_info["expected_lens_efficiency"] = ps_info["expected_focusing_efficiency"] * eff0.value
         if post_set.levels != design.levels:
             raise InputError("levels", design.levels, f"the post set's number of levels ({post_set.levels})")
         tf = post_set.t_focus
@@ -379,4 +390,5 @@ def summarize(design: LensDesign, *, post_set: Any = None, samples: int = 1 << 2
         lattice_efficiency=eff.value, lattice_efficiency_stderr=eff.stderr, lattice_efficiency_sites=eff.sites,
         lattice_sampling_efficiency=eff0.value,
         radius_below_4_posts_um=None if math.isinf(r4) or r4 >= R else r4,
-        substrate_orders=design.period_um > wl / design.n_substrate, warnings=tuple(warn), posts=posts)
+        substrate_orders=design.period_um > wl / design.n_substrate, warnings=tuple(warn), posts=posts,
+        post_set=ps_info)

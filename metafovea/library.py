@@ -469,3 +469,24 @@ def postset_table(ps: PostSet) -> list[dict[str, float]]:
                      "T_focus": float(abs(ps.t_focus[k]) ** 2),
                      "phase_pass_rad": float(np.angle(ps.t_pass[k])), "T_pass": float(abs(ps.t_pass[k]) ** 2)})
     return rows
+
+
+def platform_post_sets(platform: Any = None, levels: int = 8, *, grid_step_um: float = 0.1,
+                       harmonics: int = DEFAULT_HARMONICS, cache_dir: str | Path | None = None,
+                       workers: int | None = None, scheduler: str | None = None,
+                       progress: bool = False) -> tuple[dict[str, PostSet], "Library"]:
+    """The library of a platform (computed once, then loaded from the cache) and both post sets.
+
+    Returns ``({'x': PostSet, 'y': PostSet}, library)``: the x set is the foveal lens', the y set the
+    perifoveal lens' (each lens focuses its own polarisation and passes the other).
+    """
+    from metafovea.config import PlatformDesign
+
+    plat = platform if platform is not None else PlatformDesign()
+    widths = width_grid(plat.period_um, grid_step_um, plat.min_feature_um)
+    lib = compute_library(widths, None, [float(plat.wavelength_um)], period_um=plat.period_um,
+                          height_um=plat.post_height_um, n_post=plat.n_post, n_substrate=plat.n_substrate,
+                          n_superstrate=plat.n_superstrate, harmonics=harmonics, cache_dir=cache_dir,
+                          workers=workers, scheduler=scheduler, progress=progress)
+    sets = {pol: select_posts(lib, pol, levels, wavelength_um=float(plat.wavelength_um)) for pol in POLARIZATIONS}
+    return sets, lib

@@ -114,3 +114,34 @@ def test_unknown_option_is_one_line(capsys):
         main(["design", "--bogus"])
     assert ei.value.code == 2
     assert len(capsys.readouterr().err.strip().splitlines()) == 1
+
+
+def test_design_lists_post_set(tmp_path, capsys):
+    from metafovea.library import PostSet
+    ps = PostSet.ideal(8, polarization="y")
+    f = tmp_path / "ps.npz"
+    ps.save(f)
+    rc, out, _ = run(["design", "--f", "25", "--d", "25", "--polarization", "y", "--post-set", str(f), "--json",
+                      "--samples", "5000"], capsys)
+    s = json.loads(out)
+    assert rc == 0 and len(s["posts"]) == 8 and s["post_set"]["source"] == "ideal"
+    assert s["posts"][3]["wy_um"] == pytest.approx(ps.widths_um[3, 1])
+    # a post set for the other polarisation is refused with a clear message
+    rc, _, err = run(["design", "--f", "25", "--d", "25", "--polarization", "x", "--post-set", str(f)], capsys)
+    assert rc == 2 and "--post-set" in err
+
+
+def test_platform_post_sets_coarse(tmp_path):
+    # a coarse library (7 x 7 widths, 121 plane waves) exercises the design-side path quickly
+    from metafovea.config import LensDesign, PlatformDesign
+    from metafovea.lens import summarize
+    from metafovea.library import platform_post_sets
+    sets, lib = platform_post_sets(PlatformDesign(), 4, grid_step_um=0.5, harmonics=5, cache_dir=tmp_path, workers=1)
+    assert set(sets) == {"x", "y"} and lib.wx_um.size == 7
+    s = summarize(LensDesign.perifoveal().with_(levels=4), post_set=sets["y"], samples=5000, emit_warnings=False)
+    eff = s.post_set["expected_focusing_efficiency"]
+    assert 0.2 < eff <= 1.0
+    assert s.post_set["expected_lens_efficiency"] == pytest.approx(eff * s.lattice_sampling_efficiency)
+    # second call loads from the cache: identical post sets
+    again, _ = platform_post_sets(PlatformDesign(), 4, grid_step_um=0.5, harmonics=5, cache_dir=tmp_path, workers=1)
+    assert again["y"].widths_um.tolist() == sets["y"].widths_um.tolist()

@@ -42,3 +42,11 @@ def test_prepare_output_unwritable(tmp_path):
     blocker.write_text("a file where a directory should be")
     with pytest.raises(InputError, match="writable"):
         prepare_output(blocker / "sub" / "f.txt")
+
+
+def test_atomic_files_get_umask_permissions(tmp_path):
+    import os
+    p = atomic_write_text(tmp_path / "perm.txt", "x")
+    mask = os.umask(0)
+    os.umask(mask)
+    assert (p.stat().st_mode & 0o777) == (0o666 & ~mask)
