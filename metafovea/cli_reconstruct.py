@@ -42,7 +42,11 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
     p.add_argument("--fpn", default="none", choices=("none", "prior", "calibration"),
                    help="fixed-pattern noise handling (calibration uses the file's 'calibration' frames)")
     p.add_argument("--scale", type=float, default=None, help="f1/f2 of the foveal constraint (default: file meta "
-                   "'scale', else 6)")
+                   "'foveal_constraint.scale', else 'scale', else 6)")
+    p.add_argument("--foveal-gain", type=float, default=None, help="radiometric gain of the foveal constraint "
+                   "D x1 = gain C x2 + offset (default: file meta 'foveal_constraint.gain', else 1)")
+    p.add_argument("--foveal-offset", type=float, default=None, help="offset of the foveal constraint, in the "
+                   "frames' units (default: file meta 'foveal_constraint.offset_dn', else 0)")
     p.add_argument("--frame", type=int, default=0, help="frame index for --method snapshot (default 0)")
     p.add_argument("--steps", type=int, default=2000, help="DIP optimisation steps (default 2000)")
     p.add_argument("--channels", type=int, default=32, help="DIP network channels (default 32)")
@@ -53,6 +57,33 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
     p.add_argument("--force", action="store_true", help="overwrite existing output")
     p.set_defaults(func=run)
     return p
+
+
+def foveal_constraint(meta: dict[str, Any], *, scale: float | None = None, gain: float | None = None,
+                      offset: float | None = None) -> dict[str, float]:
+    """``{scale, foveal_gain, foveal_offset}`` of ``D x1 = gain C x2 + offset``: explicit values first,
+    then the Measurement's ``meta['foveal_constraint']`` (``scale``, ``gain``, ``offset_dn``), then
+    ``meta['scale']`` with gain 1 and offset 0 (older files, real recordings), then scale 6."""
+    fc = meta.get("foveal_constraint")
+    if fc is not None and not isinstance(fc, dict):
+        raise InputError("meta.foveal_constraint", fc, "a mapping {scale, gain, offset_dn}")
+    fc = fc or {}
+
+    def pick(given: float | None, key: str, fallback: float) -> float:
+        v = given if given is not None else fc.get(key, fallback)
+        try:
+            v = float(v)
+        except (TypeError, ValueError):
+            raise InputError(f"foveal_constraint.{key}", v, "a number") from None
+        if not np.isfinite(v):
+            raise InputError(f"foveal_constraint.{key}", v, "a finite number")
+        return v
+
+    out = {"scale": pick(scale, "scale", meta.get("scale", 6.0)), "foveal_gain": pick(gain, "gain", 1.0),
+           "foveal_offset": pick(offset, "offset_dn", 0.0)}
+    if not out["foveal_gain"] > 0:
+        raise InputError("foveal gain", out["foveal_gain"], "a positive radiometric gain (NA1^2/NA2^2)")
+    return out
 
 
 def _figure(x1: np.ndarray, x2: np.ndarray, title: str) -> bytes:
@@ -98,7 +129,8 @@ def _summary(args: argparse.Namespace) -> dict[str, Any]:
     T = frames.shape[0]
     out = Path(args.out) if args.out else src.with_name(src.stem + "_rec.npz")
     out = prepare_output(out, args.force)
-    scale = args.scale if args.scale is not None else float(meta.get("scale", 6.0))
+    geo = foveal_constraint(meta, scale=args.scale, gain=args.foveal_gain, offset=args.foveal_offset)
+    scale = geo["scale"]
     use_alpha = args.known_alpha or args.method == "lsq"
     alpha = None
     if use_alpha:
@@ -120,14 +152,17 @@ def _summary(args: argparse.Namespace) -> dict[str, Any]:
         if not 0 <= args.frame < T:
             raise InputError("--frame", args.frame, f"0 <= frame < {T}")
         a = None if alpha is None else alpha[args.frame:args.frame + 1]
-        rec = reconstruct(frames[args.frame][None], a, method="snapshot", scale=scale, **fpn_kw)
+        rec = reconstruct(frames[args.frame][None], a, method="snapshot", scale=scale,
+                          foveal_gain=geo["foveal_gain"], foveal_offset=geo["foveal_offset"], **fpn_kw)
         n_out = 1
     else:
         method_kw: dict[str, Any] = {}
         if args.method == "alternating":
-            method_kw = {"scale": scale}
+            method_kw = dict(geo)
         elif args.method == "dip":
-            method_kw = {"steps": args.steps, "channels": args.channels, "rng": args.seed}
+            method_kw = {"steps": args.steps, "channels": args.channels, "rng": args.seed, **geo}
+        elif args.fpn == "prior":
+            method_kw = dict(geo)  # for the FPN prior's foveal term
         if args.window > T:
             raise InputError("--window", args.window, f"2 <= window <= number of frames ({T})", source=str(src))
         if T > args.window:
@@ -160,6 +195,7 @@ def _summary(args: argparse.Namespace) -> dict[str, Any]:
             atomic_write_bytes(name, data)
             files.append(name)
     summary: dict[str, Any] = {"measurement": str(src), "method": rec.method, "frames": int(T),
+                               "foveal_constraint": geo,
                                "outputs": int(n_out), "seconds": elapsed,
                                "ms_per_output": 1e3 * elapsed / max(n_out, 1),
                                "timings": rec.timings, "files": files}

@@ -9,12 +9,15 @@ The mixture ``y_t = x2 + alpha_t (x1 - x2)`` is unchanged by the two-parameter f
 
 so no data term, however it is minimised, fixes ``(p, c)``: alternating minimisation started from the
 paper's frame-mean initialisation converges to a mixed pair (~29 dB in the reference anchors). The
-foveal constraint ``D x1 = C x2`` does fix it: it is linear in ``(p, c)``,
+foveal constraint ``D x1 = g C x2 + b`` (radiometric gain ``g = foveal_gain``, offset
+``b = foveal_offset``; 1 and 0 for images in common units) does fix it: it is linear in ``(p, c)``,
 
-    p D d - c C d = C x2 - D x2,
+    p D d - c g C d = g C x2 + b - D x2,
 
 a two-column least-squares problem over the ``(H/scale) x (W/scale)`` constraint pixels, solved in
-closed form.
+closed form. On real data the relation holds only up to the channels' PSF difference, so the fit is
+made in a low-pass band (Gaussian of ``foveal_blur`` constraint pixels on both sides; the mean level
+is one extra equation): see :func:`foveal_gauge`.
 
 Guard
 -----
@@ -64,13 +67,15 @@ import numpy as np
 from metafovea.errors import InputError, as_float, check_choice, check_int
 from metafovea.reconstruct._common import Timings, as_frames, image_dtype, valid_mask
 from metafovea.reconstruct.lsq import _lsq_masked, normal_matrix, solve_weights, MAX_CONDITION
-from metafovea.reconstruct.operators import FovealOperator
+from metafovea.reconstruct.operators import FovealOperator, lowpass, lowpass_noise_factor
 from metafovea.reconstruct.result import Reconstruction
 
 log = logging.getLogger(__name__)
 
 GAUGE_MAX_COND = 1e3
 ALPHA_TOL = 0.1
+#: default low-pass (Gaussian sigma, constraint pixels) of the gauge fit; see foveal_gauge
+FOVEAL_BLUR = 1.0
 
 
 def frame_mean_alpha(Y: np.ndarray) -> np.ndarray:
@@ -130,27 +135,61 @@ def _tv(x: np.ndarray) -> float:
 
 
 def foveal_gauge(x1: np.ndarray, x2: np.ndarray, alpha: np.ndarray, op: FovealOperator, *,
-                 noise: tuple[float, float] | None = None, mode: str = "auto") -> tuple[np.ndarray, np.ndarray, np.ndarray, dict[str, Any]]:
-    """Fix the ``(p, c)`` gauge with the foveal constraint (see module docstring).
+                 noise: tuple[float, float] | None = None, mode: str = "auto", blur: float = FOVEAL_BLUR,
+                 mean_weight: float = 1.0, contrast_gain: float | None = None
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, dict[str, Any]]:
+    """Fix the ``(p, c)`` gauge with the foveal constraint ``D x1 = gain C x2 + bias`` (see module
+    docstring; ``op`` carries scale, registration offset, gain and bias).
 
-    ``noise`` is the noise std of ``(x1, x2)`` (used by the guard). Returns ``(x1, x2, alpha, report)``.
+    The fit compares both sides in a low-pass band: a Gaussian of ``blur`` constraint pixels removes
+    the fine detail the perifoveal channel's PSF does not resolve (the crop of x2 is ``scale`` times
+    blurrier, relative to the scene, than the downsampled x1). The band's spatial structure (mean
+    removed) is compared with gain ``contrast_gain`` (``None``: ``op.gain``; stray light / haze can
+    scale the two channels' contrasts differently from their mean levels -- measured on the current
+    simulated paper measurements: contrast ratio 0.52-0.59 against the radiometric 0.294 -- and a
+    free contrast gain is not identifiable together with the gauge: it admits the trivial fit
+    ``D x1' -> 0``). The mean level is compared with ``op.gain`` and ``op.bias`` as one extra equation
+    of weight ``mean_weight`` (relative to all constraint pixels; 0 ignores it). ``noise`` is the noise std of ``(x1, x2)`` (used by the guard). Returns
+    ``(x1, x2, alpha, report)``.
     """
-    rep: dict[str, Any] = {"mode": mode, "applied": False}
+    rep: dict[str, Any] = {"mode": mode, "applied": False, "blur": float(blur), "mean_weight": float(mean_weight)}
     if mode == "none":
         rep["reason"] = "gauge='none'"
         return x1, x2, alpha, rep
     x1d, x2d = x1.astype(np.float64), x2.astype(np.float64)
     d = x1d - x2d
-    Dd, Cd = op.D(d).ravel(), op.C(d).ravel()
-    rhs = (op.C(x2d) - op.D(x2d)).ravel()
-    B = np.stack([Dd, -Cd], axis=1)
-    sv = np.linalg.svd(B, compute_uv=False)
+    n_px = op.low_shape[0] * op.low_shape[1]
+    w_mean = math.sqrt(max(float(mean_weight), 0.0) * n_px)
+
+    def parts(u: np.ndarray) -> tuple[np.ndarray, float]:
+        """(mean-free low-pass band, mean) of a constraint-grid image."""
+        m = float(u.mean())
+        return (lowpass(u, blur) - m).ravel(), m
+
+    Dd, Dd_m = parts(op.D(d))
+    Cd, Cd_m = parts(op.C(d))
+    D2, D2_m = parts(op.D(x2d))
+    C2, C2_m = parts(op.C(x2d))
+    gam = op.gain if contrast_gain is None else float(contrast_gain)
+    if not gam > 0:
+        raise InputError("foveal_contrast", contrast_gain, "a positive contrast gain (None: foveal_gain)")
+    gam = float(gam)
+    rep["contrast_gain"] = gam
+    g, bias = op.gain, op.bias
+    # residual vector R(p, c) = R0 + p R_p + c R_c: band rows, then the weighted mean row
+    R0 = np.concatenate([D2 - gam * C2, [w_mean * (D2_m - g * C2_m - bias)]])
+    Rp = np.concatenate([Dd, [w_mean * Dd_m]])
+    Rc = np.concatenate([-gam * Cd, [-w_mean * g * Cd_m]])
+    B = np.stack([Rp, Rc], axis=1)
+    # conditioning of the spatial structure (translation invariant: a dark level in the data would
+    # otherwise dominate both columns)
+    sv = np.linalg.svd(B[:-1], compute_uv=False)
     cond = float(sv[0] / sv[1]) if sv[1] > 0 else math.inf
     rep["condition"] = cond
     if not cond < GAUGE_MAX_COND:
         rep["reason"] = f"gauge problem ill-conditioned (cond {cond:.3g} >= {GAUGE_MAX_COND:g})"
         return x1, x2, alpha, rep
-    (p, c), *_ = np.linalg.lstsq(B, rhs, rcond=None)
+    (p, c), *_ = np.linalg.lstsq(B, -R0, rcond=None)
     rep["p"], rep["c"] = float(p), float(c)
     if abs(p - c) < 1e-3:
         rep["reason"] = f"degenerate gauge (p - c = {p - c:.3g})"
@@ -158,11 +197,13 @@ def foveal_gauge(x1: np.ndarray, x2: np.ndarray, alpha: np.ndarray, op: FovealOp
     a_new = (alpha - c) / (p - c)
     n1 = x2d + p * d
     n2 = x2d + c * d
-    r_old = op.residual(x1d, x2d)
-    r_new = op.residual(n1, n2)
+    # x1 = x2 + 1 d: the current gauge is (p, c) = (1, 0)
+    r_old = R0 + Rp
+    r_new = R0 + p * Rp + c * Rc
     chi_old, chi_new = float(np.sum(r_old ** 2)), float(np.sum(r_new ** 2))
-    rep["foveal_rms_before"] = float(np.sqrt(chi_old / r_old.size))
-    rep["foveal_rms_after"] = float(np.sqrt(chi_new / r_new.size))
+    n_eff = n_px
+    rep["foveal_rms_before"] = float(np.sqrt(chi_old / n_eff))
+    rep["foveal_rms_after"] = float(np.sqrt(chi_new / n_eff))
     rep["alpha_range_after"] = [float(a_new.min()), float(a_new.max())]
     if mode == "foveal":
         rep.update(applied=True, reason="gauge='foveal'")
@@ -171,24 +212,25 @@ def foveal_gauge(x1: np.ndarray, x2: np.ndarray, alpha: np.ndarray, op: FovealOp
     if a_new.min() < -ALPHA_TOL or a_new.max() > 1 + ALPHA_TOL:
         reasons.append(f"alpha would leave [0, 1] ({a_new.min():.3f}..{a_new.max():.3f})")
     # noise level of the constraint residual: D averages scale^2 pixels of x1, C picks one of x2
+    # (times the gain); the low-pass averages further
     s1, s2 = noise if noise is not None else (0.0, 0.0)
-    var_r = max(s1 ** 2 / op.scale ** 2 + s2 ** 2, 1e-30)
-    n_eff = r_old.size
+    var_r = max((s1 ** 2 / op.scale ** 2 + gam ** 2 * s2 ** 2) * lowpass_noise_factor(blur, op.low_shape), 1e-300)
     rep["foveal_rms_expected"] = float(math.sqrt(var_r))
     if chi_old - chi_new <= 6.0 * var_r:  # Delta chi^2 of 2 parameters: mean 2 var_r under "no change"
         reasons.append("foveal misfit reduction within noise")
     consistent = chi_new / n_eff <= 4.0 * var_r
     if not (chi_new <= 0.25 * chi_old or consistent):
         reasons.append(f"the constraint does not explain the images after the fix (rms {math.sqrt(chi_new / n_eff):.3g} "
-                       f"vs {math.sqrt(chi_old / n_eff):.3g} before, noise {math.sqrt(var_r):.3g}): wrong scale/offset?")
+                       f"vs {math.sqrt(chi_old / n_eff):.3g} before, noise {math.sqrt(var_r):.3g}): wrong "
+                       f"scale/offset/gain?")
     # objective: foveal misfit (chi^2 / n in units of var_r) + TV (relative to the current value)
     tv_old = _tv(x1d) + _tv(x2d)
     tv_new = _tv(n1) + _tv(n2)
-    vr = max(var_r, 1e-30)
-    j_old = chi_old / vr / n_eff + tv_old / max(tv_old, 1e-30)
-    j_new = chi_new / vr / n_eff + tv_new / max(tv_old, 1e-30)
+    vr = max(var_r, 1e-300)
+    j_old = chi_old / vr / n_eff + tv_old / max(tv_old, 1e-300)
+    j_new = chi_new / vr / n_eff + tv_new / max(tv_old, 1e-300)
     rep["objective_before"], rep["objective_after"] = float(j_old), float(j_new)
-    rep["tv_ratio"] = float(tv_new / max(tv_old, 1e-30))
+    rep["tv_ratio"] = float(tv_new / max(tv_old, 1e-300))
     if not j_new < j_old:
         reasons.append("objective (foveal misfit + TV) does not decrease")
     if reasons:
@@ -200,7 +242,8 @@ def foveal_gauge(x1: np.ndarray, x2: np.ndarray, alpha: np.ndarray, op: FovealOp
 
 
 def alternating(frames: Any, *, scale: float = 6.0, offset: tuple[float, float] = (0.0, 0.0),
-                gauge: str = "auto", prior: str | None = "tv", init: str = "svd", iterations: int = 10,
+                foveal_gain: float = 1.0, foveal_offset: float = 0.0, foveal_blur: float = FOVEAL_BLUR,
+                foveal_mean: float = 1.0, foveal_contrast: float | None = None, gauge: str = "auto", prior: str | None = "tv", init: str = "svd", iterations: int = 10,
                 tol: float = 1e-4, saturation: float | None = None, noise_sigma: float | None = None,
                 max_condition: float = MAX_CONDITION, alpha_from: str = "data",
                 strict: bool = True) -> Reconstruction:
@@ -209,6 +252,11 @@ def alternating(frames: Any, *, scale: float = 6.0, offset: tuple[float, float] 
     Parameters
     ----------
     scale, offset: foveal constraint geometry (``f1/f2``; registration offset of the crop in x2 px).
+    foveal_gain, foveal_offset: radiometry of the constraint ``D x1 = foveal_gain C x2 + foveal_offset``
+        (a Measurement's ``meta['foveal_constraint']`` ``gain`` and ``offset_dn``).
+    foveal_blur, foveal_mean, foveal_contrast: the gauge fit's low-pass sigma (constraint pixels),
+        weight of the mean-level equation, and contrast gain (``None``: ``foveal_gain``); see
+        :func:`foveal_gauge`.
     gauge: ``'auto'`` (guarded foveal fix), ``'foveal'`` (always), ``'none'``.
     prior: ``'tv'``, ``'nlm'``, ``'bilateral'`` or ``None`` (plain alternating LSQ).
     init: ``'svd'`` (data-optimal subspace, default) or ``'means'`` (paper: frame means).
@@ -231,7 +279,11 @@ def alternating(frames: Any, *, scale: float = 6.0, offset: tuple[float, float] 
         Y = as_frames(frames, min_frames=3)
         T, H, W = Y.shape
         dt = image_dtype(Y)
-        op = FovealOperator((H, W), scale, offset)
+        op = FovealOperator((H, W), scale, offset, gain=foveal_gain, bias=foveal_offset)
+        foveal_blur = as_float("foveal_blur", foveal_blur)
+        if not 0.0 <= foveal_blur <= 0.25 * min(op.low_shape):
+            raise InputError("foveal_blur", foveal_blur, f"0 <= foveal_blur <= {0.25 * min(op.low_shape):g} "
+                             f"(Gaussian sigma in constraint pixels; the constraint is {op.low_shape})")
         M = valid_mask(Y, saturation)
         Yf = Y
         if M is not None:
@@ -241,7 +293,8 @@ def alternating(frames: Any, *, scale: float = 6.0, offset: tuple[float, float] 
             fill = np.nan_to_num(fill, nan=float(np.nanmean(np.where(M, Y, np.nan))))
             Yf = np.where(M, Y, fill[None]).astype(dt)
         a0 = frame_mean_alpha(Yf)
-        info: dict[str, Any] = {"init": init, "prior": prior, "scale": op.scale, "offset": list(op.offset)}
+        info: dict[str, Any] = {"init": init, "prior": prior, "scale": op.scale, "offset": list(op.offset),
+                                "foveal_gain": op.gain, "foveal_offset": op.bias}
         if init == "svd":
             a, sinfo = subspace_alpha(Yf, a0)
             info.update(sinfo)
@@ -268,7 +321,10 @@ def alternating(frames: Any, *, scale: float = 6.0, offset: tuple[float, float] 
     info["noise_sigma"] = sig
     with tm.measure("gauge"):
         gain = np.sqrt(np.diag(np.linalg.inv(normal_matrix(a) + 1e-12 * np.eye(2))))
-        x1, x2, a, grep = foveal_gauge(x1, x2, a, op, noise=(sig * gain[0], sig * gain[1]), mode=gauge)
+        x1, x2, a, grep = foveal_gauge(x1, x2, a, op, noise=(sig * gain[0], sig * gain[1]), mode=gauge,
+                                      blur=foveal_blur, mean_weight=as_float("foveal_mean", foveal_mean),
+                                      contrast_gain=None if foveal_contrast is None else
+                                      as_float("foveal_contrast", foveal_contrast))
     info["gauge"] = grep
     if strict and gauge != "none" and not grep["applied"]:
         raise InputError("frames", f"{T} frames", "frames in which the foveal constraint fixes the alpha gauge",

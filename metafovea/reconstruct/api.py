@@ -20,7 +20,9 @@ def reconstruct(frames: Any, alpha: Any = None, method: str = "lsq", *, fpn: Any
     (double deep image prior, JAX), ``'snapshot'`` (one frame).
     fpn: ``None`` (no FPN handling), an ``(H, W)`` array to subtract, ``'calibration'`` (estimate from
     ``calibration`` frames) or ``'prior'`` (low-rank prior on the separated images).
-    Other keywords go to the method's function.
+    Other keywords go to the method's function; the foveal constraint ``D x1 = foveal_gain C x2 +
+    foveal_offset`` (keywords ``scale``, ``foveal_gain``, ``foveal_offset``; a Measurement's
+    ``meta['foveal_constraint']``) is used by alternating, dip, snapshot and the FPN prior.
     """
     from metafovea.reconstruct.alternating import alternating
     from metafovea.reconstruct.fpn import estimate_fpn
@@ -49,6 +51,7 @@ def reconstruct(frames: Any, alpha: Any = None, method: str = "lsq", *, fpn: Any
         if alpha is None:
             raise InputError("alpha", None, "mixing ratios (T,) for method='lsq'; use method='alternating' or 'dip' "
                              "when they are unknown")
+        kw = {k: v for k, v in kw.items() if k not in ("scale", "foveal_gain", "foveal_offset")}
         rec = lsq_known_alpha(frames, alpha, **kw)
     elif method == "alternating":
         if alpha is not None:
@@ -67,8 +70,8 @@ def reconstruct(frames: Any, alpha: Any = None, method: str = "lsq", *, fpn: Any
         a = None if alpha is None else float(np.ravel(alpha)[0])
         rec = snapshot(fr, alpha=a, **kw)
     if isinstance(fpn, str) and fpn.lower() == "prior":
-        scale = kw.get("scale", 6.0)
-        f, finfo = estimate_fpn(x1=rec.x1, x2=rec.x2, scale=scale, **fpn_kw)
+        geo = {k: kw[k] for k in ("scale", "foveal_gain", "foveal_offset") if k in kw}
+        f, finfo = estimate_fpn(x1=rec.x1, x2=rec.x2, **{**geo, **fpn_kw})
         rec = Reconstruction(x1=(rec.x1 - f).astype(rec.x1.dtype), x2=(rec.x2 - f).astype(rec.x2.dtype),
                              alpha=rec.alpha, fpn=f, method=rec.method, timings=rec.timings,
                              info={**rec.info, "fpn": finfo})

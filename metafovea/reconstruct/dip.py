@@ -88,8 +88,13 @@ def _build(depth: int):
 def dip(frames: Any, alpha: Any = None, *, channels: int = 32, depth: int = 3, skip_channels: int = 4,
         input_channels: int = 8, steps: int = 2000, lr: float = 0.01, tv_weight: float = 0.01,
         exclusion_weight: float = 0.01, foveal_weight: float = 0.0, scale: float = 6.0,
+        foveal_gain: float = 1.0, foveal_offset: float = 0.0,
         rng: Any = None, log_every: int = 0) -> Reconstruction:
     """Fit the double DIP to ``frames (T, H, W)``; ``alpha`` given = held fixed, else learned.
+
+    The foveal term (``foveal_weight > 0``) uses ``D x1 = foveal_gain C x2 + foveal_offset`` in the
+    frames' units (mapped to the network's normalised range internally). With known ``alpha`` the
+    normalisation range includes the LSQ images (the true images extend beyond the frames' range).
 
     ``rng`` seeds the network weights and inputs (same seed, same result on one machine).
     """
@@ -113,6 +118,15 @@ def dip(frames: Any, alpha: Any = None, *, channels: int = 32, depth: int = 3, s
     gen = as_rng(rng)
     dt = image_dtype(Y)
     lo, hi = float(Y.min()), float(Y.max())
+    if alpha is not None:
+        from metafovea.reconstruct.lsq import lsq_known_alpha
+
+        try:
+            ls = lsq_known_alpha(Y, alpha, regularize="difference")
+            lo = min(lo, float(np.min(ls.x1)), float(np.min(ls.x2)))
+            hi = max(hi, float(np.max(ls.x1)), float(np.max(ls.x2)))
+        except InputError:
+            pass  # as_alpha below reports bad alpha
     span = hi - lo if hi > lo else 1.0
     # frames in [0.05, 0.95] so that both images fit the sigmoid's range with some margin
     Yn = (0.05 + 0.9 * (Y.astype(np.float64) - lo) / span).astype(np.float32)
@@ -127,7 +141,11 @@ def dip(frames: Any, alpha: Any = None, *, channels: int = 32, depth: int = 3, s
     z1 = jnp.asarray(gen.uniform(0, 0.1, (1, input_channels, H, W)).astype(np.float32))
     z2 = jnp.asarray(gen.uniform(0, 0.1, (1, input_channels, H, W)).astype(np.float32))
     net = _build(depth)
-    op = FovealOperator((H, W), scale) if foveal_weight else None
+    op = FovealOperator((H, W), scale, gain=foveal_gain, bias=foveal_offset) if foveal_weight else None
+    # the constraint in normalised units yn = A y + B: D x1n = gain C x2n + (1 - gain) B + A bias
+    A_n, B_n = 0.9 / span, 0.05 - 0.9 * lo / span
+    bias_n = 0.0 if op is None else float((1 - op.gain) * B_n + A_n * op.bias)
+    gain_n = 1.0 if op is None else float(op.gain)
     Dm = [jnp.asarray(m.astype(np.float32)) for m in (op.Dy, op.Dx, op.Cy, op.Cx)] if op else None
     yj = jnp.asarray(Yn)
     a_fixed = jnp.asarray(a0.astype(np.float32))
@@ -158,7 +176,7 @@ def dip(frames: Any, alpha: Any = None, *, channels: int = 32, depth: int = 3, s
         model = a[:, None, None] * g1[None] + (1 - a)[:, None, None] * g2[None]
         loss = jnp.mean((yj - model) ** 2) + tvw * (tv(g1) + tv(g2)) + exw * excl(g1, g2)
         if Dm is not None:
-            r = Dm[0] @ g1 @ Dm[1].T - Dm[2] @ g2 @ Dm[3].T
+            r = Dm[0] @ g1 @ Dm[1].T - gain_n * (Dm[2] @ g2 @ Dm[3].T) - bias_n
             loss = loss + fw * jnp.mean(r ** 2)
         return loss
 
@@ -196,6 +214,7 @@ def dip(frames: Any, alpha: Any = None, *, channels: int = 32, depth: int = 3, s
     x2 = ((g2 - 0.05) / 0.9 * span + lo).astype(dt)
     info = {"steps": steps, "channels": channels, "depth": depth, "loss_history": hist, "alpha_learned": learn_alpha,
             "tv_weight": tvw, "exclusion_weight": exw, "foveal_weight": fw,
+            "foveal_gain": gain_n, "foveal_offset": None if op is None else op.bias,
             "seconds_per_step": tm["steps"] / max(steps - 1, 1)}
     return Reconstruction(x1=x1, x2=x2, alpha=np.asarray(a, dtype=np.float64), fpn=None, method="dip",
                           timings=dict(tm), info=info)

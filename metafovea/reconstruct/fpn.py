@@ -21,6 +21,7 @@ Identifiability
 from __future__ import annotations
 
 import logging
+import math
 from typing import Any
 
 import numpy as np
@@ -71,9 +72,9 @@ def _tv_charb(z: np.ndarray, eps: float) -> tuple[float, np.ndarray]:
 
 
 def estimate_fpn(*, calibration: Any = None, x1: np.ndarray | None = None, x2: np.ndarray | None = None,
-                 rank: int | None = None, bound: float = 0.1, scale: float = 6.0,
+                 rank: int | None = None, bound: float | None = None, scale: float = 6.0,
                  offset: tuple[float, float] = (0.0, 0.0), iterations: int = 150, eps: float | None = None,
-                 foveal_weight: float = 1.0) -> tuple[np.ndarray, dict[str, Any]]:
+                 foveal_weight: float = 1.0, foveal_gain: float = 1.0, foveal_offset: float = 0.0) -> tuple[np.ndarray, dict[str, Any]]:
     """Estimate the additive FPN ``(H, W)``; returns ``(fpn, info)``.
 
     Give ``calibration`` frames ``(T, H, W)`` (shutter / uniform scene) when you have them;
@@ -83,12 +84,24 @@ def estimate_fpn(*, calibration: Any = None, x1: np.ndarray | None = None, x2: n
     ``rank=None`` uses the paper's 20 for calibration frames and ``min(20, min(H, W) // 16)`` for the
     prior-based estimate (with more freedom than that the prior starts to absorb scene content:
     measured on 96 x 96 scenes, rank 20 removed nothing useful while rank 6 gained ~5 dB).
+
+    ``bound=None``: the paper's 0.1 of the images' dynamic range for the prior
+    (scale-invariant: frames in DN or in [0, 1]), no clipping for calibration frames. With
+    ``foveal_gain``/``foveal_offset`` the foveal term is ``D x1 = gain C x2 + offset`` (with the
+    pattern: ``D (x1' - f) = gain C (x2' - f) + offset``).
     """
     shape = np.shape(calibration)[-2:] if calibration is not None else np.shape(x1)[-2:]
     if rank is None:
         rank = 20 if calibration is not None else max(1, min(20, min(shape) // 16)) if len(shape) == 2 else 20
     rank = check_int("rank", rank, 1, 100000)
-    bound = as_float("bound", bound)
+    if bound is None:
+        if calibration is not None:
+            bound = float("inf")
+        else:
+            bound = 0.1 * max(float(np.ptp(np.asarray(x1, dtype=np.float64))) if x1 is not None else 0.0,
+                              float(np.ptp(np.asarray(x2, dtype=np.float64))) if x2 is not None else 0.0, 1e-300)
+    if not (isinstance(bound, float) and bound == math.inf):
+        bound = as_float("bound", bound)
     if bound <= 0:
         raise InputError("bound", bound, "bound > 0 (the FPN amplitude limit, paper: 0.1)")
     if calibration is not None:
@@ -111,7 +124,7 @@ def estimate_fpn(*, calibration: Any = None, x1: np.ndarray | None = None, x2: n
     if a1.shape != a2.shape or a1.ndim != 2:
         raise InputError("x2", f"array of shape {a2.shape}", f"a 2-D image of x1's shape {a1.shape}")
     iterations = check_int("iterations", iterations, 1, 100000)
-    op = FovealOperator(a1.shape, scale, offset)
+    op = FovealOperator(a1.shape, scale, offset, gain=foveal_gain, bias=foveal_offset)
     if eps is None:
         eps = 0.02 * max(float(np.ptp(a1)), float(np.ptp(a2)), 1e-6)
     # step: Charbonnier TV gradient is 8/eps-Lipschitz per image; foveal term ~2 mu
@@ -123,7 +136,7 @@ def estimate_fpn(*, calibration: Any = None, x1: np.ndarray | None = None, x2: n
         v1, g1 = _tv_charb(a1 - f, eps)
         v2, g2 = _tv_charb(a2 - f, eps)
         r = op.residual(a1 - f, a2 - f)
-        grad = -(g1 + g2) - 2 * mu * (op.DT(r) - op.CT(r))
+        grad = -(g1 + g2) - 2 * mu * (op.DT(r) - op.gain * op.CT(r))
         hist.append(v1 + v2 + mu * float(np.sum(r ** 2)))
         f = project_lowrank(f - step * grad, rank, bound)
     info = {"identified": "prior", "rank": rank, "bound": bound, "iterations": iterations,

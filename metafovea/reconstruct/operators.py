@@ -4,7 +4,13 @@ The foveal image ``x1`` is a ``scale``-times magnified view of the centre of the
 (``scale = f1 / f2 = 150 / 25 = 6`` for the paper's lenses). With both images on the same ``(H, W)``
 sensor grid, the relation is
 
-    D x1 == C x2
+    D x1 == gain * C x2 + bias
+
+(``gain = 1``, ``bias = 0`` for images in common radiometric units; a real two-lens camera has
+``gain = NA1^2 / NA2^2`` -- 0.294 for the paper's F/2 foveal and F/1 perifoveal lenses -- and, for
+frames in ADC numbers with a dark level, ``bias = (1 - gain) * dark``; see
+``meta['foveal_constraint']`` of a Measurement). The relation holds only up to the two channels' PSF
+difference on real data: :func:`lowpass` compares both sides at a common, coarser resolution.
 
 * ``D`` (downsampling): area-weighted mean of ``x1`` over boxes of ``scale x scale`` pixels, giving an
   ``(h, w) = (floor(H / scale), floor(W / scale))`` image. The boxes tile the centred region of ``x1``
@@ -53,6 +59,8 @@ class FovealOperator:
     scale: float = 6.0
     offset: tuple[float, float] = (0.0, 0.0)
     low: tuple[int, int] | None = None
+    gain: float = 1.0
+    bias: float = 0.0
     Dy: np.ndarray = field(init=False, repr=False, compare=False)
     Dx: np.ndarray = field(init=False, repr=False, compare=False)
     Cy: np.ndarray = field(init=False, repr=False, compare=False)
@@ -62,6 +70,10 @@ class FovealOperator:
         H, W = (int(v) for v in self.shape)
         s = _check_scale(self.scale)
         oy, ox = (as_float("offset", v) for v in self.offset)
+        g = as_float("foveal_gain", self.gain)
+        if not 0.0 < g < 1e6:
+            raise InputError("foveal_gain", self.gain, "a positive radiometric gain (NA1^2/NA2^2; 1 for equal units)")
+        b = as_float("foveal_offset", self.bias)
         h, w = int(math.floor(H / s + 1e-9)), int(math.floor(W / s + 1e-9))
         if self.low is not None:  # fixed constraint size (registration refines scale at fixed size)
             h, w = min(h, int(self.low[0])), min(w, int(self.low[1]))
@@ -81,6 +93,8 @@ class FovealOperator:
         object.__setattr__(self, "shape", (H, W))
         object.__setattr__(self, "scale", s)
         object.__setattr__(self, "offset", (oy, ox))
+        object.__setattr__(self, "gain", g)
+        object.__setattr__(self, "bias", b)
         for k2, v in mats.items():
             object.__setattr__(self, k2, v)
 
@@ -130,8 +144,29 @@ class FovealOperator:
         return out
 
     def residual(self, x1: np.ndarray, x2: np.ndarray) -> np.ndarray:
-        """``D x1 - C x2`` (zero when the foveal constraint holds)."""
-        return self.D(x1) - self.C(x2)
+        """``D x1 - gain * C x2 - bias`` (zero when the foveal constraint holds)."""
+        r = self.D(x1) - self.gain * self.C(x2)
+        return r - self.bias if self.bias else r
+
+
+def lowpass(u: np.ndarray, sigma: float) -> np.ndarray:
+    """Gaussian low-pass of ``u (..., h, w)`` over the last two axes (``sigma`` in pixels of ``u``;
+    ``0`` returns ``u``); edges reflected. Linear, so the foveal gauge stays a linear problem."""
+    if not sigma:
+        return u
+    from scipy.ndimage import gaussian_filter
+
+    s = [0.0] * (u.ndim - 2) + [float(sigma), float(sigma)]
+    return gaussian_filter(u, s, mode="reflect", truncate=3.0)
+
+
+def lowpass_noise_factor(sigma: float, shape: tuple[int, int]) -> float:
+    """Variance factor of white noise after :func:`lowpass` (``sum k^2`` of the kernel, centre pixel)."""
+    if not sigma:
+        return 1.0
+    d = np.zeros(shape)
+    d[shape[0] // 2, shape[1] // 2] = 1.0
+    return float(np.sum(lowpass(d, sigma) ** 2))
 
 
 def downsample(x1: np.ndarray, scale: float = 6.0) -> np.ndarray:

@@ -193,6 +193,7 @@ def _tv(z: np.ndarray, eps: float) -> tuple[float, np.ndarray]:
 
 def snapshot(frame: Any, *, alpha: float | None = None, scale: float = 6.0,
              offset: tuple[float, float] | None = None, register_frame: bool = True,
+             foveal_gain: float = 1.0, foveal_offset: float = 0.0,
              foveal_weight: float = 1.0, tv_weight: float = 0.01, exclusion_weight: float = 0.001,
              iterations: int = 200) -> Reconstruction:
     """Separate one frame ``y = alpha x1 + (1 - alpha) x2`` (see module docstring).
@@ -200,6 +201,9 @@ def snapshot(frame: Any, *, alpha: float | None = None, scale: float = 6.0,
     ``alpha`` defaults to 0.5 (polariser at 45 degrees): with one frame it cannot be estimated
     separately from the image contrasts. ``offset``/``scale`` of the crop come from
     :func:`register` unless ``offset`` is given or ``register_frame`` is false (then offset 0).
+    ``foveal_gain``, ``foveal_offset``: radiometry of the constraint ``D x1 = gain C x2 + offset``.
+    All weights are relative to the frame's own contrast (mean gradient), so frames in DN and in
+    [0, 1] give the same separation.
     """
     from scipy.optimize import minimize
 
@@ -215,25 +219,30 @@ def snapshot(frame: Any, *, alpha: float | None = None, scale: float = 6.0,
     info: dict[str, Any] = {"alpha_assumed": alpha is None}
     with tm.measure("register"):
         if offset is not None:
-            op = FovealOperator((H, W), scale, offset)
+            op = FovealOperator((H, W), scale, offset, gain=foveal_gain, bias=foveal_offset)
             info["registration"] = {"offset": list(op.offset), "scale": op.scale, "given": True}
         elif register_frame:
+            FovealOperator((H, W), scale, gain=foveal_gain, bias=foveal_offset)  # validate before registering
             reg = register(yd, scale=scale)
-            op = FovealOperator((H, W), reg["scale"], reg["offset"], low=reg["low_shape"])
+            op = FovealOperator((H, W), reg["scale"], reg["offset"], low=reg["low_shape"], gain=foveal_gain,
+                                bias=foveal_offset)
             info["registration"] = reg
         else:
-            op = FovealOperator((H, W), scale)
+            op = FovealOperator((H, W), scale, gain=foveal_gain, bias=foveal_offset)
             info["registration"] = {"offset": [0.0, 0.0], "scale": op.scale, "given": False}
     with tm.measure("separate"):
         # paper's initialisation: n1 = D^T (registered crop of y), normalised; n2 = y - n1 (rescaled by 1-a)
         cy = op.C(yd)
-        n1 = op.upsample(cy)
+        n1 = op.upsample((cy - op.bias) / op.gain)
         n1 = n1 - n1.mean() + yd.mean()
         n1 = n1
         b = 1.0 - a
         gy, gx = _grad(yd)
-        g0 = float(np.mean(np.abs(gy)) + np.mean(np.abs(gx))) / 2 + 1e-6
+        g0 = float(np.mean(np.abs(gy)) + np.mean(np.abs(gx))) / 2
+        g0 = g0 if g0 > 0 else 1e-6 * max(float(np.abs(yd).max()), 1e-300)
         eps = 0.1 * g0
+        # foveal misfit in units of the frame's range (~1 for frames in [0, 1], where the weights were tuned)
+        span = float(np.ptp(yd)) or 1.0
         m = op.low_shape[0] * op.low_shape[1]
         mu = as_float("foveal_weight", foveal_weight)
         lt = as_float("tv_weight", tv_weight)
@@ -243,10 +252,10 @@ def snapshot(frame: Any, *, alpha: float | None = None, scale: float = 6.0,
         def fg(v: np.ndarray) -> tuple[float, np.ndarray]:
             x1 = v.reshape(H, W)
             x2 = (yd - a * x1) / b
-            r = op.D(x1) - op.C(x2)
+            r = op.residual(x1, x2) / span
             f = mu * float(np.sum(r * r)) / m
-            g1 = mu * 2 * op.DT(r) / m
-            g2 = -mu * 2 * op.CT(r) / m
+            g1 = mu * 2 * op.DT(r) / m / span
+            g2 = -mu * 2 * op.gain * op.CT(r) / m / span
             t1, tg1 = _tv(x1, eps)
             t2, tg2 = _tv(x2, eps)
             e, eg1, eg2 = exclusion_loss(x1, x2, g0)
@@ -261,7 +270,8 @@ def snapshot(frame: Any, *, alpha: float | None = None, scale: float = 6.0,
         r = minimize(fg, n1.ravel(), jac=True, method="L-BFGS-B", options={"maxiter": iterations})
         x1 = r.x.reshape(H, W)
         x2 = (yd - a * x1) / b
-    info.update(iterations=int(r.nit), loss_history=hist[:: max(1, len(hist) // 100)],
+    info.update(foveal_gain=op.gain, foveal_offset=op.bias, iterations=int(r.nit),
+                loss_history=hist[:: max(1, len(hist) // 100)],
                 foveal_rms=float(np.sqrt(np.mean(op.residual(x1, x2) ** 2))),
                 note="single-frame separation keeps residual overlap of the two images (see docs)")
     return Reconstruction(x1=x1.astype(dt), x2=x2.astype(dt), alpha=np.array([a]), fpn=None, method="snapshot",
