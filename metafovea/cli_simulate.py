@@ -39,7 +39,7 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
     g = p.add_argument_group("optics")
     g.add_argument("--psf", default="auto",
                    help="auto (metafovea.optics if available, else airy), optics, airy, gaussian:SIGMA_UM")
-    g.add_argument("--psf-cache", help="PSF cache directory (default $METAFOVEA_CACHE_DIR or ~/.cache/metafovea/psf)")
+    g.add_argument("--psf-cache", help="PSF cache directory (default $METAFOVEA_CACHE/psf, i.e. ~/.cache/metafovea/psf)")
     g.add_argument("--psf-size", help="PSF window in samples (odd; default 6 x supersample + 1)")
     g.add_argument("--field-patches", default="1", help="1 (shift-invariant), N (N x N patches) or auto")
     filt = g.add_mutually_exclusive_group()

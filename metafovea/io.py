@@ -110,6 +110,12 @@ def load_npz(path: str | os.PathLike) -> tuple[dict[str, np.ndarray], dict[str, 
     return arrays, meta
 
 
+def cache_root() -> Path:
+    """Root of metafovea's caches: ``$METAFOVEA_CACHE`` or ``~/.cache/metafovea`` (one folder per stage)."""
+    env = os.environ.get("METAFOVEA_CACHE")
+    return Path(env) if env else Path.home() / ".cache" / "metafovea"
+
+
 def input_hash(obj: Any) -> str:
     """Stable short hash of JSON-serialisable inputs (cache keys)."""
     return hashlib.sha256(to_json(obj, indent=None).encode()).hexdigest()[:16]

@@ -261,8 +261,8 @@ class ExplicitPSF:
 
 
 def default_cache_dir() -> Path:
-    env = os.environ.get("METAFOVEA_CACHE_DIR")
-    return Path(env) if env else Path.home() / ".cache" / "metafovea" / "psf"
+    from metafovea.io import cache_root
+    return cache_root() / "psf"
 
 
 class OpticsPSFProvider:
