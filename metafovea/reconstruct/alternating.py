@@ -76,6 +76,10 @@ GAUGE_MAX_COND = 1e3
 ALPHA_TOL = 0.1
 #: default low-pass (Gaussian sigma, constraint pixels) of the gauge fit; see foveal_gauge
 FOVEAL_BLUR = 1.0
+#: candidate extra blur (Gaussian sigma, constraint pixels) of the perifoveal crop, psf_blur='fit'
+PSF_GRID = (0.0, 0.5, 0.75, 1.0, 1.25, 1.5, 2.0, 2.5)
+#: relative scale change probed by the guard's geometry check
+SCALE_PROBE = 0.05
 
 
 def frame_mean_alpha(Y: np.ndarray) -> np.ndarray:
@@ -136,8 +140,8 @@ def _tv(x: np.ndarray) -> float:
 
 def foveal_gauge(x1: np.ndarray, x2: np.ndarray, alpha: np.ndarray, op: FovealOperator, *,
                  noise: tuple[float, float] | None = None, mode: str = "auto", blur: float = FOVEAL_BLUR,
-                 mean_weight: float = 1.0, contrast_gain: float | None = None
-                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, dict[str, Any]]:
+                 mean_weight: float = 1.0, contrast_gain: float | None = None, margin: int | None = None,
+                 psf_blur: float | str = "fit") -> tuple[np.ndarray, np.ndarray, np.ndarray, dict[str, Any]]:
     """Fix the ``(p, c)`` gauge with the foveal constraint ``D x1 = gain C x2 + bias`` (see module
     docstring; ``op`` carries scale, registration offset, gain and bias).
 
@@ -149,7 +153,14 @@ def foveal_gauge(x1: np.ndarray, x2: np.ndarray, alpha: np.ndarray, op: FovealOp
     simulated paper measurements: contrast ratio 0.52-0.59 against the radiometric 0.294 -- and a
     free contrast gain is not identifiable together with the gauge: it admits the trivial fit
     ``D x1' -> 0``). The mean level is compared with ``op.gain`` and ``op.bias`` as one extra equation
-    of weight ``mean_weight`` (relative to all constraint pixels; 0 ignores it). ``noise`` is the noise std of ``(x1, x2)`` (used by the guard). Returns
+    of weight ``mean_weight`` (relative to all constraint pixels; 0 ignores it). ``margin`` border
+    pixels of the constraint region are left out (default ``min(ceil(2 blur) + 2, min(h, w) // 8)``): at the edge of the
+    foveal field the perifoveal PSF mixes in scene content the foveal image does not see.
+    ``psf_blur``: the perifoveal crop's extra blur relative to the downsampled foveal image (Gaussian
+    sigma, constraint pixels), applied to the foveal side; ``'fit'`` picks the value of
+    ``PSF_GRID`` with the smallest misfit (reported as ``psf_blur``). Measured on 192 x 192 synthetic
+    scenes whose perifoveal image is blurred by 0.7-1.5 px: alpha error <= 0.005 against 0.01-0.03
+    with neither low-pass nor PSF fit (``blur=0, psf_blur=0``). ``noise`` is the noise std of ``(x1, x2)`` (used by the guard). Returns
     ``(x1, x2, alpha, report)``.
     """
     rep: dict[str, Any] = {"mode": mode, "applied": False, "blur": float(blur), "mean_weight": float(mean_weight)}
@@ -158,28 +169,56 @@ def foveal_gauge(x1: np.ndarray, x2: np.ndarray, alpha: np.ndarray, op: FovealOp
         return x1, x2, alpha, rep
     x1d, x2d = x1.astype(np.float64), x2.astype(np.float64)
     d = x1d - x2d
-    n_px = op.low_shape[0] * op.low_shape[1]
+    h, w = op.low_shape
+    mg = min(int(math.ceil(2.0 * blur)) + 2, min(h, w) // 8) if margin is None else int(margin)
+    mg = max(0, min(mg, (min(h, w) - 2) // 2))
+    inner = (slice(mg, h - mg), slice(mg, w - mg))
+    rep["margin"] = mg
+    n_px = (h - 2 * mg) * (w - 2 * mg)
     w_mean = math.sqrt(max(float(mean_weight), 0.0) * n_px)
 
-    def parts(u: np.ndarray) -> tuple[np.ndarray, float]:
-        """(mean-free low-pass band, mean) of a constraint-grid image."""
-        m = float(u.mean())
-        return (lowpass(u, blur) - m).ravel(), m
+    def parts(u: np.ndarray, sig: float) -> tuple[np.ndarray, float]:
+        """(mean-free low-pass band, mean) of a constraint-grid image, ``mg`` border pixels left out."""
+        m = float(u[inner].mean())
+        return (lowpass(u, sig)[inner] - m).ravel(), m
 
-    Dd, Dd_m = parts(op.D(d))
-    Cd, Cd_m = parts(op.C(d))
-    D2, D2_m = parts(op.D(x2d))
-    C2, C2_m = parts(op.C(x2d))
     gam = op.gain if contrast_gain is None else float(contrast_gain)
     if not gam > 0:
         raise InputError("foveal_contrast", contrast_gain, "a positive contrast gain (None: foveal_gain)")
     gam = float(gam)
     rep["contrast_gain"] = gam
     g, bias = op.gain, op.bias
-    # residual vector R(p, c) = R0 + p R_p + c R_c: band rows, then the weighted mean row
-    R0 = np.concatenate([D2 - gam * C2, [w_mean * (D2_m - g * C2_m - bias)]])
-    Rp = np.concatenate([Dd, [w_mean * Dd_m]])
-    Rc = np.concatenate([-gam * Cd, [-w_mean * g * Cd_m]])
+    if isinstance(psf_blur, str):
+        if psf_blur != "fit":
+            raise InputError("foveal_psf", psf_blur, "'fit' or the extra blur (Gaussian sigma, constraint pixels)")
+        grid: tuple[float, ...] = PSF_GRID
+    else:
+        grid = (float(psf_blur),)
+
+    def fit(o: FovealOperator, psis: tuple[float, ...]) -> tuple[float, float, np.ndarray, np.ndarray, np.ndarray]:
+        """Best (chi^2, psi, R0, Rp, Rc) over the extra blurs ``psis`` for the geometry ``o``."""
+        Dx2, Dd_full, Cx2, Cd_full = o.D(x2d), o.D(d), o.C(x2d), o.C(d)
+        Cd, Cd_m = parts(Cd_full, blur)
+        C2, C2_m = parts(Cx2, blur)
+        best = None
+        for psi in psis:
+            # the foveal side is blurred by psi more (the perifoveal PSF's extra blur in the crop)
+            sd = math.hypot(blur, psi)
+            Dd, Dd_m = parts(Dd_full, sd)
+            D2, D2_m = parts(Dx2, sd)
+            # residual vector R(p, c) = R0 + p R_p + c R_c: band rows, then the weighted mean row
+            R0 = np.concatenate([D2 - gam * C2, [w_mean * (D2_m - g * C2_m - bias)]])
+            Rp = np.concatenate([Dd, [w_mean * Dd_m]])
+            Rc = np.concatenate([-gam * Cd, [-w_mean * g * Cd_m]])
+            (pt, ct), *_ = np.linalg.lstsq(np.stack([Rp, Rc], axis=1), -R0, rcond=None)
+            chi = float(np.sum((R0 + pt * Rp + ct * Rc) ** 2))
+            if best is None or chi < best[0]:
+                best = (chi, float(psi), R0, Rp, Rc)
+        return best
+
+    best = fit(op, grid)
+    _, psi, R0, Rp, Rc = best
+    rep["psf_blur"] = float(psi)
     B = np.stack([Rp, Rc], axis=1)
     # conditioning of the spatial structure (translation invariant: a dark level in the data would
     # otherwise dominate both columns)
@@ -214,7 +253,7 @@ def foveal_gauge(x1: np.ndarray, x2: np.ndarray, alpha: np.ndarray, op: FovealOp
     # noise level of the constraint residual: D averages scale^2 pixels of x1, C picks one of x2
     # (times the gain); the low-pass averages further
     s1, s2 = noise if noise is not None else (0.0, 0.0)
-    var_r = max((s1 ** 2 / op.scale ** 2 + gam ** 2 * s2 ** 2) * lowpass_noise_factor(blur, op.low_shape), 1e-300)
+    var_r = max((s1 ** 2 / op.scale ** 2 + gam ** 2 * s2 ** 2) * lowpass_noise_factor(blur, (h, w)), 1e-300)
     rep["foveal_rms_expected"] = float(math.sqrt(var_r))
     if chi_old - chi_new <= 6.0 * var_r:  # Delta chi^2 of 2 parameters: mean 2 var_r under "no change"
         reasons.append("foveal misfit reduction within noise")
@@ -233,6 +272,20 @@ def foveal_gauge(x1: np.ndarray, x2: np.ndarray, alpha: np.ndarray, op: FovealOp
     rep["tv_ratio"] = float(tv_new / max(tv_old, 1e-300))
     if not j_new < j_old:
         reasons.append("objective (foveal misfit + TV) does not decrease")
+    # geometry self-consistency: with PSF differences allowed for, a wrong scale can still explain the
+    # images "better than before"; the right scale is a local minimum of the misfit over the scale
+    for f_s in (1.0 - SCALE_PROBE, 1.0 + SCALE_PROBE):
+        try:
+            o2 = FovealOperator(op.shape, op.scale * f_s, op.offset, low=op.low_shape, gain=op.gain, bias=op.bias)
+        except InputError:
+            continue
+        if o2.low_shape != op.low_shape:
+            continue
+        chi2 = fit(o2, (psi,))[0]
+        if chi2 < 0.8 * chi_new:
+            reasons.append(f"scale {o2.scale:.4g} fits the foveal constraint better than {op.scale:.4g} "
+                           f"(misfit {math.sqrt(chi2 / n_eff):.3g} vs {math.sqrt(chi_new / n_eff):.3g}): wrong scale?")
+            break
     if reasons:
         rep["reason"] = "; ".join(reasons)
         log.info("foveal gauge fix rejected: %s", rep["reason"])
@@ -243,7 +296,8 @@ def foveal_gauge(x1: np.ndarray, x2: np.ndarray, alpha: np.ndarray, op: FovealOp
 
 def alternating(frames: Any, *, scale: float = 6.0, offset: tuple[float, float] = (0.0, 0.0),
                 foveal_gain: float = 1.0, foveal_offset: float = 0.0, foveal_blur: float = FOVEAL_BLUR,
-                foveal_mean: float = 1.0, foveal_contrast: float | None = None, gauge: str = "auto", prior: str | None = "tv", init: str = "svd", iterations: int = 10,
+                foveal_mean: float = 1.0, foveal_contrast: float | None = None, foveal_psf: float | str = "fit",
+                gauge: str = "auto", prior: str | None = "tv", init: str = "svd", iterations: int = 10,
                 tol: float = 1e-4, saturation: float | None = None, noise_sigma: float | None = None,
                 max_condition: float = MAX_CONDITION, alpha_from: str = "data",
                 strict: bool = True) -> Reconstruction:
@@ -255,8 +309,8 @@ def alternating(frames: Any, *, scale: float = 6.0, offset: tuple[float, float] 
     foveal_gain, foveal_offset: radiometry of the constraint ``D x1 = foveal_gain C x2 + foveal_offset``
         (a Measurement's ``meta['foveal_constraint']`` ``gain`` and ``offset_dn``).
     foveal_blur, foveal_mean, foveal_contrast: the gauge fit's low-pass sigma (constraint pixels),
-        weight of the mean-level equation, and contrast gain (``None``: ``foveal_gain``); see
-        :func:`foveal_gauge`.
+        weight of the mean-level equation, and contrast gain (``None``: ``foveal_gain``);
+        foveal_psf: extra blur of the perifoveal crop (``'fit'``: estimated); see :func:`foveal_gauge`.
     gauge: ``'auto'`` (guarded foveal fix), ``'foveal'`` (always), ``'none'``.
     prior: ``'tv'``, ``'nlm'``, ``'bilateral'`` or ``None`` (plain alternating LSQ).
     init: ``'svd'`` (data-optimal subspace, default) or ``'means'`` (paper: frame means).
@@ -324,7 +378,9 @@ def alternating(frames: Any, *, scale: float = 6.0, offset: tuple[float, float] 
         x1, x2, a, grep = foveal_gauge(x1, x2, a, op, noise=(sig * gain[0], sig * gain[1]), mode=gauge,
                                       blur=foveal_blur, mean_weight=as_float("foveal_mean", foveal_mean),
                                       contrast_gain=None if foveal_contrast is None else
-                                      as_float("foveal_contrast", foveal_contrast))
+                                      as_float("foveal_contrast", foveal_contrast),
+                                      psf_blur=foveal_psf if isinstance(foveal_psf, str) else
+                                      as_float("foveal_psf", foveal_psf))
     info["gauge"] = grep
     if strict and gauge != "none" and not grep["applied"]:
         raise InputError("frames", f"{T} frames", "frames in which the foveal constraint fixes the alpha gauge",

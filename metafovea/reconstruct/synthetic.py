@@ -39,16 +39,23 @@ def _fit(img: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
 
 def scene(shape: tuple[int, int] | int = 96, scale: float = 6.0, *, offset: tuple[float, float] = (0.0, 0.0),
           foveal: str = "camera", perifoveal: str = "astronaut", lo: float = 0.0, hi: float = 1.0,
+          foveal_gain: float = 1.0, foveal_offset: float = 0.0,
           dtype: Any = np.float64) -> tuple[np.ndarray, np.ndarray]:
-    """``(x1, x2)`` of ``shape`` in ``[lo, hi]`` with ``D x1 == C x2`` exactly (``C`` offset by ``offset``)."""
+    """``(x1, x2)`` of ``shape`` with ``D x1 == foveal_gain * C x2 + foveal_offset`` exactly (``C`` offset
+    by ``offset``). ``x1`` spans ``[lo, hi]``, ``x2`` ``[(lo - b) / g, (hi - b) / g]`` (outside its centre
+    crop, which is set by the constraint)."""
     if isinstance(shape, (int, np.integer)):
         shape = (int(shape), int(shape))
     H, W = (check_int("shape", v, 8, 8192) for v in shape)
+    g, b = float(foveal_gain), float(foveal_offset)
+    if not g > 0:
+        raise InputError("foveal_gain", foveal_gain, "a positive gain")
     x1 = lo + (hi - lo) * _fit(_gray(foveal), (H, W))
-    x2 = lo + (hi - lo) * _fit(_gray(perifoveal), (H, W))
-    op = FovealOperator((H, W), scale, offset)
-    # replace C x2 by D x1: x2 += C^+ (D x1 - C x2) with C^+ the pseudo-inverse (exact for any offset)
-    r = op.D(x1) - op.C(x2)
+    lo2, hi2 = (lo - b) / g, (hi - b) / g  # x2's range in its own units
+    x2 = lo2 + (hi2 - lo2) * _fit(_gray(perifoveal), (H, W))
+    op = FovealOperator((H, W), scale, offset, gain=foveal_gain, bias=foveal_offset)
+    # replace C x2 by (D x1 - b) / g: x2 += C^+ ((D x1 - b) / g - C x2), C^+ the pseudo-inverse (exact for any offset)
+    r = (op.D(x1) - op.bias) / op.gain - op.C(x2)
     py, px = np.linalg.pinv(op.Cy), np.linalg.pinv(op.Cx)
     x2 = x2 + py @ r @ px.T
     return x1.astype(dtype), x2.astype(dtype)
