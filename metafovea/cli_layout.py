@@ -37,7 +37,8 @@ def _common(p: argparse.ArgumentParser) -> None:
     p.add_argument("--ring-width-um", type=float, default=1000.0, help="aluminium aperture ring width (um)")
     p.add_argument("--test-array", action="store_true", help="calibration layout: each post type in its own block")
     p.add_argument("--block", type=int, default=50, help="posts per side of a calibration block")
-    p.add_argument("--workers", type=int, default=1, help="local worker processes (default 1)")
+    p.add_argument("--workers", type=int, default=1,
+                   help="export: encoder threads; verify: processes for the expected counts (default 1)")
     p.add_argument("--scheduler", default=None, help="Dask scheduler address (tcp://host:8786)")
     p.add_argument("--json", action="store_true", help="print the result as JSON")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
@@ -55,7 +56,11 @@ def add_export_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--force", action="store_true", help="overwrite an existing output file")
     p.add_argument("--no-resume", action="store_true", help="start over even if a partial export exists")
     p.add_argument("--compress", type=int, default=1, help="OASIS CBLOCK deflate level 0-9 (default 1)")
-    p.add_argument("--band-rows", type=int, default=64, help="site rows per band (tile)")
+    p.add_argument("--band-rows", type=int, default=32,
+                   help="site rows per task (each task writes these rows and their mirror rows)")
+    p.add_argument("--max-refs", type=int, default=None, metavar="N",
+                   help="GDSII: hierarchical, at most N elements per structure (Heidelberg DWL 66: 8192); "
+                        "posts in leaf structures, intermediate structures, top cell")
     p.add_argument("--substrate-um", type=float, default=None, help="mesh substrate thickness (um)")
     _common(p)
     p.set_defaults(func=run_export)
@@ -70,6 +75,8 @@ def add_verify_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("file", help="GDSII or OASIS file")
     p.add_argument("--design", required=True, help="lens design TOML the file was exported from")
     p.add_argument("--reader", default="auto", help="auto | klayout | gdstk | stream (GDSII scanner)")
+    p.add_argument("--max-refs", type=int, default=None, metavar="N",
+                   help="also fail when a structure holds more than N elements (references and shapes)")
     _common(p)
     p.set_defaults(func=run_verify)
     return p
@@ -96,7 +103,7 @@ def _spec(args, design_path: str):
     if args.test_array and args.patch:
         raise InputError("--patch", args.patch, "not together with --test-array")
     return make_spec(d, ps, levels, grid_nm=args.grid_nm, patch_mm=_patch(args.patch),
-                     band_rows=getattr(args, "band_rows", 64), ring_width_um=args.ring_width_um)
+                     band_rows=getattr(args, "band_rows", 32), ring_width_um=args.ring_width_um)
 
 
 def _test_array(args, spec):
@@ -115,10 +122,12 @@ def run_export(args) -> int:
         raise InputError("--format", args.format, "one of 'gds', 'oas', 'stl', 'glb'")
     spec = _spec(args, args.design)
     name = spec.design.name + ("_cal" if args.test_array else "") + ("_patch" if spec.patch_um else "") + \
-        ("_flat" if args.flat else "")
+        ("_flat" if args.flat else "") + (f"_h{args.max_refs}" if args.max_refs else "")
     out = Path(args.out) if args.out else DEFAULT_DIR / name
     if out.suffix.lower() not in (".gds", ".oas", ".stl", ".glb", ".gdsii", ".oasis"):
         out = out.with_name(out.name + "." + fmt)
+    if args.max_refs is not None and (fmt != "gds" or args.test_array):
+        raise InputError("--max-refs", args.max_refs, "only with --format gds for a lens (not --test-array)")
     if fmt in MESH_FORMATS:
         if args.flat or args.test_array:
             raise InputError("--format", fmt, "gds or oas with --flat/--test-array")
@@ -132,7 +141,7 @@ def run_export(args) -> int:
             raise InputError("--workers", args.workers, "an integer >= 1")
         res = export_layout(spec, out, fmt, flat=args.flat, force=args.force, resume=not args.no_resume,
                             workers=args.workers, scheduler=args.scheduler, progress=not (args.quiet or args.json),
-                            compress=args.compress).as_dict()
+                            compress=args.compress, max_refs=args.max_refs).as_dict()
     if args.json:
         from metafovea.io import to_json
         print(to_json(res))
@@ -152,8 +161,10 @@ def run_verify(args) -> int:
     ta = _test_array(args, spec) if args.test_array else None
     if args.workers is None or args.workers < 1:
         raise InputError("--workers", args.workers, "an integer >= 1")
+    if args.max_refs is not None and args.max_refs < 1:
+        raise InputError("--max-refs", args.max_refs, "an integer >= 1")
     rep = verify_layout(args.file, spec, reader=args.reader, test_array=ta, workers=args.workers,
-                        progress=not (args.quiet or args.json))
+                        progress=not (args.quiet or args.json), max_refs=args.max_refs)
     if args.json:
         from metafovea.io import to_json
         print(to_json(rep.as_dict()))

@@ -26,12 +26,12 @@ from typing import Any, Callable, Iterable, Iterator
 
 import numpy as np
 
-from metafovea.errors import InputError, check_choice
+from metafovea.errors import InputError, check_choice, check_int
 from metafovea.io import input_hash, prepare_output
 from metafovea.layout.tiling import LayoutSpec
 
 FORMATS = ("gds", "oas")
-JOURNAL_VERSION = 1
+JOURNAL_VERSION = 2
 
 
 @dataclass
@@ -63,18 +63,22 @@ class ExportError(InputError):
 
 
 def _ordered_map(fn: Callable, items: list, workers: int | None, scheduler: str | None,
-                 inflight: int | None = None) -> Iterator[Any]:
-    """``fn`` over ``items`` in order, at most ``inflight`` tasks pending (bounded memory)."""
+                 inflight: int | None = None, threads: bool = True) -> Iterator[Any]:
+    """``fn`` over ``items`` in order, at most ``inflight`` tasks pending (bounded memory).
+
+    Local workers are threads by default (the encoders spend their time in numpy and zlib, which
+    release the GIL, and results need no pickling); ``threads=False`` uses processes."""
     if (workers in (None, 1)) and not scheduler:
         for it in items:
             yield fn(it)
         return
-    from metafovea.parallel import get_executor
     import concurrent.futures as cf
 
-    ex = get_executor(workers, scheduler)
+    from metafovea.parallel import get_executor
+
     nw = workers or 2
-    window = inflight or 2 * nw
+    ex = cf.ThreadPoolExecutor(max_workers=nw) if (threads and not scheduler) else get_executor(workers, scheduler)
+    window = inflight or nw + 1
     pending: collections.deque = collections.deque()
     src = iter(items)
     try:
@@ -96,7 +100,7 @@ def _ordered_map(fn: Callable, items: list, workers: int | None, scheduler: str 
 class _Writer(threading.Thread):
     """Writes band data in a background thread (overlaps disk writes with the band computation)."""
 
-    def __init__(self, fh, on_written: Callable[[int, np.ndarray], None], depth: int = 3):
+    def __init__(self, fh, on_written: Callable[[int, np.ndarray, Any], None], depth: int = 2):
         super().__init__(daemon=True)
         self.fh, self.on_written = fh, on_written
         self.q: queue.Queue = queue.Queue(maxsize=depth)
@@ -111,16 +115,19 @@ class _Writer(threading.Thread):
             if self.exc is not None:
                 continue
             try:
-                data, c = item
-                self.fh.write(data)
-                self.on_written(memoryview(data).nbytes, c)
+                pieces, c, meta = item
+                nbytes = 0
+                for data in pieces:
+                    self.fh.write(data)
+                    nbytes += memoryview(data).nbytes
+                self.on_written(nbytes, c, meta)
             except BaseException as e:  # noqa: BLE001 - re-raised in the caller
                 self.exc = e
 
-    def put(self, data: Any, c: np.ndarray) -> None:
+    def put(self, pieces: list, c: np.ndarray, meta: Any = None) -> None:
         if self.exc is not None:
             raise self.exc
-        self.q.put((data, c))
+        self.q.put((pieces, c, meta))
 
     def close(self) -> None:
         self.q.put(None)
@@ -149,15 +156,37 @@ def _load_journal(jpath: Path) -> dict[str, Any] | None:
         return None
 
 
+def _gds_task(spec: LayoutSpec, flat: bool, task):
+    from metafovea.layout import gds as g
+    pieces, counts = g.encode_task_records(spec, flat, task)
+    return pieces, counts, None
+
+
+def _gds_task_hier(spec: LayoutSpec, flat: bool, max_refs: int, task):
+    from metafovea.layout import gds as g
+    return g.encode_task_hier(spec, flat, max_refs, task)
+
+
+def _oas_task(spec: LayoutSpec, compress: int, task):
+    from metafovea.layout import oasis as o
+    pieces, counts = o.encode_task_oas(spec, compress, task)
+    return pieces, counts, None
+
+
 def export_layout(spec: LayoutSpec, path: str | os.PathLike, fmt: str = "gds", *, flat: bool = False,
                   force: bool = False, resume: bool = True, workers: int | None = 1,
                   scheduler: str | None = None, progress: bool = False, compress: int = 1,
-                  inflight: int | None = None, _stop_after: int | None = None) -> ExportResult:
+                  inflight: int | None = None, max_refs: int | None = None, threads: bool = True,
+                  _stop_after: int | None = None) -> ExportResult:
     """Write the lens (or patch) layout of ``spec`` to ``path`` as GDSII (``'gds'``) or OASIS (``'oas'``).
 
-    ``flat`` (GDSII only): one rectangle per post instead of one reference. ``compress``: OASIS deflate
-    level for the per-band CBLOCKs (0 = none). ``_stop_after``: stop (as if interrupted) after that many
-    bands; for tests of resumption.
+    ``flat`` (GDSII only): one rectangle per post instead of one reference. ``max_refs`` (GDSII only):
+    hierarchical file with at most that many elements per structure (posts in leaf structures, a tree of
+    intermediate structures, the top cell holding the frame and its children), e.g. 8192 for the
+    Heidelberg DWL 66. ``compress``: OASIS deflate level for the per-task CBLOCKs (0 = none).
+    ``workers``: local threads (``threads=False``: processes) encoding tasks while the writer thread
+    writes; the output bytes do not depend on it. ``_stop_after``: stop (as if interrupted) after that
+    many tasks; for tests of resumption.
     """
     from metafovea.layout import gds as g
     from metafovea.layout import oasis as o
@@ -165,28 +194,43 @@ def export_layout(spec: LayoutSpec, path: str | os.PathLike, fmt: str = "gds", *
     fmt = check_choice("--format", fmt, FORMATS)
     if flat and fmt != "gds":
         raise InputError("--flat", True, "only with --format gds (OASIS is always hierarchical)")
+    if max_refs is not None:
+        if fmt != "gds":
+            raise InputError("--max-refs", max_refs, "only with --format gds (OASIS has no such limit)")
+        max_refs = check_int("--max-refs", max_refs, 16, 1 << 30)
     path = Path(path)
-    prepare_output(path, force)
-    part, jpath = part_paths(path)
-    bands = spec.bands()
-    key = input_hash({"v": JOURNAL_VERSION, "spec": spec.key(), "fmt": fmt, "flat": flat, "compress": compress})
+    bands = spec.tasks()
+    key = input_hash({"v": JOURNAL_VERSION, "spec": spec.key(), "fmt": fmt, "flat": flat, "compress": compress,
+                      "max_refs": max_refs})
+    top_open, top_elements = b"", 0
     if fmt == "gds":
         header, footer = g.gds_header(spec, flat), g.gds_footer()
-        enc = partial(g.encode_band_gds, spec, flat)
+        if max_refs is None:
+            enc = partial(_gds_task, spec, flat)
+        else:
+            header, top_open, top_elements = g.split_top(header)
+            if top_elements >= max_refs:
+                raise InputError("--max-refs", max_refs, f"more than the {top_elements} frame elements of the top cell")
+            enc = partial(_gds_task_hier, spec, flat, max_refs)
     else:
         header, footer = o.oas_header(spec), o.oas_footer()
-        enc = partial(o.encode_band_oas, spec, compress)
+        enc = partial(_oas_task, spec, compress)
+    prepare_output(path, force)
+    part, jpath = part_paths(path)
 
     t0 = time.perf_counter()
     start, offset = 0, len(header)
     counts = np.zeros(spec.levels, dtype=np.int64)
+    leaves: list[int] = []  # leaf structures per task (max_refs)
     j = _load_journal(jpath) if resume else None
     fh = None
     try:
         if (j is not None and j.get("key") == key and part.is_file()
-                and part.stat().st_size >= j["offset"] and 0 <= j["bands_done"] <= len(bands)):
+                and part.stat().st_size >= j["offset"] and 0 <= j["bands_done"] <= len(bands)
+                and len(j.get("leaves", [])) == (j["bands_done"] if max_refs else 0)):
             start, offset = int(j["bands_done"]), int(j["offset"])
             counts += np.asarray(j["counts"], dtype=np.int64)
+            leaves = [int(v) for v in j.get("leaves", [])]
             fh = open(part, "r+b")
             fh.truncate(offset)
             fh.seek(offset)
@@ -196,22 +240,24 @@ def export_layout(spec: LayoutSpec, path: str | os.PathLike, fmt: str = "gds", *
             fh = open(part, "wb")
             fh.write(header)
             _write_journal(jpath, {"key": key, "bands_done": 0, "offset": offset, "counts": counts.tolist(),
-                                   "total_bands": len(bands)})
+                                   "total_bands": len(bands), "leaves": []})
         bar = None
         if progress:
             from tqdm.auto import tqdm
             bar = tqdm(total=len(bands), initial=start, unit="band", desc=f"export {path.name}")
         st = {"done": start, "offset": offset, "last": time.perf_counter()}
 
-        def written(nbytes: int, c: np.ndarray) -> None:  # runs in the writer thread
+        def written(nbytes: int, c: np.ndarray, meta: Any) -> None:  # runs in the writer thread
             st["offset"] += nbytes
             counts[:] += c
             st["done"] += 1
+            if max_refs is not None:
+                leaves.append(int(meta))
             now = time.perf_counter()
             if now - st["last"] > 0.5 or st["done"] == len(bands) or _stop_after is not None:
                 fh.flush()
                 _write_journal(jpath, {"key": key, "bands_done": st["done"], "offset": st["offset"],
-                                       "counts": counts.tolist(), "total_bands": len(bands)})
+                                       "counts": counts.tolist(), "total_bands": len(bands), "leaves": leaves})
                 st["last"] = now
             if bar is not None:
                 bar.update(1)
@@ -220,8 +266,8 @@ def export_layout(spec: LayoutSpec, path: str | os.PathLike, fmt: str = "gds", *
         writer = _Writer(fh, written)
         try:
             todo = bands[start:] if _stop_after is None else bands[start:start + _stop_after]
-            for data, c in _ordered_map(enc, todo, workers, scheduler, inflight):
-                writer.put(data, c)
+            for pieces, c, meta in _ordered_map(enc, todo, workers, scheduler, inflight, threads):
+                writer.put(pieces, c, meta)
         finally:
             writer.close()
             if bar is not None:
@@ -231,6 +277,9 @@ def export_layout(spec: LayoutSpec, path: str | os.PathLike, fmt: str = "gds", *
             fh.close()
             fh = None
             raise KeyboardInterrupt("stopped after %d bands (test)" % done)
+        if max_refs is not None:
+            names = [g.leaf_name(t, i) for t, n in enumerate(leaves) for i in range(n)]
+            footer = g.hierarchy_footer(spec, top_open, top_elements, names, max_refs)
         fh.write(footer)
         offset += len(footer)
         fh.flush()
@@ -259,7 +308,10 @@ def export_layout(spec: LayoutSpec, path: str | os.PathLike, fmt: str = "gds", *
                 fh.close()
         raise
     dt = time.perf_counter() - t0
-    return ExportResult(path, fmt, flat, int(counts.sum()), counts.tolist(), offset, dt, len(bands), start)
+    extra = {}
+    if max_refs is not None:
+        extra = {"max_refs": max_refs, "leaf_structures": int(sum(leaves))}
+    return ExportResult(path, fmt, flat, int(counts.sum()), counts.tolist(), offset, dt, len(bands), start, extra)
 
 
 # ----------------------------------------------------------------------------------------------

@@ -14,7 +14,8 @@ import tempfile
 
 import numpy as np
 
-from metafovea.layout.tiling import LayoutSpec, band_levels, has_frame, mark_boxes_nm, ring_polygons_nm
+from metafovea.layout.tiling import (LayoutSpec, band_levels, has_frame, mark_boxes_nm, ring_polygons_nm,
+                                     task_levels, task_rows)
 from metafovea.units import NM_PER_UM
 
 ENDSTR_ENDLIB = bytes.fromhex("00040700") + bytes.fromhex("00040400")
@@ -119,6 +120,186 @@ def band_sites(spec: LayoutSpec, band: tuple[int, int, int, int]):
     """Posts of one band: ``(k, x_nm, y_nm)`` (row-major)."""
     k, r, c, xs, ys = band_index(spec, band)
     return k.astype(np.intp), xs[c], ys[r]
+
+
+def task_index(spec: LayoutSpec, task: tuple[int, int, int, int, int]):
+    """Posts of the task's quadrant rows, row-major: ``(k, r, c, xs, sides)`` with post type ``k``
+    (uint8), local row/column indices (int32), column positions ``xs`` (nm, int64) and
+    :func:`task_rows` ``sides`` [(row mask, row y positions), ...]."""
+    lev, ix0 = task_levels(spec, task)
+    ncol = lev.shape[1]
+    flat = lev.reshape(-1)
+    fi = np.flatnonzero(flat >= 0)
+    k = flat[fi].astype(np.uint8)
+    fi = fi.astype(np.int32)
+    r = fi // np.int32(ncol)
+    c = fi - r * np.int32(ncol)
+    xs = spec.site_x_nm(np.arange(ix0, ix0 + ncol))
+    return k, r, c, xs, task_rows(spec, task)
+
+
+def _sides(r: np.ndarray, sides):
+    """Per side: (element selection or None for all, y per local row)."""
+    out = []
+    for _, mask, ys in sides:
+        out.append((None if mask.all() else np.flatnonzero(mask[r]), ys))
+    return out
+
+
+def encode_task_records(spec: LayoutSpec, flat: bool, task) -> tuple[list[np.ndarray], np.ndarray]:
+    """GDSII element records of one task: one uint8 array per row side (SREF: 28 bytes per post,
+    ``flat``: 64-byte BOUNDARY), and the number of posts per type (both sides)."""
+    k, r, c, xs, sides = task_index(spec, task)
+    sel = _sides(r, sides)
+    n = k.size
+    counts = np.zeros(spec.levels, dtype=np.int64)
+    kc = np.bincount(k, minlength=spec.levels)
+    out = []
+    if not flat:
+        base = np.empty((n, 7), dtype=">u4")
+        base[:] = np.array([_SREF, _SNAME4, 0, _XY1, 0, 0, _ENDEL], dtype=">u4")
+        base[:, 2] = _name_words(spec).astype(">u4")[k]
+        base[:, 4] = xs.astype(">i4").view(">u4")[c]
+        for i, (idx, ys) in enumerate(sel):
+            last = i == len(sel) - 1
+            if idx is None:
+                rec = base if last else base.copy()
+                counts += kc
+                rec[:, 5] = ys.astype(">i4").view(">u4")[r]
+            else:
+                rec = base[idx]
+                counts += np.bincount(k[idx], minlength=spec.levels)
+                rec[:, 5] = ys.astype(">i4").view(">u4")[r[idx]]
+            out.append(rec.view(np.uint8).reshape(-1))
+        return out, counts
+    ki = k.astype(np.intp)
+    base = np.empty(n, dtype=_BOUNDARY_DTYPE)
+    base["h"] = _BOUNDARY
+    base["lh"] = _LAYER
+    base["layer"] = spec.layers.posts[0]
+    base["dh"] = _DATATYPE
+    base["dt"] = spec.layers.posts[1]
+    base["xyh"] = _XY5
+    base["end"] = _ENDEL
+    hw = spec.post_sizes_nm[:, 0] // 2
+    hh = spec.post_sizes_nm[:, 1] // 2
+    x = xs[c]
+    x0, x1 = x - hw[ki], x + hw[ki]
+    xy = base["xy"]
+    xy[:, 0], xy[:, 2], xy[:, 4], xy[:, 6], xy[:, 8] = x0, x1, x1, x0, x0
+    del x, x0, x1
+    for i, (idx, ys) in enumerate(sel):
+        last = i == len(sel) - 1
+        if idx is None:
+            rec = base if last else base.copy()
+            y, h = ys[r], hh[ki]
+            counts += kc
+        else:
+            rec = base[idx]
+            y, h = ys[r[idx]], hh[ki[idx]]
+            counts += np.bincount(k[idx], minlength=spec.levels)
+        y0, y1 = y - h, y + h
+        xy = rec["xy"]
+        xy[:, 1], xy[:, 3], xy[:, 5], xy[:, 7], xy[:, 9] = y0, y0, y1, y1, y0
+        out.append(rec.view(np.uint8).reshape(-1))
+    return out, counts
+
+
+# ----------------------------------------------------------------------------------------------
+# hierarchical GDSII (at most N references per structure)
+# ----------------------------------------------------------------------------------------------
+_BGNSTR = 0x001C0502
+_ENDSTR = bytes.fromhex("00040700")
+
+
+def _strname(name: str) -> bytes:
+    b = name.encode("ascii")
+    if len(b) % 2:
+        b += b"\0"
+    return (4 + len(b)).to_bytes(2, "big") + b"\x06\x06" + b
+
+
+def bgnstr(name: str) -> bytes:
+    """BGNSTR (fixed timestamps, as gdstk writes them) and STRNAME."""
+    t = FIXED_TIMESTAMP
+    stamp = np.array([t.year, t.month, t.day, t.hour, t.minute, t.second] * 2, dtype=">i2").tobytes()
+    return _BGNSTR.to_bytes(4, "big") + stamp + _strname(name)
+
+
+def sref(name: str, x: int = 0, y: int = 0) -> bytes:
+    nm = name.encode("ascii")
+    if len(nm) % 2:
+        nm += b"\0"
+    return (_SREF.to_bytes(4, "big") + (4 + len(nm)).to_bytes(2, "big") + b"\x12\x06" + nm
+            + _XY1.to_bytes(4, "big") + int(x).to_bytes(4, "big", signed=True)
+            + int(y).to_bytes(4, "big", signed=True) + _ENDEL.to_bytes(4, "big"))
+
+
+def leaf_name(task: int, i: int) -> str:
+    return f"L{task:05d}_{i:05d}"
+
+
+def encode_task_hier(spec: LayoutSpec, flat: bool, max_refs: int, task):
+    """The task's posts as leaf structures ``L<task>_<i>`` of at most ``max_refs`` posts each (SREFs, or
+    BOUNDARYs with ``flat``): ``(pieces, counts, leaves)``."""
+    recs, counts = encode_task_records(spec, flat, task)
+    size = BOUNDARY_BYTES if flat else SREF_BYTES
+    pieces: list = []
+    i = 0
+    end = _ENDSTR
+    for rec in recs:
+        n = rec.size // size
+        for a in range(0, n, max_refs):
+            pieces.append(bgnstr(leaf_name(task[0], i)))
+            pieces.append(rec[a * size:min(n, a + max_refs) * size])
+            pieces.append(end)
+            i += 1
+    return pieces, counts, i
+
+
+def split_top(header: bytes) -> tuple[bytes, bytes, int]:
+    """A gdstk library without its last ENDSTR/ENDLIB -> (everything before the top structure, the top
+    structure's records up to its elements' end, the number of elements in the top structure)."""
+    pos, last, n_el = 0, None, 0
+    while pos < len(header):
+        ln = int.from_bytes(header[pos:pos + 2], "big")
+        rt = header[pos + 2]
+        if rt == 0x05:
+            last, n_el = pos, 0
+        elif rt == 0x11:
+            n_el += 1
+        pos += ln
+    if last is None:
+        raise RuntimeError("unexpected gdstk output: no structure")
+    return header[:last], header[last:], n_el
+
+
+def hierarchy_footer(spec: LayoutSpec, top_open: bytes, top_elements: int, leaves: list[str],
+                     max_refs: int) -> bytes:
+    """Intermediate structures ``M<level>_<i>`` (each referencing at most ``max_refs`` structures, all
+    at the origin), then the top structure (frame elements + references), ENDLIB."""
+    cap = max_refs - top_elements
+    if cap < 1:
+        raise ValueError("max_refs below the number of frame elements in the top cell")
+    out = bytearray()
+    names = list(leaves)
+    level = 0
+    while len(names) > cap:
+        level += 1
+        nxt = []
+        for i in range(0, len(names), max_refs):
+            nm = f"M{level}_{i // max_refs:05d}"
+            out += bgnstr(nm)
+            for child in names[i:i + max_refs]:
+                out += sref(child)
+            out += _ENDSTR
+            nxt.append(nm)
+        names = nxt
+    out += top_open
+    for child in names:
+        out += sref(child)
+    out += ENDSTR_ENDLIB
+    return bytes(out)
 
 
 def encode_band_gds(spec: LayoutSpec, flat: bool, band: tuple[int, int, int, int]) -> tuple[np.ndarray, np.ndarray]:

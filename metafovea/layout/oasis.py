@@ -18,7 +18,7 @@ import zlib
 
 import numpy as np
 
-from metafovea.layout.gds import band_index
+from metafovea.layout.gds import band_index, task_index
 from metafovea.layout.tiling import LayoutSpec, has_frame, mark_boxes_nm, ring_polygons_nm
 
 MAGIC = b"%SEMI-OASIS\r\n"
@@ -189,3 +189,122 @@ def encode_band_oas(spec: LayoutSpec, compress: int, band: tuple[int, int, int, 
     if compress > 0:
         return cblock(raw, compress), counts
     return raw, counts
+
+
+def _scatter(out: np.ndarray, dst: np.ndarray, src: np.ndarray, src_start: np.ndarray, lengths: np.ndarray) -> None:
+    """``out[dst[g]:dst[g] + lengths[g]] = src[src_start[g]:src_start[g] + lengths[g]]`` for every g."""
+    lengths = np.asarray(lengths, dtype=np.int64)
+    tot = int(lengths.sum())
+    if tot == 0:
+        return
+    before = np.cumsum(lengths) - lengths
+    ar = np.arange(tot, dtype=np.int64)
+    out[np.repeat(dst - before, lengths) + ar] = src[np.repeat(src_start - before, lengths) + ar]
+
+
+def _varint_field(out: np.ndarray, dst: np.ndarray, values: np.ndarray) -> None:
+    enc, nb = uints(values)
+    _scatter(out, dst, enc, np.cumsum(nb) - nb, nb)
+
+
+def _zigzag(v: np.ndarray) -> np.ndarray:
+    v = np.asarray(v, dtype=np.int64)
+    return np.where(v < 0, ((-v) << 1) | 1, v << 1)
+
+
+def _varint_len(v: np.ndarray) -> np.ndarray:
+    v = np.asarray(v, dtype=np.uint64)
+    n = np.ones(v.size, dtype=np.int64)
+    t = v >> np.uint64(7)
+    while True:
+        nz = t > 0
+        if not nz.any():
+            return n
+        n += nz
+        t >>= np.uint64(7)
+
+
+def placements(kg: np.ndarray, xg: np.ndarray, yg: np.ndarray, cnt: np.ndarray, spaces: np.ndarray,
+               sp_start: np.ndarray, sp_len: np.ndarray, grid: int) -> np.ndarray:
+    """PLACEMENT records (vectorised): group g places cell ``kg[g]`` at ``(xg, yg)`` and, with
+    ``cnt[g] > 1``, repeats it with a type-5 (``grid`` > 1) or type-4 repetition whose encoded spaces are
+    ``spaces[sp_start[g]:sp_start[g] + sp_len[g]]``. Same bytes as writing them one by one."""
+    G = kg.size
+    rep = cnt > 1
+    grid_b = np.frombuffer(uint(grid), dtype=np.uint8) if grid > 1 else np.zeros(0, np.uint8)
+    zx, zy = _zigzag(xg), _zigzag(yg)
+    lk, lx, ly = _varint_len(kg), _varint_len(zx), _varint_len(zy)
+    cm2 = np.where(rep, cnt - 2, 0)
+    lc = _varint_len(cm2)
+    length = 2 + lk + lx + ly + rep * (1 + lc + grid_b.size + sp_len)
+    start = np.cumsum(length) - length
+    out = np.empty(int(length.sum()), dtype=np.uint8)
+    out[start] = 17
+    out[start + 1] = np.where(rep, 0xF8, 0xF0)
+    p = start + 2
+    _varint_field(out, p, kg)
+    p = p + lk
+    _varint_field(out, p, zx)
+    p = p + lx
+    _varint_field(out, p, zy)
+    p = p + ly
+    ri = np.flatnonzero(rep)
+    if ri.size:
+        q = p[ri]
+        out[q] = 5 if grid > 1 else 4
+        q = q + 1
+        _varint_field(out, q, cm2[ri])
+        q = q + lc[ri]
+        for j, b in enumerate(grid_b.tolist()):
+            out[q + j] = b
+        q = q + grid_b.size
+        _scatter(out, q, spaces, sp_start[ri], sp_len[ri])
+    return out
+
+
+def encode_task_oas(spec: LayoutSpec, compress: int, task) -> tuple[list[bytes], np.ndarray]:
+    """PLACEMENT records of one task (per row side, row and post type one placement with a repetition),
+    both row sides in one CBLOCK when ``compress > 0``."""
+    k, r, c, xs, sides = task_index(spec, task)
+    n = k.size
+    counts = np.zeros(spec.levels, dtype=np.int64)
+    if n == 0:
+        return [], counts
+    order = np.argsort(k, kind="stable")
+    ks, rs, cs = k[order], r[order], c[order]
+    del order
+    new = np.ones(n, dtype=bool)
+    new[1:] = (ks[1:] != ks[:-1]) | (rs[1:] != rs[:-1])
+    starts = np.flatnonzero(new)
+    ends = np.append(starts[1:], n)
+    cont = ~new[1:]
+    P = spec.period_nm
+    if P is not None:
+        spaces = np.diff(cs)[cont]
+        grid = P
+    else:
+        spaces = np.diff(xs[cs])[cont]
+        grid = 1
+    enc, nbytes = uints(spaces)
+    boff = np.concatenate([[0], np.cumsum(nbytes)])
+    cnt = ends - starts
+    sidx = starts - np.arange(starts.size)
+    sp_start = boff[sidx]
+    sp_len = boff[sidx + np.maximum(cnt - 1, 0)] - sp_start
+    kg = ks[starts].astype(np.int64)
+    xg = xs[cs[starts]]
+    rg = rs[starts]
+    parts = []
+    for _, mask, ys in sides:
+        sel = mask[rg]
+        if sel.all():
+            parts.append(placements(kg, xg, ys[rg], cnt, enc, sp_start, sp_len, grid))
+            counts += np.bincount(kg, weights=cnt, minlength=spec.levels).astype(np.int64)
+        else:
+            g = np.flatnonzero(sel)
+            parts.append(placements(kg[g], xg[g], ys[rg[g]], cnt[g], enc, sp_start[g], sp_len[g], grid))
+            counts += np.bincount(kg[g], weights=cnt[g], minlength=spec.levels).astype(np.int64)
+    raw = np.concatenate(parts).tobytes() if len(parts) > 1 else parts[0].tobytes()
+    if compress > 0:
+        return [cblock(raw, compress)], counts
+    return [raw], counts

@@ -17,6 +17,10 @@ Conventions (all files written by :mod:`metafovea.layout`)
 * Bands: the lens is generated in bands of ``band_rows`` site rows across the window's columns; a band
   is a tile of :mod:`metafovea.lens` (``evaluate_tile``), evaluated on the half with x >= 0 and
   mirrored (the phase is even in x, so the mirror is exact).
+* Tasks (export and expected counts): mirror-row bands. The phase is even in y too, so rows ``j >= 0``
+  and ``-j - 2o`` have identical levels: a task evaluates one quadrant (x >= 0, y >= 0) of
+  ``band_rows`` rows and emits the rows on both sides (each side's posts in row-major order, the
+  ``+y`` side first). Tasks go outward from the centre row.
 """
 
 from __future__ import annotations
@@ -64,7 +68,7 @@ class LayoutSpec:
     mark_size_um: float = 200.0  # cross arm length
     mark_width_um: float = 20.0
     patch_um: tuple[float, float, float] | None = None
-    band_rows: int = 64
+    band_rows: int = 32
 
     # -- derived -----------------------------------------------------------------------------
     @property
@@ -171,6 +175,39 @@ class LayoutSpec:
             out.append((iy0, n, c0, c1 - c0 + 1))
         return out
 
+    def tasks(self) -> list[tuple[int, int, int, int, int]]:
+        """Export units ``(t, j0, rows, ix0, cols)``: mirror-row bands. Row ``j >= 0`` and its mirror
+        ``m(j) = -j - 2o`` (``-j`` on the integer lattice, ``-1 - j`` on the half lattice) hold the same
+        levels, so one evaluation of rows ``j0 .. j0 + rows - 1`` (columns ``ix0 ..``) serves both; rows
+        outside the window are skipped when encoding (see :func:`task_rows`)."""
+        iy_lo, iy_hi, ix_lo, ix_hi = self.window()
+        if iy_lo > iy_hi or ix_lo > ix_hi:
+            return []
+        two_o = 0 if self.design.lattice == "integer" else 1
+        jmax = max(abs(iy_lo), abs(iy_hi)) + 1
+        j = np.arange(0, jmax + 1)
+        m = -j - two_o
+        inwin = ((j >= iy_lo) & (j <= iy_hi)) | ((m >= iy_lo) & (m <= iy_hi))
+        lo, hi = row_half_counts(self.design, j)
+        lo = np.maximum(lo, ix_lo)
+        hi = np.minimum(hi, ix_hi)
+        ok = inwin & (lo <= hi)
+        if not ok.any():
+            return []
+        sel = np.flatnonzero(ok)
+        out = []
+        br = self.band_rows
+        y0, y1 = int(sel[0]), int(sel[-1])
+        for j0 in range(y0, y1 + 1, br):
+            n = min(br, y1 + 1 - j0)
+            okb = ok[j0:j0 + n]
+            if not okb.any():
+                continue
+            c0 = int(lo[j0:j0 + n][okb].min())
+            c1 = int(hi[j0:j0 + n][okb].max())
+            out.append((len(out), j0, n, c0, c1 - c0 + 1))
+        return out
+
     def key(self) -> dict[str, Any]:
         """JSON-able description of everything that determines the file content."""
         from dataclasses import asdict
@@ -199,7 +236,7 @@ class LayoutSpec:
 
 def make_spec(design: LensDesign, post_set: PostSet | None = None, levels: int | None = None, *,
               grid_nm: int = 5, patch_mm: tuple[float, float, float] | None = None,
-              band_rows: int = 64, **kw: Any) -> LayoutSpec:
+              band_rows: int = 32, **kw: Any) -> LayoutSpec:
     """Validated :class:`LayoutSpec` (``patch_mm`` = centre x, centre y, width in mm)."""
     n = design.levels if levels is None else check_int("--levels", levels, 2, 256)
     if post_set is None:
@@ -285,6 +322,65 @@ class Expected:
         return int(self.counts.sum())
 
 
+def task_rows(spec: LayoutSpec, task: tuple[int, int, int, int, int]) -> list[tuple[np.ndarray, np.ndarray]]:
+    """For each row side (+1, then -1): ``(side, mask, ys)``, the task's local rows written on that side
+    (bool per row) and their site y positions (nm, int64). Sides with no row are left out."""
+    _, j0, rows, _, _ = task
+    iy_lo, iy_hi, _, _ = spec.window()
+    two_o = 0 if spec.design.lattice == "integer" else 1
+    j = np.arange(j0, j0 + rows)
+    out = []
+    for side, iy, extra in ((1, j, True), (-1, -j - two_o, (-j - two_o) != j)):
+        mask = (iy >= iy_lo) & (iy <= iy_hi) & extra
+        if mask.any():
+            out.append((side, mask, spec.site_y_nm(iy)))
+    return out
+
+
+def task_levels(spec: LayoutSpec, task: tuple[int, int, int, int, int]) -> tuple[np.ndarray, int]:
+    """Levels of the task's rows ``j0 ..`` (int16, EMPTY outside the aperture) on the window's columns,
+    and the first column index."""
+    _, j0, rows, ix0, cols = task
+    lev = band_levels(spec.design, j0, rows, ix0, cols, spec.levels)
+    _, _, ix_lo, ix_hi = spec.window()
+    if ix0 < ix_lo or ix0 + cols - 1 > ix_hi:
+        a, b = max(ix0, ix_lo), min(ix0 + cols - 1, ix_hi)
+        lev = np.ascontiguousarray(lev[:, a - ix0:b - ix0 + 1])
+        ix0 = a
+    return lev, ix0
+
+
+def _task_summary(spec: LayoutSpec, task: tuple[int, int, int, int, int]) -> tuple[np.ndarray, list[int]]:
+    lev, ix0 = task_levels(spec, task)
+    sides = task_rows(spec, task)
+    counts = np.zeros(spec.levels, dtype=np.int64)
+    w = np.zeros(lev.shape[0], dtype=np.int64)
+    for _, mask, _ in sides:
+        w += mask
+    for m in (1, 2):
+        sub = lev[w == m]
+        counts += m * np.bincount(sub[sub >= 0].astype(np.int64), minlength=spec.levels)
+    r, c = np.nonzero((lev >= 0) & (w > 0)[:, None])
+    if r.size == 0:
+        return counts, [0, 0, -1, -1]
+    k = lev[r, c]
+    sz = spec.post_sizes_nm
+    xs = spec.site_x_nm(np.arange(ix0, ix0 + lev.shape[1]))
+    x0 = int((xs[c] - sz[k, 0] // 2).min())
+    x1 = int((xs[c] + sz[k, 0] // 2).max())
+    hh = sz[k, 1] // 2
+    y0 = y1 = None
+    for _, mask, ys in sides:
+        sel = mask[r]
+        if not sel.any():
+            continue
+        yy = ys[r[sel]]
+        a, b = int((yy - hh[sel]).min()), int((yy + hh[sel]).max())
+        y0 = a if y0 is None else min(y0, a)
+        y1 = b if y1 is None else max(y1, b)
+    return counts, [x0, y0, x1, y1]
+
+
 def _band_summary(spec: LayoutSpec, band: tuple[int, int, int, int]) -> tuple[np.ndarray, list[int]]:
     iy0, rows, ix0, cols = band
     lev = band_levels(spec.design, iy0, rows, ix0, cols, spec.levels)
@@ -314,10 +410,10 @@ def expected_content(spec: LayoutSpec, *, workers: int | None = 1, scheduler: st
 
     from metafovea.parallel import run_tasks
 
-    bands = spec.bands()
+    bands = spec.tasks()
     counts = np.zeros(spec.levels, dtype=np.int64)
     bb = [None, None, None, None]
-    for _, (c, b) in run_tasks(partial(_band_summary, spec), bands, workers=workers, scheduler=scheduler,
+    for _, (c, b) in run_tasks(partial(_task_summary, spec), bands, workers=workers, scheduler=scheduler,
                                progress=progress, desc="expected"):
         counts += c
         if b[2] < b[0]:
@@ -368,4 +464,4 @@ def has_frame(spec: LayoutSpec) -> bool:
 
 
 __all__ = ["DBU_UM", "EMPTY", "Expected", "Layers", "LayoutSpec", "band_levels", "expected_content",
-           "has_frame", "make_spec", "mark_boxes_nm", "ring_polygons_nm"]
+           "has_frame", "make_spec", "mark_boxes_nm", "ring_polygons_nm", "task_levels", "task_rows"]

@@ -51,6 +51,8 @@ class Observed:
     layers: set = field(default_factory=set)
     off_lattice: int = 0
     anomalies: list[str] = field(default_factory=list)
+    structures: int = 0
+    max_refs: int = 0  # most elements (reference instances + shapes + texts) in one structure
 
 
 @dataclass
@@ -71,6 +73,8 @@ class VerifyReport:
     seconds_read: float
     seconds_expected: float
     file_bytes: int
+    structures: int = 0
+    max_elements_per_structure: int = 0
 
     def as_dict(self) -> dict[str, Any]:
         return dict(self.__dict__)
@@ -97,7 +101,8 @@ def sniff_format(path: Path) -> str:
 # ----------------------------------------------------------------------------------------------
 # KLayout
 # ----------------------------------------------------------------------------------------------
-def read_klayout(path: Path, lattice: tuple[int, int, int] | None, posts_layer: tuple[int, int]) -> Observed:
+def read_klayout(path: Path, lattice: tuple[int, int, int] | None, posts_layer: tuple[int, int],
+                 post_names: Any = None) -> Observed:
     import klayout.db as db
 
     fmt = sniff_format(path)
@@ -106,6 +111,7 @@ def read_klayout(path: Path, lattice: tuple[int, int, int] | None, posts_layer: 
     ob = Observed("klayout", fmt, dbu_um=ly.dbu)
     tops = ly.top_cells()
     ob.top_cells = [c.name for c in tops]
+    ob.structures = ly.cells()
     if len(tops) != 1:
         return ob
     top = tops[0]
@@ -116,48 +122,77 @@ def read_klayout(path: Path, lattice: tuple[int, int, int] | None, posts_layer: 
             ob.layers.add((info.layer, info.datatype))
         if (info.layer, info.datatype) == posts_layer:
             li_posts = li
-    for ci in top.each_child_cell():
-        c = ly.cell(ci)
-        rects = []
-        for li in ly.layer_indexes():
-            info = ly.get_info(li)
-            for sh in c.shapes(li).each():
-                b = sh.bbox()
-                is_rect = sh.is_box() or (sh.is_polygon() and sh.polygon.is_box())
-                if not is_rect:
-                    ob.anomalies.append(f"cell {c.name}: a non-rectangular shape on {info.layer}/{info.datatype}")
-                rects.append((info.layer, info.datatype, b.width(), b.height(), b.center().x, b.center().y))
-        if c.child_cells():
-            ob.anomalies.append(f"cell {c.name} has child cells")
-        ob.cell_rects[c.name] = rects
-    names = {ci: ly.cell(ci).name for ci in top.each_child_cell()}
-    off = 0
+    pn = None if post_names is None else set(post_names)
+
+    def is_post(c) -> bool:
+        return (c.name in pn) if pn is not None else not c.child_cells()
+
     if lattice is not None:
         cx, oP, P = lattice
-    for inst in top.each_inst():
-        arr = inst.cell_inst
-        n = arr.size()
-        nm = names[inst.cell_index]
-        ob.ref_counts[nm] += n
-        if arr.is_complex():
-            ob.anomalies.append(f"a reference to {nm} is rotated, mirrored or magnified")
-        if lattice is not None:
-            if n == 1:
-                d = inst.trans.disp
-                off += ((d.x - cx - oP) % P != 0) or ((d.y - cx - oP) % P != 0)
+    memo: dict[int, tuple[Counter, Counter, int]] = {}
+
+    def content(ci: int) -> tuple[Counter, Counter, int]:
+        """(references per post cell, posts-layer rectangles per size, posts off the lattice) of cell
+        ``ci`` with its intermediate (non-post) child cells expanded."""
+        if ci in memo:
+            return memo[ci]
+        cell = ly.cell(ci)
+        refs: Counter = Counter()
+        flatc: Counter = Counter()
+        off = 0
+        nrefs = 0
+        for inst in cell.each_inst():
+            arr = inst.cell_inst
+            n = arr.size()
+            nrefs += n
+            child = ly.cell(inst.cell_index)
+            nm = child.name
+            if arr.is_complex():
+                ob.anomalies.append(f"a reference to {nm} is rotated, mirrored or magnified")
+            disps = [inst.trans.disp] if n == 1 else [t.disp for t in arr.each_trans()]
+            if is_post(child):
+                refs[nm] += n
+                if nm not in ob.cell_rects:
+                    rects = []
+                    for li in ly.layer_indexes():
+                        info = ly.get_info(li)
+                        for sh in child.shapes(li).each():
+                            b = sh.bbox()
+                            if not (sh.is_box() or (sh.is_polygon() and sh.polygon.is_box())):
+                                ob.anomalies.append(f"cell {nm}: a non-rectangular shape on {info.layer}/{info.datatype}")
+                            rects.append((info.layer, info.datatype, b.width(), b.height(), b.center().x, b.center().y))
+                    if child.child_cells():
+                        ob.anomalies.append(f"cell {nm} has child cells")
+                    ob.cell_rects[nm] = rects
+                if lattice is not None:
+                    off += sum(((d.x - cx - oP) % P != 0) or ((d.y - cx - oP) % P != 0) for d in disps)
             else:
-                for t in arr.each_trans():
-                    d = t.disp
-                    off += ((d.x - cx - oP) % P != 0) or ((d.y - cx - oP) % P != 0)
+                sr, sf, so = content(inst.cell_index)
+                if lattice is not None and any(d.x % P or d.y % P for d in disps):
+                    ob.anomalies.append(f"references to structure {nm} off the lattice period")
+                for k, v in sr.items():
+                    refs[k] += n * v
+                for k, v in sf.items():
+                    flatc[k] += n * v
+                off += n * so
+        nrefs += sum(cell.shapes(li).size() for li in ly.layer_indexes())
+        ob.max_refs = max(ob.max_refs, nrefs)
+        if li_posts is not None:
+            for sh in cell.shapes(li_posts).each():
+                b = sh.bbox()
+                if not (sh.is_box() or (sh.is_polygon() and sh.polygon.is_box())):
+                    ob.anomalies.append(f"a non-rectangular post in cell {cell.name}")
+                flatc[(b.width(), b.height())] += 1
+                if lattice is not None:
+                    c = b.center()
+                    off += ((c.x - cx - oP) % P != 0) or ((c.y - cx - oP) % P != 0)
+        memo[ci] = (refs, flatc, int(off))
+        return memo[ci]
+
+    refs, flatc, off = content(top.cell_index())
+    ob.ref_counts.update(refs)
+    ob.flat_counts.update(flatc)
     if li_posts is not None:
-        for sh in top.shapes(li_posts).each():
-            b = sh.bbox()
-            if not (sh.is_box() or (sh.is_polygon() and sh.polygon.is_box())):
-                ob.anomalies.append("a non-rectangular post in the top cell")
-            ob.flat_counts[(b.width(), b.height())] += 1
-            if lattice is not None:
-                c = b.center()
-                off += ((c.x - cx - oP) % P != 0) or ((c.y - cx - oP) % P != 0)
         pb = top.bbox_per_layer(li_posts)
         if not pb.empty():
             ob.posts_bbox = (pb.left, pb.bottom, pb.right, pb.top)
@@ -171,7 +206,8 @@ def read_klayout(path: Path, lattice: tuple[int, int, int] | None, posts_layer: 
 # ----------------------------------------------------------------------------------------------
 # gdstk
 # ----------------------------------------------------------------------------------------------
-def read_gdstk(path: Path, lattice: tuple[int, int, int] | None, posts_layer: tuple[int, int]) -> Observed:
+def read_gdstk(path: Path, lattice: tuple[int, int, int] | None, posts_layer: tuple[int, int],
+               post_names: Any = None) -> Observed:
     import gdstk
 
     fmt = sniff_format(path)
@@ -182,11 +218,19 @@ def read_gdstk(path: Path, lattice: tuple[int, int, int] | None, posts_layer: tu
     ob = Observed("gdstk", fmt, dbu_um=lib.precision / lib.unit)
     tops = lib.top_level()
     ob.top_cells = [c.name for c in tops]
+    ob.structures = len(lib.cells)
     if len(tops) != 1:
         return ob
     top = tops[0]
     s = 1e3  # um -> nm
+    pn = None if post_names is None else set(post_names)
+
+    def is_post(c) -> bool:
+        return (c.name in pn) if pn is not None else not c.references
+
     for c in top.dependencies(True):
+        if not is_post(c):
+            continue
         rects = []
         for p in c.polygons:
             pts = np.rint(p.points * s).astype(np.int64)
@@ -198,43 +242,75 @@ def read_gdstk(path: Path, lattice: tuple[int, int, int] | None, posts_layer: tu
         if c.references:
             ob.anomalies.append(f"cell {c.name} has child cells")
         ob.cell_rects[c.name] = rects
-        for p in c.polygons:
-            ob.layers.add((p.layer, p.datatype))
-    for p in top.polygons:
-        ob.layers.add((p.layer, p.datatype))
-    for lb in top.labels:
-        ob.layers.add((lb.layer, lb.texttype))
-    off = 0
-    pbb = None
-    for r in top.references:
-        nm = r.cell.name if hasattr(r.cell, "name") else str(r.cell)
-        o = np.array([r.origin[0], r.origin[1]])
-        if r.repetition.size:
-            pos = np.asarray(r.repetition.get_offsets()) + o
-        else:
-            pos = o[None, :]
-        pos = np.rint(pos * s).astype(np.int64)
-        ob.ref_counts[nm] += len(pos)
-        if r.rotation or r.magnification != 1 or r.x_reflection:
-            ob.anomalies.append(f"a reference to {nm} is rotated, mirrored or magnified")
-        if lattice is not None:
-            cx, oP, P = lattice
-            off += int(np.count_nonzero(((pos - cx - oP) % P != 0).any(axis=1)))
-        for (l_, d_, w, h, ccx, ccy) in ob.cell_rects.get(nm, []):
-            if (l_, d_) == posts_layer:
-                bb = (int(pos[:, 0].min()) + ccx - w // 2, int(pos[:, 1].min()) + ccy - h // 2,
-                      int(pos[:, 0].max()) + ccx + w // 2, int(pos[:, 1].max()) + ccy + h // 2)
-                pbb = _union(pbb, bb)
-    for p in top.polygons:
-        if (p.layer, p.datatype) == posts_layer:
-            pts = np.rint(p.points * s).astype(np.int64)
-            x0, y0 = pts.min(0)
-            x1, y1 = pts.max(0)
-            ob.flat_counts[(int(x1 - x0), int(y1 - y0))] += 1
-            pbb = _union(pbb, (int(x0), int(y0), int(x1), int(y1)))
-            if lattice is not None:
-                cx, oP, P = lattice
-                off += ((int(x0 + x1) // 2 - cx - oP) % P != 0) or ((int(y0 + y1) // 2 - cx - oP) % P != 0)
+    memo: dict[str, tuple] = {}
+
+    def content(cell):
+        """(post refs per name, flat posts per size, off lattice, posts bbox, layers) of ``cell`` with its
+        intermediate child cells expanded (their references at lattice-period offsets)."""
+        if cell.name in memo:
+            return memo[cell.name]
+        refs: Counter = Counter()
+        flatc: Counter = Counter()
+        off = 0
+        pbb = None
+        layers = set()
+        nrefs = 0
+        for p in cell.polygons:
+            layers.add((p.layer, p.datatype))
+        for lb in cell.labels:
+            layers.add((lb.layer, lb.texttype))
+        for r in cell.references:
+            child = r.cell
+            nm = child.name if hasattr(child, "name") else str(child)
+            o = np.array([r.origin[0], r.origin[1]])
+            pos = np.asarray(r.repetition.get_offsets()) + o if r.repetition.size else o[None, :]
+            pos = np.rint(pos * s).astype(np.int64)
+            nrefs += len(pos)
+            if r.rotation or r.magnification != 1 or r.x_reflection:
+                ob.anomalies.append(f"a reference to {nm} is rotated, mirrored or magnified")
+            if not hasattr(child, "name") or is_post(child):
+                refs[nm] += len(pos)
+                if lattice is not None:
+                    cx, oP, P = lattice
+                    off += int(np.count_nonzero(((pos - cx - oP) % P != 0).any(axis=1)))
+                for (l_, d_, w, h, ccx, ccy) in ob.cell_rects.get(nm, []):
+                    layers.add((l_, d_))
+                    if (l_, d_) == posts_layer:
+                        bb = (int(pos[:, 0].min()) + ccx - w // 2, int(pos[:, 1].min()) + ccy - h // 2,
+                              int(pos[:, 0].max()) + ccx + w // 2, int(pos[:, 1].max()) + ccy + h // 2)
+                        pbb = _union(pbb, bb)
+                continue
+            sr, sf, so, sb, sl = content(child)
+            if lattice is not None and np.any(pos % lattice[2] != 0):
+                ob.anomalies.append(f"references to structure {nm} off the lattice period")
+            n = len(pos)
+            for k, v in sr.items():
+                refs[k] += n * v
+            for k, v in sf.items():
+                flatc[k] += n * v
+            off += n * so
+            layers |= sl
+            if sb is not None:
+                pbb = _union(pbb, (sb[0] + int(pos[:, 0].min()), sb[1] + int(pos[:, 1].min()),
+                                   sb[2] + int(pos[:, 0].max()), sb[3] + int(pos[:, 1].max())))
+        ob.max_refs = max(ob.max_refs, nrefs + len(cell.polygons) + len(cell.labels))
+        for p in cell.polygons:
+            if (p.layer, p.datatype) == posts_layer:
+                pts = np.rint(p.points * s).astype(np.int64)
+                x0, y0 = pts.min(0)
+                x1, y1 = pts.max(0)
+                flatc[(int(x1 - x0), int(y1 - y0))] += 1
+                pbb = _union(pbb, (int(x0), int(y0), int(x1), int(y1)))
+                if lattice is not None:
+                    cx, oP, P = lattice
+                    off += ((int(x0 + x1) // 2 - cx - oP) % P != 0) or ((int(y0 + y1) // 2 - cx - oP) % P != 0)
+        memo[cell.name] = (refs, flatc, int(off), pbb, layers)
+        return memo[cell.name]
+
+    refs, flatc, off, pbb, layers = content(top)
+    ob.ref_counts.update(refs)
+    ob.flat_counts.update(flatc)
+    ob.layers |= layers
     ob.posts_bbox = pbb
     (a, b), (c2, d) = top.bounding_box()
     ob.bbox = (int(round(a * s)), int(round(b * s)), int(round(c2 * s)), int(round(d * s)))
@@ -267,8 +343,9 @@ class GdsScanner:
     CHUNK = 32 << 20
 
     def __init__(self, path: Path, lattice: tuple[int, int, int] | None, posts_layer: tuple[int, int],
-                 progress: bool = False):
+                 progress: bool = False, post_names: Any = None):
         self.path, self.lattice, self.posts_layer, self.progress = path, lattice, posts_layer, progress
+        self.post_names = None if post_names is None else set(post_names)
 
     def run(self) -> Observed:
         ob = Observed("stream", "gds")
@@ -412,8 +489,13 @@ class GdsScanner:
         children = {n for s in refs.values() for n in s}
         tops = [n for n in structs if n not in children]
         ob.top_cells = tops
+        pn = self.post_names
+
+        def is_post(name: str) -> bool:
+            return (name in pn) if pn is not None else (name not in refs)
+
         for name, s in structs.items():
-            if name in tops:
+            if name in tops or not is_post(name):
                 continue
             rects = list(s["rects"])
             for (lay, wh), (n, bb) in flat.get(name, {}).items():
@@ -421,54 +503,112 @@ class GdsScanner:
             ob.cell_rects[name] = rects
             if name in refs:
                 ob.anomalies.append(f"cell {name} has child cells")
+        ob.structures = len(structs)
+        ob.max_refs = max((sum(rr["n"] for rr in refs.get(S, {}).values())
+                           + sum(e[0] for e in flat.get(S, {}).values()) + len(texts.get(S, []))
+                           for S in structs), default=0)
         if len(tops) == 1:
             top = tops[0]
+            P_, F_, off_top, T_ = self._content(top, refs, flat, off, texts, structs, is_post, ob, {}, ())
             pbb = None
             bb = None
-            for nm, rr in refs.get(top, {}).items():
-                ob.ref_counts[nm] += rr["n"]
+            for nm, (n, _, mn, mx) in P_.items():
+                ob.ref_counts[nm] += n
                 for (l_, d_, w, h, ccx, ccy) in ob.cell_rects.get(nm, []):
-                    b = (int(rr["min"][0]) + ccx - w // 2, int(rr["min"][1]) + ccy - h // 2,
-                         int(rr["max"][0]) + ccx + w // 2, int(rr["max"][1]) + ccy + h // 2)
+                    b = (int(mn[0]) + ccx - w // 2, int(mn[1]) + ccy - h // 2,
+                         int(mx[0]) + ccx + w // 2, int(mx[1]) + ccy + h // 2)
                     bb = _union(bb, b)
                     if (l_, d_) == self.posts_layer:
                         pbb = _union(pbb, b)
                     ob.layers.add((l_, d_))
-            for (lay, wh), (n, b) in flat.get(top, {}).items():
+            for (lay, wh), (n, b) in F_.items():
                 ob.layers.add(lay)
                 bb = _union(bb, b)
                 if lay == self.posts_layer:
                     ob.flat_counts[wh] += n
                     pbb = _union(pbb, b)
-            for (lay, x, y) in texts.get(top, []):
+            for (lay, x, y) in T_:
                 ob.layers.add(lay)
                 bb = _union(bb, (x, y, x, y))
             ob.posts_bbox = pbb
             ob.bbox = bb
-            ob.off_lattice = off.get(top, 0)
+            ob.off_lattice = off_top
         return ob
 
+    def _content(self, S, refs, flat, off, texts, structs, is_post, ob, memo, stack):
+        """Structure ``S`` flattened: (post cell -> [references, off lattice, min, max position]),
+        ((layer, size) -> [rectangles, bbox]), off-lattice rectangles, texts. Intermediate structures
+        are expanded (their references must sit at one lattice-compatible offset, e.g. the origin)."""
+        if S in memo:
+            return memo[S]
+        if S in stack:
+            ob.anomalies.append(f"structure {S} references itself")
+            return {}, {}, 0, []
+        P_: dict[str, list] = {}
+        F_: dict = {k: [v[0], v[1]] for k, v in flat.get(S, {}).items()}
+        offs = off.get(S, 0)
+        T_ = list(texts.get(S, []))
+        lat = self.lattice
+        for nm, rr in refs.get(S, {}).items():
+            if is_post(nm) or nm not in structs:
+                e = P_.setdefault(nm, [0, 0, None, None])
+                e[0] += rr["n"]
+                e[1] += rr.get("off", 0)
+                e[2] = rr["min"] if e[2] is None else np.minimum(e[2], rr["min"])
+                e[3] = rr["max"] if e[3] is None else np.maximum(e[3], rr["max"])
+                continue
+            sP, sF, soff, sT = self._content(nm, refs, flat, off, texts, structs, is_post, ob, memo, stack + (S,))
+            n, mn, mx = rr["n"], np.asarray(rr["min"]), np.asarray(rr["max"])
+            if lat is not None and (np.any(mn != mx) or np.any(mn % lat[2] != 0)):
+                ob.anomalies.append(f"references to structure {nm} at offsets {mn.tolist()}..{mx.tolist()}: "
+                                    "the lattice check needs them at one multiple of the period")
+            for pnm, (a, o, smin, smax) in sP.items():
+                e = P_.setdefault(pnm, [0, 0, None, None])
+                e[0] += n * a
+                e[1] += n * o
+                lo_, hi_ = smin + mn, smax + mx
+                e[2] = lo_ if e[2] is None else np.minimum(e[2], lo_)
+                e[3] = hi_ if e[3] is None else np.maximum(e[3], hi_)
+            for key, (a, b) in sF.items():
+                e = F_.setdefault(key, [0, None])
+                e[0] += n * a
+                e[1] = _union(e[1], (b[0] + int(mn[0]), b[1] + int(mn[1]), b[2] + int(mx[0]), b[3] + int(mx[1])))
+            offs += n * soff
+            T_ += [(lay, x + int(mn[0]), y + int(mn[1])) for (lay, x, y) in sT]
+        memo[S] = (P_, F_, offs, T_)
+        return memo[S]
+
     def _sref_run(self, cur, words, xy32, refs, cand, off) -> None:
-        """A run of plain SREFs: counts per cell name (hashed bincount, collision-checked) and the refs
-        within ``_SLACK_DBU`` of the run's extremes as bounding-box candidates."""
+        """A run of plain SREFs: counts (and posts off the lattice) per cell name (hashed bincount,
+        collision-checked) and the refs within ``_SLACK_DBU`` of the run's extremes as bounding-box
+        candidates."""
         words = np.ascontiguousarray(words)
+        xy = xy32.astype(np.int64)
+        bad = None
+        if self.lattice is not None:
+            cx, oP, P = self.lattice
+            bad = ((xy - cx - oP) % P != 0).any(axis=1)
         bins = ((words ^ (words >> np.uint32(16))) & np.uint32(0xFFFF)).astype(np.intp)
         rep = np.zeros(65536, dtype=np.uint32)
         rep[bins] = words
         dref = refs.setdefault(cur, {})
         if np.any(rep[bins] != words):  # hash collision: exact but slower
             uw, inv = np.unique(words, return_inverse=True)
-            cnt = np.bincount(inv.reshape(-1), minlength=len(uw))
-            pairs = zip(uw.tolist(), cnt.tolist())
+            inv = inv.reshape(-1)
+            cnt = np.bincount(inv, minlength=len(uw))
+            nbad = np.bincount(inv, weights=bad, minlength=len(uw)) if bad is not None else np.zeros(len(uw))
+            triples = zip(uw.tolist(), cnt.tolist(), nbad.tolist())
         else:
             cnt = np.bincount(bins, minlength=65536)
             nz = np.flatnonzero(cnt)
-            pairs = zip(rep[nz].tolist(), cnt[nz].tolist())
-        for w, n in pairs:
+            nbad = (np.bincount(bins, weights=bad, minlength=65536)[nz] if bad is not None
+                    else np.zeros(nz.size))
+            triples = zip(rep[nz].tolist(), cnt[nz].tolist(), nbad.tolist())
+        for w, n, b in triples:
             nm = int(w).to_bytes(4, "little").rstrip(b"\0").decode("ascii", "replace")
-            rr = dref.setdefault(nm, {"n": 0, "min": None, "max": None})
+            rr = dref.setdefault(nm, {"n": 0, "min": None, "max": None, "off": 0})
             rr["n"] += int(n)
-        xy = xy32.astype(np.int64)
+            rr["off"] = rr.get("off", 0) + int(round(b))
         x, y = xy[:, 0], xy[:, 1]
         sel = ((x <= x.min() + _SLACK_DBU) | (x >= x.max() - _SLACK_DBU) | (y <= y.min() + _SLACK_DBU)
                | (y >= y.max() - _SLACK_DBU))
@@ -476,9 +616,6 @@ class GdsScanner:
         cl.append((words[sel], xy[sel]))
         if sum(len(c[0]) for c in cl) > 1_000_000:
             cl[:] = [_prune(cl)]
-        if self.lattice is not None:
-            cx, oP, P = self.lattice
-            off[cur] = off.get(cur, 0) + int(np.count_nonzero(((xy - cx - oP) % P != 0).any(axis=1)))
 
     def _element(self, ob, cur, el, structs, refs, flat, texts) -> int:
         t = el["type"]
@@ -486,7 +623,7 @@ class GdsScanner:
         if cur is None or xy is None:
             return 0
         if t == 0x0A:  # SREF
-            rr = refs.setdefault(cur, {}).setdefault(el.get("sname", "?"), {"n": 0, "min": None, "max": None})
+            rr = refs.setdefault(cur, {}).setdefault(el.get("sname", "?"), {"n": 0, "min": None, "max": None, "off": 0})
             rr["n"] += 1
             p = xy[0]
             rr["min"] = p if rr["min"] is None else np.minimum(rr["min"], p)
@@ -495,14 +632,14 @@ class GdsScanner:
                 ob.anomalies.append(f"a reference to {el.get('sname')} is rotated, mirrored or magnified")
             if self.lattice is not None:
                 cx, oP, P = self.lattice
-                return int(((p[0] - cx - oP) % P != 0) or ((p[1] - cx - oP) % P != 0))
+                rr["off"] = rr.get("off", 0) + int(((p[0] - cx - oP) % P != 0) or ((p[1] - cx - oP) % P != 0))
             return 0
         if t == 0x0B:  # AREF
             cols, rows = el.get("colrow", (1, 1))
             o, pc, pr = xy[0], xy[1], xy[2]
             dc = (pc - o) // max(cols, 1)
             dr = (pr - o) // max(rows, 1)
-            rr = refs.setdefault(cur, {}).setdefault(el.get("sname", "?"), {"n": 0, "min": None, "max": None})
+            rr = refs.setdefault(cur, {}).setdefault(el.get("sname", "?"), {"n": 0, "min": None, "max": None, "off": 0})
             rr["n"] += cols * rows
             corners = np.array([o, o + dc * (cols - 1), o + dr * (rows - 1), o + dc * (cols - 1) + dr * (rows - 1)])
             mn, mx = corners.min(0), corners.max(0)
@@ -510,9 +647,8 @@ class GdsScanner:
             rr["max"] = mx if rr["max"] is None else np.maximum(rr["max"], mx)
             if self.lattice is not None:
                 cx, oP, P = self.lattice
-                bad = any(((q - cx - oP) % P != 0).any() for q in (o, dc, dr) if q is not o) or \
-                    bool(((o - cx - oP) % P != 0).any())
-                return cols * rows if bad else 0
+                bad = bool(((o - cx - oP) % P != 0).any() or (dc % P != 0).any() or (dr % P != 0).any())
+                rr["off"] = rr.get("off", 0) + (cols * rows if bad else 0)
             return 0
         lay = (el.get("layer", -1), el.get("dt", 0))
         if t == 0x0C:
@@ -549,10 +685,10 @@ def _prune(cl):
     return w[sel], xy[sel]
 
 
-def read_stream(path: Path, lattice, posts_layer, progress: bool = False) -> Observed:
+def read_stream(path: Path, lattice, posts_layer, progress: bool = False, post_names: Any = None) -> Observed:
     if sniff_format(path) != "gds":
         raise InputError("--reader", "stream", "klayout or gdstk for OASIS files (the scanner reads GDSII)")
-    return GdsScanner(path, lattice, posts_layer, progress).run()
+    return GdsScanner(path, lattice, posts_layer, progress, post_names).run()
 
 
 # ----------------------------------------------------------------------------------------------
@@ -628,8 +764,12 @@ def compare(ob: Observed, spec: LayoutSpec, exp: Expected, *, top_name: str | No
 
 
 def verify_layout(path: str | os.PathLike, spec: LayoutSpec, *, reader: str = "auto", test_array: Any = None,
-                  workers: int | None = 1, progress: bool = False, expected: Expected | None = None) -> VerifyReport:
-    """Read ``path`` back and compare it with ``spec`` (or with the calibration array ``test_array``)."""
+                  workers: int | None = 1, progress: bool = False, expected: Expected | None = None,
+                  max_refs: int | None = None) -> VerifyReport:
+    """Read ``path`` back and compare it with ``spec`` (or with the calibration array ``test_array``).
+
+    Hierarchical files are counted through the hierarchy (cells not named like post cells are
+    expanded); ``max_refs``: also a mismatch when a structure holds more references than that."""
     path = Path(path)
     if not path.is_file():
         raise InputError("FILE", str(path), "an existing GDSII or OASIS file")
@@ -650,12 +790,13 @@ def verify_layout(path: str | os.PathLike, spec: LayoutSpec, *, reader: str = "a
         exp = expected or expected_content(spec, workers=workers, progress=progress)
     t_exp = time.perf_counter() - t0
     t0 = time.perf_counter()
+    names = spec.post_names
     if reader == "klayout":
-        ob = read_klayout(path, lat, spec.layers.posts)
+        ob = read_klayout(path, lat, spec.layers.posts, names)
     elif reader == "gdstk":
-        ob = read_gdstk(path, lat, spec.layers.posts)
+        ob = read_gdstk(path, lat, spec.layers.posts, names)
     else:
-        ob = read_stream(path, lat, spec.layers.posts, progress)
+        ob = read_stream(path, lat, spec.layers.posts, progress, names)
     t_read = time.perf_counter() - t0
     if test_array is not None:
         name = f"{spec.top_name.rsplit('_', 1)[0]}_CAL"
@@ -663,9 +804,12 @@ def verify_layout(path: str | os.PathLike, spec: LayoutSpec, *, reader: str = "a
                              expected_layers={spec.layers.posts, spec.layers.label})
     else:
         mm, counts = compare(ob, spec, exp)
+    if max_refs is not None and ob.max_refs > max_refs:
+        mm.append(f"a structure holds {ob.max_refs:,} elements (references and shapes), more than --max-refs "
+                  f"{max_refs}")
     return VerifyReport(not mm, str(path), ob.reader, fmt, int(counts.sum()), exp.total, counts.tolist(),
                         exp.counts.tolist(), ob.posts_bbox, exp.posts_bbox_nm, ob.bbox,
-                        sorted([list(x) for x in ob.layers]), mm, t_read, t_exp, size)
+                        sorted([list(x) for x in ob.layers]), mm, t_read, t_exp, size, ob.structures, ob.max_refs)
 
 
 def _expected_test_array(ta: Any) -> Expected:
