@@ -77,9 +77,9 @@ ALPHA_TOL = 0.1
 #: default low-pass (Gaussian sigma, constraint pixels) of the gauge fit; see foveal_gauge
 FOVEAL_BLUR = 1.0
 #: candidate extra blur (Gaussian sigma, constraint pixels) of the perifoveal crop, psf_blur='fit'
-PSF_GRID = (0.0, 0.5, 0.75, 1.0, 1.25, 1.5, 2.0, 2.5)
-#: relative scale change probed by the guard's geometry check
-SCALE_PROBE = 0.05
+PSF_GRID = (0.0, 0.5, 0.75, 1.0, 1.25, 1.5)
+#: relative scale changes probed by the guard's geometry check (rejects when one halves the misfit)
+SCALE_PROBES = (0.9, 0.95, 1.05, 1.1)
 
 
 def frame_mean_alpha(Y: np.ndarray) -> np.ndarray:
@@ -159,9 +159,10 @@ def foveal_gauge(x1: np.ndarray, x2: np.ndarray, alpha: np.ndarray, op: FovealOp
     ``psf_blur``: the perifoveal crop's extra blur relative to the downsampled foveal image (Gaussian
     sigma, constraint pixels), applied to the foveal side; ``'fit'`` picks the value of
     ``PSF_GRID`` with the smallest misfit (reported as ``psf_blur``). Measured on 192 x 192 synthetic
-    scenes whose perifoveal image is blurred by 0.7-1.5 px: alpha error <= 0.005 against 0.01-0.03
-    with neither low-pass nor PSF fit (``blur=0, psf_blur=0``). ``noise`` is the noise std of ``(x1, x2)`` (used by the guard). Returns
-    ``(x1, x2, alpha, report)``.
+    DN scenes (gain 0.3) whose perifoveal image is blurred by 0.7 / 1.0 / 1.5 px: alpha error
+    0.0023 / 0.0007 / 0.0023 (defaults) against 0.031 / 0.048 / 0.078 with neither low-pass nor PSF
+    fit (``blur=0, psf_blur=0``, the previous behaviour). ``noise`` is the noise std of ``(x1, x2)``
+    (used by the guard). Returns ``(x1, x2, alpha, report)``.
     """
     rep: dict[str, Any] = {"mode": mode, "applied": False, "blur": float(blur), "mean_weight": float(mean_weight)}
     if mode == "none":
@@ -273,8 +274,9 @@ def foveal_gauge(x1: np.ndarray, x2: np.ndarray, alpha: np.ndarray, op: FovealOp
     if not j_new < j_old:
         reasons.append("objective (foveal misfit + TV) does not decrease")
     # geometry self-consistency: with PSF differences allowed for, a wrong scale can still explain the
-    # images "better than before"; the right scale is a local minimum of the misfit over the scale
-    for f_s in (1.0 - SCALE_PROBE, 1.0 + SCALE_PROBE):
+    # images "better than before"; a scale 5-10 % off that halves the misfit means the geometry is wrong
+    # (periodic scenes such as bar targets have flat misfit-vs-scale curves, hence "halves")
+    for f_s in SCALE_PROBES:
         try:
             o2 = FovealOperator(op.shape, op.scale * f_s, op.offset, low=op.low_shape, gain=op.gain, bias=op.bias)
         except InputError:
@@ -282,7 +284,7 @@ def foveal_gauge(x1: np.ndarray, x2: np.ndarray, alpha: np.ndarray, op: FovealOp
         if o2.low_shape != op.low_shape:
             continue
         chi2 = fit(o2, (psi,))[0]
-        if chi2 < 0.8 * chi_new:
+        if chi2 < 0.5 * chi_new:
             reasons.append(f"scale {o2.scale:.4g} fits the foveal constraint better than {op.scale:.4g} "
                            f"(misfit {math.sqrt(chi2 / n_eff):.3g} vs {math.sqrt(chi_new / n_eff):.3g}): wrong scale?")
             break
