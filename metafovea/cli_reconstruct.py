@@ -39,8 +39,9 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
                    "are reconstructed window by window")
     p.add_argument("--stride", type=int, default=1, help="window stride in frames (default 1)")
     p.add_argument("--denoise", default=None, choices=("tv", "bilateral", "nlm"), help="denoise the outputs")
-    p.add_argument("--fpn", default="none", choices=("none", "prior", "calibration"),
-                   help="fixed-pattern noise handling (calibration uses the file's 'calibration' frames)")
+    p.add_argument("--fpn", default="none", choices=("none", "prior", "calibration", "file"),
+                   help="fixed-pattern noise handling (calibration uses the file's 'calibration' frames; file "
+                   "subtracts the file's 'fpn' pattern, e.g. a dark-frame calibration)")
     p.add_argument("--scale", type=float, default=None, help="f1/f2 of the foveal constraint (default: file meta "
                    "'foveal_constraint.scale', else 'scale', else 6)")
     p.add_argument("--foveal-gain", type=float, default=None, help="radiometric gain of the foveal constraint "
@@ -147,6 +148,14 @@ def _summary(args: argparse.Namespace) -> dict[str, Any]:
         fpn_kw = {"fpn": "calibration", "calibration": arrays["calibration"]}
     elif args.fpn == "prior":
         fpn_kw = {"fpn": "prior"}
+    elif args.fpn == "file":
+        if "fpn" not in arrays:
+            raise InputError("--fpn", "file", "a measurement with an 'fpn' (H, W) array", source=str(src))
+        f = np.asarray(arrays["fpn"], dtype=np.float32)
+        if f.shape != frames.shape[1:]:
+            raise InputError("fpn", f"array of shape {f.shape}", f"the frames' (H, W) = {frames.shape[1:]}",
+                             source=str(src))
+        frames = (frames - f[None]).astype(np.float32)
     t0 = time.perf_counter()
     if args.method == "snapshot":
         if not 0 <= args.frame < T:
@@ -166,8 +175,9 @@ def _summary(args: argparse.Namespace) -> dict[str, Any]:
         if args.window > T:
             raise InputError("--window", args.window, f"2 <= window <= number of frames ({T})", source=str(src))
         if T > args.window:
-            if args.fpn != "none":
-                raise InputError("--fpn", args.fpn, "'none' for multi-window sequences (estimate FPN on one window)")
+            if args.fpn not in ("none", "file"):
+                raise InputError("--fpn", args.fpn, "'none' or 'file' for multi-window sequences (estimate FPN on "
+                                 "one window)")
             rec = video(frames, alpha, window=args.window, stride=args.stride, method=args.method,
                         denoise=args.denoise, progress=sys.stderr.isatty(), **method_kw)
         else:

@@ -157,7 +157,7 @@ def test_cli_foveal_constraint_from_meta(dn_scene, tmp_path, capsys):
         fc({"foveal_constraint": {"gain": "x"}})
 
 
-def test_end_to_end_simulated_paper_measurement():
+def test_end_to_end_simulated_paper_measurement(tmp_path, capsys):
     """A small simulated paper measurement (bars, Airy PSFs, 192 x 192 crop, 8 frames, noise 2 DN,
     low-rank FPN, 14-bit): known-alpha LSQ reaches the noise-limited PSNR; unknown alpha is identified
     through the foveal constraint read from the metadata."""
@@ -188,3 +188,10 @@ def test_end_to_end_simulated_paper_measurement():
     # without the gain/offset (identity relation) the gauge cannot be fixed: a clear error
     with pytest.raises(InputError, match="gauge"):
         reconstruct(m.frames, method="alternating", fpn=m.fpn, scale=fc["scale"])
+    # the CLI on the saved file: constraint from the metadata, stored pattern subtracted (--fpn file)
+    path = m.save(tmp_path / "meas.npz")
+    assert cli_reconstruct.run(_parse([str(path), "--method", "alternating", "--window", "8", "--fpn", "file",
+                                       "--out", str(tmp_path / "rec.npz"), "--json", "--no-figures"])) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["foveal_constraint"]["foveal_gain"] == pytest.approx(fc["gain"])
+    assert out["alpha_identified"] and out["metrics"]["psnr_x2"] > 20 * np.log10(np.ptp(t2) / (2 * 0.01 * d))
