@@ -31,6 +31,11 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
     p.add_argument("--wavelengths", type=int, default=61, help="wavelengths across the band (plus a cluster "
                    "around the design wavelength)")
     p.add_argument("--pixel-um", type=float, default=17.0, help="sensor pixel pitch (um)")
+    p.add_argument("--wavelength-um", type=float, default=None,
+                   help="wavelength of the monochromatic PSFs in um (default: the design wavelength)")
+    p.add_argument("--window-um", type=float, default=None,
+                   help="full width of the fine monochromatic PSF windows in um (default: sized from the rays); "
+                        "a window that truncates the PSF above --error is an error")
     p.add_argument("--error", type=float, default=1e-4, help="requested max abs error relative to the peak")
     p.add_argument("--out", default="psf_report", help="output directory (must be new or empty)")
     p.add_argument("--force", action="store_true", help="overwrite existing output")
@@ -40,6 +45,8 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
 
 
 def run(args: argparse.Namespace) -> int:
+    from metafovea.optics.propagate import SamplingError
+    from metafovea.optics.pupil import max_field_deg
     from metafovea.optics.radiometry import check_band
     from metafovea.optics.report import psf_report
 
@@ -54,13 +61,32 @@ def run(args: argparse.Namespace) -> int:
     check_positive("--pixel-um", args.pixel_um, "um")
     if args.wavelengths < 1:
         raise InputError("--wavelengths", args.wavelengths, ">= 1")
+    if args.wavelength_um is not None:
+        check_positive("--wavelength-um", args.wavelength_um, "um", hi=1e4)
+    if args.window_um is not None:
+        check_positive("--window-um", args.window_um, "um")
     lenses = [load_lens(d) for d in args.designs]
+    for lens in lenses:  # every field must lie inside each lens' field at the longest wavelength used
+        wl_max = max(band[1] if filt is None else min(band[1], filt[0] + 1.5 * filt[1]),
+                     args.wavelength_um or lens.wavelength_um)
+        lim = max_field_deg(lens, wl_max)
+        for fd in args.field_deg or []:
+            if not abs(fd) <= lim:
+                raise InputError("--field-deg", fd, f"|field| <= {lim:.3f} deg for lens '{lens.name}' "
+                                 f"(NA {lens.na:.4f}) at {wl_max:g} um")
     out = prepare_output(args.out, args.force, is_dir=True)
     summary = {}
     for lens in lenses:
-        res = psf_report(lens, out, fields_deg=args.field_deg, band_um=band, filter_um=filt,
-                         temperature_k=args.temperature_k, n_wavelengths=args.wavelengths,
-                         pixel_pitch_um=args.pixel_um, error=args.error)
+        try:
+            res = psf_report(lens, out, fields_deg=args.field_deg, band_um=band, filter_um=filt,
+                             temperature_k=args.temperature_k, n_wavelengths=args.wavelengths,
+                             pixel_pitch_um=args.pixel_um, error=args.error, wavelength_um=args.wavelength_um,
+                             window_um=args.window_um)
+        except SamplingError as e:
+            if e.parameter == "window_um":
+                allowed = e.allowed.replace("(pass allow_truncation=True to accept)", "(or a larger --error)")
+                raise InputError("--window-um", args.window_um, allowed) from None
+            raise
         summary[lens.name] = {"seconds": res["seconds"], "monochromatic": res["monochromatic"],
                               "sensor": res["sensor"], "warnings": res["warnings"],
                               "html": str(Path(out) / f"{lens.name}_psf_report.html")}

@@ -35,6 +35,7 @@ import numpy as np
 from scipy import special
 
 from metafovea.errors import InputError, check_int, check_positive, check_range
+from metafovea.rcwa.threads import blas_threads
 
 from .pupil import Pupil
 
@@ -54,13 +55,15 @@ class SamplingError(InputError):
 # ----------------------------------------------------------------------------------------------
 @lru_cache(maxsize=256)
 def _gl(n: int) -> tuple[np.ndarray, np.ndarray]:
-    x, w = np.polynomial.legendre.leggauss(n)
+    # scipy's roots_legendre is O(n^2) (banded eigenvalues + Newton polish); numpy's leggauss is a dense
+    # O(n^3) eigenproblem (1-10 s at the 1000-2000 nodes of wide defocused windows)
+    x, w = special.roots_legendre(n)
     x.setflags(write=False)
     w.setflags(write=False)
     return x, w
 
 
-def nodes_for_phase(beta: float, error: float) -> int:
+def nodes_for_phase(beta: float, error: float, extra: int = 0) -> int:
     """Gauss-Legendre nodes on [-1, 1] for ``exp(i beta x)`` times a smooth amplitude to ``error``.
 
     Calibrated on exp(i beta x): 1e-6 needs n = 0.8 beta at beta = 30, 0.56 beta at 300, 0.526 beta at 1000;
@@ -69,7 +72,10 @@ def nodes_for_phase(beta: float, error: float) -> int:
     half-length, so the estimate is conservative for phases whose slope varies.
     """
     beta = abs(beta)
-    return int(math.ceil(0.5 * beta + 3.0 * beta ** (1.0 / 3.0) + 2.0 * math.log10(1.0 / error) + 6))
+    n = int(math.ceil(0.5 * beta + 3.0 * beta ** (1.0 / 3.0) + 2.0 * math.log10(1.0 / error) + 6)) + extra
+    # round up to a multiple of 8 (>= 64: of 32) so that the node sets repeat and hit the cache
+    q = 8 if n < 64 else 32
+    return -(-n // q) * q
 
 
 def disk_nodes(center: np.ndarray, radius: float, n_t: int, n_r: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -117,7 +123,7 @@ def mft_nodes(pupil: Pupil, xs: np.ndarray, ys: np.ndarray, error: float,
     bx = k * R * _reach(e[0], e[1], float(xs.min()), float(xs.max()))
     by = k * R * _reach(e[2], e[3], float(ys.min()), float(ys.max())) * (0.5 * np.pi)
     # amplitude smoothness (1/c_w^2 near NA) needs a few extra nodes
-    return nodes_for_phase(by, error) + 4, nodes_for_phase(bx, error) + 4
+    return nodes_for_phase(by, error, 4), nodes_for_phase(bx, error, 4)
 
 
 # ----------------------------------------------------------------------------------------------
@@ -158,13 +164,84 @@ def mft_field(pupil: Pupil, xs: Any, ys: Any, *, error: float = 1e-6, nodes: tup
     return ey @ g
 
 
+def mft_intensity_multi(pupils: list[Pupil], weights: Any, xs: Any, ys: Any, *, error: float = 1e-6,
+                        max_bytes: float = 64e6) -> np.ndarray:
+    """``sum_k weights[k] |U_k|^2`` on the grid (len(ys), len(xs)) for pupils of one lens and field.
+
+    In the design direction sines ``w = alpha (s - s0)`` every wavelength's pupil is the same disk
+    ``|w| <= NA`` and the kernel ``exp(i k s.x)`` is ``exp(i k s0.x) exp(i (2 pi / lambda0) w.x)``: the
+    first factor is a phase per output point (no effect on the intensity), the second is shared, so the
+    exponentials are built once and each wavelength costs two matrix products. Nodes: the most any pupil
+    needs on this window.
+    """
+    xs = np.asarray(xs, dtype=float).reshape(-1)
+    ys = np.asarray(ys, dtype=float).reshape(-1)
+    pupils = list(pupils)
+    wts_in = np.asarray(weights, dtype=float).reshape(-1)
+    out = np.zeros((ys.size, xs.size))
+    if not pupils:
+        return out
+    lens, order = pupils[0].lens, pupils[0].order
+    s0 = np.asarray(pupils[0].s0, float)
+    for pu in pupils:
+        if pu.lens is not lens and pu.lens != lens or pu.order != order or not np.array_equal(pu.s0, s0):
+            raise InputError("pupils", "mixed", "pupils of one lens, order and field")
+    nt = nr = 0
+    for pu in pupils:
+        a, b = mft_nodes(pu, xs, ys, error)
+        nt, nr = max(nt, a), max(nr, b)
+    uw, vw, wq = disk_nodes(np.zeros(2), lens.na / order, nt, nr)
+    vvw = np.broadcast_to(vw[:, None], uw.shape)
+    kap = 2 * np.pi * order / lens.wavelength_um
+    xc = 0.5 * (xs.min() + xs.max())
+    yc = 0.5 * (ys.min() + ys.max())
+    Q = np.empty((nt, len(pupils), nr), dtype=complex)
+    for i, pu in enumerate(pupils):
+        a = pu.alpha
+        sx = s0[0] + uw / a
+        sy = s0[1] + vvw / a
+        Q[:, i, :] = (wq / (a * a)) * pu.amplitude(sx, sy) * np.exp(1j * (pu.phase(sx, sy) + pu.k * (sx * xc + sy * yc)))
+    ey = np.exp(1j * kap * np.outer(ys - yc, vw))  # (My, nt)
+    dx = xs - xc
+    h = np.diff(dx)
+    uniform = dx.size > 2 and np.allclose(h, h[0], rtol=0, atol=1e-9 * max(1.0, abs(h[0])))
+    bx = max(1, min(xs.size, int(max_bytes // (16 * nt * max(len(pupils), 4)))))
+    with blas_threads(1):  # many small products: threaded OpenBLAS is ~10x slower on a loaded 2-core machine
+        _mft_multi_blocks(Q, ey, uw, kap, dx, h, uniform, bx, nt, nr, wts_in, out, max_bytes)
+    return out
+
+
+def _mft_multi_blocks(Q: np.ndarray, ey: np.ndarray, uw: np.ndarray, kap: float, dx: np.ndarray, h: np.ndarray,
+                      uniform: bool, bx: int, nt: int, nr: int, wts_in: np.ndarray, out: np.ndarray,
+                      max_bytes: float) -> None:
+    P = Q.shape[1]
+    for x0 in range(0, dx.size, bx):
+        x1 = min(dx.size, x0 + bx)
+        G = np.empty((P, nt, x1 - x0), dtype=complex)
+        step = max(1, int(max_bytes // (16 * nr * (x1 - x0))))
+        for j0 in range(0, nt, step):
+            j1 = min(nt, j0 + step)
+            if uniform:
+                e = np.empty((j1 - j0, nr, x1 - x0), dtype=complex)
+                e[..., 0] = np.exp(1j * kap * uw[j0:j1] * dx[x0])
+                if x1 - x0 > 1:
+                    e[..., 1:] = np.exp(1j * kap * uw[j0:j1] * h[0])[..., None]
+                np.cumprod(e, axis=-1, out=e)
+            else:
+                e = np.exp(1j * kap * uw[j0:j1, :, None] * dx[None, None, x0:x1])
+            G[:, j0:j1, :] = np.matmul(Q[j0:j1], e).transpose(1, 0, 2)
+        for i in range(P):
+            U = ey @ G[i]
+            out[:, x0:x1] += wts_in[i] * (U.real ** 2 + U.imag ** 2)
+
+
 # ----------------------------------------------------------------------------------------------
 # Hankel engine (1-D, on axis, rotationally symmetric)
 # ----------------------------------------------------------------------------------------------
 def hankel_nodes(pupil: Pupil, r_max: float, error: float) -> int:
     e = ray_extent(pupil)
     reach = max(abs(e[0]), abs(e[1]), abs(e[2]), abs(e[3])) + r_max
-    return nodes_for_phase(pupil.k * pupil.radius * reach * 0.5, error) + 8
+    return nodes_for_phase(pupil.k * pupil.radius * reach * 0.5, error, 8)
 
 
 def hankel_field(pupil: Pupil, r: Any, *, error: float = 1e-6, n: int | None = None) -> np.ndarray:
@@ -192,6 +269,54 @@ def hankel_field(pupil: Pupil, r: Any, *, error: float = 1e-6, n: int | None = N
         rr = flat[i0:i0 + step]
         out[i0:i0 + step] = special.j0(pupil.k * np.outer(rr, s)) @ q
     return out.reshape(r.shape)
+
+
+def _hankel_weights(pupil: Pupil, t: np.ndarray, wt: np.ndarray) -> np.ndarray:
+    """Quadrature weights q(t) of ``U(r) = sum q J0(k S t r)`` (t in [0, 1], S = pupil radius)."""
+    S = pupil.radius
+    s = S * t
+    zero = np.zeros_like(s)
+    if pupil.lattice:
+        th = (np.arange(16) + 0.5) * (np.pi / 32)
+        amp = np.mean([pupil.amplitude(s * np.cos(a), s * np.sin(a)) for a in th], axis=0)
+    else:
+        amp = pupil.amplitude(s, zero)
+    return (S * S) * wt * 2 * np.pi * t * amp * np.exp(1j * pupil.phase(s, zero))
+
+
+def hankel_profiles(pupils: list[Pupil], r: Any, *, error: float = 1e-6, n: int | None = None,
+                    max_bytes: float = 48e6) -> np.ndarray:
+    """Complex fields (len(pupils), len(r)) of several on-axis pupils at radii ``r`` in one pass.
+
+    For the focusing order of one lens ``k S`` (wavenumber times the pupil radius in direction sines) is
+    ``2 pi NA / lambda0`` at every wavelength, so the Bessel matrix ``J0(k S t r)`` on Gauss nodes ``t`` of
+    [0, 1] is shared: the fields of all wavelengths are one matrix product (``n`` nodes: the most any of
+    the pupils needs). Pupils of different ``k S`` fall back to one evaluation each.
+    """
+    r = np.asarray(r, dtype=float).reshape(-1)
+    if not pupils:
+        return np.zeros((0, r.size), dtype=complex)
+    for p in pupils:
+        if float(np.hypot(*p.s0)) > 0:
+            raise InputError("field_deg", p.s0.tolist(), "0 for the Hankel engine (on axis only)")
+    ks = np.array([p.k * p.radius for p in pupils])
+    if np.ptp(ks) > 1e-12 * ks.max():
+        return np.array([hankel_field(p, r, error=error, n=n) for p in pupils])
+    r_max = float(r.max()) if r.size else 0.0
+    if n is None:
+        n = max(hankel_nodes(p, r_max, error) for p in pupils)
+    x, w = _gl(n)
+    t = 0.5 * (x + 1.0)
+    wt = 0.5 * w
+    Q = np.array([_hankel_weights(p, t, wt) for p in pupils])  # (P, n)
+    out = np.empty((len(pupils), r.size), dtype=complex)
+    step = max(1, int(max_bytes // (8 * n)))
+    kS = float(ks[0])
+    with blas_threads(1):
+        for i0 in range(0, r.size, step):
+            J = special.j0(kS * np.outer(r[i0:i0 + step], t))  # (m, n) real
+            out[:, i0:i0 + step] = (Q @ J.T)
+    return out
 
 
 def hankel_grid(pupil: Pupil, xs: np.ndarray, ys: np.ndarray, *, error: float = 1e-6) -> np.ndarray:

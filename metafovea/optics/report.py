@@ -28,13 +28,21 @@ log = logging.getLogger(__name__)
 def psf_report(lens: LensDesign, out_dir: str | Path, *, fields_deg: list[float] | None = None,
                band_um: tuple[float, float] = (8.0, 14.0), filter_um: tuple[float, float] | None = None,
                temperature_k: float = 300.0, n_wavelengths: int = 61, pixel_pitch_um: float = 17.0,
-               error: float = 1e-4, post_set: Any = None) -> dict[str, Any]:
-    """Compute the report numbers and write figures, ``psf_report.json`` and ``psf_report.html``."""
+               error: float = 1e-4, post_set: Any = None, wavelength_um: float | None = None,
+               window_um: float | None = None) -> dict[str, Any]:
+    """Compute the report numbers and write figures, ``psf_report.json`` and ``psf_report.html``.
+
+    ``wavelength_um``: the monochromatic PSFs' wavelength (default: the design wavelength); ``window_um``:
+    full width of the fine monochromatic PSF windows (default: sized from the rays; a given window that
+    truncates the PSF above ``error`` raises :class:`metafovea.optics.propagate.SamplingError`).
+    """
+    from .propagate import SamplingError
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     t0 = time.perf_counter()
+    mono_wl = [lens.wavelength_um if wavelength_um is None else float(wavelength_um)]
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     if fields_deg is None:
@@ -43,7 +51,7 @@ def psf_report(lens: LensDesign, out_dir: str | Path, *, fields_deg: list[float]
     cut = 2 * lens.na / lens.wavelength_um * 1000
     nu = np.linspace(0, cut, 41)
     figs: dict[str, bytes] = {}
-    res: dict[str, Any] = {"lens": lens.name, "f_mm": lens.f_mm, "diameter_mm": lens.diameter_mm, "na": lens.na,
+    res: dict[str, Any] = {"mono_wavelength_um": mono_wl[0], "lens": lens.name, "f_mm": lens.f_mm, "diameter_mm": lens.diameter_mm, "na": lens.na,
                            "wavelength_um": lens.wavelength_um, "polarization": lens.polarization,
                            "mtf_cutoff_cyc_per_mm": cut, "requested_error": error, "warnings": []}
     # monochromatic PSFs, on and off axis (continuous and fabricated)
@@ -53,10 +61,13 @@ def psf_report(lens: LensDesign, out_dir: str | Path, *, fields_deg: list[float]
         with warnings.catch_warnings(record=True) as ws:
             warnings.simplefilter("always")
             try:
-                P = psf(lens, field_deg=fd, quantize=True, lattice=True, post_set=post_set, error=error)
-            except Exception as e:  # too large an aberrated window: fall back to the pixel grid
+                P = psf(lens, field_deg=fd, quantize=True, lattice=True, post_set=post_set, error=error,
+                        wavelengths_um=mono_wl, window_um=window_um)
+            except SamplingError as e:  # the aberrated PSF needs too large a window: pixel grid instead
+                if window_um is not None:
+                    raise
                 P = sensor_psf(lens, pixel_pitch_um=pixel_pitch_um / 4, field_deg=fd, post_set=post_set,
-                               error=max(error, 1e-3))
+                               error=max(error, 1e-3), wavelengths_um=mono_wl)
                 res["warnings"].append(f"field {fd:.3g} deg: fine PSF not computed ({e}); pixel-grid PSF shown")
         res["warnings"] += [str(w.message) for w in ws]
         xs, ys = P.coords()
@@ -103,7 +114,8 @@ def psf_report(lens: LensDesign, out_dir: str | Path, *, fields_deg: list[float]
     for fd in fields_deg:
         with warnings.catch_warnings(record=True) as ws:
             warnings.simplefilter("always")
-            mono_s = sensor_psf(lens, pixel_pitch_um=pixel_pitch_um, field_deg=fd, post_set=post_set, error=error)
+            mono_s = sensor_psf(lens, pixel_pitch_um=pixel_pitch_um, field_deg=fd, post_set=post_set, error=error,
+                                wavelengths_um=mono_wl)
             poly = sensor_psf(lens, pixel_pitch_um=pixel_pitch_um, field_deg=fd, wavelengths_um=wl, weights=w,
                               post_set=post_set, error=error)
         res["warnings"] += [f"field {fd:.3g} deg: {x.message}" for x in ws]
@@ -116,11 +128,12 @@ def psf_report(lens: LensDesign, out_dir: str | Path, *, fields_deg: list[float]
                      "size_px": poly.shape[0], "seconds": poly.info["seconds"] + mono_s.info["seconds"]})
         if fd in (fields_deg[0], fields_deg[-1]):
             ee = encircled_energy(mono_s, radii, center_um=mono_s.center_um)
-            ax[0].plot(radii, ee, label=f"{fd:.2f} deg, {lens.wavelength_um:g} um")
+            ax[0].plot(radii, ee, label=f"{fd:.2f} deg, {mono_wl[0]:g} um")
             eep = encircled_energy(poly, radii, center_um=poly.center_um)
             ax[0].plot(radii, eep, "--", label=f"{fd:.2f} deg, polychromatic")
     ax[0].set_xlabel("radius (um)"); ax[0].set_ylabel("encircled energy (of incident)"); ax[0].legend(fontsize=7)
-    ax[1].semilogy([s["field_deg"] for s in sens], [s["mono_center_pixel"] for s in sens], "o-", label="10 um")
+    ax[1].semilogy([s["field_deg"] for s in sens], [s["mono_center_pixel"] for s in sens], "o-",
+                   label=f"{mono_wl[0]:g} um")
     ax[1].semilogy([s["field_deg"] for s in sens], [s["poly_center_pixel"] for s in sens], "s-", label="band")
     ax[1].set_xlabel("field (deg)"); ax[1].set_ylabel("power in the chief-ray pixel"); ax[1].legend()
     fig.tight_layout()
