@@ -390,22 +390,29 @@ class GdsScanner:
                 # ---- fast paths -------------------------------------------------------------
                 if cur is not None and el is None and rt in (0x0A, 0x08) and len(buf) - pos >= 4096:
                     if rt == 0x0A:
-                        nmax = (len(buf) - pos) // 28
-                        v = np.frombuffer(buf, dtype=np.uint32, count=nmax * 7, offset=pos).reshape(nmax, 7)
-                        okm = (v[:, 0] == _SREF_N[0]) & (v[:, 1] == _SREF_N[1]) & (v[:, 3] == _SREF_N[3]) & \
-                              (v[:, 6] == _SREF_N[6])
-                        m = nmax if okm.all() else int(np.argmin(okm))
+                        nall = (len(buf) - pos) // 28
+                        # look at a short window first (leaf structures of hierarchical files are short runs)
+                        for nmax in ((min(nall, 16384), nall) if nall > 16384 else (nall,)):
+                            v = np.frombuffer(buf, dtype=np.uint32, count=nmax * 7, offset=pos).reshape(nmax, 7)
+                            okm = (v[:, 0] == _SREF_N[0]) & (v[:, 1] == _SREF_N[1]) & \
+                                (v[:, 3] == _SREF_N[3]) & (v[:, 6] == _SREF_N[6])
+                            m = nmax if okm.all() else int(np.argmin(okm))
+                            if m < nmax:
+                                break
                         if m > 0:
                             v = v[:m]
                             self._sref_run(cur, v[:, 2], v[:, 4:6].byteswap().view(np.int32), refs, cand, off)
                             pos += 28 * m
                             continue
                     else:
-                        nmax = (len(buf) - pos) // 64
-                        v = np.frombuffer(buf, dtype=_BND_DTYPE, count=nmax, offset=pos)
-                        okm = (v["h"] == 0x00040800) & (v["lh"] == 0x00060D02) & (v["dh"] == 0x00060E02) & \
-                              (v["xyh"] == 0x002C1003) & (v["end"] == 0x00041100)
-                        m = nmax if okm.all() else int(np.argmin(okm))
+                        nall = (len(buf) - pos) // 64
+                        for nmax in ((min(nall, 16384), nall) if nall > 16384 else (nall,)):
+                            v = np.frombuffer(buf, dtype=_BND_DTYPE, count=nmax, offset=pos)
+                            okm = (v["h"] == 0x00040800) & (v["lh"] == 0x00060D02) & (v["dh"] == 0x00060E02) & \
+                                (v["xyh"] == 0x002C1003) & (v["end"] == 0x00041100)
+                            m = nmax if okm.all() else int(np.argmin(okm))
+                            if m < nmax:
+                                break
                         if m > 0:
                             v = v[:m]
                             xy = v["xy"].astype(np.int64)
@@ -588,10 +595,29 @@ class GdsScanner:
         if self.lattice is not None:
             cx, oP, P = self.lattice
             bad = ((xy - cx - oP) % P != 0).any(axis=1)
+        dref = refs.setdefault(cur, {})
+        if words.size < 65536:  # short run (a leaf structure of a hierarchical file): exact per name
+            order = np.argsort(words)
+            ws = words[order]
+            starts = np.flatnonzero(np.concatenate([[True], ws[1:] != ws[:-1]]))
+            uw = ws[starts]
+            cnt = np.diff(np.append(starts, ws.size))
+            xo = xy[order]
+            mins = np.minimum.reduceat(xo, starts, axis=0)
+            maxs = np.maximum.reduceat(xo, starts, axis=0)
+            nbad = (np.add.reduceat(bad[order].astype(np.int64), starts) if bad is not None
+                    else np.zeros(len(uw)))
+            for g, (w, n, b) in enumerate(zip(uw.tolist(), cnt.tolist(), nbad.tolist())):
+                nm = int(w).to_bytes(4, "little").rstrip(b"\0").decode("ascii", "replace")
+                rr = dref.setdefault(nm, {"n": 0, "min": None, "max": None, "off": 0})
+                rr["n"] += int(n)
+                rr["off"] = rr.get("off", 0) + int(round(b))
+                rr["min"] = mins[g] if rr["min"] is None else np.minimum(rr["min"], mins[g])
+                rr["max"] = maxs[g] if rr["max"] is None else np.maximum(rr["max"], maxs[g])
+            return
         bins = ((words ^ (words >> np.uint32(16))) & np.uint32(0xFFFF)).astype(np.intp)
         rep = np.zeros(65536, dtype=np.uint32)
         rep[bins] = words
-        dref = refs.setdefault(cur, {})
         if np.any(rep[bins] != words):  # hash collision: exact but slower
             uw, inv = np.unique(words, return_inverse=True)
             inv = inv.reshape(-1)
