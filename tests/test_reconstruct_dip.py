@@ -35,8 +35,10 @@ def test_dip_tiny_runs_and_learns(data):
 
 def test_dip_known_alpha_fixed(data):
     x1, x2, a, Y = data
-    r = reconstruct(Y, a, method="dip", channels=4, depth=2, steps=5, rng=0, foveal_weight=1.0)
+    r = reconstruct(Y, a, method="dip", channels=4, depth=2, steps=5, rng=0, foveal_weight=1.0,
+                    foveal_gain=0.5, foveal_offset=0.02)
     assert np.allclose(r.alpha, a) and not r.info["alpha_learned"]
+    assert r.info["foveal_gain"] == 0.5 and r.info["foveal_offset"] == 0.02
 
 
 def test_dip_input_errors(data):

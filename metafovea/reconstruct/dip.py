@@ -23,6 +23,7 @@ when :func:`dip` is called.
 
 from __future__ import annotations
 
+import functools
 import logging
 import time
 from typing import Any
@@ -83,6 +84,61 @@ def _build(depth: int):
         return jax.nn.sigmoid(conv(x, p["out"]))[0, 0]
 
     return net
+
+
+@functools.lru_cache(maxsize=16)
+def _make_step(depth: int, learn_alpha: bool, foveal: bool):
+    """Jitted Adam step ``(p, m, v, t, data) -> (p, m, v, loss)`` for one network depth and switches."""
+    import jax
+    import jax.numpy as jnp
+
+    net = _build(depth)
+
+    def tv(x):
+        return jnp.mean(jnp.abs(jnp.diff(x, axis=0))) + jnp.mean(jnp.abs(jnp.diff(x, axis=1)))
+
+    def excl(x1, x2):
+        val = 0.0
+        for _ in range(2):
+            for ax in (0, 1):
+                g1 = jnp.diff(x1, axis=ax)
+                g2 = jnp.diff(x2, axis=ax)
+                lam = jnp.sqrt(jnp.mean(jnp.abs(g2)) / (jnp.mean(jnp.abs(g1)) + 1e-8) + 1e-8)
+                val = val + jnp.sqrt(jnp.mean((jnp.tanh(lam * jnp.abs(g1)) * jnp.tanh(jnp.abs(g2))) ** 2) + 1e-12)
+            h2, w2 = x1.shape[0] // 2 * 2, x1.shape[1] // 2 * 2
+            if h2 < 4 or w2 < 4:
+                break
+            x1 = x1[:h2, :w2].reshape(h2 // 2, 2, w2 // 2, 2).mean(axis=(1, 3))
+            x2 = x2[:h2, :w2].reshape(h2 // 2, 2, w2 // 2, 2).mean(axis=(1, 3))
+        return val
+
+    def loss_fn(p, data):
+        tvw, exw, fw, gain_n, bias_n = (data["c"][i] for i in range(5))
+        g1 = net(p["g1"], data["z1"])
+        g2 = net(p["g2"], data["z2"])
+        a = jax.nn.sigmoid(p["alpha"]) if learn_alpha else data["a"]
+        model = a[:, None, None] * g1[None] + (1 - a)[:, None, None] * g2[None]
+        loss = jnp.mean((data["y"] - model) ** 2) + tvw * (tv(g1) + tv(g2)) + exw * excl(g1, g2)
+        if foveal:
+            Dm = data["D"]
+            r = Dm[0] @ g1 @ Dm[1].T - gain_n * (Dm[2] @ g2 @ Dm[3].T) - bias_n
+            loss = loss + fw * jnp.mean(r ** 2)
+        return loss
+
+    b1, b2, eps = 0.9, 0.999, 1e-8
+
+    @jax.jit
+    def step(p, m, v, t, data):
+        lr = data["c"][5]
+        loss, g = jax.value_and_grad(loss_fn)(p, data)
+        m = jax.tree_util.tree_map(lambda mi, gi: b1 * mi + (1 - b1) * gi, m, g)
+        v = jax.tree_util.tree_map(lambda vi, gi: b2 * vi + (1 - b2) * gi * gi, v, g)
+        mh = 1 - b1 ** t
+        vh = 1 - b2 ** t
+        p = jax.tree_util.tree_map(lambda pi, mi, vi: pi - lr * (mi / mh) / (jnp.sqrt(vi / vh) + eps), p, m, v)
+        return p, m, v, loss
+
+    return step
 
 
 def dip(frames: Any, alpha: Any = None, *, channels: int = 32, depth: int = 3, skip_channels: int = 4,
@@ -146,62 +202,23 @@ def dip(frames: Any, alpha: Any = None, *, channels: int = 32, depth: int = 3, s
     A_n, B_n = 0.9 / span, 0.05 - 0.9 * lo / span
     bias_n = 0.0 if op is None else float((1 - op.gain) * B_n + A_n * op.bias)
     gain_n = 1.0 if op is None else float(op.gain)
-    Dm = [jnp.asarray(m.astype(np.float32)) for m in (op.Dy, op.Dx, op.Cy, op.Cx)] if op else None
-    yj = jnp.asarray(Yn)
-    a_fixed = jnp.asarray(a0.astype(np.float32))
     tvw, exw, fw = (float(v) for v in (tv_weight, exclusion_weight, foveal_weight))
-
-    def tv(x):
-        return jnp.mean(jnp.abs(jnp.diff(x, axis=0))) + jnp.mean(jnp.abs(jnp.diff(x, axis=1)))
-
-    def excl(x1, x2):
-        val = 0.0
-        for _ in range(2):
-            for ax in (0, 1):
-                g1 = jnp.diff(x1, axis=ax)
-                g2 = jnp.diff(x2, axis=ax)
-                lam = jnp.sqrt(jnp.mean(jnp.abs(g2)) / (jnp.mean(jnp.abs(g1)) + 1e-8) + 1e-8)
-                val = val + jnp.sqrt(jnp.mean((jnp.tanh(lam * jnp.abs(g1)) * jnp.tanh(jnp.abs(g2))) ** 2) + 1e-12)
-            h2, w2 = x1.shape[0] // 2 * 2, x1.shape[1] // 2 * 2
-            if h2 < 4 or w2 < 4:
-                break
-            x1 = x1[:h2, :w2].reshape(h2 // 2, 2, w2 // 2, 2).mean(axis=(1, 3))
-            x2 = x2[:h2, :w2].reshape(h2 // 2, 2, w2 // 2, 2).mean(axis=(1, 3))
-        return val
-
-    def loss_fn(p):
-        g1 = net(p["g1"], z1)
-        g2 = net(p["g2"], z2)
-        a = jax.nn.sigmoid(p["alpha"]) if learn_alpha else a_fixed
-        model = a[:, None, None] * g1[None] + (1 - a)[:, None, None] * g2[None]
-        loss = jnp.mean((yj - model) ** 2) + tvw * (tv(g1) + tv(g2)) + exw * excl(g1, g2)
-        if Dm is not None:
-            r = Dm[0] @ g1 @ Dm[1].T - gain_n * (Dm[2] @ g2 @ Dm[3].T) - bias_n
-            loss = loss + fw * jnp.mean(r ** 2)
-        return loss
-
-    b1, b2, eps = 0.9, 0.999, 1e-8
-
-    @jax.jit
-    def step(p, m, v, t):
-        loss, g = jax.value_and_grad(loss_fn)(p)
-        m = jax.tree_util.tree_map(lambda mi, gi: b1 * mi + (1 - b1) * gi, m, g)
-        v = jax.tree_util.tree_map(lambda vi, gi: b2 * vi + (1 - b2) * gi * gi, v, g)
-        mh = 1 - b1 ** t
-        vh = 1 - b2 ** t
-        p = jax.tree_util.tree_map(lambda pi, mi, vi: pi - lr * (mi / mh) / (jnp.sqrt(vi / vh) + eps), p, m, v)
-        return p, m, v, loss
-
+    # everything that varies between calls is an argument of the jitted step, so a second call with
+    # the same shapes and switches (another window of a video, a test's rerun) reuses the compilation
+    data = {"y": jnp.asarray(Yn), "z1": z1, "z2": z2, "a": jnp.asarray(a0.astype(np.float32)),
+            "D": [jnp.asarray(m_.astype(np.float32)) for m_ in (op.Dy, op.Dx, op.Cy, op.Cx)] if op else [],
+            "c": jnp.asarray(np.array([tvw, exw, fw, gain_n, bias_n, lr], np.float32))}
+    step = _make_step(depth, learn_alpha, op is not None)
     m = jax.tree_util.tree_map(jnp.zeros_like, params)
     v = jax.tree_util.tree_map(jnp.zeros_like, params)
     hist: list[float] = []
     with tm.measure("compile"):
-        params, m, v, loss = step(params, m, v, 1.0)
+        params, m, v, loss = step(params, m, v, 1.0, data)
         hist.append(float(loss))
     t0 = time.perf_counter()
     with tm.measure("steps"):
         for k in range(2, steps + 1):
-            params, m, v, loss = step(params, m, v, float(k))
+            params, m, v, loss = step(params, m, v, float(k), data)
             if k % max(1, steps // 200) == 0 or k == steps:
                 hist.append(float(loss))
             if log_every and k % log_every == 0:
