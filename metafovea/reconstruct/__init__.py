@@ -11,7 +11,8 @@ Works on plain numpy arrays: frames ``(T, H, W)`` (float32 preserved), alpha ``(
 * :func:`video`: sliding windows over a sequence.
 * :func:`reconstruct`: dispatcher returning a :class:`Reconstruction`.
 * :class:`FovealOperator`, :func:`downsample`, :func:`downsample_adjoint`, :func:`centre_crop`:
-  the foveal constraint ``D x1 == C x2``.
+  the foveal constraint ``D x1 == gain * C x2 + offset`` (``foveal_gain``/``foveal_offset`` wherever
+  ``scale`` is accepted; a Measurement's ``meta['foveal_constraint']``; 1 and 0 for common units).
 """
 
 from metafovea.reconstruct.alternating import alternating, foveal_gauge
