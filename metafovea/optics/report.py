@@ -18,7 +18,7 @@ from metafovea.config import LensDesign
 from metafovea.io import atomic_write_bytes, atomic_write_json, atomic_write_text
 
 from .mtf import diffraction_mtf, encircled_energy, pupil_mtf, strehl
-from .psf import PSF, diffraction_radius_um, psf, sensor_psf
+from .psf import PSF, diffraction_radius_um, encircled_energy_on_axis, psf, sensor_psf
 from .pupil import max_field_deg
 from .radiometry import spectral_weights
 
@@ -108,6 +108,11 @@ def psf_report(lens: LensDesign, out_dir: str | Path, *, fields_deg: list[float]
                              cluster_min_um=0.25 * lens.wavelength_um * lens.wavelength_um / (2 * lens.na ** 2) / lens.f_um)
     res["spectral"] = {"n_wavelengths": int(wl.size), "band_um": band_um, "filter_um": filter_um,
                        "temperature_k": temperature_k}
+    # on-axis power within one pixel pitch of the axis, exact (radial profiles, no pixel grid)
+    res["on_axis_ee_pixel_radius"] = {
+        "radius_um": pixel_pitch_um,
+        "mono": encircled_energy_on_axis(lens, pixel_pitch_um, wavelengths_um=mono_wl, post_set=post_set),
+        "band": encircled_energy_on_axis(lens, pixel_pitch_um, wavelengths_um=wl, weights=w, post_set=post_set)}
     radii = np.linspace(0, 6 * diffraction_radius_um(lens) + 2 * pixel_pitch_um, 40)
     fig, ax = plt.subplots(1, 2, figsize=(11, 4))
     sens = []
@@ -178,6 +183,9 @@ lattice sampling and N-level quantisation included in the PSFs; spectral weights
 {res['spectral']['n_wavelengths']} wavelengths (clustered around the design wavelength).</p>
 <h2>Monochromatic PSFs (engine, sampling, error estimate)</h2>
 <table><tr><th>field deg</th><th>engine</th><th>error est.</th><th>pitch um</th><th>energy in window</th><th>Strehl</th></tr>{rows}</table>
+<p>On axis, power within r = {res['on_axis_ee_pixel_radius']['radius_um']:g} um (exact radial integral):
+{res['mono_wavelength_um']:g} um {res['on_axis_ee_pixel_radius']['mono']:.4f}, band {res['on_axis_ee_pixel_radius']['band']:.4g}
+(fractions of the incident power).</p>
 <h2>Sensor PSFs ({res['pixel_pitch_um']:g} um pixels) across the field</h2>
 <table><tr><th>field deg</th><th>chief-ray pixel, design wl</th><th>chief-ray pixel, band</th><th>band power in window</th>
 <th>engines</th><th>error est.</th></tr>{srows}</table>
