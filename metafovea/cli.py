@@ -170,6 +170,13 @@ def _add_validate(sub: Any) -> None:
     p.add_argument("--force", action="store_true", help="overwrite existing output")
     p.add_argument("--json", action="store_true", help="print JSON instead of a table")
     p.add_argument("--seed", default="0", help="random seed (default 0)")
+    p.add_argument("--scene", default="siemens-star", help="bundled scene to simulate (default siemens-star; "
+                                                          "see `metafovea simulate --list-scenes`)")
+    p.add_argument("--frames", default="96", help="frames to simulate (default 96: 8 s at 12 frames/s)")
+    p.add_argument("--filter", default="both", choices=("off", "on", "both"),
+                   help="spectral cases: 8-14 um as designed (off), the 10 um / 0.5 um filter (on), or both")
+    p.add_argument("--dip-steps", default="60", help="deep-image-prior steps (default 60: a small demo; the "
+                                                      "paper's network needs thousands)")
     p.set_defaults(func=_run_validate)
 
 

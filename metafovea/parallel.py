@@ -11,6 +11,7 @@ results.
 from __future__ import annotations
 
 import concurrent.futures as cf
+import contextlib
 import os
 from typing import Any, Callable, Iterable, Iterator
 
@@ -27,6 +28,20 @@ class SerialExecutor(cf.Executor):
         except BaseException as e:  # noqa: BLE001 - delivered through the future
             fut.set_exception(e)
         return fut
+
+
+@contextlib.contextmanager
+def blas_threads(n: int = 1) -> Iterator[None]:
+    """Limit BLAS/OpenMP threads inside the block (threadpoolctl).
+
+    Small matrix products (2x2 normal equations, foveal operators, RCWA eigenproblems of a few hundred
+    unknowns) run slower with OpenBLAS' threads than without on a loaded 2-core machine (measured here:
+    a 0.4 ms product took 94 ms), and process-parallel sweeps already use every core.
+    """
+    from threadpoolctl import threadpool_limits
+
+    with threadpool_limits(limits=n):
+        yield
 
 
 def default_workers() -> int:

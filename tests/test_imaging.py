@@ -359,3 +359,24 @@ def test_incremental_video_rendering_equals_full_rendering(name):
     assert inc.incremental
     for t in (0.0, 1.7, 3.9):
         np.testing.assert_allclose(inc.render(t), full.render(t), rtol=1e-9, atol=1e-9 * full.render(t).max())
+
+
+def test_shutter_calibration_frames_share_the_fpn():
+    """Calibration frames (closed shutter) carry the measurement's fixed pattern and leave its frames unchanged."""
+    import dataclasses
+
+    from metafovea.config import SystemDesign
+    from metafovea.imaging import simulate
+    sysd = SystemDesign.paper()
+    sysd = dataclasses.replace(sysd, sensor=dataclasses.replace(sysd.sensor, crop=(64, 64), pixels=(64, 64)))
+    a = simulate(sysd, "bars", rng=3, frames=4, psf="airy", calibration_frames=0)
+    b = simulate(sysd, "bars", rng=3, frames=4, psf="airy", calibration_frames=32)
+    assert np.array_equal(a.frames, b.frames)
+    cal = b.extras["calibration"]
+    assert cal.shape == (32, 64, 64)
+    pattern = cal.mean(axis=0) - cal.mean()
+    true = b.fpn - b.fpn.mean()
+    # the averaged shutter frames recover the pattern to the noise level sigma / sqrt(32)
+    sigma = b.meta["sensor"]["noise_sigma_dn"]
+    assert np.sqrt(np.mean((pattern - true) ** 2)) < 2.0 * sigma / np.sqrt(32) + 0.3
+    assert np.std(true) > 3 * sigma / np.sqrt(32)  # the check above is not trivially met by a flat pattern

@@ -34,7 +34,8 @@ from metafovea.errors import InputError
 from metafovea.io import atomic_save_npz, load_npz, prepare_output
 
 KIND = "measurement"
-OPTIONAL = ("alpha", "truth_x1", "truth_x2", "fpn", "fpn_u", "fpn_v", "fpn_s", "fpn_weights", "theta_rad")
+OPTIONAL = ("alpha", "truth_x1", "truth_x2", "fpn", "fpn_u", "fpn_v", "fpn_s", "fpn_weights", "theta_rad",
+            "calibration")
 
 
 @dataclass(frozen=True)

@@ -67,6 +67,7 @@ class SimulationOptions:
     quantize: bool = True
     t0_s: float = 0.0
     scene_params: dict[str, Any] = field(default_factory=dict)
+    calibration_frames: int = 0  # closed-shutter frames (same FPN and noise model), stored as 'calibration'
     progress: bool = False
 
 
@@ -181,11 +182,27 @@ def simulate(system: SystemDesign, scene: str | Path | Scene, options: Simulatio
         elif fpn0 is not None:
             f += fpn0
     sensor.add_noise_and_digitise(frames, r_noise)
+    n_cal = check_int("calibration_frames", opt.calibration_frames, 0, 100_000)
+    calibration = None
+    if n_cal:
+        # a closed shutter in front of the sensor: a uniform source at the scene's mean level, seen without the
+        # optics, plus the same fixed pattern and temporal noise (its own random stream: frames are unchanged)
+        r_cal = np.random.default_rng(int(r_noise.integers(0, 2 ** 63 - 1)))
+        level = np.float32(0.5 * (float(np.mean(x1)) + float(np.mean(x2))))
+        calibration = np.full((n_cal, H, W), level, np.float32)
+        for k in range(n_cal):
+            if drift:
+                calibration[k] += fpn.frame(0)
+            elif fpn0 is not None:
+                calibration[k] += fpn0
+        sensor.add_noise_and_digitise(calibration, r_cal)
     t_mix = time.perf_counter() - t_mix
 
     # ---- metadata ------------------------------------------------------------------------------------------
     r = g[0] / g[1]
     extras: dict[str, np.ndarray] = {"theta_rad": theta}
+    if calibration is not None:
+        extras["calibration"] = calibration
     if fpn.rank:
         extras.update(fpn_u=fpn.u, fpn_v=fpn.v, fpn_s=fpn.s)
         if drift:

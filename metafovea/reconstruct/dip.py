@@ -144,9 +144,14 @@ def _make_step(depth: int, learn_alpha: bool, foveal: bool):
 def dip(frames: Any, alpha: Any = None, *, channels: int = 32, depth: int = 3, skip_channels: int = 4,
         input_channels: int = 8, steps: int = 2000, lr: float = 0.01, tv_weight: float = 0.01,
         exclusion_weight: float = 0.01, foveal_weight: float = 0.0, scale: float = 6.0,
-        foveal_gain: float = 1.0, foveal_offset: float = 0.0,
+        foveal_gain: float = 1.0, foveal_offset: float = 0.0, alpha_init: Any = "means",
         rng: Any = None, log_every: int = 0) -> Reconstruction:
     """Fit the double DIP to ``frames (T, H, W)``; ``alpha`` given = held fixed, else learned.
+
+    ``alpha_init`` (unknown alpha): ``'means'`` initialises alpha from the frame means as in the paper
+    (which labels the brighter frames as more foveal: wrong when the foveal channel is the darker one, as
+    with the paper's F/2 vs F/1 lenses, where it converges to the swapped solution), or ``(T,)`` values,
+    e.g. the classical solver's estimate (``alternating(...).alpha``), which the DIP then refines.
 
     The foveal term (``foveal_weight > 0``) uses ``D x1 = foveal_gain C x2 + foveal_offset`` in the
     frames' units (mapped to the network's normalised range internally). With known ``alpha`` the
@@ -174,11 +179,16 @@ def dip(frames: Any, alpha: Any = None, *, channels: int = 32, depth: int = 3, s
     gen = as_rng(rng)
     dt = image_dtype(Y)
     lo, hi = float(Y.min()), float(Y.max())
-    if alpha is not None:
+    a_init = None
+    if alpha is None and not (isinstance(alpha_init, str) and alpha_init == "means"):
+        if isinstance(alpha_init, str):
+            raise InputError("alpha_init", alpha_init, "'means' or an array of T mixing ratios")
+        a_init = as_alpha(alpha_init, T, name="alpha_init")
+    if alpha is not None or a_init is not None:
         from metafovea.reconstruct.lsq import lsq_known_alpha
 
         try:
-            ls = lsq_known_alpha(Y, alpha, regularize="difference")
+            ls = lsq_known_alpha(Y, alpha if alpha is not None else a_init, regularize="difference")
             lo = min(lo, float(np.min(ls.x1)), float(np.min(ls.x2)))
             hi = max(hi, float(np.max(ls.x1)), float(np.max(ls.x2)))
         except InputError:
@@ -187,7 +197,10 @@ def dip(frames: Any, alpha: Any = None, *, channels: int = 32, depth: int = 3, s
     # frames in [0.05, 0.95] so that both images fit the sigmoid's range with some margin
     Yn = (0.05 + 0.9 * (Y.astype(np.float64) - lo) / span).astype(np.float32)
     learn_alpha = alpha is None
-    a0 = frame_mean_alpha(Yn) if learn_alpha else as_alpha(alpha, T)
+    if learn_alpha:
+        a0 = frame_mean_alpha(Yn) if a_init is None else a_init
+    else:
+        a0 = as_alpha(alpha, T)
     z_alpha = np.log(np.clip(a0, 0.02, 0.98) / (1 - np.clip(a0, 0.02, 0.98))).astype(np.float32)
     params = {"g1": _init_params(gen, input_channels, channels, depth, skip_channels),
               "g2": _init_params(gen, input_channels, channels, depth, skip_channels)}
