@@ -16,6 +16,16 @@ Conventions (details in :mod:`metafovea.rcwa.solve` and :mod:`metafovea.rcwa.pos
 * Factorisation: 'li' (Li's rules for crossed gratings: inverse rule across each discontinuity,
   Laurent along it) or 'laurent' (plain Laurent rule, for comparison).
 * Default entry side for posts: the substrate (through the wafer; posts face the sensor).
+
+Relation to fmmax (tests/test_rcwa_fmmax.py, benchmarks/bench_rcwa.py)
+---------------------------------------------------------------------
+fmmax uses the same exp(-i omega t) convention. With layers [substrate, ..., superstrate] and
+zero-thickness ambient layers, ``stack_s_matrix(...).s11`` (not s21, which is the reflection) is the
+forward transmission between our reference planes, in H-field amplitudes: index ``N + i0`` (hy) is
+x-polarised E, ``i0`` (hx) is y-polarised E, and ``t(ours) = s11 * sqrt(n_in / n_out)``; reflections
+change sign (``r(ours) = -s21``). Forward amplitudes are referenced at the start of a layer, backward
+ones at its end, so a first-layer thickness d adds exp(i k0 n d) to s11. fmmax's FFT formulation with a
+PARALLELOGRAMIC truncation of (2M+1)^2 terms equals our 'laurent' factorisation.
 """
 
 from metafovea.rcwa.geometry import Layer, Rectangle, Stack
