@@ -61,6 +61,7 @@ class ValidateOptions:
     library_grid_step_um: float = 0.1
     library_harmonics: int = 10
     cache_dir: str | None = None
+    psf: str = "auto"  #: PSF provider of the simulator ('auto' = metafovea.optics, cached; 'airy' for quick checks)
     progress: bool = False
 
 
@@ -310,7 +311,8 @@ def validate_system(system: SystemDesign, opts: ValidateOptions | None = None,
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             meas = simulate(system, opts.scene, rng=opts.seed, frames=opts.frames, filter_enabled=filt,
-                            psf_cache_dir=opts.cache_dir, calibration_frames=opts.calibration_frames)
+                            psf_cache_dir=opts.cache_dir, calibration_frames=opts.calibration_frames,
+                            psf=opts.psf)
         t_sim = time.perf_counter() - t
         t = time.perf_counter()
         run_dip = opts.dip_cases == "all" or (opts.dip_cases == "last" and i_case == len(opts.filters) - 1)
