@@ -256,10 +256,13 @@ def test_window_too_small_and_undersampled():
 
 @pytest.mark.slow
 def test_asm_full_lens_f1_agrees_with_debye():
-    """Full 25 mm F/1 lens, BL-ASM at 10 um with 2x padding vs the direction-sine engine (ref: 1.4e-4)."""
+    """Full 25 mm F/1 lens, BL-ASM vs the direction-sine engine (REFERENCES: 10 um sampling with 2x padding
+    1.4e-4; 5 um 2.8e-5). Small size by default (10 um, ~0.4 GB); METAFOVEA_FULL=1: 5 um, pad 1.5 (~1 GB)."""
+    import os
+    dx, pad = (5.0, 1.5) if os.environ.get("METAFOVEA_FULL") else (10.0, 2.0)
     pu = build_pupils(F1, 10.0, quantize=False, lattice=False).focus
-    u0, ax = prop.sampled_lens_field(pu, 5.0)
-    res = asm_propagate(u0, 5.0, 10.0, F1.f_um, pad=1.5)
+    u0, ax = prop.sampled_lens_field(pu, dx)
+    res = asm_propagate(u0, dx, 10.0, F1.f_um, pad=pad)
     c = ax.size // 2
     sl = slice(c - 20, c + 21)
     ref = np.abs(mft_field(pu, ax[sl], ax[sl])) ** 2
@@ -298,18 +301,18 @@ def test_mft_intensity_multi_matches_single_wavelength_engine():
     assert np.abs(I - R).max() / R.max() < 1e-9
 
 
-@pytest.mark.parametrize("lens,field,lam", [(F1, 0.0, 10.3), (F1, 0.0, 10.6), (F2, 0.0, 10.2), (F1, 3.0, 10.3)])
+@pytest.mark.parametrize("lens,field,lam", [(F1, 0.0, 10.3), (F1, 0.0, 10.6), (F2, 0.0, 10.2), (F1, 3.0, 10.3),
+                                             (F2, 0.0, 10.03), (F1, 0.0, 10.05)])
 def test_geometric_engine_against_wave_defocused(lens, field, lam):
-    """Defocused by W020 ~ 3-6 waves: the geometric blur disk holds the right power (O(1/W020)), but the
-    brightest pixels (axial Poisson spot, coma cusp) stay O(1) wrong: GEO_ERROR = 1 bounds it."""
-    from metafovea.optics.psf import GEO_ERROR
+    """Defocused by W020 ~ 1-6 waves: the geometric blur disk holds the right power (O(1/W020)), but the
+    brightest pixels (axial Poisson spot, coma cusp) stay O(1) wrong: the estimate must bound it."""
     wave = sensor_psf(lens, pixel_pitch_um=17.0, field_deg=field, wavelengths_um=[lam], error=1e-4,
                       engine="mft" if field else "hankel", size_px=45)
     geo = sensor_psf(lens, pixel_pitch_um=17.0, field_deg=field, wavelengths_um=[lam], engine="geometric",
                      size_px=45)
-    rel = np.abs(geo.intensity - wave.intensity).max() / wave.intensity.max()
-    assert 0.05 < rel <= GEO_ERROR
-    assert geo.error_estimate >= rel
+    diff = np.abs(geo.intensity - wave.intensity).max()
+    assert diff > 0.05 * wave.intensity.max()  # the geometric engine is not exact: the check can fail
+    assert geo.error_estimate * geo.intensity.max() >= diff
     assert geo.energy_fraction == pytest.approx(wave.energy_fraction, rel=0.03)
 
 
