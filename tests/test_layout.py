@@ -473,3 +473,31 @@ def test_direct_file_matches_buffered(tmp_path, spec, exported):
     p = tmp_path / "b.gds"
     export_layout(spec, p, "gds", direct=False)
     assert p.read_bytes() == exported[("gds", False)][0].read_bytes()
+
+
+@pytest.mark.parametrize("fmt", ["gds", "oas"])
+def test_half_lattice_export_counts_and_xor(tmp_path, fmt):
+    d = LensDesign("half", 1500.0, 1200.0, polarization="x", lattice="half")
+    sp = make_spec(d, band_rows=16, **SMALL)
+    p = tmp_path / f"h.{fmt}"
+    res = export_layout(sp, p, fmt, workers=2)
+    assert res.counts == _tile_counts(d, 8).tolist()
+    rep = verify_layout(p, sp, reader="klayout")
+    assert rep.ok, rep.mismatches
+    # a patch across the centre row and column (both row sides, both column sides) against the design
+    pp = make_spec(d, patch_mm=(0.0, 0.0, 0.1), band_rows=4, **SMALL)
+    q = tmp_path / f"c.{fmt}"
+    export_layout(pp, q, fmt)
+    ly = db.Layout()
+    ly.read(str(q))
+    got = db.Region(ly.cell(pp.top_name).begin_shapes_rec(ly.layer(1, 0)))
+    assert verify_layout(q, pp, reader="klayout").ok  # post types unused in the patch are extra top cells
+    iy_lo, iy_hi, ix_lo, ix_hi = pp.window()
+    t = lens.evaluate_tile(d, iy_lo, ix_lo, iy_hi - iy_lo + 1, ix_hi - ix_lo + 1, levels=8)
+    want = db.Region()
+    w = pp.post_sizes_nm
+    for (a, b) in zip(*np.nonzero(t.levels >= 0)):
+        k = t.levels[a, b]
+        x, y = int(pp.site_x_nm(ix_lo + b)), int(pp.site_y_nm(iy_lo + a))
+        want.insert(db.Box(x - int(w[k, 0]) // 2, y - int(w[k, 1]) // 2, x + int(w[k, 0]) // 2, y + int(w[k, 1]) // 2))
+    assert got.count() == want.count() == 625 and (got ^ want).is_empty()
