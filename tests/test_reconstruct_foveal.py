@@ -110,7 +110,7 @@ def test_dip_and_fpn_prior_constraint_in_their_units(dn_scene):
     lo, span = 1500.0, 2500.0
     A, Bn = 0.9 / span, 0.05 - 0.9 * lo / span
     op = FovealOperator(x1.shape, 6, gain=G, bias=B)
-    bias_n = (1 - G) * Bn + A * B  # as in metafovea.reconstruct.dip
+    bias_n = (1 - G) * Bn + A * B  # as in metafovea.reconstruct.deep_prior
     assert np.abs(op.D(A * x1 + Bn) - G * op.C(A * x2 + Bn) - bias_n).max() < 1e-9
     # FPN prior on images that satisfy the constraint: the foveal term is already zero, so the
     # estimate stays small; with the relation ignored it tries to explain a 1000-DN misfit

@@ -27,9 +27,9 @@ from metafovea.reconstruct.video import video
 
 
 def dip(*args, **kwargs):  # noqa: D401
-    """Double deep image prior (JAX); see :func:`metafovea.reconstruct.dip.dip`. JAX is imported on
+    """Double deep image prior (JAX); see :func:`metafovea.reconstruct.deep_prior.dip`. JAX is imported on
     first use only."""
-    from metafovea.reconstruct.dip import dip as _dip
+    from metafovea.reconstruct.deep_prior import dip as _dip
 
     return _dip(*args, **kwargs)
 

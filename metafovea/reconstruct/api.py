@@ -58,7 +58,7 @@ def reconstruct(frames: Any, alpha: Any = None, method: str = "lsq", *, fpn: Any
             raise InputError("alpha", "given", "alpha=None for method='alternating' (use method='lsq' with known alpha)")
         rec = alternating(frames, **kw)
     elif method == "dip":
-        from metafovea.reconstruct.dip import dip
+        from metafovea.reconstruct.deep_prior import dip
 
         rec = dip(frames, alpha=alpha, **kw)
     else:

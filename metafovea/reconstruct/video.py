@@ -116,7 +116,7 @@ def video(frames: Any, alpha: Any = None, *, window: int = 8, stride: int = 1, m
                         raise InputError("frames", f"window {k} (frames {s}..{s + window - 1})", e.allowed,
                                          detail=str(e)) from None
                 else:
-                    from metafovea.reconstruct.dip import dip
+                    from metafovea.reconstruct.deep_prior import dip
 
                     r = dip(Y[s:s + window], alpha=None if alpha is None else np.asarray(alpha)[s:s + window], **kw)
                 x1[k], x2[k] = r.x1, r.x2
