@@ -24,6 +24,7 @@ import dataclasses
 import logging
 import math
 import sys
+import textwrap
 import time
 import warnings
 from dataclasses import dataclass
@@ -249,7 +250,7 @@ def _figure(label: str, res: dict[str, Any]) -> bytes:
             ax.set_xticks([])
             ax.set_yticks([])
             if i == 0:
-                ax.set_title(name, fontsize=8)
+                ax.set_title(textwrap.fill(name, 20), fontsize=8)
         axes[0, 0].set_ylabel("foveal x1")
         axes[1, 0].set_ylabel("perifoveal x2")
     fig.suptitle(f"{label}: first window, colour range from the truth")
