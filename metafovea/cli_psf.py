@@ -5,11 +5,12 @@ from __future__ import annotations
 import argparse
 import json
 import logging
+import os
 from pathlib import Path
 from typing import Any
 
 from metafovea.config import load_lens
-from metafovea.errors import InputError, check_positive
+from metafovea.errors import InputError, check_int, check_positive
 from metafovea.io import prepare_output, to_json
 
 log = logging.getLogger(__name__)
@@ -40,15 +41,25 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
     p.add_argument("--out", default="psf_report", help="output directory (must be new or empty)")
     p.add_argument("--force", action="store_true", help="overwrite existing output")
     p.add_argument("--json", action="store_true", help="print the numbers as JSON")
+    p.add_argument("--jobs", type=int, default=None,
+                   help="processes, one lens each (default: min(2, lenses, CPUs))")
     p.set_defaults(func=run)
     return p
 
 
+def _report_one(lens: Any, out: str, kw: dict[str, Any]) -> tuple[str, Any]:
+    from metafovea.optics.report import psf_report
+
+    try:
+        res = psf_report(lens, out, **kw)
+    except InputError as e:
+        return "input_error", (e.parameter, e.value, e.allowed)
+    return "ok", {k: res[k] for k in ("seconds", "monochromatic", "sensor", "warnings")}
+
+
 def run(args: argparse.Namespace) -> int:
-    from metafovea.optics.propagate import SamplingError
     from metafovea.optics.pupil import max_field_deg
     from metafovea.optics.radiometry import check_band
-    from metafovea.optics.report import psf_report
 
     band = check_band(args.band_um, "--band-um") if args.band_um is not None else (8.0, 14.0)
     filt = None
@@ -74,19 +85,28 @@ def run(args: argparse.Namespace) -> int:
             if not abs(fd) <= lim:
                 raise InputError("--field-deg", fd, f"|field| <= {lim:.3f} deg for lens '{lens.name}' "
                                  f"(NA {lens.na:.4f}) at {wl_max:g} um")
+    jobs = check_int("--jobs", args.jobs, 1, 64) if args.jobs is not None else min(2, len(lenses), os.cpu_count() or 1)
     out = prepare_output(args.out, args.force, is_dir=True)
+    kw = dict(fields_deg=args.field_deg, band_um=band, filter_um=filt, temperature_k=args.temperature_k,
+              n_wavelengths=args.wavelengths, pixel_pitch_um=args.pixel_um, error=args.error,
+              wavelength_um=args.wavelength_um, window_um=args.window_um)
+    if jobs > 1 and len(lenses) > 1:
+        # one process per lens (the report of a lens is single-threaded); errors come back as data
+        # because InputError does not survive pickling
+        from concurrent.futures import ProcessPoolExecutor
+        with ProcessPoolExecutor(max_workers=min(jobs, len(lenses))) as ex:
+            outcomes = list(ex.map(_report_one, lenses, [str(out)] * len(lenses), [kw] * len(lenses)))
+    else:
+        outcomes = [_report_one(lens, str(out), kw) for lens in lenses]
     summary = {}
-    for lens in lenses:
-        try:
-            res = psf_report(lens, out, fields_deg=args.field_deg, band_um=band, filter_um=filt,
-                             temperature_k=args.temperature_k, n_wavelengths=args.wavelengths,
-                             pixel_pitch_um=args.pixel_um, error=args.error, wavelength_um=args.wavelength_um,
-                             window_um=args.window_um)
-        except SamplingError as e:
-            if e.parameter == "window_um":
-                allowed = e.allowed.replace("(pass allow_truncation=True to accept)", "(or a larger --error)")
-                raise InputError("--window-um", args.window_um, allowed) from None
-            raise
+    for lens, (kind, val) in zip(lenses, outcomes):
+        if kind == "input_error":
+            parameter, value, allowed = val
+            if parameter == "window_um":
+                allowed = allowed.replace("(pass allow_truncation=True to accept)", "(or a larger --error)")
+                raise InputError("--window-um", args.window_um, allowed)
+            raise InputError(parameter, value, allowed)
+        res = val
         summary[lens.name] = {"seconds": res["seconds"], "monochromatic": res["monochromatic"],
                               "sensor": res["sensor"], "warnings": res["warnings"],
                               "html": str(Path(out) / f"{lens.name}_psf_report.html")}

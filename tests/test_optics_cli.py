@@ -107,3 +107,22 @@ def test_window_ok_for_a_looser_error(tiny, tmp_path):
     res = json.loads((out / "tiny_psf_report.json").read_text())
     m = res["monochromatic"][0]
     assert 150 <= m["samples"] * m["pitch_um"] <= 150 + 2 * m["pitch_um"]
+
+
+def test_two_lenses_in_two_processes(tiny, tmp_path, capsys):
+    path, out1 = tiny
+    other = tmp_path / "tiny2.toml"
+    other.write_text(TOML.replace('"tiny"', '"tiny2"').replace("f_mm = 4.0", "f_mm = 3.0"))
+    out = tmp_path / "o"
+    assert main(["psf", str(path), str(other), "--field-deg", "0", "3", "--wavelengths", "9", "--jobs", "2",
+                 "--out", str(out)]) == 0
+    a = json.loads((out / "tiny_psf_report.json").read_text())
+    b = json.loads((out1 / "tiny_psf_report.json").read_text())
+    strip = lambda rows: [{k: v for k, v in r.items() if k != "seconds"} for r in rows]  # noqa: E731
+    assert strip(a["sensor"]) == strip(b["sensor"])  # the same numbers as the single-process run
+    assert (out / "tiny2_psf_report.html").is_file()
+    capsys.readouterr()
+    assert main(["psf", str(path), str(other), "--field-deg", "0", "--wavelengths", "3", "--window-um", "150",
+                 "--jobs", "2", "--out", str(tmp_path / "o2")]) == 2
+    lines = [x for x in capsys.readouterr().err.splitlines() if x.strip()]
+    assert len(lines) == 1 and "--window-um" in lines[0]
