@@ -1,11 +1,14 @@
 """Streamed, resumable, atomic export of a lens layout (GDSII or OASIS) and of a calibration array.
 
-The file is written to ``.<name>.part`` next to the final path, band after band (bands are computed
-through :func:`metafovea.parallel.get_executor`: serial, local processes or a Dask client, at most a
-few bands in flight, written in order). After every band a small journal ``.<name>.part.json``
-records the bands finished and the byte offset; a rerun with the same parameters truncates the part
-file to that offset and continues. When all bands are written the footer is added, the file is
-fsynced and renamed to the final name; nothing ever appears under the final name half-written.
+The file is written to ``.<name>.part`` next to the final path, task after task (a task is a
+mirror-row band, see :meth:`LayoutSpec.tasks`; tasks are encoded serially, in local threads or
+processes, or on a Dask client, at most a few in flight, and written in order by a writer thread
+through :class:`DirectFile`, ``O_DIRECT`` where possible). A small journal ``.<name>.part.json``
+(updated at most every 0.5 s) records the tasks finished and the byte offset (and, for hierarchical
+GDSII, the leaf structures per task); a rerun with the same parameters truncates the part file to that
+offset and continues. When all tasks are written the footer is added (hierarchical GDSII: the
+intermediate structures and the top cell), the file is fsynced and renamed to the final name; nothing
+ever appears under the final name half-written.
 """
 
 from __future__ import annotations

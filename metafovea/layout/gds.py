@@ -3,7 +3,11 @@
 gdstk writes a small library (post cells, top cell with ring, marks and label). Its last two records
 are the top cell's ENDSTR and the ENDLIB; the exporter cuts them off, appends one SREF (28 bytes:
 SREF, SNAME of 4 characters, XY, ENDEL) or, with ``flat``, one 5-point BOUNDARY (64 bytes) per post,
-encoded band by band with numpy as big-endian records, and appends ENDSTR/ENDLIB.
+encoded task by task with numpy as big-endian records, and appends ENDSTR/ENDLIB.
+
+Hierarchical (``max_refs``): the posts go into leaf structures of at most ``max_refs`` records written
+after the post cells; intermediate structures and the top cell (gdstk's frame elements plus references)
+follow at the end (:func:`hierarchy_footer`).
 """
 
 from __future__ import annotations
