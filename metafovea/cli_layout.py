@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 from pathlib import Path
 
@@ -37,8 +38,9 @@ def _common(p: argparse.ArgumentParser) -> None:
     p.add_argument("--ring-width-um", type=float, default=1000.0, help="aluminium aperture ring width (um)")
     p.add_argument("--test-array", action="store_true", help="calibration layout: each post type in its own block")
     p.add_argument("--block", type=int, default=50, help="posts per side of a calibration block")
-    p.add_argument("--workers", type=int, default=1,
-                   help="export: encoder threads; verify: processes for the expected counts (default 1)")
+    p.add_argument("--workers", type=int, default=None,
+                   help="export: encoder threads (default 2, at most the CPU count); verify: processes for "
+                        "the expected counts (default 1)")
     p.add_argument("--scheduler", default=None, help="Dask scheduler address (tcp://host:8786)")
     p.add_argument("--json", action="store_true", help="print the result as JSON")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
@@ -137,10 +139,11 @@ def run_export(args) -> int:
     else:
         if not 0 <= args.compress <= 9:
             raise InputError("--compress", args.compress, "an integer 0..9")
-        if args.workers is None or args.workers < 1:
+        if args.workers is not None and args.workers < 1:
             raise InputError("--workers", args.workers, "an integer >= 1")
+        workers = args.workers if args.workers is not None else max(1, min(2, os.cpu_count() or 1))
         res = export_layout(spec, out, fmt, flat=args.flat, force=args.force, resume=not args.no_resume,
-                            workers=args.workers, scheduler=args.scheduler, progress=not (args.quiet or args.json),
+                            workers=workers, scheduler=args.scheduler, progress=not (args.quiet or args.json),
                             compress=args.compress, max_refs=args.max_refs).as_dict()
     if args.json:
         from metafovea.io import to_json
@@ -159,11 +162,11 @@ def run_verify(args) -> int:
 
     spec = _spec(args, args.design)
     ta = _test_array(args, spec) if args.test_array else None
-    if args.workers is None or args.workers < 1:
+    if args.workers is not None and args.workers < 1:
         raise InputError("--workers", args.workers, "an integer >= 1")
     if args.max_refs is not None and args.max_refs < 1:
         raise InputError("--max-refs", args.max_refs, "an integer >= 1")
-    rep = verify_layout(args.file, spec, reader=args.reader, test_array=ta, workers=args.workers,
+    rep = verify_layout(args.file, spec, reader=args.reader, test_array=ta, workers=args.workers or 1,
                         progress=not (args.quiet or args.json), max_refs=args.max_refs)
     if args.json:
         from metafovea.io import to_json
