@@ -13,7 +13,6 @@ import importlib.util
 import logging
 import sys
 import warnings
-from pathlib import Path
 from typing import Any, Sequence
 
 from metafovea import __version__

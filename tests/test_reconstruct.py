@@ -398,3 +398,16 @@ def test_dispatcher_errors(truth, alpha8):
         reconstruct(Y, alpha8, method="snapshot")
     r = reconstruct(Y, method="alternating")
     assert r.method == "alternating"
+
+
+def test_grad2d_adjoint_and_tv_gradient():
+    from metafovea.reconstruct.operators import grad2d, grad2d_adjoint, tv_charbonnier
+    g = np.random.default_rng(0)
+    z = g.normal(size=(7, 9))
+    py, px = g.normal(size=(7, 9)), g.normal(size=(7, 9))
+    gy, gx = grad2d(z)
+    assert np.isclose((gy * py).sum() + (gx * px).sum(), (z * grad2d_adjoint(py, px)).sum())
+    v, grad = tv_charbonnier(z, 0.1)
+    e = np.zeros_like(z)
+    e[3, 4] = 1e-6
+    assert np.isclose((tv_charbonnier(z + e, 0.1)[0] - tv_charbonnier(z - e, 0.1)[0]) / 2e-6, grad[3, 4], rtol=1e-5)

@@ -23,7 +23,6 @@ weights vary as ``s_k (1 + drift * w_k(t))`` with smooth random ``w_k`` (|w| <= 
 from __future__ import annotations
 
 import logging
-import math
 from dataclasses import dataclass
 from typing import Any
 

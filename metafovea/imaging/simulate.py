@@ -17,14 +17,14 @@ import json
 import logging
 import math
 import time
-from dataclasses import asdict, dataclass, field, replace
+from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 
 from metafovea.config import SystemDesign
-from metafovea.errors import InputError, check_int, check_range
+from metafovea.errors import InputError, check_int
 from metafovea.imaging.measurement import Measurement
 from metafovea.imaging.radiometry import BandRadiance
 from metafovea.imaging.scene import Scene, SceneGeometry, make_scene

@@ -12,7 +12,6 @@ times the channel's noise gain), so weights follow a stated rule instead of a ha
 
 from __future__ import annotations
 
-from typing import Any
 
 import numpy as np
 

@@ -28,7 +28,7 @@ import numpy as np
 
 from metafovea.errors import InputError, as_float, check_int
 from metafovea.reconstruct._common import as_frames
-from metafovea.reconstruct.operators import FovealOperator
+from metafovea.reconstruct.operators import FovealOperator, tv_charbonnier
 
 log = logging.getLogger(__name__)
 
@@ -41,34 +41,6 @@ def project_lowrank(f: np.ndarray, rank: int, bound: float) -> np.ndarray:
         f = (U[:, :rank] * s[:rank]) @ Vt[:rank]
     f = np.clip(f, -bound, bound)
     return f - f.mean()
-
-
-def _grad(z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    gy = np.zeros_like(z)
-    gx = np.zeros_like(z)
-    gy[:-1] = z[1:] - z[:-1]
-    gx[:, :-1] = z[:, 1:] - z[:, :-1]
-    return gy, gx
-
-
-def _div(py: np.ndarray, px: np.ndarray) -> np.ndarray:
-    """Negative adjoint of :func:`_grad`."""
-    d = np.zeros_like(py)
-    d[0] += py[0]
-    d[1:-1] += py[1:-1] - py[:-2]
-    d[-1] -= py[-2]
-    d[:, 0] += px[:, 0]
-    d[:, 1:-1] += px[:, 1:-1] - px[:, :-2]
-    d[:, -1] -= px[:, -2]
-    return d
-
-
-def _tv_charb(z: np.ndarray, eps: float) -> tuple[float, np.ndarray]:
-    """Value and gradient of sum sqrt(|grad z|^2 + eps^2) (anisotropic)."""
-    gy, gx = _grad(z)
-    ry, rx = np.sqrt(gy ** 2 + eps ** 2), np.sqrt(gx ** 2 + eps ** 2)
-    val = float(ry.sum() + rx.sum())
-    return val, -_div(gy / ry, gx / rx)
 
 
 def estimate_fpn(*, calibration: Any = None, x1: np.ndarray | None = None, x2: np.ndarray | None = None,
@@ -133,8 +105,8 @@ def estimate_fpn(*, calibration: Any = None, x1: np.ndarray | None = None, x2: n
     f = np.zeros_like(a1)
     hist = []
     for it in range(iterations):
-        v1, g1 = _tv_charb(a1 - f, eps)
-        v2, g2 = _tv_charb(a2 - f, eps)
+        v1, g1 = tv_charbonnier(a1 - f, eps)
+        v2, g2 = tv_charbonnier(a2 - f, eps)
         r = op.residual(a1 - f, a2 - f)
         grad = -(g1 + g2) - 2 * mu * (op.DT(r) - op.gain * op.CT(r))
         hist.append(v1 + v2 + mu * float(np.sum(r ** 2)))

@@ -182,3 +182,29 @@ def downsample_adjoint(u: np.ndarray, shape: tuple[int, int], scale: float = 6.0
 def centre_crop(x2: np.ndarray, scale: float = 6.0, offset: tuple[float, float] = (0.0, 0.0)) -> np.ndarray:
     """Centred crop ``C`` of ``x2`` matching :func:`downsample` (size ``floor(H/scale) x floor(W/scale)``)."""
     return FovealOperator(x2.shape[-2:], scale, offset).C(np.asarray(x2))
+
+
+def grad2d(z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Forward differences ``(d/dy, d/dx)`` of ``z (H, W)``, zero in the last row / column."""
+    gy = np.zeros_like(z)
+    gx = np.zeros_like(z)
+    gy[:-1] = z[1:] - z[:-1]
+    gx[:, :-1] = z[:, 1:] - z[:, :-1]
+    return gy, gx
+
+
+def grad2d_adjoint(py: np.ndarray, px: np.ndarray) -> np.ndarray:
+    """Adjoint of :func:`grad2d` (the negative divergence)."""
+    out = np.zeros_like(py)
+    out[1:] += py[:-1]
+    out[:-1] -= py[:-1]
+    out[:, 1:] += px[:, :-1]
+    out[:, :-1] -= px[:, :-1]
+    return out
+
+
+def tv_charbonnier(z: np.ndarray, eps: float) -> tuple[float, np.ndarray]:
+    """Value and gradient of the anisotropic smoothed TV ``sum sqrt(|d z|^2 + eps^2)``."""
+    gy, gx = grad2d(z)
+    ry, rx = np.sqrt(gy ** 2 + eps ** 2), np.sqrt(gx ** 2 + eps ** 2)
+    return float(ry.sum() + rx.sum()), grad2d_adjoint(gy / ry, gx / rx)
