@@ -7,7 +7,6 @@ returns the exit status (verify: 1 on any mismatch) and raises :class:`InputErro
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import sys
 from pathlib import Path

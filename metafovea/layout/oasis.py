@@ -229,7 +229,6 @@ def placements(kg: np.ndarray, xg: np.ndarray, yg: np.ndarray, cnt: np.ndarray, 
     """PLACEMENT records (vectorised): group g places cell ``kg[g]`` at ``(xg, yg)`` and, with
     ``cnt[g] > 1``, repeats it with a type-5 (``grid`` > 1) or type-4 repetition whose encoded spaces are
     ``spaces[sp_start[g]:sp_start[g] + sp_len[g]]``. Same bytes as writing them one by one."""
-    G = kg.size
     rep = cnt > 1
     grid_b = np.frombuffer(uint(grid), dtype=np.uint8) if grid > 1 else np.zeros(0, np.uint8)
     zx, zy = _zigzag(xg), _zigzag(yg)

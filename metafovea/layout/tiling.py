@@ -33,7 +33,7 @@ import numpy as np
 
 from metafovea.config import LensDesign
 from metafovea.errors import InputError, check_int
-from metafovea.lens import EMPTY, evaluate_tile, row_half_counts, site_index_range
+from metafovea.lens import EMPTY, row_half_counts, site_index_range
 from metafovea.library import PostSet
 from metafovea.units import NM_PER_UM, TWO_PI
 

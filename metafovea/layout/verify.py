@@ -17,7 +17,6 @@ whole layout; the set of layers used.
 
 from __future__ import annotations
 
-import math
 import os
 import struct
 import time
