@@ -26,7 +26,6 @@ import pytest
 os.environ.setdefault("XLA_FLAGS", "--xla_cpu_multi_thread_eigen=false intra_op_parallelism_threads=1")
 fmmax = pytest.importorskip("fmmax")
 jax = pytest.importorskip("jax")
-jax.config.update("jax_enable_x64", True)
 import jax.numpy as jnp  # noqa: E402
 
 from metafovea.rcwa import Layer, Rectangle, Stack, post_response, solve  # noqa: E402
@@ -55,7 +54,16 @@ def _jitted(M, formulation, patterned):
 
 
 def _fmmax_stack(M, eps_layers, thicknesses, formulation="FFT"):
-    """S-matrix blocks of a 3-layer stack (scalar permittivities, the middle one may be a pixel map)."""
+    """S-matrix blocks of a 3-layer stack (scalar permittivities, the middle one may be a pixel map).
+
+    Double precision only inside this call (jax.enable_x64 as a context): switching it on globally
+    would change the dtype of every other jax user in the test session.
+    """
+    with jax.enable_x64(True):
+        return _fmmax_stack_x64(M, eps_layers, thicknesses, formulation)
+
+
+def _fmmax_stack_x64(M, eps_layers, thicknesses, formulation):
     e0, e1, e2 = (jnp.asarray(np.asarray(e, dtype=complex).reshape(np.shape(e) or (1, 1))) for e in eps_layers)
     exp, run = _jitted(M, formulation, e1.shape != (1, 1))
     blocks = run(e0, e1, e2, jnp.asarray(thicknesses, dtype=float))
