@@ -357,3 +357,10 @@ def test_radial_lattice_error_bound(lens, lam):
     b = sensor_psf(lens, pixel_pitch_um=17.0, wavelengths_um=[lam], size_px=31, engine="mft", error=1e-6)
     d = np.abs(a.intensity - b.intensity).max() / b.intensity.max()
     assert d <= a.error_estimate < 1e-3
+
+
+@pytest.mark.parametrize("field", [0.0, 3.0])
+def test_sensor_psf_pass_through_polarisation_has_no_focus(field):
+    # the other polarisation passes the ideal lens unfocused: haze only, no wave or ray engine
+    S = sensor_psf(F1, pixel_pitch_um=17.0, field_deg=field, polarization="x", size_px=21)
+    assert S.info["engines"] == {} and 0 < S.energy_fraction < 1e-3 and S.error_estimate == 0.0

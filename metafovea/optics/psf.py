@@ -598,7 +598,7 @@ def sensor_psf(lens: LensDesign, *, pixel_pitch_um: float, field_deg: float | tu
             wave_k = list(active)
         elif engine == "geometric":
             geo_k = list(active)
-        else:
+        elif active:
             # geometric maps of every wavelength (one shared ray set): their pixel peaks bound the error a
             # geometric treatment would make (GEO_ERROR x own peak, calibrated against the wave engines)
             n_est = min(150_000, _n_rays(float(spreads[active].max()), p))
