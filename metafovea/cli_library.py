@@ -15,12 +15,11 @@ import argparse
 import io
 import logging
 import time
-from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from metafovea.errors import InputError, check_int, check_positive, check_range
+from metafovea.errors import check_int, check_positive
 
 log = logging.getLogger(__name__)
 
@@ -39,8 +38,8 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
     p.add_argument("--tol", default="0.02", help="convergence tolerance on t for the warning (default 0.02)")
     p.add_argument("--workers", default=None, help="local worker processes (default: all cores)")
     p.add_argument("--scheduler", default=None, help="Dask scheduler address (tcp://host:8786) to run the sweep on")
-    p.add_argument("--cache-dir", default=None, help="library cache directory (default $METAFOVEA_CACHE or "
-                                                     "~/.cache/metafovea/library)")
+    p.add_argument("--cache-dir", default=None, help="library cache directory (default $METAFOVEA_CACHE/library, "
+                                                     "i.e. ~/.cache/metafovea/library)")
     p.add_argument("--no-cache", action="store_true", help="recompute even if a cached library exists")
     p.add_argument("--out", default=None, help="write library, post sets, figures and JSON into this directory")
     p.add_argument("--force", action="store_true", help="overwrite existing output")

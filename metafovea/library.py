@@ -6,7 +6,6 @@ by one lens, level ``k`` targeting the wrapped phase ``2 pi k / N`` for the lens
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -124,7 +123,6 @@ class PostSet:
 
 import logging
 import math
-import os
 import time
 import warnings
 from typing import Iterable, Sequence
@@ -227,8 +225,8 @@ def _row_task(job: dict) -> dict:
 
 
 def default_cache_dir() -> Path:
-    env = os.environ.get("METAFOVEA_CACHE")
-    return Path(env) if env else Path.home() / ".cache" / "metafovea" / "library"
+    from metafovea.io import cache_root
+    return cache_root() / "library"
 
 
 def compute_library(wx_um: Sequence[float], wy_um: Sequence[float] | None = None,

@@ -112,7 +112,6 @@ class Basis:
         P12 = -self.Kx_Ez_Ex.lmul(GKx)
         P21 = self.Ky_Ez_Ey.lmul(GKy)
         P22 = -self.Ky_Ez_Ey.lmul(GKx)
-        nEx, nHx = self.size["Ex"], self.size["Hx"]
         i12 = np.arange(min(P12.shape[-2], P12.shape[-1]))
         P12[..., i12, i12] += 1.0   # Hy -> Ex identity (same class)
         i21 = np.arange(min(P21.shape[-2], P21.shape[-1]))

@@ -27,7 +27,6 @@ from __future__ import annotations
 import logging
 import warnings
 from dataclasses import dataclass, field
-from typing import Any
 
 import numpy as np
 

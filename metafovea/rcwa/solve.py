@@ -27,7 +27,6 @@ import logging
 import math
 import warnings
 from dataclasses import dataclass, field
-from typing import Any
 
 import numpy as np
 
@@ -35,7 +34,7 @@ from metafovea.errors import InputError, NotConvergedWarning, check_choice, chec
 from metafovea.materials import index_of
 from metafovea.rcwa.basis import Basis
 from metafovea.rcwa.fourier import indicator_toeplitz, orders, rebuild
-from metafovea.rcwa.geometry import Layer, Rectangle, Stack
+from metafovea.rcwa.geometry import Stack
 from metafovea.rcwa.smatrix import interface, propagate, star
 
 log = logging.getLogger(__name__)
