@@ -22,7 +22,14 @@ import warnings
 import numpy as np
 
 from metafovea.config import LensDesign
-from metafovea.optics import asm_propagate, build_pupils, hankel_field, mft_field, sensor_psf, spectral_weights
+from metafovea.optics import (
+    asm_propagate,
+    build_pupils,
+    hankel_field,
+    mft_field,
+    sensor_psf,
+    spectral_weights,
+)
 from metafovea.optics import propagate as prop
 from metafovea.optics.psf import _box_integrate
 

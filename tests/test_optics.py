@@ -13,8 +13,20 @@ import pytest
 from metafovea.config import LensDesign
 from metafovea.errors import InputError
 from metafovea.library import PostSet
-from metafovea.optics import (PSF, asm_propagate, build_pupils, diffraction_mtf, encircled_energy, fwhm_um,
-                              hankel_field, mft_field, psf, pupil_mtf, sensor_psf, strehl)
+from metafovea.optics import (
+    PSF,
+    asm_propagate,
+    build_pupils,
+    diffraction_mtf,
+    encircled_energy,
+    fwhm_um,
+    hankel_field,
+    mft_field,
+    psf,
+    pupil_mtf,
+    sensor_psf,
+    strehl,
+)
 from metafovea.optics import propagate as prop
 from metafovea.optics.propagate import AliasingWarning, SamplingError
 from metafovea.optics.radiometry import check_band, planck_radiance, spectral_weights

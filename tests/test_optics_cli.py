@@ -118,7 +118,7 @@ def test_two_lenses_in_two_processes(tiny, tmp_path, capsys):
                  "--out", str(out)]) == 0
     a = json.loads((out / "tiny_psf_report.json").read_text())
     b = json.loads((out1 / "tiny_psf_report.json").read_text())
-    strip = lambda rows: [{k: v for k, v in r.items() if k != "seconds"} for r in rows]  # noqa: E731
+    strip = lambda rows: [{k: v for k, v in r.items() if k != "seconds"} for r in rows]
     assert strip(a["sensor"]) == strip(b["sensor"])  # the same numbers as the single-process run
     assert (out / "tiny2_psf_report.html").is_file()
     capsys.readouterr()

@@ -9,15 +9,52 @@ Public API::
     spectral_weights, planck_radiance       (metafovea.optics.radiometry)
 """
 
-from .propagate import AliasingWarning, SamplingError, asm_propagate, hankel_field, mft_field
+from .mtf import (
+                  diffraction_mtf,
+                  encircled_energy,
+                  fwhm_um,
+                  mtf_2d,
+                  mtf_radial,
+                  mtf_slices,
+                  pixel_mtf,
+                  pupil_mtf,
+                  strehl,
+)
+from .propagate import (
+                  AliasingWarning,
+                  SamplingError,
+                  asm_propagate,
+                  hankel_field,
+                  mft_field,
+)
 from .psf import PSF, diffraction_radius_um, nyquist_pitch_um, psf, sensor_psf
 from .pupil import Pupil, build_pupils, field_direction, max_field_deg
 from .radiometry import planck_radiance, spectral_weights
-from .mtf import (diffraction_mtf, encircled_energy, fwhm_um, mtf_2d, mtf_radial, mtf_slices, pixel_mtf,
-                  pupil_mtf, strehl)
 
-__all__ = ["PSF", "psf", "sensor_psf", "Pupil", "build_pupils", "field_direction", "max_field_deg",
-           "asm_propagate", "mft_field", "hankel_field", "AliasingWarning", "SamplingError",
-           "diffraction_radius_um", "nyquist_pitch_um", "planck_radiance", "spectral_weights",
-           "diffraction_mtf", "encircled_energy", "fwhm_um", "mtf_2d", "mtf_radial", "mtf_slices",
-           "pixel_mtf", "pupil_mtf", "strehl"]
+__all__ = [
+                  "PSF",
+                  "AliasingWarning",
+                  "Pupil",
+                  "SamplingError",
+                  "asm_propagate",
+                  "build_pupils",
+                  "diffraction_mtf",
+                  "diffraction_radius_um",
+                  "encircled_energy",
+                  "field_direction",
+                  "fwhm_um",
+                  "hankel_field",
+                  "max_field_deg",
+                  "mft_field",
+                  "mtf_2d",
+                  "mtf_radial",
+                  "mtf_slices",
+                  "nyquist_pitch_um",
+                  "pixel_mtf",
+                  "planck_radiance",
+                  "psf",
+                  "pupil_mtf",
+                  "sensor_psf",
+                  "spectral_weights",
+                  "strehl",
+]

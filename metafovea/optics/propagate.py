@@ -34,7 +34,7 @@ from typing import Any
 import numpy as np
 from scipy import special
 
-from metafovea.errors import InputError, check_int, check_positive, check_range
+from metafovea.errors import InputError, check_positive, check_range
 from metafovea.rcwa.threads import blas_threads
 
 from .pupil import Pupil
@@ -419,7 +419,11 @@ def sampled_lens_field(pupil: Pupil, pitch_um: float, *, quantize_levels: int | 
     ``lattice_sites`` holds each sample at the value of its lattice site (needs pitch = period / integer).
     The field is the order-1 lens under the pupil's wavelength and field angle (incident tilt included).
     """
-    from metafovea.lens import design_phase, level_phase, quantize_phase  # lens stage (rank 3): allowed
+    from metafovea.lens import (  # lens stage (rank 3): allowed
+        design_phase,
+        level_phase,
+        quantize_phase,
+    )
 
     lens = pupil.lens
     R = lens.radius_um

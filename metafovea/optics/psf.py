@@ -37,7 +37,14 @@ from typing import Any
 import numpy as np
 
 from metafovea.config import LensDesign
-from metafovea.errors import InputError, NotConvergedWarning, check_choice, check_int, check_positive, check_range
+from metafovea.errors import (
+    InputError,
+    NotConvergedWarning,
+    check_choice,
+    check_int,
+    check_positive,
+    check_range,
+)
 from metafovea.io import atomic_save_npz, load_npz
 from metafovea.library import PostSet
 
@@ -110,7 +117,7 @@ class PSF:
                                weights=self.weights)
 
     @classmethod
-    def load(cls, path: str | Path) -> "PSF":
+    def load(cls, path: str | Path) -> PSF:
         arrays, meta = load_npz(path)
         if meta.get("type") != "PSF":
             raise InputError("path", str(path), "a PSF file written by PSF.save")
@@ -656,7 +663,7 @@ def sensor_psf(lens: LensDesign, *, pixel_pitch_um: float, field_deg: float | tu
             j0 = int(np.searchsorted(ys, ub[2] - mg)); j1 = int(np.searchsorted(ys, ub[3] + mg))
             if engine == "hankel":
                 for k in bk:
-                    I, e_name, e = focus_intensity(sets[k].focus, xs[i0:i1], ys[j0:j1], error=error, engine="hankel")
+                    I, _, e = focus_intensity(sets[k].focus, xs[i0:i1], ys[j0:j1], error=error, engine="hankel")
                     total_f[j0:j1, i0:i1] += w[k] * I
                     est_abs += w[k] * e * _ideal_peak(sets[k].focus) * dx * dx / P_in * n_sub * n_sub
             else:

@@ -5,7 +5,8 @@ Wavelengths in um, temperatures in kelvin. Importable by the imaging stage (no o
 
 from __future__ import annotations
 
-from typing import Any, Callable
+from collections.abc import Callable
+from typing import Any
 
 import numpy as np
 

@@ -18,7 +18,7 @@ from metafovea.config import LensDesign
 from metafovea.io import atomic_write_bytes, atomic_write_json, atomic_write_text
 
 from .mtf import diffraction_mtf, encircled_energy, pupil_mtf, strehl
-from .psf import PSF, diffraction_radius_um, encircled_energy_on_axis, psf, sensor_psf
+from .psf import diffraction_radius_um, encircled_energy_on_axis, psf, sensor_psf
 from .pupil import max_field_deg
 from .radiometry import spectral_weights
 
@@ -36,8 +36,9 @@ def psf_report(lens: LensDesign, out_dir: str | Path, *, fields_deg: list[float]
     full width of the fine monochromatic PSF windows (default: sized from the rays; a given window that
     truncates the PSF above ``error`` raises :class:`metafovea.optics.propagate.SamplingError`).
     """
-    from .propagate import SamplingError
     import matplotlib
+
+    from .propagate import SamplingError
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
