@@ -376,3 +376,13 @@ def test_sensor_psf_pass_through_polarisation_has_no_focus(field):
     # the other polarisation passes the ideal lens unfocused: haze only, no wave or ray engine
     S = sensor_psf(F1, pixel_pitch_um=17.0, field_deg=field, polarization="x", size_px=21)
     assert S.info["engines"] == {} and 0 < S.energy_fraction < 1e-3 and S.error_estimate == 0.0
+
+
+@pytest.mark.parametrize("lens,ee17,ee24", [(F1, 0.8216, 0.8878), (F2, 0.7611, 0.8277)])
+def test_encircled_energy_of_default_sampled_psf(lens, ee17, ee24):
+    # the default pitch is near the intensity Nyquist pitch: EE must interpolate, not treat samples as squares
+    P = psf(lens)
+    assert P.pitch_um > 4.0
+    e = encircled_energy(P, [17.0, 24.0])
+    assert e[0] == pytest.approx(ee17, abs=2e-3)
+    assert e[1] == pytest.approx(ee24, abs=2e-3)

@@ -131,23 +131,52 @@ def pupil_mtf(lens: LensDesign, nu_cyc_per_mm: Any, *, wavelength_um: float | No
     return out
 
 
+def _interpolated(psf: PSF, r_min_um: float, max_side: int = 2048) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
+    """Band-limited (Fourier) interpolation of a point-sampled wave PSF onto a grid fine enough for
+    circles of radius ``r_min_um``; pixel-integrated sensor PSFs (and fine grids) are returned as they are.
+
+    A point-sampled wave PSF from :func:`~metafovea.optics.psf` is sampled at or below the intensity
+    Nyquist pitch lambda/(4 NA), so zero-padding its spectrum reproduces the continuous intensity (up to
+    the window-edge error); treating each sample as a uniform square instead errs by ~3 % in EE(17 um)
+    for the F/2 lens at its default pitch.
+    """
+    xs, ys = psf.coords()
+    I = np.asarray(psf.intensity, float)
+    H, W = I.shape
+    k = int(np.ceil(psf.pitch_um / max(r_min_um / 12.0, 1e-12)))
+    k = max(1, min(k, 16, max_side // max(H, W, 1)))
+    if "fine_pitch_um" in psf.info or k == 1:
+        return I, xs, ys, psf.pitch_um
+    from scipy.signal import resample
+
+    # Fourier resampling (periodic, Nyquist bin split for even sizes); sample m lands on x0 + m p / k.
+    # Values are intensity samples on the fine grid: divide by k^2 for the power per fine sample.
+    If = resample(resample(I, H * k, axis=0), W * k, axis=1) / (k * k)
+    p = psf.pitch_um / k
+    return If, xs[0] + p * np.arange(W * k), ys[0] + p * np.arange(H * k), p
+
+
 def encircled_energy(psf: PSF, radii_um: Any, center_um: tuple[float, float] | None = None,
                      relative_to: str = "incident", sub: int = 8) -> np.ndarray:
     """Power within circles (fraction of the incident power, or of the window's power with
-    ``relative_to='window'``) around ``center_um`` (default: the centroid)."""
+    ``relative_to='window'``) around ``center_um`` (default: the centroid).
+
+    Point-sampled wave PSFs are first interpolated (band-limited) onto a grid of at most r/12 pitch;
+    each sample then counts with the fraction of its cell inside the circle (``sub`` x ``sub`` points).
+    """
     r = np.atleast_1d(np.asarray(radii_um, float))
-    xs, ys = psf.coords()
+    I, xs, ys, pitch = _interpolated(psf, float(np.min(r[r > 0])) if np.any(r > 0) else psf.pitch_um)
     c = psf.centroid_um() if center_um is None else center_um
     off = (np.arange(sub) + 0.5) / sub - 0.5
-    X = (xs[None, :, None, None] + off[None, None, None, :] * psf.pitch_um) - c[0]
-    Y = (ys[:, None, None, None] + off[None, None, :, None] * psf.pitch_um) - c[1]
-    R2 = X * X + Y * Y  # (H, W, sub, sub)
+    X = (xs[None, :, None, None] + off[None, None, None, :] * pitch) - c[0]
+    Y = (ys[:, None, None, None] + off[None, None, :, None] * pitch) - c[1]
     out = np.empty(r.size)
     for i, rr in enumerate(r):
-        frac = (R2 <= rr * rr).mean(axis=(2, 3))
-        out[i] = float((psf.intensity * frac).sum())
+        inside = (X * X + Y * Y) <= rr * rr
+        frac = inside.mean(axis=(2, 3))
+        out[i] = float((I * frac).sum())
     if relative_to == "window":
-        out = out / psf.intensity.sum()
+        out = out / float(np.asarray(psf.intensity).sum())
     return out
 
 
