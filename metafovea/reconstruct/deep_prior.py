@@ -19,8 +19,8 @@ rescaled to [0, 1] for the sigmoid and the result is mapped back.
 Warm start (``init='classical'``/``'lsq'``/``(x1, x2)``, see :func:`dip`): ``x_k = x_init_k +
 range_k (g_k(z_k) - mean)`` with the output layers zeroed, so the DIP starts from the classical estimate
 and cannot move its level (the alpha gauge, which the DIP loss does not fix). On the simulated 290 x 290
-paper measurement it keeps the classical result (31.4 / 38.8 dB) within 0.05 dB over 200 steps; it does
-not improve it, because that estimate's error is the gauge (mean offsets of 3.1 / 13 DN against 1.2 /
+paper measurement it keeps the classical result (31.4 / 38.8 dB) within 0.05 dB over 200 steps with 8
+channels (32 channels: 100 steps; -0.3 dB on x1 at 200); it does not improve it, because that estimate's error is the gauge (mean offsets of 3.1 / 13 DN against 1.2 /
 2.5 DN of everything else), and a random start reaches only ~-4 / 14 dB in 60 steps.
 
 Cost on the 2-core reference machine (anchors): 128 channels at 256^2 ~14-18 s per step, 32 channels
