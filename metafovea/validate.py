@@ -54,7 +54,7 @@ class ValidateOptions:
     window: int = 8
     filters: tuple[bool, ...] = (False, True)  #: spectral cases: broadband as designed, then the 10 um filter
     alternating_windows: int = 4  #: windows (spread over the sequence) for the unknown-alpha solver
-    dip_steps: int = 20  #: warm-started from the classical solver: more steps change PSNR by < 0.05 dB (BENCHMARKS_reconstruct.md)
+    dip_steps: int = 20  #: warm-started from the classical solver: more steps change PSNR by < 0.05 dB (BENCHMARKS.md)
     dip_channels: int = 8
     dip_cases: str = "last"  #: run the (slow) deep image prior in 'last' case only, or 'all'/'none' 
     snapshot_iterations: int = 200
@@ -208,7 +208,7 @@ def _reconstruct_stage(meas: Any, opts: ValidateOptions, st: _Stages, label: str
     # double deep image prior, small network (the paper's is 128 channels and thousands of steps), warm
     # started from the classical solver: x_k = x_alternating_k + zero-mean network correction, each image
     # normalised by its own range, alpha refined from the classical estimate (random starts reach only
-    # -4 / 14 dB in this budget; the warm start keeps the classical result, see BENCHMARKS_reconstruct.md)
+    # -4 / 14 dB in this budget; the warm start keeps the classical result, see BENCHMARKS.md)
     if run_dip:
         st.say(f"{label}: deep image prior, warm start ({opts.dip_channels} channels, {opts.dip_steps} steps)")
         # the same windows as the alternating row, so that the two rows compare
