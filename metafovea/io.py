@@ -87,15 +87,20 @@ def atomic_write_json(path: str | os.PathLike, obj: Any) -> Path:
     return atomic_write_text(path, to_json(obj) + "\n")
 
 
-def atomic_save_npz(path: str | os.PathLike, meta: dict[str, Any] | None = None, **arrays: np.ndarray) -> Path:
-    """Save arrays (compressed) plus JSON metadata under key ``__meta__`` atomically."""
+def atomic_save_npz(path: str | os.PathLike, meta: dict[str, Any] | None = None, *, compress: bool = True,
+                    **arrays: np.ndarray) -> Path:
+    """Save arrays plus JSON metadata under key ``__meta__`` atomically.
+
+    ``compress=False`` stores the arrays uncompressed (noisy float32 frames hardly compress, and zlib
+    costs seconds per 30 MB).
+    """
     buf = _io.BytesIO()
     payload = dict(arrays)
     if meta is not None:
         m = dict(meta)
         m.setdefault("schema_version", SCHEMA_VERSION)
         payload["__meta__"] = np.frombuffer(to_json(m, indent=None).encode(), dtype=np.uint8)
-    np.savez_compressed(buf, **payload)
+    (np.savez_compressed if compress else np.savez)(buf, **payload)
     return atomic_write_bytes(path, buf.getvalue())
 
 

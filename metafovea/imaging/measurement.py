@@ -1,6 +1,6 @@
 """The Measurement file: frames from the camera (simulated or real) plus what is known about them.
 
-Written with :func:`metafovea.io.atomic_save_npz` (compressed ``.npz`` + JSON metadata under
+Written with :func:`metafovea.io.atomic_save_npz` (uncompressed ``.npz`` + JSON metadata under
 ``__meta__``); the format is documented in ``docs/measurement_format.md``. Arrays:
 
 ``frames`` (T, H, W) float32 (required)
@@ -132,7 +132,7 @@ class Measurement:
         meta = dict(self.meta)
         meta["kind"] = KIND
         meta.setdefault("units", "DN")
-        return atomic_save_npz(p, meta, **arrays)
+        return atomic_save_npz(p, meta, compress=False, **arrays)
 
     @classmethod
     def load(cls, path: str | Path) -> "Measurement":
