@@ -253,6 +253,10 @@ def lattice_efficiency(design: LensDesign, levels: int | None = None, *, samples
     n = design.levels if levels is None else levels
     lv = None if n == 0 else check_int("levels", n, 2, 256)
     total = count_posts(design)
+    if total == 0:
+        raise InputError("diameter_um", design.diameter_um,
+                         f"a diameter that holds at least one lattice site (period {design.period_um:g} um, "
+                         f"lattice '{design.lattice}')")
     if exact is None:
         exact = total <= samples
     if exact:

@@ -184,3 +184,10 @@ def test_summary_paper_numbers():
     assert s.substrate_orders
     assert s.mtf_cutoff_cyc_per_mm == pytest.approx(48.51, abs=0.01)
     assert s.airy_first_zero_paraxial_um == pytest.approx(24.393, abs=1e-3)
+
+
+def test_lens_without_lattice_sites_is_a_clear_error():
+    d = LensDesign("tiny", 1000.0, 2.0, lattice="half")  # D = 2 um < half a period: no site inside
+    assert count_posts(d) == 0
+    with pytest.raises(InputError, match="diameter_um"):
+        summarize(d, samples=1000, emit_warnings=False)
