@@ -67,6 +67,11 @@ def design_from_args(args: argparse.Namespace) -> list:
         d = load_design(args.design_file)
         if isinstance(d, SystemDesign):
             lenses = [d.foveal, d.perifoveal]
+            for flag, v in (("--f", args.f_mm), ("--d", args.d_mm), ("--polarization", args.polarization),
+                            ("--name", args.name)):
+                if v is not None:
+                    raise InputError(flag, v, "no value with a system file (it holds two different lenses: "
+                                              "give a lens file or no file)")
         elif isinstance(d, LensDesign):
             lenses = [d]
         else:

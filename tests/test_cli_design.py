@@ -145,3 +145,12 @@ def test_platform_post_sets_coarse(tmp_path):
     # second call loads from the cache: identical post sets
     again, _ = platform_post_sets(PlatformDesign(), 4, grid_step_um=0.5, harmonics=5, cache_dir=tmp_path, workers=1)
     assert again["y"].widths_um.tolist() == sets["y"].widths_um.tolist()
+
+
+def test_system_file_refuses_per_lens_flags(capsys, designs_dir):
+    rc, _, err = run(["design", str(designs_dir / "system.toml"), "--f", "100"], capsys)
+    assert rc == 2 and "--f" in err and "system file" in err
+    # platform-wide flags are fine with a system file
+    rc, out, _ = run(["design", str(designs_dir / "system.toml"), "--levels", "4", "--json", "--samples", "5000"],
+                     capsys)
+    assert rc == 0 and [s["levels"] for s in json.loads(out)] == [4, 4]
