@@ -14,6 +14,7 @@ import argparse
 import io
 import json
 import logging
+import os
 import sys
 import time
 from pathlib import Path
@@ -116,20 +117,41 @@ def _image_png(img: np.ndarray) -> bytes:
 
 
 def _summary(args: argparse.Namespace) -> dict[str, Any]:
-    from metafovea.io import atomic_write_bytes, load_npz, prepare_output
+    from metafovea.io import atomic_write_bytes, prepare_output
     from metafovea.reconstruct import reconstruct, video
     from metafovea.reconstruct.metrics import score
 
     src = Path(args.measurement)
-    arrays, meta = load_npz(src)
+    arrays, meta = _load(src)
     if "frames" not in arrays:
         raise InputError("measurement", str(src), "a Measurement .npz holding a 'frames' (T, H, W) array")
     frames = arrays["frames"]
     if frames.ndim != 3:
         raise InputError("frames", f"array of shape {frames.shape}", "(T, H, W)", source=str(src))
     T = frames.shape[0]
+    if T < 1 or min(frames.shape[1:]) < 1:
+        raise InputError("frames", f"array of shape {frames.shape}", "at least one (H, W) frame", source=str(src))
+    if np.issubdtype(frames.dtype, np.number) and not np.iscomplexobj(frames) and not np.any(np.isfinite(frames)):
+        raise InputError("frames", "no finite value", "frames with finite pixel values (NaN/inf pixels are "
+                         "masked, but all of them are non-finite)", source=str(src))
+    truths = _check_truth(arrays, frames.shape, src)
+    if args.method != "snapshot" and T < 2:
+        raise InputError("frames", f"{T} frame", "at least 2 frames (or --method snapshot for a single frame)",
+                         source=str(src))
+    if args.method != "snapshot" and not 2 <= args.window:
+        raise InputError("--window", args.window, f"2 <= window <= number of frames ({T})")
+    if args.stride < 1:
+        raise InputError("--stride", args.stride, "an integer >= 1")
     out = Path(args.out) if args.out else src.with_name(src.stem + "_rec.npz")
+    if out.suffix.lower() != ".npz":
+        raise InputError("--out", str(out), "a file name ending in .npz")
+    if out.resolve() == src.resolve() or (out.exists() and os.path.samefile(out, src)):
+        raise InputError("--out", str(out), "a path other than the measurement itself (it would be overwritten)")
     out = prepare_output(out, args.force)
+    stem = out.with_suffix("")
+    figures = [] if args.no_figures else [f"{stem}_x1.png", f"{stem}_x2.png", f"{stem}.png"]
+    for name in figures:  # all outputs are checked before anything is computed or written
+        prepare_output(name, args.force)
     geo = foveal_constraint(meta, scale=args.scale, gain=args.foveal_gain, offset=args.foveal_offset)
     scale = geo["scale"]
     use_alpha = args.known_alpha or args.method == "lsq"
@@ -145,16 +167,23 @@ def _summary(args: argparse.Namespace) -> dict[str, Any]:
     if args.fpn == "calibration":
         if "calibration" not in arrays:
             raise InputError("--fpn", "calibration", "a measurement with a 'calibration' frame array", source=str(src))
-        fpn_kw = {"fpn": "calibration", "calibration": arrays["calibration"]}
+        cal = arrays["calibration"]
+        if cal.ndim not in (2, 3) or cal.shape[-2:] != frames.shape[1:]:
+            raise InputError("calibration", f"array of shape {cal.shape}",
+                             f"(Tc, H, W) or (H, W) frames with (H, W) = {frames.shape[1:]}", source=str(src))
+        fpn_kw = {"fpn": "calibration", "calibration": cal}
     elif args.fpn == "prior":
         fpn_kw = {"fpn": "prior"}
     elif args.fpn == "file":
         if "fpn" not in arrays:
             raise InputError("--fpn", "file", "a measurement with an 'fpn' (H, W) array", source=str(src))
-        f = np.asarray(arrays["fpn"], dtype=np.float32)
-        if f.shape != frames.shape[1:]:
-            raise InputError("fpn", f"array of shape {f.shape}", f"the frames' (H, W) = {frames.shape[1:]}",
-                             source=str(src))
+        f = arrays["fpn"]
+        if f.shape != frames.shape[1:] or not np.issubdtype(f.dtype, np.number) or np.iscomplexobj(f):
+            raise InputError("fpn", f"array of shape {f.shape}, dtype {f.dtype}",
+                             f"real values of the frames' (H, W) = {frames.shape[1:]}", source=str(src))
+        f = np.asarray(f, dtype=np.float32)
+        if not np.all(np.isfinite(f)):
+            raise InputError("fpn", "array with NaN/inf", "a finite fixed pattern", source=str(src))
         frames = (frames - f[None]).astype(np.float32)
     t0 = time.perf_counter()
     if args.method == "snapshot":
@@ -196,12 +225,9 @@ def _summary(args: argparse.Namespace) -> dict[str, Any]:
     files = [str(out)]
     x1_last = rec.x1[-1] if rec.is_video else rec.x1
     x2_last = rec.x2[-1] if rec.is_video else rec.x2
-    if not args.no_figures:
-        stem = out.with_suffix("")
-        for name, data in ((f"{stem}_x1.png", _image_png(x1_last)), (f"{stem}_x2.png", _image_png(x2_last)),
-                           (f"{stem}.png", _figure(x1_last, x2_last, f"{rec.method}: {src.name}"))):
-            if Path(name).exists() and not args.force:
-                raise InputError("--out", name, "a path that does not exist yet (or pass --force to overwrite)")
+    if figures:
+        for name, data in zip(figures, (_image_png(x1_last), _image_png(x2_last),
+                                        _figure(x1_last, x2_last, f"{rec.method}: {src.name}"))):
             atomic_write_bytes(name, data)
             files.append(name)
     summary: dict[str, Any] = {"measurement": str(src), "method": rec.method, "frames": int(T),
@@ -217,14 +243,68 @@ def _summary(args: argparse.Namespace) -> dict[str, Any]:
         summary["gauge"] = {k: rec.info["gauge"].get(k) for k in ("applied", "reason")}
     if "fpn" in rec.info:
         summary["fpn"] = rec.info["fpn"].get("identified")
-    if "truth_x1" in arrays or "truth_x2" in arrays:
-        x1s = rec.x1 if rec.is_video else rec.x1[None]
-        finite = np.all(np.isfinite(x1s)) and np.all(np.isfinite(rec.x2))
+    n_bad = int(np.sum(~np.isfinite(rec.x1)) + np.sum(~np.isfinite(rec.x2)))
+    if n_bad:
+        summary["nonfinite_pixels"] = n_bad
+    if truths:
+        finite = n_bad == 0
         if finite:
-            summary["metrics"] = score(rec, arrays.get("truth_x1"), arrays.get("truth_x2"))
+            # the truth each output shows: the mean over its window (video truth), or the snapshot's frame
+            if args.method == "snapshot":
+                spans = [(args.frame, args.frame + 1)]
+            elif rec.is_video:
+                w = int(rec.info.get("window", args.window))
+                spans = [(int(s0), int(s0) + w) for s0 in rec.info["window_starts"]]
+            else:
+                spans = [(0, T)]
+
+            def at(t: np.ndarray | None) -> np.ndarray | None:
+                if t is None or t.ndim == 2:
+                    return t
+                per_output = np.stack([t[a:b].mean(axis=0) for a, b in spans])
+                return per_output if rec.is_video else per_output[0]
+
+            summary["metrics"] = score(rec, at(truths.get("truth_x1")), at(truths.get("truth_x2")))
         else:
             summary["metrics"] = "not computed: NaN pixels in the reconstruction"
     return summary
+
+
+def _load(src: Path) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
+    """:func:`metafovea.io.load_npz` with every way a file can fail to be a Measurement as an InputError."""
+    import zipfile
+
+    from metafovea.io import load_npz
+
+    try:
+        arrays, meta = load_npz(src)
+    except InputError:
+        raise
+    except (OSError, ValueError, EOFError, KeyError, zipfile.BadZipFile, UnicodeDecodeError) as e:
+        detail = " ".join(str(e).split())[:160] or type(e).__name__
+        raise InputError("measurement", str(src), "a Measurement .npz (numpy arrays, JSON '__meta__')",
+                         detail=detail) from None
+    if not isinstance(meta, dict):
+        raise InputError("__meta__", type(meta).__name__, "a JSON object (mapping)", source=str(src))
+    return arrays, meta
+
+
+def _check_truth(arrays: dict[str, np.ndarray], shape: tuple[int, ...], src: Path) -> dict[str, np.ndarray]:
+    """The file's truth images, checked against the frames: (H, W) or (T, H, W), finite."""
+    T, H, W = shape
+    out = {}
+    for key in ("truth_x1", "truth_x2"):
+        if key not in arrays:
+            continue
+        t = arrays[key]
+        if not (np.issubdtype(t.dtype, np.number) and not np.iscomplexobj(t)) or \
+                t.shape not in ((H, W), (T, H, W)):
+            raise InputError(key, f"array of shape {t.shape}, dtype {t.dtype}",
+                             f"real values of shape (H, W) = {(H, W)} or (T, H, W) = {(T, H, W)}", source=str(src))
+        if not np.all(np.isfinite(t)):
+            raise InputError(key, "array with NaN/inf", "finite truth images", source=str(src))
+        out[key] = np.asarray(t, dtype=np.float64)
+    return out
 
 
 def _json_safe(obj: Any) -> Any:

@@ -73,8 +73,8 @@ class Scene:
         lo = float(np.min(temp)) if temp.size else 0.0
         if not np.isfinite(lo) or lo < 0.0 or not np.all(np.isfinite(temp)):
             raise InputError(f"scene '{self.name}' temperature", lo, "finite temperatures >= 0 K")
-        if eps.size and (float(np.min(eps)) < 0.0 or float(np.max(eps)) > 1.0):
-            raise InputError(f"scene '{self.name}' emissivity", float(np.min(eps)), "0 <= emissivity <= 1")
+        if eps.size and not (np.all(np.isfinite(eps)) and float(np.min(eps)) >= 0.0 and float(np.max(eps)) <= 1.0):
+            raise InputError(f"scene '{self.name}' emissivity", _worst(eps, 0.0, 1.0), "0 <= emissivity <= 1")
         return temp, eps
 
     def _sample(self, ax: np.ndarray, ay: np.ndarray, t: float) -> tuple[Any, Any]:  # pragma: no cover
@@ -99,6 +99,18 @@ class Scene:
 # ----------------------------------------------------------------------------------------------
 # helpers
 # ----------------------------------------------------------------------------------------------
+def _worst(a: np.ndarray, lo: float, hi: float) -> float:
+    """The most offending value of ``a`` for the range [lo, hi]: a non-finite one first (no NaN warnings)."""
+    a = np.asarray(a, dtype=np.float64)
+    bad = a[~np.isfinite(a)]
+    if bad.size:
+        return float(bad.flat[0])
+    if a.size == 0:
+        return float("nan")
+    mn, mx = float(a.min()), float(a.max())
+    return mn if mn < lo or mx <= hi else mx
+
+
 def _paint(temp: np.ndarray, eps: np.ndarray, mask: np.ndarray, t_k: float, e: float) -> None:
     temp[mask] = t_k
     eps[mask] = e
@@ -471,13 +483,13 @@ class RasterScene(Scene):
         if t.ndim not in (2, 3) or min(t.shape[-2:]) < 2:
             raise InputError("temperature_k", f"array of shape {t.shape}", "a (h, w) or (T, h, w) array, h, w >= 2")
         if not np.all(np.isfinite(t)) or float(t.min()) < 0:
-            raise InputError("temperature_k", float(np.nanmin(t)), "finite temperatures >= 0 K (kelvin, not Celsius)")
+            raise InputError("temperature_k", _worst(t, 0.0, math.inf), "finite temperatures >= 0 K (kelvin, not Celsius)")
         check_positive("half_width_rad", self.half_width_rad, "rad", hi=math.pi / 2)
         e = np.asarray(self.emissivity, dtype=np.float64)
         if e.ndim and e.shape != t.shape[-2:]:
             raise InputError("emissivity", f"array of shape {e.shape}", f"a scalar or shape {t.shape[-2:]}")
-        if e.size and (float(e.min()) < 0 or float(e.max()) > 1):
-            raise InputError("emissivity", float(e.min()), "0 <= emissivity <= 1")
+        if e.size and not (np.all(np.isfinite(e)) and float(e.min()) >= 0 and float(e.max()) <= 1):
+            raise InputError("emissivity", _worst(e, 0.0, 1.0), "finite, 0 <= emissivity <= 1")
         object.__setattr__(self, "temperature_k", t)
         object.__setattr__(self, "emissivity", e)
         object.__setattr__(self, "static", t.ndim == 2 or t.shape[0] == 1)
@@ -590,7 +602,11 @@ def load_scene_file(path: str | Path, geometry: SceneGeometry | None = None, *,
                 if "emissivity" in z.files:
                     emis = z["emissivity"]
                 if "half_width_deg" in z.files:
-                    half = math.radians(float(z["half_width_deg"]))
+                    hw = np.asarray(z["half_width_deg"])
+                    if hw.size != 1 or not np.issubdtype(hw.dtype, np.number) or np.iscomplexobj(hw):
+                        raise InputError("half_width_deg", f"array of shape {hw.shape}, dtype {hw.dtype}",
+                                         "a real scalar (degrees)", source=str(p))
+                    half = math.radians(float(hw.reshape(())))
         elif suffix in (".tif", ".tiff"):
             import tifffile
             arr = tifffile.imread(p)
@@ -603,8 +619,10 @@ def load_scene_file(path: str | Path, geometry: SceneGeometry | None = None, *,
             raise InputError("scene", str(p), "a file ending in .npy, .npz, .tif, .tiff, .png, .jpg, .jpeg or .bmp")
     except InputError:
         raise
-    except (OSError, ValueError) as e:
-        raise InputError("scene", str(p), "a readable scene file", detail=str(e)) from None
+    except (OSError, ValueError, TypeError, KeyError, IndexError, EOFError) as e:
+        # one line: some readers (imageio) explain themselves over several lines
+        first = " ".join(str(e).split())[:200]
+        raise InputError("scene", str(p), "a readable scene file", detail=first or type(e).__name__) from None
     temp = np.asarray(temp)
     if not np.issubdtype(temp.dtype, np.number) or np.iscomplexobj(temp):
         raise InputError("scene", str(p), "real-valued temperatures in kelvin")

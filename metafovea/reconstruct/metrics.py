@@ -63,7 +63,16 @@ def score(rec: Any, truth_x1: np.ndarray | None = None, truth_x2: np.ndarray | N
             continue
         est = np.asarray(est)
         ests = est if est.ndim == 3 else est[None]
-        refs = np.asarray(ref) if np.ndim(ref) == 3 else np.broadcast_to(ref, ests.shape)
+        ref = np.asarray(ref)
+        if ref.ndim == 3:
+            if ref.shape != ests.shape:
+                raise InputError(f"truth_{name}", f"array of shape {ref.shape}",
+                                 f"one reference per output, shape {ests.shape} (or one (H, W) image)")
+            refs = ref
+        elif ref.shape == ests.shape[-2:]:
+            refs = np.broadcast_to(ref, ests.shape)
+        else:
+            raise InputError(f"truth_{name}", f"array of shape {ref.shape}", f"the estimate's shape {ests.shape[-2:]}")
         out[f"psnr_{name}"] = float(np.mean([psnr(e, r, data_range) for e, r in zip(ests, refs)]))
         out[f"ssim_{name}"] = float(np.mean([ssim(e, r, data_range) for e, r in zip(ests, refs)]))
     return out

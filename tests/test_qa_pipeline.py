@@ -1,0 +1,213 @@
+"""Regression tests for bad and unusual inputs to the simulate -> reconstruct pipeline (QA pass).
+
+Each test pins a bug found by probing the commands: a traceback, a silent NaN, a wrong number or a
+partial/overwritten output where a one-line error (exit status 2) was due.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import warnings
+from dataclasses import dataclass
+
+import numpy as np
+import pytest
+
+from metafovea import cli_reconstruct
+from metafovea.errors import InputError
+from metafovea.imaging.scene import RasterScene, Scene, load_scene_file, make_scene
+from metafovea.io import atomic_save_npz
+from metafovea.reconstruct.metrics import score
+from metafovea.reconstruct.synthetic import measure, polariser_alpha, scene
+
+
+# ---------------------------------------------------------------------------------------------
+# scenes
+# ---------------------------------------------------------------------------------------------
+def test_nan_emissivity_in_scene_file_is_refused(tmp_path):
+    p = tmp_path / "s.npz"
+    np.savez(p, temperature_k=np.full((20, 20), 300.0), emissivity=np.full((20, 20), np.nan))
+    with pytest.raises(InputError, match="emissivity"):
+        load_scene_file(p)
+    e = np.full((20, 20), 0.9)
+    e[3, 4] = np.nan  # one bad pixel is enough
+    with pytest.raises(InputError, match="emissivity"):
+        RasterScene(temperature_k=np.full((20, 20), 300.0), emissivity=e)
+    with pytest.raises(InputError, match="emissivity"):
+        RasterScene(temperature_k=np.full((20, 20), 300.0), emissivity=float("nan"))
+
+
+def test_scene_returning_nan_emissivity_is_refused_when_sampled():
+    @dataclass(frozen=True)
+    class Bad(Scene):
+        name: str = "bad"
+
+        def _sample(self, ax, ay, t):
+            return np.full(ax.shape, 300.0), np.full(ax.shape, np.nan)
+
+    with pytest.raises(InputError, match="emissivity"):
+        Bad().sample(np.zeros((3, 3)), np.zeros((3, 3)))
+
+
+def test_all_nan_temperature_raster_gives_one_clean_error(tmp_path):
+    p = tmp_path / "nan.npy"
+    np.save(p, np.full((8, 8), np.nan))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # no "All-NaN slice" RuntimeWarning on the way
+        with pytest.raises(InputError, match="temperature_k"):
+            make_scene(str(p))
+
+
+def test_scene_npz_with_array_half_width_is_an_input_error(tmp_path):
+    p = tmp_path / "hw.npz"
+    np.savez(p, temperature_k=np.full((10, 10), 300.0), half_width_deg=np.array([1.0, 2.0]))
+    with pytest.raises(InputError, match="half_width_deg"):
+        load_scene_file(p)
+    np.savez(p, temperature_k=np.full((10, 10), 300.0), half_width_deg=np.array([[3.0]]))
+    assert load_scene_file(p).half_width_rad == pytest.approx(np.radians(3.0))
+
+
+@pytest.mark.parametrize("content", [b"not a png", b""])
+def test_unreadable_picture_gives_a_one_line_error(tmp_path, content):
+    p = tmp_path / "bad.png"
+    p.write_bytes(content)
+    with pytest.raises(InputError) as e:
+        load_scene_file(p)
+    assert "\n" not in str(e.value) and "scene" in str(e.value)
+
+
+# ---------------------------------------------------------------------------------------------
+# reconstruct
+# ---------------------------------------------------------------------------------------------
+def _parse(argv):
+    p = argparse.ArgumentParser(prog="metafovea")
+    sub = p.add_subparsers(dest="command")
+    cli_reconstruct.add_parser(sub)
+    return p.parse_args(["reconstruct", *argv])
+
+
+def _run(argv, capsys):
+    rc = cli_reconstruct.run(_parse([str(a) for a in argv]))
+    cap = capsys.readouterr()
+    return rc, cap.out, cap.err
+
+
+def _save(path, T=10, n=48, **over):
+    x1, x2 = scene(n)
+    a = polariser_alpha(T)
+    arrays = dict(frames=measure(x1, x2, a, sigma=0.0, rng=0, dtype=np.float32), times_s=np.arange(T) / 12.0,
+                  alpha=a, truth_x1=x1.astype(np.float32), truth_x2=x2.astype(np.float32))
+    for k, v in over.items():
+        if v is None:
+            arrays.pop(k, None)
+        else:
+            arrays[k] = v
+    atomic_save_npz(path, meta={"scale": 6}, **arrays)
+    return path
+
+
+@pytest.mark.parametrize("kind", ["text", "empty", "object", "badjson", "listjson"])
+def test_files_that_are_not_measurements_are_input_errors(tmp_path, capsys, kind):
+    p = tmp_path / "x.npz"
+    if kind == "text":
+        p.write_text("hello")
+    elif kind == "empty":
+        p.write_bytes(b"")
+    elif kind == "object":
+        np.savez(p, frames=np.array([{"a": 1}], dtype=object))
+    else:
+        meta = b"{not json" if kind == "badjson" else b"[1, 2]"
+        np.savez(p, frames=np.ones((4, 16, 16), np.float32), __meta__=np.frombuffer(meta, np.uint8))
+    rc, out, err = _run([p, "--out", tmp_path / "r.npz"], capsys)
+    assert rc == 2 and err.count("\n") == 1 and "error" in err
+    assert not (tmp_path / "r.npz").exists()
+
+
+def test_truth_of_the_wrong_shape_is_an_input_error(tmp_path, capsys):
+    m = _save(tmp_path / "m.npz", truth_x1=np.ones((5, 5), np.float32))
+    rc, _, err = _run([m, "--window", "10", "--no-figures"], capsys)
+    assert rc == 2 and "truth_x1" in err
+    m = _save(tmp_path / "m2.npz", truth_x2=np.ones((3, 48, 48), np.float32))  # 3 truth frames for 10 frames
+    rc, _, err = _run([m, "--window", "10", "--no-figures"], capsys)
+    assert rc == 2 and "truth_x2" in err
+
+
+def test_score_refuses_truth_with_another_number_of_frames():
+    x = np.zeros((2, 8, 8))
+    with pytest.raises(InputError, match="truth_x1"):
+        score((x, x), np.zeros((5, 8, 8)), None)
+    with pytest.raises(InputError, match="truth_x1"):
+        score((x, x), np.zeros((4, 4)), None)
+
+
+def test_video_truth_is_scored_against_each_windows_mean(tmp_path, capsys):
+    """Static frames, but a (T, H, W) truth that flickers around the real image: each window's
+    reconstruction must be compared with the truth averaged over that window, not with frame k."""
+    T, n = 10, 48
+    x1, x2 = scene(n)
+    flick = np.where(np.arange(T) % 2 == 0, 1.0, -1.0)[:, None, None] * 0.3 * np.ptp(x1)
+    t1 = (x1[None] + flick).astype(np.float32)
+    t2 = np.repeat(x2[None], T, 0).astype(np.float32)
+    m = _save(tmp_path / "m.npz", T=T, n=n, truth_x1=t1, truth_x2=t2)
+    for argv in (["--window", "10"], ["--window", "2", "--stride", "2"], ["--window", "4", "--stride", "2"]):
+        rc, out, err = _run([m, *argv, "--no-figures", "--json", "--force"], capsys)
+        assert rc == 0, err
+        s = json.loads(out)
+        assert s["metrics"]["psnr_x1"] > 40, (argv, s["metrics"])
+    rc, out, _ = _run([m, "--method", "snapshot", "--frame", "3", "--no-figures", "--json", "--force",
+                       "--out", tmp_path / "snap.npz"], capsys)
+    assert rc == 0  # scored against truth frame 3 (no shape error from a (T, H, W) truth)
+    assert "psnr_x1" in json.loads(out)["metrics"]
+
+
+def test_all_nan_frames_are_an_input_error(tmp_path, capsys):
+    m = _save(tmp_path / "m.npz", frames=np.full((10, 48, 48), np.nan, np.float32))
+    rc, _, err = _run([m, "--window", "10", "--no-figures"], capsys)
+    assert rc == 2 and "frames" in err and err.count("\n") == 1
+    assert not (tmp_path / "m_rec.npz").exists()
+
+
+def test_single_frame_needs_snapshot(tmp_path, capsys):
+    m = _save(tmp_path / "m.npz", T=1)
+    rc, _, err = _run([m, "--no-figures"], capsys)
+    assert rc == 2 and "snapshot" in err
+    rc, _, err = _run([m, "--method", "snapshot", "--no-figures"], capsys)
+    assert rc == 0, err
+
+
+def test_nothing_is_written_when_a_figure_would_be_overwritten(tmp_path, capsys):
+    m = _save(tmp_path / "m.npz")
+    (tmp_path / "m_rec_x2.png").write_bytes(b"keep")
+    rc, _, err = _run([m, "--window", "10"], capsys)
+    assert rc == 2 and "m_rec_x2.png" in err
+    assert not (tmp_path / "m_rec.npz").exists() and (tmp_path / "m_rec_x2.png").read_bytes() == b"keep"
+
+
+def test_out_must_be_npz_and_never_the_measurement(tmp_path, capsys):
+    m = _save(tmp_path / "m.npz")
+    before = m.read_bytes()
+    rc, _, err = _run([m, "--window", "10", "--out", tmp_path / "r.txt", "--no-figures"], capsys)
+    assert rc == 2 and ".npz" in err and not (tmp_path / "r.txt").exists()
+    rc, _, err = _run([m, "--window", "10", "--out", tmp_path / "sub" / ".." / "m.npz", "--force",
+                       "--no-figures"], capsys)
+    assert rc == 2 and "--out" in err
+    assert m.read_bytes() == before
+
+
+def test_bad_fpn_and_calibration_arrays_are_named(tmp_path, capsys):
+    f = np.zeros((48, 48), np.float32)
+    f[0, 0] = np.nan
+    m = _save(tmp_path / "m.npz", fpn=f)
+    rc, _, err = _run([m, "--window", "10", "--fpn", "file", "--no-figures"], capsys)
+    assert rc == 2 and "fpn" in err
+    m = _save(tmp_path / "c.npz", calibration=np.zeros((4, 3, 3), np.float32))
+    rc, _, err = _run([m, "--window", "10", "--fpn", "calibration", "--no-figures"], capsys)
+    assert rc == 2 and "calibration" in err
+
+
+@pytest.mark.parametrize("argv", [["--stride", "0"], ["--window", "1"], ["--window", "11"]])
+def test_window_and_stride_ranges(tmp_path, capsys, argv):
+    m = _save(tmp_path / "m.npz")
+    rc, _, err = _run([m, *argv, "--no-figures"], capsys)
+    assert rc == 2 and argv[0] in err.replace("window =", "--window =") and err.count("\n") == 1
