@@ -99,8 +99,6 @@ def _spec(args, design_path: str):
         if ps.polarization != d.polarization:
             raise InputError("--post-set", args.post_set, f"a post set for polarisation {d.polarization!r}")
     levels = args.levels if args.levels is not None else (ps.levels if ps is not None else None)
-    if args.ring_width_um is None or not args.ring_width_um > 0:
-        raise InputError("--ring-width-um", args.ring_width_um, "> 0")
     if args.test_array and args.patch:
         raise InputError("--patch", args.patch, "not together with --test-array")
     return make_spec(d, ps, levels, grid_nm=args.grid_nm, patch_mm=_patch(args.patch),

@@ -14,7 +14,7 @@ from typing import Any
 
 import numpy as np
 
-from metafovea.errors import InputError, check_choice
+from metafovea.errors import InputError, check_choice, check_range
 from metafovea.io import atomic_write_bytes, prepare_output
 from metafovea.layout.gds import band_sites
 from metafovea.layout.tiling import LayoutSpec
@@ -57,7 +57,8 @@ def patch_mesh(spec: LayoutSpec, substrate_thickness_um: float | None = None):
     h = spec.design.post_height_um
     lo = np.stack([x - sz[:, 0] / 2, y - sz[:, 1] / 2, np.zeros_like(x)], 1)
     hi = np.stack([x + sz[:, 0] / 2, y + sz[:, 1] / 2, np.full_like(x, h)], 1)
-    t = h if substrate_thickness_um is None else float(substrate_thickness_um)
+    t = h if substrate_thickness_um is None else check_range("--substrate-um", substrate_thickness_um, 0.0, 1e5,
+                                                             unit="um", lo_inclusive=True)
     if t > 0:
         p = spec.design.period_um
         slo = np.array([[x.min() - p / 2, y.min() - p / 2, -t]])
@@ -72,6 +73,9 @@ def export_mesh(spec: LayoutSpec, path: str | os.PathLike, fmt: str | None = Non
     """Write the patch mesh as binary STL or GLB (atomically)."""
     path = Path(path)
     fmt = check_choice("--format", fmt or path.suffix.lstrip("."), MESH_FORMATS)
+    if substrate_thickness_um is not None:
+        substrate_thickness_um = check_range("--substrate-um", substrate_thickness_um, 0.0, 1e5, unit="um",
+                                             lo_inclusive=True)
     prepare_output(path, force)
     m = patch_mesh(spec, substrate_thickness_um)
     data = m.export(file_type=fmt)

@@ -32,12 +32,13 @@ from typing import Any
 import numpy as np
 
 from metafovea.config import LensDesign
-from metafovea.errors import InputError, check_int
+from metafovea.errors import InputError, check_int, check_range
 from metafovea.lens import EMPTY, row_half_counts, site_index_range
 from metafovea.library import PostSet
 from metafovea.units import NM_PER_UM, TWO_PI
 
 DBU_UM = 1e-3  #: database unit in um (1 nm)
+MAX_COORD_NM = 2**31 - 1  #: largest coordinate a 32-bit GDSII/OASIS reader holds (nm)
 
 
 @dataclass(frozen=True)
@@ -230,8 +231,11 @@ class LayoutSpec:
             c = self.centre_nm - int(round(self.ring_outer_um * NM_PER_UM))
             return c, c
         x, y, w = self.patch_um
-        return (self.centre_nm + int(round((x - w / 2) * NM_PER_UM)),
-                self.centre_nm + int(round((y - w / 2) * NM_PER_UM)))
+        # the patch's lower-left corner, kept inside the chip frame [0, 2 C] (a patch wider than the
+        # lens would otherwise put the label at negative coordinates, outside everything written)
+        c = self.centre_nm
+        return (min(2 * c, max(0, c + int(round((x - w / 2) * NM_PER_UM)))),
+                min(2 * c, max(0, c + int(round((y - w / 2) * NM_PER_UM)))))
 
 
 def make_spec(design: LensDesign, post_set: PostSet | None = None, levels: int | None = None, *,
@@ -256,7 +260,18 @@ def make_spec(design: LensDesign, post_set: PostSet | None = None, levels: int |
         if not all(math.isfinite(v) for v in (x, y, w)) or w <= 0:
             raise InputError("--patch", patch_mm, "finite X,Y and W > 0 (mm)")
         patch = (x * 1000.0, y * 1000.0, w * 1000.0)
+    for name, flag, lo_incl in (("ring_width_um", "--ring-width-um", False), ("ring_gap_um", "ring_gap_um", True),
+                                ("mark_offset_um", "mark_offset_um", True), ("mark_size_um", "mark_size_um", False),
+                                ("mark_width_um", "mark_width_um", False)):
+        if kw.get(name) is not None:
+            kw[name] = check_range(flag, kw[name], 0.0, MAX_COORD_NM / NM_PER_UM, unit="um", lo_inclusive=lo_incl)
     spec = LayoutSpec(design, post_set, n, grid_nm=grid_nm, patch_um=patch, band_rows=band_rows, **kw)
+    if 2 * spec.centre_nm > MAX_COORD_NM:
+        raise InputError("--ring-width-um" if "ring_width_um" in kw else "diameter_mm",
+                         kw.get("ring_width_um", design.diameter_mm),
+                         f"a layout frame (lens diameter + 2 x (ring gap + ring width + marks) = "
+                         f"{2 * spec.frame_half_um / 1000:.6g} mm) of at most {MAX_COORD_NM / 1e6:.6g} mm: "
+                         "GDSII/OASIS coordinates are 32-bit integers of 1 nm")
     if np.any(spec.post_sizes_nm >= spec.design.period_um * NM_PER_UM):
         raise InputError("--grid-nm", grid_nm, "a grid on which the post widths stay below the period")
     if patch is not None and not spec.bands():

@@ -362,6 +362,7 @@ class GdsScanner:
         if self.progress:
             from tqdm.auto import tqdm
             bar = tqdm(total=size, unit="B", unit_scale=True, desc=f"scan {self.path.name}")
+        endlib = False
         with open(self.path, "rb") as fh:
             buf = b""
             pos = 0
@@ -450,6 +451,9 @@ class GdsScanner:
                 # ---- generic record ---------------------------------------------------------
                 data = buf[pos + 4:pos + ln]
                 pos += ln
+                if rt == 0x04:  # ENDLIB: anything after it is padding (tools pad to 2048-byte blocks)
+                    endlib = True
+                    break
                 if rt == 0x03:  # UNITS
                     ob.dbu_um = _real8(data[:8])
                 elif rt == 0x05:  # BGNSTR
@@ -480,6 +484,10 @@ class GdsScanner:
                     el = None
         if bar is not None:
             bar.close()
+        if not endlib:
+            where = "; ".join(ob.anomalies[-1:]) or f"ends after {size:,} bytes"
+            raise InputError("FILE", str(self.path), "a complete GDSII file (ending with an ENDLIB record)",
+                             detail=f"truncated or damaged: {where}")
         # ---- reduce -------------------------------------------------------------------------
         for sname, cl in cand.items():
             if not cl:
@@ -817,12 +825,20 @@ def verify_layout(path: str | os.PathLike, spec: LayoutSpec, *, reader: str = "a
     t_exp = time.perf_counter() - t0
     t0 = time.perf_counter()
     names = spec.post_names
-    if reader == "klayout":
-        ob = read_klayout(path, lat, spec.layers.posts, names)
-    elif reader == "gdstk":
-        ob = read_gdstk(path, lat, spec.layers.posts, names)
-    else:
-        ob = read_stream(path, lat, spec.layers.posts, progress, names)
+    try:
+        if reader == "klayout":
+            ob = read_klayout(path, lat, spec.layers.posts, names)
+        elif reader == "gdstk":
+            ob = read_gdstk(path, lat, spec.layers.posts, names)
+        else:
+            ob = read_stream(path, lat, spec.layers.posts, progress, names)
+    except InputError:
+        raise
+    except (RuntimeError, OSError, ValueError, EOFError) as e:
+        # a truncated or damaged file: the reader libraries raise RuntimeError (klayout, gdstk) or OSError
+        detail = " ".join(str(e).split())[:200] or type(e).__name__
+        raise InputError("FILE", str(path), f"a complete, readable {'OASIS' if fmt == 'oas' else 'GDSII'} file "
+                         f"(the {reader} reader failed)", detail=detail) from None
     t_read = time.perf_counter() - t0
     if test_array is not None:
         name = f"{spec.top_name.rsplit('_', 1)[0]}_CAL"
