@@ -49,3 +49,40 @@ def test_validate_cli_bad_input(tmp_path, capsys):
     (d / "f").write_text("x")
     assert main(["validate", "--out", str(d)]) == 2
     assert "--force" in capsys.readouterr().err
+
+
+def test_single_frame_rows_are_scored_against_that_frames_truth_of_a_video():
+    """Snapshot and 'no separation' show one frame: on a video scene (truth (T, H, W)) they are scored
+    against the truth of that frame, not against the mean over the 8 frames after it."""
+    from types import SimpleNamespace
+
+    import numpy as np
+
+    from metafovea.reconstruct.synthetic import polariser_alpha, scene
+    from metafovea.validate import _reconstruct_stage, _score, _Stages
+
+    T, n = 8, 48
+    x1, x2 = scene(n)
+    ramp = 1.0 + np.arange(T)[:, None, None]  # strongly changing scene
+    t1, t2 = x1[None] * ramp, x2[None] * ramp[::-1]
+    a = polariser_alpha(T)
+    frames = (a[:, None, None] * t1 + (1 - a[:, None, None]) * t2).astype(np.float32)
+    meas = SimpleNamespace(frames=frames, alpha=a, meta={"scale": 6.0}, fpn=None, truth_x1=t1, truth_x2=t2,
+                           extras={"calibration": np.zeros((4, n, n), np.float32)})
+    opts = ValidateOptions(frames=T, alternating_windows=1, snapshot_iterations=5)
+    res = _reconstruct_stage(meas, opts, _Stages(False), "video", run_dip=False)
+    row = next(r for r in res["rows"] if r["method"].startswith("no separation"))
+    k = int(np.argmin(np.abs(a - 0.5)))
+    y = frames[k].astype(np.float64)
+    want = _score(y, y, t1[k], t2[k])
+    assert row["psnr_x1"] == pytest.approx(want["psnr_x1"]) and row["psnr_x2"] == pytest.approx(want["psnr_x2"])
+
+
+@pytest.mark.parametrize("argv, name", [(["--frames", "2"], "--frames"), (["--dip-steps", "0"], "--dip-steps"),
+                                        (["--scene", "no-such-scene"], "scene")])
+def test_validate_bad_arguments_fail_before_any_work(tmp_path, capsys, argv, name):
+    out = tmp_path / "v"
+    assert main(["validate", *argv, "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert name in err and err.count("\n") == 1
+    assert not out.exists()
