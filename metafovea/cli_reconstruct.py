@@ -192,6 +192,12 @@ def _summary(args: argparse.Namespace) -> dict[str, Any]:
         a = None if alpha is None else alpha[args.frame:args.frame + 1]
         rec = reconstruct(frames[args.frame][None], a, method="snapshot", scale=scale,
                           foveal_gain=geo["foveal_gain"], foveal_offset=geo["foveal_offset"], **fpn_kw)
+        if args.denoise:
+            from metafovea.reconstruct import Reconstruction, denoise
+
+            rec = Reconstruction(x1=denoise(rec.x1, args.denoise), x2=denoise(rec.x2, args.denoise),
+                                 alpha=rec.alpha, fpn=rec.fpn, method=rec.method, timings=rec.timings,
+                                 info={**rec.info, "denoise": args.denoise})
         n_out = 1
     else:
         method_kw: dict[str, Any] = {}

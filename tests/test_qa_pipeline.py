@@ -211,3 +211,41 @@ def test_window_and_stride_ranges(tmp_path, capsys, argv):
     m = _save(tmp_path / "m.npz")
     rc, _, err = _run([m, *argv, "--no-figures"], capsys)
     assert rc == 2 and argv[0] in err.replace("window =", "--window =") and err.count("\n") == 1
+
+
+def test_fpn_prior_with_known_alpha_uses_the_given_foveal_constraint(monkeypatch):
+    """The lsq path dropped scale/gain/offset before the FPN prior saw them (it used gain 1, offset 0)."""
+    import metafovea.reconstruct.fpn as fpn_mod
+    from metafovea.reconstruct import reconstruct
+
+    seen = {}
+    real = fpn_mod.estimate_fpn
+
+    def spy(**kw):
+        seen.update({k: kw.get(k) for k in ("scale", "foveal_gain", "foveal_offset")})
+        return real(**kw)
+
+    monkeypatch.setattr(fpn_mod, "estimate_fpn", spy)
+    x1, x2 = scene(48)
+    a = polariser_alpha(8)
+    Y = measure(x1, x2, a, sigma=0.0, rng=0)
+    reconstruct(Y, a, method="lsq", fpn="prior", scale=4.0, foveal_gain=0.3, foveal_offset=5.0)
+    assert seen == {"scale": 4.0, "foveal_gain": 0.3, "foveal_offset": 5.0}
+
+
+def test_snapshot_honours_denoise(tmp_path, capsys):
+    from metafovea.reconstruct import Reconstruction
+
+    x1, x2 = scene(48)
+    a = polariser_alpha(4)
+    frames = measure(x1, x2, a, sigma=0.05, rng=1, dtype=np.float32)
+    m = tmp_path / "m.npz"
+    atomic_save_npz(m, meta={"scale": 6}, frames=frames, times_s=np.arange(4) / 12.0, alpha=a)
+    outs = []
+    for extra in ([], ["--denoise", "tv"]):
+        out = tmp_path / f"r{len(extra)}.npz"
+        rc, _, err = _run([m, "--method", "snapshot", "--frame", "1", "--no-figures", "--out", out, *extra], capsys)
+        assert rc == 0, err
+        outs.append(Reconstruction.load(out).x1)
+    assert not np.allclose(outs[0], outs[1])
+    assert np.std(np.diff(outs[1], axis=1)) < np.std(np.diff(outs[0], axis=1))

@@ -30,6 +30,8 @@ def reconstruct(frames: Any, alpha: Any = None, method: str = "lsq", *, fpn: Any
     from metafovea.reconstruct.snapshot import snapshot
 
     method = check_choice("method", method, METHODS)
+    # the foveal constraint, kept for the FPN prior (lsq below drops these keywords)
+    geo = {k: kw[k] for k in ("scale", "foveal_gain", "foveal_offset") if k in kw}
     f = None
     finfo: dict[str, Any] = {}
     fpn_kw = dict(kw.pop("fpn_kw", None) or {})
@@ -70,7 +72,6 @@ def reconstruct(frames: Any, alpha: Any = None, method: str = "lsq", *, fpn: Any
         a = None if alpha is None else float(np.ravel(alpha)[0])
         rec = snapshot(fr, alpha=a, **kw)
     if isinstance(fpn, str) and fpn.lower() == "prior":
-        geo = {k: kw[k] for k in ("scale", "foveal_gain", "foveal_offset") if k in kw}
         f, finfo = estimate_fpn(x1=rec.x1, x2=rec.x2, **{**geo, **fpn_kw})
         rec = Reconstruction(x1=(rec.x1 - f).astype(rec.x1.dtype), x2=(rec.x2 - f).astype(rec.x2.dtype),
                              alpha=rec.alpha, fpn=f, method=rec.method, timings=rec.timings,
