@@ -40,7 +40,7 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
     g.add_argument("--psf", default="auto",
                    help="auto (metafovea.optics if available, else airy), optics, airy, gaussian:SIGMA_UM")
     g.add_argument("--psf-cache", help="PSF cache directory (default $METAFOVEA_CACHE/psf, i.e. ~/.cache/metafovea/psf)")
-    g.add_argument("--psf-size", help="PSF window in samples (odd; default 6 x supersample + 1)")
+    g.add_argument("--psf-size", help="PSF window in samples (odd, at most 1025; default 6 x supersample + 1)")
     g.add_argument("--field-patches", default="1", help="1 (shift-invariant), N (N x N patches) or auto")
     filt = g.add_mutually_exclusive_group()
     filt.add_argument("--filter", dest="filter", action="store_true", default=None, help="use the narrow-band filter")
@@ -75,6 +75,7 @@ def run(args: argparse.Namespace) -> int:
     from metafovea.config import SystemDesign, load_system
     from metafovea.imaging.scene import list_scenes
     from metafovea.imaging.simulate import SimulationOptions, simulate, write_preview, write_tiff
+    from metafovea.imaging.system import MAX_PSF_SIZE
 
     if getattr(args, "list_scenes", False):
         scenes = list_scenes()
@@ -104,7 +105,7 @@ def run(args: argparse.Namespace) -> int:
         frames=frames,
         supersample=None if args.supersample is None else check_int("--supersample", args.supersample, 1, 8),
         psf=args.psf, psf_cache_dir=args.psf_cache,
-        psf_size_px=None if args.psf_size is None else check_int("--psf-size", args.psf_size, 1, 4097),
+        psf_size_px=None if args.psf_size is None else check_int("--psf-size", args.psf_size, 1, MAX_PSF_SIZE),
         field_patches=fp, haze=not args.no_haze, filter_enabled=args.filter,
         pixel_pitch_um=_num("--pitch", args.pitch), relay_magnification=_num("--relay", args.relay),
         polarizer_mode=args.polarizer, polarizer_phase_deg=_num("--phase-deg", args.phase_deg),

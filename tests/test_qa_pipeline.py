@@ -249,3 +249,24 @@ def test_snapshot_honours_denoise(tmp_path, capsys):
         outs.append(Reconstruction.load(out).x1)
     assert not np.allclose(outs[0], outs[1])
     assert np.std(np.diff(outs[1], axis=1)) < np.std(np.diff(outs[0], axis=1))
+
+
+def test_large_psf_window_is_bounded_and_airy_kernel_is_computed_in_blocks(tmp_path, capsys):
+    """--psf-size up to 4097 was accepted and asked the Airy model for a (4097*7)^2 grid (tens of GB)."""
+    from scipy.special import j1
+
+    from metafovea.cli import main
+    from metafovea.imaging.system import MAX_PSF_SIZE, airy_kernel
+
+    assert main(["simulate", "--psf", "airy", "--psf-size", str(MAX_PSF_SIZE + 2), "--frames", "1",
+                 "--out", str(tmp_path / "m.npz")]) == 2
+    err = capsys.readouterr().err
+    assert "--psf-size" in err and not (tmp_path / "m.npz").exists()
+    # block-wise evaluation (size 251 > one block) equals the plain one
+    size, sub, pitch, lam, n_f = 251, 7, 3.0, 10.0, 2.0
+    u = (np.arange(size * sub) + 0.5) / sub - size / 2.0
+    x = u * pitch
+    v = np.pi * np.hypot(x[None, :], x[:, None]) / (lam * n_f)
+    a = np.where(v > 1e-9, (2 * j1(v) / np.where(v > 1e-9, v, 1.0)) ** 2, 1.0)
+    ref = a.reshape(size, sub, size, sub).mean(axis=(1, 3)) / (4.0 / np.pi * (lam * n_f) ** 2 / pitch ** 2)
+    np.testing.assert_allclose(airy_kernel(n_f, lam, pitch, size, sub), ref, rtol=1e-12, atol=1e-15)

@@ -60,6 +60,8 @@ from metafovea.imaging.scene import Scene
 
 log = logging.getLogger(__name__)
 
+#: largest PSF window (samples per side) a provider is asked for: wider windows only cost memory and time
+MAX_PSF_SIZE = 1025
 #: haze disks up to this radius (sensor pixels) are folded into the kernel; larger ones use a coarse grid
 NEAR_HAZE_PX = 6.0
 #: coarse-grid haze kernels are kept within this radius (coarse samples)
@@ -207,11 +209,16 @@ def airy_kernel(f_number: float, wavelength_um: float, pitch_um: float, size: in
     size += 1 - size % 2
     u = (np.arange(size * sub) + 0.5) / sub - size / 2.0
     x = u * pitch_um
-    r = np.hypot(x[None, :], x[:, None])
-    v = math.pi * r / (wavelength_um * f_number)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        a = np.where(v > 1e-9, (2 * j1(v) / np.where(v > 1e-9, v, 1.0)) ** 2, 1.0)
-    k = a.reshape(size, sub, size, sub).mean(axis=(1, 3))
+    k = np.empty((size, size))
+    # a few output rows at a time: the (size * sub)^2 sub-sample grid of a large window would need GBs
+    step = max(1, 2_000_000 // (size * sub * sub))
+    for r0 in range(0, size, step):
+        r1 = min(size, r0 + step)
+        r = np.hypot(x[None, :], x[r0 * sub:r1 * sub, None])
+        v = math.pi * r / (wavelength_um * f_number)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            a = np.where(v > 1e-9, (2 * j1(v) / np.where(v > 1e-9, v, 1.0)) ** 2, 1.0)
+        k[r0:r1] = a.reshape(r1 - r0, sub, size, sub).mean(axis=(1, 3))
     # total power of the Airy pattern: peak * lambda^2 N^2 * 4 / pi  (per unit area) -> per sample
     total = 4.0 / math.pi * (wavelength_um * f_number) ** 2 / pitch_um ** 2
     return k / total
@@ -445,7 +452,7 @@ def build_channel_optics(channel: Channel, provider: Any, radiance: BandRadiance
     ss = check_int("supersample", ss, 1, 8)
     pitch = channel.focal_pitch_um / ss
     size = psf_size_px or (2 * int(math.ceil(3 * ss)) + 1)
-    size = check_int("psf_size_px", size, 1, 4097)
+    size = check_int("psf_size_px", size, 1, MAX_PSF_SIZE)
     size += 1 - size % 2
     lam_psf, w_psf = psf_wavelengths(radiance, channel.lens.wavelength_um, scene_temperature_k, n_psf_wavelengths)
 
