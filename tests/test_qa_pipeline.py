@@ -270,3 +270,22 @@ def test_large_psf_window_is_bounded_and_airy_kernel_is_computed_in_blocks(tmp_p
     a = np.where(v > 1e-9, (2 * j1(v) / np.where(v > 1e-9, v, 1.0)) ** 2, 1.0)
     ref = a.reshape(size, sub, size, sub).mean(axis=(1, 3)) / (4.0 / np.pi * (lam * n_f) ** 2 / pitch ** 2)
     np.testing.assert_allclose(airy_kernel(n_f, lam, pitch, size, sub), ref, rtol=1e-12, atol=1e-15)
+
+
+def test_a_sequence_that_cannot_fit_in_memory_is_refused_up_front(monkeypatch):
+    """--frames 100000 (allowed by the range) was an out-of-memory kill at 290 x 290; now a clear error
+    that says how many frames fit, raised before the PSFs are built."""
+    import importlib
+
+    from metafovea.config import SystemDesign
+
+    sim = importlib.import_module("metafovea.imaging.simulate")  # the package exports a function of that name
+
+    monkeypatch.setattr(sim, "_available_memory_bytes", lambda: 200 * 2**20)  # a 200 MiB machine
+    monkeypatch.setattr(sim, "resolve_provider", lambda *a, **k: pytest.fail("work started"), raising=False)
+    with pytest.raises(InputError, match="at most about") as e:
+        sim.simulate(SystemDesign.paper(), "bars", frames=1000, psf="airy")  # 1000 x 290 x 290 x 4 B x 2 > 160 MiB
+    assert e.value.parameter == "frames"
+    with pytest.raises(InputError, match="frames"):  # video scenes also keep (T, H, W) truth images
+        sim.simulate(SystemDesign.paper(), "hand", frames=300, psf="airy")
+    sim._check_memory(96, (290, 290), video=True, available=2**30)  # the default fits in 1 GiB

@@ -16,6 +16,7 @@ import io as _io
 import json
 import logging
 import math
+import os
 import time
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -77,6 +78,28 @@ def _child_rngs(rng: Any, n: int) -> list[np.random.Generator]:
     return [np.random.default_rng(int(s)) for s in seeds]
 
 
+def _available_memory_bytes() -> int | None:
+    """Physical memory available now (Linux/macOS sysconf), or None when unknown."""
+    try:
+        return int(os.sysconf("SC_AVPHYS_PAGES")) * int(os.sysconf("SC_PAGE_SIZE"))
+    except (AttributeError, ValueError, OSError):
+        return None
+
+
+def _check_memory(n_frames: int, shape: tuple[int, int], *, video: bool, calibration_frames: int = 0,
+                  available: int | None = None) -> None:
+    """Refuse, before any work, a sequence whose (T, H, W) float32 arrays (frames, per-frame truth of a
+    video scene, calibration frames; twice, for the copies made while saving) cannot fit in memory."""
+    H, W = shape
+    per_frame = 4 * H * W * (3 if video else 1)
+    need = 2 * (per_frame * n_frames + 4 * H * W * calibration_frames)
+    avail = _available_memory_bytes() if available is None else available
+    if avail is not None and need > 0.8 * avail:
+        most = max(1, int((0.8 * avail / 2 - 4 * H * W * calibration_frames) // per_frame))
+        raise InputError("frames", n_frames, f"at most about {most} frames of {H}x{W} here (the sequence needs "
+                         f"~{need / 2**30:.1f} GiB, {avail / 2**30:.1f} GiB of memory is available)")
+
+
 def simulate(system: SystemDesign, scene: str | Path | Scene, options: SimulationOptions | None = None,
              rng: Any = 0, **overrides: Any) -> Measurement:
     """Simulate ``options.frames`` frames of ``scene`` through ``system``.
@@ -117,6 +140,8 @@ def simulate(system: SystemDesign, scene: str | Path | Scene, options: Simulatio
     sc = make_scene(scene, geom, **opt.scene_params)
     ss = opt.supersample if opt.supersample is not None else (3 if sc.static else 2)
     ss = check_int("supersample", ss, 1, 8)
+    _check_memory(n_frames, sensor.shape, video=not sc.static,
+                  calibration_frames=check_int("calibration_frames", opt.calibration_frames, 0, 100_000))
 
     # ---- optics ---------------------------------------------------------------------------------------
     t_psf = time.perf_counter()
