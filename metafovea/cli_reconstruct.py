@@ -49,6 +49,9 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
                    "D x1 = gain C x2 + offset (default: file meta 'foveal_constraint.gain', else 1)")
     p.add_argument("--foveal-offset", type=float, default=None, help="offset of the foveal constraint, in the "
                    "frames' units (default: file meta 'foveal_constraint.offset_dn', else 0)")
+    p.add_argument("--no-strict", action="store_true", help="alternating: when the foveal constraint cannot fix "
+                   "alpha's gauge, return the frame-mean-gauge result (flagged alpha_identified: false) instead of "
+                   "an error")
     p.add_argument("--frame", type=int, default=0, help="frame index for --method snapshot (default 0)")
     p.add_argument("--steps", type=int, default=2000, help="DIP optimisation steps (default 2000)")
     p.add_argument("--channels", type=int, default=32, help="DIP network channels (default 32)")
@@ -203,6 +206,8 @@ def _summary(args: argparse.Namespace) -> dict[str, Any]:
         method_kw: dict[str, Any] = {}
         if args.method == "alternating":
             method_kw = dict(geo)
+            if args.no_strict:
+                method_kw["strict"] = False
         elif args.method == "dip":
             method_kw = {"steps": args.steps, "channels": args.channels, "rng": args.seed, **geo}
         elif args.fpn == "prior":

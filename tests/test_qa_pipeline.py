@@ -289,3 +289,20 @@ def test_a_sequence_that_cannot_fit_in_memory_is_refused_up_front(monkeypatch):
     with pytest.raises(InputError, match="frames"):  # video scenes also keep (T, H, W) truth images
         sim.simulate(SystemDesign.paper(), "hand", frames=300, psf="airy")
     sim._check_memory(96, (290, 290), video=True, available=2**30)  # the default fits in 1 GiB
+
+
+def test_no_strict_gives_the_frame_mean_gauge_result_the_error_points_to(tmp_path, capsys):
+    """The alternating solver's error told CLI users to 'pass strict=False', which the CLI had no way to do."""
+    from metafovea.reconstruct import Reconstruction
+
+    x1 = np.random.default_rng(0).random((48, 48))  # unrelated to x2: the foveal constraint cannot fix the gauge
+    _, x2 = scene(48)
+    a = polariser_alpha(8)
+    m = tmp_path / "m.npz"
+    atomic_save_npz(m, meta={"scale": 6}, frames=measure(x1, x2, a, sigma=0.0, rng=0, dtype=np.float32),
+                    times_s=np.arange(8) / 12.0)
+    rc, _, err = _run([m, "--method", "alternating", "--no-figures"], capsys)
+    assert rc == 2 and "--no-strict" in err
+    rc, _, err = _run([m, "--method", "alternating", "--no-strict", "--no-figures"], capsys)
+    assert rc == 0, err
+    assert Reconstruction.load(tmp_path / "m_rec.npz").info["alpha_identified"] is False

@@ -392,7 +392,8 @@ def alternating(frames: Any, *, scale: float = 6.0, offset: tuple[float, float] 
         raise InputError("frames", f"{T} frames", "frames in which the foveal constraint fixes the alpha gauge",
                          detail=f"gauge fix not applied: {grep.get('reason')}; alpha is only known up to an "
                                 f"affine map (polariser too slow, one channel barely observed, or the foveal "
-                                f"geometry scale/offset is wrong); pass strict=False to get the frame-mean-gauge result")
+                                f"geometry scale/offset is wrong); pass strict=False (metafovea reconstruct "
+                                f"--no-strict) to get the frame-mean-gauge result")
     history = []
     it_done = 0
     with tm.measure("alternate"):
