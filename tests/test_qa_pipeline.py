@@ -306,3 +306,11 @@ def test_no_strict_gives_the_frame_mean_gauge_result_the_error_points_to(tmp_pat
     rc, _, err = _run([m, "--method", "alternating", "--no-strict", "--no-figures"], capsys)
     assert rc == 0, err
     assert Reconstruction.load(tmp_path / "m_rec.npz").info["alpha_identified"] is False
+
+
+def test_dip_on_frames_too_small_for_the_network_names_the_frame_size():
+    from metafovea.reconstruct.deep_prior import dip
+
+    with pytest.raises(InputError, match="at least 8 x 8 pixels") as e:
+        dip(np.ones((4, 4, 6), np.float32), steps=1)
+    assert e.value.parameter == "frames"

@@ -309,7 +309,8 @@ def dip(frames: Any, alpha: Any = None, *, channels: int = 32, depth: int = 3, s
     channels = check_int("channels", channels, 1, 4096)
     depth = check_int("depth", depth, 1, 8)
     if min(H, W) < 2 ** depth:
-        raise InputError("depth", depth, f"2**depth <= min(H, W) = {min(H, W)}")
+        raise InputError("frames", f"{H} x {W} pixels", f"at least {2 ** depth} x {2 ** depth} pixels for a "
+                         f"depth-{depth} network (or a smaller depth: 2**depth <= min(H, W) = {min(H, W)})")
     steps = check_int("steps", steps, 1, 10_000_000)
     warm = check_choice("warm", warm, WARMS)
     warm_steps = check_int("warm_steps", warm_steps, 0, 10_000_000)
