@@ -46,6 +46,13 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
     return p
 
 
+#: library parameter names -> the options they come from (errors name what the user typed)
+_CLI_NAMES = {"band_um": "--band-um", "filter_um": "--filter-um", "pixel_pitch_um": "--pixel-um",
+              "field_deg": "--field-deg", "error": "--error", "temperature_k": "--temperature-k",
+              "n_wavelengths": "--wavelengths", "wavelength_um": "--wavelength-um"}
+MAX_WAVELENGTHS = 2001
+
+
 def _report_one(lens: Any, out: str, kw: dict[str, Any]) -> tuple[str, Any]:
     from metafovea.optics.report import psf_report
 
@@ -54,6 +61,29 @@ def _report_one(lens: Any, out: str, kw: dict[str, Any]) -> tuple[str, Any]:
     except InputError as e:
         return "input_error", (e.parameter, e.value, e.allowed)
     return "ok", {k: res[k] for k in ("seconds", "monochromatic", "sensor", "warnings")}
+
+
+def _check_weights(band: tuple[float, float], filt: tuple[float, float] | None, temperature_k: float) -> None:
+    """The band, filter and scene temperature must give some light (clear errors before any work)."""
+    import warnings
+
+    import numpy as np
+
+    from metafovea.optics.radiometry import spectral_weights
+
+    lo, hi = band
+    if filt is not None and not (lo - 1.5 * filt[1] < filt[0] < hi + 1.5 * filt[1]):
+        raise InputError("--filter-um", list(filt), f"a filter overlapping the band {lo:g}-{hi:g} um "
+                         "(centre within 1.5 widths of it)")
+    with warnings.catch_warnings(), np.errstate(over="ignore", under="ignore"):
+        warnings.simplefilter("ignore", RuntimeWarning)
+        try:
+            spectral_weights(band_um=band, n=5, temperature_k=temperature_k, filter_um=filt)
+        except InputError as e:
+            if e.parameter != "band_um":
+                raise
+            raise InputError("--temperature-k", temperature_k, f"a scene temperature at which the scene emits in "
+                             f"the band {lo:g}-{hi:g} um (its Planck radiance there underflows to 0)") from None
 
 
 def run(args: argparse.Namespace) -> int:
@@ -68,9 +98,9 @@ def run(args: argparse.Namespace) -> int:
         filt = (c, w)
     check_positive("--temperature-k", args.temperature_k, "K", hi=1e5)
     check_positive("--error", args.error, hi=0.5)
-    check_positive("--pixel-um", args.pixel_um, "um")
-    if args.wavelengths < 1:
-        raise InputError("--wavelengths", args.wavelengths, ">= 1")
+    check_positive("--pixel-um", args.pixel_um, "um", hi=1e4)
+    check_int("--wavelengths", args.wavelengths, 1, MAX_WAVELENGTHS)
+    _check_weights(band, filt, args.temperature_k)
     if args.wavelength_um is not None:
         check_positive("--wavelength-um", args.wavelength_um, "um", hi=1e4)
     if args.window_um is not None:
@@ -104,7 +134,9 @@ def run(args: argparse.Namespace) -> int:
             if parameter == "window_um":
                 allowed = allowed.replace("(pass allow_truncation=True to accept)", "(or a larger --error)")
                 raise InputError("--window-um", args.window_um, allowed)
-            raise InputError(parameter, value, allowed)
+            if parameter == "wavelengths_um" and args.wavelength_um is not None:
+                raise InputError("--wavelength-um", args.wavelength_um, allowed)
+            raise InputError(_CLI_NAMES.get(parameter, parameter), value, allowed)
         res = val
         summary[lens.name] = {"seconds": res["seconds"], "monochromatic": res["monochromatic"],
                               "sensor": res["sensor"], "warnings": res["warnings"],

@@ -158,3 +158,62 @@ def test_stream_reader_accepts_padding_after_endlib(tmp_path, capsys, exported_g
     padded.write_bytes(gds.read_bytes() + bytes(2048 - gds.stat().st_size % 2048))
     assert main(["verify", str(padded), "--design", str(toml), "--ring-width-um", "50", "--quiet",
                  "--reader", "stream"]) == 0, capsys.readouterr().err
+
+
+# ----------------------------------------------------------------------------------------------
+# psf
+# ----------------------------------------------------------------------------------------------
+@pytest.mark.parametrize("f_um,d_um,m", [(20000.0, 2000.0, 2), (5000.0, 5000.0, 2), (8000.0, 3000.0, 3)])
+def test_sensor_psf_where_another_order_focuses_is_finite(f_um, d_um, m):
+    """At lambda0 / m the focusing order vanishes and order m focuses on the sensor: it was drawn as a
+    1e-9 um disk, giving pixel values of ~1e19 (fractions of the incident power!)."""
+    from metafovea.errors import NotConvergedWarning
+    from metafovea.optics import sensor_psf
+    lens = LensDesign("t", f_um, d_um)
+    with pytest.warns(NotConvergedWarning):  # the disk stand-in for a focused order is flagged as rough
+        P = sensor_psf(lens, pixel_pitch_um=17.0, wavelengths_um=[lens.wavelength_um / m], size_px=41)
+    assert np.all(np.isfinite(P.intensity)) and P.intensity.min() >= 0
+    assert 0 < P.intensity.sum() <= 1.0 + 1e-9 and P.intensity.max() <= 1.0
+    assert P.error_estimate > 1e-3
+
+
+@pytest.mark.parametrize("r,cx,cy", [(0.3, 0.1, -0.2), (2.0, 8.4, 8.4), (5.0, 0.0, 0.0), (40.0, 3.0, -7.0)])
+def test_disk_pixels_conserve_power(r, cx, cy):
+    from metafovea.optics.psf import _disk_pixels
+    p, size = 17.0, 11
+    x0 = y0 = -size * p / 2
+    d = _disk_pixels((cx, cy), r, x0, y0, p, size)
+    assert d.sum() == pytest.approx(1.0, rel=0.03)
+    assert d.max() <= 1.0 + 1e-12
+    # a disk half outside the window keeps only its inside share; one wholly outside leaves nothing
+    if r >= 1.0:
+        e = _disk_pixels((x0, cy), r, x0, y0, p, size)
+        assert e.sum() == pytest.approx(0.5, rel=0.1)
+    assert _disk_pixels((x0 - r - 1, cy), r, x0, y0, p, size).sum() == 0
+
+
+def test_psf_at_zero_order_efficiency_names_the_wavelength():
+    from metafovea.optics import psf
+    lens = LensDesign("t", 20000.0, 2000.0)
+    for wl in (lens.wavelength_um / 2, lens.wavelength_um / 3, lens.wavelength_um / 4):
+        with pytest.raises(InputError) as e:
+            psf(lens, wavelengths_um=[wl], quantize=True)
+        assert e.value.parameter == "wavelengths_um"
+
+
+@pytest.mark.parametrize("opts,flag", [
+    (["--wavelength-um", "5"], "--wavelength-um"),
+    (["--wavelength-um", "2.5"], "--wavelength-um"),
+    (["--wavelengths", "100000"], "--wavelengths"),
+    (["--temperature-k", "1"], "--temperature-k"),
+    (["--pixel-um", "1e6"], "--pixel-um"),
+    (["--filter-um", "20", "0.5"], "--filter-um"),
+    (["--filter-um", "3", "0.2"], "--filter-um"),
+])
+def test_psf_cli_errors_name_the_option(tmp_path, capsys, opts, flag):
+    toml = _lens_toml(tmp_path, f_mm=20.0, d_mm=2.0)
+    rc = main(["psf", str(toml), "--field-deg", "0", "--wavelengths", "3", "--out", str(tmp_path / "o"), *opts])
+    err = _err(capsys)
+    assert rc == 2, err
+    assert err.startswith("metafovea psf: error: " + flag) and len(err.splitlines()) == 1
+    assert "RuntimeWarning" not in err

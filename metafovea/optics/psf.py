@@ -152,6 +152,23 @@ def _field_pair(field_deg: Any) -> tuple[float, float]:
     return float(a[0]), float(a[1])
 
 
+def _no_focus_error(lens: LensDesign, wl: np.ndarray, polarization: Any) -> None:
+    """Raise the InputError for a PSF whose focusing order vanishes at every wavelength.
+
+    For the lens' own polarisation that happens where the wrapped phase is a whole number of extra
+    turns per zone (lambda0 / lambda an integer other than 1, e.g. lambda0 / 2): the light goes into
+    another order. For the pass-through polarisation a lens with a level-independent t_pass focuses
+    nothing.
+    """
+    if polarization is None or polarization == lens.polarization:
+        shown = wl.tolist() if wl.size < 6 else f"{wl.size} wavelengths {wl.min():g}-{wl.max():g}"
+        raise InputError("wavelengths_um", shown,
+                         f"a wavelength at which the focusing order of lens '{lens.name}' (lambda0 = "
+                         f"{lens.wavelength_um:g} um) carries light: its efficiency is 0 where lambda0 / lambda "
+                         "is an integer other than 1 (e.g. lambda0 / 2)")
+    raise InputError("polarization", polarization, "a polarisation with a focusing component")
+
+
 def check_wavelengths(lens: LensDesign, wavelengths_um: Any, weights: Any) -> tuple[np.ndarray, np.ndarray]:
     """Wavelength array (um, > 0) and weights (>= 0, normalised to sum 1)."""
     if wavelengths_um is None:
@@ -277,7 +294,7 @@ def psf(lens: LensDesign, *, wavelengths_um: Any = None, weights: Any = None, fi
                          quantize=quantize, lattice=lattice, z_um=z_um) for l in wl]
     pupils = [s.focus for s in sets if s.focus is not None]
     if not pupils:
-        raise InputError("polarization", polarization, "a polarisation with a focusing component")
+        _no_focus_error(lens, wl, polarization)
     r_diff = diffraction_radius_um(lens)
     nyq = nyquist_pitch_um(lens)
     if pitch_um is None:
@@ -687,10 +704,13 @@ def sensor_psf(lens: LensDesign, *, pixel_pitch_um: float, field_deg: float | tu
     haze_total = 0.0
     for wi, s in zip(w, sets):
         for h in s.haze:
-            inside = ((xc[None, :] - h.center_um[0]) ** 2 + (yc[:, None] - h.center_um[1]) ** 2) <= h.radius_um ** 2
-            dens = h.power_fraction / (math.pi * h.radius_um ** 2)
-            pix += wi * inside * dens * p * p
+            d = wi * h.power_fraction * _disk_pixels(h.center_um, h.radius_um, x_e0, y_e0, p, size)
+            pix += d
             haze_total += wi * h.power_fraction
+            if h.order != 0 and h.radius_um < 3 * diffraction_radius_um(lens) / abs(h.order):
+                # an order focusing near this plane: the uniform disk is only a rough stand-in for its
+                # diffraction-limited spot, wrong by up to its own peak
+                est_abs += float(d.max())
     peak = float(pix.max())
     est_rel = est_abs / peak if peak > 0 else float("inf")
     if est_rel > error:
@@ -707,6 +727,42 @@ def sensor_psf(lens: LensDesign, *, pixel_pitch_um: float, field_deg: float | tu
              pix.sum(), est_rel, info["seconds"])
     return PSF(pix, p, (float(chief[0]), float(chief[1])), wl, w, fpair, pol, eng_name, float(est_rel),
                float(pix.sum()), info)
+
+
+def _disk_pixels(center_um: Any, radius_um: float, x_e0: float, y_e0: float, p: float, size: int) -> np.ndarray:
+    """Fraction of a uniform disk's area falling in each pixel of a ``size`` x ``size`` grid.
+
+    Pixels are sub-sampled finely enough to resolve the disk (at least ~8 samples across its
+    radius), so a disk smaller than a pixel deposits its power instead of missing every pixel centre
+    or, hitting one, being multiplied by (pixel / disk area). Only the pixels under the disk's
+    bounding box are evaluated.
+    """
+    out = np.zeros((size, size))
+    cx, cy = float(center_um[0]), float(center_um[1])
+    r = float(radius_um)
+    if not r > 0:
+        return out
+    i0 = max(0, int(math.floor((cx - r - x_e0) / p)))
+    i1 = min(size, int(math.ceil((cx + r - x_e0) / p)))
+    j0 = max(0, int(math.floor((cy - r - y_e0) / p)))
+    j1 = min(size, int(math.ceil((cy + r - y_e0) / p)))
+    if i1 <= i0 or j1 <= j0:
+        return out
+    if 16 * r < p:  # far below a pixel: all of it in the pixel holding the centre (if inside the window)
+        i, j = int(math.floor((cx - x_e0) / p)), int(math.floor((cy - y_e0) / p))
+        if 0 <= i < size and 0 <= j < size:
+            out[j, i] = 1.0
+        return out
+    ns = int(min(64, max(1, math.ceil(8.0 * p / r))))
+    while (i1 - i0) * (j1 - j0) * ns * ns > 4_000_000 and ns > 1:
+        ns = max(1, ns // 2)
+    sub = (np.arange(ns) + 0.5) / ns * p
+    xs = (x_e0 + np.arange(i0, i1)[:, None] * p + sub[None, :]).reshape(-1) - cx
+    ys = (y_e0 + np.arange(j0, j1)[:, None] * p + sub[None, :]).reshape(-1) - cy
+    inside = (ys[:, None] ** 2 + xs[None, :] ** 2) <= r * r
+    cnt = inside.reshape(j1 - j0, ns, i1 - i0, ns).sum(axis=(1, 3))
+    out[j0:j1, i0:i1] = cnt * (p / ns) ** 2 / (math.pi * r * r)
+    return out
 
 
 def encircled_energy_on_axis(lens: LensDesign, radius_um: float, *, wavelengths_um: Any = None, weights: Any = None,

@@ -291,6 +291,9 @@ def build_pupils(lens: LensDesign, wavelength_um: float, *, field_deg: Any = 0.0
         else:
             fm = lens.f_um * lens.wavelength_um / (wl * m)  # signed focal length of order m
             rad = R * abs(1.0 - z / fm)
+            # an order that focuses on (or near) this plane (lambda0 / lambda = m) is a diffraction-limited
+            # spot, not a point: its first-zero radius 0.61 lambda / NA_m = 0.61 lambda0 / (NA |m|)
+            rad = max(rad, 0.60983 * lens.wavelength_um / (lens.na * abs(int(m))))
         haze.append(HazeOrder(int(m), float(abs(v) ** 2), float(max(rad, 1e-9)), chief))
     info = {"order_efficiency": float(abs(c1) ** 2), "haze_power": float(sum(h.power_fraction for h in haze)),
             "polarization": pol}
