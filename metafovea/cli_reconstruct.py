@@ -340,6 +340,8 @@ def run(args: argparse.Namespace) -> int:
             print(f"  normal-matrix condition number: {s['condition']:.3g}")
         if "gauge" in s:
             print(f"  alpha gauge fixed by the foveal constraint: {s['gauge']['applied']} ({s['gauge']['reason']})")
+        if s.get("nonfinite_pixels"):
+            print(f"  {s['nonfinite_pixels']} NaN value(s) in x1/x2: pixels without valid samples (e.g. dead pixels)")
         if isinstance(s.get("metrics"), dict):
             print("  " + ", ".join(f"{k} {v:.4g}" for k, v in s["metrics"].items()))
         print("  wrote " + ", ".join(s["files"]))

@@ -314,3 +314,35 @@ def test_dip_on_frames_too_small_for_the_network_names_the_frame_size():
     with pytest.raises(InputError, match="at least 8 x 8 pixels") as e:
         dip(np.ones((4, 4, 6), np.float32), steps=1)
     assert e.value.parameter == "frames"
+
+
+@pytest.mark.parametrize("method", ["tv", "bilateral", "nlm"])
+def test_denoise_keeps_dead_pixels_nan_without_spreading_or_failing(method):
+    from metafovea.reconstruct import denoise
+
+    x1, _ = scene(48)
+    noisy = x1 + 0.05 * np.random.default_rng(0).standard_normal(x1.shape)
+    img = noisy.copy()
+    img[10, 20] = np.nan
+    out = denoise(img, method, sigma=0.05)
+    assert np.isnan(out[10, 20]) and np.isfinite(np.delete(out.ravel(), 10 * 48 + 20)).all()
+    with pytest.raises(InputError):
+        denoise(np.full((8, 8), np.nan), method, sigma=0.05)
+
+
+def test_cli_dead_pixel_with_denoise(tmp_path, capsys):
+    from metafovea.reconstruct import Reconstruction
+
+    x1, x2 = scene(48)
+    a = polariser_alpha(10)
+    frames = measure(x1, x2, a, sigma=0.01, rng=0, dtype=np.float32)
+    frames[:, 7, 9] = np.nan  # a dead pixel: no valid sample in any frame
+    m = _save(tmp_path / "m.npz", frames=frames)
+    for argv in (["--window", "10"], ["--window", "4", "--stride", "3"]):
+        out = tmp_path / f"r{argv[1]}.npz"
+        rc, stdout, err = _run([m, *argv, "--denoise", "tv", "--no-figures", "--out", out], capsys)
+        assert rc == 0, err
+        assert "NaN value(s)" in stdout
+        x = Reconstruction.load(out).x1
+        x = x if x.ndim == 3 else x[None]
+        assert np.isnan(x[:, 7, 9]).all() and np.isnan(x).sum() == x.shape[0]

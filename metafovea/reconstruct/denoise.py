@@ -35,8 +35,18 @@ def denoise(x: np.ndarray, method: str = "tv", *, sigma: float | None = None, we
         return np.stack([denoise(xi, method, sigma=sigma, weight=weight, iterations=iterations) for xi in x])
     if x.ndim != 2:
         raise InputError("x", f"array of shape {x.shape}", "a 2-D image or a (K, H, W) stack")
-    if not np.all(np.isfinite(x)):
-        raise InputError("x", "image with NaN/inf", "finite pixels (fill or mask them before denoising)")
+    bad = ~np.isfinite(x)
+    if bad.all():
+        raise InputError("image to denoise", "no finite pixel", "an image with finite pixels")
+    if bad.any():
+        # unresolved pixels (e.g. dead ones the masked LSQ leaves NaN): denoise with them filled from their
+        # nearest finite neighbour, so that they do not spread, and leave them NaN in the result
+        from scipy.ndimage import distance_transform_edt
+
+        idx = distance_transform_edt(bad, return_distances=False, return_indices=True)
+        out = denoise(x[tuple(idx)], method, sigma=sigma, weight=weight, iterations=iterations)
+        out[bad] = np.nan
+        return out
     if sigma is None:
         from metafovea.reconstruct.lsq import estimate_noise
 
