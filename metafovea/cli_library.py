@@ -19,7 +19,7 @@ from typing import Any
 
 import numpy as np
 
-from metafovea.errors import check_int, check_positive
+from metafovea.errors import InputError, check_int, check_positive
 
 log = logging.getLogger(__name__)
 
@@ -66,8 +66,13 @@ def run(args: argparse.Namespace) -> int:
     M = check_int("--harmonics", args.harmonics, 5, 40)
     tol = check_positive("--tol", args.tol)
     workers = None if args.workers is None else check_int("--workers", args.workers, 1, 1024)
+    src = getattr(args, "platform_file", None)
+    if not plat.min_feature_um < plat.period_um / 2:
+        raise InputError("min_feature_um", plat.min_feature_um,
+                         f"0 < min_feature_um < period_um / 2 = {plat.period_um / 2:g} um (posts and gaps both "
+                         "at least the min feature)", source=src or "default platform")
+    widths = width_grid(plat.period_um, step, plat.min_feature_um, name="--grid-step-um")
     out = prepare_output(args.out, args.force, is_dir=True) if args.out else None
-    widths = width_grid(plat.period_um, step, plat.min_feature_um)
     t0 = time.perf_counter()
     lib = compute_library(widths, None, wls, period_um=plat.period_um, height_um=plat.post_height_um,
                           n_post=plat.n_post, n_substrate=plat.n_substrate, n_superstrate=plat.n_superstrate,
@@ -76,7 +81,17 @@ def run(args: argparse.Namespace) -> int:
                           scheduler=args.scheduler, progress=not args.no_progress)
     elapsed = time.perf_counter() - t0
     design_wl = float(plat.wavelength_um) if float(plat.wavelength_um) in [float(w) for w in wls] else float(wls[0])
-    sets = {pol: select_posts(lib, pol, levels, wavelength_um=design_wl) for pol in ("x", "y")}
+    try:
+        sets = {pol: select_posts(lib, pol, levels, wavelength_um=design_wl) for pol in ("x", "y")}
+    except InputError as e:
+        if e.parameter != "library":
+            raise
+        raise InputError("--levels", levels, f"at most the {e.value} of {lib.wx_um.size} x {lib.wy_um.size} posts "
+                         f"converged at {design_wl:g} um (convergence estimate <= 0.05): use more --harmonics, a "
+                         "finer --grid-step-um or fewer --levels"
+                         + (f" (the wavelength is below the period {plat.period_um:g} um: the posts diffract, "
+                            "not a zero-order library)" if design_wl <= plat.period_um * plat.n_superstrate else "")
+                         ) from None
     payload: dict[str, Any] = {
         "library": {"n_wx": int(lib.wx_um.size), "n_wy": int(lib.wy_um.size), "wavelengths_um": lib.wavelengths_um,
                     "harmonics": M, "plane_waves": (2 * M + 1) ** 2, "factorization": args.factorization,
@@ -84,7 +99,7 @@ def run(args: argparse.Namespace) -> int:
                     "max_error_estimate": lib.meta.get("max_error_estimate"),
                     "median_error_estimate": lib.meta.get("median_error_estimate"), "key": lib.meta.get("key"),
                     "conventions": lib.meta.get("conventions")},
-        "post_sets": {}}
+        "design_wavelength_um": design_wl, "post_sets": {}}
     for pol, ps in sets.items():
         lens = "foveal" if pol == "x" else "perifoveal"
         keys = ("expected_focusing_efficiency", "pass_coherent_transmission", "max_abs_phase_error_rad",
@@ -110,7 +125,7 @@ def run(args: argparse.Namespace) -> int:
               f"{elapsed:.1f} s{' (cache)' if lb['from_cache'] else ''}; "
               f"convergence estimate max {lb['max_error_estimate']:.3g}, median {lb['median_error_estimate']:.3g}")
         for pol, d in payload["post_sets"].items():
-            print(f"\n{d['lens']} lens (focuses {pol}): expected focusing efficiency "
+            print(f"\n{d['lens']} lens (focuses {pol}, posts chosen at {design_wl:g} um): expected focusing efficiency "
                   f"{d['expected_focusing_efficiency']:.3f}, max phase error {d['max_abs_phase_error_rad']:.3f} rad, "
                   f"pass-through phase spread {d['pass_phase_spread_rad']:.3f} rad, "
                   f"pass-through transmission {d['pass_coherent_transmission']:.3f}")

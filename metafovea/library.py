@@ -181,19 +181,28 @@ class Library:
         return cls(arrays.pop("wx_um"), arrays.pop("wy_um"), arrays.pop("wavelengths_um"), arrays, meta)
 
 
-def width_grid(period_um: float = 4.0, step_um: float = 0.1, min_feature_um: float = 0.5) -> np.ndarray:
-    """Post widths from ``min_feature`` to ``period - min_feature`` (both posts and gaps >= min feature)."""
+def width_grid(period_um: float = 4.0, step_um: float = 0.1, min_feature_um: float = 0.5, *,
+               name: str = "grid_step_um") -> np.ndarray:
+    """Post widths from ``min_feature`` to ``period - min_feature`` (both posts and gaps >= min feature).
+
+    ``name``: the step's name in error messages (the CLI passes ``--grid-step-um``).
+    """
     p = check_positive("period_um", period_um, "um")
-    step = check_positive("grid_step_um", step_um, "um", hi=p)
     mf = check_range("min_feature_um", min_feature_um, 0.0, p / 2, hi_inclusive=False)
+    # widths run from max(mf, step) to p - max(mf, step): at least 2 of them need p - 2 max(mf, step) >= step,
+    # i.e. step <= p / 3 (when mf <= p / 3) or step <= p - 2 mf (a min feature above p / 3)
+    max_step = p / 3 if mf <= p / 3 else p - 2 * mf
+    rng = (f"0 um < {name} <= {max_step:.6g} um (at least 2 widths between the min feature {mf:g} um and "
+           f"period {p:g} um - min feature)")
+    step = check_range(name, step_um, 0.0, None, unit="um")
+    if step > max_step * (1 + 1e-9):
+        raise InputError(name, step_um, rng)
     lo, hi = max(mf, step), p - max(mf, step)
-    if hi < lo:
-        raise InputError("grid_step_um", step_um, f"small enough to fit posts between {lo:g} and {hi:g} um")
     n = int(math.floor((hi - lo) / step + 1e-9)) + 1
     if n < 2:
-        raise InputError("grid_step_um", step_um, "a step giving at least 2 widths")
+        raise InputError(name, step_um, rng)
     if n > 2001:
-        raise InputError("grid_step_um", step_um, "a step giving at most 2001 widths per axis")
+        raise InputError(name, step_um, f"a step of at least {(hi - lo) / 2000:.4g} um (at most 2001 widths per axis)")
     return np.round(lo + step * np.arange(n), 10)
 
 

@@ -217,3 +217,50 @@ def test_psf_cli_errors_name_the_option(tmp_path, capsys, opts, flag):
     assert rc == 2, err
     assert err.startswith("metafovea psf: error: " + flag) and len(err.splitlines()) == 1
     assert "RuntimeWarning" not in err
+
+
+# ----------------------------------------------------------------------------------------------
+# library
+# ----------------------------------------------------------------------------------------------
+@pytest.mark.parametrize("period,mf", [(4.0, 0.5), (4.0, 1.5), (3.0, 0.2), (6.0, 1.9), (2.5, 0.01)])
+def test_width_grid_allowed_step_is_stated_and_exact(period, mf):
+    """The error said 'grid_step_um <= 4' for p = 4 although 1.5 already failed, or 'fit posts between
+    4 and 0 um'; the stated maximum is now the real one."""
+    from metafovea.library import width_grid
+    max_step = period / 3 if mf <= period / 3 else period - 2 * mf
+    w = width_grid(period, max_step * 0.999, mf)
+    assert len(w) >= 2 and w[0] >= mf and w[-1] <= period - mf + 1e-9
+    with pytest.raises(InputError) as e:
+        width_grid(period, max_step * 1.01, mf, name="--grid-step-um")
+    assert e.value.parameter == "--grid-step-um" and f"{max_step:.6g}" in e.value.allowed
+
+
+@pytest.mark.parametrize("step", ["1.5", "4", "3", "0.0001", "0", "-1"])
+def test_library_cli_bad_step_names_option_and_writes_nothing(tmp_path, capsys, step):
+    out = tmp_path / "lib"
+    rc = main(["library", "--grid-step-um", step, "--harmonics", "5", "--cache-dir", str(tmp_path / "c"),
+               "--no-progress", "--out", str(out)])
+    err = _err(capsys)
+    assert rc == 2 and "--grid-step-um" in err and len(err.splitlines()) == 1
+    assert not out.exists()
+
+
+def test_library_cli_platform_min_feature_names_file(tmp_path, capsys):
+    plat = tmp_path / "plat.toml"
+    plat.write_text("period_um = 3.0\nmin_feature_um = 1.6\n")
+    assert main(["library", str(plat), "--cache-dir", str(tmp_path / "c"), "--no-progress"]) == 2
+    err = _err(capsys)
+    assert "plat.toml" in err and "min_feature_um" in err and "1.5" in err
+
+
+def test_library_cli_too_few_converged_posts_names_levels(tmp_path, capsys):
+    """'library = 4 is invalid' named no option; now --levels with what to change."""
+    import warnings
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        rc = main(["library", "--grid-step-um", "1.3", "--harmonics", "5", "--levels", "6",
+                   "--cache-dir", str(tmp_path / "c"), "--no-progress"])
+    err = _err(capsys)
+    assert rc == 2
+    last = err.splitlines()[-1]
+    assert last.startswith("metafovea library: error: --levels = ") and "--harmonics" in last
