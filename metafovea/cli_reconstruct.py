@@ -164,6 +164,9 @@ def _summary(args: argparse.Namespace) -> dict[str, Any]:
             raise InputError("--known-alpha", str(src), "a measurement with an 'alpha' array (or --method "
                              "alternating / dip / snapshot for unknown alpha)")
         alpha = arrays["alpha"]
+        if alpha.shape != (T,) or not np.issubdtype(alpha.dtype, np.number) or np.iscomplexobj(alpha):
+            raise InputError("alpha", f"array of shape {alpha.shape}, dtype {alpha.dtype}",
+                             f"one real mixing ratio per frame, shape ({T},)", source=str(src))
     if args.method == "alternating" and args.known_alpha:
         raise InputError("--known-alpha", True, "not with --method alternating (it estimates alpha; use lsq)")
     fpn_kw: dict[str, Any] = {}

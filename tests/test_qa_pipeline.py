@@ -346,3 +346,11 @@ def test_cli_dead_pixel_with_denoise(tmp_path, capsys):
         x = Reconstruction.load(out).x1
         x = x if x.ndim == 3 else x[None]
         assert np.isnan(x[:, 7, 9]).all() and np.isnan(x).sum() == x.shape[0]
+
+
+@pytest.mark.parametrize("alpha", [np.array(0.5), polariser_alpha(10).astype(complex)])
+def test_alpha_in_a_file_must_be_real_and_one_per_frame(tmp_path, capsys, alpha):
+    m = _save(tmp_path / "m.npz", alpha=alpha)
+    for method in ("lsq", "snapshot"):
+        rc, _, err = _run([m, "--method", method, "--known-alpha", "--window", "10", "--no-figures"], capsys)
+        assert rc == 2 and "alpha" in err and err.count("\n") == 1

@@ -61,6 +61,8 @@ def as_frames(frames: Any, *, min_frames: int = 1, name: str = "frames") -> np.n
 
 def as_alpha(alpha: Any, n: int, *, name: str = "alpha", tol: float = 1e-6) -> np.ndarray:
     """Mixing ratios ``(T,)`` in [0, 1] (float64), one per frame."""
+    if np.iscomplexobj(alpha) or (isinstance(alpha, np.ndarray) and alpha.dtype == bool):
+        raise InputError(name, f"array of dtype {np.asarray(alpha).dtype}", "real numbers in [0, 1]")
     try:
         a = np.asarray(alpha, dtype=np.float64)
     except (TypeError, ValueError):
