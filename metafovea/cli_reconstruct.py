@@ -49,6 +49,8 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
                    "D x1 = gain C x2 + offset (default: file meta 'foveal_constraint.gain', else 1)")
     p.add_argument("--foveal-offset", type=float, default=None, help="offset of the foveal constraint, in the "
                    "frames' units (default: file meta 'foveal_constraint.offset_dn', else 0)")
+    p.add_argument("--regularize", default=None, help="lsq: 'difference' (ridge on x1 - x2, the smallest that "
+                   "meets the condition limit) or a ridge weight >= 0, for windows whose alpha barely varies")
     p.add_argument("--no-strict", action="store_true", help="alternating: when the foveal constraint cannot fix "
                    "alpha's gauge, return the frame-mean-gauge result (flagged alpha_identified: false) instead of "
                    "an error")
@@ -215,6 +217,17 @@ def _summary(args: argparse.Namespace) -> dict[str, Any]:
             method_kw = {"steps": args.steps, "channels": args.channels, "rng": args.seed, **geo}
         elif args.fpn == "prior":
             method_kw = dict(geo)  # for the FPN prior's foveal term
+        if args.regularize is not None:
+            if args.method != "lsq":
+                raise InputError("--regularize", args.regularize, "only with --method lsq")
+            reg = args.regularize.strip().lower()
+            if reg != "difference":
+                from metafovea.errors import as_float
+
+                reg = as_float("--regularize", args.regularize)
+                if reg < 0:
+                    raise InputError("--regularize", args.regularize, "'difference' or a ridge weight >= 0")
+            method_kw["regularize"] = reg
         if args.window > T:
             raise InputError("--window", args.window, f"2 <= window <= number of frames ({T})", source=str(src))
         if T > args.window:

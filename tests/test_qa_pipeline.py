@@ -354,3 +354,17 @@ def test_alpha_in_a_file_must_be_real_and_one_per_frame(tmp_path, capsys, alpha)
     for method in ("lsq", "snapshot"):
         rc, _, err = _run([m, "--method", method, "--known-alpha", "--window", "10", "--no-figures"], capsys)
         assert rc == 2 and "alpha" in err and err.count("\n") == 1
+
+
+def test_regularize_option_is_what_the_ill_conditioned_error_points_to(tmp_path, capsys):
+    """A slow bolometer (alpha barely varies) made lsq fail with 'pass regularize=...', an API keyword only."""
+    x1, x2 = scene(48)
+    a = 0.5 + 0.002 * np.cos(np.arange(10) * 2.1)
+    m = _save(tmp_path / "m.npz", frames=measure(x1, x2, a, sigma=0.0, rng=0, dtype=np.float32), alpha=a)
+    rc, _, err = _run([m, "--window", "10", "--no-figures"], capsys)
+    assert rc == 2 and "--regularize" in err
+    for argv in (["--window", "10"], ["--window", "5", "--stride", "5"]):
+        rc, _, err = _run([m, *argv, "--regularize", "difference", "--no-figures", "--force"], capsys)
+        assert rc == 0, err
+    rc, _, err = _run([m, "--window", "10", "--regularize", "-1", "--no-figures", "--force"], capsys)
+    assert rc == 2 and "--regularize" in err
