@@ -93,7 +93,11 @@ def _spec(args, design_path: str):
         raise InputError("design", design_path, "a lens design file (with f_mm, diameter_mm, ...)")
     ps = None
     if args.post_set:
-        ps = PostSet.load(args.post_set)
+        try:
+            ps = PostSet.load(args.post_set)
+        except InputError as e:
+            raise InputError("--post-set", args.post_set, e.allowed, detail=str(e).partition("allowed: ")[2]
+                             .removeprefix(e.allowed).strip(" ()") or None) from None
         if args.levels is not None and args.levels != ps.levels:
             raise InputError("--levels", args.levels, f"the number of posts in {args.post_set} ({ps.levels})")
         if ps.polarization != d.polarization:
@@ -123,8 +127,14 @@ def run_export(args) -> int:
     name = spec.design.name + ("_cal" if args.test_array else "") + ("_patch" if spec.patch_um else "") + \
         ("_flat" if args.flat else "") + (f"_h{args.max_refs}" if args.max_refs else "")
     out = Path(args.out) if args.out else DEFAULT_DIR / name
-    if out.suffix.lower() not in (".gds", ".oas", ".stl", ".glb", ".gdsii", ".oasis"):
+    suffixes = {"gds": (".gds", ".gdsii"), "oas": (".oas", ".oasis"), "stl": (".stl",), "glb": (".glb",)}
+    known = tuple(x for v in suffixes.values() for x in v)
+    if out.suffix.lower() not in known:
         out = out.with_name(out.name + "." + fmt)
+    elif out.suffix.lower() not in suffixes[fmt]:
+        # a .oas name with GDSII inside (or the reverse) would mislead every tool that trusts the suffix
+        raise InputError("--out", str(out), f"a file name ending in {' or '.join(suffixes[fmt])} for --format {fmt} "
+                         "(or no suffix: it is added)")
     if args.max_refs is not None and (fmt != "gds" or args.test_array):
         raise InputError("--max-refs", args.max_refs, "only with --format gds for a lens (not --test-array)")
     if fmt in MESH_FORMATS:

@@ -100,12 +100,39 @@ class PostSet:
 
     @classmethod
     def load(cls, path: str | Path) -> "PostSet":
+        arrays, meta = _load_checked(path, "PostSet")
+        try:
+            return cls(meta["polarization"], meta["period_um"], meta["height_um"], meta["wavelength_um"],
+                       arrays["widths_um"], arrays["t_x"], arrays["t_y"], source=meta["source"],
+                       info=meta.get("info", {}))
+        except KeyError as e:
+            raise InputError("path", str(path), "a PostSet file written by PostSet.save",
+                             detail=f"missing {e.args[0]!r}") from None
+
+
+def _load_checked(path: str | Path, kind: str) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
+    """``load_npz`` of a file that must be a ``kind`` ('PostSet' or 'Library') file: anything else (a TOML
+    passed by mistake, a truncated or pickled .npz) is an :class:`InputError`, not a numpy/zip traceback."""
+    import zipfile
+
+    try:
+        with open(path, "rb") as fh:
+            magic = fh.read(4)
+    except OSError:
+        magic = b"PK\x03\x04"  # let load_npz report a missing or unreadable file
+    if magic != b"PK\x03\x04":
+        raise InputError("path", str(path), f"a {kind} .npz file written by {kind}.save",
+                         detail="not an .npz (zip) file") from None
+    try:
         arrays, meta = load_npz(path)
-        if meta.get("type") != "PostSet":
-            raise InputError("path", str(path), "a PostSet file written by PostSet.save")
-        return cls(meta["polarization"], meta["period_um"], meta["height_um"], meta["wavelength_um"],
-                   arrays["widths_um"], arrays["t_x"], arrays["t_y"], source=meta["source"],
-                   info=meta.get("info", {}))
+    except InputError:
+        raise
+    except (ValueError, OSError, EOFError, KeyError, zipfile.BadZipFile, UnicodeDecodeError) as e:
+        raise InputError("path", str(path), f"a {kind} .npz file written by {kind}.save",
+                         detail=" ".join(str(e).split())[:120] or type(e).__name__) from None
+    if not isinstance(meta, dict) or meta.get("type") != kind:
+        raise InputError("path", str(path), f"a {kind} file written by {kind}.save")
+    return arrays, meta
 
 
 # ================================================================================================
@@ -175,10 +202,12 @@ class Library:
 
     @classmethod
     def load(cls, path: str | Path) -> "Library":
-        arrays, meta = load_npz(path)
-        if meta.get("type") != "Library":
-            raise InputError("path", str(path), "a Library file written by Library.save")
-        return cls(arrays.pop("wx_um"), arrays.pop("wy_um"), arrays.pop("wavelengths_um"), arrays, meta)
+        arrays, meta = _load_checked(path, "Library")
+        try:
+            return cls(arrays.pop("wx_um"), arrays.pop("wy_um"), arrays.pop("wavelengths_um"), arrays, meta)
+        except KeyError as e:
+            raise InputError("path", str(path), "a Library file written by Library.save",
+                             detail=f"missing {e.args[0]!r}") from None
 
 
 def width_grid(period_um: float = 4.0, step_um: float = 0.1, min_feature_um: float = 0.5, *,

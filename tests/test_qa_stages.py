@@ -264,3 +264,55 @@ def test_library_cli_too_few_converged_posts_names_levels(tmp_path, capsys):
     assert rc == 2
     last = err.splitlines()[-1]
     assert last.startswith("metafovea library: error: --levels = ") and "--harmonics" in last
+
+
+# ----------------------------------------------------------------------------------------------
+# post-set files and output names
+# ----------------------------------------------------------------------------------------------
+@pytest.mark.parametrize("content", ["toml", "empty", "truncated", "other_npz"])
+def test_postset_load_of_wrong_file_is_input_error(tmp_path, content):
+    """--post-set design.toml was a numpy 'pickled data' ValueError traceback."""
+    from metafovea.library import Library, PostSet
+    good = tmp_path / "good.npz"
+    PostSet.ideal(4).save(good)
+    bad = tmp_path / "bad.npz"
+    if content == "toml":
+        bad.write_text('name = "x"\nf_mm = 1.0\n')
+    elif content == "empty":
+        bad.write_bytes(b"")
+    elif content == "truncated":
+        bad.write_bytes(good.read_bytes()[: good.stat().st_size // 2])
+    else:
+        np.savez(bad, widths_um=np.ones((4, 2)))
+    for cls in (PostSet, Library):
+        with pytest.raises(InputError) as e:
+            cls.load(bad)
+        assert e.value.parameter == "path"
+    assert PostSet.load(good).levels == 4
+
+
+def test_export_cli_post_set_not_npz(tmp_path, capsys):
+    toml = _lens_toml(tmp_path)
+    rc = main(["export", str(toml), "--post-set", str(toml), "--out", str(tmp_path / "x.oas"), "--format", "oas",
+               "--quiet"])
+    err = _err(capsys)
+    assert rc == 2 and err.startswith("metafovea export: error: --post-set") and len(err.splitlines()) == 1
+
+
+@pytest.mark.parametrize("fmt,name", [("gds", "a.oas"), ("oas", "a.gds"), ("gds", "a.OASIS"), ("stl", "a.glb")])
+def test_export_suffix_must_match_format(tmp_path, capsys, fmt, name):
+    """--format gds --out x.oas wrote GDSII bytes into a file named .oas."""
+    toml = _lens_toml(tmp_path)
+    out = tmp_path / name
+    rc = main(["export", str(toml), "--format", fmt, "--out", str(out), "--patch=0,0,0.02", "--quiet"])
+    err = _err(capsys)
+    assert rc == 2 and "--out" in err
+    assert not out.exists()
+
+
+@pytest.mark.parametrize("fmt,name", [("gds", "a.GDS"), ("oas", "a.oasis"), ("gds", "a")])
+def test_export_suffix_accepted(tmp_path, fmt, name):
+    toml = _lens_toml(tmp_path)
+    assert main(["export", str(toml), "--format", fmt, "--out", str(tmp_path / name), "--quiet"]) == 0
+    written = [p for p in tmp_path.iterdir() if p.name.startswith("a")]
+    assert len(written) == 1
