@@ -106,6 +106,12 @@ def run(args: argparse.Namespace) -> int:
     if args.window_um is not None:
         check_positive("--window-um", args.window_um, "um")
     lenses = [load_lens(d) for d in args.designs]
+    seen: dict[str, str] = {}
+    for d, lens in zip(args.designs, lenses):  # the report files are named after the lens
+        if lens.name in seen:
+            raise InputError("designs", d, f"lenses with distinct names: {seen[lens.name]} is also named "
+                             f"'{lens.name}' and its report files would be overwritten (change 'name' in one)")
+        seen[lens.name] = d
     for lens in lenses:  # every field must lie inside each lens' field at the longest wavelength used
         wl_max = max(band[1] if filt is None else min(band[1], filt[0] + 1.5 * filt[1]),
                      args.wavelength_um or lens.wavelength_um)

@@ -316,3 +316,14 @@ def test_export_suffix_accepted(tmp_path, fmt, name):
     assert main(["export", str(toml), "--format", fmt, "--out", str(tmp_path / name), "--quiet"]) == 0
     written = [p for p in tmp_path.iterdir() if p.name.startswith("a")]
     assert len(written) == 1
+
+
+def test_psf_two_lenses_with_one_name_refused(tmp_path, capsys):
+    """Two designs with the same 'name' silently overwrote each other's report files."""
+    a = _lens_toml(tmp_path, name="same", f_mm=20.0, d_mm=2.0)
+    b = tmp_path / "other.toml"
+    b.write_text(a.read_text().replace("f_mm = 20.0", "f_mm = 25.0"))
+    out = tmp_path / "o"
+    rc = main(["psf", str(a), str(b), "--field-deg", "0", "--wavelengths", "3", "--out", str(out)])
+    err = _err(capsys)
+    assert rc == 2 and "'same'" in err and not out.exists()
