@@ -368,3 +368,22 @@ def test_regularize_option_is_what_the_ill_conditioned_error_points_to(tmp_path,
         assert rc == 0, err
     rc, _, err = _run([m, "--window", "10", "--regularize", "-1", "--no-figures", "--force"], capsys)
     assert rc == 2 and "--regularize" in err
+
+
+def test_every_advertised_skimage_picture_loads_or_is_an_input_error(monkeypatch):
+    """skimage:motorcycle (advertised) was an AttributeError traceback: the loader is stereo_motorcycle."""
+    from skimage import data
+
+    from metafovea.imaging.scene import SKIMAGE_IMAGES, image_scene
+
+    sc = image_scene("motorcycle")
+    assert sc.temperature_k.ndim == 2 and sc.temperature_k.shape[0] > 2
+    for name in SKIMAGE_IMAGES:  # names only: the pictures themselves are not loaded here
+        assert hasattr(data, name) or hasattr(data, f"stereo_{name}"), name
+
+    def offline():
+        raise OSError("cannot download")
+
+    monkeypatch.setattr(data, "camera", offline)
+    with pytest.raises(InputError, match="skimage:camera"):
+        image_scene("camera")

@@ -564,8 +564,15 @@ def image_scene(name: str, geometry: SceneGeometry | None = None, *,
     if name not in SKIMAGE_IMAGES:
         raise InputError("scene", name, "one of the bundled scikit-image pictures: " + ", ".join(SKIMAGE_IMAGES))
     g = geometry or SceneGeometry()
-    img = getattr(data, name)()
-    if name == "motorcycle":  # stereo pair helper returns a tuple
+    loader = getattr(data, name, None) or getattr(data, f"stereo_{name}", None)  # motorcycle: stereo_motorcycle
+    if loader is None:
+        raise InputError("scene", f"skimage:{name}", "a picture this scikit-image version bundles")
+    try:
+        img = loader()
+    except (OSError, ValueError, ImportError) as e:  # e.g. a picture that needs a download, offline
+        raise InputError("scene", f"skimage:{name}", "a scikit-image picture available offline",
+                         detail=" ".join(str(e).split())[:160]) from None
+    if isinstance(img, tuple):  # stereo pair helper returns (left, right, disparity)
         img = img[0]
     gray = _to_gray(img)
     temp = gray_to_temperature(gray, t_range_k)
