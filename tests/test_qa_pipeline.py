@@ -387,3 +387,14 @@ def test_every_advertised_skimage_picture_loads_or_is_an_input_error(monkeypatch
     monkeypatch.setattr(data, "camera", offline)
     with pytest.raises(InputError, match="skimage:camera"):
         image_scene("camera")
+
+
+def test_small_crop_errors_name_the_crop_and_where_fpn_rank_comes_from():
+    from metafovea.imaging.sensor import SensorModel
+
+    with pytest.raises(InputError, match="sensor crop"):
+        SensorModel(shape=(7, 64))
+    with pytest.raises(InputError, match="--fpn-rank") as e:
+        SensorModel(shape=(12, 40), fpn_rank=20)
+    assert e.value.parameter == "fpn_rank" and "12" in e.value.allowed
+    assert SensorModel(shape=(12, 40), fpn_rank=12).fpn_rank == 12

@@ -102,13 +102,17 @@ class SensorModel:
         if len(self.shape) != 2:
             raise InputError("shape", self.shape, "(rows, columns)")
         for v in self.shape:
-            check_int("shape", v, 8, 8192)
+            check_int("sensor crop (rows, columns)", v, 8, 8192)
         check_positive("frame_rate_hz", self.frame_rate_hz, "Hz", hi=1e5)
         check_range("netd_k", self.netd_k, 0.0, 10.0, lo_inclusive=True, unit="K")
         check_positive("counts_per_k", self.counts_per_k, "DN/K", hi=1e6)
         check_range("dark_dn", self.dark_dn, 0.0, 2.0 ** 32, lo_inclusive=True, unit="DN")
         check_int("adc_bits", self.adc_bits, 1, 32)
-        check_int("fpn_rank", self.fpn_rank, 0, min(self.shape))
+        r = check_int("fpn_rank", self.fpn_rank, 0, 10**9)
+        if r > min(self.shape):
+            raise InputError("fpn_rank", r, f"integer 0 <= fpn_rank <= {min(self.shape)} (the smaller side of the "
+                             f"{self.shape[0]} x {self.shape[1]} crop)",
+                             detail="set by --fpn-rank or the system file's [sensor] fpn_rank")
         check_range("fpn_amplitude", self.fpn_amplitude, 0.0, 1.0, lo_inclusive=True)
         check_range("fpn_drift", self.fpn_drift, 0.0, 1.0, lo_inclusive=True)
         check_positive("drift_period_s", self.drift_period_s, "s")

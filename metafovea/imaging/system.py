@@ -146,7 +146,7 @@ def channels_for(system: SystemDesign, *, pixel_pitch_um: float | None = None,
                        else system.relay_magnification, hi=10)
     shp = tuple(int(v) for v in (shape or system.sensor.crop))
     for v in shp:
-        check_int("shape", v, 8, 8192)
+        check_int("sensor crop (rows, columns)", v, 8, 8192)
     fp = pitch / m
     f1, f2 = system.lens_to_sensor_um
     return (Channel("foveal", system.foveal, f1, fp, shp), Channel("perifoveal", system.perifoveal, f2, fp, shp))
