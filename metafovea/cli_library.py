@@ -89,7 +89,7 @@ def run(args: argparse.Namespace) -> int:
         raise InputError("--levels", levels, f"at most the {e.value} of {lib.wx_um.size} x {lib.wy_um.size} posts "
                          f"converged at {design_wl:g} um (convergence estimate <= 0.05): use more --harmonics, a "
                          "finer --grid-step-um or fewer --levels"
-                         + (f" (the wavelength is below the period {plat.period_um:g} um: the posts diffract, "
+                         + (f" (the wavelength is not above the period {plat.period_um:g} um: the posts diffract, "
                             "not a zero-order library)" if design_wl <= plat.period_um * plat.n_superstrate else "")
                          ) from None
     payload: dict[str, Any] = {

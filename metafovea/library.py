@@ -315,11 +315,15 @@ def compute_library(wx_um: Sequence[float], wy_um: Sequence[float] | None = None
     cdir = Path(cache_dir) if cache_dir is not None else default_cache_dir()
     final = cdir / f"library-{key}.npz"
     if use_cache and final.is_file():
-        log.info("library loaded from cache %s", final)
-        lib = Library.load(final)
-        lib.meta["from_cache"] = True
-        _warn_convergence(lib, tol)
-        return lib
+        try:
+            lib = Library.load(final)
+        except InputError as e:  # a damaged cache file (disk full, killed copy) is recomputed, not fatal
+            log.warning("recomputing damaged library cache %s (%s)", final, e)
+        else:
+            log.info("library loaded from cache %s", final)
+            lib.meta["from_cache"] = True
+            _warn_convergence(lib, tol)
+            return lib
     parts = cdir / f"library-{key}.parts"
     kw = dict(period_um=period, height_um=height, n_post=n_post, n_surround=n_surround,
               n_substrate=n_substrate, n_superstrate=n_superstrate, harmonics=M,

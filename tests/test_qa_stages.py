@@ -327,3 +327,24 @@ def test_psf_two_lenses_with_one_name_refused(tmp_path, capsys):
     rc = main(["psf", str(a), str(b), "--field-deg", "0", "--wavelengths", "3", "--out", str(out)])
     err = _err(capsys)
     assert rc == 2 and "'same'" in err and not out.exists()
+
+
+@pytest.mark.parametrize("damage", ["truncate", "garbage", "empty"])
+def test_damaged_library_cache_is_recomputed(tmp_path, damage):
+    """A damaged cached library (library-<key>.npz) made every later run fail instead of recomputing."""
+    import warnings
+
+    from metafovea.library import compute_library, width_grid
+    kw = dict(harmonics=5, cache_dir=tmp_path, workers=1, progress=False, tol=None)
+    w = width_grid(4.0, 1.0, 0.5)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        a = compute_library(w, None, [10.0], **kw)
+        (f,) = tmp_path.glob("library-*.npz")
+        data = f.read_bytes()
+        f.write_bytes({"truncate": data[: len(data) // 2], "garbage": b"\x00junk" * 50, "empty": b""}[damage])
+        b = compute_library(w, None, [10.0], **kw)
+        assert not b.meta.get("from_cache")
+        np.testing.assert_allclose(b.t_x, a.t_x)
+        c = compute_library(w, None, [10.0], **kw)  # the cache was rewritten
+    assert c.meta.get("from_cache")
