@@ -88,6 +88,10 @@ def foveal_constraint(meta: dict[str, Any], *, scale: float | None = None, gain:
 
     out = {"scale": pick(scale, "scale", meta.get("scale", 6.0)), "foveal_gain": pick(gain, "gain", 1.0),
            "foveal_offset": pick(offset, "offset_dn", 0.0)}
+    if not 1.0 <= out["scale"] <= 1000.0:
+        raise InputError("foveal_constraint.scale" if scale is None else "--scale", out["scale"],
+                         "1 <= scale <= 1000 (f1/f2 of the two lenses, 6 for the paper's)",
+                         detail=None if scale is not None else "from the file's meta; override with --scale")
     if not out["foveal_gain"] > 0:
         raise InputError("foveal gain", out["foveal_gain"], "a positive radiometric gain (NA1^2/NA2^2)")
     return out
@@ -147,6 +151,8 @@ def _summary(args: argparse.Namespace) -> dict[str, Any]:
         raise InputError("--window", args.window, f"2 <= window <= number of frames ({T})")
     if args.stride < 1:
         raise InputError("--stride", args.stride, "an integer >= 1")
+    if args.seed < 0:
+        raise InputError("--seed", args.seed, "an integer >= 0")
     out = Path(args.out) if args.out else src.with_name(src.stem + "_rec.npz")
     if out.suffix.lower() != ".npz":
         raise InputError("--out", str(out), "a file name ending in .npz")

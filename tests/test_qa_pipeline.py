@@ -401,3 +401,16 @@ def test_small_crop_errors_name_the_crop_and_where_fpn_rank_comes_from():
         SensorModel(shape=(12, 40), fpn_rank=20)
     assert e.value.parameter == "fpn_rank" and "12" in e.value.allowed
     assert SensorModel(shape=(12, 40), fpn_rank=12).fpn_rank == 12
+
+
+def test_negative_seed_and_impossible_scale_are_input_errors(tmp_path, capsys):
+    m = _save(tmp_path / "m.npz")
+    rc, _, err = _run([m, "--method", "dip", "--steps", "1", "--seed", "-1", "--no-figures"], capsys)
+    assert rc == 2 and "--seed" in err and err.count("\n") == 1
+    for bad in ("-5", "0.5", "1e9"):
+        rc, _, err = _run([m, "--window", "10", "--scale", bad, "--no-figures"], capsys)
+        assert rc == 2 and "--scale" in err
+    from metafovea.reconstruct._common import as_rng
+
+    with pytest.raises(InputError, match="seed"):
+        as_rng(-3)

@@ -16,8 +16,10 @@ def as_rng(rng: Any) -> np.random.Generator:
     if isinstance(rng, np.random.Generator):
         return rng
     if rng is None or (isinstance(rng, (int, np.integer)) and not isinstance(rng, bool)):
+        if rng is not None and int(rng) < 0:
+            raise InputError("seed", rng, "an integer >= 0")
         return np.random.default_rng(rng)
-    raise InputError("rng", rng, "an integer seed, None or a numpy.random.Generator")
+    raise InputError("rng", rng, "an integer seed >= 0, None or a numpy.random.Generator")
 
 
 def image_dtype(a: np.ndarray) -> np.dtype:
