@@ -348,3 +348,20 @@ def test_damaged_library_cache_is_recomputed(tmp_path, damage):
         np.testing.assert_allclose(b.t_x, a.t_x)
         c = compute_library(w, None, [10.0], **kw)  # the cache was rewritten
     assert c.meta.get("from_cache")
+
+
+@pytest.mark.parametrize("journal", ['[]', '{"bands_done": "2", "offset": 10}', '{"offset": 5}', '"x"',
+                                     '{"bands_done": 1, "offset": 10, "counts": 3}'])
+def test_export_resume_with_malformed_journal_starts_over(tmp_path, journal):
+    """A valid-JSON but malformed resume journal raised AttributeError/KeyError/TypeError tracebacks."""
+    from metafovea.layout import export_layout, make_spec
+    from metafovea.layout.export import part_paths
+    spec = make_spec(LensDesign("t", 900.0, 400.0), band_rows=8, ring_width_um=30.0)
+    ref = export_layout(spec, tmp_path / "ref.gds", "gds")
+    p = tmp_path / "lens.gds"
+    with pytest.raises(KeyboardInterrupt):
+        export_layout(spec, p, "gds", _stop_after=2)
+    part, jpath = part_paths(p)
+    jpath.write_text(journal)
+    res = export_layout(spec, p, "gds")
+    assert res.posts == ref.posts and p.read_bytes() == (tmp_path / "ref.gds").read_bytes()

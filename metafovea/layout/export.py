@@ -268,9 +268,16 @@ def _write_journal(jpath: Path, data: dict[str, Any]) -> None:
 def _load_journal(jpath: Path) -> dict[str, Any] | None:
     try:
         with open(jpath) as fh:
-            return json.load(fh)
+            j = json.load(fh)
     except (OSError, ValueError):
         return None
+    # anything but a journal as _write_journal writes it (hand-edited, from another version): start over
+    if not isinstance(j, dict) or not all(isinstance(j.get(k), int) and not isinstance(j.get(k), bool)
+                                          for k in ("bands_done", "offset")):
+        return None
+    if not isinstance(j.get("counts"), list) or not isinstance(j.get("leaves", []), list):
+        return None
+    return j
 
 
 def _gds_task(spec: LayoutSpec, flat: bool, task):
