@@ -9,6 +9,7 @@ from __future__ import annotations
 import argparse
 import json
 import logging
+import os
 import sys
 import time
 from pathlib import Path
@@ -92,9 +93,14 @@ def run(args: argparse.Namespace) -> int:
     if out.suffix.lower() != ".npz":
         raise InputError("--out", str(out), "a file name ending in .npz")
     from metafovea.io import prepare_output
-    prepare_output(out, args.force)
     tif = out.with_suffix(".tif")
     png = out.with_name(out.stem + "_preview.png")
+    inputs = [Path(p) for p in (args.system_file, args.scene) if p and Path(p).is_file()]
+    for o in [out] + ([] if args.no_tiff else [tif]) + ([] if args.no_preview else [png]):
+        for src in inputs:
+            if o.resolve() == src.resolve() or (o.exists() and os.path.samefile(o, src)):
+                raise InputError("--out", str(o), f"a path other than the input {src} (it would be overwritten)")
+    prepare_output(out, args.force)
     if not args.no_tiff:
         prepare_output(tif, args.force, name="--out (TIFF)")
     if not args.no_preview:

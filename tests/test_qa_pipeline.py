@@ -414,3 +414,19 @@ def test_negative_seed_and_impossible_scale_are_input_errors(tmp_path, capsys):
 
     with pytest.raises(InputError, match="seed"):
         as_rng(-3)
+
+
+def test_simulate_never_overwrites_its_scene_file_even_with_force(tmp_path, monkeypatch, capsys):
+    from metafovea.cli import main
+
+    monkeypatch.chdir(tmp_path)
+    np.savez("s.npz", temperature_k=np.full((20, 20), 300.0))
+    before = (tmp_path / "s.npz").read_bytes()
+    assert main(["simulate", "--scene", "s.npz", "--out", "s.npz", "--force", "--frames", "1", "--psf", "airy"]) == 2
+    assert "--out" in capsys.readouterr().err and (tmp_path / "s.npz").read_bytes() == before
+    np.save("k.npy", np.full((20, 20), 300.0))
+    import tifffile
+
+    tifffile.imwrite("k.tif", np.full((20, 20), 300.0, np.float32))  # the TIFF written next to k.npz
+    assert main(["simulate", "--scene", "k.tif", "--out", "k.npz", "--force", "--frames", "1", "--psf", "airy"]) == 2
+    assert "k.tif" in capsys.readouterr().err
