@@ -306,6 +306,7 @@ def _summary(args: argparse.Namespace) -> dict[str, Any]:
 def _load(src: Path) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
     """:func:`metafovea.io.load_npz` with every way a file can fail to be a Measurement as an InputError."""
     import zipfile
+    import zlib
 
     from metafovea.io import load_npz
 
@@ -313,7 +314,7 @@ def _load(src: Path) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
         arrays, meta = load_npz(src)
     except InputError:
         raise
-    except (OSError, ValueError, EOFError, KeyError, zipfile.BadZipFile, UnicodeDecodeError) as e:
+    except (OSError, ValueError, EOFError, KeyError, zipfile.BadZipFile, zlib.error, UnicodeDecodeError) as e:
         detail = " ".join(str(e).split())[:160] or type(e).__name__
         raise InputError("measurement", str(src), "a Measurement .npz (numpy arrays, JSON '__meta__')",
                          detail=detail) from None

@@ -430,3 +430,27 @@ def test_simulate_never_overwrites_its_scene_file_even_with_force(tmp_path, monk
     tifffile.imwrite("k.tif", np.full((20, 20), 300.0, np.float32))  # the TIFF written next to k.npz
     assert main(["simulate", "--scene", "k.tif", "--out", "k.npz", "--force", "--frames", "1", "--psf", "airy"]) == 2
     assert "k.tif" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("kind", ["empty", "truncated", "corrupt-member", "listjson"])
+def test_measurement_load_and_reconstruct_refuse_damaged_files(tmp_path, capsys, kind):
+    from metafovea.imaging import Measurement
+
+    good = _save(tmp_path / "good.npz")
+    p = tmp_path / "bad.npz"
+    if kind == "empty":
+        p.write_bytes(b"")
+    elif kind == "truncated":
+        p.write_bytes(good.read_bytes()[:3000])
+    elif kind == "corrupt-member":
+        np.savez_compressed(p, frames=np.random.default_rng(0).random((4, 32, 32)).astype(np.float32))
+        b = bytearray(p.read_bytes())
+        for i in range(200, 1500):
+            b[i] ^= 0x55
+        p.write_bytes(bytes(b))
+    else:
+        np.savez(p, frames=np.ones((4, 16, 16), np.float32), __meta__=np.frombuffer(b"[1]", np.uint8))
+    with pytest.raises(InputError):
+        Measurement.load(p)
+    rc, _, err = _run([p, "--out", tmp_path / "r.npz"], capsys)
+    assert rc == 2 and err.count("\n") == 1

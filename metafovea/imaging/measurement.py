@@ -140,10 +140,16 @@ class Measurement:
         p = Path(path)
         if not p.is_file():
             raise InputError("measurement", str(p), "an existing measurement .npz file")
+        import zipfile
+        import zlib
+
         try:
             arrays, meta = load_npz(p)
-        except (OSError, ValueError, KeyError) as e:
-            raise InputError("measurement", str(p), "a readable .npz measurement file", detail=str(e)) from None
+        except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile, zlib.error, UnicodeDecodeError) as e:
+            raise InputError("measurement", str(p), "a readable .npz measurement file",
+                             detail=" ".join(str(e).split())[:160] or type(e).__name__) from None
+        if not isinstance(meta, dict):
+            raise InputError("__meta__", type(meta).__name__, "a JSON object (mapping)", source=str(p))
         if "frames" not in arrays:
             raise InputError("measurement", str(p), "an .npz with an array 'frames' (T, H, W)")
         times = arrays.get("times_s")
