@@ -454,3 +454,11 @@ def test_measurement_load_and_reconstruct_refuse_damaged_files(tmp_path, capsys,
         Measurement.load(p)
     rc, _, err = _run([p, "--out", tmp_path / "r.npz"], capsys)
     assert rc == 2 and err.count("\n") == 1
+
+
+def test_truncated_scene_npz_is_an_input_error(tmp_path):
+    p = tmp_path / "s.npz"
+    np.savez(p, temperature_k=np.full((20, 20), 300.0))
+    p.write_bytes(p.read_bytes()[:300])
+    with pytest.raises(InputError, match="scene"):
+        load_scene_file(p)

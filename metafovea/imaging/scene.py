@@ -23,6 +23,8 @@ from __future__ import annotations
 
 import logging
 import math
+import zipfile
+import zlib
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable
@@ -626,7 +628,7 @@ def load_scene_file(path: str | Path, geometry: SceneGeometry | None = None, *,
             raise InputError("scene", str(p), "a file ending in .npy, .npz, .tif, .tiff, .png, .jpg, .jpeg or .bmp")
     except InputError:
         raise
-    except (OSError, ValueError, TypeError, KeyError, IndexError, EOFError) as e:
+    except (OSError, ValueError, TypeError, KeyError, IndexError, EOFError, zipfile.BadZipFile, zlib.error) as e:
         # one line: some readers (imageio) explain themselves over several lines
         first = " ".join(str(e).split())[:200]
         raise InputError("scene", str(p), "a readable scene file", detail=first or type(e).__name__) from None
