@@ -365,3 +365,12 @@ def test_export_resume_with_malformed_journal_starts_over(tmp_path, journal):
     jpath.write_text(journal)
     res = export_layout(spec, p, "gds")
     assert res.posts == ref.posts and p.read_bytes() == (tmp_path / "ref.gds").read_bytes()
+
+
+def test_sensor_psf_capped_window_warning_says_so():
+    """Pixels far below the PSF size truncate the window at max_size_px; the warning blamed 'geometric haze'."""
+    from metafovea.errors import NotConvergedWarning
+    from metafovea.optics import sensor_psf
+    lens = LensDesign("t", 20000.0, 2000.0)
+    with pytest.warns(NotConvergedWarning, match="capped at 31 pixels"):
+        sensor_psf(lens, pixel_pitch_um=2.0, max_size_px=31)

@@ -714,8 +714,11 @@ def sensor_psf(lens: LensDesign, *, pixel_pitch_um: float, field_deg: float | tu
     peak = float(pix.max())
     est_rel = est_abs / peak if peak > 0 else float("inf")
     if est_rel > error:
+        capped = size_px is None and size == max_size_px and 2 * half > L
+        why = (f"the window is capped at {max_size_px} pixels = {L:.4g} um, the PSF spreads over {2 * half:.4g} um: "
+               "use larger pixels" if capped else "geometric haze or cost budget")
         warnings.warn(f"sensor PSF of '{lens.name}' at field {fpair} deg: estimated error {est_rel:.2g} of the "
-                      f"peak exceeds the requested {error:g} (geometric haze or cost budget); raise error or "
+                      f"peak exceeds the requested {error:g} ({why}); raise error or "
                       "reduce wavelengths", NotConvergedWarning, stacklevel=2)
     eng_name = "+".join(f"{k}" for k in sorted(engines))
     info = {"engines": engines, "n_sub": n_sub, "fine_pitch_um": dx, "size_px": size,
