@@ -36,8 +36,8 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
                    help="solver (default lsq; lsq needs the file's alpha)")
     p.add_argument("--known-alpha", action="store_true",
                    help="use the file's alpha (implied by --method lsq; holds alpha fixed for dip)")
-    p.add_argument("--window", type=int, default=8, help="frames per window (default 8); longer sequences "
-                   "are reconstructed window by window")
+    p.add_argument("--window", type=int, default=None, help="frames per window (default 8, or all frames of a "
+                   "shorter sequence); longer sequences are reconstructed window by window")
     p.add_argument("--stride", type=int, default=1, help="window stride in frames (default 1)")
     p.add_argument("--denoise", default=None, choices=("tv", "bilateral", "nlm"), help="denoise the outputs")
     p.add_argument("--fpn", default="none", choices=("none", "prior", "calibration", "file"),
@@ -147,6 +147,8 @@ def _summary(args: argparse.Namespace) -> dict[str, Any]:
     if args.method != "snapshot" and T < 2:
         raise InputError("frames", f"{T} frame", "at least 2 frames (or --method snapshot for a single frame)",
                          source=str(src))
+    if args.window is None:  # the default: 8 frames, or all of a shorter sequence
+        args.window = min(8, T)
     if args.method != "snapshot" and not 2 <= args.window:
         raise InputError("--window", args.window, f"2 <= window <= number of frames ({T})")
     if args.stride < 1:

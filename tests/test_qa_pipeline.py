@@ -462,3 +462,12 @@ def test_truncated_scene_npz_is_an_input_error(tmp_path):
     p.write_bytes(p.read_bytes()[:300])
     with pytest.raises(InputError, match="scene"):
         load_scene_file(p)
+
+
+def test_default_window_covers_a_sequence_shorter_than_8_frames(tmp_path, capsys):
+    m = _save(tmp_path / "m.npz", T=5)
+    rc, out, err = _run([m, "--no-figures", "--json"], capsys)
+    assert rc == 0, err
+    assert json.loads(out)["outputs"] == 1
+    rc, _, err = _run([m, "--window", "8", "--no-figures", "--force"], capsys)  # an explicit window is checked
+    assert rc == 2 and "--window" in err
