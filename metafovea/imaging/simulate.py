@@ -79,9 +79,18 @@ def _child_rngs(rng: Any, n: int) -> list[np.random.Generator]:
 
 
 def _available_memory_bytes() -> int | None:
-    """Physical memory available now (Linux/macOS sysconf), or None when unknown."""
+    """Memory available for new allocations: Linux's MemAvailable (free + reclaimable cache), else the
+    total physical memory (sysconf), else None when unknown. (MemFree alone would count the page cache
+    as used and refuse runs that fit.)"""
     try:
-        return int(os.sysconf("SC_AVPHYS_PAGES")) * int(os.sysconf("SC_PAGE_SIZE"))
+        with open("/proc/meminfo") as f:
+            for line in f:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) * 1024
+    except (OSError, ValueError, IndexError):
+        pass
+    try:
+        return int(os.sysconf("SC_PHYS_PAGES")) * int(os.sysconf("SC_PAGE_SIZE"))
     except (AttributeError, ValueError, OSError):
         return None
 
