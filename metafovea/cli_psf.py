@@ -87,7 +87,7 @@ def _check_weights(band: tuple[float, float], filt: tuple[float, float] | None, 
 
 
 def run(args: argparse.Namespace) -> int:
-    from metafovea.optics.pupil import max_field_deg
+    from metafovea.optics.pupil import EVANESCENT_MARGIN, max_field_deg
     from metafovea.optics.radiometry import check_band
 
     band = check_band(args.band_um, "--band-um") if args.band_um is not None else (8.0, 14.0)
@@ -115,6 +115,16 @@ def run(args: argparse.Namespace) -> int:
     for lens in lenses:  # every field must lie inside each lens' field at the longest wavelength used
         wl_max = max(band[1] if filt is None else min(band[1], filt[0] + 1.5 * filt[1]),
                      args.wavelength_um or lens.wavelength_um)
+        wl_lim = lens.wavelength_um * (1.0 - EVANESCENT_MARGIN) / lens.na
+        if not wl_max < wl_lim:  # even on axis the rim's first order would be evanescent
+            if args.wavelength_um is not None and args.wavelength_um >= wl_max:
+                opt, val = "--wavelength-um", args.wavelength_um
+            elif filt is not None:
+                opt, val = "--filter-um", list(filt)
+            else:
+                opt, val = "--band-um", list(band)
+            raise InputError(opt, val, f"wavelengths below {wl_lim:.4g} um for lens '{lens.name}' (NA {lens.na:.4f}, "
+                             f"lambda0 {lens.wavelength_um:g} um): longer ones leave the rim of the lens evanescent")
         lim = max_field_deg(lens, wl_max)
         for fd in args.field_deg or []:
             if not abs(fd) <= lim:

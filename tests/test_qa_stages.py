@@ -374,3 +374,14 @@ def test_sensor_psf_capped_window_warning_says_so():
     lens = LensDesign("t", 20000.0, 2000.0)
     with pytest.warns(NotConvergedWarning, match="capped at 31 pixels"):
         sensor_psf(lens, pixel_pitch_um=2.0, max_size_px=31)
+
+
+@pytest.mark.parametrize("opts,flag", [(["--band-um", "8", "300"], "--band-um"), (["--band-um", "0.01", "1e4"], "--band-um"),
+                                       (["--wavelength-um", "250"], "--wavelength-um")])
+def test_psf_band_beyond_evanescent_limit_names_band(tmp_path, capsys, opts, flag):
+    """A band reaching lambda0/NA failed deep inside with '--field-deg = 0.0 is invalid; |field| <= 0.000'."""
+    toml = _lens_toml(tmp_path, f_mm=20.0, d_mm=2.0)  # NA 0.05: limit 200 um
+    rc = main(["psf", str(toml), "--field-deg", "0", "--wavelengths", "3", "--out", str(tmp_path / "o"), *opts])
+    err = _err(capsys)
+    assert rc == 2 and err.startswith("metafovea psf: error: " + flag), err
+    assert not (tmp_path / "o").exists()
