@@ -171,8 +171,9 @@ def _summary(args: argparse.Namespace) -> dict[str, Any]:
     alpha = None
     if use_alpha:
         if "alpha" not in arrays:
-            raise InputError("--known-alpha", str(src), "a measurement with an 'alpha' array (or --method "
-                             "alternating / dip / snapshot for unknown alpha)")
+            raise InputError("alpha", "absent", f"an 'alpha' array in the measurement for "
+                             f"{'--known-alpha' if args.known_alpha else '--method lsq'} (or --method alternating / "
+                             f"dip / snapshot for unknown alpha)", source=str(src))
         alpha = arrays["alpha"]
         if alpha.shape != (T,) or not np.issubdtype(alpha.dtype, np.number) or np.iscomplexobj(alpha):
             raise InputError("alpha", f"array of shape {alpha.shape}, dtype {alpha.dtype}",

@@ -471,3 +471,9 @@ def test_default_window_covers_a_sequence_shorter_than_8_frames(tmp_path, capsys
     assert json.loads(out)["outputs"] == 1
     rc, _, err = _run([m, "--window", "8", "--no-figures", "--force"], capsys)  # an explicit window is checked
     assert rc == 2 and "--window" in err
+
+
+def test_lsq_without_alpha_names_alpha_and_the_method(tmp_path, capsys):
+    m = _save(tmp_path / "m.npz", alpha=None)
+    rc, _, err = _run([m, "--no-figures"], capsys)
+    assert rc == 2 and "alpha = 'absent'" in err and "--method lsq" in err
