@@ -124,7 +124,8 @@ def run_export(args) -> int:
     if fmt not in ("gds", "oas") + MESH_FORMATS:
         raise InputError("--format", args.format, "one of 'gds', 'oas', 'stl', 'glb'")
     spec = _spec(args, args.design)
-    name = spec.design.name + ("_cal" if args.test_array else "") + ("_patch" if spec.patch_um else "") + \
+    stem = "".join(ch if (ch.isalnum() or ch in "-_.") else "_" for ch in spec.design.name).lstrip(".") or "lens"
+    name = stem + ("_cal" if args.test_array else "") + ("_patch" if spec.patch_um else "") + \
         ("_flat" if args.flat else "") + (f"_h{args.max_refs}" if args.max_refs else "")
     out = Path(args.out) if args.out else DEFAULT_DIR / name
     suffixes = {"gds": (".gds", ".gdsii"), "oas": (".oas", ".oasis"), "stl": (".stl",), "glb": (".glb",)}

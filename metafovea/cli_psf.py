@@ -106,12 +106,14 @@ def run(args: argparse.Namespace) -> int:
     if args.window_um is not None:
         check_positive("--window-um", args.window_um, "um")
     lenses = [load_lens(d) for d in args.designs]
+    from metafovea.optics.report import file_stem
     seen: dict[str, str] = {}
     for d, lens in zip(args.designs, lenses):  # the report files are named after the lens
-        if lens.name in seen:
-            raise InputError("designs", d, f"lenses with distinct names: {seen[lens.name]} is also named "
-                             f"'{lens.name}' and its report files would be overwritten (change 'name' in one)")
-        seen[lens.name] = d
+        if file_stem(lens.name) in seen:
+            raise InputError("designs", d, f"lenses with distinct names: {seen[file_stem(lens.name)]} is also named "
+                             f"'{lens.name}' (as a file name) and its report files would be overwritten "
+                             "(change 'name' in one)")
+        seen[file_stem(lens.name)] = d
     for lens in lenses:  # every field must lie inside each lens' field at the longest wavelength used
         wl_max = max(band[1] if filt is None else min(band[1], filt[0] + 1.5 * filt[1]),
                      args.wavelength_um or lens.wavelength_um)
@@ -156,7 +158,7 @@ def run(args: argparse.Namespace) -> int:
         res = val
         summary[lens.name] = {"seconds": res["seconds"], "monochromatic": res["monochromatic"],
                               "sensor": res["sensor"], "warnings": res["warnings"],
-                              "html": str(Path(out) / f"{lens.name}_psf_report.html")}
+                              "html": str(Path(out) / f"{file_stem(lens.name)}_psf_report.html")}
     if args.json:
         print(to_json(summary))
     else:

@@ -385,3 +385,22 @@ def test_psf_band_beyond_evanescent_limit_names_band(tmp_path, capsys, opts, fla
     err = _err(capsys)
     assert rc == 2 and err.startswith("metafovea psf: error: " + flag), err
     assert not (tmp_path / "o").exists()
+
+
+@pytest.mark.parametrize("name", ["../../escape", "a/b", "..", "x y*?"])
+def test_lens_name_cannot_escape_output_directory(tmp_path, monkeypatch, capsys, name):
+    """A lens 'name' was used verbatim in file names: '../../x' wrote the export outside gds_export/
+    (and the psf report outside --out), 'a/b' made subdirectories."""
+    monkeypatch.chdir(tmp_path)
+    work = tmp_path / "w"
+    work.mkdir()
+    toml = work / "lens.toml"
+    toml.write_text(f'name = "{name}"\nf_mm = 20.0\ndiameter_mm = 0.3\npolarization = "x"\n')
+    monkeypatch.chdir(work)
+    assert main(["export", str(toml), "--format", "oas", "--quiet", "--ring-width-um", "20"]) == 0
+    files = [p for p in work.rglob("*") if p.is_file() and p.suffix == ".oas"]
+    assert len(files) == 1 and files[0].parent == work / "gds_export", files
+    out = work / "psf"
+    assert main(["psf", str(toml), "--field-deg", "0", "--wavelengths", "2", "--out", str(out)]) == 0
+    written = [p for p in tmp_path.rglob("*") if p.is_file() and p.suffix in (".html", ".json", ".png")]
+    assert written and all(p.parent == out for p in written), written

@@ -25,6 +25,13 @@ from .radiometry import spectral_weights
 log = logging.getLogger(__name__)
 
 
+def file_stem(name: str) -> str:
+    """A lens name made safe as a file-name stem: no path separators or '..' (a name like '../x' wrote
+    outside the output directory), no shell-hostile characters; letters, digits, '-', '_' and '.' kept."""
+    stem = "".join(ch if (ch.isalnum() or ch in "-_.") else "_" for ch in str(name)).lstrip(".")
+    return stem or "lens"
+
+
 def psf_report(lens: LensDesign, out_dir: str | Path, *, fields_deg: list[float] | None = None,
                band_um: tuple[float, float] = (8.0, 14.0), filter_um: tuple[float, float] | None = None,
                temperature_k: float = 300.0, n_wavelengths: int = 61, pixel_pitch_um: float = 17.0,
@@ -43,6 +50,7 @@ def psf_report(lens: LensDesign, out_dir: str | Path, *, fields_deg: list[float]
     import matplotlib.pyplot as plt
 
     t0 = time.perf_counter()
+    stem = file_stem(lens.name)
     mono_wl = [lens.wavelength_um if wavelength_um is None else float(wavelength_um)]
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
@@ -148,9 +156,9 @@ def psf_report(lens: LensDesign, out_dir: str | Path, *, fields_deg: list[float]
     res["pixel_pitch_um"] = pixel_pitch_um
     res["seconds"] = time.perf_counter() - t0
     for name, data in figs.items():
-        atomic_write_bytes(out / f"{lens.name}_{name}", data)
-    atomic_write_json(out / f"{lens.name}_psf_report.json", res)
-    atomic_write_text(out / f"{lens.name}_psf_report.html", _html(res, figs))
+        atomic_write_bytes(out / f"{stem}_{name}", data)
+    atomic_write_json(out / f"{stem}_psf_report.json", res)
+    atomic_write_text(out / f"{stem}_psf_report.html", _html(res, figs))
     return res
 
 
