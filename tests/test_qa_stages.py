@@ -404,3 +404,19 @@ def test_lens_name_cannot_escape_output_directory(tmp_path, monkeypatch, capsys,
     assert main(["psf", str(toml), "--field-deg", "0", "--wavelengths", "2", "--out", str(out)]) == 0
     written = [p for p in tmp_path.rglob("*") if p.is_file() and p.suffix in (".html", ".json", ".png")]
     assert written and all(p.parent == out for p in written), written
+
+
+@pytest.mark.parametrize("name", ["ü lens", "Ørsted-2", "lens\\u00e9\\u0007"])
+@pytest.mark.parametrize("fmt,reader", [("oas", "klayout"), ("gds", "stream"), ("gds", "gdstk")])
+def test_non_ascii_lens_name_exports_and_verifies(tmp_path, capsys, name, fmt, reader):
+    """A non-ASCII name was an OASIS UnicodeEncodeError traceback and a GDSII the stream reader mismatched."""
+    if reader == "klayout":
+        pytest.importorskip("klayout.db")
+    if reader == "gdstk":
+        pytest.importorskip("gdstk")
+    toml = tmp_path / "lens.toml"
+    toml.write_text(f'name = "{name}"\nf_mm = 2.0\ndiameter_mm = 0.3\npolarization = "x"\n', encoding="utf-8")
+    out = tmp_path / f"x.{fmt}"
+    assert main(["export", str(toml), "--format", fmt, "--out", str(out), "--quiet", "--ring-width-um", "20"]) == 0
+    assert main(["verify", str(out), "--design", str(toml), "--quiet", "--ring-width-um", "20",
+                 "--reader", reader]) == 0, capsys.readouterr().err

@@ -78,7 +78,8 @@ class LayoutSpec:
 
     @property
     def top_name(self) -> str:
-        n = "".join(ch if ch.isalnum() else "_" for ch in self.design.name.upper())
+        # GDSII/OASIS names are ASCII: any other character (also a non-ASCII letter) becomes '_'
+        n = "".join(ch if (ch.isascii() and ch.isalnum()) else "_" for ch in self.design.name.upper())
         return f"{n}_LENS"
 
     @property
@@ -219,7 +220,8 @@ class LayoutSpec:
 
     def label_text(self) -> str:
         d = self.design
-        s = (f"metafovea {d.name} f={d.f_mm:g}mm D={d.diameter_mm:g}mm lambda={d.wavelength_um:g}um "
+        name = "".join(ch if (ch.isascii() and ch.isprintable()) else "?" for ch in d.name)  # ASCII text records
+        s = (f"metafovea {name} f={d.f_mm:g}mm D={d.diameter_mm:g}mm lambda={d.wavelength_um:g}um "
              f"pol={d.polarization} p={d.period_um:g}um N={self.levels} lattice={d.lattice} "
              f"grid={self.grid_nm}nm dbu=1nm centre=({self.centre_nm},{self.centre_nm})nm")
         if self.patch_um is not None:
