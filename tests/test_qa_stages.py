@@ -420,3 +420,15 @@ def test_non_ascii_lens_name_exports_and_verifies(tmp_path, capsys, name, fmt, r
     assert main(["export", str(toml), "--format", fmt, "--out", str(out), "--quiet", "--ring-width-um", "20"]) == 0
     assert main(["verify", str(out), "--design", str(toml), "--quiet", "--ring-width-um", "20",
                  "--reader", reader]) == 0, capsys.readouterr().err
+
+
+def test_gdstk_damaged_file_error_is_one_line(tmp_path, capfd, exported_gds):
+    """gdstk printed its own '[GDSTK] ...' lines to the terminal before the error."""
+    pytest.importorskip("gdstk")
+    toml, gds = exported_gds
+    bad = tmp_path / "t.gds"
+    bad.write_bytes(gds.read_bytes()[:5000])
+    rc = main(["verify", str(bad), "--design", str(toml), "--ring-width-um", "50", "--quiet", "--reader", "gdstk"])
+    out, err = capfd.readouterr()
+    assert rc == 2 and len(err.strip().splitlines()) == 1, err
+    assert err.startswith("metafovea verify: error: FILE")

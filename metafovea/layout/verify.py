@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import os
 import struct
+import sys
 import time
 from collections import Counter
 from dataclasses import dataclass, field
@@ -205,15 +206,50 @@ def read_klayout(path: Path, lattice: tuple[int, int, int] | None, posts_layer: 
 # ----------------------------------------------------------------------------------------------
 # gdstk
 # ----------------------------------------------------------------------------------------------
+class _captured_stderr:
+    """Redirect file descriptor 2 (where C libraries print) to a temporary file while active."""
+
+    def __enter__(self):
+        import tempfile
+        self._tmp = tempfile.TemporaryFile()
+        try:
+            sys.stderr.flush()
+        except (OSError, ValueError, AttributeError):
+            pass
+        try:
+            self._saved = os.dup(2)
+            os.dup2(self._tmp.fileno(), 2)
+        except OSError:
+            self._saved = None
+        return self
+
+    def __exit__(self, *exc):
+        if self._saved is not None:
+            os.dup2(self._saved, 2)
+            os.close(self._saved)
+            self._saved = None
+        self._tmp.close()
+        return False
+
+    def text(self) -> str:
+        try:
+            self._tmp.seek(0)
+            return self._tmp.read().decode("utf-8", "replace")[-500:]
+        except OSError:
+            return ""
+
+
 def read_gdstk(path: Path, lattice: tuple[int, int, int] | None, posts_layer: tuple[int, int],
                post_names: Any = None) -> Observed:
     import gdstk
 
     fmt = sniff_format(path)
-    if fmt == "oas":
-        lib = gdstk.read_oas(str(path), unit=1e-6)
-    else:
-        lib = gdstk.read_gds(str(path), unit=1e-6)
+    with _captured_stderr() as cap:  # gdstk prints '[GDSTK] ...' lines from C on damaged files
+        try:
+            lib = gdstk.read_oas(str(path), unit=1e-6) if fmt == "oas" else gdstk.read_gds(str(path), unit=1e-6)
+        except (RuntimeError, OSError) as e:
+            said = " ".join(cap.text().split())
+            raise RuntimeError(f"{said} {e}".strip()) from None
     ob = Observed("gdstk", fmt, dbu_um=lib.precision / lib.unit)
     ob.top_cells = [c.name for c in lib.top_level()]
     ob.structures = len(lib.cells)
