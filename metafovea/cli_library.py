@@ -14,12 +14,14 @@ from __future__ import annotations
 import argparse
 import io
 import logging
+import sys
 import time
+import warnings
 from typing import Any
 
 import numpy as np
 
-from metafovea.errors import InputError, check_int, check_positive
+from metafovea.errors import InputError, NotConvergedWarning, check_int, check_positive
 
 log = logging.getLogger(__name__)
 
@@ -74,11 +76,18 @@ def run(args: argparse.Namespace) -> int:
     widths = width_grid(plat.period_um, step, plat.min_feature_um, name="--grid-step-um")
     out = prepare_output(args.out, args.force, is_dir=True) if args.out else None
     t0 = time.perf_counter()
-    lib = compute_library(widths, None, wls, period_um=plat.period_um, height_um=plat.post_height_um,
-                          n_post=plat.n_post, n_substrate=plat.n_substrate, n_superstrate=plat.n_superstrate,
-                          harmonics=M, factorization=args.factorization, incidence=args.incidence, tol=tol,
-                          cache_dir=args.cache_dir, use_cache=not args.no_cache, workers=workers,
-                          scheduler=args.scheduler, progress=not args.no_progress)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", NotConvergedWarning)
+        lib = compute_library(widths, None, wls, period_um=plat.period_um, height_um=plat.post_height_um,
+                              n_post=plat.n_post, n_substrate=plat.n_substrate, n_superstrate=plat.n_superstrate,
+                              harmonics=M, factorization=args.factorization, incidence=args.incidence, tol=tol,
+                              cache_dir=args.cache_dir, use_cache=not args.no_cache, workers=workers,
+                              scheduler=args.scheduler, progress=not args.no_progress)
+    for w in caught:  # one line each (the default format adds the source line of the call)
+        if issubclass(w.category, NotConvergedWarning):
+            sys.stderr.write(f"metafovea library: warning: {w.message}\n")
+        else:
+            warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
     elapsed = time.perf_counter() - t0
     design_wl = float(plat.wavelength_um) if float(plat.wavelength_um) in [float(w) for w in wls] else float(wls[0])
     try:

@@ -432,3 +432,13 @@ def test_gdstk_damaged_file_error_is_one_line(tmp_path, capfd, exported_gds):
     out, err = capfd.readouterr()
     assert rc == 2 and len(err.strip().splitlines()) == 1, err
     assert err.startswith("metafovea verify: error: FILE")
+
+
+def test_library_cli_convergence_warning_is_one_line(tmp_path, capfd):
+    """The NotConvergedWarning was printed with Python's source line of the call ('  lib = compute_library(')."""
+    rc = main(["library", "--grid-step-um", "1.3", "--harmonics", "5", "--levels", "3",
+               "--cache-dir", str(tmp_path / "c"), "--no-progress"])
+    out, err = capfd.readouterr()
+    assert rc == 0
+    lines = [x for x in err.splitlines() if x.strip()]
+    assert lines and all(x.startswith("metafovea library: warning: ") for x in lines), err
