@@ -277,8 +277,16 @@ def make_spec(design: LensDesign, post_set: PostSet | None = None, levels: int |
     if np.any(spec.post_sizes_nm >= spec.design.period_um * NM_PER_UM):
         raise InputError("--grid-nm", grid_nm, "a grid on which the post widths stay below the period")
     if patch is not None and not spec.bands():
+        x, y, w = patch
+        R = design.radius_um
+        # nearest point of the square to the lens centre: inside the aperture means it only misses the sites
+        dx, dy = max(abs(x) - w / 2, 0.0), max(abs(y) - w / 2, 0.0)
+        if math.hypot(dx, dy) < R:
+            raise InputError("--patch", patch_mm, f"a square holding at least one of the lens' lattice sites (sites every "
+                             f"{design.period_um:g} um, {design.lattice} lattice; this one falls between sites: "
+                             "widen it)")
         raise InputError("--patch", patch_mm, f"a square that overlaps the lens aperture (radius "
-                         f"{design.radius_um / 1000:g} mm around 0,0)")
+                         f"{R / 1000:g} mm around 0,0)")
     return spec
 
 
