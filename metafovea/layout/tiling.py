@@ -282,9 +282,9 @@ def make_spec(design: LensDesign, post_set: PostSet | None = None, levels: int |
         # nearest point of the square to the lens centre: inside the aperture means it only misses the sites
         dx, dy = max(abs(x) - w / 2, 0.0), max(abs(y) - w / 2, 0.0)
         if math.hypot(dx, dy) < R:
-            raise InputError("--patch", patch_mm, f"a square holding at least one of the lens' lattice sites (sites every "
-                             f"{design.period_um:g} um, {design.lattice} lattice; this one falls between sites: "
-                             "widen it)")
+            raise InputError("--patch", patch_mm, f"a square holding at least one of the lens' lattice sites "
+                             f"(sites every {design.period_um:g} um, {design.lattice} lattice; this one holds none: "
+                             "widen or move it)")
         raise InputError("--patch", patch_mm, f"a square that overlaps the lens aperture (radius "
                          f"{R / 1000:g} mm around 0,0)")
     return spec
