@@ -222,6 +222,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.WARNING - 10 * min(args.verbose, 2), format="%(levelname)s %(name)s: %(message)s")
+    # warnings as one line each ("Category: message"), without Python's source line
+    warnings.formatwarning = lambda m, c, f, n, line=None: f"{c.__name__}: {m}\n"
     if not getattr(args, "command", None):
         parser.print_help()
         return 2

@@ -73,6 +73,7 @@ class LensDesign:
     n_substrate: float = 3.42
 
     def __post_init__(self) -> None:
+        check_name("name", self.name)
         validate_lens_numbers(self.f_um, self.diameter_um, self.wavelength_um, self.period_um,
                               self.levels, self.polarization)
         check_positive("post_height_um", self.post_height_um, "um")
@@ -113,6 +114,17 @@ class LensDesign:
         p = platform or PlatformDesign()
         return cls("perifoveal", 25.0 * UM_PER_MM, 25.0 * UM_PER_MM, p.wavelength_um, "y", p.period_um,
                    p.post_height_um, 8, n_substrate=p.n_substrate)
+
+
+def check_name(key: str, value: Any, source: str | None = None) -> str:
+    """A lens name becomes part of file, folder and layout-cell names: 1-64 printable characters, no path
+    separators, not '.' or '..', no leading or trailing space (stages sanitise further where a format needs)."""
+    ok = (isinstance(value, str) and 0 < len(value) <= 64 and value.isprintable() and value == value.strip()
+          and "/" not in value and "\\" not in value and value not in (".", ".."))
+    if not ok:
+        raise InputError(key, value, "1-64 printable characters without '/' or '\\', not '.' or '..', no leading or "
+                                     "trailing spaces (it names files and layout cells)", source)
+    return value
 
 
 def validate_lens_numbers(f_um: Any, diameter_um: Any, wavelength_um: Any, period_um: Any, levels: Any,
@@ -295,7 +307,7 @@ def load_lens(path: str | Path, platform: PlatformDesign | None = None) -> LensD
     src = str(path)
     r = _Reader(t, src)
     p = platform or PlatformDesign()
-    name = r.text("name", Path(path).stem)
+    name = r.get("name", Path(path).stem, lambda k, v: check_name(k, v, src))
     f_mm = r.num("f_mm", _REQUIRED, unit="mm")
     d_mm = r.num("diameter_mm", _REQUIRED, unit="mm")
     wl = r.num("wavelength_um", p.wavelength_um, hi=1e4, unit="um")

@@ -104,14 +104,30 @@ def atomic_save_npz(path: str | os.PathLike, meta: dict[str, Any] | None = None,
     return atomic_write_bytes(path, buf.getvalue())
 
 
-def load_npz(path: str | os.PathLike) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
-    """Load a file written by :func:`atomic_save_npz`: (arrays, meta)."""
+def load_npz(path: str | os.PathLike, name: str = "path") -> tuple[dict[str, np.ndarray], dict[str, Any]]:
+    """Load a file written by :func:`atomic_save_npz`: (arrays, meta).
+
+    A missing, truncated, non-npz or pickled file, or unreadable metadata, is an :class:`InputError`
+    naming ``name``.
+    """
+    import zipfile
+    import zlib
+
     p = Path(path)
     if not p.is_file():
-        raise InputError("path", str(p), "an existing .npz file")
-    with np.load(p, allow_pickle=False) as z:
-        arrays = {k: z[k] for k in z.files if k != "__meta__"}
-        meta = json.loads(bytes(z["__meta__"]).decode()) if "__meta__" in z.files else {}
+        raise InputError(name, str(p), "an existing .npz file")
+    try:
+        z0 = np.load(p, allow_pickle=False)
+        if not hasattr(z0, "files"):
+            raise ValueError("a single .npy array, not an .npz archive")
+        with z0 as z:
+            arrays = {k: z[k] for k in z.files if k != "__meta__"}
+            meta = json.loads(bytes(z["__meta__"]).decode()) if "__meta__" in z.files else {}
+    except (OSError, ValueError, EOFError, zipfile.BadZipFile, zlib.error, UnicodeDecodeError, KeyError) as e:
+        raise InputError(name, str(p), "a readable .npz file written by metafovea",
+                         detail=str(e).splitlines()[0][:200] if str(e) else type(e).__name__) from None
+    if not isinstance(meta, dict):
+        raise InputError(name, str(p), "an .npz whose __meta__ is a JSON object")
     return arrays, meta
 
 

@@ -93,3 +93,13 @@ def test_dataclass_validation():
         PlatformDesign(period_um=0)
     with pytest.raises(InputError, match="polarization"):
         LensDesign("a", 1000.0, 100.0, polarization="s")
+
+
+@pytest.mark.parametrize("name", ["../x", "a/b", "", "x" * 65, "..", " lead", "bell\\u0007"])
+def test_lens_names_that_cannot_name_files_are_refused(tmp_path, name):
+    with pytest.raises(InputError, match="name"):
+        LensDesign(name, 1000.0, 100.0)
+    p = tmp_path / "l.toml"
+    p.write_text(f'name = "{name}"\\nf_mm = 1\\ndiameter_mm = 0.1\\npolarization = "x"\\n')
+    with pytest.raises(InputError, match="name"):
+        load_lens(p)

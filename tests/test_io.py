@@ -50,3 +50,14 @@ def test_atomic_files_get_umask_permissions(tmp_path):
     mask = os.umask(0)
     os.umask(mask)
     assert (p.stat().st_mode & 0o777) == (0o666 & ~mask)
+
+
+@pytest.mark.parametrize("content", [b"", b"not a zip", b"PK\x03\x04truncated"])
+def test_load_npz_bad_files_are_input_errors(tmp_path, content):
+    p = tmp_path / "bad.npz"
+    p.write_bytes(content)
+    with pytest.raises(InputError, match="readable .npz"):
+        load_npz(p)
+    np.save(tmp_path / "single.npy", np.arange(3))
+    with pytest.raises(InputError):
+        load_npz(tmp_path / "single.npy")

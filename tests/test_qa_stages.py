@@ -390,13 +390,19 @@ def test_psf_band_beyond_evanescent_limit_names_band(tmp_path, capsys, opts, fla
 @pytest.mark.parametrize("name", ["../../escape", "a/b", "..", "x y*?"])
 def test_lens_name_cannot_escape_output_directory(tmp_path, monkeypatch, capsys, name):
     """A lens 'name' was used verbatim in file names: '../../x' wrote the export outside gds_export/
-    (and the psf report outside --out), 'a/b' made subdirectories."""
+    (and the psf report outside --out), 'a/b' made subdirectories. Path-like names are now refused when
+    the design is loaded; other odd characters are sanitised by the stages that build file names."""
     monkeypatch.chdir(tmp_path)
     work = tmp_path / "w"
     work.mkdir()
     toml = work / "lens.toml"
     toml.write_text(f'name = "{name}"\nf_mm = 20.0\ndiameter_mm = 0.3\npolarization = "x"\n')
     monkeypatch.chdir(work)
+    if "/" in name or name == "..":
+        assert main(["export", str(toml), "--format", "oas", "--quiet"]) == 2
+        assert "name" in capsys.readouterr().err
+        assert not (work / "gds_export").exists()
+        return
     assert main(["export", str(toml), "--format", "oas", "--quiet", "--ring-width-um", "20"]) == 0
     files = [p for p in work.rglob("*") if p.is_file() and p.suffix == ".oas"]
     assert len(files) == 1 and files[0].parent == work / "gds_export", files
@@ -406,7 +412,7 @@ def test_lens_name_cannot_escape_output_directory(tmp_path, monkeypatch, capsys,
     assert written and all(p.parent == out for p in written), written
 
 
-@pytest.mark.parametrize("name", ["ü lens", "Ørsted-2", "lens\\u00e9\\u0007"])
+@pytest.mark.parametrize("name", ["ü lens", "Ørsted-2", "lens\\u00e9"])
 @pytest.mark.parametrize("fmt,reader", [("oas", "klayout"), ("gds", "stream"), ("gds", "gdstk")])
 def test_non_ascii_lens_name_exports_and_verifies(tmp_path, capsys, name, fmt, reader):
     """A non-ASCII name was an OASIS UnicodeEncodeError traceback and a GDSII the stream reader mismatched."""
