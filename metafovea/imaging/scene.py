@@ -21,6 +21,7 @@ temperatures, ``siemens-star``, ``bars``, ``hand``, ``parking-lot``, ``heater-5s
 
 from __future__ import annotations
 
+import abc
 import logging
 import math
 import zipfile
@@ -57,7 +58,7 @@ class SceneGeometry:
         return 0.5 * self.fov_rad / self.expansion
 
 
-class Scene:
+class Scene(abc.ABC):
     """Base class. Subclasses implement :meth:`_sample` returning ``(temperature_k, emissivity)``."""
 
     name: str = "scene"
@@ -79,8 +80,9 @@ class Scene:
             raise InputError(f"scene '{self.name}' emissivity", _worst(eps, 0.0, 1.0), "0 <= emissivity <= 1")
         return temp, eps
 
-    def _sample(self, ax: np.ndarray, ay: np.ndarray, t: float) -> tuple[Any, Any]:  # pragma: no cover
-        raise NotImplementedError
+    @abc.abstractmethod
+    def _sample(self, ax: np.ndarray, ay: np.ndarray, t: float) -> tuple[Any, Any]:
+        """Temperature (K) and emissivity at the field angles; each scene implements it."""
 
     # Video scenes can declare what changes, so that a renderer re-renders only there: the static
     # background (``sample_background``) and the angular boxes that differ from it at time t
