@@ -43,6 +43,19 @@ _BOUNDARY_DTYPE = np.dtype({
 FIXED_TIMESTAMP = datetime.datetime(2024, 1, 1)
 
 
+
+def _boundary_headers(spec, n: int) -> np.ndarray:
+    """``n`` flat-post BOUNDARY records with every field set but the coordinates."""
+    rec = np.empty(n, dtype=_BOUNDARY_DTYPE)
+    rec["h"] = _BOUNDARY
+    rec["lh"] = _LAYER
+    rec["layer"] = spec.layers.posts[0]
+    rec["dh"] = _DATATYPE
+    rec["dt"] = spec.layers.posts[1]
+    rec["xyh"] = _XY5
+    rec["end"] = _ENDEL
+    return rec
+
 def _library(spec: LayoutSpec, flat: bool):
     import gdstk
 
@@ -177,14 +190,7 @@ def encode_task_records(spec: LayoutSpec, flat: bool, task) -> tuple[list[np.nda
             out.append(rec.view(np.uint8).reshape(-1))
         return out, counts
     ki = k.astype(np.intp)
-    base = np.empty(n, dtype=_BOUNDARY_DTYPE)
-    base["h"] = _BOUNDARY
-    base["lh"] = _LAYER
-    base["layer"] = spec.layers.posts[0]
-    base["dh"] = _DATATYPE
-    base["dt"] = spec.layers.posts[1]
-    base["xyh"] = _XY5
-    base["end"] = _ENDEL
+    base = _boundary_headers(spec, n)
     hw = spec.post_sizes_nm[:, 0] // 2
     hh = spec.post_sizes_nm[:, 1] // 2
     x = xs[c]
@@ -320,14 +326,7 @@ def encode_band_gds(spec: LayoutSpec, flat: bool, band: tuple[int, int, int, int
         return rec.view(np.uint8).reshape(-1), counts
     x, y = xs[c], ys[r]
     k = k.astype(np.intp)
-    rec = np.empty(n, dtype=_BOUNDARY_DTYPE)
-    rec["h"] = _BOUNDARY
-    rec["lh"] = _LAYER
-    rec["layer"] = spec.layers.posts[0]
-    rec["dh"] = _DATATYPE
-    rec["dt"] = spec.layers.posts[1]
-    rec["xyh"] = _XY5
-    rec["end"] = _ENDEL
+    rec = _boundary_headers(spec, n)
     hw = spec.post_sizes_nm[:, 0] // 2
     hh = spec.post_sizes_nm[:, 1] // 2
     x0, x1 = x - hw[k], x + hw[k]

@@ -156,13 +156,7 @@ def encode_band_oas(spec: LayoutSpec, compress: int, band: tuple[int, int, int, 
     starts = np.flatnonzero(new)
     ends = np.append(starts[1:], n)
     cont = ~new[1:]  # element i+1 continues the group of element i
-    P = spec.period_nm
-    if P is not None:  # sites exactly on the lattice: spaces in periods on a grid of P
-        spaces = np.diff(cs)[cont]
-        grid = P
-    else:
-        spaces = np.diff(xs[cs])[cont]
-        grid = 1
+    spaces, grid = _repetition_spaces(spec, cs, xs, cont)
     enc, nbytes = uints(spaces)
     boff = np.concatenate([[0], np.cumsum(nbytes)])
     # index of group g's first space: continuing elements before starts[g] = starts[g] - g
@@ -224,6 +218,15 @@ def _varint_len(v: np.ndarray) -> np.ndarray:
         t >>= np.uint64(7)
 
 
+
+def _repetition_spaces(spec, cs: np.ndarray, xs: np.ndarray, cont: np.ndarray) -> tuple[np.ndarray, int]:
+    """Spaces between repeated placements and their grid: in periods on a grid of P when every site lies
+    exactly on the lattice (``spec.period_nm``), else in database units on a grid of 1."""
+    if spec.period_nm is not None:
+        return np.diff(cs)[cont], spec.period_nm
+    return np.diff(xs[cs])[cont], 1
+
+
 def placements(kg: np.ndarray, xg: np.ndarray, yg: np.ndarray, cnt: np.ndarray, spaces: np.ndarray,
                sp_start: np.ndarray, sp_len: np.ndarray, grid: int) -> np.ndarray:
     """PLACEMENT records (vectorised): group g places cell ``kg[g]`` at ``(xg, yg)`` and, with
@@ -277,13 +280,7 @@ def encode_task_oas(spec: LayoutSpec, compress: int, task) -> tuple[list[bytes],
     starts = np.flatnonzero(new)
     ends = np.append(starts[1:], n)
     cont = ~new[1:]
-    P = spec.period_nm
-    if P is not None:
-        spaces = np.diff(cs)[cont]
-        grid = P
-    else:
-        spaces = np.diff(xs[cs])[cont]
-        grid = 1
+    spaces, grid = _repetition_spaces(spec, cs, xs, cont)
     enc, nbytes = uints(spaces)
     boff = np.concatenate([[0], np.cumsum(nbytes)])
     cnt = ends - starts
