@@ -28,11 +28,16 @@ class InputError(ValueError):
         self.value = value
         self.allowed = allowed
         self.source = source
+        self.detail = detail
         where = f"{source}: " if source else ""
         msg = f"{where}{parameter} = {value!r} is invalid; allowed: {allowed}"
         if detail:
             msg += f" ({detail})"
         super().__init__(msg)
+
+    def renamed(self, parameter: str) -> "InputError":
+        """The same error, reported under another name (the CLI flag a user typed for a library parameter)."""
+        return InputError(parameter, self.value, self.allowed, source=self.source, detail=self.detail)
 
 
 class NotConvergedWarning(UserWarning):
@@ -117,3 +122,23 @@ def check_choice(name: str, value: Any, choices: tuple[str, ...], source: str | 
             if value.strip().lower() == c.lower():
                 return c
     raise InputError(name, value, "one of " + ", ".join(repr(c) for c in choices), source)
+
+
+def as_rng(rng: Any, name: str = "seed") -> Any:
+    """A :class:`numpy.random.Generator` from a seed (an integer >= 0, or its decimal string), ``None`` (fresh
+    entropy) or a generator (returned as is). ``name`` is the parameter an error names (a CLI passes its flag)."""
+    import numpy as np
+
+    if isinstance(rng, np.random.Generator):
+        return rng
+    if isinstance(rng, str):
+        try:
+            rng = int(rng)
+        except ValueError:
+            raise InputError(name, rng, "an integer seed >= 0") from None
+    if rng is None or (isinstance(rng, (int, np.integer)) and not isinstance(rng, bool)):
+        if rng is not None and int(rng) < 0:
+            raise InputError(name, rng, "an integer >= 0")
+        return np.random.default_rng(rng)
+    raise InputError(name, rng, "an integer seed >= 0, None or a numpy.random.Generator")
+

@@ -11,6 +11,7 @@ import contextlib
 import hashlib
 import io as _io
 import json
+import math
 import os
 import tempfile
 from pathlib import Path
@@ -62,25 +63,33 @@ def atomic_write_text(path: str | os.PathLike, text: str) -> Path:
     return Path(path)
 
 
-def _json_default(o: Any) -> Any:
-    if isinstance(o, np.ndarray):
-        return o.tolist()
-    if isinstance(o, (np.floating,)):
-        return float(o)
-    if isinstance(o, (np.integer,)):
-        return int(o)
-    if isinstance(o, (np.bool_,)):
-        return bool(o)
-    if isinstance(o, complex):
-        return {"re": o.real, "im": o.imag}
-    if isinstance(o, Path):
-        return str(o)
-    raise TypeError(f"not JSON serialisable: {type(o).__name__}")
+def jsonable(obj: Any) -> Any:
+    """A copy of ``obj`` made of JSON types: numpy arrays and scalars become lists and numbers, paths strings,
+    complex numbers ``{"re", "im"}``, tuples lists, dict keys strings; **non-finite floats become None** (the
+    one NaN policy of every JSON file and ``--json`` output: "not available", valid JSON)."""
+    if isinstance(obj, dict):
+        return {str(k): jsonable(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [jsonable(v) for v in obj]
+    if isinstance(obj, np.ndarray):
+        return jsonable(obj.tolist())
+    if isinstance(obj, (bool, np.bool_)):
+        return bool(obj)
+    if isinstance(obj, (int, np.integer)):
+        return int(obj)
+    if isinstance(obj, (float, np.floating)):
+        f = float(obj)
+        return f if math.isfinite(f) else None
+    if isinstance(obj, (complex, np.complexfloating)):
+        return {"re": jsonable(obj.real), "im": jsonable(obj.imag)}
+    if isinstance(obj, Path):
+        return str(obj)
+    return obj
 
 
 def to_json(obj: Any, indent: int | None = 2) -> str:
-    """JSON with numpy scalars/arrays and paths converted; NaN/inf refused (they are bugs here)."""
-    return json.dumps(obj, indent=indent, default=_json_default, allow_nan=False)
+    """JSON text of :func:`jsonable` ``(obj)`` (NaN/inf written as null)."""
+    return json.dumps(jsonable(obj), indent=indent, allow_nan=False)
 
 
 def atomic_write_json(path: str | os.PathLike, obj: Any) -> Path:
@@ -135,6 +144,11 @@ def cache_root() -> Path:
     """Root of metafovea's caches: ``$METAFOVEA_CACHE`` or ``~/.cache/metafovea`` (one folder per stage)."""
     env = os.environ.get("METAFOVEA_CACHE")
     return Path(env) if env else Path.home() / ".cache" / "metafovea"
+
+
+def cache_dir(stage: str) -> Path:
+    """The cache folder of one stage (``"library"``, ``"psf"``, ...): ``cache_root() / stage``."""
+    return cache_root() / stage
 
 
 def input_hash(obj: Any) -> str:

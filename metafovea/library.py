@@ -14,6 +14,7 @@ import numpy as np
 
 from metafovea.errors import InputError, check_int, check_positive, check_choice
 from metafovea.io import atomic_save_npz, load_npz
+from metafovea.io import cache_dir as io_cache_dir
 
 POLARIZATIONS = ("x", "y")
 
@@ -247,7 +248,7 @@ def _material_key(v: Any, wl: np.ndarray) -> Any:
 def _row_task(job: dict) -> dict:
     """One sweep task: x-polarised (and y if needed) responses for one wx at all wy, one wavelength."""
     from metafovea.rcwa.posts import post_response
-    from metafovea.rcwa.threads import blas_threads
+    from metafovea.parallel import blas_threads
     with warnings.catch_warnings(), blas_threads(1):
         warnings.simplefilter("ignore", NotConvergedWarning)
         kw = job["kw"]
@@ -260,11 +261,6 @@ def _row_task(job: dict) -> dict:
             out[k] = np.asarray(getattr(r, k))
         out["energy_error"] = np.array(r.info.get("energy_error") or 0.0)
     return out
-
-
-def default_cache_dir() -> Path:
-    from metafovea.io import cache_root
-    return cache_root() / "library"
 
 
 def compute_library(wx_um: Sequence[float], wy_um: Sequence[float] | None = None,
@@ -312,7 +308,7 @@ def compute_library(wx_um: Sequence[float], wy_um: Sequence[float] | None = None
               "n_superstrate": _material_key(n_superstrate, wls), "harmonics": M,
               "factorization": factorization, "incidence": incidence, "estimate": bool(estimate)}
     key = input_hash(inputs)
-    cdir = Path(cache_dir) if cache_dir is not None else default_cache_dir()
+    cdir = Path(cache_dir) if cache_dir is not None else io_cache_dir("library")
     final = cdir / f"library-{key}.npz"
     if use_cache and final.is_file():
         try:

@@ -192,7 +192,7 @@ def test_disk_full_leaves_no_file(tmp_path, toml):
         import resource, signal, sys
         signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
         resource.setrlimit(resource.RLIMIT_FSIZE, (200_000, 200_000))
-        from metafovea.cli_layout import main
+        from metafovea.cli import main
         sys.exit(main(["export", {str(toml)!r}, "--out", {str(out)!r}, "--quiet", "--ring-width-um", "100"]))
     """)
     r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
@@ -266,7 +266,7 @@ def test_mesh_patch(tmp_path, design, fmt):
 
 
 def test_cli_export_verify(tmp_path, capsys, toml):
-    from metafovea.cli_layout import main
+    from metafovea.cli import main
 
     out = tmp_path / "cli"
     args = [str(toml), "--ring-width-um", "100", "--quiet"]
@@ -437,7 +437,7 @@ def test_max_refs_bad_input(tmp_path, spec, toml):
     with pytest.raises(InputError, match="--max-refs"):
         export_layout(big, tmp_path / "a.gds", "gds", max_refs=16)  # not above the frame's 29 elements
     assert not (tmp_path / "a.gds").exists()
-    from metafovea.cli_layout import main
+    from metafovea.cli import main
     assert main(["export", str(toml), "--format", "oas", "--max-refs", "8192", "--out", str(tmp_path / "b"),
                  "--quiet"]) == 2
     assert main(["export", str(toml), "--ring-width-um", "100", "--max-refs", "8192", "--out",

@@ -152,7 +152,7 @@ def test_select_posts_both_lenses_on_rcwa_library(small_lib, tmp_path):
 
 
 def test_cli_library_writes_figures_and_json(tmp_path, capsys):
-    from metafovea.cli_library import add_parser
+    from metafovea.cli.library import add_parser
     ap = argparse.ArgumentParser()
     sub = ap.add_subparsers()
     add_parser(sub)

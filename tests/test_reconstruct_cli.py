@@ -8,7 +8,7 @@ import json
 import numpy as np
 import pytest
 
-from metafovea import cli_reconstruct
+from metafovea.cli import reconstruct as cli_reconstruct
 from metafovea.io import atomic_save_npz
 from metafovea.reconstruct import Reconstruction
 from metafovea.reconstruct.synthetic import measure, polariser_alpha, scene

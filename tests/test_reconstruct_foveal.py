@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 from scipy.ndimage import gaussian_filter
 
-from metafovea import cli_reconstruct
+from metafovea.cli import reconstruct as cli_reconstruct
 from metafovea.errors import InputError
 from metafovea.io import atomic_save_npz
 from metafovea.reconstruct import FovealOperator, alternating, lsq_known_alpha, reconstruct, snapshot

@@ -29,25 +29,9 @@ from typing import Any
 import numpy as np
 
 from metafovea.config import SensorDesign
-from metafovea.errors import InputError, check_int, check_positive, check_range
+from metafovea.errors import InputError, as_rng, check_int, check_positive, check_range
 
 log = logging.getLogger(__name__)
-
-
-def as_rng(rng: Any) -> np.random.Generator:
-    """A numpy Generator from a seed, a Generator or None (fresh entropy)."""
-    if isinstance(rng, np.random.Generator):
-        return rng
-    if rng is None or isinstance(rng, (int, np.integer)) and not isinstance(rng, bool):
-        if rng is not None and int(rng) < 0:
-            raise InputError("seed", rng, "an integer >= 0")
-        return np.random.default_rng(rng)
-    if isinstance(rng, str):
-        try:
-            return as_rng(int(rng))
-        except ValueError:
-            pass
-    raise InputError("rng", rng, "an integer seed >= 0, a numpy Generator or None")
 
 
 @dataclass(frozen=True)

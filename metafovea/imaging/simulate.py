@@ -29,7 +29,8 @@ from metafovea.errors import InputError, check_int
 from metafovea.imaging.measurement import Measurement
 from metafovea.imaging.radiometry import BandRadiance
 from metafovea.imaging.scene import Scene, SceneGeometry, make_scene
-from metafovea.imaging.sensor import SensorModel, as_rng
+from metafovea.errors import as_rng
+from metafovea.imaging.sensor import SensorModel
 from metafovea.imaging.system import (ChannelRenderer, Polarizer, build_channel_optics, channels_for,
                                       resolve_provider)
 from metafovea.io import atomic_write_bytes, prepare_output

@@ -55,6 +55,7 @@ import numpy as np
 
 from metafovea.config import LensDesign, SystemDesign
 from metafovea.errors import InputError, check_choice, check_int, check_positive, check_range
+from metafovea.io import cache_dir as io_cache_dir
 from metafovea.imaging.radiometry import BandRadiance
 from metafovea.imaging.scene import Scene
 
@@ -266,17 +267,12 @@ class ExplicitPSF:
         return Kernel(k, pitch_um, r, "explicit")
 
 
-def default_cache_dir() -> Path:
-    from metafovea.io import cache_root
-    return cache_root() / "psf"
-
-
 class OpticsPSFProvider:
     """Calls ``metafovea.optics.sensor_psf`` (imported lazily) and caches each kernel on disk, keyed by
     a hash of all its inputs (lens, pitch, field, wavelengths, weights, window, error)."""
 
     def __init__(self, cache_dir: str | Path | None = None, error: float = 1e-4):
-        self.cache_dir = Path(cache_dir) if cache_dir else default_cache_dir()
+        self.cache_dir = Path(cache_dir) if cache_dir else io_cache_dir("psf")
         self.error = error
 
     @staticmethod

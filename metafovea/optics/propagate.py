@@ -35,7 +35,7 @@ import numpy as np
 from scipy import special
 
 from metafovea.errors import InputError, check_positive, check_range
-from metafovea.rcwa.threads import blas_threads
+from metafovea.parallel import blas_threads
 
 from .pupil import Pupil
 

@@ -45,7 +45,7 @@ from metafovea.errors import (
     check_positive,
     check_range,
 )
-from metafovea.io import atomic_save_npz, load_npz
+from metafovea.io import atomic_save_npz, jsonable, load_npz
 from metafovea.library import PostSet
 
 from . import propagate as prop
@@ -112,7 +112,7 @@ class PSF:
         meta = {"type": "PSF", "pitch_um": self.pitch_um, "center_um": list(self.center_um),
                 "field_deg": list(self.field_deg), "polarization": self.polarization, "engine": self.engine,
                 "error_estimate": self.error_estimate, "energy_fraction": self.energy_fraction,
-                "info": _jsonable(self.info), "units": "um; intensity = fraction of incident power per cell"}
+                "info": jsonable(self.info), "units": "um; intensity = fraction of incident power per cell"}
         return atomic_save_npz(path, meta, intensity=self.intensity, wavelengths_um=self.wavelengths_um,
                                weights=self.weights)
 
@@ -124,20 +124,6 @@ class PSF:
         return cls(arrays["intensity"], meta["pitch_um"], tuple(meta["center_um"]), arrays["wavelengths_um"],
                    arrays["weights"], tuple(meta["field_deg"]), meta["polarization"], meta["engine"],
                    meta["error_estimate"], meta["energy_fraction"], meta.get("info", {}))
-
-
-def _jsonable(o: Any) -> Any:
-    if isinstance(o, dict):
-        return {str(k): _jsonable(v) for k, v in o.items()}
-    if isinstance(o, (list, tuple)):
-        return [_jsonable(v) for v in o]
-    if isinstance(o, np.ndarray):
-        return o.tolist()
-    if isinstance(o, (np.floating, float)):
-        return float(o) if math.isfinite(float(o)) else None
-    if isinstance(o, (np.integer,)):
-        return int(o)
-    return o
 
 
 # ----------------------------------------------------------------------------------------------

@@ -11,17 +11,6 @@ import numpy as np
 from metafovea.errors import InputError, check_choice, check_int  # noqa: F401  (re-exported)
 
 
-def as_rng(rng: Any) -> np.random.Generator:
-    """A :class:`numpy.random.Generator` from a seed, ``None`` or a generator."""
-    if isinstance(rng, np.random.Generator):
-        return rng
-    if rng is None or (isinstance(rng, (int, np.integer)) and not isinstance(rng, bool)):
-        if rng is not None and int(rng) < 0:
-            raise InputError("seed", rng, "an integer >= 0")
-        return np.random.default_rng(rng)
-    raise InputError("rng", rng, "an integer seed >= 0, None or a numpy.random.Generator")
-
-
 def image_dtype(a: np.ndarray) -> np.dtype:
     """float32 stays float32; everything else computes in float64."""
     return np.dtype(np.float32) if a.dtype == np.float32 else np.dtype(np.float64)

@@ -39,7 +39,8 @@ from typing import Any
 import numpy as np
 
 from metafovea.errors import InputError, as_float, check_choice, check_int
-from metafovea.reconstruct._common import Timings, as_alpha, as_frames, as_rng, image_dtype
+from metafovea.errors import as_rng
+from metafovea.reconstruct._common import Timings, as_alpha, as_frames, image_dtype
 from metafovea.reconstruct.result import Reconstruction
 
 log = logging.getLogger(__name__)

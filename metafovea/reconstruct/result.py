@@ -9,27 +9,9 @@ from typing import Any
 import numpy as np
 
 from metafovea.errors import InputError
-from metafovea.io import atomic_save_npz, load_npz
+from metafovea.io import atomic_save_npz, jsonable, load_npz
 
 KIND = "metafovea.Reconstruction"
-
-
-def _jsonable(obj: Any) -> Any:
-    """Copy of ``obj`` with numpy values turned into JSON types and non-finite floats into None."""
-    if isinstance(obj, dict):
-        return {str(k): _jsonable(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [_jsonable(v) for v in obj]
-    if isinstance(obj, np.ndarray):
-        return _jsonable(obj.tolist())
-    if isinstance(obj, (np.bool_, bool)):
-        return bool(obj)
-    if isinstance(obj, (np.integer,)):
-        return int(obj)
-    if isinstance(obj, (float, np.floating)):
-        f = float(obj)
-        return f if np.isfinite(f) else None
-    return obj
 
 
 @dataclass(frozen=True)
@@ -65,8 +47,8 @@ class Reconstruction:
         arrays = {"x1": np.asarray(self.x1), "x2": np.asarray(self.x2), "alpha": np.asarray(self.alpha)}
         if self.fpn is not None:
             arrays["fpn"] = np.asarray(self.fpn)
-        meta = {"kind": KIND, "method": self.method, "timings": _jsonable(self.timings),
-                "info": _jsonable(self.info)}
+        meta = {"kind": KIND, "method": self.method, "timings": jsonable(self.timings),
+                "info": jsonable(self.info)}
         atomic_save_npz(path, meta=meta, **arrays)
 
     @classmethod

@@ -11,7 +11,8 @@ from typing import Any
 
 import numpy as np
 
-from metafovea.reconstruct._common import as_alpha, as_rng
+from metafovea.errors import as_rng
+from metafovea.reconstruct._common import as_alpha
 from metafovea.reconstruct.operators import FovealOperator
 from metafovea.errors import InputError, check_int
 

@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import argparse
 import io
-import json
 import logging
 import os
 import sys
@@ -23,6 +22,7 @@ from typing import Any
 import numpy as np
 
 from metafovea.errors import InputError
+from metafovea.io import to_json
 
 log = logging.getLogger(__name__)
 
@@ -344,12 +344,6 @@ def _check_truth(arrays: dict[str, np.ndarray], shape: tuple[int, ...], src: Pat
     return out
 
 
-def _json_safe(obj: Any) -> Any:
-    from metafovea.reconstruct.result import _jsonable
-
-    return _jsonable(obj)
-
-
 def run(args: argparse.Namespace) -> int:
     """Run the subcommand; 0 on success, 2 on bad input (one-line message on stderr)."""
     try:
@@ -358,7 +352,7 @@ def run(args: argparse.Namespace) -> int:
         print(f"metafovea reconstruct: error: {e}", file=sys.stderr)
         return 2
     if args.json:
-        print(json.dumps(_json_safe(s), indent=2))
+        print(to_json(s))
     else:
         print(f"{s['method']}: {s['frames']} frames -> {s['outputs']} reconstruction(s) in {s['seconds']:.3f} s "
               f"({s['ms_per_output']:.3f} ms each)")
@@ -386,3 +380,7 @@ def main(argv: list[str] | None = None) -> int:
 
 if __name__ == "__main__":
     raise SystemExit(main())
+
+
+def register(subparsers: Any) -> None:
+    add_parser(subparsers)

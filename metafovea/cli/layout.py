@@ -6,6 +6,8 @@ returns the exit status (verify: 1 on any mismatch) and raises :class:`InputErro
 
 from __future__ import annotations
 
+from typing import Any
+
 import argparse
 import os
 import sys
@@ -204,3 +206,8 @@ def main(argv=None) -> int:
 
 if __name__ == "__main__":
     sys.exit(main())
+
+
+def register(subparsers: Any) -> None:
+    add_export_parser(subparsers)
+    add_verify_parser(subparsers)

@@ -1,38 +1,17 @@
-"""Command-line interface: a thin layer over the library functions.
-
-Every subcommand parses its arguments, calls one function, prints a summary (or JSON with ``--json``)
-and writes files atomically. Bad input prints one line naming the parameter and the allowed range and
-exits with status 2; a failed check (``verify``) exits 1.
-"""
+"""`metafovea design`: design one metalens (or both lenses of a system file) and print the numbers a designer
+checks; ``--out DIR`` writes the design bundle."""
 
 from __future__ import annotations
 
 import argparse
-import importlib
-import importlib.util
-import logging
 import sys
 import warnings
-from typing import Any, Sequence
+from typing import Any
 
-from metafovea import __version__
 from metafovea.errors import InputError
 
-log = logging.getLogger("metafovea")
 
-
-class _Parser(argparse.ArgumentParser):
-    """argparse with one-line errors (no usage dump) and exit status 2."""
-
-    def error(self, message: str) -> None:  # type: ignore[override]
-        sys.stderr.write(f"{self.prog}: error: {message} (see --help)\n")
-        raise SystemExit(2)
-
-
-# ----------------------------------------------------------------------------------------------
-# design
-# ----------------------------------------------------------------------------------------------
-def _add_design(sub: Any) -> None:
+def register(sub: Any) -> None:
     p = sub.add_parser("design", help="design a metalens (or both lenses of a system) and report its numbers",
                        description="Design a hyperbolic metalens on a square nanopost lattice. Give a lens or "
                                    "system TOML file, or --f and --d (millimetres).")
@@ -53,7 +32,7 @@ def _add_design(sub: Any) -> None:
     p.add_argument("--out", help="write the design bundle (JSON, TOML, CSV, PNG figures) into this directory")
     p.add_argument("--force", action="store_true", help="overwrite existing output")
     p.add_argument("--json", action="store_true", help="print JSON instead of a table")
-    p.set_defaults(func=_run_design)
+    p.set_defaults(func=run)
 
 
 def design_from_args(args: argparse.Namespace) -> list:
@@ -108,7 +87,7 @@ def design_from_args(args: argparse.Namespace) -> list:
     return out
 
 
-def _run_design(args: argparse.Namespace) -> int:
+def run(args: argparse.Namespace) -> int:
     from metafovea.design_report import format_summary, summary_dict, write_design_bundle
     from metafovea.errors import check_int
     from metafovea.io import prepare_output, to_json
@@ -162,86 +141,3 @@ def _run_design(args: argparse.Namespace) -> int:
         if out_root is not None:
             print(f"\ndesign bundle written to {out_root}")
     return 0
-
-
-# ----------------------------------------------------------------------------------------------
-# validate (the README's main job)
-# ----------------------------------------------------------------------------------------------
-def _add_validate(sub: Any) -> None:
-    p = sub.add_parser("validate", help="end-to-end validation of a system (default: the paper's prototype)")
-    p.add_argument("system_file", nargs="?", help="system TOML (default: built-in paper prototype)")
-    p.add_argument("--out", help="write the report into this directory")
-    p.add_argument("--force", action="store_true", help="overwrite existing output")
-    p.add_argument("--json", action="store_true", help="print JSON instead of a table")
-    p.add_argument("--seed", default="0", help="random seed (default 0)")
-    p.add_argument("--scene", default="siemens-star", help="bundled scene to simulate (default siemens-star; "
-                                                          "see `metafovea simulate --list-scenes`)")
-    p.add_argument("--frames", default="96", help="frames to simulate (default 96: 8 s at 12 frames/s)")
-    p.add_argument("--filter", default="both", choices=("off", "on", "both"),
-                   help="spectral cases: 8-14 um as designed (off), the 10 um / 0.5 um filter (on), or both")
-    p.add_argument("--dip-steps", default="20", help="deep-image-prior steps, warm-started from the classical "
-                                                      "solution (default 20; more change nothing measurable here)")
-    p.set_defaults(func=_run_validate)
-
-
-def _run_validate(args: argparse.Namespace) -> int:
-    from metafovea.validate import run_validate
-    return run_validate(args)
-
-
-# ----------------------------------------------------------------------------------------------
-# other stages: their CLI modules register themselves
-# ----------------------------------------------------------------------------------------------
-_STAGE_MODULES = [
-    ("metafovea.cli_library", ["add_parser"]),
-    ("metafovea.cli_layout", ["add_export_parser", "add_verify_parser"]),
-    ("metafovea.cli_psf", ["add_parser"]),
-    ("metafovea.cli_simulate", ["add_parser"]),
-    ("metafovea.cli_reconstruct", ["add_parser"]),
-]
-
-
-def build_parser() -> argparse.ArgumentParser:
-    parser = _Parser(prog="metafovea", description="Polarisation-multiplexed foveated meta-optics for LWIR cameras. "
-                                                   "Lengths in um (lens f and D in mm), angles in degrees at the CLI.")
-    parser.add_argument("--version", action="version", version=f"metafovea {__version__}")
-    parser.add_argument("-v", "--verbose", action="count", default=0, help="more log output")
-    sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
-    _add_design(sub)
-    _add_validate(sub)
-    for mod_name, adders in _STAGE_MODULES:
-        if importlib.util.find_spec(mod_name) is None:
-            continue
-        mod = importlib.import_module(mod_name)
-        for a in adders:
-            getattr(mod, a)(sub)
-    return parser
-
-
-def main(argv: Sequence[str] | None = None) -> int:
-    parser = build_parser()
-    args = parser.parse_args(argv)
-    logging.basicConfig(level=logging.WARNING - 10 * min(args.verbose, 2), format="%(levelname)s %(name)s: %(message)s")
-    # warnings as one line each ("Category: message"), without Python's source line
-    warnings.formatwarning = lambda m, c, f, n, line=None: f"{c.__name__}: {m}\n"
-    if not getattr(args, "command", None):
-        parser.print_help()
-        return 2
-    try:
-        rc = args.func(args)
-    except InputError as e:
-        sys.stderr.write(f"metafovea {args.command}: error: {e}\n")
-        return 2
-    except KeyboardInterrupt:
-        sys.stderr.write("interrupted\n")
-        return 130
-    except BrokenPipeError:
-        return 0
-    except OSError as e:
-        sys.stderr.write(f"metafovea {args.command}: error: {e.strerror or e}: {getattr(e, 'filename', '') or ''}\n")
-        return 2
-    return int(rc or 0)
-
-
-if __name__ == "__main__":
-    raise SystemExit(main())

@@ -168,3 +168,7 @@ def run(args: argparse.Namespace) -> int:
                   f"{len(s['sensor'])} fields, {s['seconds']:.1f} s -> {s['html']}"
                   + (f"  [{len(set(s['warnings']))} warnings]" if s["warnings"] else ""))
     return 0
+
+
+def register(subparsers: Any) -> None:
+    add_parser(subparsers)

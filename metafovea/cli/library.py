@@ -209,3 +209,7 @@ def _fig7c(lib, il: int, sets: dict) -> bytes:
                             f"{ps.info['pass_phase_spread_rad']:.2f} rad")
     fig.suptitle("Fig. 7c: selected birefringent posts")
     return _png(fig)
+
+
+def register(subparsers: Any) -> None:
+    add_parser(subparsers)

@@ -147,3 +147,7 @@ def run(args: argparse.Namespace) -> int:
         for k, v in written.items():
             print(f"  {k}: {v}")
     return 0
+
+
+def register(subparsers: Any) -> None:
+    add_parser(subparsers)
