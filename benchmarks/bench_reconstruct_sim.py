@@ -21,7 +21,7 @@ import time
 
 import numpy as np
 
-from metafovea.imaging import Measurement
+from metafovea.measurement import Measurement
 from metafovea.reconstruct import alternating, lsq_known_alpha
 from metafovea.reconstruct.metrics import psnr
 

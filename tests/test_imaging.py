@@ -10,7 +10,8 @@ import pytest
 
 from metafovea.config import SensorDesign, SystemDesign
 from metafovea.errors import InputError
-from metafovea.imaging import BandRadiance, Measurement, SensorModel, make_scene, simulate, spectral_weights
+from metafovea.measurement import Measurement
+from metafovea.imaging import BandRadiance, SensorModel, make_scene, simulate, spectral_weights
 from metafovea.imaging.radiometry import planck_radiance_um
 from metafovea.imaging.scene import CoilHeater, RasterScene, SceneGeometry, list_scenes
 from metafovea.imaging.system import Polarizer, channels_for, gaussian_kernel

@@ -68,33 +68,8 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
 
 def foveal_constraint(meta: dict[str, Any], *, scale: float | None = None, gain: float | None = None,
                       offset: float | None = None) -> dict[str, float]:
-    """``{scale, foveal_gain, foveal_offset}`` of ``D x1 = gain C x2 + offset``: explicit values first,
-    then the Measurement's ``meta['foveal_constraint']`` (``scale``, ``gain``, ``offset_dn``), then
-    ``meta['scale']`` with gain 1 and offset 0 (older files, real recordings), then scale 6."""
-    fc = meta.get("foveal_constraint")
-    if fc is not None and not isinstance(fc, dict):
-        raise InputError("meta.foveal_constraint", fc, "a mapping {scale, gain, offset_dn}")
-    fc = fc or {}
-
-    def pick(given: float | None, key: str, fallback: float) -> float:
-        v = given if given is not None else fc.get(key, fallback)
-        try:
-            v = float(v)
-        except (TypeError, ValueError):
-            raise InputError(f"foveal_constraint.{key}", v, "a number") from None
-        if not np.isfinite(v):
-            raise InputError(f"foveal_constraint.{key}", v, "a finite number")
-        return v
-
-    out = {"scale": pick(scale, "scale", meta.get("scale", 6.0)), "foveal_gain": pick(gain, "gain", 1.0),
-           "foveal_offset": pick(offset, "offset_dn", 0.0)}
-    if not 1.0 <= out["scale"] <= 1000.0:
-        raise InputError("foveal_constraint.scale" if scale is None else "--scale", out["scale"],
-                         "1 <= scale <= 1000 (f1/f2 of the two lenses, 6 for the paper's)",
-                         detail=None if scale is not None else "from the file's meta; override with --scale")
-    if not out["foveal_gain"] > 0:
-        raise InputError("foveal gain", out["foveal_gain"], "a positive radiometric gain (NA1^2/NA2^2)")
-    return out
+    from metafovea.measurement import FovealConstraint
+    return FovealConstraint.from_meta(meta, scale=scale, gain=gain, offset=offset).as_kwargs()
 
 
 def _figure(x1: np.ndarray, x2: np.ndarray, title: str) -> bytes:

@@ -1,6 +1,6 @@
 """End-to-end simulation: scene -> radiance -> two channel images -> polariser mixing -> sensor frames.
 
-:func:`simulate` returns a :class:`~metafovea.imaging.measurement.Measurement` in digital numbers with
+:func:`simulate` returns a :class:`~metafovea.measurement.Measurement` in digital numbers with
 the true mixing ratios and the noise-free foveal/perifoveal images, so that (exactly, before noise,
 FPN and quantisation)
 
@@ -26,7 +26,7 @@ import numpy as np
 
 from metafovea.config import SystemDesign
 from metafovea.errors import InputError, check_int
-from metafovea.imaging.measurement import Measurement
+from metafovea.measurement import Measurement
 from metafovea.imaging.radiometry import BandRadiance
 from metafovea.imaging.scene import Scene, SceneGeometry, make_scene
 from metafovea.errors import as_rng

@@ -281,7 +281,7 @@ def test_negative_seed_and_impossible_scale_are_input_errors(tmp_path, capsys):
 
 @pytest.mark.parametrize("kind", ["empty", "truncated", "corrupt-member", "listjson"])
 def test_measurement_load_and_reconstruct_refuse_damaged_files(tmp_path, capsys, kind):
-    from metafovea.imaging import Measurement
+    from metafovea.measurement import Measurement
 
     good = _save(tmp_path / "good.npz")
     p = tmp_path / "bad.npz"

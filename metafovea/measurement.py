@@ -19,6 +19,10 @@ Written with :func:`metafovea.io.atomic_save_npz` (uncompressed ``.npz`` + JSON 
     (``fpn_t = (fpn_u * fpn_weights[t]) @ fpn_v.T``).
 ``theta_rad`` (T,) (optional)
     Polariser angle per frame.
+
+Metadata (``meta``): ``units``, ``foveal_constraint`` ``{scale, gain, offset_dn}`` (the relation
+``D x1 = gain C x2 + offset`` between the two images, see :class:`FovealConstraint`), and whatever the writer
+records. :class:`FovealConstraint.from_meta` is the one reader of the foveal-constraint metadata.
 """
 
 from __future__ import annotations
@@ -36,6 +40,53 @@ from metafovea.io import atomic_save_npz, load_npz, prepare_output
 KIND = "measurement"
 OPTIONAL = ("alpha", "truth_x1", "truth_x2", "fpn", "fpn_u", "fpn_v", "fpn_s", "fpn_weights", "theta_rad",
             "calibration")
+
+
+@dataclass(frozen=True)
+class FovealConstraint:
+    """``D x1 = gain * C x2 + offset``: the foveal image ``x1``, downsampled by ``scale`` (``D``), equals the
+    centre crop ``C`` of the perifoveal image ``x2`` up to a radiometric ``gain`` (NA1^2/NA2^2 for the simulator's
+    lenses) and an ``offset`` in the frames' units."""
+
+    scale: float = 6.0
+    gain: float = 1.0
+    offset: float = 0.0
+
+    @classmethod
+    def from_meta(cls, meta: dict[str, Any], *, scale: float | None = None, gain: float | None = None,
+                  offset: float | None = None) -> "FovealConstraint":
+        """Explicit values first, then ``meta['foveal_constraint']`` (``scale``, ``gain``, ``offset_dn``), then
+        ``meta['scale']`` with gain 1 and offset 0 (older files, real recordings), then scale 6.
+
+        An explicit ``scale`` is a user's ``--scale``; a bad one from the file names the file's key."""
+        fc = meta.get("foveal_constraint")
+        if fc is not None and not isinstance(fc, dict):
+            raise InputError("meta.foveal_constraint", fc, "a mapping {scale, gain, offset_dn}")
+        fc = fc or {}
+
+        def pick(given: float | None, key: str, fallback: Any) -> float:
+            v = given if given is not None else fc.get(key, fallback)
+            try:
+                v = float(v)
+            except (TypeError, ValueError):
+                raise InputError(f"foveal_constraint.{key}", v, "a number") from None
+            if not np.isfinite(v):
+                raise InputError(f"foveal_constraint.{key}", v, "a finite number")
+            return v
+
+        out = cls(scale=pick(scale, "scale", meta.get("scale", 6.0)), gain=pick(gain, "gain", 1.0),
+                  offset=pick(offset, "offset_dn", 0.0))
+        if not 1.0 <= out.scale <= 1000.0:
+            raise InputError("foveal_constraint.scale" if scale is None else "--scale", out.scale,
+                             "1 <= scale <= 1000 (f1/f2 of the two lenses, 6 for the paper's)",
+                             detail=None if scale is not None else "from the file's meta; override with --scale")
+        if not out.gain > 0:
+            raise InputError("foveal gain", out.gain, "a positive radiometric gain (NA1^2/NA2^2)")
+        return out
+
+    def as_kwargs(self) -> dict[str, float]:
+        """``{scale, foveal_gain, foveal_offset}``: the keyword names of the reconstruction solvers."""
+        return {"scale": self.scale, "foveal_gain": self.gain, "foveal_offset": self.offset}
 
 
 @dataclass(frozen=True)
@@ -100,9 +151,14 @@ class Measurement:
         return self.alpha is not None and bool(np.all(np.isfinite(self.alpha)))
 
     @property
+    def foveal_constraint(self) -> FovealConstraint:
+        """The file's :class:`FovealConstraint` (see :meth:`FovealConstraint.from_meta`)."""
+        return FovealConstraint.from_meta(self.meta)
+
+    @property
     def scale(self) -> float:
-        """Foveal expansion f1 / f2 (6 for the paper)."""
-        return float(self.meta.get("scale", 6.0))
+        """Foveal expansion f1 / f2 (6 for the paper): ``foveal_constraint.scale``."""
+        return self.foveal_constraint.scale
 
     def fpn_frame(self, k: int) -> np.ndarray | None:
         """The fixed pattern in frame ``k`` (drifting or not), or None if not stored."""
