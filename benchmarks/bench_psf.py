@@ -2,7 +2,7 @@
 
 Sections (all errors: max |I - I_ref| / peak of the reference):
 1. monochromatic, 10 um, continuous phase: hankel and mft against the same engine at 1e-12 / 1.6x nodes;
-2. broadband sensor PSFs (17 um pixels, 8-14 um, 61 + clustered wavelengths, quantised + lattice):
+2. broadband sensor PSFs (17 um pixels, 8-14 um, 61 wavelength bins geometric around lambda0, quantised + lattice):
    on axis the batched Hankel (all wavelengths wave-optical) against per-wavelength ``hankel_grid``; off axis
    the hybrid (batched MFT for the near-focus wavelengths, rays for the rest) against all-wave at 9.7-10.3 um;
 3. the geometric engine against the wave engines at single defocused wavelengths;
@@ -28,8 +28,8 @@ from metafovea.optics import (
     hankel_field,
     mft_field,
     sensor_psf,
-    spectral_weights,
 )
+from metafovea.radiometry import psf_wavelengths
 from metafovea.optics import propagate as prop
 from metafovea.optics.psf import _box_integrate
 
@@ -68,8 +68,7 @@ def mono() -> None:
 
 
 def _weights(lens, band=(8.0, 14.0), n=61):
-    return spectral_weights(band_um=band, n=n, temperature_k=300.0, cluster_um=lens.wavelength_um,
-                            cluster_min_um=0.25 * lens.wavelength_um ** 2 / (2 * lens.na ** 2) / lens.f_um)
+    return psf_wavelengths(band, design_um=lens.wavelength_um, n=n, temperature_k=300.0)
 
 
 def broadband() -> None:

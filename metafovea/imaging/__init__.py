@@ -2,18 +2,17 @@
 microbolometer frames (a :class:`Measurement`).
 
 Modules: :mod:`~metafovea.imaging.scene` (scenes over field angle and time),
-:mod:`~metafovea.imaging.radiometry` (Planck band radiance), :mod:`~metafovea.imaging.system` (channels,
+:mod:`~metafovea.imaging.system` (channels,
 PSFs, haze, polariser), :mod:`~metafovea.imaging.sensor` (noise, FPN, ADC),
 :mod:`~metafovea.imaging.simulate` (end to end).
 """
 
 
-from metafovea.imaging.radiometry import BandRadiance, planck_radiance_um, spectral_weights
 from metafovea.imaging.scene import Scene, SceneGeometry, list_scenes, make_scene
 from metafovea.imaging.sensor import FixedPattern, SensorModel
 from metafovea.imaging.simulate import SimulationOptions, simulate, write_preview, write_tiff
 from metafovea.imaging.system import Channel, ExplicitPSF, Kernel, Polarizer, channels_for
 
-__all__ = ["BandRadiance", "planck_radiance_um", "spectral_weights", "Scene", "SceneGeometry",
+__all__ = ["Scene", "SceneGeometry",
            "list_scenes", "make_scene", "FixedPattern", "SensorModel", "SimulationOptions", "simulate",
            "write_preview", "write_tiff", "Channel", "ExplicitPSF", "Kernel", "Polarizer", "channels_for"]

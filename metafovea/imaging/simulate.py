@@ -27,7 +27,7 @@ import numpy as np
 from metafovea.config import SystemDesign
 from metafovea.errors import InputError, check_int
 from metafovea.measurement import Measurement
-from metafovea.imaging.radiometry import BandRadiance
+from metafovea.radiometry import BandRadiance
 from metafovea.imaging.scene import Scene, SceneGeometry, make_scene
 from metafovea.errors import as_rng
 from metafovea.imaging.sensor import SensorModel

@@ -56,7 +56,7 @@ import numpy as np
 from metafovea.config import LensDesign, SystemDesign
 from metafovea.errors import InputError, check_choice, check_int, check_positive, check_range
 from metafovea.io import cache_dir as io_cache_dir
-from metafovea.imaging.radiometry import BandRadiance
+from metafovea.radiometry import BandRadiance
 from metafovea.imaging.scene import Scene
 
 log = logging.getLogger(__name__)
@@ -375,33 +375,6 @@ def disk_mixture_kernel(radii: np.ndarray, weights: np.ndarray, step: float, sub
     return img / img.sum()
 
 
-def psf_wavelengths(radiance: BandRadiance, design_um: float, scene_temperature_k: float = 300.0,
-                    n: int = 31) -> tuple[np.ndarray, np.ndarray]:
-    """Wavelength bins (um) and normalised weights (Planck at the scene temperature x band weighting)
-    for a polychromatic PSF. Bins are geometric in ``|lambda / lambda0 - 1|`` around the design
-    wavelength, where the chromatic blur changes fastest (10 nm matters there, not at 13 um)."""
-    from metafovea.imaging.radiometry import planck_radiance_um
-
-    lam, wt = radiance.wavelengths_um, radiance.weights
-    lo, hi = float(lam[0]), float(lam[-1])
-    half = max(4, n // 2)
-    if lo < design_um < hi:
-        d_lo, d_hi = 1.0 - lo / design_um, hi / design_um - 1.0
-        d0 = min(2e-4, 0.5 * d_lo, 0.5 * d_hi)
-        left = design_um * (1 - np.geomspace(d0, d_lo, half))[::-1]
-        right = design_um * (1 + np.geomspace(d0, d_hi, half))
-        edges = np.concatenate([left, right])
-    else:
-        edges = np.linspace(lo, hi, n + 1)
-    u = (np.arange(16) + 0.5) / 16  # 16 sub-samples per bin
-    x = edges[:-1, None] + (edges[1:] - edges[:-1])[:, None] * u[None, :]
-    f = np.interp(x, lam, wt) * planck_radiance_um(x, scene_temperature_k)
-    wb = f.mean(1) * (edges[1:] - edges[:-1])
-    lb = (f * x).sum(1) / np.maximum(f.sum(1), 1e-300)
-    keep = wb > 0
-    return lb[keep], wb[keep] / wb[keep].sum()
-
-
 @dataclass
 class ChannelOptics:
     """Everything the renderer needs for one channel (kernels at the sample pitch)."""
@@ -450,7 +423,7 @@ def build_channel_optics(channel: Channel, provider: Any, radiance: BandRadiance
     size = psf_size_px or (2 * int(math.ceil(3 * ss)) + 1)
     size = check_int("psf_size_px", size, 1, MAX_PSF_SIZE)
     size += 1 - size % 2
-    lam_psf, w_psf = psf_wavelengths(radiance, channel.lens.wavelength_um, scene_temperature_k, n_psf_wavelengths)
+    lam_psf, w_psf = radiance.psf_wavelengths(channel.lens.wavelength_um, scene_temperature_k, n_psf_wavelengths)
 
     def get(field_deg: float) -> Kernel:
         k = provider(channel, pitch_um=pitch, field_deg=field_deg, wavelengths_um=lam_psf, weights=w_psf,

@@ -20,7 +20,7 @@ from metafovea.io import atomic_write_bytes, atomic_write_json, atomic_write_tex
 from .mtf import diffraction_mtf, encircled_energy, pupil_mtf, strehl
 from .psf import diffraction_radius_um, encircled_energy_on_axis, psf, sensor_psf
 from .pupil import max_field_deg
-from .radiometry import spectral_weights
+from metafovea.radiometry import psf_wavelengths
 
 log = logging.getLogger(__name__)
 
@@ -112,9 +112,8 @@ def psf_report(lens: LensDesign, out_dir: str | Path, *, fields_deg: list[float]
     figs["mtf.png"] = _png(fig)
     res["mtf"] = mt
     # encircled energy and broadband sensor PSFs over the field
-    wl, w = spectral_weights(band_um=band_um, n=n_wavelengths, temperature_k=temperature_k, filter_um=filter_um,
-                             cluster_um=lens.wavelength_um,
-                             cluster_min_um=0.25 * lens.wavelength_um * lens.wavelength_um / (2 * lens.na ** 2) / lens.f_um)
+    wl, w = psf_wavelengths(band_um, design_um=lens.wavelength_um, temperature_k=temperature_k, filter_um=filter_um,
+                            n=n_wavelengths)
     res["spectral"] = {"n_wavelengths": int(wl.size), "band_um": band_um, "filter_um": filter_um,
                        "temperature_k": temperature_k}
     # on-axis power within one pixel pitch of the axis, exact (radial profiles, no pixel grid)
@@ -189,7 +188,7 @@ def _html(res: dict[str, Any], figs: dict[str, bytes]) -> str:
 cycles/mm. Requested error {res['requested_error']:g} (max abs / peak). Scalar Debye (direction-sine) model,
 lattice sampling and N-level quantisation included in the PSFs; spectral weights: Planck at
 {res['spectral']['temperature_k']:g} K, band {res['spectral']['band_um']}, filter {res['spectral']['filter_um']},
-{res['spectral']['n_wavelengths']} wavelengths (clustered around the design wavelength).</p>
+{res['spectral']['n_wavelengths']} wavelength bins (geometric around the design wavelength).</p>
 <h2>Monochromatic PSFs (engine, sampling, error estimate)</h2>
 <table><tr><th>field deg</th><th>engine</th><th>error est.</th><th>pitch um</th><th>energy in window</th><th>Strehl</th></tr>{rows}</table>
 <p>On axis, power within r = {res['on_axis_ee_pixel_radius']['radius_um']:g} um (exact radial integral):
