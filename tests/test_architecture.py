@@ -165,3 +165,29 @@ def test_the_checks_can_fail(bad, tmp_path):
         assert {stage_of(m) for m in found} - SHARED == {"validate"}
     else:
         assert [m for m, _ in imports(tree, tmp_path / "x.py", "metafovea.cli.x") if m.startswith("matplotlib")]
+
+
+def test_tests_use_public_names_only():
+    """Tests exercise the public API: no ``from metafovea.x import _y``, no ``module._y`` on an imported metafovea
+    module, no import of a private metafovea module."""
+    problems = []
+    for path in sorted((PKG.parent / "tests").rglob("*.py")):
+        tree = ast.parse(path.read_text(), str(path))
+        aliases = set()
+        for node in ast.walk(tree):
+            if isinstance(node, ast.ImportFrom) and (node.module or "").startswith("metafovea"):
+                if any(p.startswith("_") for p in node.module.split(".")):
+                    problems.append(f"{path.name}:{node.lineno} imports {node.module}")
+                for a in node.names:
+                    if a.name.startswith("_") and a.name != "__version__":
+                        problems.append(f"{path.name}:{node.lineno} imports {node.module}.{a.name}")
+                    aliases.add(a.asname or a.name)
+            elif isinstance(node, ast.Import):
+                for a in node.names:
+                    if a.name.startswith("metafovea"):
+                        aliases.add(a.asname or a.name.split(".")[0])
+        for node in ast.walk(tree):
+            if isinstance(node, ast.Attribute) and node.attr.startswith("_") and not node.attr.startswith("__") \
+                    and isinstance(node.value, ast.Name) and node.value.id in aliases:
+                problems.append(f"{path.name}:{node.lineno} uses {node.value.id}.{node.attr}")
+    assert not problems, "\n".join(problems)

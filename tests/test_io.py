@@ -1,3 +1,5 @@
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -61,3 +63,30 @@ def test_load_npz_bad_files_are_input_errors(tmp_path, content):
     np.save(tmp_path / "single.npy", np.arange(3))
     with pytest.raises(InputError):
         load_npz(tmp_path / "single.npy")
+
+
+def test_jsonable_is_the_one_json_policy():
+    """numpy values become JSON types and every non-finite float becomes null (valid JSON, 'not available')."""
+    import json
+    import math
+    from metafovea.io import jsonable, to_json
+
+    obj = {1: np.float32(0.5), "a": np.arange(3), "nan": float("nan"), "inf": np.float64(np.inf),
+           "arr": np.array([1.0, np.nan]), "c": 1 + 2j, "p": Path("x/y"), "t": (np.int64(3), np.bool_(True))}
+    out = jsonable(obj)
+    assert out == {"1": 0.5, "a": [0, 1, 2], "nan": None, "inf": None, "arr": [1.0, None], "c": {"re": 1.0, "im": 2.0},
+                   "p": "x/y", "t": [3, True]}
+    text = to_json(obj)
+    assert json.loads(text) == out and "NaN" not in text and "Infinity" not in text
+    assert type(jsonable(np.int32(2))) is int and jsonable(np.bool_(False)) is False
+    assert math.isclose(json.loads(to_json(np.float64(1e-300))), 1e-300)
+
+
+def test_cache_dir_is_one_folder_per_stage(tmp_path, monkeypatch):
+    from metafovea.io import cache_dir
+
+    monkeypatch.setenv("METAFOVEA_CACHE", str(tmp_path / "c"))
+    assert cache_dir("library") == tmp_path / "c" / "library"
+    assert cache_dir("psf") == tmp_path / "c" / "psf"
+    monkeypatch.delenv("METAFOVEA_CACHE")
+    assert cache_dir("psf") == Path.home() / ".cache" / "metafovea" / "psf"
