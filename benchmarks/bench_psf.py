@@ -24,6 +24,7 @@ import numpy as np
 from metafovea.config import LensDesign
 from metafovea.optics import (
     asm_propagate,
+    box_integrate,
     build_pupils,
     hankel_field,
     mft_field,
@@ -31,7 +32,6 @@ from metafovea.optics import (
 )
 from metafovea.radiometry import psf_wavelengths
 from metafovea.optics import propagate as prop
-from metafovea.optics.psf import _box_integrate
 
 warnings.simplefilter("ignore")
 
@@ -84,7 +84,7 @@ def broadband() -> None:
         t0 = time.perf_counter()
         tot = sum(wk * np.abs(prop.hankel_grid(build_pupils(lens, float(l)).focus, ax, ax, error=1e-9)) ** 2
                   for l, wk in zip(wl, w))
-        ref = _box_integrate(tot, n_sub) * dx * dx / (math.pi * lens.radius_um ** 2)
+        ref = box_integrate(tot, n_sub) * dx * dx / (math.pi * lens.radius_um ** 2)
         tref = time.perf_counter() - t0
         d = T.intensity - ref
         d -= np.median(d)  # haze orders: uniform floor (not in the reference)

@@ -1,23 +1,35 @@
-"""Optics stage: pupil fields of the metalenses, propagation engines, PSFs and MTF (spectral weights:
-:mod:`metafovea.radiometry`).
+"""Optics stage: pupil fields of the metalenses, propagation engines, PSFs, sensor PSFs, MTF and the PSF report
+(spectral weights: :mod:`metafovea.radiometry`).
 
-Public API::
+Files, in the order light meets them::
 
-    PSF, psf, sensor_psf, encircled_energy_on_axis   (metafovea.optics.psf)
-    build_pupils, Pupil, max_field_deg      (metafovea.optics.pupil)
-    asm_propagate, mft_field, hankel_field, hankel_profiles, mft_intensity_multi  (metafovea.optics.propagate)
-    mtf_2d, mtf_radial, mtf_slices, encircled_energy, strehl, fwhm_um, diffraction_mtf, pixel_mtf
+    pupil      the lens as a pupil in direction-sine space, per wavelength, field and polarisation: the
+               focusing order (Pupil) and the other diffraction orders as haze (PupilSet); max_field_deg
+    propagate  the engines: asm_propagate (band-limited angular spectrum of a sampled field, exact; the
+               reference for small apertures), mft_field / mft_intensity_multi (windowed direction-sine
+               transform, any field), hankel_field / hankel_profiles (1-D, on axis); SamplingError,
+               AliasingWarning
+    psf        the PSF type; psf() (field PSF on a fine grid, hankel or mft per wavelength);
+               encircled_energy_on_axis (exact radial integral); diffraction_radius_um, nyquist_pitch_um
+    sensor     sensor_psf(): the PSF integrated over pixels, broadband, on and off axis (batched hankel on
+               axis; batched mft near focus and the geometric ray engine elsewhere off axis, with an error
+               bound for each); box_integrate, disk_pixels, geometric_pixels_multi
+    mtf        metrics of a PSF or a lens: mtf_2d, mtf_radial, mtf_slices, pupil_mtf (exact pupil
+               autocorrelation), diffraction_mtf, pixel_mtf, encircled_energy, strehl, fwhm_um
+    report     psf_report (one lens: PNG figures, JSON, HTML page) and psf_reports (several lenses, the
+               ``metafovea psf`` pipeline)
 """
 
 from .mtf import (diffraction_mtf, encircled_energy, fwhm_um, mtf_2d, mtf_radial, mtf_slices, pixel_mtf, pupil_mtf,
                   strehl)
 from .propagate import (AliasingWarning, SamplingError, asm_propagate, hankel_field, hankel_profiles, mft_field,
                         mft_intensity_multi)
-from .psf import PSF, diffraction_radius_um, encircled_energy_on_axis, nyquist_pitch_um, psf, sensor_psf
+from .psf import PSF, diffraction_radius_um, encircled_energy_on_axis, nyquist_pitch_um, psf
 from .pupil import Pupil, build_pupils, field_direction, max_field_deg
+from .sensor import box_integrate, disk_pixels, sensor_psf
 
-__all__ = ["PSF", "AliasingWarning", "Pupil", "SamplingError", "asm_propagate", "build_pupils",
-           "diffraction_mtf", "diffraction_radius_um", "encircled_energy", "encircled_energy_on_axis",
+__all__ = ["PSF", "AliasingWarning", "Pupil", "SamplingError", "asm_propagate", "box_integrate", "build_pupils",
+           "diffraction_mtf", "diffraction_radius_um", "disk_pixels", "encircled_energy", "encircled_energy_on_axis",
            "field_direction", "fwhm_um", "hankel_field", "hankel_profiles", "max_field_deg", "mft_field",
            "mft_intensity_multi", "mtf_2d", "mtf_radial", "mtf_slices", "nyquist_pitch_um", "pixel_mtf",
            "psf", "pupil_mtf", "sensor_psf", "strehl"]

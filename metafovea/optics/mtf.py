@@ -1,5 +1,5 @@
 """PSF metrics: MTF (2-D, radial, tangential/sagittal, exact from the pupil), encircled energy, Strehl,
-focusing efficiency, FWHM, pixel MTF. Spatial frequencies in cycles/mm at the interfaces.
+FWHM, pixel MTF. Spatial frequencies in cycles/mm at the interfaces.
 """
 
 from __future__ import annotations
@@ -206,12 +206,3 @@ def fwhm_um(psf: PSF) -> tuple[float, float]:
         return (edge(1) - edge(-1)) * psf.pitch_um
 
     return width(I[iy, :], ix), width(I[:, ix], iy)
-
-
-def focusing_efficiency(psf: PSF, radius_um: float | None = None) -> float:
-    """Fraction of the incident power within ``radius_um`` of the centroid (default: 1.5 x the ideal FWHM,
-    i.e. a spot of diameter 3 FWHM, the usual metalens definition)."""
-    if radius_um is None:
-        fw = np.nanmean(fwhm_um(psf))
-        radius_um = 1.5 * fw
-    return float(encircled_energy(psf, [radius_um])[0])

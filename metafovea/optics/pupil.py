@@ -207,10 +207,6 @@ class Pupil:
         cs = math.sqrt(1.0 - float(s @ s))
         return self.z_um * s / cs
 
-    def incident_power(self) -> float:
-        """Power through the aperture for unit incident intensity (um^2): pi R^2."""
-        return math.pi * self.lens.radius_um ** 2
-
     def evanescent_gap(self) -> float:
         """1 - (|s0| + radius): > 0 when the whole disk propagates."""
         return 1.0 - (float(np.hypot(*self.s0)) + self.radius)

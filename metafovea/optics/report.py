@@ -1,28 +1,34 @@
-"""PSF/MTF report of one lens: PNG figures, JSON numbers and one self-contained HTML page."""
+"""PSF/MTF reports: :func:`psf_report` writes the PNG figures, JSON numbers and one self-contained HTML page of
+one lens; :func:`psf_reports` is the ``metafovea psf`` pipeline (checks, several lenses in worker processes)."""
 
 from __future__ import annotations
 
-import base64
-import html
-import io
 import logging
 import math
+import os
 import time
 import warnings
 from pathlib import Path
-from typing import Any
+from typing import Any, Sequence
 
 import numpy as np
 
-from metafovea.config import LensDesign
-from metafovea.io import atomic_write_bytes, atomic_write_json, atomic_write_text
+from metafovea.config import LensDesign, load_lens
+from metafovea.errors import InputError, check_int
+from metafovea.io import atomic_write_bytes, atomic_write_json, prepare_output
+from metafovea.radiometry import psf_wavelengths
+from metafovea.report import HtmlReport, fig_to_png
 
 from .mtf import diffraction_mtf, encircled_energy, pupil_mtf, strehl
-from .psf import diffraction_radius_um, encircled_energy_on_axis, psf, sensor_psf
-from .pupil import max_field_deg
-from metafovea.radiometry import psf_wavelengths
+from .propagate import SamplingError
+from .psf import diffraction_radius_um, encircled_energy_on_axis, psf
+from .pupil import EVANESCENT_MARGIN, max_field_deg
+from .sensor import sensor_psf
 
 log = logging.getLogger(__name__)
+
+#: resolution of the report figures
+DPI = 90
 
 
 def file_stem(name: str) -> str:
@@ -32,6 +38,9 @@ def file_stem(name: str) -> str:
     return stem or "lens"
 
 
+# ----------------------------------------------------------------------------------------------
+# one lens
+# ----------------------------------------------------------------------------------------------
 def psf_report(lens: LensDesign, out_dir: str | Path, *, fields_deg: list[float] | None = None,
                band_um: tuple[float, float] = (8.0, 14.0), filter_um: tuple[float, float] | None = None,
                temperature_k: float = 300.0, n_wavelengths: int = 61, pixel_pitch_um: float = 17.0,
@@ -42,10 +51,10 @@ def psf_report(lens: LensDesign, out_dir: str | Path, *, fields_deg: list[float]
     ``wavelength_um``: the monochromatic PSFs' wavelength (default: the design wavelength); ``window_um``:
     full width of the fine monochromatic PSF windows (default: sized from the rays; a given window that
     truncates the PSF above ``error`` raises :class:`metafovea.optics.propagate.SamplingError`).
+    An error about the wavelengths of a monochromatic PSF names ``wavelength_um`` when it was given.
     """
     import matplotlib
 
-    from .propagate import SamplingError
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
@@ -58,12 +67,36 @@ def psf_report(lens: LensDesign, out_dir: str | Path, *, fields_deg: list[float]
         fmax = min(max_field_deg(lens, band_um[1]), math.degrees(math.atan(6800.0 / lens.f_um)))
         fields_deg = list(np.linspace(0.0, fmax, 9))
     cut = 2 * lens.na / lens.wavelength_um * 1000
-    nu = np.linspace(0, cut, 41)
-    figs: dict[str, bytes] = {}
-    res: dict[str, Any] = {"mono_wavelength_um": mono_wl[0], "lens": lens.name, "f_mm": lens.f_mm, "diameter_mm": lens.diameter_mm, "na": lens.na,
-                           "wavelength_um": lens.wavelength_um, "polarization": lens.polarization,
-                           "mtf_cutoff_cyc_per_mm": cut, "requested_error": error, "warnings": []}
-    # monochromatic PSFs, on and off axis (continuous and fabricated)
+    res: dict[str, Any] = {"mono_wavelength_um": mono_wl[0], "lens": lens.name, "f_mm": lens.f_mm,
+                           "diameter_mm": lens.diameter_mm, "na": lens.na, "wavelength_um": lens.wavelength_um,
+                           "polarization": lens.polarization, "mtf_cutoff_cyc_per_mm": cut,
+                           "requested_error": error, "warnings": []}
+    try:
+        figs = {"psf_mono.png": _monochromatic(plt, lens, res, fields_deg, mono_wl, post_set, error, window_um,
+                                               pixel_pitch_um),
+                "mtf.png": _mtf(plt, lens, res, fields_deg, cut)}
+        wl, w = psf_wavelengths(band_um, design_um=lens.wavelength_um, temperature_k=temperature_k,
+                                filter_um=filter_um, n=n_wavelengths)
+        res["spectral"] = {"n_wavelengths": int(wl.size), "band_um": band_um, "filter_um": filter_um,
+                           "temperature_k": temperature_k}
+        figs["ee_field.png"] = _sensor(plt, lens, res, fields_deg, mono_wl, wl, w, post_set, error, pixel_pitch_um)
+    except InputError as e:
+        if e.parameter == "wavelengths_um" and wavelength_um is not None:
+            raise InputError("wavelength_um", wavelength_um, e.allowed) from None
+        raise
+    res["pixel_pitch_um"] = pixel_pitch_um
+    res["seconds"] = time.perf_counter() - t0
+    for name, data in figs.items():
+        atomic_write_bytes(out / f"{stem}_{name}", data)
+    atomic_write_json(out / f"{stem}_psf_report.json", res)
+    _page(res, figs).write(out / f"{stem}_psf_report.html")
+    return res
+
+
+def _monochromatic(plt: Any, lens: LensDesign, res: dict[str, Any], fields_deg: list[float], mono_wl: list[float],
+                   post_set: Any, error: float, window_um: float | None, pixel_pitch_um: float) -> bytes:
+    """Monochromatic PSFs (fabricated lens) on axis, at mid-field and at the last field: ``res['monochromatic']``
+    and the figure. A PSF too aberrated for the fine grid is shown on a pixel grid of a quarter pitch instead."""
     mono = []
     fig, axs = plt.subplots(1, 3, figsize=(12, 3.6))
     for ax, fd in zip(axs, [0.0, fields_deg[len(fields_deg) // 2], fields_deg[-1]]):
@@ -74,7 +107,8 @@ def psf_report(lens: LensDesign, out_dir: str | Path, *, fields_deg: list[float]
                         wavelengths_um=mono_wl, window_um=window_um)
             except SamplingError as e:  # the aberrated PSF needs too large a window: pixel grid instead
                 if window_um is not None:
-                    raise
+                    raise SamplingError(e.parameter, e.value, e.allowed.replace(
+                        "(pass allow_truncation=True to accept)", "(or a larger error)")) from None
                 P = sensor_psf(lens, pixel_pitch_um=pixel_pitch_um / 4, field_deg=fd, post_set=post_set,
                                error=max(error, 1e-3), wavelengths_um=mono_wl)
                 res["warnings"].append(f"field {fd:.3g} deg: fine PSF not computed ({e}); pixel-grid PSF shown")
@@ -90,9 +124,15 @@ def psf_report(lens: LensDesign, out_dir: str | Path, *, fields_deg: list[float]
                      "seconds": P.info.get("seconds")})
     axs[0].set_ylabel("y (um)")
     fig.tight_layout()
-    figs["psf_mono.png"] = _png(fig)
     res["monochromatic"] = mono
-    # MTF against the diffraction limit (exact pupil autocorrelation, design wavelength)
+    png = fig_to_png(fig, dpi=DPI)
+    plt.close(fig)
+    return png
+
+
+def _mtf(plt: Any, lens: LensDesign, res: dict[str, Any], fields_deg: list[float], cut: float) -> bytes:
+    """MTF against the diffraction limit (exact pupil autocorrelation, design wavelength): ``res['mtf']``."""
+    nu = np.linspace(0, cut, 41)
     fig, ax = plt.subplots(figsize=(6, 4))
     ax.plot(nu, diffraction_mtf(nu, cut), "k--", label="paraxial diffraction limit")
     ax.plot(nu, pupil_mtf(lens, nu), label="on axis (non-paraxial, continuous)")
@@ -109,14 +149,16 @@ def psf_report(lens: LensDesign, out_dir: str | Path, *, fields_deg: list[float]
         except Exception as e:
             res["warnings"].append(f"MTF at {fd:.3g} deg not computed: {e}")
     ax.set_xlabel("cycles/mm"); ax.set_ylabel("MTF"); ax.legend(fontsize=7); fig.tight_layout()
-    figs["mtf.png"] = _png(fig)
     res["mtf"] = mt
-    # encircled energy and broadband sensor PSFs over the field
-    wl, w = psf_wavelengths(band_um, design_um=lens.wavelength_um, temperature_k=temperature_k, filter_um=filter_um,
-                            n=n_wavelengths)
-    res["spectral"] = {"n_wavelengths": int(wl.size), "band_um": band_um, "filter_um": filter_um,
-                       "temperature_k": temperature_k}
-    # on-axis power within one pixel pitch of the axis, exact (radial profiles, no pixel grid)
+    png = fig_to_png(fig, dpi=DPI)
+    plt.close(fig)
+    return png
+
+
+def _sensor(plt: Any, lens: LensDesign, res: dict[str, Any], fields_deg: list[float], mono_wl: list[float],
+            wl: np.ndarray, w: np.ndarray, post_set: Any, error: float, pixel_pitch_um: float) -> bytes:
+    """Encircled energy and broadband sensor PSFs over the field: ``res['on_axis_ee_pixel_radius']`` (power within
+    one pixel pitch of the axis, exact radial integral, no pixel grid), ``res['sensor']`` and the figure."""
     res["on_axis_ee_pixel_radius"] = {
         "radius_um": pixel_pitch_um,
         "mono": encircled_energy_on_axis(lens, pixel_pitch_um, wavelengths_um=mono_wl, post_set=post_set),
@@ -150,54 +192,146 @@ def psf_report(lens: LensDesign, out_dir: str | Path, *, fields_deg: list[float]
     ax[1].semilogy([s["field_deg"] for s in sens], [s["poly_center_pixel"] for s in sens], "s-", label="band")
     ax[1].set_xlabel("field (deg)"); ax[1].set_ylabel("power in the chief-ray pixel"); ax[1].legend()
     fig.tight_layout()
-    figs["ee_field.png"] = _png(fig)
     res["sensor"] = sens
-    res["pixel_pitch_um"] = pixel_pitch_um
-    res["seconds"] = time.perf_counter() - t0
-    for name, data in figs.items():
-        atomic_write_bytes(out / f"{stem}_{name}", data)
-    atomic_write_json(out / f"{stem}_psf_report.json", res)
-    atomic_write_text(out / f"{stem}_psf_report.html", _html(res, figs))
-    return res
-
-
-def _png(fig: Any) -> bytes:
-    import matplotlib.pyplot as plt
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=90)
+    png = fig_to_png(fig, dpi=DPI)
     plt.close(fig)
-    return buf.getvalue()
+    return png
 
 
-def _html(res: dict[str, Any], figs: dict[str, bytes]) -> str:
-    rows = "".join(f"<tr><td>{m['field_deg']:.3f}</td><td>{m['engine']}</td><td>{m['error_estimate']:.2g}</td>"
-                   f"<td>{m['pitch_um']:.3g}</td><td>{m['energy_fraction']:.4f}</td>"
-                   f"<td>{'' if m['strehl'] is None else format(m['strehl'], '.4f')}</td></tr>" for m in res["monochromatic"])
-    srows = "".join(f"<tr><td>{s['field_deg']:.3f}</td><td>{s['mono_center_pixel']:.4g}</td>"
-                    f"<td>{s['poly_center_pixel']:.4g}</td><td>{s['poly_energy_fraction']:.4g}</td>"
-                    f"<td>{html.escape(s['poly_engine'])}</td><td>{s['poly_error_estimate']:.2g}</td></tr>"
-                    for s in res["sensor"])
-    imgs = "".join(f"<h3>{html.escape(n)}</h3><img src='data:image/png;base64,{base64.b64encode(d).decode()}'/>"
-                   for n, d in figs.items())
-    warn = "".join(f"<li>{html.escape(w)}</li>" for w in dict.fromkeys(res["warnings"]))
-    return f"""<!doctype html><html><head><meta charset='utf-8'><title>PSF report {html.escape(res['lens'])}</title>
-<style>body{{font-family:sans-serif;max-width:1100px;margin:auto}}td,th{{border:1px solid #ccc;padding:2px 6px}}</style>
-</head><body><h1>PSF / MTF report: {html.escape(res['lens'])}</h1>
-<p>f = {res['f_mm']:g} mm, D = {res['diameter_mm']:g} mm, NA = {res['na']:.4f}, design wavelength
-{res['wavelength_um']:g} um, polarisation {res['polarization']}; MTF cutoff 2NA/lambda = {res['mtf_cutoff_cyc_per_mm']:.2f}
-cycles/mm. Requested error {res['requested_error']:g} (max abs / peak). Scalar Debye (direction-sine) model,
-lattice sampling and N-level quantisation included in the PSFs; spectral weights: Planck at
-{res['spectral']['temperature_k']:g} K, band {res['spectral']['band_um']}, filter {res['spectral']['filter_um']},
-{res['spectral']['n_wavelengths']} wavelength bins (geometric around the design wavelength).</p>
-<h2>Monochromatic PSFs (engine, sampling, error estimate)</h2>
-<table><tr><th>field deg</th><th>engine</th><th>error est.</th><th>pitch um</th><th>energy in window</th><th>Strehl</th></tr>{rows}</table>
-<p>On axis, power within r = {res['on_axis_ee_pixel_radius']['radius_um']:g} um (exact radial integral):
-{res['mono_wavelength_um']:g} um {res['on_axis_ee_pixel_radius']['mono']:.4f}, band {res['on_axis_ee_pixel_radius']['band']:.4g}
-(fractions of the incident power).</p>
-<h2>Sensor PSFs ({res['pixel_pitch_um']:g} um pixels) across the field</h2>
-<table><tr><th>field deg</th><th>chief-ray pixel, design wl</th><th>chief-ray pixel, band</th><th>band power in window</th>
-<th>engines</th><th>error est.</th></tr>{srows}</table>
-{imgs}
-<h2>Warnings</h2><ul>{warn or '<li>none</li>'}</ul>
-<p>Computed in {res['seconds']:.1f} s.</p></body></html>
-"""
+def _page(res: dict[str, Any], figs: dict[str, bytes]) -> HtmlReport:
+    """The HTML page of one lens' report."""
+    sp, ee = res["spectral"], res["on_axis_ee_pixel_radius"]
+    page = HtmlReport(f"PSF / MTF report: {res['lens']}")
+    page.paragraph(
+        f"f = {res['f_mm']:g} mm, D = {res['diameter_mm']:g} mm, NA = {res['na']:.4f}, design wavelength "
+        f"{res['wavelength_um']:g} um, polarisation {res['polarization']}; MTF cutoff 2NA/lambda = "
+        f"{res['mtf_cutoff_cyc_per_mm']:.2f} cycles/mm. Requested error {res['requested_error']:g} (max abs / peak). "
+        "Scalar Debye (direction-sine) model, lattice sampling and N-level quantisation included in the PSFs; "
+        f"spectral weights: Planck at {sp['temperature_k']:g} K, band {sp['band_um']}, filter {sp['filter_um']}, "
+        f"{sp['n_wavelengths']} wavelength bins (geometric around the design wavelength).")
+    page.heading("Monochromatic PSFs (engine, sampling, error estimate)")
+    page.table(["field deg", "engine", "error est.", "pitch um", "energy in window", "Strehl"],
+               [[f"{m['field_deg']:.3f}", m["engine"], f"{m['error_estimate']:.2g}", f"{m['pitch_um']:.3g}",
+                 f"{m['energy_fraction']:.4f}", "" if m["strehl"] is None else f"{m['strehl']:.4f}"]
+                for m in res["monochromatic"]])
+    page.paragraph(f"On axis, power within r = {ee['radius_um']:g} um (exact radial integral): "
+                   f"{res['mono_wavelength_um']:g} um {ee['mono']:.4f}, band {ee['band']:.4g} "
+                   "(fractions of the incident power).")
+    page.heading(f"Sensor PSFs ({res['pixel_pitch_um']:g} um pixels) across the field")
+    page.table(["field deg", "chief-ray pixel, design wl", "chief-ray pixel, band", "band power in window", "engines",
+                "error est."],
+               [[f"{s['field_deg']:.3f}", f"{s['mono_center_pixel']:.4g}", f"{s['poly_center_pixel']:.4g}",
+                 f"{s['poly_energy_fraction']:.4g}", s["poly_engine"], f"{s['poly_error_estimate']:.2g}"]
+                for s in res["sensor"]])
+    for name, png in figs.items():
+        page.image(png, name)
+    page.heading("Warnings")
+    for w in dict.fromkeys(res["warnings"]) or ["none"]:
+        page.paragraph(w)
+    page.paragraph(f"Computed in {res['seconds']:.1f} s.")
+    return page
+
+
+# ----------------------------------------------------------------------------------------------
+# several lenses: the ``metafovea psf`` pipeline
+# ----------------------------------------------------------------------------------------------
+def psf_reports(designs: Sequence[str | Path | LensDesign], out_dir: str | Path, *, force: bool = False,
+                fields_deg: list[float] | None = None, band_um: tuple[float, float] = (8.0, 14.0),
+                filter_um: tuple[float, float] | None = None, temperature_k: float = 300.0,
+                n_wavelengths: int = 61, pixel_pitch_um: float = 17.0, error: float = 1e-4,
+                wavelength_um: float | None = None, window_um: float | None = None,
+                jobs: int | None = None) -> dict[str, dict[str, Any]]:
+    """:func:`psf_report` of every lens (TOML paths or :class:`LensDesign`) into ``out_dir``, one process per lens.
+
+    Everything that can be refused is refused before any work and before ``out_dir`` is made: a band, filter
+    and scene temperature that give no light; two lenses whose names make the same file stem (their reports
+    would overwrite each other); wavelengths that leave a lens' rim evanescent even on axis; fields outside a
+    lens' field at the longest wavelength used. ``out_dir`` must be new or empty unless ``force``. ``jobs``
+    defaults to min(2, lenses, CPUs). Returns, per lens name, its seconds, monochromatic and sensor rows,
+    warnings and the path of its HTML page.
+    """
+    _check_light(band_um, filter_um, temperature_k)
+    lenses = [d if isinstance(d, LensDesign) else load_lens(d) for d in designs]
+    _check_distinct_names([str(d) if not isinstance(d, LensDesign) else f"lens '{d.name}'" for d in designs], lenses)
+    for lens in lenses:
+        _check_wavelengths_and_fields(lens, band_um, filter_um, wavelength_um, fields_deg)
+    jobs = min(2, len(lenses), os.cpu_count() or 1) if jobs is None else check_int("jobs", jobs, 1, 64)
+    out = prepare_output(out_dir, force, is_dir=True)
+    kw = dict(fields_deg=fields_deg, band_um=band_um, filter_um=filter_um, temperature_k=temperature_k,
+              n_wavelengths=n_wavelengths, pixel_pitch_um=pixel_pitch_um, error=error,
+              wavelength_um=wavelength_um, window_um=window_um)
+    if jobs > 1 and len(lenses) > 1:
+        # one process per lens (the report of a lens is single-threaded)
+        from concurrent.futures import ProcessPoolExecutor
+        with ProcessPoolExecutor(max_workers=min(jobs, len(lenses))) as ex:
+            outcomes = list(ex.map(_report_one, lenses, [str(out)] * len(lenses), [kw] * len(lenses)))
+    else:
+        outcomes = [_report_one(lens, str(out), kw) for lens in lenses]
+    summary = {}
+    for lens, (kind, val) in zip(lenses, outcomes):
+        if kind == "input_error":
+            cls, parameter, value, allowed, source, detail = val
+            raise cls(parameter, value, allowed, source=source, detail=detail)
+        summary[lens.name] = {**val, "html": str(Path(out) / f"{file_stem(lens.name)}_psf_report.html")}
+    return summary
+
+
+def _report_one(lens: LensDesign, out: str, kw: dict[str, Any]) -> tuple[str, Any]:
+    """One lens' report, run in a worker: an InputError comes back as data (its class and fields), because an
+    InputError does not survive pickling."""
+    try:
+        res = psf_report(lens, out, **kw)
+    except InputError as e:
+        return "input_error", (type(e), e.parameter, e.value, e.allowed, e.source, e.detail)
+    return "ok", {k: res[k] for k in ("seconds", "monochromatic", "sensor", "warnings")}
+
+
+def _check_light(band: tuple[float, float], filt: tuple[float, float] | None, temperature_k: float) -> None:
+    """The band, filter and scene temperature must give some light (clear errors before any work)."""
+    lo, hi = band
+    if filt is not None and not (lo - 1.5 * filt[1] < filt[0] < hi + 1.5 * filt[1]):
+        raise InputError("filter_um", list(filt), f"a filter overlapping the band {lo:g}-{hi:g} um "
+                         "(centre within 1.5 widths of it)")
+    with warnings.catch_warnings(), np.errstate(over="ignore", under="ignore"):
+        warnings.simplefilter("ignore", RuntimeWarning)
+        try:
+            psf_wavelengths(band, design_um=0.5 * (lo + hi), n=5, temperature_k=temperature_k, filter_um=filt)
+        except InputError as e:
+            if e.parameter != "band_um":
+                raise
+            raise InputError("temperature_k", temperature_k, f"a scene temperature at which the scene emits in "
+                             f"the band {lo:g}-{hi:g} um (its Planck radiance there underflows to 0)") from None
+
+
+def _check_distinct_names(sources: list[str], lenses: list[LensDesign]) -> None:
+    """The report files are named after the lens: two lenses with one file stem would overwrite each other."""
+    seen: dict[str, str] = {}
+    for d, lens in zip(sources, lenses):
+        if file_stem(lens.name) in seen:
+            raise InputError("designs", d, f"lenses with distinct names: {seen[file_stem(lens.name)]} is also named "
+                             f"'{lens.name}' (as a file name) and its report files would be overwritten "
+                             "(change 'name' in one)")
+        seen[file_stem(lens.name)] = d
+
+
+def _check_wavelengths_and_fields(lens: LensDesign, band: tuple[float, float], filt: tuple[float, float] | None,
+                                  wavelength_um: float | None, fields_deg: list[float] | None) -> None:
+    """Every field must lie inside the lens' field at the longest wavelength used, and that wavelength below the
+    one at which the rim's first order turns evanescent even on axis (the error names the option that sets it)."""
+    wl_max = max(band[1] if filt is None else min(band[1], filt[0] + 1.5 * filt[1]),
+                 wavelength_um or lens.wavelength_um)
+    wl_lim = lens.wavelength_um * (1.0 - EVANESCENT_MARGIN) / lens.na
+    if not wl_max < wl_lim:
+        if wavelength_um is not None and wavelength_um >= wl_max:
+            opt, val = "wavelength_um", wavelength_um
+        elif filt is not None:
+            opt, val = "filter_um", list(filt)
+        else:
+            opt, val = "band_um", list(band)
+        raise InputError(opt, val, f"wavelengths below {wl_lim:.4g} um for lens '{lens.name}' (NA {lens.na:.4f}, "
+                         f"lambda0 {lens.wavelength_um:g} um): longer ones leave the rim of the lens evanescent")
+    lim = max_field_deg(lens, wl_max)
+    for fd in fields_deg or []:
+        if not abs(fd) <= lim:
+            raise InputError("field_deg", fd, f"|field| <= {lim:.3f} deg for lens '{lens.name}' "
+                             f"(NA {lens.na:.4f}) at {wl_max:g} um")

@@ -1,0 +1,167 @@
+"""``metafovea psf``: files written and the summary printed, bad input -> exit 2 with one line that names the
+option typed, two lenses in two processes give the numbers of one."""
+
+import contextlib
+import io
+import json
+import textwrap
+
+import pytest
+
+from metafovea.cli import main
+from metafovea.config import load_lens
+from metafovea.optics import max_field_deg
+
+TOML = """name = "tiny"
+f_mm = 4.0
+diameter_mm = 2.0
+wavelength_um = 10.0
+polarization = "x"
+levels = 8
+lattice = "integer"
+"""
+
+
+@pytest.fixture(scope="module")
+def tiny(tmp_path_factory):
+    d = tmp_path_factory.mktemp("tiny")
+    path = d / "tiny.toml"
+    path.write_text(TOML)
+    out = d / "report"
+    stdout = io.StringIO()
+    with contextlib.redirect_stdout(stdout):
+        rc = main(["psf", str(path), "--field-deg", "0", "3", "--wavelengths", "9", "--out", str(out), "--json"])
+    assert rc == 0
+    return path, out, json.loads(stdout.getvalue())
+
+
+def _lens_toml(tmp_path, name="qa", f_mm=0.8, d_mm=0.4, levels=8, lattice="integer", pol="x"):
+    p = tmp_path / f"{name}.toml"
+    p.write_text(textwrap.dedent(f"""\
+        name = "{name}"
+        f_mm = {f_mm}
+        diameter_mm = {d_mm}
+        wavelength_um = 10.0
+        polarization = "{pol}"
+        levels = {levels}
+        lattice = "{lattice}"
+        """))
+    return p
+
+
+def _err(capsys) -> str:
+    err = capsys.readouterr().err.strip()
+    assert "Traceback" not in err
+    return err
+
+
+def test_writes_the_report_and_prints_its_summary(tiny):
+    _, out, summary = tiny
+    for name in ("psf_mono.png", "mtf.png", "ee_field.png", "psf_report.json", "psf_report.html"):
+        assert (out / f"tiny_{name}").is_file()
+    s = summary["tiny"]
+    assert s["html"] == str(out / "tiny_psf_report.html")
+    res = json.loads((out / "tiny_psf_report.json").read_text())
+    assert s["sensor"] == res["sensor"] and s["monochromatic"] == res["monochromatic"]
+    assert [m["field_deg"] for m in s["sensor"]] == [0.0, 3.0]
+
+
+@pytest.mark.parametrize("args,param", [
+    (["--wavelength-um", "0"], "--wavelength-um"),
+    (["--wavelength-um", "-3"], "--wavelength-um"),
+    (["--band-um", "0", "14"], "--band-um"),
+    (["--band-um", "14", "8"], "--band-um"),
+    (["--field-deg", "0", "60"], "--field-deg"),
+    (["--window-um", "60", "--field-deg", "0"], "--window-um"),  # below 4 diffraction radii
+    (["--window-um", "150", "--field-deg", "0"], "for error 0.0001"),  # truncates the Airy rings at 1.7e-3
+    (["--error", "0"], "--error"),
+    (["--pixel-um", "-17"], "--pixel-um"),
+])
+def test_bad_input_exit_2_one_line(tiny, tmp_path, capsys, args, param):
+    path, _, _ = tiny
+    capsys.readouterr()
+    rc = main(["psf", str(path), "--wavelengths", "3", "--out", str(tmp_path / "o")] + args)
+    err = capsys.readouterr().err
+    assert rc == 2
+    lines = [x for x in err.splitlines() if x.strip()]
+    assert len(lines) == 1 and param in lines[0] and "Traceback" not in err, err
+
+
+def test_field_limit_is_the_lens_field(tiny, tmp_path):
+    path, _, _ = tiny
+    lens = load_lens(path)
+    lim = max_field_deg(lens, 14.0)
+    assert 0 < lim < 60
+    assert main(["psf", str(path), "--field-deg", f"{lim + 0.01:.4f}", "--out", str(tmp_path / "o")]) == 2
+
+
+def test_window_ok_for_a_looser_error(tiny, tmp_path):
+    path, _, _ = tiny
+    out = tmp_path / "o"
+    assert main(["psf", str(path), "--wavelengths", "3", "--field-deg", "0", "--window-um", "150", "--error", "0.01",
+                 "--out", str(out)]) == 0
+    res = json.loads((out / "tiny_psf_report.json").read_text())
+    m = res["monochromatic"][0]
+    assert 150 <= m["samples"] * m["pitch_um"] <= 150 + 2 * m["pitch_um"]
+
+
+def test_two_lenses_in_two_processes(tiny, tmp_path, capsys):
+    path, out1, _ = tiny
+    other = tmp_path / "tiny2.toml"
+    other.write_text(TOML.replace('"tiny"', '"tiny2"').replace("f_mm = 4.0", "f_mm = 3.0"))
+    out = tmp_path / "o"
+    assert main(["psf", str(path), str(other), "--field-deg", "0", "3", "--wavelengths", "9", "--jobs", "2",
+                 "--out", str(out)]) == 0
+    a = json.loads((out / "tiny_psf_report.json").read_text())
+    b = json.loads((out1 / "tiny_psf_report.json").read_text())
+    strip = lambda rows: [{k: v for k, v in r.items() if k != "seconds"} for r in rows]
+    assert strip(a["sensor"]) == strip(b["sensor"])  # the same numbers as the single-process run
+    assert (out / "tiny2_psf_report.html").is_file()
+    capsys.readouterr()
+    assert main(["psf", str(path), str(other), "--field-deg", "0", "--wavelengths", "3", "--window-um", "150",
+                 "--jobs", "2", "--out", str(tmp_path / "o2")]) == 2
+    lines = [x for x in capsys.readouterr().err.splitlines() if x.strip()]
+    assert len(lines) == 1 and "--window-um" in lines[0]
+
+
+@pytest.mark.parametrize("opts,flag", [
+    (["--wavelength-um", "5"], "--wavelength-um"),
+    (["--wavelength-um", "2.5"], "--wavelength-um"),
+    (["--wavelengths", "100000"], "--wavelengths"),
+    (["--temperature-k", "1"], "--temperature-k"),
+    (["--pixel-um", "1e6"], "--pixel-um"),
+    (["--filter-um", "20", "0.5"], "--filter-um"),
+    (["--filter-um", "3", "0.2"], "--filter-um"),
+])
+def test_psf_cli_errors_name_the_option(tmp_path, capsys, opts, flag):
+    """--wavelengths 100000 hung; --pixel-um / --filter-um / --temperature-k errors did not name the option
+    (a temperature of 1 K printed a RuntimeWarning and blamed band_um); a wavelength at zero first-order
+    efficiency named 'polarization = None'."""
+    toml = _lens_toml(tmp_path, f_mm=20.0, d_mm=2.0)
+    rc = main(["psf", str(toml), "--field-deg", "0", "--wavelengths", "3", "--out", str(tmp_path / "o"), *opts])
+    err = _err(capsys)
+    assert rc == 2, err
+    assert err.startswith("metafovea psf: error: " + flag) and len(err.splitlines()) == 1
+    assert "RuntimeWarning" not in err
+
+
+def test_psf_two_lenses_with_one_name_refused(tmp_path, capsys):
+    """Two designs with the same 'name' silently overwrote each other's report files."""
+    a = _lens_toml(tmp_path, name="same", f_mm=20.0, d_mm=2.0)
+    b = tmp_path / "other.toml"
+    b.write_text(a.read_text().replace("f_mm = 20.0", "f_mm = 25.0"))
+    out = tmp_path / "o"
+    rc = main(["psf", str(a), str(b), "--field-deg", "0", "--wavelengths", "3", "--out", str(out)])
+    err = _err(capsys)
+    assert rc == 2 and "'same'" in err and not out.exists()
+
+
+@pytest.mark.parametrize("opts,flag", [(["--band-um", "8", "300"], "--band-um"), (["--band-um", "0.01", "1e4"], "--band-um"),
+                                       (["--wavelength-um", "250"], "--wavelength-um")])
+def test_psf_band_beyond_evanescent_limit_names_band(tmp_path, capsys, opts, flag):
+    """A band reaching lambda0/NA failed deep inside with '--field-deg = 0.0 is invalid; |field| <= 0.000'."""
+    toml = _lens_toml(tmp_path, f_mm=20.0, d_mm=2.0)  # NA 0.05: limit 200 um
+    rc = main(["psf", str(toml), "--field-deg", "0", "--wavelengths", "3", "--out", str(tmp_path / "o"), *opts])
+    err = _err(capsys)
+    assert rc == 2 and err.startswith("metafovea psf: error: " + flag), err
+    assert not (tmp_path / "o").exists()

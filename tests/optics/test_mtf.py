@@ -1,0 +1,47 @@
+"""PSF metrics: the MTF of the flat lens against REFERENCES.md (values at 10 and 29.4 cycles/mm, the 2 NA / lambda
+cutoff) and the paraxial diffraction-limited MTF, then FWHM and encircled energy of sampled PSFs."""
+
+import numpy as np
+import pytest
+
+from metafovea.config import LensDesign
+from metafovea.optics import diffraction_mtf, encircled_energy, fwhm_um, psf, pupil_mtf
+
+F1 = LensDesign.perifoveal()  # F/1, D = 25 mm
+F2 = LensDesign.foveal()  # F/2, D = 75 mm
+
+
+@pytest.mark.parametrize("lens,cut,m10,m29", [(F1, 89.44, 0.8346, 0.5654), (F2, 48.51, 0.7320, 0.2797)])
+def test_mtf_references(lens, cut, m10, m29):
+    m = pupil_mtf(lens, [10.0, 29.4, cut * 0.995, cut * 1.005])
+    assert m[0] == pytest.approx(m10, abs=1.5e-4)
+    assert m[1] == pytest.approx(m29, abs=1.5e-4)
+    assert 0 < m[2] < 1e-3 and m[3] == 0.0
+    assert 2 * lens.na / lens.wavelength_um * 1000 == pytest.approx(cut, abs=0.01)
+
+
+def test_paraxial_limit_diffraction_mtf():
+    # a slow lens (F/20): the exact pupil MTF tends to the paraxial diffraction-limited one, cutoff D / (lambda f)
+    lens = LensDesign("slow", 100_000.0, 5_000.0)
+    cut = 1000 * lens.diameter_um / (lens.wavelength_um * lens.f_um)
+    nu = np.array([0.1, 0.3, 0.6, 0.9]) * cut
+    assert np.allclose(pupil_mtf(lens, nu), diffraction_mtf(nu, cut), atol=2e-3)
+
+
+def test_metrics_fwhm_and_ee():
+    P = psf(F1, window_um=200, pitch_um=0.5, allow_truncation=True)
+    fx, fy = fwhm_um(P)
+    assert fx == pytest.approx(fy, rel=1e-6)
+    assert 0.5 * 10 / F1.na < fx < 0.53 * 10 / F1.na
+    ee = encircled_energy(P, [17.0, 24.0], center_um=(0.0, 0.0))
+    assert ee == pytest.approx([0.8216, 0.8878], abs=2e-3)
+
+
+@pytest.mark.parametrize("lens,ee17,ee24", [(F1, 0.8216, 0.8878), (F2, 0.7611, 0.8277)])
+def test_encircled_energy_of_default_sampled_psf(lens, ee17, ee24):
+    # the default pitch is near the intensity Nyquist pitch: EE must interpolate, not treat samples as squares
+    P = psf(lens)
+    assert P.pitch_um > 4.0
+    e = encircled_energy(P, [17.0, 24.0])
+    assert e[0] == pytest.approx(ee17, abs=2e-3)
+    assert e[1] == pytest.approx(ee24, abs=2e-3)

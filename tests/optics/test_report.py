@@ -1,0 +1,114 @@
+"""The PSF report: the files of one lens (PNG figures, JSON numbers equal to the library's, one HTML page) and the
+rules of the several-lens pipeline ``psf_reports`` (refused before any work and before the output is made)."""
+
+import json
+import warnings
+
+import pytest
+
+from metafovea.config import LensDesign, load_lens
+from metafovea.errors import InputError
+from metafovea.optics import SamplingError, psf, sensor_psf
+from metafovea.optics.report import file_stem, psf_report, psf_reports
+from metafovea.radiometry import psf_wavelengths
+
+TOML = """name = "tiny"
+f_mm = 4.0
+diameter_mm = 2.0
+wavelength_um = 10.0
+polarization = "x"
+levels = 8
+lattice = "integer"
+"""
+
+
+@pytest.fixture(scope="module")
+def tiny(tmp_path_factory):
+    d = tmp_path_factory.mktemp("tiny")
+    path = d / "tiny.toml"
+    path.write_text(TOML)
+    out = d / "report"
+    res = psf_report(load_lens(path), out, fields_deg=[0.0, 3.0], n_wavelengths=9)
+    return path, out, res
+
+
+def test_writes_png_json_html(tiny):
+    _, out, res = tiny
+    for name in ("psf_mono.png", "mtf.png", "ee_field.png"):
+        data = (out / f"tiny_{name}").read_bytes()
+        assert data[:8] == b"\x89PNG\r\n\x1a\n" and len(data) > 1000
+    page = (out / "tiny_psf_report.html").read_text()
+    assert page.lower().startswith("<!doctype html>") and page.count("data:image/png;base64,") == 3
+    assert "PSF / MTF report: tiny" in page and page.count("<table>") == 2
+    on_file = json.loads((out / "tiny_psf_report.json").read_text())
+    assert on_file["lens"] == "tiny" and len(on_file["sensor"]) == 2 and on_file["spectral"]["n_wavelengths"] >= 9
+    assert on_file["sensor"] == res["sensor"] and on_file["monochromatic"] == res["monochromatic"]
+
+
+def test_json_numbers_match_library(tiny):
+    path, out, _ = tiny
+    lens = load_lens(path)
+    res = json.loads((out / "tiny_psf_report.json").read_text())
+    assert res["mtf_cutoff_cyc_per_mm"] == pytest.approx(2 * lens.na / lens.wavelength_um * 1000)
+    P = psf(lens, field_deg=0.0, quantize=True, lattice=True, error=1e-4)
+    m0 = res["monochromatic"][0]
+    assert m0["engine"] == P.engine and m0["samples"] == P.shape[0]
+    assert m0["energy_fraction"] == pytest.approx(P.energy_fraction, rel=1e-9)
+    assert m0["peak_fraction_per_um2"] == pytest.approx(P.intensity.max() / P.pitch_um ** 2, rel=1e-9)
+    wl, w = psf_wavelengths((8.0, 14.0), design_um=lens.wavelength_um, n=9, temperature_k=300.0)
+    assert res["spectral"]["n_wavelengths"] == wl.size
+    for s, fd in zip(res["sensor"], (0.0, 3.0)):
+        assert s["field_deg"] == fd
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            mono = sensor_psf(lens, pixel_pitch_um=17.0, field_deg=fd, error=1e-4)
+            poly = sensor_psf(lens, pixel_pitch_um=17.0, field_deg=fd, wavelengths_um=wl, weights=w, error=1e-4)
+        c = mono.shape[0] // 2
+        assert s["mono_center_pixel"] == pytest.approx(mono.intensity[c, c], rel=1e-9)
+        c = poly.shape[0] // 2
+        assert s["poly_center_pixel"] == pytest.approx(poly.intensity[c, c], rel=1e-9)
+        assert s["poly_energy_fraction"] == pytest.approx(poly.energy_fraction, rel=1e-9)
+        assert s["poly_error_estimate"] == pytest.approx(poly.error_estimate, rel=1e-9)
+        assert s["size_px"] == poly.shape[0]
+
+
+def test_file_stem_cannot_name_a_path():
+    assert file_stem("../../x") == "_.._x" and file_stem("a/b") == "a_b" and file_stem("..") == "lens"
+
+
+def test_psf_reports_refuses_one_name_twice_before_any_output(tmp_path):
+    a = LensDesign("same", 20000.0, 2000.0)
+    b = LensDesign("same", 25000.0, 2000.0)
+    with pytest.raises(InputError) as e:
+        psf_reports([a, b], tmp_path / "o", fields_deg=[0.0], n_wavelengths=3)
+    assert e.value.parameter == "designs" and "'same'" in str(e.value)
+    assert not (tmp_path / "o").exists()
+
+
+@pytest.mark.parametrize("kw,parameter", [
+    (dict(band_um=(8.0, 300.0)), "band_um"),  # NA 0.05: the rim is evanescent beyond 200 um
+    (dict(wavelength_um=250.0), "wavelength_um"),
+    (dict(filter_um=(20.0, 0.5)), "filter_um"),  # outside the band
+    (dict(temperature_k=1.0), "temperature_k"),  # no light in the band
+    (dict(fields_deg=[0.0, 80.0]), "field_deg"),
+])
+def test_psf_reports_names_the_parameter(tmp_path, kw, parameter):
+    kw = {"fields_deg": [0.0], "n_wavelengths": 3, **kw}
+    with pytest.raises(InputError) as e:
+        psf_reports([LensDesign("t", 20000.0, 2000.0)], tmp_path / "o", **kw)
+    assert e.value.parameter == parameter
+    assert not (tmp_path / "o").exists()
+
+
+def test_psf_report_monochromatic_errors_name_wavelength_um(tmp_path):
+    # lambda0 / 2: the focusing order carries no light; the error names the report's own parameter
+    with pytest.raises(InputError) as e:
+        psf_report(LensDesign("t", 20000.0, 2000.0), tmp_path, fields_deg=[0.0], n_wavelengths=3, wavelength_um=5.0)
+    assert e.value.parameter == "wavelength_um" and e.value.value == 5.0
+
+
+def test_psf_report_truncating_window_is_refused(tiny, tmp_path):
+    path, _, _ = tiny
+    with pytest.raises(SamplingError, match="for error 0.0001") as e:
+        psf_report(load_lens(path), tmp_path, fields_deg=[0.0], n_wavelengths=3, window_um=150.0)
+    assert e.value.parameter == "window_um" and "allow_truncation" not in str(e.value)
