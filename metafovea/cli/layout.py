@@ -1,21 +1,18 @@
 """``metafovea export`` and ``metafovea verify``: lens layouts to GDSII/OASIS (or a mesh) and back.
 
-Wired into :mod:`metafovea.cli` by ``add_export_parser`` / ``add_verify_parser``; each ``run_*``
-returns the exit status (verify: 1 on any mismatch) and raises :class:`InputError` for bad input.
+``export`` writes one file through :func:`metafovea.layout.export.export_file` (exit 0); ``verify`` reads it
+back through :func:`metafovea.layout.verify.verify_layout` (exit 0 when it matches the design, 1 on any
+mismatch). Both read the design (and post set) with :func:`metafovea.layout.tiling.load_spec`. Bad input is
+an :class:`InputError` (exit 2, see :mod:`metafovea.cli`).
 """
 
 from __future__ import annotations
 
+import argparse
+import sys
 from typing import Any
 
-import argparse
-import os
-import sys
-from pathlib import Path
-
 from metafovea.errors import InputError
-
-DEFAULT_DIR = Path("gds_export")
 
 
 def _patch(s: str | None):
@@ -85,98 +82,48 @@ def add_verify_parser(subparsers) -> argparse.ArgumentParser:
     return p
 
 
-def _spec(args, design_path: str):
-    from metafovea.config import LensDesign, load_design
-    from metafovea.layout.tiling import make_spec
-    from metafovea.library import PostSet
+def register(subparsers: Any) -> None:
+    add_export_parser(subparsers)
+    add_verify_parser(subparsers)
 
-    d = load_design(design_path)
-    if not isinstance(d, LensDesign):
-        raise InputError("design", design_path, "a lens design file (with f_mm, diameter_mm, ...)")
-    ps = None
-    if args.post_set:
-        try:
-            ps = PostSet.load(args.post_set)
-        except InputError as e:
-            raise InputError("--post-set", args.post_set, e.allowed, detail=str(e).partition("allowed: ")[2]
-                             .removeprefix(e.allowed).strip(" ()") or None) from None
-        if args.levels is not None and args.levels != ps.levels:
-            raise InputError("--levels", args.levels, f"the number of posts in {args.post_set} ({ps.levels})")
-        if ps.polarization != d.polarization:
-            raise InputError("--post-set", args.post_set, f"a post set for polarisation {d.polarization!r}")
-    levels = args.levels if args.levels is not None else (ps.levels if ps is not None else None)
+
+def _inputs(args, design_path: str):
+    """The layout spec and (``--test-array``) the calibration array the flags describe."""
+    from metafovea.layout.export import TestArraySpec
+    from metafovea.layout.tiling import load_spec
+
     if args.test_array and args.patch:
         raise InputError("--patch", args.patch, "not together with --test-array")
-    return make_spec(d, ps, levels, grid_nm=args.grid_nm, patch_mm=_patch(args.patch),
+    spec = load_spec(design_path, args.post_set, args.levels, grid_nm=args.grid_nm, patch_mm=_patch(args.patch),
                      band_rows=getattr(args, "band_rows", 32), ring_width_um=args.ring_width_um)
-
-
-def _test_array(args, spec):
-    from metafovea.errors import check_int
-    from metafovea.layout.export import TestArraySpec
-
-    return TestArraySpec(spec, block=check_int("--block", args.block, 1, 4096))
+    return spec, (TestArraySpec(spec, block=args.block) if args.test_array else None)
 
 
 def run_export(args) -> int:
-    from metafovea.layout.export import export_layout, export_test_array
-    from metafovea.layout.mesh import MESH_FORMATS, export_mesh
+    from metafovea.layout.export import export_file
 
-    fmt = str(args.format).lower()
-    if fmt not in ("gds", "oas") + MESH_FORMATS:
-        raise InputError("--format", args.format, "one of 'gds', 'oas', 'stl', 'glb'")
-    spec = _spec(args, args.design)
-    stem = "".join(ch if (ch.isalnum() or ch in "-_.") else "_" for ch in spec.design.name).lstrip(".") or "lens"
-    name = stem + ("_cal" if args.test_array else "") + ("_patch" if spec.patch_um else "") + \
-        ("_flat" if args.flat else "") + (f"_h{args.max_refs}" if args.max_refs else "")
-    out = Path(args.out) if args.out else DEFAULT_DIR / name
-    suffixes = {"gds": (".gds", ".gdsii"), "oas": (".oas", ".oasis"), "stl": (".stl",), "glb": (".glb",)}
-    known = tuple(x for v in suffixes.values() for x in v)
-    if out.suffix.lower() not in known:
-        out = out.with_name(out.name + "." + fmt)
-    elif out.suffix.lower() not in suffixes[fmt]:
-        # a .oas name with GDSII inside (or the reverse) would mislead every tool that trusts the suffix
-        raise InputError("--out", str(out), f"a file name ending in {' or '.join(suffixes[fmt])} for --format {fmt} "
-                         "(or no suffix: it is added)")
-    if args.max_refs is not None and (fmt != "gds" or args.test_array):
-        raise InputError("--max-refs", args.max_refs, "only with --format gds for a lens (not --test-array)")
-    if fmt in MESH_FORMATS:
-        if args.flat or args.test_array:
-            raise InputError("--format", fmt, "gds or oas with --flat/--test-array")
-        res = export_mesh(spec, out, fmt, force=args.force, substrate_thickness_um=args.substrate_um)
-    elif args.test_array:
-        res = export_test_array(_test_array(args, spec), out, fmt, flat=args.flat, force=args.force).as_dict()
-    else:
-        if not 0 <= args.compress <= 9:
-            raise InputError("--compress", args.compress, "an integer 0..9")
-        if args.workers is not None and args.workers < 1:
-            raise InputError("--workers", args.workers, "an integer >= 1")
-        workers = args.workers if args.workers is not None else max(1, min(2, os.cpu_count() or 1))
-        res = export_layout(spec, out, fmt, flat=args.flat, force=args.force, resume=not args.no_resume,
-                            workers=workers, scheduler=args.scheduler, progress=not (args.quiet or args.json),
-                            compress=args.compress, max_refs=args.max_refs).as_dict()
+    spec, ta = _inputs(args, args.design)
+    res = export_file(spec, args.out, args.format, test_array=ta, flat=args.flat, max_refs=args.max_refs,
+                      substrate_thickness_um=args.substrate_um, force=args.force, resume=not args.no_resume,
+                      workers=args.workers, scheduler=args.scheduler, progress=not (args.quiet or args.json),
+                      compress=args.compress)
     if args.json:
         from metafovea.io import to_json
         print(to_json(res))
+    elif "posts_per_s" in res:
+        print(f"wrote {res['path']}: {res['posts']:,} posts, {res['bytes']:,} bytes, {res['seconds']:.2f} s"
+              + (f" (resumed after {res['resumed_bands']} bands)" if res.get("resumed_bands") else ""))
     else:
-        if "posts_per_s" in res:
-            print(f"wrote {res['path']}: {res['posts']:,} posts, {res['bytes']:,} bytes, {res['seconds']:.2f} s"
-                  + (f" (resumed after {res['resumed_bands']} bands)" if res.get("resumed_bands") else ""))
-        else:
-            print(f"wrote {res['path']}: {res['triangles']:,} triangles, {res['bytes']:,} bytes")
+        print(f"wrote {res['path']}: {res['triangles']:,} triangles, {res['bytes']:,} bytes")
     return 0
 
 
 def run_verify(args) -> int:
     from metafovea.layout.verify import verify_layout
 
-    spec = _spec(args, args.design)
-    ta = _test_array(args, spec) if args.test_array else None
-    if args.workers is not None and args.workers < 1:
-        raise InputError("--workers", args.workers, "an integer >= 1")
-    if args.max_refs is not None and args.max_refs < 1:
-        raise InputError("--max-refs", args.max_refs, "an integer >= 1")
-    rep = verify_layout(args.file, spec, reader=args.reader, test_array=ta, workers=args.workers or 1,
+    spec, ta = _inputs(args, args.design)
+    rep = verify_layout(args.file, spec, reader=args.reader, test_array=ta,
+                        workers=1 if args.workers is None else args.workers,
                         progress=not (args.quiet or args.json), max_refs=args.max_refs)
     if args.json:
         from metafovea.io import to_json
@@ -188,26 +135,3 @@ def run_verify(args) -> int:
         for m in rep.mismatches:
             print(f"  - {m}", file=sys.stderr)
     return 0 if rep.ok else 1
-
-
-def main(argv=None) -> int:
-    """Stand-alone entry (``python -m metafovea.cli_layout export|verify ...``) until cli.py wires these."""
-    p = argparse.ArgumentParser(prog="metafovea")
-    sub = p.add_subparsers(dest="cmd", required=True)
-    add_export_parser(sub)
-    add_verify_parser(sub)
-    args = p.parse_args(argv)
-    try:
-        return args.func(args)
-    except InputError as e:
-        print(f"error: {e}", file=sys.stderr)
-        return 2
-
-
-if __name__ == "__main__":
-    sys.exit(main())
-
-
-def register(subparsers: Any) -> None:
-    add_export_parser(subparsers)
-    add_verify_parser(subparsers)

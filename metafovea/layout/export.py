@@ -31,9 +31,14 @@ import numpy as np
 
 from metafovea.errors import InputError, check_choice, check_int
 from metafovea.io import input_hash, prepare_output
-from metafovea.layout.tiling import LayoutSpec
+from metafovea.layout import gds, oasis
+from metafovea.layout.mesh import MESH_FORMATS, export_mesh
+from metafovea.layout.tiling import Expected, LayoutSpec
 
-FORMATS = ("gds", "oas")
+FORMATS = ("gds", "oas")  #: layout formats (:func:`export_layout`)
+#: every format :func:`export_file` writes, and the file-name suffixes each accepts
+SUFFIXES = {"gds": (".gds", ".gdsii"), "oas": (".oas", ".oasis"), "stl": (".stl",), "glb": (".glb",)}
+DEFAULT_DIR = Path("gds_export")  #: where :func:`export_file` writes without ``out``
 JOURNAL_VERSION = 2
 
 
@@ -280,21 +285,90 @@ def _load_journal(jpath: Path) -> dict[str, Any] | None:
     return j
 
 
+class _Journal:
+    """The resume journal next to the part file: tasks written, byte offset, counts so far and (hierarchical
+    GDSII) the leaf structures per task, under the key of everything that fixes the file's content."""
+
+    def __init__(self, path: Path, key: str, total: int):
+        self.path, self.key, self.total = path, key, total
+
+    def write(self, done: int, offset: int, counts: np.ndarray, leaves: list[int]) -> None:
+        _write_journal(self.path, {"key": self.key, "bands_done": done, "offset": offset, "counts": counts.tolist(),
+                                   "total_bands": self.total, "leaves": leaves})
+
+    def resumable(self, j: dict[str, Any] | None, part: Path, hier: bool) -> bool:
+        """Whether journal ``j`` (from :func:`_load_journal`) describes a consistent partial export of this key."""
+        return (j is not None and j.get("key") == self.key and part.is_file()
+                and part.stat().st_size >= j["offset"] and 0 <= j["bands_done"] <= self.total
+                and len(j.get("leaves", [])) == (j["bands_done"] if hier else 0))
+
+
+class _Checkpoint:
+    """Called by the writer thread after each task is written: adds its counts, and journals the progress at
+    most every 0.5 s (after the last task, and after every task with ``every_task``)."""
+
+    def __init__(self, fh: DirectFile, journal: _Journal, counts: np.ndarray, leaves: list[int], done: int,
+                 offset: int, *, hier: bool, every_task: bool, bar: Any = None):
+        self.fh, self.journal, self.counts, self.leaves = fh, journal, counts, leaves
+        self.done, self.offset, self.hier, self.every_task, self.bar = done, offset, hier, every_task, bar
+        self.last = time.perf_counter()
+
+    def __call__(self, nbytes: int, c: np.ndarray, meta: Any) -> None:
+        self.offset += nbytes
+        self.counts[:] += c
+        self.done += 1
+        if self.hier:
+            self.leaves.append(int(meta))
+        now = time.perf_counter()
+        if now - self.last > 0.5 or self.done == self.journal.total or self.every_task:
+            self.fh.flush()
+            self.journal.write(self.done, self.offset, self.counts, self.leaves)
+            self.last = now
+        if self.bar is not None:
+            self.bar.update(1)
+            self.bar.set_postfix(posts=f"{int(self.counts.sum()):,}", refresh=False)
+
+
 def _gds_task(spec: LayoutSpec, flat: bool, task):
-    from metafovea.layout import gds as g
-    pieces, counts = g.encode_task_records(spec, flat, task)
+    pieces, counts = gds.encode_task_records(spec, flat, task)
     return pieces, counts, None
 
 
 def _gds_task_hier(spec: LayoutSpec, flat: bool, max_refs: int, task):
-    from metafovea.layout import gds as g
-    return g.encode_task_hier(spec, flat, max_refs, task)
+    return gds.encode_task_hier(spec, flat, max_refs, task)
 
 
 def _oas_task(spec: LayoutSpec, compress: int, task):
-    from metafovea.layout import oasis as o
-    pieces, counts = o.encode_task_oas(spec, compress, task)
+    pieces, counts = oasis.encode_task_oas(spec, compress, task)
     return pieces, counts, None
+
+
+def _encoder(spec: LayoutSpec, fmt: str, flat: bool, compress: int, max_refs: int | None):
+    """``(header, footer, top_open, top_elements, encode)``: the bytes before and after the posts, the top
+    structure's opening records and element count (hierarchical GDSII, whose footer is built at the end), and
+    the task encoder (picklable, for processes)."""
+    top_open, top_elements = b"", 0
+    if fmt == "gds":
+        header, footer = gds.gds_header(spec, flat), gds.gds_footer()
+        if max_refs is None:
+            return header, footer, top_open, top_elements, partial(_gds_task, spec, flat)
+        header, top_open, top_elements = gds.split_top(header)
+        if top_elements >= max_refs:
+            raise InputError("--max-refs", max_refs, f"more than the {top_elements} frame elements of the top cell")
+        return header, footer, top_open, top_elements, partial(_gds_task_hier, spec, flat, max_refs)
+    return oasis.oas_header(spec), oasis.oas_footer(), top_open, top_elements, partial(_oas_task, spec, compress)
+
+
+def _publish(part: Path, path: Path, jpath: Path) -> None:
+    """The complete part file (synced and closed) under its final name; the journal removed, the directory
+    synced."""
+    os.replace(part, path)
+    with contextlib.suppress(FileNotFoundError):
+        jpath.unlink()
+    with contextlib.suppress(OSError):
+        dfd = os.open(path.parent, os.O_RDONLY)
+        os.fsync(dfd)
+        os.close(dfd)
 
 
 def export_layout(spec: LayoutSpec, path: str | os.PathLike, fmt: str = "gds", *, flat: bool = False,
@@ -313,9 +387,6 @@ def export_layout(spec: LayoutSpec, path: str | os.PathLike, fmt: str = "gds", *
     system allows it (see :class:`DirectFile`). ``_stop_after``: stop (as if interrupted) after that many
     tasks; for tests of resumption.
     """
-    from metafovea.layout import gds as g
-    from metafovea.layout import oasis as o
-
     fmt = check_choice("--format", fmt, FORMATS)
     if flat and fmt != "gds":
         raise InputError("--flat", True, "only with --format gds (OASIS is always hierarchical)")
@@ -327,21 +398,10 @@ def export_layout(spec: LayoutSpec, path: str | os.PathLike, fmt: str = "gds", *
     bands = spec.tasks()
     key = input_hash({"v": JOURNAL_VERSION, "spec": spec.key(), "fmt": fmt, "flat": flat, "compress": compress,
                       "max_refs": max_refs})
-    top_open, top_elements = b"", 0
-    if fmt == "gds":
-        header, footer = g.gds_header(spec, flat), g.gds_footer()
-        if max_refs is None:
-            enc = partial(_gds_task, spec, flat)
-        else:
-            header, top_open, top_elements = g.split_top(header)
-            if top_elements >= max_refs:
-                raise InputError("--max-refs", max_refs, f"more than the {top_elements} frame elements of the top cell")
-            enc = partial(_gds_task_hier, spec, flat, max_refs)
-    else:
-        header, footer = o.oas_header(spec), o.oas_footer()
-        enc = partial(_oas_task, spec, compress)
+    header, footer, top_open, top_elements, enc = _encoder(spec, fmt, flat, compress, max_refs)
     prepare_output(path, force)
     part, jpath = part_paths(path)
+    journal = _Journal(jpath, key, len(bands))
 
     t0 = time.perf_counter()
     start, offset = 0, len(header)
@@ -350,9 +410,7 @@ def export_layout(spec: LayoutSpec, path: str | os.PathLike, fmt: str = "gds", *
     j = _load_journal(jpath) if resume else None
     fh = None
     try:
-        if (j is not None and j.get("key") == key and part.is_file()
-                and part.stat().st_size >= j["offset"] and 0 <= j["bands_done"] <= len(bands)
-                and len(j.get("leaves", [])) == (j["bands_done"] if max_refs else 0)):
+        if journal.resumable(j, part, max_refs is not None):
             start, offset = int(j["bands_done"]), int(j["offset"])
             counts += np.asarray(j["counts"], dtype=np.int64)
             leaves = [int(v) for v in j.get("leaves", [])]
@@ -363,31 +421,14 @@ def export_layout(spec: LayoutSpec, path: str | os.PathLike, fmt: str = "gds", *
             fh = DirectFile(part, direct=direct)
             fh.write(header)
             fh.flush()
-            _write_journal(jpath, {"key": key, "bands_done": 0, "offset": offset, "counts": counts.tolist(),
-                                   "total_bands": len(bands), "leaves": []})
+            journal.write(0, offset, counts, [])
         bar = None
         if progress:
             from tqdm.auto import tqdm
             bar = tqdm(total=len(bands), initial=start, unit="band", desc=f"export {path.name}")
-        st = {"done": start, "offset": offset, "last": time.perf_counter()}
-
-        def written(nbytes: int, c: np.ndarray, meta: Any) -> None:  # runs in the writer thread
-            st["offset"] += nbytes
-            counts[:] += c
-            st["done"] += 1
-            if max_refs is not None:
-                leaves.append(int(meta))
-            now = time.perf_counter()
-            if now - st["last"] > 0.5 or st["done"] == len(bands) or _stop_after is not None:
-                fh.flush()
-                _write_journal(jpath, {"key": key, "bands_done": st["done"], "offset": st["offset"],
-                                       "counts": counts.tolist(), "total_bands": len(bands), "leaves": leaves})
-                st["last"] = now
-            if bar is not None:
-                bar.update(1)
-                bar.set_postfix(posts=f"{int(counts.sum()):,}", refresh=False)
-
-        writer = _Writer(fh, written)
+        ck = _Checkpoint(fh, journal, counts, leaves, start, offset, hier=max_refs is not None,
+                         every_task=_stop_after is not None, bar=bar)
+        writer = _Writer(fh, ck)
         try:
             todo = bands[start:] if _stop_after is None else bands[start:start + _stop_after]
             for pieces, c, meta in _ordered_map(enc, todo, workers, scheduler, inflight, threads):
@@ -396,26 +437,20 @@ def export_layout(spec: LayoutSpec, path: str | os.PathLike, fmt: str = "gds", *
             writer.close()
             if bar is not None:
                 bar.close()
-        done, offset = st["done"], st["offset"]
-        if done < len(bands):
+        offset = ck.offset
+        if ck.done < len(bands):
             fh.close()
             fh = None
-            raise KeyboardInterrupt("stopped after %d bands (test)" % done)
+            raise KeyboardInterrupt("stopped after %d bands (test)" % ck.done)
         if max_refs is not None:
-            names = [g.leaf_name(t, i) for t, n in enumerate(leaves) for i in range(n)]
-            footer = g.hierarchy_footer(spec, top_open, top_elements, names, max_refs)
+            names = [gds.leaf_name(t, i) for t, n in enumerate(leaves) for i in range(n)]
+            footer = gds.hierarchy_footer(spec, top_open, top_elements, names, max_refs)
         fh.write(footer)
         offset += len(footer)
         fh.sync()
         fh.close()
         fh = None
-        os.replace(part, path)
-        with contextlib.suppress(FileNotFoundError):
-            jpath.unlink()
-        with contextlib.suppress(OSError):
-            dfd = os.open(path.parent, os.O_RDONLY)
-            os.fsync(dfd)
-            os.close(dfd)
+        _publish(part, path, jpath)
     except OSError as e:
         if fh is not None:
             with contextlib.suppress(OSError):
@@ -445,7 +480,7 @@ class TestArraySpec:
     """Each post type in its own ``block x block`` block at the lattice period; blocks in a row-major
     grid of ``ceil(sqrt(N))`` columns separated by ``gap_um``; lower-left block corner at
     ``(margin_um, margin_um)``; a text label under each block (``P003 wx=.. wy=..``) and one for the
-    whole array."""
+    whole array. ``block``: 1 to 4096 posts per side."""
 
     spec: LayoutSpec
     block: int = 50
@@ -454,9 +489,17 @@ class TestArraySpec:
 
     __test__ = False  # not a pytest class
 
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "block", check_int("--block", self.block, 1, 4096))
+
     @property
     def columns(self) -> int:
         return int(np.ceil(np.sqrt(self.spec.levels)))
+
+    @property
+    def top_name(self) -> str:
+        """``<NAME>_CAL``: the top cell of the calibration array."""
+        return f"{self.spec.top_name.rsplit('_', 1)[0]}_CAL"
 
     def block_origin_nm(self, k: int) -> tuple[int, int]:
         s = self.spec
@@ -465,6 +508,20 @@ class TestArraySpec:
         r, c = divmod(k, self.columns)
         m = int(round(self.margin_um * 1000))
         return m + c * pitch + p // 2, m + r * pitch + p // 2
+
+    def expected(self) -> Expected:
+        """``block**2`` posts of each type and the bounding box of all blocks' posts (nm)."""
+        s = self.spec
+        counts = np.full(s.levels, self.block * self.block, dtype=np.int64)
+        p = int(round(s.design.period_um * 1000))
+        boxes = []
+        for k in range(s.levels):
+            x, y = self.block_origin_nm(k)
+            w, h = (int(v) for v in s.post_sizes_nm[k])
+            span = (self.block - 1) * p
+            boxes.append((x - w // 2, y - h // 2, x + span + w // 2, y + span + h // 2))
+        bb = (min(b[0] for b in boxes), min(b[1] for b in boxes), max(b[2] for b in boxes), max(b[3] for b in boxes))
+        return Expected(counts, bb)
 
 
 def export_test_array(ta: TestArraySpec, path: str | os.PathLike, fmt: str = "gds", *, flat: bool = False,
@@ -484,7 +541,7 @@ def export_test_array(ta: TestArraySpec, path: str | os.PathLike, fmt: str = "gd
     lib = gdstk.Library(name="CALIBRATION", unit=1e-6, precision=1e-9)
     pl, pd = s.layers.posts
     tl, tt = s.layers.label
-    top = gdstk.Cell(f"{s.top_name.rsplit('_', 1)[0]}_CAL")
+    top = gdstk.Cell(ta.top_name)
     cells = []
     for name, (wx, wy) in zip(s.post_names, (s.post_sizes_nm / 1000.0).tolist()):
         c = gdstk.Cell(name)
@@ -508,7 +565,7 @@ def export_test_array(ta: TestArraySpec, path: str | os.PathLike, fmt: str = "gd
     part, _ = part_paths(path)
     try:
         if fmt == "gds":
-            lib.write_gds(str(part), timestamp=datetime_fixed())
+            lib.write_gds(str(part), timestamp=gds.FIXED_TIMESTAMP)
         else:
             lib.write_oas(str(part))
         with open(part, "rb") as fh:
@@ -524,10 +581,59 @@ def export_test_array(ta: TestArraySpec, path: str | os.PathLike, fmt: str = "gd
     return ExportResult(path, fmt, flat, n * s.levels, [n] * s.levels, len(data), time.perf_counter() - t0, 0)
 
 
-def datetime_fixed():
-    from metafovea.layout.gds import FIXED_TIMESTAMP
-    return FIXED_TIMESTAMP
+# ----------------------------------------------------------------------------------------------
+# one file, as `metafovea export` writes it
+# ----------------------------------------------------------------------------------------------
+def output_path(spec: LayoutSpec, fmt: str, out: str | os.PathLike | None = None, *, test_array: bool = False,
+                flat: bool = False, max_refs: int | None = None) -> Path:
+    """Where :func:`export_file` writes: ``out`` with ``.<fmt>`` added when it ends in none of the known
+    suffixes (:data:`SUFFIXES`), or ``gds_export/<name>[_cal][_patch][_flat][_h<max_refs>].<fmt>`` (``name``:
+    the lens name with anything but letters, digits, ``-_.`` replaced by ``_``, so that it names no other
+    folder). A suffix of another format is an :class:`InputError` (tools trust the suffix)."""
+    stem = "".join(ch if (ch.isalnum() or ch in "-_.") else "_" for ch in spec.design.name).lstrip(".") or "lens"
+    name = stem + ("_cal" if test_array else "") + ("_patch" if spec.patch_um else "") + \
+        ("_flat" if flat else "") + (f"_h{max_refs}" if max_refs else "")
+    path = Path(out) if out else DEFAULT_DIR / name
+    known = tuple(x for v in SUFFIXES.values() for x in v)
+    if path.suffix.lower() not in known:
+        return path.with_name(path.name + "." + fmt)
+    if path.suffix.lower() not in SUFFIXES[fmt]:
+        # a .oas name with GDSII inside (or the reverse) would mislead every tool that trusts the suffix
+        raise InputError("--out", str(path), f"a file name ending in {' or '.join(SUFFIXES[fmt])} for --format {fmt} "
+                         "(or no suffix: it is added)")
+    return path
 
 
-__all__ = ["ExportError", "ExportResult", "FORMATS", "TestArraySpec", "export_layout", "export_test_array",
-           "part_paths"]
+def export_file(spec: LayoutSpec, out: str | os.PathLike | None = None, fmt: str = "gds", *,
+                test_array: TestArraySpec | None = None, flat: bool = False, max_refs: int | None = None,
+                substrate_thickness_um: float | None = None, force: bool = False, resume: bool = True,
+                workers: int | None = None, scheduler: str | None = None, progress: bool = False,
+                compress: int = 1) -> dict[str, Any]:
+    """Write one file as ``metafovea export`` does: the lens (or patch) layout (:func:`export_layout`), the
+    calibration array ``test_array`` (:func:`export_test_array`) or a patch mesh
+    (:func:`~metafovea.layout.mesh.export_mesh`), chosen by ``fmt`` (one of :data:`SUFFIXES`, any case), at
+    :func:`output_path`. ``workers`` (lens layouts): encoder threads, default 2 (at most the CPU count).
+    Returns the writer's result as a dict (layouts: :meth:`ExportResult.as_dict`)."""
+    fmt_given, fmt = fmt, str(fmt).lower()
+    if fmt not in SUFFIXES:
+        raise InputError("--format", fmt_given, "one of 'gds', 'oas', 'stl', 'glb'")
+    path = output_path(spec, fmt, out, test_array=test_array is not None, flat=flat, max_refs=max_refs)
+    if max_refs is not None and (fmt != "gds" or test_array is not None):
+        raise InputError("--max-refs", max_refs, "only with --format gds for a lens (not --test-array)")
+    if fmt in MESH_FORMATS:
+        if flat or test_array is not None:
+            raise InputError("--format", fmt, "gds or oas with --flat/--test-array")
+        return export_mesh(spec, path, fmt, force=force, substrate_thickness_um=substrate_thickness_um)
+    if test_array is not None:
+        return export_test_array(test_array, path, fmt, flat=flat, force=force).as_dict()
+    if not 0 <= compress <= 9:
+        raise InputError("--compress", compress, "an integer 0..9")
+    if workers is not None and workers < 1:
+        raise InputError("--workers", workers, "an integer >= 1")
+    workers = workers if workers is not None else max(1, min(2, os.cpu_count() or 1))
+    return export_layout(spec, path, fmt, flat=flat, force=force, resume=resume, workers=workers,
+                         scheduler=scheduler, progress=progress, compress=compress, max_refs=max_refs).as_dict()
+
+
+__all__ = ["DEFAULT_DIR", "ExportError", "ExportResult", "FORMATS", "SUFFIXES", "TestArraySpec", "export_file",
+           "export_layout", "export_test_array", "output_path", "part_paths"]

@@ -43,7 +43,6 @@ _BOUNDARY_DTYPE = np.dtype({
 FIXED_TIMESTAMP = datetime.datetime(2024, 1, 1)
 
 
-
 def _boundary_headers(spec, n: int) -> np.ndarray:
     """``n`` flat-post BOUNDARY records with every field set but the coordinates."""
     rec = np.empty(n, dtype=_BOUNDARY_DTYPE)
@@ -55,6 +54,7 @@ def _boundary_headers(spec, n: int) -> np.ndarray:
     rec["xyh"] = _XY5
     rec["end"] = _ENDEL
     return rec
+
 
 def _library(spec: LayoutSpec, flat: bool):
     import gdstk
@@ -310,31 +310,3 @@ def hierarchy_footer(spec: LayoutSpec, top_open: bytes, top_elements: int, leave
         out += sref(child)
     out += ENDSTR_ENDLIB
     return bytes(out)
-
-
-def encode_band_gds(spec: LayoutSpec, flat: bool, band: tuple[int, int, int, int]) -> tuple[np.ndarray, np.ndarray]:
-    """GDSII records of one band's posts (a uint8 array) and the number of posts per type."""
-    k, r, c, xs, ys = band_index(spec, band)
-    n = k.size
-    counts = np.bincount(k, minlength=spec.levels)
-    if not flat:
-        rec = np.empty((n, 7), dtype=">u4")
-        rec[:] = np.array([_SREF, _SNAME4, 0, _XY1, 0, 0, _ENDEL], dtype=">u4")
-        rec[:, 2] = _name_words(spec).astype(">u4")[k]
-        rec[:, 4] = xs.astype(">i4").view(">u4")[c]
-        rec[:, 5] = ys.astype(">i4").view(">u4")[r]
-        return rec.view(np.uint8).reshape(-1), counts
-    x, y = xs[c], ys[r]
-    k = k.astype(np.intp)
-    rec = _boundary_headers(spec, n)
-    hw = spec.post_sizes_nm[:, 0] // 2
-    hh = spec.post_sizes_nm[:, 1] // 2
-    x0, x1 = x - hw[k], x + hw[k]
-    y0, y1 = y - hh[k], y + hh[k]
-    xy = rec["xy"]
-    xy[:, 0], xy[:, 1] = x0, y0
-    xy[:, 2], xy[:, 3] = x1, y0
-    xy[:, 4], xy[:, 5] = x1, y1
-    xy[:, 6], xy[:, 7] = x0, y1
-    xy[:, 8], xy[:, 9] = x0, y0
-    return rec.view(np.uint8).reshape(-1), counts

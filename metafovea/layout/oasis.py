@@ -218,7 +218,6 @@ def _varint_len(v: np.ndarray) -> np.ndarray:
         t >>= np.uint64(7)
 
 
-
 def _repetition_spaces(spec, cs: np.ndarray, xs: np.ndarray, cont: np.ndarray) -> tuple[np.ndarray, int]:
     """Spaces between repeated placements and their grid: in periods on a grid of P when every site lies
     exactly on the lattice (``spec.period_nm``), else in database units on a grid of 1."""

@@ -26,12 +26,13 @@ Conventions (all files written by :mod:`metafovea.layout`)
 from __future__ import annotations
 
 import math
+import os
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
-from metafovea.config import LensDesign
+from metafovea.config import LensDesign, load_design
 from metafovea.errors import InputError, check_int, check_range
 from metafovea.lens import EMPTY, row_half_counts, site_index_range
 from metafovea.library import PostSet
@@ -73,10 +74,6 @@ class LayoutSpec:
 
     # -- derived -----------------------------------------------------------------------------
     @property
-    def dbu_um(self) -> float:
-        return DBU_UM
-
-    @property
     def top_name(self) -> str:
         # GDSII/OASIS names are ASCII: any other character (also a non-ASCII letter) becomes '_'
         n = "".join(ch if (ch.isascii() and ch.isalnum()) else "_" for ch in self.design.name.upper())
@@ -103,11 +100,6 @@ class LayoutSpec:
     @property
     def centre_nm(self) -> int:
         return int(round(self.frame_half_um * NM_PER_UM))
-
-    @property
-    def frame_bbox_nm(self) -> tuple[int, int, int, int]:
-        s = 2 * self.centre_nm
-        return (0, 0, s, s)
 
     def snap(self, v_nm: Any) -> np.ndarray:
         g = self.grid_nm
@@ -290,6 +282,33 @@ def make_spec(design: LensDesign, post_set: PostSet | None = None, levels: int |
     return spec
 
 
+def load_spec(design: str | os.PathLike | LensDesign, post_set: str | os.PathLike | PostSet | None = None,
+              levels: int | None = None, **kw: Any) -> LayoutSpec:
+    """:func:`make_spec` from a lens design file and an optional PostSet ``.npz`` (as ``metafovea export`` and
+    ``metafovea verify`` read them; objects are accepted too). The post set must be for the design's
+    polarisation and, with ``levels``, hold that many posts; ``levels`` defaults to the post set's, else the
+    design's. ``kw``: :func:`make_spec`'s keywords."""
+    d = design if isinstance(design, LensDesign) else load_design(design)
+    if not isinstance(d, LensDesign):
+        raise InputError("design", design, "a lens design file (with f_mm, diameter_mm, ...)")
+    ps = None
+    if post_set:
+        if isinstance(post_set, PostSet):
+            ps = post_set
+        else:
+            try:
+                ps = PostSet.load(post_set)
+            except InputError as e:  # PostSet.load names its file 'path'
+                raise InputError("--post-set", post_set, e.allowed, detail=e.detail) from None
+        if levels is not None and levels != ps.levels:
+            raise InputError("--levels", levels, f"the number of posts in {post_set} ({ps.levels})")
+        if ps.polarization != d.polarization:
+            raise InputError("--post-set", post_set, f"a post set for polarisation {d.polarization!r}")
+    if levels is None and ps is not None:
+        levels = ps.levels
+    return make_spec(d, ps, levels, **kw)
+
+
 # ----------------------------------------------------------------------------------------------
 # site levels per band
 # ----------------------------------------------------------------------------------------------
@@ -406,28 +425,6 @@ def _task_summary(spec: LayoutSpec, task: tuple[int, int, int, int, int]) -> tup
     return counts, [x0, y0, x1, y1]
 
 
-def _band_summary(spec: LayoutSpec, band: tuple[int, int, int, int]) -> tuple[np.ndarray, list[int]]:
-    iy0, rows, ix0, cols = band
-    lev = band_levels(spec.design, iy0, rows, ix0, cols, spec.levels)
-    iy_lo, iy_hi, ix_lo, ix_hi = spec.window()
-    # restrict to the window (a patch)
-    c_lo, c_hi = max(ix0, ix_lo), min(ix0 + cols - 1, ix_hi)
-    lev = lev[:, c_lo - ix0:c_hi - ix0 + 1]
-    counts = np.bincount(lev[lev >= 0].astype(np.int64), minlength=spec.levels)
-    sz = spec.post_sizes_nm
-    xs = spec.site_x_nm(np.arange(c_lo, c_hi + 1))
-    ys = spec.site_y_nm(np.arange(iy0, iy0 + rows))
-    r, c = np.nonzero(lev >= 0)
-    if r.size == 0:
-        return counts, [0, 0, -1, -1]
-    k = lev[r, c]
-    x0 = xs[c] - sz[k, 0] // 2
-    x1 = xs[c] + sz[k, 0] // 2
-    y0 = ys[r] - sz[k, 1] // 2
-    y1 = ys[r] + sz[k, 1] // 2
-    return counts, [int(x0.min()), int(y0.min()), int(x1.max()), int(y1.max())]
-
-
 def expected_content(spec: LayoutSpec, *, workers: int | None = 1, scheduler: str | None = None,
                      progress: bool = False) -> Expected:
     """Count posts per type and the posts' bounding box from the design (band by band)."""
@@ -488,5 +485,5 @@ def has_frame(spec: LayoutSpec) -> bool:
     return spec.patch_um is None
 
 
-__all__ = ["DBU_UM", "EMPTY", "Expected", "Layers", "LayoutSpec", "band_levels", "expected_content",
-           "has_frame", "make_spec", "mark_boxes_nm", "ring_polygons_nm", "task_levels", "task_rows"]
+__all__ = ["DBU_UM", "EMPTY", "Expected", "Layers", "LayoutSpec", "MAX_COORD_NM", "band_levels", "expected_content",
+           "has_frame", "load_spec", "make_spec", "mark_boxes_nm", "ring_polygons_nm", "task_levels", "task_rows"]

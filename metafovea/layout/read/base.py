@@ -1,0 +1,107 @@
+"""What a layout reader reports, and what the readers share: format sniffing, the lattice a reader checks
+positions against, bounding-box union and capturing what C libraries print on file descriptor 2."""
+
+from __future__ import annotations
+
+import os
+import sys
+from collections import Counter
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from metafovea.errors import InputError
+from metafovea.layout.tiling import LayoutSpec
+
+#: bounding box ``(x0, y0, x1, y1)`` in database units
+BBox = tuple[int, int, int, int]
+
+
+@dataclass
+class Observed:
+    """What a reader found (coordinates in database units).
+
+    ``cell_rects``: post cell name -> its shapes ``(layer, datatype, w, h, centre x, centre y)``;
+    ``ref_counts``: post cell name -> references to it in the top cell (through the hierarchy);
+    ``flat_counts``: ``(w, h)`` -> posts-layer rectangles in the top cell (through the hierarchy);
+    ``off_lattice``: posts whose centre is not on a lattice site; ``max_refs``: most elements (reference
+    instances + shapes + texts) in one structure; ``anomalies``: anything else that is wrong, as sentences.
+    """
+
+    reader: str
+    format: str
+    dbu_um: float = 0.0
+    top_cells: list[str] = field(default_factory=list)
+    cell_rects: dict[str, list[tuple[int, int, int, int, int, int]]] = field(default_factory=dict)
+    ref_counts: Counter = field(default_factory=Counter)  # child cell name -> references in the top cell
+    flat_counts: Counter = field(default_factory=Counter)  # (w, h) of posts-layer rectangles in the top cell
+    posts_bbox: BBox | None = None
+    bbox: BBox | None = None
+    layers: set = field(default_factory=set)
+    off_lattice: int = 0
+    anomalies: list[str] = field(default_factory=list)
+    structures: int = 0
+    max_refs: int = 0  # most elements (reference instances + shapes + texts) in one structure
+
+
+def union_bbox(a: BBox | None, b: BBox | None) -> BBox | None:
+    """The smallest box holding boxes ``a`` and ``b`` (either may be None: no box)."""
+    if a is None:
+        return b
+    if b is None:
+        return a
+    return (min(a[0], b[0]), min(a[1], b[1]), max(a[2], b[2]), max(a[3], b[3]))
+
+
+def sniff_format(path: Path) -> str:
+    """``'oas'`` or ``'gds'`` from the file's first bytes; anything else is an :class:`InputError`."""
+    with open(path, "rb") as fh:
+        head = fh.read(16)
+    if head.startswith(b"%SEMI-OASIS\r\n"):
+        return "oas"
+    if len(head) >= 4 and head[2:4] == b"\x00\x02":
+        return "gds"
+    raise InputError("FILE", str(path), "a GDSII or OASIS file")
+
+
+def lattice_of(spec: LayoutSpec) -> tuple[int, int, int] | None:
+    """``(C, o P, P)`` (nm): post centres lie on ``C + o P + i P``; None when they are not exactly on a lattice
+    of integer nanometres (see :attr:`LayoutSpec.period_nm`), and then the readers do not check positions."""
+    P = spec.period_nm
+    if P is None:
+        return None
+    o = 0 if spec.design.lattice == "integer" else P // 2
+    return spec.centre_nm, o, P
+
+
+class captured_stderr:
+    """Redirect file descriptor 2 (where C libraries print) to a temporary file while active;
+    :meth:`text` is the last 500 characters printed."""
+
+    def __enter__(self):
+        import tempfile
+        self._tmp = tempfile.TemporaryFile()
+        try:
+            sys.stderr.flush()
+        except (OSError, ValueError, AttributeError):
+            pass
+        try:
+            self._saved = os.dup(2)
+            os.dup2(self._tmp.fileno(), 2)
+        except OSError:
+            self._saved = None
+        return self
+
+    def __exit__(self, *exc):
+        if self._saved is not None:
+            os.dup2(self._saved, 2)
+            os.close(self._saved)
+            self._saved = None
+        self._tmp.close()
+        return False
+
+    def text(self) -> str:
+        try:
+            self._tmp.seek(0)
+            return self._tmp.read().decode("utf-8", "replace")[-500:]
+        except OSError:
+            return ""

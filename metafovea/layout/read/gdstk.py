@@ -1,0 +1,130 @@
+"""gdstk reader: gdstk's GDSII and OASIS readers (fast for large OASIS files).
+
+The file is loaded whole; gdstk's own messages on a damaged file (printed from C on file descriptor 2) are
+captured into the error. The top cell's content is counted through the hierarchy as in the KLayout reader.
+"""
+
+from __future__ import annotations
+
+from collections import Counter
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from metafovea.layout.read.base import Observed, captured_stderr, sniff_format, union_bbox
+
+
+def read_gdstk(path: Path, lattice: tuple[int, int, int] | None, posts_layer: tuple[int, int],
+               post_names: Any = None) -> Observed:
+    """Read ``path`` (GDSII or OASIS) with gdstk; arguments as :func:`~metafovea.layout.read.klayout.read_klayout`."""
+    import gdstk
+
+    fmt = sniff_format(path)
+    with captured_stderr() as cap:  # gdstk prints '[GDSTK] ...' lines from C on damaged files
+        try:
+            lib = gdstk.read_oas(str(path), unit=1e-6) if fmt == "oas" else gdstk.read_gds(str(path), unit=1e-6)
+        except (RuntimeError, OSError) as e:
+            said = " ".join(cap.text().split())
+            raise RuntimeError(f"{said} {e}".strip()) from None
+    ob = Observed("gdstk", fmt, dbu_um=lib.precision / lib.unit)
+    ob.top_cells = [c.name for c in lib.top_level()]
+    ob.structures = len(lib.cells)
+    tops = [c for c in lib.top_level() if post_names is None or c.name not in set(post_names)]
+    if len(tops) != 1:
+        return ob
+    top = tops[0]
+    s = 1e3  # um -> nm
+    pn = None if post_names is None else set(post_names)
+
+    def is_post(c) -> bool:
+        return (c.name in pn) if pn is not None else not c.references
+
+    for c in top.dependencies(True):
+        if not is_post(c):
+            continue
+        rects = []
+        for p in c.polygons:
+            pts = np.rint(p.points * s).astype(np.int64)
+            x0, y0 = pts.min(0)
+            x1, y1 = pts.max(0)
+            if len(pts) != 4 or len(set(pts[:, 0].tolist())) != 2 or len(set(pts[:, 1].tolist())) != 2:
+                ob.anomalies.append(f"cell {c.name}: a non-rectangular shape")
+            rects.append((p.layer, p.datatype, int(x1 - x0), int(y1 - y0), int(x0 + x1) // 2, int(y0 + y1) // 2))
+        if c.references:
+            ob.anomalies.append(f"cell {c.name} has child cells")
+        ob.cell_rects[c.name] = rects
+    memo: dict[str, tuple] = {}
+
+    def content(cell):
+        """(post refs per name, flat posts per size, off lattice, posts bbox, layers) of ``cell`` with its
+        intermediate child cells expanded (their references at lattice-period offsets)."""
+        if cell.name in memo:
+            return memo[cell.name]
+        refs: Counter = Counter()
+        flatc: Counter = Counter()
+        off = 0
+        pbb = None
+        layers = set()
+        nrefs = 0
+        for p in cell.polygons:
+            layers.add((p.layer, p.datatype))
+        for lb in cell.labels:
+            layers.add((lb.layer, lb.texttype))
+        for r in cell.references:
+            child = r.cell
+            nm = child.name if hasattr(child, "name") else str(child)
+            o = np.array([r.origin[0], r.origin[1]])
+            pos = np.asarray(r.repetition.get_offsets()) + o if r.repetition.size else o[None, :]
+            pos = np.rint(pos * s).astype(np.int64)
+            nrefs += len(pos)
+            if r.rotation or r.magnification != 1 or r.x_reflection:
+                ob.anomalies.append(f"a reference to {nm} is rotated, mirrored or magnified")
+            if not hasattr(child, "name") or is_post(child):
+                refs[nm] += len(pos)
+                if lattice is not None:
+                    cx, oP, P = lattice
+                    off += int(np.count_nonzero(((pos - cx - oP) % P != 0).any(axis=1)))
+                for (l_, d_, w, h, ccx, ccy) in ob.cell_rects.get(nm, []):
+                    layers.add((l_, d_))
+                    if (l_, d_) == posts_layer:
+                        bb = (int(pos[:, 0].min()) + ccx - w // 2, int(pos[:, 1].min()) + ccy - h // 2,
+                              int(pos[:, 0].max()) + ccx + w // 2, int(pos[:, 1].max()) + ccy + h // 2)
+                        pbb = union_bbox(pbb, bb)
+                continue
+            sr, sf, so, sb, sl = content(child)
+            if lattice is not None and np.any(pos % lattice[2] != 0):
+                ob.anomalies.append(f"references to structure {nm} off the lattice period")
+            n = len(pos)
+            for k, v in sr.items():
+                refs[k] += n * v
+            for k, v in sf.items():
+                flatc[k] += n * v
+            off += n * so
+            layers |= sl
+            if sb is not None:
+                pbb = union_bbox(pbb, (sb[0] + int(pos[:, 0].min()), sb[1] + int(pos[:, 1].min()),
+                                       sb[2] + int(pos[:, 0].max()), sb[3] + int(pos[:, 1].max())))
+        ob.max_refs = max(ob.max_refs, nrefs + len(cell.polygons) + len(cell.labels))
+        for p in cell.polygons:
+            if (p.layer, p.datatype) == posts_layer:
+                pts = np.rint(p.points * s).astype(np.int64)
+                x0, y0 = pts.min(0)
+                x1, y1 = pts.max(0)
+                flatc[(int(x1 - x0), int(y1 - y0))] += 1
+                pbb = union_bbox(pbb, (int(x0), int(y0), int(x1), int(y1)))
+                if lattice is not None:
+                    cx, oP, P = lattice
+                    off += ((int(x0 + x1) // 2 - cx - oP) % P != 0) or ((int(y0 + y1) // 2 - cx - oP) % P != 0)
+        memo[cell.name] = (refs, flatc, int(off), pbb, layers)
+        return memo[cell.name]
+
+    refs, flatc, off, pbb, layers = content(top)
+    ob.ref_counts.update(refs)
+    ob.flat_counts.update(flatc)
+    ob.layers |= layers
+    ob.posts_bbox = pbb
+    (a, b), (c2, d) = top.bounding_box()
+    ob.bbox = (int(round(a * s)), int(round(b * s)), int(round(c2 * s)), int(round(d * s)))
+    ob.off_lattice = int(off)
+    return ob
