@@ -1,0 +1,153 @@
+"""``metafovea export``: files written and the summary printed; bad input -> exit 2 with one line that names the
+option typed and no file written; a full disk leaves no file."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+import textwrap
+
+import pytest
+
+from metafovea.cli import main
+
+
+def _lens_toml(tmp_path, name="qa", f_mm=0.8, d_mm=0.4, levels=8, lattice="integer", pol="x"):
+    p = tmp_path / f"{name}.toml"
+    p.write_text(textwrap.dedent(f"""\
+        name = "{name}"
+        f_mm = {f_mm}
+        diameter_mm = {d_mm}
+        wavelength_um = 10.0
+        polarization = "{pol}"
+        levels = {levels}
+        lattice = "{lattice}"
+        """))
+    return p
+
+
+def _err(capsys) -> str:
+    err = capsys.readouterr().err.strip()
+    assert "Traceback" not in err
+    return err
+
+
+@pytest.fixture(scope="module")
+def toml(tmp_path_factory):
+    p = tmp_path_factory.mktemp("design") / "small.toml"
+    p.write_text('name = "small"\nf_mm = 1.5\ndiameter_mm = 1.2\nwavelength_um = 10.0\n'
+                 'polarization = "x"\nlevels = 8\nlattice = "integer"\n')
+    return p
+
+
+def test_export_writes_and_refuses(tmp_path, capsys, toml):
+    out = tmp_path / "cli"
+    args = [str(toml), "--ring-width-um", "100", "--quiet"]
+    assert main(["export", *args, "--format", "oas", "--out", str(out), "--json"]) == 0
+    res = json.loads(capsys.readouterr().out)
+    assert res["path"].endswith("cli.oas") and os.path.isfile(res["path"])
+    assert res["posts"] == sum(res["counts"]) > 0 and res["bytes"] == os.path.getsize(res["path"])
+    assert main(["export", *args, "--out", str(out)]) == 0
+    line = capsys.readouterr().out.strip()
+    assert line.startswith(f"wrote {out}.gds: {res['posts']:,} posts, ") and line.endswith(" s")
+    # existing output: exit 2 with a one-line error
+    assert main(["export", *args, "--format", "oas", "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert "--force" in err
+    assert main(["export", *args, "--format", "gds", "--patch", "9,9,0.1", "--out", str(tmp_path / "z")]) == 2
+    assert main(["export", *args, "--format", "oas", "--levels", "5", "--post-set", str(tmp_path / "none.npz")]) == 2
+    assert not (tmp_path / "z.gds").exists()
+
+
+def test_export_max_refs(tmp_path, toml):
+    assert main(["export", str(toml), "--format", "oas", "--max-refs", "8192", "--out", str(tmp_path / "b"),
+                 "--quiet"]) == 2
+    assert main(["export", str(toml), "--ring-width-um", "100", "--max-refs", "8192", "--out",
+                 str(tmp_path / "c.gds"), "--quiet", "--json"]) == 0
+    assert (tmp_path / "c.gds").is_file() and not (tmp_path / "b.oas").exists()
+
+
+def test_disk_full_leaves_no_file(tmp_path, toml):
+    # RLIMIT_FSIZE makes writes fail part-way (EFBIG), like a full disk
+    out = tmp_path / "big.gds"
+    code = textwrap.dedent(f"""
+        import resource, signal, sys
+        signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
+        resource.setrlimit(resource.RLIMIT_FSIZE, (200_000, 200_000))
+        from metafovea.cli import main
+        sys.exit(main(["export", {str(toml)!r}, "--out", {str(out)!r}, "--quiet", "--ring-width-um", "100"]))
+    """)
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert r.returncode == 2, r.stderr
+    assert "error:" in r.stderr and ("disk" in r.stderr or "space" in r.stderr)
+    assert len(r.stderr.strip().splitlines()) == 1
+    assert not out.exists()
+
+
+@pytest.mark.parametrize("value", ["inf", "nan", "0", "-3", "1e9"])
+def test_ring_width_must_be_finite_and_fit_coordinates(tmp_path, capsys, value):
+    """--ring-width-um inf was a JSON traceback; 1e9 silently wrapped the 32-bit coordinates."""
+    toml = _lens_toml(tmp_path)
+    out = tmp_path / "r.gds"
+    assert main(["export", str(toml), "--out", str(out), "--ring-width-um", value, "--quiet"]) == 2
+    err = _err(capsys)
+    assert "--ring-width-um" in err and len(err.splitlines()) == 1
+    assert not out.exists()
+
+
+@pytest.mark.parametrize("value", ["nan", "-5", "inf", "1e9"])
+def test_mesh_substrate_thickness_checked(tmp_path, capsys, value):
+    """--substrate-um nan/-5 were silently ignored, inf wrote a mesh with infinite vertices."""
+    pytest.importorskip("trimesh")
+    toml = _lens_toml(tmp_path)
+    out = tmp_path / "m.stl"
+    assert main(["export", str(toml), "--format", "stl", "--patch", "0,0,0.02", "--out", str(out),
+                 "--substrate-um", value, "--quiet"]) == 2
+    assert "--substrate-um" in _err(capsys)
+    assert not out.exists()
+
+
+def test_export_cli_post_set_not_npz(tmp_path, capsys):
+    """A design TOML given as --post-set is one line that names --post-set."""
+    toml = _lens_toml(tmp_path)
+    rc = main(["export", str(toml), "--post-set", str(toml), "--out", str(tmp_path / "x.oas"), "--format", "oas",
+               "--quiet"])
+    err = _err(capsys)
+    assert rc == 2 and err.startswith("metafovea export: error: --post-set") and len(err.splitlines()) == 1
+
+
+@pytest.mark.parametrize("fmt,name", [("gds", "a.oas"), ("oas", "a.gds"), ("gds", "a.OASIS"), ("stl", "a.glb")])
+def test_export_suffix_must_match_format(tmp_path, capsys, fmt, name):
+    """--format gds --out x.oas wrote GDSII bytes into a file named .oas."""
+    toml = _lens_toml(tmp_path)
+    out = tmp_path / name
+    rc = main(["export", str(toml), "--format", fmt, "--out", str(out), "--patch=0,0,0.02", "--quiet"])
+    err = _err(capsys)
+    assert rc == 2 and "--out" in err
+    assert not out.exists()
+
+
+@pytest.mark.parametrize("fmt,name", [("gds", "a.GDS"), ("oas", "a.oasis"), ("gds", "a")])
+def test_export_suffix_accepted(tmp_path, fmt, name):
+    toml = _lens_toml(tmp_path)
+    assert main(["export", str(toml), "--format", fmt, "--out", str(tmp_path / name), "--quiet"]) == 0
+    written = [p for p in tmp_path.iterdir() if p.name.startswith("a")]
+    assert len(written) == 1
+
+
+@pytest.mark.parametrize("name", ["ü lens", "Ørsted-2", "lens\\u00e9"])
+@pytest.mark.parametrize("fmt,reader", [("oas", "klayout"), ("gds", "stream"), ("gds", "gdstk")])
+def test_non_ascii_lens_name_exports_and_verifies(tmp_path, capsys, name, fmt, reader):
+    """A non-ASCII name was an OASIS UnicodeEncodeError traceback and a GDSII the stream reader mismatched."""
+    if reader == "klayout":
+        pytest.importorskip("klayout.db")
+    if reader == "gdstk":
+        pytest.importorskip("gdstk")
+    toml = tmp_path / "lens.toml"
+    toml.write_text(f'name = "{name}"\nf_mm = 2.0\ndiameter_mm = 0.3\npolarization = "x"\n', encoding="utf-8")
+    out = tmp_path / f"x.{fmt}"
+    assert main(["export", str(toml), "--format", fmt, "--out", str(out), "--quiet", "--ring-width-um", "20"]) == 0
+    assert main(["verify", str(out), "--design", str(toml), "--quiet", "--ring-width-um", "20",
+                 "--reader", reader]) == 0, capsys.readouterr().err

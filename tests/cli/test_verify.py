@@ -1,0 +1,131 @@
+"""``metafovea verify``: exit 0 when the file matches the design, 1 on a mismatch (listed on stderr), 2 with one
+line naming FILE for a damaged, truncated or foreign file."""
+
+from __future__ import annotations
+
+import textwrap
+
+import pytest
+
+from metafovea.cli import main
+
+pytest.importorskip("klayout.db")
+
+
+def _lens_toml(tmp_path, name="qa", f_mm=0.8, d_mm=0.4, levels=8, lattice="integer", pol="x"):
+    p = tmp_path / f"{name}.toml"
+    p.write_text(textwrap.dedent(f"""\
+        name = "{name}"
+        f_mm = {f_mm}
+        diameter_mm = {d_mm}
+        wavelength_um = 10.0
+        polarization = "{pol}"
+        levels = {levels}
+        lattice = "{lattice}"
+        """))
+    return p
+
+
+def _err(capsys) -> str:
+    err = capsys.readouterr().err.strip()
+    assert "Traceback" not in err
+    return err
+
+
+@pytest.fixture()
+def exported_gds(tmp_path):
+    toml = _lens_toml(tmp_path)
+    out = tmp_path / "lens.gds"
+    assert main(["export", str(toml), "--out", str(out), "--ring-width-um", "50", "--quiet"]) == 0
+    return toml, out
+
+
+def test_verify_exit_status(tmp_path, capsys, exported_gds):
+    toml, gds = exported_gds
+    common = ["--design", str(toml), "--quiet"]
+    capsys.readouterr()
+    assert main(["verify", str(gds), *common, "--ring-width-um", "50"]) == 0
+    out = capsys.readouterr().out.strip()
+    n = out.split()[-1]
+    assert out.startswith(f"OK: {gds} (gds, read by klayout in ") and out.endswith(f"): {n} posts, expected {n}")
+    # mismatching design parameters (another ring width moves the lens centre): exit 1, mismatches on stderr
+    assert main(["verify", str(gds), *common]) == 1
+    cap = capsys.readouterr()
+    assert cap.out.startswith("MISMATCH: ") and "  - posts bounding box" in cap.err
+    # a limit on the elements per structure
+    assert main(["verify", str(gds), *common, "--ring-width-um", "50", "--max-refs", "100"]) == 1
+    assert "--max-refs 100" in capsys.readouterr().err
+    for flag in ("--workers", "--max-refs"):
+        assert main(["verify", str(gds), *common, flag, "0"]) == 2
+        assert _err(capsys) == f"metafovea verify: error: {flag} = 0 is invalid; allowed: an integer >= 1"
+
+
+def test_verify_hierarchical_max_refs(tmp_path):
+    toml = _lens_toml(tmp_path)
+    gds = tmp_path / "h.gds"
+    assert main(["export", str(toml), "--ring-width-um", "50", "--max-refs", "64", "--out", str(gds), "--quiet"]) == 0
+    args = ["verify", str(gds), "--design", str(toml), "--ring-width-um", "50", "--quiet"]
+    assert main([*args, "--max-refs", "64"]) == 0
+    assert main([*args, "--max-refs", "32"]) == 1
+
+
+@pytest.mark.parametrize("fmt,patch", [("oas", "0,0,10"), ("gds", "0.05,-0.1,3"), ("oas", "-0.1,0.1,0.5")])
+def test_patch_wider_than_lens_label_inside_frame(tmp_path, capsys, fmt, patch):
+    """A patch wider than the lens put its label at negative coordinates: verify then failed its own export."""
+    toml = _lens_toml(tmp_path)
+    out = tmp_path / f"p.{fmt}"
+    common = ["--design", str(toml), f"--patch={patch}", "--ring-width-um", "50", "--quiet"]
+    assert main(["export", str(toml), "--format", fmt, "--out", str(out), f"--patch={patch}",
+                 "--ring-width-um", "50", "--quiet"]) == 0
+    assert main(["verify", str(out), *common]) == 0, capsys.readouterr().err
+    if fmt == "gds":
+        assert main(["verify", str(out), *common, "--reader", "stream"]) == 0
+
+
+@pytest.mark.parametrize("cut", [0.5, 0.77, -1])
+@pytest.mark.parametrize("reader", ["auto", "klayout", "gdstk", "stream"])
+def test_verify_truncated_file_is_a_clear_error(tmp_path, capsys, exported_gds, damaged, cut, reader):
+    """A truncated GDSII file gave a RuntimeError traceback (klayout) or a mismatch list (stream)."""
+    if reader == "gdstk":
+        pytest.importorskip("gdstk")
+    toml, gds = exported_gds
+    keep = gds.stat().st_size - 4 if cut == -1 else cut  # -1: only the ENDLIB record missing
+    bad = damaged(gds, tmp_path / "trunc.gds", "truncated", keep=keep)
+    rc = main(["verify", str(bad), "--design", str(toml), "--ring-width-um", "50", "--quiet", "--reader", reader])
+    err = _err(capsys)
+    assert rc == 2, err
+    assert "FILE" in err and "trunc.gds" in err
+
+
+@pytest.mark.parametrize("damage", ["empty", "garbage", "text"])
+def test_verify_foreign_file_is_a_clear_error(tmp_path, capsys, exported_gds, damaged, damage):
+    toml, gds = exported_gds
+    bad = damaged(gds, tmp_path / "bad.gds", damage)
+    assert main(["verify", str(bad), "--design", str(toml), "--ring-width-um", "50", "--quiet"]) == 2
+    err = _err(capsys)
+    assert err == f"metafovea verify: error: FILE = '{bad}' is invalid; allowed: a GDSII or OASIS file"
+
+
+def test_verify_truncated_oasis_is_a_clear_error(tmp_path, capsys, damaged):
+    toml = _lens_toml(tmp_path)
+    out = tmp_path / "lens.oas"
+    assert main(["export", str(toml), "--format", "oas", "--out", str(out), "--ring-width-um", "50", "--quiet"]) == 0
+    bad = damaged(out, tmp_path / "trunc.oas", "truncated", keep=1 / 3)
+    for reader in ("klayout", "gdstk"):
+        if reader == "gdstk" and pytest.importorskip("gdstk") is None:
+            continue
+        rc = main(["verify", str(bad), "--design", str(toml), "--ring-width-um", "50", "--quiet",
+                   "--reader", reader])
+        err = _err(capsys)
+        assert rc == 2 and "FILE" in err, err
+
+
+def test_gdstk_damaged_file_error_is_one_line(tmp_path, capfd, exported_gds, damaged):
+    """gdstk printed its own '[GDSTK] ...' lines to the terminal before the error."""
+    pytest.importorskip("gdstk")
+    toml, gds = exported_gds
+    bad = damaged(gds, tmp_path / "t.gds", "truncated", keep=5000)
+    rc = main(["verify", str(bad), "--design", str(toml), "--ring-width-um", "50", "--quiet", "--reader", "gdstk"])
+    out, err = capfd.readouterr()
+    assert rc == 2 and len(err.strip().splitlines()) == 1, err
+    assert err.startswith("metafovea verify: error: FILE")

@@ -1,0 +1,53 @@
+"""Fixtures shared by the layout tests: a small lens (~70k posts, a 1.2 mm aperture) with a small frame, its
+spec, its exports (GDSII with references, flat GDSII, OASIS) and its design file."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from metafovea import lens
+from metafovea.config import LensDesign
+from metafovea.layout import export_layout, make_spec
+
+#: ring and marks small enough for a 1.2 mm lens
+SMALL = dict(ring_width_um=100.0, mark_offset_um=50.0, mark_size_um=40.0, mark_width_um=4.0)
+
+
+@pytest.fixture(scope="session")
+def small_frame() -> dict:
+    """``make_spec`` keywords for a small ring and small marks."""
+    return dict(SMALL)
+
+
+@pytest.fixture(scope="session")
+def design():
+    return LensDesign("small", 1500.0, 1200.0, polarization="x")  # ~70k posts
+
+
+@pytest.fixture(scope="session")
+def spec(design):
+    return make_spec(design, band_rows=16, **SMALL)
+
+
+@pytest.fixture(scope="session")
+def exported(tmp_path_factory, spec):
+    """``(format, flat) -> (path, ExportResult)`` for GDSII, flat GDSII and OASIS exports of ``spec``."""
+    d = tmp_path_factory.mktemp("lay")
+    out = {}
+    for fmt, flat in (("gds", False), ("gds", True), ("oas", False)):
+        p = d / f"lens{'_flat' if flat else ''}.{fmt}"
+        out[(fmt, flat)] = (p, export_layout(spec, p, fmt, flat=flat))
+    return out
+
+
+@pytest.fixture(scope="session")
+def tile_counts():
+    """``tile_counts(design, levels)``: posts per type counted over ``lens.iter_tiles`` (the reference)."""
+    def count(design, levels):
+        c = np.zeros(levels, np.int64)
+        for t in lens.iter_tiles(design, 256, levels=levels):
+            v = t.levels[t.levels >= 0]
+            c += np.bincount(v, minlength=levels)
+        return c
+    return count
