@@ -1,23 +1,20 @@
 """``metafovea simulate``: simulate camera frames of a scene through a system design.
 
 Writes a Measurement ``.npz`` (see docs/measurement_format.md), a TIFF stack (``<out>.tif``) and a
-preview PNG (``<out>_preview.png``); nothing is overwritten without ``--force``.
+preview PNG (``<out>_preview.png``); nothing is overwritten without ``--force``, and never the system or scene
+file the run reads. The run is :func:`metafovea.imaging.simulate.simulate_to_files`.
+
+Exit status: 0 on success, 2 on bad input (one line naming the option).
 """
 
 from __future__ import annotations
 
 import argparse
-import json
-import logging
-import os
 import sys
-import time
-from pathlib import Path
 from typing import Any
 
-from metafovea.errors import InputError, check_int
-
-log = logging.getLogger(__name__)
+from metafovea.errors import as_float, check_int
+from metafovea.io import to_json
 
 
 def add_parser(subparsers: Any) -> argparse.ArgumentParser:
@@ -68,46 +65,17 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
 
 
 def _num(name: str, v: Any) -> float | None:
-    from metafovea.errors import as_float
     return None if v is None else as_float(name, v)
 
 
-def run(args: argparse.Namespace) -> int:
-    from metafovea.config import SystemDesign, load_system
-    from metafovea.imaging.scene import list_scenes
-    from metafovea.imaging.simulate import SimulationOptions, simulate, write_preview, write_tiff
-    from metafovea.imaging.system import MAX_PSF_SIZE
+def _options(args: argparse.Namespace, frames: int) -> Any:
+    """The flags as :class:`~metafovea.imaging.simulate.SimulationOptions`, each checked under its flag."""
+    from metafovea.imaging.kernels import MAX_PSF_SIZE
+    from metafovea.imaging.simulate import SimulationOptions
 
-    if getattr(args, "list_scenes", False):
-        scenes = list_scenes()
-        if args.json:
-            print(json.dumps(scenes, indent=2))
-        else:
-            for k, v in scenes.items():
-                print(f"{k:14s} {v}")
-        return 0
-    frames = check_int("--frames", args.frames, 1, 100_000)
-    seed = check_int("--seed", args.seed, 0, 2 ** 63 - 1)
-    system = load_system(args.system_file) if args.system_file else SystemDesign.paper()
-    out = Path(args.out)
-    if out.suffix.lower() != ".npz":
-        raise InputError("--out", str(out), "a file name ending in .npz")
-    from metafovea.io import prepare_output
-    tif = out.with_suffix(".tif")
-    png = out.with_name(out.stem + "_preview.png")
-    inputs = [Path(p) for p in (args.system_file, args.scene) if p and Path(p).is_file()]
-    for o in [out] + ([] if args.no_tiff else [tif]) + ([] if args.no_preview else [png]):
-        for src in inputs:
-            if o.resolve() == src.resolve() or (o.exists() and os.path.samefile(o, src)):
-                raise InputError("--out", str(o), f"a path other than the input {src} (it would be overwritten)")
-    prepare_output(out, args.force)
-    if not args.no_tiff:
-        prepare_output(tif, args.force, name="--out (TIFF)")
-    if not args.no_preview:
-        prepare_output(png, args.force, name="--out (preview)")
     fp = args.field_patches
     fp = "auto" if str(fp).strip().lower() == "auto" else check_int("--field-patches", fp, 1, 9)
-    opts = SimulationOptions(
+    return SimulationOptions(
         frames=frames,
         supersample=None if args.supersample is None else check_int("--supersample", args.supersample, 1, 8),
         psf=args.psf, psf_cache_dir=args.psf_cache,
@@ -120,31 +88,41 @@ def run(args: argparse.Namespace) -> int:
         fpn_rank=0 if args.no_fpn else (None if args.fpn_rank is None else check_int("--fpn-rank", args.fpn_rank, 0, 10000)),
         fpn_amplitude=_num("--fpn-amplitude", args.fpn_amplitude), fpn_drift=_num("--drift", args.drift),
         noise=not args.no_noise, quantize=not args.no_quantize, progress=sys.stderr.isatty())
-    t0 = time.perf_counter()
-    m = simulate(system, args.scene, opts, rng=seed)
-    t_sim = time.perf_counter() - t0
-    m.save(out, force=args.force)
-    written = {"measurement": str(out)}
-    if not args.no_tiff:
-        written["tiff"] = str(write_tiff(m, tif, force=args.force))
-    if not args.no_preview:
-        written["preview"] = str(write_preview(m, png, force=args.force))
-    t_all = time.perf_counter() - t0
-    summary = {**m.summary(), "scene": m.meta["scene"], "seed": seed, "psf": m.meta["psf"]["provider"],
-               "psf_mode": {c: m.meta["psf"][c]["mode"] for c in ("foveal", "perifoveal")},
-               "haze_fraction": {c: m.meta["psf"][c]["haze"].get("fraction", 0.0) for c in ("foveal", "perifoveal")},
-               "foveal_constraint": m.meta["foveal_constraint"], "saturated_fraction": m.meta["saturated_fraction"],
-               "seconds": {"simulate": round(t_sim, 3), "total": round(t_all, 3)}, "files": written}
-    if args.json:
-        print(json.dumps(summary, indent=2))
+
+
+def _print_scenes(as_json: bool) -> None:
+    from metafovea.imaging.scene import list_scenes
+
+    scenes = list_scenes()
+    if as_json:
+        print(to_json(scenes))
     else:
-        T, H, W = m.shape
+        for k, v in scenes.items():
+            print(f"{k:14s} {v}")
+
+
+def run(args: argparse.Namespace) -> int:
+    from metafovea.imaging.simulate import simulate_to_files
+
+    if getattr(args, "list_scenes", False):
+        _print_scenes(args.json)
+        return 0
+    frames = check_int("--frames", args.frames, 1, 100_000)
+    seed = check_int("--seed", args.seed, 0, 2 ** 63 - 1)
+    opts = _options(args, frames)
+    result = simulate_to_files(args.system_file, args.scene, args.out, opts, rng=seed, force=args.force,
+                               tiff=not args.no_tiff, preview=not args.no_preview)
+    summary = result.summary()
+    if args.json:
+        print(to_json(summary))
+    else:
+        T, H, W = result.measurement.shape
         print(f"scene {summary['scene']}: {T} frames {H}x{W} ({summary['units']}), "
               f"alpha {summary.get('alpha_range', 'unknown')}, PSF {summary['psf']} {summary['psf_mode']}")
         print(f"haze fraction foveal {summary['haze_fraction']['foveal']:.3f}, "
               f"perifoveal {summary['haze_fraction']['perifoveal']:.3f}; "
-              f"simulated in {t_sim:.2f} s, total {t_all:.2f} s")
-        for k, v in written.items():
+              f"simulated in {result.seconds['simulate']:.2f} s, total {result.seconds['total']:.2f} s")
+        for k, v in summary["files"].items():
             print(f"  {k}: {v}")
     return 0
 

@@ -1,18 +1,30 @@
 """Imaging simulation: scenes in kelvin -> in-band radiance -> two channel images -> polariser mixing ->
-microbolometer frames (a :class:`Measurement`).
+microbolometer frames (a :class:`~metafovea.measurement.Measurement`).
 
-Modules: :mod:`~metafovea.imaging.scene` (scenes over field angle and time),
-:mod:`~metafovea.imaging.system` (channels,
-PSFs, haze, polariser), :mod:`~metafovea.imaging.sensor` (noise, FPN, ADC),
-:mod:`~metafovea.imaging.simulate` (end to end).
+Modules, in the order of the flow:
+
+* :mod:`~metafovea.imaging.scene`: scenes over field angle and time (built-in, scikit-image pictures, files).
+* :mod:`~metafovea.imaging.channel`: the foveal and perifoveal channels on the sensor crop (focal-plane pitch,
+  field angles, ``cos^4`` relative illumination).
+* :mod:`~metafovea.imaging.kernels`: PSF kernels per channel (providers: optics with its disk cache, Airy,
+  Gaussian, explicit), the chromatic haze, field patches (:class:`~metafovea.imaging.kernels.ChannelOptics`).
+* :mod:`~metafovea.imaging.render`: one channel's noise-free image of a scene (incremental for video scenes).
+* :mod:`~metafovea.imaging.polarizer`: the rotating polariser and the mixing ratio alpha.
+* :mod:`~metafovea.imaging.sensor`: radiance to DN, temporal noise, low-rank FPN, ADC.
+* :mod:`~metafovea.imaging.simulate`: end to end (:func:`simulate`), and the files of ``metafovea simulate``
+  (:func:`simulate_to_files`: Measurement, TIFF stack, preview).
 """
 
 
+from metafovea.imaging.channel import Channel, channels_for
+from metafovea.imaging.kernels import ExplicitPSF, Kernel
+from metafovea.imaging.polarizer import Polarizer
 from metafovea.imaging.scene import Scene, SceneGeometry, list_scenes, make_scene
 from metafovea.imaging.sensor import FixedPattern, SensorModel
-from metafovea.imaging.simulate import SimulationOptions, simulate, write_preview, write_tiff
-from metafovea.imaging.system import Channel, ExplicitPSF, Kernel, Polarizer, channels_for
+from metafovea.imaging.simulate import (SimulationOptions, simulate, simulate_to_files, write_preview,
+                                        write_tiff)
 
 __all__ = ["Scene", "SceneGeometry",
            "list_scenes", "make_scene", "FixedPattern", "SensorModel", "SimulationOptions", "simulate",
-           "write_preview", "write_tiff", "Channel", "ExplicitPSF", "Kernel", "Polarizer", "channels_for"]
+           "simulate_to_files", "write_preview", "write_tiff", "Channel", "ExplicitPSF", "Kernel", "Polarizer",
+           "channels_for"]

@@ -6,8 +6,15 @@ FPN and quantisation)
 
     frames[t] = alpha[t] * truth_x1 + (1 - alpha[t]) * truth_x2
 
-:func:`write_tiff` exports the frames as an ImageJ TIFF stack and :func:`write_preview` draws the
-"iron" preview figure.
+Its steps, in order: the camera (sensor, channels, band radiance, polariser: :func:`camera_for`), the scene and
+the memory check, the channel optics (PSF kernels and haze), the noise-free truth images, the polariser's alphas,
+the fixed pattern, the mixed frames, noise and ADC, closed-shutter calibration frames, the metadata. The random
+streams (polariser, FPN, noise; calibration from the noise stream after the frames) are drawn from ``rng`` in a
+fixed order, so the same seed gives identical frames.
+
+:func:`simulate_to_files` is what ``metafovea simulate`` runs: simulate, then write the Measurement ``.npz``,
+the TIFF stack (:func:`write_tiff`) and the preview PNG (:func:`write_preview`, the "iron" palette), never over
+a file the run reads.
 """
 
 from __future__ import annotations
@@ -20,20 +27,22 @@ import os
 import time
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable
 
 import numpy as np
 
-from metafovea.config import SystemDesign
-from metafovea.errors import InputError, check_int
+from metafovea.config import SystemDesign, load_system
+from metafovea.errors import InputError, as_rng, check_int
+from metafovea.io import atomic_write_bytes, prepare_output
 from metafovea.measurement import Measurement
 from metafovea.radiometry import BandRadiance
+from metafovea.report import fig_to_png
+from metafovea.imaging.channel import Channel, channels_for
+from metafovea.imaging.kernels import ChannelOptics, build_channel_optics, resolve_provider
+from metafovea.imaging.polarizer import Polarizer
+from metafovea.imaging.render import ChannelRenderer
 from metafovea.imaging.scene import Scene, SceneGeometry, make_scene
-from metafovea.errors import as_rng
-from metafovea.imaging.sensor import SensorModel
-from metafovea.imaging.system import (ChannelRenderer, Polarizer, build_channel_optics, channels_for,
-                                      resolve_provider)
-from metafovea.io import atomic_write_bytes, prepare_output
+from metafovea.imaging.sensor import FixedPattern, SensorModel
 
 log = logging.getLogger(__name__)
 
@@ -79,7 +88,7 @@ def _child_rngs(rng: Any, n: int) -> list[np.random.Generator]:
     return [np.random.default_rng(int(s)) for s in seeds]
 
 
-def _available_memory_bytes() -> int | None:
+def available_memory_bytes() -> int | None:
     """Memory available for new allocations: Linux's MemAvailable (free + reclaimable cache), else the
     total physical memory (sysconf), else None when unknown. (MemFree alone would count the page cache
     as used and refuse runs that fit.)"""
@@ -96,156 +105,186 @@ def _available_memory_bytes() -> int | None:
         return None
 
 
-def _check_memory(n_frames: int, shape: tuple[int, int], *, video: bool, calibration_frames: int = 0,
-                  available: int | None = None) -> None:
+def check_memory(n_frames: int, shape: tuple[int, int], *, video: bool, calibration_frames: int = 0,
+                 available: int | None = None) -> None:
     """Refuse, before any work, a sequence whose (T, H, W) float32 arrays (frames, per-frame truth of a
-    video scene, calibration frames; twice, for the copies made while saving) cannot fit in memory."""
+    video scene, calibration frames; twice, for the copies made while saving) cannot fit in memory
+    (``available`` bytes; default :func:`available_memory_bytes`)."""
     H, W = shape
     per_frame = 4 * H * W * (3 if video else 1)
     need = 2 * (per_frame * n_frames + 4 * H * W * calibration_frames)
-    avail = _available_memory_bytes() if available is None else available
+    avail = available_memory_bytes() if available is None else available
     if avail is not None and need > 0.8 * avail:
         most = max(1, int((0.8 * avail / 2 - 4 * H * W * calibration_frames) // per_frame))
         raise InputError("frames", n_frames, f"at most about {most} frames of {H}x{W} here (the sequence needs "
                          f"~{need / 2**30:.1f} GiB, {avail / 2**30:.1f} GiB of memory is available)")
 
 
-def simulate(system: SystemDesign, scene: str | Path | Scene, options: SimulationOptions | None = None,
-             rng: Any = 0, **overrides: Any) -> Measurement:
-    """Simulate ``options.frames`` frames of ``scene`` through ``system``.
+@dataclass(frozen=True)
+class Camera:
+    """The simulated camera: sensor, the (foveal, perifoveal) channels, band radiance and polariser.
 
-    ``rng``: seed or Generator (same seed -> identical frames). ``overrides`` replace fields of
-    ``options`` (``simulate(sys, 'bars', frames=12, noise=False)``).
+    ``na_gains``: each channel's radiometric gain ``(NA_i / NA_2)^2`` relative to the perifoveal (F/1) one;
+    ``gains``: the same times the polariser's extinction gain ``1 + eps`` (what the frames see).
     """
-    t_start = time.perf_counter()
+
+    sensor: SensorModel
+    channels: tuple[Channel, Channel]
+    filter_enabled: bool
+    radiance: BandRadiance
+    polarizer: Polarizer
+
+    @property
+    def na_gains(self) -> list[float]:
+        ch2 = self.channels[1]
+        return [(ch.na / ch2.na) ** 2 for ch in self.channels]
+
+    @property
+    def gains(self) -> list[float]:
+        ext_gain = 1.0 + self.polarizer.extinction
+        return [g * ext_gain for g in self.na_gains]
+
+
+def camera_for(system: SystemDesign, opt: SimulationOptions) -> Camera:
+    """The camera of ``system`` with the overrides of ``opt`` (sensor, relay, filter, polariser)."""
+    sensor = SensorModel.from_design(system.sensor, pixel_pitch_um=opt.pixel_pitch_um, netd_k=opt.netd_k,
+                                     fpn_rank=opt.fpn_rank, fpn_amplitude=opt.fpn_amplitude, fpn_drift=opt.fpn_drift,
+                                     counts_per_k=opt.counts_per_k, dark_dn=opt.dark_dn, noise=opt.noise,
+                                     quantize=opt.quantize)
+    channels = channels_for(system, pixel_pitch_um=sensor.pixel_pitch_um,
+                            relay_magnification=opt.relay_magnification, shape=sensor.shape)
+    fe = system.filter_enabled if opt.filter_enabled is None else bool(opt.filter_enabled)
+    radiance = BandRadiance.for_system(system, filter_enabled=fe)
+    pol = Polarizer(rate_hz=system.polarizer_hz if opt.polarizer_hz is None else opt.polarizer_hz,
+                    mode=opt.polarizer_mode,
+                    phase_rad=None if opt.polarizer_phase_deg is None else math.radians(opt.polarizer_phase_deg),
+                    extinction=system.polarizer_extinction if opt.extinction is None else opt.extinction,
+                    tau_s=opt.bolometer_tau_s)
+    return Camera(sensor, channels, fe, radiance, pol)
+
+
+def _options(options: SimulationOptions | None, overrides: dict[str, Any]) -> SimulationOptions:
     opt = options or SimulationOptions()
     if overrides:
         bad = set(overrides) - set(SimulationOptions.__dataclass_fields__)
         if bad:
             raise InputError("option", sorted(bad)[0], "a field of SimulationOptions")
         opt = replace(opt, **overrides)
-    n_frames = check_int("frames", opt.frames, 1, 100_000)
-    r_pol, r_fpn, r_noise = _child_rngs(rng, 3)
+    return opt
 
-    # ---- system -------------------------------------------------------------------------------------
-    sensor = SensorModel.from_design(system.sensor, pixel_pitch_um=opt.pixel_pitch_um, netd_k=opt.netd_k,
-                                     fpn_rank=opt.fpn_rank, fpn_amplitude=opt.fpn_amplitude, fpn_drift=opt.fpn_drift,
-                                     counts_per_k=opt.counts_per_k, dark_dn=opt.dark_dn, noise=opt.noise,
-                                     quantize=opt.quantize)
-    ch1, ch2 = channels_for(system, pixel_pitch_um=sensor.pixel_pitch_um, relay_magnification=opt.relay_magnification,
-                            shape=sensor.shape)
-    fe = system.filter_enabled if opt.filter_enabled is None else bool(opt.filter_enabled)
-    radiance = BandRadiance.for_system(system, filter_enabled=fe)
-    dl_dt = radiance.derivative(300.0)
-    pol = Polarizer(rate_hz=system.polarizer_hz if opt.polarizer_hz is None else opt.polarizer_hz,
-                    mode=opt.polarizer_mode,
-                    phase_rad=None if opt.polarizer_phase_deg is None else math.radians(opt.polarizer_phase_deg),
-                    extinction=system.polarizer_extinction if opt.extinction is None else opt.extinction,
-                    tau_s=opt.bolometer_tau_s)
 
-    # ---- scene ----------------------------------------------------------------------------------------
-    times = sensor.frame_times(n_frames, opt.t0_s)
+def _scene_for(scene: str | Path | Scene, system: SystemDesign, camera: Camera, times: np.ndarray,
+               opt: SimulationOptions) -> Scene:
+    """The scene laid out for the perifoveal field and the recording's duration."""
+    sensor, ch2 = camera.sensor, camera.channels[1]
     geom = SceneGeometry(fov_rad=2 * ch2.half_fov_rad[1], expansion=system.expansion,
                          duration_s=float(times[-1] - times[0]) + 1.0 / sensor.frame_rate_hz)
-    sc = make_scene(scene, geom, **opt.scene_params)
-    ss = opt.supersample if opt.supersample is not None else (3 if sc.static else 2)
-    ss = check_int("supersample", ss, 1, 8)
-    _check_memory(n_frames, sensor.shape, video=not sc.static,
-                  calibration_frames=check_int("calibration_frames", opt.calibration_frames, 0, 100_000))
+    return make_scene(scene, geom, **opt.scene_params)
 
-    # ---- optics ---------------------------------------------------------------------------------------
-    t_psf = time.perf_counter()
-    provider, provider_name = resolve_provider(opt.psf, opt.psf_cache_dir)
-    optics = [build_channel_optics(ch, provider, radiance, ss=ss, psf_size_px=opt.psf_size_px,
-                                   field_patches=opt.field_patches, patch_threshold=opt.patch_threshold,
-                                   scene_temperature_k=system.scene_temperature_k, haze=opt.haze)
-              for ch in (ch1, ch2)]
-    t_psf = time.perf_counter() - t_psf
-    for o in optics:
-        log.info("%s channel PSF: %s", o.channel.name, o.info)
 
-    # ---- radiometric gains ------------------------------------------------------------------------------
-    ext_gain = 1.0 + pol.extinction
-    g = [(ch.na / ch2.na) ** 2 for ch in (ch1, ch2)]
-    gains = [gi * ext_gain for gi in g]
-
-    renderers = [ChannelRenderer(sc, o, radiance, opt.relative_illumination) for o in optics]
+def _truth_images(renderers: list[ChannelRenderer], camera: Camera, times: np.ndarray, *, static: bool,
+                  progress: bool, name: str) -> tuple[np.ndarray, np.ndarray]:
+    """Noise-free DN images ``(x1, x2)`` float32: ``(H, W)`` each for a static scene, ``(T, H, W)`` for a video."""
+    sensor = camera.sensor
+    dl_dt = camera.radiance.derivative(300.0)
+    gains = camera.gains
 
     def truth_at(t: float) -> tuple[np.ndarray, np.ndarray]:
-        out = []
-        for rd, gi in zip(renderers, gains):
-            out.append(sensor.to_dn(rd.render(t), gi, dl_dt).astype(np.float32))
+        out = [sensor.to_dn(rd.render(t), gi, dl_dt).astype(np.float32) for rd, gi in zip(renderers, gains)]
         return out[0], out[1]
 
-    t_render = time.perf_counter()
+    if static:
+        return truth_at(float(times[0]))
+    n_frames = times.size
     H, W = sensor.shape
-    if sc.static:
-        x1, x2 = truth_at(float(times[0]))
-    else:
-        x1 = np.empty((n_frames, H, W), np.float32)
-        x2 = np.empty((n_frames, H, W), np.float32)
-        it = range(n_frames)
-        if opt.progress:
-            from tqdm import tqdm
-            it = tqdm(it, desc=f"rendering {sc.name}", unit="frame", leave=False)
-        for k in it:
-            x1[k], x2[k] = truth_at(float(times[k]))
-    t_render = time.perf_counter() - t_render
+    x1 = np.empty((n_frames, H, W), np.float32)
+    x2 = np.empty((n_frames, H, W), np.float32)
+    it = range(n_frames)
+    if progress:
+        from tqdm import tqdm
+        it = tqdm(it, desc=f"rendering {name}", unit="frame", leave=False)
+    for k in it:
+        x1[k], x2[k] = truth_at(float(times[k]))
+    return x1, x2
 
-    # ---- polariser, FPN, mixing, noise ------------------------------------------------------------------
-    theta, pol_info = pol.angles(times, r_pol)
-    alpha_nom, alpha, _ = pol.mixing(theta)
-    # the scene's dynamic range as seen by the sensor: the larger of the two channels' own ranges
-    dyn = max(float(x1.max() - x1.min()), float(x2.max() - x2.min()))
-    fpn = sensor.make_fpn(dyn, times, r_fpn)
-    t_mix = time.perf_counter()
-    frames = np.empty((n_frames, H, W), np.float32)
-    drift = fpn.w is not None and fpn.rank > 0
+
+def _fpn_per_frame(fpn: FixedPattern) -> Callable[[int], np.ndarray | None]:
+    """``k -> the fixed pattern added to frame k`` (None without one): a drifting pattern changes per frame, a
+    fixed one is computed once."""
+    if fpn.w is not None and fpn.rank > 0:
+        return fpn.frame
     fpn0 = fpn.frame(None) if fpn.rank else None
+    return lambda k: fpn0
+
+
+def _mixed_frames(x1: np.ndarray, x2: np.ndarray, alpha: np.ndarray, fpn: FixedPattern) -> np.ndarray:
+    """``alpha x1 + (1 - alpha) x2 + FPN`` per frame, float32 ``(T, H, W)``, before noise and the ADC."""
+    n_frames = alpha.size
+    H, W = x1.shape[-2:]
+    static = x1.ndim == 2
+    pattern = _fpn_per_frame(fpn)
+    frames = np.empty((n_frames, H, W), np.float32)
     a32 = alpha.astype(np.float32)
     for k in range(n_frames):
         f = frames[k]
         a = a32[k]
-        if sc.static:
-            np.multiply(x1, a, out=f)
-            f += (np.float32(1) - a) * x2
-        else:
-            np.multiply(x1[k], a, out=f)
-            f += (np.float32(1) - a) * x2[k]
-        if drift:
-            f += fpn.frame(k)
-        elif fpn0 is not None:
-            f += fpn0
-    sensor.add_noise_and_digitise(frames, r_noise)
-    n_cal = check_int("calibration_frames", opt.calibration_frames, 0, 100_000)
-    calibration = None
-    if n_cal:
-        # a closed shutter in front of the sensor: a uniform source at the scene's mean level, seen without the
-        # optics, plus the same fixed pattern and temporal noise (its own random stream: frames are unchanged)
-        r_cal = np.random.default_rng(int(r_noise.integers(0, 2 ** 63 - 1)))
-        level = np.float32(0.5 * (float(np.mean(x1)) + float(np.mean(x2))))
-        calibration = np.full((n_cal, H, W), level, np.float32)
-        for k in range(n_cal):
-            if drift:
-                calibration[k] += fpn.frame(0)
-            elif fpn0 is not None:
-                calibration[k] += fpn0
-        sensor.add_noise_and_digitise(calibration, r_cal)
-    t_mix = time.perf_counter() - t_mix
+        np.multiply(x1 if static else x1[k], a, out=f)
+        f += (np.float32(1) - a) * (x2 if static else x2[k])
+        p = pattern(k)
+        if p is not None:
+            f += p
+    return frames
 
-    # ---- metadata ------------------------------------------------------------------------------------------
-    r = g[0] / g[1]
+
+def _shutter_frames(n_cal: int, x1: np.ndarray, x2: np.ndarray, fpn: FixedPattern, sensor: SensorModel,
+                    r_noise: np.random.Generator) -> np.ndarray | None:
+    """Closed-shutter calibration frames, or None when none are asked for.
+
+    A closed shutter in front of the sensor: a uniform source at the scene's mean level, seen without the
+    optics, plus the same fixed pattern (of frame 0) and temporal noise (its own random stream, drawn from the
+    noise stream after the frames: the frames are unchanged)."""
+    if not n_cal:
+        return None
+    H, W = sensor.shape
+    r_cal = np.random.default_rng(int(r_noise.integers(0, 2 ** 63 - 1)))
+    level = np.float32(0.5 * (float(np.mean(x1)) + float(np.mean(x2))))
+    calibration = np.full((n_cal, H, W), level, np.float32)
+    p = _fpn_per_frame(fpn)(0)
+    if p is not None:
+        calibration += p
+    sensor.add_noise_and_digitise(calibration, r_cal)
+    return calibration
+
+
+def _extras(theta: np.ndarray, calibration: np.ndarray | None, fpn: FixedPattern,
+            n_frames: int) -> dict[str, np.ndarray]:
+    """The Measurement's extra arrays: polariser angles, calibration frames, the FPN factors (and drift weights)."""
     extras: dict[str, np.ndarray] = {"theta_rad": theta}
     if calibration is not None:
         extras["calibration"] = calibration
     if fpn.rank:
         extras.update(fpn_u=fpn.u, fpn_v=fpn.v, fpn_s=fpn.s)
-        if drift:
+        if fpn.w is not None:
             extras["fpn_weights"] = np.stack([fpn.weights(k) for k in range(n_frames)])
+    return extras
+
+
+def _saturated_fraction(frames: np.ndarray, sensor: SensorModel) -> float:
     saturated = float(np.mean(frames >= sensor.full_scale_dn)) if sensor.quantize else 0.0
     if saturated > 0:
         log.warning("%.2f %% of the pixels are saturated at %d DN", 100 * saturated, sensor.full_scale_dn)
-    meta = {
+    return saturated
+
+
+def _measurement_meta(system: SystemDesign, camera: Camera, sc: Scene, opt: SimulationOptions, *, rng: Any,
+                      ss: int, provider_name: str, optics: list[ChannelOptics], pol_info: dict[str, Any],
+                      alpha_nominal: np.ndarray, saturated: float, timing_s: dict[str, float]) -> dict[str, Any]:
+    """The Measurement's metadata: units, scene, foveal constraint, gains, sensor, polariser, radiometry, PSFs."""
+    sensor, pol, radiance, fe = camera.sensor, camera.polarizer, camera.radiance, camera.filter_enabled
+    ch1, ch2 = camera.channels
+    g, gains = camera.na_gains, camera.gains
+    r = g[0] / g[1]
+    return {
         "kind": "measurement",
         "units": "DN",
         "units_note": "ADC digital numbers: DN = dark_dn + counts_per_k * gain * L / dL_dT_300K "
@@ -265,7 +304,7 @@ def simulate(system: SystemDesign, scene: str | Path | Scene, options: Simulatio
         "frame_rate_hz": sensor.frame_rate_hz,
         "polarizer_hz": pol.rate_hz,
         "polarizer": {**pol_info, "extinction": pol.extinction, "tau_s": pol.tau_s,
-                      "alpha_nominal_range": [float(alpha_nom.min()), float(alpha_nom.max())]},
+                      "alpha_nominal_range": [float(alpha_nominal.min()), float(alpha_nominal.max())]},
         "netd_k": sensor.netd_k,
         "sensor": sensor.summary(),
         "dark_dn": sensor.dark_dn,
@@ -281,11 +320,140 @@ def simulate(system: SystemDesign, scene: str | Path | Scene, options: Simulatio
                    "band_um": list(system.band_um), "filter_enabled": fe},
         "saturated_fraction": saturated,
         "truth_is_video": not sc.static,
-        "timing_s": {"psf": t_psf, "render": t_render, "mix_noise": t_mix,
-                     "total": time.perf_counter() - t_start},
+        "timing_s": timing_s,
     }
-    return Measurement(frames=frames, times_s=times, alpha=alpha, truth_x1=x1, truth_x2=x2, fpn=fpn0, meta=meta,
-                       extras=extras)
+
+
+def simulate(system: SystemDesign, scene: str | Path | Scene, options: SimulationOptions | None = None,
+             rng: Any = 0, **overrides: Any) -> Measurement:
+    """Simulate ``options.frames`` frames of ``scene`` through ``system``.
+
+    ``rng``: seed or Generator (same seed -> identical frames). ``overrides`` replace fields of
+    ``options`` (``simulate(sys, 'bars', frames=12, noise=False)``).
+    """
+    t_start = time.perf_counter()
+    opt = _options(options, overrides)
+    n_frames = check_int("frames", opt.frames, 1, 100_000)
+    r_pol, r_fpn, r_noise = _child_rngs(rng, 3)
+    camera = camera_for(system, opt)
+    sensor, pol = camera.sensor, camera.polarizer
+
+    times = sensor.frame_times(n_frames, opt.t0_s)
+    sc = _scene_for(scene, system, camera, times, opt)
+    ss = check_int("supersample", opt.supersample if opt.supersample is not None else (3 if sc.static else 2), 1, 8)
+    n_cal = check_int("calibration_frames", opt.calibration_frames, 0, 100_000)
+    check_memory(n_frames, sensor.shape, video=not sc.static, calibration_frames=n_cal)
+
+    t_psf = time.perf_counter()
+    provider, provider_name = resolve_provider(opt.psf, opt.psf_cache_dir)
+    optics = [build_channel_optics(ch, provider, camera.radiance, ss=ss, psf_size_px=opt.psf_size_px,
+                                   field_patches=opt.field_patches, patch_threshold=opt.patch_threshold,
+                                   scene_temperature_k=system.scene_temperature_k, haze=opt.haze)
+              for ch in camera.channels]
+    t_psf = time.perf_counter() - t_psf
+    for o in optics:
+        log.info("%s channel PSF: %s", o.channel.name, o.info)
+
+    t_render = time.perf_counter()
+    renderers = [ChannelRenderer(sc, o, camera.radiance, opt.relative_illumination) for o in optics]
+    x1, x2 = _truth_images(renderers, camera, times, static=sc.static, progress=opt.progress, name=sc.name)
+    t_render = time.perf_counter() - t_render
+
+    theta, pol_info = pol.angles(times, r_pol)
+    alpha_nominal, alpha, _ = pol.mixing(theta)
+    # the scene's dynamic range as seen by the sensor: the larger of the two channels' own ranges
+    fpn = sensor.make_fpn(max(float(x1.max() - x1.min()), float(x2.max() - x2.min())), times, r_fpn)
+    t_mix = time.perf_counter()
+    frames = _mixed_frames(x1, x2, alpha, fpn)
+    sensor.add_noise_and_digitise(frames, r_noise)
+    calibration = _shutter_frames(n_cal, x1, x2, fpn, sensor, r_noise)
+    t_mix = time.perf_counter() - t_mix
+
+    saturated = _saturated_fraction(frames, sensor)
+    timing = {"psf": t_psf, "render": t_render, "mix_noise": t_mix, "total": time.perf_counter() - t_start}
+    meta = _measurement_meta(system, camera, sc, opt, rng=rng, ss=ss, provider_name=provider_name, optics=optics,
+                             pol_info=pol_info, alpha_nominal=alpha_nominal, saturated=saturated, timing_s=timing)
+    return Measurement(frames=frames, times_s=times, alpha=alpha, truth_x1=x1, truth_x2=x2,
+                       fpn=fpn.frame(None) if fpn.rank else None, meta=meta,
+                       extras=_extras(theta, calibration, fpn, n_frames))
+
+
+# ----------------------------------------------------------------------------------------------
+# simulate and write the files (what `metafovea simulate` runs)
+# ----------------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class SimulationRun:
+    """What :func:`simulate_to_files` made: the measurement, the files written (``measurement``, ``tiff``,
+    ``preview``) and the seconds it took (``simulate``; ``total`` with the writing)."""
+
+    measurement: Measurement
+    files: dict[str, Path]
+    seconds: dict[str, float] = field(default_factory=dict)
+
+    def summary(self) -> dict[str, Any]:
+        """The run in numbers (the ``--json`` output of ``metafovea simulate``)."""
+        m = self.measurement
+        psf = m.meta["psf"]
+        return {**m.summary(), "scene": m.meta["scene"], "seed": m.meta["seed"], "psf": psf["provider"],
+                "psf_mode": {c: psf[c]["mode"] for c in ("foveal", "perifoveal")},
+                "haze_fraction": {c: psf[c]["haze"].get("fraction", 0.0) for c in ("foveal", "perifoveal")},
+                "foveal_constraint": m.meta["foveal_constraint"], "saturated_fraction": m.meta["saturated_fraction"],
+                "seconds": {k: round(v, 3) for k, v in self.seconds.items()},
+                "files": {k: str(v) for k, v in self.files.items()}}
+
+
+def output_paths(out: str | Path, *, tiff: bool = True, preview: bool = True) -> dict[str, Path]:
+    """The files a run writes for the Measurement ``out`` (``.npz``): ``<out>.tif`` and ``<out>_preview.png``
+    next to it."""
+    out = Path(out)
+    if out.suffix.lower() != ".npz":
+        raise InputError("--out", str(out), "a file name ending in .npz")
+    paths = {"measurement": out}
+    if tiff:
+        paths["tiff"] = out.with_suffix(".tif")
+    if preview:
+        paths["preview"] = out.with_name(out.stem + "_preview.png")
+    return paths
+
+
+def _refuse_to_overwrite_inputs(outputs: list[Path], inputs: list[Path]) -> None:
+    """An output that is one of the files the run reads is refused, even with ``force``."""
+    for o in outputs:
+        for src in inputs:
+            if o.resolve() == src.resolve() or (o.exists() and os.path.samefile(o, src)):
+                raise InputError("--out", str(o), f"a path other than the input {src} (it would be overwritten)")
+
+
+def simulate_to_files(system: SystemDesign | str | Path | None, scene: str | Path | Scene, out: str | Path,
+                      options: SimulationOptions | None = None, *, rng: Any = 0, force: bool = False,
+                      tiff: bool = True, preview: bool = True) -> SimulationRun:
+    """Simulate (:func:`simulate`) and write the Measurement ``out`` (``.npz``), its TIFF stack and its preview.
+
+    ``system``: a design, a system TOML file, or None for the paper's prototype. Every output is checked before
+    the (long) simulation starts: nothing is overwritten without ``force``, and never the system or scene file
+    the run reads, even with ``force``.
+    """
+    if system is None or isinstance(system, SystemDesign):
+        design, system_file = system or SystemDesign.paper(), None
+    else:
+        design, system_file = load_system(system), Path(system)
+    paths = output_paths(out, tiff=tiff, preview=preview)
+    scene_file = None if isinstance(scene, Scene) else scene
+    inputs = [Path(p) for p in (system_file, scene_file) if p and Path(p).is_file()]
+    _refuse_to_overwrite_inputs(list(paths.values()), inputs)
+    names = {"measurement": "--out", "tiff": "--out (TIFF)", "preview": "--out (preview)"}
+    for kind, p in paths.items():
+        prepare_output(p, force, name=names[kind])
+    t0 = time.perf_counter()
+    m = simulate(design, scene, options, rng=rng)
+    t_sim = time.perf_counter() - t0
+    m.save(paths["measurement"], force=force)
+    files = {"measurement": paths["measurement"]}
+    if tiff:
+        files["tiff"] = write_tiff(m, paths["tiff"], force=force)
+    if preview:
+        files["preview"] = write_preview(m, paths["preview"], force=force)
+    return SimulationRun(m, files, {"simulate": t_sim, "total": time.perf_counter() - t0})
 
 
 # ----------------------------------------------------------------------------------------------
@@ -378,6 +546,4 @@ def write_preview(m: Measurement, path: str | Path, force: bool = False, dpi: in
     a.set_title("frame mean", fontsize=9)
     fig.suptitle(f"metafovea simulate: scene '{m.meta.get('scene', '?')}', {T} frames "
                  f"{m.frames.shape[1]}x{m.frames.shape[2]}, seed {m.meta.get('seed')}", fontsize=11)
-    buf = _io.BytesIO()
-    fig.savefig(buf, format="png")
-    return atomic_write_bytes(p, buf.getvalue())
+    return atomic_write_bytes(p, fig_to_png(fig, dpi=dpi))

@@ -1,0 +1,209 @@
+"""Rendering one channel's noise-free image of a scene: kernel convolution, field patches, far haze, pixel
+integration and relative illumination (the model is in :mod:`~metafovea.imaging.kernels`).
+
+The scene is sampled on the channel's own supersampled grid of field angles (plus the kernel's margin), in
+in-band radiance; the image is the valid convolution with the channel's kernel(s), box-averaged to pixels, plus the
+far haze convolved on a coarse grid and interpolated back, times ``cos^4`` relative illumination. Video scenes that
+declare their changing boxes are rendered incrementally (:class:`ChannelRenderer`).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from metafovea.radiometry import BandRadiance
+from metafovea.imaging.channel import relative_illumination_map
+from metafovea.imaging.kernels import ChannelOptics
+from metafovea.imaging.scene import Scene
+
+
+def _conv_valid(img: np.ndarray, k: np.ndarray) -> np.ndarray:
+    """The valid part of ``img * k`` (a 1 x 1 kernel is a scale)."""
+    from scipy.signal import fftconvolve
+
+    if k.shape == (1, 1):
+        return img * k[0, 0]
+    return fftconvolve(img, k, mode="valid")
+
+
+def _patch_weights(n: int, size: int, ss_centres: list[float]) -> list[np.ndarray]:
+    """1-D tent weights (partition of unity) for n patch centres along an axis of ``size`` samples."""
+    x = np.arange(size, dtype=np.float64)
+    c = np.asarray(ss_centres)
+    out = []
+    for i in range(n):
+        w = np.zeros(size)
+        if n == 1:
+            w[:] = 1
+        else:
+            left = c[i - 1] if i > 0 else -np.inf
+            right = c[i + 1] if i < n - 1 else np.inf
+            w = np.where(x <= c[i], 1 - (c[i] - x) / (c[i] - left) if i > 0 else 1.0,
+                         1 - (x - c[i]) / (right - c[i]) if i < n - 1 else 1.0)
+            w = np.clip(w, 0, 1)
+        out.append(w)
+    return out
+
+
+class ChannelRenderer:
+    """Renders one channel's noise-free image of a scene (see module docstring for the model).
+
+    For video scenes that declare their static background and the boxes that change
+    (:meth:`Scene.dynamic_regions`), the background is rendered once and each frame adds only the
+    change inside those boxes (convolution is linear): the cost follows the moving objects' size.
+    """
+
+    SUB = 3  # supersampling of each coarse haze sample (small hot objects must not be missed)
+
+    def __init__(self, scene: Scene, optics: ChannelOptics, radiance: BandRadiance,
+                 relative_illumination: bool = True):
+        self.scene, self.optics, self.radiance = scene, optics, radiance
+        ch, ss = optics.channel, optics.ss
+        H, W = ch.shape
+        m = optics.margin
+        self.ya = np.arctan(ch.positions_um(H, ss, m) / ch.focal_length_um)
+        self.xa = np.arctan(ch.positions_um(W, ss, m) / ch.focal_length_um)
+        self.ri = relative_illumination_map(ch) if relative_illumination else None
+        self.far = optics.far_kernel is not None and optics.far_weight > 0
+        if self.far:
+            q, km = optics.far_coarse, optics.far_kernel.shape[0] // 2
+            self.yc = np.arctan(ch.positions_um(H, self.SUB, km * self.SUB, coarse=q) / ch.focal_length_um)
+            self.xc = np.arctan(ch.positions_um(W, self.SUB, km * self.SUB, coarse=q) / ch.focal_length_um)
+            nh, nw = round(H * self.SUB / q), round(W * self.SUB / q)
+            # output sample o of the valid convolution sits at ((o + 0.5) - n_fine / (2 SUB)) q pixels
+            self.ry = (np.arange(H) + 0.5 - H / 2.0) / q + nh / (2.0 * self.SUB) - 0.5
+            self.rx = (np.arange(W) + 0.5 - W / 2.0) / q + nw / (2.0 * self.SUB) - 0.5
+        self.incremental = (not scene.static and optics.n_patches == 1
+                            and scene.dynamic_regions(0.0) is not None)
+        self._bg: dict[str, np.ndarray] | None = None
+
+    # -- pieces ----------------------------------------------------------------------------------
+    def _radiance(self, ya: np.ndarray, xa: np.ndarray, t: float | None) -> np.ndarray:
+        ax, ay = np.broadcast_to(xa[None, :], (ya.size, xa.size)), np.broadcast_to(ya[:, None], (ya.size, xa.size))
+        if t is None:
+            temp, eps = self.scene.sample_background(ax, ay)
+        else:
+            temp, eps = self.scene.sample(ax, ay, t)
+        return self.radiance.apparent(temp, eps, self.scene.reflected_k)
+
+    def _coarse_radiance(self, r0: int, r1: int, c0: int, c1: int, t: float | None) -> np.ndarray:
+        """Coarse samples [r0, r1) x [c0, c1), each the mean of SUB x SUB samples."""
+        S = self.SUB
+        L = self._radiance(self.yc[r0 * S:r1 * S], self.xc[c0 * S:c1 * S], t)
+        return L.reshape(r1 - r0, S, c1 - c0, S).mean(axis=(1, 3))
+
+    def _fine_image(self, L: np.ndarray) -> np.ndarray:
+        o = self.optics
+        if o.n_patches == 1:
+            return _conv_valid(L, o.kernels[0])
+        ch, ss, m = o.channel, o.ss, o.margin
+        H, W = ch.shape
+        n = o.n_patches
+        rows = sorted({c[0] for c in o.patch_centres})
+        cols = sorted({c[1] for c in o.patch_centres})
+        wy = _patch_weights(n, H * ss, [(r + 0.5) * ss - 0.5 for r in rows])
+        wx = _patch_weights(n, W * ss, [(c + 0.5) * ss - 0.5 for c in cols])
+        img = np.zeros((H * ss, W * ss))
+        for p, k in enumerate(o.kernels):
+            i, j = divmod(p, n)
+            km = k.shape[0] // 2
+            sub = L[m - km: L.shape[0] - (m - km), m - km: L.shape[1] - (m - km)]
+            img += wy[i][:, None] * wx[j][None, :] * _conv_valid(sub, k)
+        return img
+
+    def _finish(self, fine: np.ndarray, hz: np.ndarray | None) -> np.ndarray:
+        from scipy.ndimage import map_coordinates
+
+        ch, ss = self.optics.channel, self.optics.ss
+        H, W = ch.shape
+        img = fine.reshape(H, ss, W, ss).mean(axis=(1, 3)) if ss > 1 else fine.copy()
+        if hz is not None:
+            yy, xx = np.meshgrid(self.ry, self.rx, indexing="ij")
+            img += self.optics.far_weight * map_coordinates(hz, [yy.ravel(), xx.ravel()], order=1,
+                                                            mode="nearest").reshape(H, W)
+        if self.ri is not None:
+            img *= self.ri
+        return img
+
+    def _full(self, t: float | None) -> tuple[np.ndarray, np.ndarray | None, np.ndarray, np.ndarray | None]:
+        L = self._radiance(self.ya, self.xa, t)
+        fine = self._fine_image(L)
+        hz = Lc = None
+        if self.far:
+            S = self.SUB
+            Lc = self._coarse_radiance(0, self.yc.size // S, 0, self.xc.size // S, t)
+            hz = _conv_valid(Lc, self.optics.far_kernel)
+        return fine, hz, L, Lc
+
+    @staticmethod
+    def _range(axis: np.ndarray, lo: float, hi: float, group: int = 1) -> tuple[int, int]:
+        """Index range [i0, i1) (in groups of ``group`` samples) covering angles [lo, hi], padded by 1."""
+        i0 = int(np.searchsorted(axis, lo, side="left")) // group - 1
+        i1 = -(-int(np.searchsorted(axis, hi, side="right")) // group) + 1
+        n = axis.size // group
+        return max(i0, 0), min(i1, n)
+
+    @staticmethod
+    def _add_full(out: np.ndarray, d: np.ndarray, k: np.ndarray, r0: int, c0: int, m: int) -> None:
+        """Add the full convolution of ``d`` (placed at input index r0, c0 of a valid convolution with
+        margin m) into ``out``."""
+        from scipy.signal import fftconvolve
+
+        f = fftconvolve(d, k, mode="full")
+        y0, x0 = r0 - 2 * m, c0 - 2 * m
+        ys, xs = max(0, -y0), max(0, -x0)
+        ye = min(f.shape[0], out.shape[0] - y0)
+        xe = min(f.shape[1], out.shape[1] - x0)
+        if ye > ys and xe > xs:
+            out[y0 + ys:y0 + ye, x0 + xs:x0 + xe] += f[ys:ye, xs:xe]
+
+    # -- public ---------------------------------------------------------------------------------------
+    def render(self, t: float = 0.0) -> np.ndarray:
+        """The image at time ``t``: in-band radiance (W m^-2 sr^-1) after PSF, haze, pixel integration and
+        relative illumination, ``(H, W)`` float64."""
+        if not self.incremental:
+            fine, hz, _, _ = self._full(t)
+            return self._finish(fine, hz)
+        if self._bg is None:
+            fine, hz, L, Lc = self._full(None)
+            self._bg = {"fine": fine, "hz": hz, "L": L, "Lc": Lc}
+        bg = self._bg
+        fine = bg["fine"].copy()
+        hz = None if bg["hz"] is None else bg["hz"].copy()
+        k = self.optics.kernels[0]
+        m = k.shape[0] // 2
+        boxes = self.scene.dynamic_regions(t) or []
+        fine_boxes = _merge_overlapping_boxes([self._range(self.ya, y0, y1) + self._range(self.xa, x0, x1)
+                                               for (x0, y0, x1, y1) in boxes])
+        for r0, r1, c0, c1 in fine_boxes:
+            d = self._radiance(self.ya[r0:r1], self.xa[c0:c1], t) - bg["L"][r0:r1, c0:c1]
+            self._add_full(fine, d, k, r0, c0, m)
+        if hz is not None:
+            S = self.SUB
+            kf = self.optics.far_kernel
+            coarse_boxes = _merge_overlapping_boxes([self._range(self.yc, y0, y1, S) + self._range(self.xc, x0, x1, S)
+                                                     for (x0, y0, x1, y1) in boxes])
+            for q0, q1, p0, p1 in coarse_boxes:
+                dc = self._coarse_radiance(q0, q1, p0, p1, t) - bg["Lc"][q0:q1, p0:p1]
+                self._add_full(hz, dc, kf, q0, p0, kf.shape[0] // 2)
+        return self._finish(fine, hz)
+
+
+def _merge_overlapping_boxes(boxes: list[tuple[int, int, int, int]]) -> list[tuple[int, int, int, int]]:
+    """Index boxes (r0, r1, c0, c1), empty ones dropped and overlapping ones merged into their union,
+    so that no sample is counted twice."""
+    out = [b for b in boxes if b[1] > b[0] and b[3] > b[2]]
+    merged = True
+    while merged:
+        merged = False
+        for i in range(len(out)):
+            for j in range(i + 1, len(out)):
+                a, b = out[i], out[j]
+                if a[0] < b[1] and b[0] < a[1] and a[2] < b[3] and b[2] < a[3]:
+                    out[i] = (min(a[0], b[0]), max(a[1], b[1]), min(a[2], b[2]), max(a[3], b[3]))
+                    del out[j]
+                    merged = True
+                    break
+            if merged:
+                break
+    return out

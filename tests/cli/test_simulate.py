@@ -1,0 +1,73 @@
+"""``metafovea simulate``: flags, files, exit statuses and messages (through ``metafovea.cli.main``)."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+
+from metafovea.cli import main
+from metafovea.imaging.kernels import MAX_PSF_SIZE
+
+
+def test_cli_simulate(tmp_path, designs_dir, capsys):
+    import tifffile
+
+    out = tmp_path / "meas.npz"
+    args = ["simulate", str(designs_dir / "system.toml"), "--scene", "bars", "--frames", "3", "--psf",
+            "gaussian:12", "--supersample", "1", "--out", str(out), "--json"]
+    assert main(args) == 0
+    summary = json.loads(capsys.readouterr().out)
+    assert summary["frames"] == 3 and summary["shape"] == [290, 290]
+    assert out.is_file() and (tmp_path / "meas.tif").is_file() and (tmp_path / "meas_preview.png").is_file()
+    assert tifffile.imread(tmp_path / "meas.tif").shape == (3, 290, 290)
+    assert main(args) == 2  # refuses to overwrite
+    assert main(args[:-3] + ["--out", str(tmp_path / "x.npz"), "--frames", "0"]) == 2
+    assert main(["simulate", "--scene", "nope.npy", "--out", str(tmp_path / "y.npz")]) == 2
+    assert main(["simulate", str(tmp_path / "missing.toml"), "--out", str(tmp_path / "z.npz")]) == 2
+    err = capsys.readouterr().err
+    assert "frames" in err and "scene" in err
+
+
+def test_cli_simulate_text_summary_and_optional_outputs(tmp_path, capsys):
+    out = tmp_path / "m.npz"
+    assert main(["simulate", "--scene", "uniform", "--frames", "2", "--psf", "airy", "--out", str(out),
+                 "--no-tiff", "--no-preview"]) == 0
+    text = capsys.readouterr().out
+    assert text.startswith("scene uniform: 2 frames 290x290 (DN)") and "haze fraction foveal" in text
+    assert f"measurement: {out}" in text and "tiff" not in text
+    assert out.is_file() and not (tmp_path / "m.tif").exists() and not (tmp_path / "m_preview.png").exists()
+    assert main(["simulate", "--scene", "uniform", "--out", str(tmp_path / "m.txt")]) == 2
+    assert "--out = " in capsys.readouterr().err
+
+
+def test_cli_list_scenes(capsys):
+    assert main(["simulate", "--list-scenes", "--json"]) == 0
+    scenes = json.loads(capsys.readouterr().out)
+    assert "siemens-star" in scenes and "hand" in scenes
+    assert main(["simulate", "--list-scenes"]) == 0
+    assert capsys.readouterr().out.startswith("siemens-star ")
+
+
+def test_large_psf_window_is_refused_by_the_flag(tmp_path, capsys):
+    """--psf-size up to 4097 was accepted and asked the Airy model for a (4097*7)^2 grid (tens of GB)."""
+    assert main(["simulate", "--psf", "airy", "--psf-size", str(MAX_PSF_SIZE + 2), "--frames", "1",
+                 "--out", str(tmp_path / "m.npz")]) == 2
+    err = capsys.readouterr().err
+    assert "--psf-size" in err and not (tmp_path / "m.npz").exists()
+
+
+def test_simulate_never_overwrites_its_scene_file_even_with_force(tmp_path, monkeypatch, capsys):
+    """--scene s.npz --out s.npz destroyed the scene, even with --force; k.tif as scene and k.npz as out
+    overwrote it with the TIFF stack."""
+    import tifffile
+
+    monkeypatch.chdir(tmp_path)
+    np.savez("s.npz", temperature_k=np.full((20, 20), 300.0))
+    before = (tmp_path / "s.npz").read_bytes()
+    assert main(["simulate", "--scene", "s.npz", "--out", "s.npz", "--force", "--frames", "1", "--psf", "airy"]) == 2
+    assert "--out" in capsys.readouterr().err and (tmp_path / "s.npz").read_bytes() == before
+    np.save("k.npy", np.full((20, 20), 300.0))
+    tifffile.imwrite("k.tif", np.full((20, 20), 300.0, np.float32))  # the TIFF written next to k.npz
+    assert main(["simulate", "--scene", "k.tif", "--out", "k.npz", "--force", "--frames", "1", "--psf", "airy"]) == 2
+    assert "k.tif" in capsys.readouterr().err

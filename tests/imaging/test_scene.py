@@ -1,0 +1,160 @@
+"""metafovea.imaging.scene: scenes over field angle and time, and the files and pictures they load."""
+
+from __future__ import annotations
+
+import math
+import warnings
+from dataclasses import dataclass
+
+import numpy as np
+import pytest
+
+from metafovea.errors import InputError
+from metafovea.imaging.scene import (SKIMAGE_IMAGES, CoilHeater, RasterScene, Scene, SceneGeometry, image_scene,
+                                     list_scenes, load_scene_file, make_scene)
+
+
+# ---------------------------------------------------------------------------------------------
+# physics and geometry
+# ---------------------------------------------------------------------------------------------
+def test_scene_is_sampled_at_any_resolution_star_contrast_in_fovea():
+    sc = make_scene("siemens-star")
+    g = SceneGeometry()
+    # a ring inside the foveal field still resolves the spokes when sampled finely
+    phi = np.linspace(0, 2 * np.pi, 3600, endpoint=False)
+    r = 0.5 * g.fovea_half
+    temp, _ = sc.sample(r * np.cos(phi), r * np.sin(phi))
+    changes = np.count_nonzero(np.diff(temp) != 0)
+    assert changes == pytest.approx(2 * 36, abs=2)
+
+
+def test_heater_transients():
+    h = CoilHeater(on_duration_s=5.0, t_on_s=1.0)
+    ts = np.linspace(0, 20, 201)
+    tc = np.array([h.coil_temperature(t) for t in ts])
+    assert tc[0] == pytest.approx(h.wall_k)
+    on = (ts >= 1) & (ts <= 6)
+    assert np.all(np.diff(tc[on]) > 0)  # heating
+    assert np.all(np.diff(tc[ts > 6]) < 0)  # cooling
+    assert h.coil_temperature(6.0) == pytest.approx(h.wall_k + h.dt_max_k * (1 - math.exp(-5 / h.tau_heat_s)))
+    assert make_scene("heater-20s").on_duration_s == 20.0
+
+
+def test_builtin_scenes_render_plausible_temperatures():
+    g = SceneGeometry()
+    ax, ay = np.meshgrid(np.linspace(-g.half, g.half, 40), np.linspace(-g.half, g.half, 40))
+    for name in list_scenes():
+        sc = make_scene(name, g)
+        for t in (0.0, 3.0):
+            temp, eps = sc.sample(ax, ay, t)
+            assert temp.shape == ax.shape and np.all((temp > 200) & (temp < 700)), name
+            assert np.all((eps > 0) & (eps <= 1)), name
+
+
+# ---------------------------------------------------------------------------------------------
+# files, pictures and bad input
+# ---------------------------------------------------------------------------------------------
+def test_bad_scene_inputs():
+    with pytest.raises(InputError, match="scene"):
+        make_scene("no-such-scene")
+    with pytest.raises(InputError, match="scene"):
+        make_scene("missing_file.npy")
+    with pytest.raises(InputError, match="temperature"):
+        RasterScene(temperature_k=np.full((8, 8), -5.0))
+
+
+def test_scene_from_npy_file(tmp_path):
+    t = np.full((32, 32), 300.0)
+    t[12:20, 12:20] = 330.0
+    np.save(tmp_path / "hot.npy", t)
+    sc = make_scene(str(tmp_path / "hot.npy"))
+    temp, _ = sc.sample(np.array([0.0, 0.9 * sc.half_width_rad]), np.array([0.0, 0.0]))
+    assert temp[0] == pytest.approx(330.0) and temp[1] == pytest.approx(300.0)
+    np.save(tmp_path / "neg.npy", t - 400)
+    with pytest.raises(InputError, match="temperature"):
+        make_scene(str(tmp_path / "neg.npy"))
+
+
+def test_nan_emissivity_in_scene_file_is_refused(tmp_path):
+    """A NaN emissivity in a scene (file, one raster pixel, or a scalar) was silent NaN frames; now an input error."""
+    p = tmp_path / "s.npz"
+    np.savez(p, temperature_k=np.full((20, 20), 300.0), emissivity=np.full((20, 20), np.nan))
+    with pytest.raises(InputError, match="emissivity"):
+        load_scene_file(p)
+    e = np.full((20, 20), 0.9)
+    e[3, 4] = np.nan  # one bad pixel is enough
+    with pytest.raises(InputError, match="emissivity"):
+        RasterScene(temperature_k=np.full((20, 20), 300.0), emissivity=e)
+    with pytest.raises(InputError, match="emissivity"):
+        RasterScene(temperature_k=np.full((20, 20), 300.0), emissivity=float("nan"))
+
+
+def test_scene_returning_nan_emissivity_is_refused_when_sampled():
+    """NaN emissivity was silent NaN frames: a scene whose sampling returns NaN is refused when sampled."""
+    @dataclass(frozen=True)
+    class Bad(Scene):
+        name: str = "bad"
+
+        def _sample(self, ax, ay, t):
+            return np.full(ax.shape, 300.0), np.full(ax.shape, np.nan)
+
+    with pytest.raises(InputError, match="emissivity"):
+        Bad().sample(np.zeros((3, 3)), np.zeros((3, 3)))
+
+
+def test_all_nan_temperature_raster_gives_one_clean_error(tmp_path):
+    """A bad scene file is one input error: an all-NaN temperature raster too, with no numpy "All-NaN slice"
+    RuntimeWarning on the way."""
+    p = tmp_path / "nan.npy"
+    np.save(p, np.full((8, 8), np.nan))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # no "All-NaN slice" RuntimeWarning on the way
+        with pytest.raises(InputError, match="temperature_k"):
+            make_scene(str(p))
+
+
+def test_scene_npz_with_array_half_width_is_an_input_error(tmp_path):
+    """An array half_width_deg in a scene .npz was not a one-line input error; a 1-element array is a scalar."""
+    p = tmp_path / "hw.npz"
+    np.savez(p, temperature_k=np.full((10, 10), 300.0), half_width_deg=np.array([1.0, 2.0]))
+    with pytest.raises(InputError, match="half_width_deg"):
+        load_scene_file(p)
+    np.savez(p, temperature_k=np.full((10, 10), 300.0), half_width_deg=np.array([[3.0]]))
+    assert load_scene_file(p).half_width_rad == pytest.approx(np.radians(3.0))
+
+
+@pytest.mark.parametrize("content", [b"not a png", b""])
+def test_unreadable_picture_gives_a_one_line_error(tmp_path, content):
+    """An unreadable picture was not a one-line input error naming the scene (some readers explain themselves
+    over several lines)."""
+    p = tmp_path / "bad.png"
+    p.write_bytes(content)
+    with pytest.raises(InputError) as e:
+        load_scene_file(p)
+    assert "\n" not in str(e.value) and "scene" in str(e.value)
+
+
+def test_truncated_scene_npz_is_an_input_error(tmp_path):
+    """A truncated/corrupt .npz scene file was a BadZipFile traceback; now an input error naming the scene."""
+    p = tmp_path / "s.npz"
+    np.savez(p, temperature_k=np.full((20, 20), 300.0))
+    p.write_bytes(p.read_bytes()[:300])
+    with pytest.raises(InputError, match="scene"):
+        load_scene_file(p)
+
+
+def test_every_advertised_skimage_picture_loads_or_is_an_input_error(monkeypatch):
+    """skimage:motorcycle (advertised) was an AttributeError traceback: the loader is stereo_motorcycle."""
+    from skimage import data
+
+    sc = image_scene("motorcycle")
+    assert sc.temperature_k.ndim == 2 and sc.temperature_k.shape[0] > 2
+    for name in SKIMAGE_IMAGES:  # names only: the pictures themselves are not loaded here
+        assert hasattr(data, name) or hasattr(data, f"stereo_{name}"), name
+
+    def offline():
+        raise OSError("cannot download")
+
+    monkeypatch.setattr(data, "camera", offline)
+    with pytest.raises(InputError, match="skimage:camera"):
+        image_scene("camera")
