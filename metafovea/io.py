@@ -140,6 +140,13 @@ def load_npz(path: str | os.PathLike, name: str = "path") -> tuple[dict[str, np.
     return arrays, meta
 
 
+def file_stem(name: str) -> str:
+    """A lens name made safe as a file-name stem: no path separators or '..' (a name like '../x' wrote
+    outside the output directory), no shell-hostile characters; letters, digits, '-', '_' and '.' kept."""
+    stem = "".join(ch if (ch.isalnum() or ch in "-_.") else "_" for ch in str(name)).lstrip(".")
+    return stem or "lens"
+
+
 def cache_root() -> Path:
     """Root of metafovea's caches: ``$METAFOVEA_CACHE`` or ``~/.cache/metafovea`` (one folder per stage)."""
     env = os.environ.get("METAFOVEA_CACHE")

@@ -90,3 +90,9 @@ def test_cache_dir_is_one_folder_per_stage(tmp_path, monkeypatch):
     assert cache_dir("psf") == tmp_path / "c" / "psf"
     monkeypatch.delenv("METAFOVEA_CACHE")
     assert cache_dir("psf") == Path.home() / ".cache" / "metafovea" / "psf"
+
+
+def test_file_stem_cannot_name_a_path():
+    from metafovea.io import file_stem
+
+    assert file_stem("../../x") == "_.._x" and file_stem("a/b") == "a_b" and file_stem("..") == "lens"

@@ -30,7 +30,7 @@ from typing import Any, Callable, Iterator
 import numpy as np
 
 from metafovea.errors import InputError, check_choice, check_int
-from metafovea.io import input_hash, prepare_output
+from metafovea.io import file_stem, input_hash, prepare_output
 from metafovea.layout import gds, oasis
 from metafovea.layout.mesh import MESH_FORMATS, export_mesh
 from metafovea.layout.tiling import Expected, LayoutSpec
@@ -590,8 +590,7 @@ def output_path(spec: LayoutSpec, fmt: str, out: str | os.PathLike | None = None
     suffixes (:data:`SUFFIXES`), or ``gds_export/<name>[_cal][_patch][_flat][_h<max_refs>].<fmt>`` (``name``:
     the lens name with anything but letters, digits, ``-_.`` replaced by ``_``, so that it names no other
     folder). A suffix of another format is an :class:`InputError` (tools trust the suffix)."""
-    stem = "".join(ch if (ch.isalnum() or ch in "-_.") else "_" for ch in spec.design.name).lstrip(".") or "lens"
-    name = stem + ("_cal" if test_array else "") + ("_patch" if spec.patch_um else "") + \
+    name = file_stem(spec.design.name) + ("_cal" if test_array else "") + ("_patch" if spec.patch_um else "") + \
         ("_flat" if flat else "") + (f"_h{max_refs}" if max_refs else "")
     path = Path(out) if out else DEFAULT_DIR / name
     known = tuple(x for v in SUFFIXES.values() for x in v)

@@ -15,7 +15,7 @@ import numpy as np
 
 from metafovea.config import LensDesign, load_lens
 from metafovea.errors import InputError, check_int
-from metafovea.io import atomic_write_bytes, atomic_write_json, prepare_output
+from metafovea.io import atomic_write_bytes, atomic_write_json, file_stem, prepare_output
 from metafovea.radiometry import psf_wavelengths
 from metafovea.report import HtmlReport, fig_to_png
 
@@ -29,13 +29,6 @@ log = logging.getLogger(__name__)
 
 #: resolution of the report figures
 DPI = 90
-
-
-def file_stem(name: str) -> str:
-    """A lens name made safe as a file-name stem: no path separators or '..' (a name like '../x' wrote
-    outside the output directory), no shell-hostile characters; letters, digits, '-', '_' and '.' kept."""
-    stem = "".join(ch if (ch.isalnum() or ch in "-_.") else "_" for ch in str(name)).lstrip(".")
-    return stem or "lens"
 
 
 # ----------------------------------------------------------------------------------------------

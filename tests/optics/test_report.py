@@ -9,7 +9,7 @@ import pytest
 from metafovea.config import LensDesign, load_lens
 from metafovea.errors import InputError
 from metafovea.optics import SamplingError, psf, sensor_psf
-from metafovea.optics.report import file_stem, psf_report, psf_reports
+from metafovea.optics.report import psf_report, psf_reports
 from metafovea.radiometry import psf_wavelengths
 
 TOML = """name = "tiny"
@@ -70,10 +70,6 @@ def test_json_numbers_match_library(tiny):
         assert s["poly_energy_fraction"] == pytest.approx(poly.energy_fraction, rel=1e-9)
         assert s["poly_error_estimate"] == pytest.approx(poly.error_estimate, rel=1e-9)
         assert s["size_px"] == poly.shape[0]
-
-
-def test_file_stem_cannot_name_a_path():
-    assert file_stem("../../x") == "_.._x" and file_stem("a/b") == "a_b" and file_stem("..") == "lens"
 
 
 def test_psf_reports_refuses_one_name_twice_before_any_output(tmp_path):
