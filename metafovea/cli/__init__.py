@@ -33,6 +33,7 @@ PARAMETER_FLAGS: dict[str, dict[str, str]] = {
     "psf": {"band_um": "--band-um", "filter_um": "--filter-um", "pixel_pitch_um": "--pixel-um",
             "field_deg": "--field-deg", "error": "--error", "temperature_k": "--temperature-k",
             "n_wavelengths": "--wavelengths", "wavelength_um": "--wavelength-um", "window_um": "--window-um"},
+    "simulate": {"extinction": "--extinction", "tau_s": "--tau", "fpn_drift": "--drift", "netd_k": "--netd"},
 }
 
 
