@@ -14,26 +14,6 @@ import pytest
 from metafovea.cli import main
 
 
-def _lens_toml(tmp_path, name="qa", f_mm=0.8, d_mm=0.4, levels=8, lattice="integer", pol="x"):
-    p = tmp_path / f"{name}.toml"
-    p.write_text(textwrap.dedent(f"""\
-        name = "{name}"
-        f_mm = {f_mm}
-        diameter_mm = {d_mm}
-        wavelength_um = 10.0
-        polarization = "{pol}"
-        levels = {levels}
-        lattice = "{lattice}"
-        """))
-    return p
-
-
-def _err(capsys) -> str:
-    err = capsys.readouterr().err.strip()
-    assert "Traceback" not in err
-    return err
-
-
 @pytest.fixture(scope="module")
 def toml(tmp_path_factory):
     p = tmp_path_factory.mktemp("design") / "small.toml"
@@ -87,51 +67,51 @@ def test_disk_full_leaves_no_file(tmp_path, toml):
 
 
 @pytest.mark.parametrize("value", ["inf", "nan", "0", "-3", "1e9"])
-def test_ring_width_must_be_finite_and_fit_coordinates(tmp_path, capsys, value):
+def test_ring_width_must_be_finite_and_fit_coordinates(tmp_path, capsys, value, lens_toml, cli_error):
     """--ring-width-um inf was a JSON traceback; 1e9 silently wrapped the 32-bit coordinates."""
-    toml = _lens_toml(tmp_path)
+    toml = lens_toml(tmp_path)
     out = tmp_path / "r.gds"
     assert main(["export", str(toml), "--out", str(out), "--ring-width-um", value, "--quiet"]) == 2
-    err = _err(capsys)
+    err = cli_error(capsys)
     assert "--ring-width-um" in err and len(err.splitlines()) == 1
     assert not out.exists()
 
 
 @pytest.mark.parametrize("value", ["nan", "-5", "inf", "1e9"])
-def test_mesh_substrate_thickness_checked(tmp_path, capsys, value):
+def test_mesh_substrate_thickness_checked(tmp_path, capsys, value, lens_toml, cli_error):
     """--substrate-um nan/-5 were silently ignored, inf wrote a mesh with infinite vertices."""
     pytest.importorskip("trimesh")
-    toml = _lens_toml(tmp_path)
+    toml = lens_toml(tmp_path)
     out = tmp_path / "m.stl"
     assert main(["export", str(toml), "--format", "stl", "--patch", "0,0,0.02", "--out", str(out),
                  "--substrate-um", value, "--quiet"]) == 2
-    assert "--substrate-um" in _err(capsys)
+    assert "--substrate-um" in cli_error(capsys)
     assert not out.exists()
 
 
-def test_export_cli_post_set_not_npz(tmp_path, capsys):
+def test_export_cli_post_set_not_npz(tmp_path, capsys, lens_toml, cli_error):
     """A design TOML given as --post-set is one line that names --post-set."""
-    toml = _lens_toml(tmp_path)
+    toml = lens_toml(tmp_path)
     rc = main(["export", str(toml), "--post-set", str(toml), "--out", str(tmp_path / "x.oas"), "--format", "oas",
                "--quiet"])
-    err = _err(capsys)
+    err = cli_error(capsys)
     assert rc == 2 and err.startswith("metafovea export: error: --post-set") and len(err.splitlines()) == 1
 
 
 @pytest.mark.parametrize("fmt,name", [("gds", "a.oas"), ("oas", "a.gds"), ("gds", "a.OASIS"), ("stl", "a.glb")])
-def test_export_suffix_must_match_format(tmp_path, capsys, fmt, name):
+def test_export_suffix_must_match_format(tmp_path, capsys, fmt, name, lens_toml, cli_error):
     """--format gds --out x.oas wrote GDSII bytes into a file named .oas."""
-    toml = _lens_toml(tmp_path)
+    toml = lens_toml(tmp_path)
     out = tmp_path / name
     rc = main(["export", str(toml), "--format", fmt, "--out", str(out), "--patch=0,0,0.02", "--quiet"])
-    err = _err(capsys)
+    err = cli_error(capsys)
     assert rc == 2 and "--out" in err
     assert not out.exists()
 
 
 @pytest.mark.parametrize("fmt,name", [("gds", "a.GDS"), ("oas", "a.oasis"), ("gds", "a")])
-def test_export_suffix_accepted(tmp_path, fmt, name):
-    toml = _lens_toml(tmp_path)
+def test_export_suffix_accepted(tmp_path, fmt, name, lens_toml):
+    toml = lens_toml(tmp_path)
     assert main(["export", str(toml), "--format", fmt, "--out", str(tmp_path / name), "--quiet"]) == 0
     written = [p for p in tmp_path.iterdir() if p.name.startswith("a")]
     assert len(written) == 1

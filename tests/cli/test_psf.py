@@ -4,7 +4,6 @@ option typed, two lenses in two processes give the numbers of one."""
 import contextlib
 import io
 import json
-import textwrap
 
 import pytest
 
@@ -33,26 +32,6 @@ def tiny(tmp_path_factory):
         rc = main(["psf", str(path), "--field-deg", "0", "3", "--wavelengths", "9", "--out", str(out), "--json"])
     assert rc == 0
     return path, out, json.loads(stdout.getvalue())
-
-
-def _lens_toml(tmp_path, name="qa", f_mm=0.8, d_mm=0.4, levels=8, lattice="integer", pol="x"):
-    p = tmp_path / f"{name}.toml"
-    p.write_text(textwrap.dedent(f"""\
-        name = "{name}"
-        f_mm = {f_mm}
-        diameter_mm = {d_mm}
-        wavelength_um = 10.0
-        polarization = "{pol}"
-        levels = {levels}
-        lattice = "{lattice}"
-        """))
-    return p
-
-
-def _err(capsys) -> str:
-    err = capsys.readouterr().err.strip()
-    assert "Traceback" not in err
-    return err
 
 
 def test_writes_the_report_and_prints_its_summary(tiny):
@@ -133,35 +112,35 @@ def test_two_lenses_in_two_processes(tiny, tmp_path, capsys):
     (["--filter-um", "20", "0.5"], "--filter-um"),
     (["--filter-um", "3", "0.2"], "--filter-um"),
 ])
-def test_psf_cli_errors_name_the_option(tmp_path, capsys, opts, flag):
+def test_psf_cli_errors_name_the_option(tmp_path, capsys, opts, flag, lens_toml, cli_error):
     """--wavelengths 100000 hung; --pixel-um / --filter-um / --temperature-k errors did not name the option
     (a temperature of 1 K printed a RuntimeWarning and blamed band_um); a wavelength at zero first-order
     efficiency named 'polarization = None'."""
-    toml = _lens_toml(tmp_path, f_mm=20.0, d_mm=2.0)
+    toml = lens_toml(tmp_path, f_mm=20.0, d_mm=2.0)
     rc = main(["psf", str(toml), "--field-deg", "0", "--wavelengths", "3", "--out", str(tmp_path / "o"), *opts])
-    err = _err(capsys)
+    err = cli_error(capsys)
     assert rc == 2, err
     assert err.startswith("metafovea psf: error: " + flag) and len(err.splitlines()) == 1
     assert "RuntimeWarning" not in err
 
 
-def test_psf_two_lenses_with_one_name_refused(tmp_path, capsys):
+def test_psf_two_lenses_with_one_name_refused(tmp_path, capsys, lens_toml, cli_error):
     """Two designs with the same 'name' silently overwrote each other's report files."""
-    a = _lens_toml(tmp_path, name="same", f_mm=20.0, d_mm=2.0)
+    a = lens_toml(tmp_path, name="same", f_mm=20.0, d_mm=2.0)
     b = tmp_path / "other.toml"
     b.write_text(a.read_text().replace("f_mm = 20.0", "f_mm = 25.0"))
     out = tmp_path / "o"
     rc = main(["psf", str(a), str(b), "--field-deg", "0", "--wavelengths", "3", "--out", str(out)])
-    err = _err(capsys)
+    err = cli_error(capsys)
     assert rc == 2 and "'same'" in err and not out.exists()
 
 
 @pytest.mark.parametrize("opts,flag", [(["--band-um", "8", "300"], "--band-um"), (["--band-um", "0.01", "1e4"], "--band-um"),
                                        (["--wavelength-um", "250"], "--wavelength-um")])
-def test_psf_band_beyond_evanescent_limit_names_band(tmp_path, capsys, opts, flag):
+def test_psf_band_beyond_evanescent_limit_names_band(tmp_path, capsys, opts, flag, lens_toml, cli_error):
     """A band reaching lambda0/NA failed deep inside with '--field-deg = 0.0 is invalid; |field| <= 0.000'."""
-    toml = _lens_toml(tmp_path, f_mm=20.0, d_mm=2.0)  # NA 0.05: limit 200 um
+    toml = lens_toml(tmp_path, f_mm=20.0, d_mm=2.0)  # NA 0.05: limit 200 um
     rc = main(["psf", str(toml), "--field-deg", "0", "--wavelengths", "3", "--out", str(tmp_path / "o"), *opts])
-    err = _err(capsys)
+    err = cli_error(capsys)
     assert rc == 2 and err.startswith("metafovea psf: error: " + flag), err
     assert not (tmp_path / "o").exists()

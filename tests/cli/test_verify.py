@@ -3,7 +3,6 @@ line naming FILE for a damaged, truncated or foreign file."""
 
 from __future__ import annotations
 
-import textwrap
 
 import pytest
 
@@ -12,35 +11,15 @@ from metafovea.cli import main
 pytest.importorskip("klayout.db")
 
 
-def _lens_toml(tmp_path, name="qa", f_mm=0.8, d_mm=0.4, levels=8, lattice="integer", pol="x"):
-    p = tmp_path / f"{name}.toml"
-    p.write_text(textwrap.dedent(f"""\
-        name = "{name}"
-        f_mm = {f_mm}
-        diameter_mm = {d_mm}
-        wavelength_um = 10.0
-        polarization = "{pol}"
-        levels = {levels}
-        lattice = "{lattice}"
-        """))
-    return p
-
-
-def _err(capsys) -> str:
-    err = capsys.readouterr().err.strip()
-    assert "Traceback" not in err
-    return err
-
-
 @pytest.fixture()
-def exported_gds(tmp_path):
-    toml = _lens_toml(tmp_path)
+def exported_gds(tmp_path, lens_toml):
+    toml = lens_toml(tmp_path)
     out = tmp_path / "lens.gds"
     assert main(["export", str(toml), "--out", str(out), "--ring-width-um", "50", "--quiet"]) == 0
     return toml, out
 
 
-def test_verify_exit_status(tmp_path, capsys, exported_gds):
+def test_verify_exit_status(tmp_path, capsys, exported_gds, cli_error):
     toml, gds = exported_gds
     common = ["--design", str(toml), "--quiet"]
     capsys.readouterr()
@@ -57,11 +36,11 @@ def test_verify_exit_status(tmp_path, capsys, exported_gds):
     assert "--max-refs 100" in capsys.readouterr().err
     for flag in ("--workers", "--max-refs"):
         assert main(["verify", str(gds), *common, flag, "0"]) == 2
-        assert _err(capsys) == f"metafovea verify: error: {flag} = 0 is invalid; allowed: an integer >= 1"
+        assert cli_error(capsys) == f"metafovea verify: error: {flag} = 0 is invalid; allowed: an integer >= 1"
 
 
-def test_verify_hierarchical_max_refs(tmp_path):
-    toml = _lens_toml(tmp_path)
+def test_verify_hierarchical_max_refs(tmp_path, lens_toml):
+    toml = lens_toml(tmp_path)
     gds = tmp_path / "h.gds"
     assert main(["export", str(toml), "--ring-width-um", "50", "--max-refs", "64", "--out", str(gds), "--quiet"]) == 0
     args = ["verify", str(gds), "--design", str(toml), "--ring-width-um", "50", "--quiet"]
@@ -70,9 +49,9 @@ def test_verify_hierarchical_max_refs(tmp_path):
 
 
 @pytest.mark.parametrize("fmt,patch", [("oas", "0,0,10"), ("gds", "0.05,-0.1,3"), ("oas", "-0.1,0.1,0.5")])
-def test_patch_wider_than_lens_label_inside_frame(tmp_path, capsys, fmt, patch):
+def test_patch_wider_than_lens_label_inside_frame(tmp_path, capsys, fmt, patch, lens_toml):
     """A patch wider than the lens put its label at negative coordinates: verify then failed its own export."""
-    toml = _lens_toml(tmp_path)
+    toml = lens_toml(tmp_path)
     out = tmp_path / f"p.{fmt}"
     common = ["--design", str(toml), f"--patch={patch}", "--ring-width-um", "50", "--quiet"]
     assert main(["export", str(toml), "--format", fmt, "--out", str(out), f"--patch={patch}",
@@ -84,7 +63,7 @@ def test_patch_wider_than_lens_label_inside_frame(tmp_path, capsys, fmt, patch):
 
 @pytest.mark.parametrize("cut", [0.5, 0.77, -1])
 @pytest.mark.parametrize("reader", ["auto", "klayout", "gdstk", "stream"])
-def test_verify_truncated_file_is_a_clear_error(tmp_path, capsys, exported_gds, damaged, cut, reader):
+def test_verify_truncated_file_is_a_clear_error(tmp_path, capsys, exported_gds, damaged, cut, reader, cli_error):
     """A truncated GDSII file gave a RuntimeError traceback (klayout) or a mismatch list (stream)."""
     if reader == "gdstk":
         pytest.importorskip("gdstk")
@@ -92,22 +71,22 @@ def test_verify_truncated_file_is_a_clear_error(tmp_path, capsys, exported_gds, 
     keep = gds.stat().st_size - 4 if cut == -1 else cut  # -1: only the ENDLIB record missing
     bad = damaged(gds, tmp_path / "trunc.gds", "truncated", keep=keep)
     rc = main(["verify", str(bad), "--design", str(toml), "--ring-width-um", "50", "--quiet", "--reader", reader])
-    err = _err(capsys)
+    err = cli_error(capsys)
     assert rc == 2, err
     assert "FILE" in err and "trunc.gds" in err
 
 
 @pytest.mark.parametrize("damage", ["empty", "garbage", "text"])
-def test_verify_foreign_file_is_a_clear_error(tmp_path, capsys, exported_gds, damaged, damage):
+def test_verify_foreign_file_is_a_clear_error(tmp_path, capsys, exported_gds, damaged, damage, cli_error):
     toml, gds = exported_gds
     bad = damaged(gds, tmp_path / "bad.gds", damage)
     assert main(["verify", str(bad), "--design", str(toml), "--ring-width-um", "50", "--quiet"]) == 2
-    err = _err(capsys)
+    err = cli_error(capsys)
     assert err == f"metafovea verify: error: FILE = '{bad}' is invalid; allowed: a GDSII or OASIS file"
 
 
-def test_verify_truncated_oasis_is_a_clear_error(tmp_path, capsys, damaged):
-    toml = _lens_toml(tmp_path)
+def test_verify_truncated_oasis_is_a_clear_error(tmp_path, capsys, damaged, lens_toml, cli_error):
+    toml = lens_toml(tmp_path)
     out = tmp_path / "lens.oas"
     assert main(["export", str(toml), "--format", "oas", "--out", str(out), "--ring-width-um", "50", "--quiet"]) == 0
     bad = damaged(out, tmp_path / "trunc.oas", "truncated", keep=1 / 3)
@@ -116,7 +95,7 @@ def test_verify_truncated_oasis_is_a_clear_error(tmp_path, capsys, damaged):
             continue
         rc = main(["verify", str(bad), "--design", str(toml), "--ring-width-um", "50", "--quiet",
                    "--reader", reader])
-        err = _err(capsys)
+        err = cli_error(capsys)
         assert rc == 2 and "FILE" in err, err
 
 
