@@ -11,7 +11,7 @@ Fairness: one BLAS/OpenMP thread for numpy and one XLA thread for fmmax (env var
 numpy/jax load); run it under ``taskset -c 0`` to pin the whole process (both solvers) to one core.
 
 How fmmax's amplitudes map onto ours (pinned down with a uniform slab, a free-standing slab and a
-single interface, see tests/test_rcwa_fmmax.py):
+single interface, see tests/rcwa/test_fmmax.py):
 
 * same time convention, exp(-i omega t) (forward waves exp(+i q z), Im q > 0): no conjugation;
 * ``stack_s_matrix(...)``: **s11 is the forward transmission** (first layer -> last layer) and s21

@@ -15,14 +15,17 @@ from __future__ import annotations
 
 import math
 import tomllib
-from dataclasses import asdict, dataclass, field, replace
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, Callable
 
 from metafovea.errors import InputError, check_choice, check_int, check_positive, check_range
 from metafovea.units import LAMBDA0_UM, PHASE_SIGN, UM_PER_MM
 
+#: the polarisation a lens focuses: E along the lattice x or y axis
 POLARIZATIONS = ("x", "y")
+#: lattice sites at integer multiples of the period (a post at the centre) or half-integer ones
+LATTICES = ("integer", "half")
 
 
 # ----------------------------------------------------------------------------------------------
@@ -79,7 +82,7 @@ class LensDesign:
         check_positive("post_height_um", self.post_height_um, "um")
         if self.phase_sign not in (-1, 1):
             raise InputError("phase_sign", self.phase_sign, "-1 (focusing under exp(-i omega t)) or +1")
-        check_choice("lattice", self.lattice, ("integer", "half"))
+        check_choice("lattice", self.lattice, LATTICES)
         check_range("n_substrate", self.n_substrate, 1.0, 10.0, lo_inclusive=True)
 
     # convenience -------------------------------------------------------------------------
@@ -315,7 +318,7 @@ def load_lens(path: str | Path, platform: PlatformDesign | None = None) -> LensD
     period = r.num("period_um", p.period_um, hi=1e4, unit="um")
     height = r.num("post_height_um", p.post_height_um, hi=1e4, unit="um")
     levels = r.int("levels", 8, 2, 256)
-    lattice = r.choice("lattice", "integer", ("integer", "half"))
+    lattice = r.choice("lattice", "integer", LATTICES)
     r.done()
     validate_lens_numbers(f_mm, d_mm, wl, period, levels, pol, source=src,
                           names=("f_mm", "diameter_mm", "wavelength_um", "period_um", "levels", "polarization"))
@@ -399,7 +402,3 @@ def load_design(path: str | Path) -> LensDesign | SystemDesign | PlatformDesign:
         return load_platform(path)
     raise InputError("design file", str(path), "a lens (f_mm, diameter_mm, ...), platform or system ([files]) TOML")
 
-
-def as_dict(obj: Any) -> dict[str, Any]:
-    """Dataclass to a plain dict (for JSON output)."""
-    return asdict(obj)

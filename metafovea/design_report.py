@@ -1,6 +1,7 @@
-"""Design bundle for one lens: numbers (JSON + TOML), radial profile (CSV) and figures (PNG).
+"""Designing lenses and their design bundles: numbers (JSON + TOML), radial profile (CSV) and figures (PNG).
 
-Pure functions over :mod:`metafovea.lens`; the CLI ``metafovea design`` calls :func:`write_design_bundle`.
+:func:`design_lenses` summarises a list of lenses with the posts of a post set or of their platform's RCWA
+library (``metafovea design`` and notebooks); :func:`write_design_bundles` writes one bundle per lens.
 """
 
 from __future__ import annotations
@@ -8,15 +9,69 @@ from __future__ import annotations
 import io as _io
 from dataclasses import asdict
 from pathlib import Path
-from typing import Any
+from typing import Any, Sequence
 
 import numpy as np
 
-from metafovea.config import LensDesign
+from metafovea.config import LensDesign, PlatformDesign
+from metafovea.errors import InputError
 from metafovea.io import atomic_write_bytes, atomic_write_json, atomic_write_text
 from metafovea.lens import (LensSummary, evaluate_tile, hyperbolic_phase, paraxial_phase, posts_per_2pi,
-                            quantize_phase, site_index_range, wrap_phase, zone_width_um)
+                            quantize_phase, site_index_range, summarize, wrap_phase, zone_width_um)
+from metafovea.library import PostSet, platform_post_sets
+from metafovea.report import fig_to_png
 from metafovea.units import TWO_PI, UM_PER_MM
+
+DPI = 110
+
+
+def shared_platform(lenses: Sequence[LensDesign]) -> PlatformDesign:
+    """The platform the lenses share (one RCWA library for all): the same period, post height, wavelength and
+    levels, else an :class:`InputError` on ``from_library``. Posts and wafer are of the lenses' substrate
+    index; the min feature is 0.5 um, or an eighth of a finer period."""
+    l0 = lenses[0]
+    for lens in lenses[1:]:
+        if (lens.period_um, lens.post_height_um, lens.wavelength_um, lens.levels) != \
+                (l0.period_um, l0.post_height_um, l0.wavelength_um, l0.levels):
+            raise InputError("from_library", True, "lenses sharing one platform (period, height, wavelength, levels)")
+    return PlatformDesign(period_um=l0.period_um, post_height_um=l0.post_height_um, wavelength_um=l0.wavelength_um,
+                          n_substrate=l0.n_substrate, n_post=l0.n_substrate,
+                          min_feature_um=min(0.5, 0.125 * l0.period_um))
+
+
+def design_lenses(lenses: Sequence[LensDesign], *, post_set: PostSet | None = None, from_library: bool = False,
+                  samples: int = 1 << 20, progress: bool = False) -> list[LensSummary]:
+    """Summaries of ``lenses`` (:func:`metafovea.lens.summarize`; physics warnings are in each summary's
+    ``warnings``, not emitted).
+
+    ``post_set``: the posts to list for the lens of its polarisation. One lens must focus the post set's
+    polarisation (else an :class:`InputError` on ``post_set``); of several lenses (a system) the others get
+    none. ``from_library``: instead, select each lens' posts from the RCWA library of the platform the lenses
+    share (:func:`shared_platform`; computed on first use, then cached; ``progress`` shows a bar).
+    """
+    if not lenses:
+        raise InputError("lenses", [], "at least one lens")
+    sets: dict[str, PostSet] | None = None
+    if from_library:
+        if post_set is not None:
+            raise InputError("post_set", post_set.source, "no post set with from_library (the library selects one)")
+        sets, _ = platform_post_sets(shared_platform(lenses), lenses[0].levels, progress=progress)
+    out = []
+    for lens in lenses:
+        ps = sets[lens.polarization] if sets is not None else post_set
+        if ps is not None and ps.polarization != lens.polarization and len(lenses) > 1:
+            ps = None
+        out.append(summarize(lens, post_set=ps, samples=samples, emit_warnings=False))
+    return out
+
+
+def write_design_bundles(lenses: Sequence[LensDesign], summaries: Sequence[LensSummary], out_dir: Path) -> list[Path]:
+    """The design bundle of each lens (:func:`write_design_bundle`): in ``out_dir`` for one lens, in
+    ``out_dir/<lens name>`` for several."""
+    written: list[Path] = []
+    for lens, s in zip(lenses, summaries, strict=True):
+        written += write_design_bundle(lens, s, out_dir / lens.name if len(lenses) > 1 else out_dir)
+    return written
 
 
 def summary_dict(s: LensSummary) -> dict[str, Any]:
@@ -87,12 +142,6 @@ def radial_profile(design: LensDesign, n: int = 2001) -> dict[str, np.ndarray]:
             "zone_width_um": zone_width_um(design, r), "posts_per_2pi": posts_per_2pi(design, r)}
 
 
-def _png(fig) -> bytes:
-    buf = _io.BytesIO()
-    fig.savefig(buf, format="png", dpi=110, bbox_inches="tight")
-    return buf.getvalue()
-
-
 def write_design_bundle(design: LensDesign, summary: LensSummary, out_dir: Path, patch_sites: int = 200) -> list[Path]:
     """Write summary.json, design.toml, radial_profile.csv and three figures into ``out_dir``."""
     import matplotlib
@@ -126,7 +175,7 @@ def write_design_bundle(design: LensDesign, summary: LensSummary, out_dir: Path,
         ax.set_xlabel("x (mm)")
     axes[0].set_ylabel("y (mm)")
     fig.colorbar(im, ax=axes, label="phase (rad)")
-    written.append(atomic_write_bytes(out_dir / "phase_patch.png", _png(fig)))
+    written.append(atomic_write_bytes(out_dir / "phase_patch.png", fig_to_png(fig, dpi=DPI)))
     plt.close(fig)
 
     r_mm = prof["r_um"] / UM_PER_MM
@@ -138,7 +187,7 @@ def write_design_bundle(design: LensDesign, summary: LensSummary, out_dir: Path,
     ax.set_title(f"{design.name}: f = {design.f_mm:g} mm, D = {design.diameter_mm:g} mm, NA {design.na:.3f}")
     ax.legend()
     ax.grid(alpha=0.3)
-    written.append(atomic_write_bytes(out_dir / "radial_profile.png", _png(fig)))
+    written.append(atomic_write_bytes(out_dir / "radial_profile.png", fig_to_png(fig, dpi=DPI)))
     plt.close(fig)
 
     fig, ax = plt.subplots(figsize=(6.5, 4))
@@ -150,6 +199,6 @@ def write_design_bundle(design: LensDesign, summary: LensSummary, out_dir: Path,
     ax.set_title(f"{design.name}: rim {summary.rim_posts_per_2pi:.2f} posts per 2 pi ({design.period_um:g} um lattice)")
     ax.legend()
     ax.grid(alpha=0.3, which="both")
-    written.append(atomic_write_bytes(out_dir / "posts_per_2pi.png", _png(fig)))
+    written.append(atomic_write_bytes(out_dir / "posts_per_2pi.png", fig_to_png(fig, dpi=DPI)))
     plt.close(fig)
     return written

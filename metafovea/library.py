@@ -6,17 +6,23 @@ by one lens, level ``k`` targeting the wrapped phase ``2 pi k / N`` for the lens
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+import logging
+import math
+import time
+import warnings
+from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any
+from typing import Any, Iterable, Sequence
 
 import numpy as np
 
-from metafovea.errors import InputError, check_int, check_positive, check_choice
-from metafovea.io import atomic_save_npz, load_npz
+from metafovea.config import POLARIZATIONS, PlatformDesign
+from metafovea.errors import InputError, NotConvergedWarning, check_choice, check_int, check_positive, check_range
+from metafovea.io import atomic_save_npz, input_hash, load_npz
 from metafovea.io import cache_dir as io_cache_dir
+from metafovea.parallel import run_tasks
 
-POLARIZATIONS = ("x", "y")
+log = logging.getLogger(__name__)
 
 
 @dataclass(frozen=True)
@@ -149,18 +155,6 @@ def _load_checked(path: str | Path, kind: str) -> tuple[dict[str, np.ndarray], d
 # the wafer by default (posts face the sensor) so only the zero order is transmitted into air at 10 um.
 # Phases are referenced at the post-layer faces; t is power normalised (|t|^2 = zero-order efficiency).
 
-import logging
-import math
-import time
-import warnings
-from typing import Iterable, Sequence
-
-from metafovea.errors import NotConvergedWarning, check_range
-from metafovea.io import input_hash
-from metafovea.parallel import run_tasks
-
-log = logging.getLogger(__name__)
-
 LIBRARY_ARRAYS = ("t_x", "t_y", "T_x", "T_y", "R_x", "R_y", "other_x", "other_y", "err_x", "err_y")
 DEFAULT_HARMONICS = 10
 
@@ -263,26 +257,65 @@ def _row_task(job: dict) -> dict:
     return out
 
 
-def compute_library(wx_um: Sequence[float], wy_um: Sequence[float] | None = None,
-                    wavelengths_um: Iterable[float] = (10.0,), *, period_um: float = 4.0,
-                    height_um: float = 10.0, n_post: Any = 3.42, n_surround: Any = 1.0,
-                    n_substrate: Any = 3.42, n_superstrate: Any = 1.0, harmonics: int = DEFAULT_HARMONICS,
-                    factorization: str = "li", incidence: str = "substrate", estimate: bool = True,
-                    tol: float | None = 0.02, cache_dir: str | Path | None = None, use_cache: bool = True,
-                    workers: int | None = None, scheduler: str | None = None,
-                    progress: bool = True) -> Library:
-    """Sweep the post widths (wx, wy) for each wavelength with :func:`metafovea.rcwa.posts.post_response`.
+@dataclass(frozen=True)
+class LibraryOptions:
+    """Every knob of a library sweep except the width grid and the wavelengths.
 
-    The result is cached in ``cache_dir`` under a hash of every input; finished rows are written as
-    they arrive (``<key>.parts/``), so an interrupted sweep resumes where it stopped. Work runs through
-    :func:`metafovea.parallel.run_tasks` (local processes, or Dask with ``scheduler``). When the wx and
-    wy grids coincide (square lattice), only x-polarised light is solved and
-    ``t_y(wx, wy) = t_x(wy, wx)``. With ``tol``, a :class:`NotConvergedWarning` reports posts whose
-    convergence estimate exceeds it.
+    The stack: ``period_um``, ``height_um`` (um), refractive indices (numbers or
+    :class:`metafovea.materials.Material`) of the posts, their surroundings, the substrate (the wafer) and the
+    superstrate (air). The solver: ``harmonics`` M (|m|, |n| <= M), ``factorization`` {'li', 'laurent'},
+    ``incidence`` {'substrate', 'superstrate'} (the side light enters from), ``estimate`` (also solve at M - 2
+    for the convergence estimate). The run: ``tol`` (a :class:`NotConvergedWarning` for posts whose estimate
+    exceeds it; None: no warning), ``cache_dir`` (default ``$METAFOVEA_CACHE/library``), ``use_cache``,
+    ``workers`` (local processes; default all cores), ``scheduler`` (a Dask scheduler address), ``progress``.
     """
+
+    period_um: float = 4.0
+    height_um: float = 10.0
+    n_post: Any = 3.42
+    n_surround: Any = 1.0
+    n_substrate: Any = 3.42
+    n_superstrate: Any = 1.0
+    harmonics: int = DEFAULT_HARMONICS
+    factorization: str = "li"
+    incidence: str = "substrate"
+    estimate: bool = True
+    tol: float | None = 0.02
+    cache_dir: str | Path | None = None
+    use_cache: bool = True
+    workers: int | None = None
+    scheduler: str | None = None
+    progress: bool = True
+
+    def with_platform(self, platform: PlatformDesign) -> "LibraryOptions":
+        """These options with the stack (period, post height, indices) of ``platform``."""
+        return replace(self, period_um=platform.period_um, height_um=platform.post_height_um,
+                       n_post=platform.n_post, n_substrate=platform.n_substrate,
+                       n_superstrate=platform.n_superstrate)
+
+
+@dataclass(frozen=True)
+class _Sweep:
+    """The checked inputs of one library sweep and the hash that names its cache files."""
+
+    wx: np.ndarray
+    wy: np.ndarray
+    wls: np.ndarray
+    solver_kw: dict[str, Any]  #: keyword arguments of post_response (checked values)
+    estimate: bool
+    tol: float | None
+    symmetric: bool  #: wx and wy grids coincide: only x-polarised light is solved
+    inputs: dict[str, Any]
+    key: str
+
+
+def _checked_sweep(wx_um: Any, wy_um: Any, wavelengths_um: Any, opts: LibraryOptions) -> _Sweep:
+    """Every input checked (clear errors before any work is queued) and hashed."""
+    from metafovea.materials import index_of
     from metafovea.rcwa.solve import FACTORIZATIONS, SIDES
-    period = check_positive("period_um", period_um, "um")
-    height = check_positive("height_um", height_um, "um")
+
+    period = check_positive("period_um", opts.period_um, "um")
+    height = check_positive("height_um", opts.height_um, "um")
     wx = np.asarray(wx_um, dtype=float).ravel()
     wy = wx.copy() if wy_um is None else np.asarray(wy_um, dtype=float).ravel()
     for name, w in (("wx_um", wx), ("wy_um", wy)):
@@ -291,92 +324,137 @@ def compute_library(wx_um: Sequence[float], wy_um: Sequence[float] | None = None
     wls = np.asarray(list(np.atleast_1d(wavelengths_um)), dtype=float).ravel()
     if wls.size < 1 or not np.all(np.isfinite(wls)) or np.any(wls <= 0):
         raise InputError("wavelengths_um", wls.tolist(), "positive wavelengths (um)")
-    M = check_int("harmonics", harmonics, 5 if estimate else 3, 40)
-    factorization = check_choice("factorization", factorization, FACTORIZATIONS)
-    incidence = check_choice("incidence", incidence, SIDES)
-    if tol is not None:
-        tol = check_positive("tol", tol)
-    # validate materials up front (clear errors before any work is queued)
-    from metafovea.materials import index_of
-    for nm, v in (("n_post", n_post), ("n_surround", n_surround), ("n_substrate", n_substrate),
-                  ("n_superstrate", n_superstrate)):
+    M = check_int("harmonics", opts.harmonics, 5 if opts.estimate else 3, 40)
+    factorization = check_choice("factorization", opts.factorization, FACTORIZATIONS)
+    incidence = check_choice("incidence", opts.incidence, SIDES)
+    tol = None if opts.tol is None else check_positive("tol", opts.tol)
+    media = {"n_post": opts.n_post, "n_surround": opts.n_surround, "n_substrate": opts.n_substrate,
+             "n_superstrate": opts.n_superstrate}
+    for nm, v in media.items():
         index_of(nm, v, wls)
-    symmetric = wx.shape == wy.shape and bool(np.all(wx == wy))
     inputs = {"schema": 1, "wx_um": wx, "wy_um": wy, "wavelengths_um": wls, "period_um": period,
-              "height_um": height, "n_post": _material_key(n_post, wls),
-              "n_surround": _material_key(n_surround, wls), "n_substrate": _material_key(n_substrate, wls),
-              "n_superstrate": _material_key(n_superstrate, wls), "harmonics": M,
-              "factorization": factorization, "incidence": incidence, "estimate": bool(estimate)}
-    key = input_hash(inputs)
-    cdir = Path(cache_dir) if cache_dir is not None else io_cache_dir("library")
-    final = cdir / f"library-{key}.npz"
-    if use_cache and final.is_file():
-        try:
-            lib = Library.load(final)
-        except InputError as e:  # a damaged cache file (disk full, killed copy) is recomputed, not fatal
-            log.warning("recomputing damaged library cache %s (%s)", final, e)
-        else:
-            log.info("library loaded from cache %s", final)
-            lib.meta["from_cache"] = True
-            _warn_convergence(lib, tol)
-            return lib
-    parts = cdir / f"library-{key}.parts"
-    kw = dict(period_um=period, height_um=height, n_post=n_post, n_surround=n_surround,
-              n_substrate=n_substrate, n_superstrate=n_superstrate, harmonics=M,
-              factorization=factorization, incidence=incidence)
-    jobs, todo = [], []
+              "height_um": height, **{nm: _material_key(v, wls) for nm, v in media.items()}, "harmonics": M,
+              "factorization": factorization, "incidence": incidence, "estimate": bool(opts.estimate)}
+    solver_kw = dict(period_um=period, height_um=height, **media, harmonics=M, factorization=factorization,
+                     incidence=incidence)
+    return _Sweep(wx, wy, wls, solver_kw, bool(opts.estimate), tol,
+                  wx.shape == wy.shape and bool(np.all(wx == wy)), inputs, input_hash(inputs))
+
+
+def compute_library(wx_um: Sequence[float], wy_um: Sequence[float] | None = None,
+                    wavelengths_um: Iterable[float] = (10.0,), *, options: LibraryOptions | None = None,
+                    **overrides: Any) -> Library:
+    """Sweep the post widths (wx, wy) for each wavelength with :func:`metafovea.rcwa.posts.post_response`.
+
+    Parameters
+    ----------
+    wx_um, wy_um : array_like, um
+        Post widths along x and y (``wy_um=None``: the same grid as ``wx_um``).
+    wavelengths_um : iterable of float, um
+    options : LibraryOptions, optional
+        The stack, solver and run settings (default ``LibraryOptions()``).
+    **overrides
+        Fields of :class:`LibraryOptions` that replace those of ``options`` (``harmonics=5, workers=1``).
+
+    The result is cached in ``options.cache_dir`` under a hash of every input; finished rows are written as
+    they arrive (``<key>.parts/``), so an interrupted sweep resumes where it stopped. Work runs through
+    :func:`metafovea.parallel.run_tasks` (local processes, or Dask with ``scheduler``). When the wx and
+    wy grids coincide (square lattice), only x-polarised light is solved and
+    ``t_y(wx, wy) = t_x(wy, wx)``. With ``tol``, a :class:`NotConvergedWarning` reports posts whose
+    convergence estimate exceeds it.
+    """
+    opts = replace(options if options is not None else LibraryOptions(), **overrides)
+    sweep = _checked_sweep(wx_um, wy_um, wavelengths_um, opts)
+    cdir = Path(opts.cache_dir) if opts.cache_dir is not None else io_cache_dir("library")
+    final = cdir / f"library-{sweep.key}.npz"
+    lib = _cached_library(final) if opts.use_cache else None
+    if lib is None:
+        lib = _run_sweep(sweep, opts, cdir / f"library-{sweep.key}.parts")
+        if opts.use_cache:
+            lib.save(final)
+            _remove_parts(cdir / f"library-{sweep.key}.parts")
+    _warn_convergence(lib, sweep.tol)
+    return lib
+
+
+def _cached_library(final: Path) -> Library | None:
+    """The cached library at ``final``; None when there is none or it is damaged (then it is recomputed)."""
+    if not final.is_file():
+        return None
+    try:
+        lib = Library.load(final)
+    except InputError as e:  # a damaged cache file (disk full, killed copy) is recomputed, not fatal
+        log.warning("recomputing damaged library cache %s (%s)", final, e)
+        return None
+    log.info("library loaded from cache %s", final)
+    lib.meta["from_cache"] = True
+    return lib
+
+
+def _run_sweep(sweep: _Sweep, opts: LibraryOptions, parts: Path) -> Library:
+    """Solve every (wavelength, wx) row not already in ``parts`` (one task each) and assemble the library."""
+    wx, wy, wls = sweep.wx, sweep.wy, sweep.wls
     shape = (wls.size, wx.size, wy.size)
     arrays = {k: np.full(shape, np.nan, dtype=complex if k.startswith("t_") else float) for k in LIBRARY_ARRAYS}
     energy = 0.0
+    jobs, todo = [], []
     for il, wl in enumerate(wls):
         for ix, a in enumerate(wx):
-            job = dict(wx=np.full(wy.size, a), wy=wy, wl=float(wl), kw=kw, estimate=bool(estimate),
-                       symmetric=symmetric, il=il, ix=ix)
             pf = parts / f"row-{il}-{ix}.npz"
-            if use_cache and pf.is_file():
-                try:
-                    got, _ = load_npz(pf)
-                    _store(arrays, got, il, ix)
-                    energy = max(energy, float(got.get("energy_error", 0.0)))
-                    continue
-                except Exception:  # noqa: BLE001 - a damaged part is recomputed
-                    log.warning("recomputing damaged cache part %s", pf)
-            jobs.append(job)
+            row_energy = _finished_row(pf, arrays, il, ix) if opts.use_cache else None
+            if row_energy is not None:
+                energy = max(energy, row_energy)
+                continue
+            jobs.append(dict(wx=np.full(wy.size, a), wy=wy, wl=float(wl), kw=sweep.solver_kw,
+                             estimate=sweep.estimate, symmetric=sweep.symmetric, il=il, ix=ix))
             todo.append(pf)
-    log.info("library %s: %d of %d rows to compute (M=%d, %s)", key, len(jobs), wls.size * wx.size, M,
-             factorization)
+    log.info("library %s: %d of %d rows to compute (M=%d, %s)", sweep.key, len(jobs), wls.size * wx.size,
+             sweep.solver_kw["harmonics"], sweep.solver_kw["factorization"])
     t0 = time.perf_counter()
-    for i, res in run_tasks(_row_task, jobs, workers=workers, scheduler=scheduler, progress=progress,
-                            desc="RCWA library"):
-        job = jobs[i]
-        _store(arrays, res, job["il"], job["ix"])
+    for i, res in run_tasks(_row_task, jobs, workers=opts.workers, scheduler=opts.scheduler,
+                            progress=opts.progress, desc="RCWA library"):
+        _store(arrays, res, jobs[i]["il"], jobs[i]["ix"])
         energy = max(energy, float(res.get("energy_error", 0.0)))
-        if use_cache:
+        if opts.use_cache:
             atomic_save_npz(todo[i], None, **res)
     elapsed = time.perf_counter() - t0
-    if symmetric:
+    if sweep.symmetric:
         for k in LIBRARY_ARRAYS:
             if k.endswith("_y"):
                 arrays[k] = np.swapaxes(arrays[k[:-2] + "_x"], 1, 2).copy()
-    meta = dict(inputs, key=key, elapsed_s=elapsed, rows_computed=len(jobs), energy_error=energy,
-                symmetric_grid=symmetric, workers=workers, scheduler=scheduler,
+    meta = dict(sweep.inputs, key=sweep.key, elapsed_s=elapsed, rows_computed=len(jobs), energy_error=energy,
+                symmetric_grid=sweep.symmetric, workers=opts.workers, scheduler=opts.scheduler,
                 conventions="exp(-i omega t); power-normalised zero-order t; phase planes at the post-layer faces; "
-                            f"light enters from the {incidence}")
+                            f"light enters from the {sweep.solver_kw['incidence']}")
     meta = {k: (v.tolist() if isinstance(v, np.ndarray) else v) for k, v in meta.items()}
-    lib = Library(wx, wy, wls, arrays, meta)
-    if use_cache:
-        lib.save(final)
-        for pf in todo + [parts / f"row-{il}-{ix}.npz" for il in range(wls.size) for ix in range(wx.size)]:
-            try:
-                pf.unlink()
-            except FileNotFoundError:
-                pass
+    return Library(wx, wy, wls, arrays, meta)
+
+
+def _finished_row(pf: Path, arrays: dict[str, np.ndarray], il: int, ix: int) -> float | None:
+    """Store the row left by an interrupted sweep in ``arrays``; returns its energy error, or None when there
+    is none or it is damaged (then it is recomputed)."""
+    if not pf.is_file():
+        return None
+    try:
+        got, _ = load_npz(pf)
+        _store(arrays, got, il, ix)
+        return float(got.get("energy_error", 0.0))
+    except Exception:  # noqa: BLE001 - a damaged part is recomputed
+        log.warning("recomputing damaged cache part %s", pf)
+        return None
+
+
+def _remove_parts(parts: Path) -> None:
+    """Delete the finished rows of a sweep whose library has been saved."""
+    for pf in parts.glob("row-*.npz"):
         try:
-            parts.rmdir()
-        except OSError:
+            pf.unlink()
+        except FileNotFoundError:
             pass
-    _warn_convergence(lib, tol)
-    return lib
+    try:
+        parts.rmdir()
+    except OSError:
+        pass
 
 
 def _store(arrays: dict, res: dict, il: int, ix: int) -> None:
@@ -408,6 +486,24 @@ def _wrap(a: np.ndarray) -> np.ndarray:
     return np.angle(np.exp(1j * a))
 
 
+def _wavelength_index(lib: Library, wavelength_um: float | None) -> int:
+    """Index of ``wavelength_um`` in the library (None: its only wavelength, else its design wavelength)."""
+    if wavelength_um is None and lib.wavelengths_um.size == 1:
+        return 0
+    return lib.index_of_wavelength(float(lib.meta.get("design_wavelength_um", 10.0) if wavelength_um is None
+                                         else wavelength_um))
+
+
+def usable_posts(lib: Library, wavelength_um: float | None = None, *, max_error: float | None = 0.05) -> np.ndarray:
+    """(n_wx, n_wy) bool: posts :func:`select_posts` may use at ``wavelength_um`` (finite t for both
+    polarisations and, with ``max_error``, a convergence estimate of at most ``max_error``)."""
+    il = _wavelength_index(lib, wavelength_um)
+    ok = np.isfinite(lib.t_x[il]) & np.isfinite(lib.t_y[il])
+    if max_error is not None:
+        ok &= ~(np.fmax(lib.err_x[il], lib.err_y[il]) > max_error)
+    return ok
+
+
 def select_posts(lib: Library, polarization: str, levels: int = 8, *, wavelength_um: float | None = None,
                  pass_weight: float = 1.0, transmission_weight: float = 0.5, max_error: float | None = 0.05,
                  n_offsets: int = 72) -> PostSet:
@@ -434,16 +530,11 @@ def select_posts(lib: Library, polarization: str, levels: int = 8, *, wavelength
     pw = check_range("pass_weight", pass_weight, 0.0, None, lo_inclusive=True)
     tw = check_range("transmission_weight", transmission_weight, 0.0, None, lo_inclusive=True)
     n_off = check_int("n_offsets", n_offsets, 4, 720)
-    il = 0 if wavelength_um is None and lib.wavelengths_um.size == 1 else \
-        lib.index_of_wavelength(float(lib.meta.get("design_wavelength_um", 10.0) if wavelength_um is None
-                                      else wavelength_um))
+    il = _wavelength_index(lib, wavelength_um)
     tf_all = (lib.t_x if pol == "x" else lib.t_y)[il]
     tp_all = (lib.t_y if pol == "x" else lib.t_x)[il]
     WX, WY = np.meshgrid(lib.wx_um, lib.wy_um, indexing="ij")
-    ok = np.isfinite(tf_all) & np.isfinite(tp_all)
-    if max_error is not None:
-        err = np.fmax(lib.err_x[il], lib.err_y[il])
-        ok &= ~(err > max_error)
+    ok = usable_posts(lib, wavelength_um, max_error=max_error)
     if np.count_nonzero(ok) < N:
         raise InputError("library", int(np.count_nonzero(ok)), f"at least levels = {N} usable (converged) posts")
     tf, tp = tf_all[ok], tp_all[ok]
@@ -507,22 +598,98 @@ def postset_table(ps: PostSet) -> list[dict[str, float]]:
     return rows
 
 
-def platform_post_sets(platform: Any = None, levels: int = 8, *, grid_step_um: float = 0.1,
-                       harmonics: int = DEFAULT_HARMONICS, cache_dir: str | Path | None = None,
-                       workers: int | None = None, scheduler: str | None = None,
-                       progress: bool = False) -> tuple[dict[str, PostSet], "Library"]:
+@dataclass(frozen=True)
+class PlatformSweep:
+    """The library of a platform and the post sets chosen from it: what to sweep, checked on construction.
+
+    Parameters
+    ----------
+    platform : PlatformDesign
+        The stack (period, post height, indices), the min feature that bounds the width grid and the design
+        wavelength the posts are chosen at.
+    levels : int
+        Phase levels per lens (2..64).
+    grid_step_um : float, um
+        Step of the width grid, from the min feature to ``period - min feature`` on both axes.
+    wavelengths_um : tuple of float, um, optional
+        Wavelengths to sweep (default: the platform's design wavelength). The posts are chosen at the design
+        wavelength when it is swept, else at the first one.
+    options : LibraryOptions
+        Solver and run settings; the stack is always the platform's.
+    source : str, optional
+        Where the platform came from (its file), named in errors about it.
+    """
+
+    platform: PlatformDesign = field(default_factory=PlatformDesign)
+    levels: int = 8
+    grid_step_um: float = 0.1
+    wavelengths_um: tuple[float, ...] | None = None
+    options: LibraryOptions = field(default_factory=LibraryOptions)
+    source: str | None = None
+
+    def __post_init__(self) -> None:
+        plat = self.platform
+        if not plat.min_feature_um < plat.period_um / 2:
+            raise InputError("min_feature_um", plat.min_feature_um,
+                             f"0 < min_feature_um < period_um / 2 = {plat.period_um / 2:g} um (posts and gaps both "
+                             "at least the min feature)", source=self.source)
+        check_int("levels", self.levels, 2, 64)
+        if self.wavelengths_um is not None:
+            object.__setattr__(self, "wavelengths_um", tuple(
+                check_positive("wavelengths_um", w, "um", hi=1e4) for w in self.wavelengths_um))
+        width_grid(plat.period_um, self.grid_step_um, plat.min_feature_um)  # the grid step, before any work
+
+    @property
+    def widths_um(self) -> np.ndarray:
+        """The width grid (the same on both axes)."""
+        plat = self.platform
+        return width_grid(plat.period_um, self.grid_step_um, plat.min_feature_um)
+
+    @property
+    def wavelengths(self) -> tuple[float, ...]:
+        return self.wavelengths_um or (float(self.platform.wavelength_um),)
+
+    @property
+    def design_wavelength_um(self) -> float:
+        """The wavelength the posts are chosen at."""
+        wl = float(self.platform.wavelength_um)
+        return wl if wl in self.wavelengths else self.wavelengths[0]
+
+    def library(self) -> Library:
+        """The swept library (computed once, then loaded from the cache)."""
+        return compute_library(self.widths_um, None, self.wavelengths,
+                               options=self.options.with_platform(self.platform))
+
+    def select(self, lib: Library) -> dict[str, PostSet]:
+        """Both post sets, ``{'x': foveal lens' set, 'y': perifoveal lens' set}``.
+
+        Too few converged posts for ``levels`` is an :class:`InputError` on ``levels`` that says what to change.
+        """
+        wl = self.design_wavelength_um
+        n_ok = int(np.count_nonzero(usable_posts(lib, wl)))
+        if n_ok < self.levels:
+            plat = self.platform
+            diffracts = (f" (the wavelength is not above the period {plat.period_um:g} um: the posts diffract, "
+                         "not a zero-order library)" if wl <= plat.period_um * plat.n_superstrate else "")
+            raise InputError("levels", self.levels,
+                             f"at most the {n_ok} of {lib.wx_um.size} x {lib.wy_um.size} posts converged at {wl:g} um "
+                             "(convergence estimate <= 0.05): use more --harmonics, a finer --grid-step-um or fewer "
+                             f"--levels{diffracts}")
+        return {pol: select_posts(lib, pol, self.levels, wavelength_um=wl) for pol in POLARIZATIONS}
+
+
+def platform_post_sets(platform: PlatformDesign | None = None, levels: int = 8, *, grid_step_um: float = 0.1,
+                       wavelengths_um: Sequence[float] | None = None, options: LibraryOptions | None = None,
+                       **overrides: Any) -> tuple[dict[str, PostSet], Library]:
     """The library of a platform (computed once, then loaded from the cache) and both post sets.
 
+    ``options``: solver and run settings (default: ``LibraryOptions(progress=False)``); ``overrides``: fields of
+    :class:`LibraryOptions` that replace them (``harmonics=5, cache_dir=...``). See :class:`PlatformSweep`.
     Returns ``({'x': PostSet, 'y': PostSet}, library)``: the x set is the foveal lens', the y set the
     perifoveal lens' (each lens focuses its own polarisation and passes the other).
     """
-    from metafovea.config import PlatformDesign
-
-    plat = platform if platform is not None else PlatformDesign()
-    widths = width_grid(plat.period_um, grid_step_um, plat.min_feature_um)
-    lib = compute_library(widths, None, [float(plat.wavelength_um)], period_um=plat.period_um,
-                          height_um=plat.post_height_um, n_post=plat.n_post, n_substrate=plat.n_substrate,
-                          n_superstrate=plat.n_superstrate, harmonics=harmonics, cache_dir=cache_dir,
-                          workers=workers, scheduler=scheduler, progress=progress)
-    sets = {pol: select_posts(lib, pol, levels, wavelength_um=float(plat.wavelength_um)) for pol in POLARIZATIONS}
-    return sets, lib
+    opts = replace(options if options is not None else LibraryOptions(progress=False), **overrides)
+    sweep = PlatformSweep(platform if platform is not None else PlatformDesign(), levels, grid_step_um,
+                          None if wavelengths_um is None else tuple(wavelengths_um), opts)
+    lib = sweep.library()
+    return sweep.select(lib), lib

@@ -85,11 +85,3 @@ def index_of(name: str, value: IndexLike, wavelength_um) -> np.ndarray:
         return check_index(name, np.broadcast_to(value, np.shape(wavelength_um)))
     raise InputError(name, value, "a refractive index number or a metafovea.materials.Material")
 
-
-def get_material(name: str) -> Material:
-    """Look up a built-in material by name ('Si', 'air')."""
-    key = str(name).strip().lower()
-    for m in (SILICON, AIR):
-        if m.name.lower() == key or (key == "silicon" and m is SILICON):
-            return m
-    raise InputError("material", name, "one of 'Si', 'air' (or pass a number / Material)")

@@ -44,25 +44,3 @@ PHASE_SIGN = -1
 #: Free-space wavelength the paper designs for (um).
 LAMBDA0_UM = 10.0
 
-
-def mm_to_um(x_mm: float) -> float:
-    """Millimetres to micrometres."""
-    return x_mm * UM_PER_MM
-
-
-def um_to_mm(x_um: float) -> float:
-    """Micrometres to millimetres."""
-    return x_um / UM_PER_MM
-
-
-def deg_to_rad(a_deg: float) -> float:
-    return math.radians(a_deg)
-
-
-def rad_to_deg(a_rad: float) -> float:
-    return math.degrees(a_rad)
-
-
-def cycles_per_mm(f_per_um: float) -> float:
-    """Spatial frequency in cycles/um to cycles/mm."""
-    return f_per_um * UM_PER_MM

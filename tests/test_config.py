@@ -5,6 +5,7 @@ from pathlib import Path
 
 import pytest
 
+from metafovea.cli import main
 from metafovea.config import (LensDesign, PlatformDesign, SystemDesign, load_design, load_lens, load_platform,
                               load_system)
 from metafovea.errors import InputError
@@ -103,3 +104,28 @@ def test_lens_names_that_cannot_name_files_are_refused(tmp_path, name):
     p.write_text(f'name = "{name}"\\nf_mm = 1\\ndiameter_mm = 0.1\\npolarization = "x"\\n')
     with pytest.raises(InputError, match="name"):
         load_lens(p)
+
+
+@pytest.mark.parametrize("name", ["../../escape", "a/b", "..", "x y*?"])
+def test_lens_name_cannot_escape_output_directory(tmp_path, monkeypatch, capsys, name):
+    """A lens 'name' was used verbatim in file names: '../../x' wrote the export outside gds_export/
+    (and the psf report outside --out), 'a/b' made subdirectories. Path-like names are now refused when
+    the design is loaded; other odd characters are sanitised by the stages that build file names."""
+    monkeypatch.chdir(tmp_path)
+    work = tmp_path / "w"
+    work.mkdir()
+    toml = work / "lens.toml"
+    toml.write_text(f'name = "{name}"\nf_mm = 20.0\ndiameter_mm = 0.3\npolarization = "x"\n')
+    monkeypatch.chdir(work)
+    if "/" in name or name == "..":
+        assert main(["export", str(toml), "--format", "oas", "--quiet"]) == 2
+        assert "name" in capsys.readouterr().err
+        assert not (work / "gds_export").exists()
+        return
+    assert main(["export", str(toml), "--format", "oas", "--quiet", "--ring-width-um", "20"]) == 0
+    files = [p for p in work.rglob("*") if p.is_file() and p.suffix == ".oas"]
+    assert len(files) == 1 and files[0].parent == work / "gds_export", files
+    out = work / "psf"
+    assert main(["psf", str(toml), "--field-deg", "0", "--wavelengths", "2", "--out", str(out)]) == 0
+    written = [p for p in tmp_path.rglob("*") if p.is_file() and p.suffix in (".html", ".json", ".png")]
+    assert written and all(p.parent == out for p in written), written

@@ -1,17 +1,19 @@
-"""Tests of the scatterer library (RCWA sweep, cache, resume) and birefringent post selection."""
+"""Tests of the scatterer library (RCWA sweep, cache, resume), birefringent post selection and the library of a
+platform (metafovea.library)."""
 
 from __future__ import annotations
 
-import argparse
-import json
 import warnings
 
 import numpy as np
 import pytest
 
+from metafovea.config import LensDesign, PlatformDesign
 from metafovea.errors import InputError, NotConvergedWarning
-from metafovea.io import atomic_save_npz, load_npz
-from metafovea.library import Library, PostSet, compute_library, postset_table, select_posts, width_grid
+from metafovea.io import atomic_save_npz
+from metafovea.lens import summarize
+from metafovea.library import (Library, LibraryOptions, PlatformSweep, PostSet, compute_library,
+                               platform_post_sets, postset_table, select_posts, usable_posts, width_grid)
 from metafovea.rcwa.posts import post_response
 
 W3 = [1.0, 2.0, 3.0]
@@ -51,6 +53,22 @@ def test_cache_hit_and_key_depends_on_inputs(small_lib):
                                 progress=False)
     assert other.meta["key"] != lib.meta["key"]
     assert not np.allclose(other.t_x, lib.t_x)
+
+
+def test_options_and_keyword_overrides_are_one_interface(small_lib):
+    """``options=LibraryOptions(...)`` and keyword overrides name the same sweep (the same cache entry)."""
+    lib, d = small_lib
+    opts = LibraryOptions(harmonics=M, cache_dir=d, workers=1, progress=False, tol=None)
+    assert compute_library(W3, None, [10.0], options=opts).meta["key"] == lib.meta["key"]
+    a = compute_library(W3, None, [10.0], options=opts, height_um=9.0)
+    b = compute_library(W3, None, [10.0], harmonics=M, height_um=9.0, cache_dir=d, workers=1, progress=False,
+                        tol=None)
+    assert a.meta["key"] == b.meta["key"] != lib.meta["key"] and b.meta.get("from_cache")
+    with pytest.raises(TypeError):
+        compute_library(W3, None, [10.0], options=opts, harmonic=5)
+    plat = PlatformDesign(period_um=5.0, post_height_um=8.0, n_post=3.0)
+    stack = LibraryOptions(harmonics=M).with_platform(plat)
+    assert (stack.period_um, stack.height_um, stack.n_post, stack.harmonics) == (5.0, 8.0, 3.0, M)
 
 
 def test_resume_uses_finished_rows(tmp_path):
@@ -105,6 +123,36 @@ def test_width_grid():
         width_grid(4.0, 0.1, 2.5)
 
 
+@pytest.mark.parametrize("period,mf", [(4.0, 0.5), (4.0, 1.5), (3.0, 0.2), (6.0, 1.9), (2.5, 0.01)])
+def test_width_grid_allowed_step_is_stated_and_exact(period, mf):
+    """The error said 'grid_step_um <= 4' for p = 4 although 1.5 already failed, or 'fit posts between
+    4 and 0 um'; the stated maximum is now the real one."""
+    max_step = period / 3 if mf <= period / 3 else period - 2 * mf
+    w = width_grid(period, max_step * 0.999, mf)
+    assert len(w) >= 2 and w[0] >= mf and w[-1] <= period - mf + 1e-9
+    with pytest.raises(InputError) as e:
+        width_grid(period, max_step * 1.01, mf, name="--grid-step-um")
+    assert e.value.parameter == "--grid-step-um" and f"{max_step:.6g}" in e.value.allowed
+
+
+@pytest.mark.parametrize("damage", ["truncate", "garbage", "empty"])
+def test_damaged_library_cache_is_recomputed(tmp_path, damage):
+    """A damaged cached library (library-<key>.npz) made every later run fail instead of recomputing."""
+    kw = dict(harmonics=5, cache_dir=tmp_path, workers=1, progress=False, tol=None)
+    w = width_grid(4.0, 1.0, 0.5)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        a = compute_library(w, None, [10.0], **kw)
+        (f,) = tmp_path.glob("library-*.npz")
+        data = f.read_bytes()
+        f.write_bytes({"truncate": data[: len(data) // 2], "garbage": b"\x00junk" * 50, "empty": b""}[damage])
+        b = compute_library(w, None, [10.0], **kw)
+        assert not b.meta.get("from_cache")
+        np.testing.assert_allclose(b.t_x, a.t_x)
+        c = compute_library(w, None, [10.0], **kw)  # the cache was rewritten
+    assert c.meta.get("from_cache")
+
+
 def synthetic_library(n=16):
     """t_x phase = 2 pi i / n along wx (unit |t|), t_y phase = 0.3 j along wy, |t_y| rises with wy."""
     wx = np.linspace(0.5, 3.5, n)
@@ -151,32 +199,62 @@ def test_select_posts_both_lenses_on_rcwa_library(small_lib, tmp_path):
         select_posts(lib, "z", 2)
 
 
-def test_cli_library_writes_figures_and_json(tmp_path, capsys):
-    from metafovea.cli.library import add_parser
-    ap = argparse.ArgumentParser()
-    sub = ap.add_subparsers()
-    add_parser(sub)
-    out = tmp_path / "out"
-    args = ap.parse_args(["library", "--grid-step-um", "1.0", "--harmonics", "5", "--levels", "2",
-                          "--cache-dir", str(tmp_path / "c"), "--out", str(out), "--json", "--no-progress",
-                          "--workers", "1"])
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", NotConvergedWarning)
-        assert args.func(args) == 0
-    data = json.loads(capsys.readouterr().out)
-    assert set(data["post_sets"]) == {"x", "y"}
-    assert data["post_sets"]["x"]["lens"] == "foveal" and len(data["post_sets"]["y"]["levels"]) == 2
-    for f in ("library.npz", "postset_x.npz", "postset_y.npz", "fig7b_phase_maps.png",
-              "fig7c_selected_posts.png", "library.json"):
-        assert (out / f).is_file()
-    assert PostSet.load(out / "postset_y.npz").polarization == "y"
-    arrays, meta = load_npz(out / "library.npz")
-    assert meta["harmonics"] == 5 and arrays["t_x"].shape == (1, 3, 3)
-    # existing output is not overwritten without --force
-    args = ap.parse_args(["library", "--grid-step-um", "1.0", "--harmonics", "5", "--cache-dir",
-                          str(tmp_path / "c"), "--out", str(out), "--no-progress", "--workers", "1"])
-    with pytest.raises(InputError):
-        args.func(args)
-    args = ap.parse_args(["library", "--grid-step-um", "-1", "--no-progress"])
-    with pytest.raises(InputError):
-        args.func(args)
+@pytest.mark.parametrize("content", ["toml", "empty", "truncated", "other_npz"])
+def test_postset_load_of_wrong_file_is_input_error(tmp_path, content):
+    """--post-set design.toml was a numpy 'pickled data' ValueError traceback."""
+    good = tmp_path / "good.npz"
+    PostSet.ideal(4).save(good)
+    bad = tmp_path / "bad.npz"
+    if content == "toml":
+        bad.write_text('name = "x"\nf_mm = 1.0\n')
+    elif content == "empty":
+        bad.write_bytes(b"")
+    elif content == "truncated":
+        bad.write_bytes(good.read_bytes()[: good.stat().st_size // 2])
+    else:
+        np.savez(bad, widths_um=np.ones((4, 2)))
+    for cls in (PostSet, Library):
+        with pytest.raises(InputError) as e:
+            cls.load(bad)
+        assert e.value.parameter == "path"
+    assert PostSet.load(good).levels == 4
+
+
+# --- the library of a platform -----------------------------------------------------------------------
+
+def test_platform_post_sets_coarse(tmp_path):
+    # a coarse library (7 x 7 widths, 121 plane waves) exercises the design-side path quickly
+    sets, lib = platform_post_sets(PlatformDesign(), 4, grid_step_um=0.5, harmonics=5, cache_dir=tmp_path, workers=1)
+    assert set(sets) == {"x", "y"} and lib.wx_um.size == 7
+    s = summarize(LensDesign.perifoveal().with_(levels=4), post_set=sets["y"], samples=5000, emit_warnings=False)
+    eff = s.post_set["expected_focusing_efficiency"]
+    assert 0.2 < eff <= 1.0
+    assert s.post_set["expected_lens_efficiency"] == pytest.approx(eff * s.lattice_sampling_efficiency)
+    # second call loads from the cache: identical post sets
+    again, _ = platform_post_sets(PlatformDesign(), 4, grid_step_um=0.5, harmonics=5, cache_dir=tmp_path, workers=1)
+    assert again["y"].widths_um.tolist() == sets["y"].widths_um.tolist()
+
+
+def test_platform_sweep_checks_before_any_work():
+    """A platform whose min feature leaves no post or gap, or a grid step that leaves fewer than 2 widths, is an
+    error on construction (the CLI checks before it creates --out), naming the platform file."""
+    with pytest.raises(InputError) as e:
+        PlatformSweep(PlatformDesign(period_um=3.0, min_feature_um=1.6), source="plat.toml")
+    assert e.value.parameter == "min_feature_um" and e.value.source == "plat.toml" and "1.5" in e.value.allowed
+    with pytest.raises(InputError) as e:
+        PlatformSweep(grid_step_um=1.5)
+    assert e.value.parameter == "grid_step_um"
+    sweep = PlatformSweep(grid_step_um=0.5, wavelengths_um=(9.0, 11.0))
+    assert sweep.widths_um.size == 7 and sweep.design_wavelength_um == 9.0   # 10 um not swept: the first
+    assert PlatformSweep(wavelengths_um=(9.0, 10.0)).design_wavelength_um == 10.0
+
+
+def test_too_few_converged_posts_is_an_error_on_levels(small_lib):
+    """select_posts said 'library = 4 is invalid'; a platform sweep names the levels and what to change."""
+    lib, _ = small_lib
+    n_ok = int(np.count_nonzero(usable_posts(lib, 10.0)))
+    assert n_ok == int(np.count_nonzero(np.fmax(lib.err_x[0], lib.err_y[0]) <= 0.05)) < 9
+    with pytest.raises(InputError) as e:
+        PlatformSweep(levels=n_ok + 1).select(lib)
+    assert e.value.parameter == "levels" and e.value.value == n_ok + 1
+    assert f"at most the {n_ok} of 3 x 3 posts" in e.value.allowed and "--harmonics" in e.value.allowed

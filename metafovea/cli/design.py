@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import argparse
 import sys
-import warnings
 from typing import Any
 
 from metafovea.errors import InputError
@@ -37,7 +36,8 @@ def register(sub: Any) -> None:
 
 def design_from_args(args: argparse.Namespace) -> list:
     """Build the LensDesign(s) the design command acts on (file, overridden by flags)."""
-    from metafovea.config import LensDesign, SystemDesign, load_design, validate_lens_numbers
+    from metafovea.config import (LATTICES, POLARIZATIONS, LensDesign, SystemDesign, load_design,
+                                  validate_lens_numbers)
     from metafovea.errors import check_choice, check_int, check_positive
     from metafovea.units import UM_PER_MM
 
@@ -70,9 +70,9 @@ def design_from_args(args: argparse.Namespace) -> list:
     if args.levels is not None:
         overrides["levels"] = check_int("--levels", args.levels, 2, 256)
     if args.polarization is not None:
-        overrides["polarization"] = check_choice("--polarization", args.polarization, ("x", "y"))
+        overrides["polarization"] = check_choice("--polarization", args.polarization, POLARIZATIONS)
     if args.lattice is not None:
-        overrides["lattice"] = check_choice("--lattice", args.lattice, ("integer", "half"))
+        overrides["lattice"] = check_choice("--lattice", args.lattice, LATTICES)
     if not lenses:
         lenses = [LensDesign(args.name or "lens", overrides.pop("f_um"), overrides.pop("diameter_um"))]
     elif args.name:
@@ -88,56 +88,26 @@ def design_from_args(args: argparse.Namespace) -> list:
 
 
 def run(args: argparse.Namespace) -> int:
-    from metafovea.design_report import format_summary, summary_dict, write_design_bundle
+    from metafovea.design_report import design_lenses, format_summary, summary_dict, write_design_bundles
     from metafovea.errors import check_int
     from metafovea.io import prepare_output, to_json
-    from metafovea.lens import summarize
+    from metafovea.library import PostSet
 
     lenses = design_from_args(args)
     samples = check_int("--samples", args.samples, 1000, 1 << 26)
-    post_set = None
     if args.post_set and args.library:
         raise InputError("--library", True, "either --post-set FILE or --library, not both")
-    if args.post_set:
-        from metafovea.library import PostSet
-        post_set = PostSet.load(args.post_set)
+    post_set = PostSet.load(args.post_set) if args.post_set else None
     out_root = prepare_output(args.out, args.force, is_dir=True) if args.out else None
-    lib_sets = None
-    if args.library:
-        from metafovea.config import PlatformDesign
-        from metafovea.library import platform_post_sets
-        l0 = lenses[0]
-        for lens in lenses[1:]:
-            if (lens.period_um, lens.post_height_um, lens.wavelength_um, lens.levels) != \
-                    (l0.period_um, l0.post_height_um, l0.wavelength_um, l0.levels):
-                raise InputError("--library", True, "lenses sharing one platform (period, height, wavelength, levels)")
-        plat = PlatformDesign(period_um=l0.period_um, post_height_um=l0.post_height_um,
-                              wavelength_um=l0.wavelength_um, n_substrate=l0.n_substrate, n_post=l0.n_substrate,
-                              min_feature_um=min(0.5, 0.125 * l0.period_um))
-        lib_sets, _ = platform_post_sets(plat, l0.levels, progress=sys.stderr.isatty())
-    results = []
-    for lens in lenses:
-        if lib_sets is not None:
-            post_set = lib_sets[lens.polarization]
-        ps = post_set if (post_set is not None and post_set.polarization == lens.polarization) else None
-        if post_set is not None and ps is None and len(lenses) == 1:
-            raise InputError("--post-set", args.post_set, f"a post set for {lens.polarization}-polarisation "
-                                                          f"(this one focuses {post_set.polarization})")
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")
-            s = summarize(lens, post_set=ps, samples=samples)
-        results.append((lens, s))
-        if out_root is not None:
-            d = out_root / lens.name if len(lenses) > 1 else out_root
-            write_design_bundle(lens, s, d)
+    summaries = design_lenses(lenses, post_set=post_set, from_library=args.library, samples=samples,
+                              progress=sys.stderr.isatty())
+    if out_root is not None:
+        write_design_bundles(lenses, summaries, out_root)
     if args.json:
-        payload = [summary_dict(s) for _, s in results]
+        payload = [summary_dict(s) for s in summaries]
         print(to_json(payload[0] if len(payload) == 1 else payload))
     else:
-        for i, (_, s) in enumerate(results):
-            if i:
-                print()
-            print(format_summary(s))
+        print("\n\n".join(format_summary(s) for s in summaries))
         if out_root is not None:
             print(f"\ndesign bundle written to {out_root}")
     return 0

@@ -17,8 +17,8 @@ Conventions (details in :mod:`metafovea.rcwa.solve` and :mod:`metafovea.rcwa.pos
   Laurent along it) or 'laurent' (plain Laurent rule, for comparison).
 * Default entry side for posts: the substrate (through the wafer; posts face the sensor).
 
-Relation to fmmax (tests/test_rcwa_fmmax.py, benchmarks/bench_rcwa.py)
----------------------------------------------------------------------
+Relation to fmmax (tests/rcwa/test_fmmax.py, benchmarks/bench_rcwa.py)
+-----------------------------------------------------------------------
 fmmax uses the same exp(-i omega t) convention. With layers [substrate, ..., superstrate] and
 zero-thickness ambient layers, ``stack_s_matrix(...).s11`` (not s21, which is the reflection) is the
 forward transmission between our reference planes, in H-field amplitudes: index ``N + i0`` (hy) is

@@ -20,9 +20,6 @@ from __future__ import annotations
 
 import numpy as np
 
-SPACES = ("f", "e", "o")
-FLIP = {"f": "f", "e": "o", "o": "e"}
-
 
 def orders(space: str, M: int) -> np.ndarray:
     """Harmonic indices represented by ``space`` for truncation order ``M``."""

@@ -1,7 +1,7 @@
 """RCWA (Fourier modal method) solver: driver, results and the fast post-response path.
 
-Conventions (tested in tests/test_rcwa*.py)
--------------------------------------------
+Conventions (tested in tests/rcwa/)
+----------------------------------
 * Time dependence ``exp(-i omega t)``; a forward plane wave is ``exp(+i kz z)``; loss is ``Im n > 0``.
 * z points from the substrate (below) to the superstrate (above). "Incidence from the substrate"
   means light travelling +z; "from the superstrate" means -z.

@@ -1,4 +1,4 @@
-"""`metafovea design` and `metafovea validate`: outputs, bundle, and every bad input (exit 2, one line)."""
+"""`metafovea design`: outputs, bundle, and every bad input (exit 2, one line)."""
 
 import json
 import subprocess
@@ -131,22 +131,6 @@ def test_design_lists_post_set(tmp_path, capsys):
     assert rc == 2 and "--post-set" in err
 
 
-def test_platform_post_sets_coarse(tmp_path):
-    # a coarse library (7 x 7 widths, 121 plane waves) exercises the design-side path quickly
-    from metafovea.config import LensDesign, PlatformDesign
-    from metafovea.lens import summarize
-    from metafovea.library import platform_post_sets
-    sets, lib = platform_post_sets(PlatformDesign(), 4, grid_step_um=0.5, harmonics=5, cache_dir=tmp_path, workers=1)
-    assert set(sets) == {"x", "y"} and lib.wx_um.size == 7
-    s = summarize(LensDesign.perifoveal().with_(levels=4), post_set=sets["y"], samples=5000, emit_warnings=False)
-    eff = s.post_set["expected_focusing_efficiency"]
-    assert 0.2 < eff <= 1.0
-    assert s.post_set["expected_lens_efficiency"] == pytest.approx(eff * s.lattice_sampling_efficiency)
-    # second call loads from the cache: identical post sets
-    again, _ = platform_post_sets(PlatformDesign(), 4, grid_step_um=0.5, harmonics=5, cache_dir=tmp_path, workers=1)
-    assert again["y"].widths_um.tolist() == sets["y"].widths_um.tolist()
-
-
 def test_system_file_refuses_per_lens_flags(capsys, designs_dir):
     rc, _, err = run(["design", str(designs_dir / "system.toml"), "--f", "100"], capsys)
     assert rc == 2 and "--f" in err and "system file" in err
@@ -154,3 +138,11 @@ def test_system_file_refuses_per_lens_flags(capsys, designs_dir):
     rc, out, _ = run(["design", str(designs_dir / "system.toml"), "--levels", "4", "--json", "--samples", "5000"],
                      capsys)
     assert rc == 0 and [s["levels"] for s in json.loads(out)] == [4, 4]
+
+
+def test_post_set_and_library_are_exclusive(tmp_path, capsys):
+    from metafovea.library import PostSet
+    f = PostSet.ideal(8).save(tmp_path / "ps.npz")
+    rc, _, err = run(["design", "--f", "25", "--d", "25", "--post-set", str(f), "--library"], capsys)
+    assert rc == 2 and "--library" in err and "--post-set" in err and len(err.strip().splitlines()) == 1
+

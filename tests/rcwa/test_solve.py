@@ -1,5 +1,5 @@
-"""Tests of the in-house RCWA solver (metafovea.rcwa): analytic limits, symmetries, conservation,
-reciprocity, convergence, bad input, and a cross-check against an independent solver."""
+"""The general RCWA solver (metafovea.rcwa.solve) against physics: uniform slabs (Airy, Fresnel), energy
+conservation, reciprocity, mirror symmetry, hard limits, bad input, and an independent solver (grcwa)."""
 
 from __future__ import annotations
 
@@ -9,9 +9,8 @@ import numpy as np
 import pytest
 
 from metafovea.errors import InputError, NotConvergedWarning
-from metafovea.materials import Material, check_index
+from metafovea.materials import check_index
 from metafovea.rcwa import Layer, Rectangle, Stack, solve
-from metafovea.rcwa.posts import post_response
 
 NSI = 3.42
 
@@ -25,11 +24,7 @@ def airy(n1, n2, n3, d, wl):
     return (r12 + r23 * ph ** 2) / den, t12 * t23 * ph / den
 
 
-def post_stack(wx, wy, n_sub=NSI, h=10.0, cx=0.0, cy=0.0):
-    return Stack(4.0, 4.0, [Layer(h, 1.0, [Rectangle(wx, wy, NSI, cx, cy)])], n_sub, 1.0)
-
-
-# --- uniform slabs: analytic -------------------------------------------------------------------
+# --- uniform slabs: analytic ----------------------------------------------------------------------
 
 def test_uniform_slab_matches_airy_and_references():
     st = Stack(4.0, 4.0, [Layer(10.0, NSI)], NSI, 1.0)
@@ -75,16 +70,11 @@ def test_uniform_slab_oblique_matches_fresnel_s_and_p():
         assert abs(res.total_R()[ip] - abs(r) ** 2) < 1e-12
 
 
-# --- conservation, reciprocity, symmetry -------------------------------------------------------
-
-def two_layer_asymmetric():
-    return Stack(4.0, 3.0, [Layer(1.5, 1.0, [Rectangle(1.7, 1.1, NSI, 0.4, -0.3)]),
-                            Layer(2.0, 1.5, [Rectangle(2.5, 0.9, 2.2, -0.9, 0.5)])], NSI, 1.0)
-
+# --- conservation, reciprocity, symmetry ----------------------------------------------------------
 
 @pytest.mark.parametrize("fact", ["li", "laurent"])
-def test_energy_conservation_lossless(fact):
-    st = two_layer_asymmetric()
+def test_energy_conservation_lossless(fact, two_layer_asymmetric):
+    st = two_layer_asymmetric
     res = solve(st, np.array([6.0, 10.0]), harmonics=3, theta_deg=12.0, phi_deg=25.0, factorization=fact)
     for side in ("substrate", "superstrate"):
         tot = res.total_T(side) + res.total_R(side)
@@ -100,16 +90,16 @@ def test_absorbing_layer_loses_power():
     assert np.all(tot < 1 - 1e-4) and np.all(tot > 0.5)
 
 
-def test_reciprocity_normal_incidence_jones_transpose():
-    st = two_layer_asymmetric()
+def test_reciprocity_normal_incidence_jones_transpose(two_layer_asymmetric):
+    st = two_layer_asymmetric
     res = solve(st, 10.0, harmonics=3)
     J_up, J_down = res.t00("substrate"), res.t00("superstrate")
     assert abs(J_up[0, 1]) > 1e-3  # the structure does couple x and y
     np.testing.assert_allclose(J_up, J_down.T, atol=1e-10)
 
 
-def test_reciprocity_oblique_efficiencies():
-    st = two_layer_asymmetric()
+def test_reciprocity_oblique_efficiencies(two_layer_asymmetric):
+    st = two_layer_asymmetric
     a = solve(st, 9.0, harmonics=3, theta_deg=15.0, phi_deg=40.0, incidence="substrate")
     # reversed path: from the superstrate with the opposite in-plane wave vector
     kpar = NSI * np.sin(np.radians(15.0))
@@ -120,7 +110,7 @@ def test_reciprocity_oblique_efficiencies():
     np.testing.assert_allclose(Ta, Tb.T, atol=1e-10)
 
 
-def test_symmetric_basis_equals_full_basis():
+def test_symmetric_basis_equals_full_basis(post_stack):
     st = post_stack(2.4, 1.3)
     for fact in ("li", "laurent"):
         a = solve(st, 10.0, harmonics=4, factorization=fact)
@@ -130,7 +120,7 @@ def test_symmetric_basis_equals_full_basis():
         np.testing.assert_allclose(a.r["superstrate"], b.r["superstrate"], atol=1e-10)
 
 
-def test_no_cross_polarisation_for_centred_rectangles():
+def test_no_cross_polarisation_for_centred_rectangles(post_stack):
     res = solve(post_stack(2.6, 1.1), 10.0, harmonics=4, symmetry="none")
     J = res.t00()
     assert abs(J[0, 1]) < 1e-12 and abs(J[1, 0]) < 1e-12
@@ -141,34 +131,7 @@ def test_no_cross_polarisation_for_centred_rectangles():
     assert abs(abs(res2.t00()[0, 0]) - abs(J[0, 0])) < 1e-10
 
 
-def test_txx_equals_tyy_of_swapped_post_full_basis():
-    a = solve(post_stack(2.6, 1.1), 10.0, harmonics=4, symmetry="none")
-    b = solve(post_stack(1.1, 2.6), 10.0, harmonics=4, symmetry="none")
-    assert abs(a.t00()[0, 0] - b.t00()[1, 1]) < 1e-10
-    assert abs(a.t00()[1, 1] - b.t00()[0, 0]) < 1e-10
-    r = post_response(2.6, 1.1, harmonics=4)
-    assert abs(r.t_x - a.t00()[0, 0]) < 1e-10 and abs(r.t_y - a.t00()[1, 1]) < 1e-10
-
-
-# --- limits and hard cases ---------------------------------------------------------------------
-
-def test_fill_factor_limits():
-    empty = solve(Stack(4.0, 4.0, [Layer(10.0, 1.0)], NSI, 1.0), 10.0, harmonics=1)
-    full = solve(Stack(4.0, 4.0, [Layer(10.0, NSI)], NSI, 1.0), 10.0, harmonics=1)
-    small = post_response(1e-3, 1e-3, harmonics=4)
-    assert abs(small.t_x - empty.t00()[0, 0]) < 1e-5 and abs(small.t_y - empty.t00()[1, 1]) < 1e-5
-    # field t of the empty layer: 1.547511 with phase 2 pi h / lambda = 2 pi == 0
-    assert abs(empty.t00_field()[0, 0] - 1.547511) < 1e-6
-    big = post_response(4.0 - 1e-5, 4.0 - 1e-5, harmonics=4)
-    assert abs(big.t_x - full.t00()[0, 0]) < 5e-4 and abs(big.t_y - full.t00()[1, 1]) < 5e-4
-    assert abs(big.T_x - full.total_T()[0]) < 1e-5
-    # a 1 nm air gap is not negligible for the field crossing it: effective-medium phase shift
-    gap = post_response(4.0 - 1e-3, 4.0 - 1e-3, harmonics=4)
-    f = (4.0 - 1e-3) / 4.0
-    n_eff = np.sqrt(1 / (f / NSI ** 2 + (1 - f)))
-    dphi = np.angle(gap.t_x / full.t00()[0, 0])
-    assert abs(dphi - 2 * np.pi * 10.0 / 10.0 * (n_eff - NSI)) < 0.01
-
+# --- limits and hard cases ------------------------------------------------------------------------
 
 @pytest.mark.parametrize("contrast", [1e-12, 1e-8, 1e-5])
 @pytest.mark.parametrize("n_b", [NSI, 1.0])
@@ -188,7 +151,7 @@ def test_nearly_uniform_patterned_layer(contrast, n_b):
                     assert np.max(np.abs(res.total_R() - ref.total_R())) < 1e-4
 
 
-def test_rayleigh_anomaly_wavelength_is_stable():
+def test_rayleigh_anomaly_wavelength_is_stable(post_stack):
     # (1,1) order grazing in Si: lambda = n_Si p / sqrt(2) = 9.673 um
     wl = NSI * 4.0 / np.sqrt(2.0)
     res = solve(post_stack(2.0, 2.0), np.array([wl, wl * (1 + 1e-9)]), harmonics=3)
@@ -197,7 +160,7 @@ def test_rayleigh_anomaly_wavelength_is_stable():
     assert np.max(np.abs(res.total_T() + res.total_R() - 1)) < 1e-6
 
 
-def test_diffraction_orders_paper_platform():
+def test_diffraction_orders_paper_platform(post_stack):
     """Only (0,0) propagates in air; first orders propagate in Si (~47 deg), (1,1) does not."""
     res = solve(post_stack(2.0, 2.0), 10.0, harmonics=2)
     Rsub = res.R["substrate"][:, 0]
@@ -212,64 +175,7 @@ def test_diffraction_orders_paper_platform():
     assert res.T["superstrate"][ords.index((1, 0)), 0] > 0
 
 
-# --- convergence -------------------------------------------------------------------------------
-
-def test_convergence_li_beats_laurent():
-    M_ref = 12
-    ref = np.angle(post_response(2.0, 2.0, harmonics=M_ref, polarizations=("x",)).t_x)
-    err_li = [abs(np.angle(post_response(2.0, 2.0, harmonics=M, polarizations=("x",)).t_x) - ref)
-              for M in (4, 6, 8)]
-    err_la = abs(np.angle(post_response(2.0, 2.0, harmonics=8, factorization="laurent",
-                                        polarizations=("x",)).t_x) - ref)
-    assert err_li[0] > err_li[1] > err_li[2]
-    assert err_li[2] < 0.01          # M = 8 (289 plane waves) within 0.01 rad of M = 12
-    assert err_la > 10 * err_li[2]   # the Laurent rule is far off at the same truncation
-    # the published range of converged values for the 2 x 2 um post
-    assert -0.74 < ref < -0.70
-
-
-def test_error_estimate_and_not_converged_warning():
-    with pytest.warns(NotConvergedWarning):
-        r = post_response(3.6, 3.6, harmonics=5, tol=1e-4)
-    assert r.info["max_error_estimate"] > 1e-4
-    r = post_response(2.0, 2.0, harmonics=8, estimate=True, polarizations=("x",))
-    assert 1e-4 < float(r.err_x) < 0.05
-
-
-def test_batching_over_widths_and_wavelengths():
-    wx = np.array([1.0, 2.0, 3.0])[:, None]
-    wl = np.array([9.0, 10.0, 11.0])[None, :]
-    r = post_response(wx, 1.5, wl, harmonics=4)
-    assert r.t_x.shape == (3, 3)
-    single = post_response(2.0, 1.5, 11.0, harmonics=4)
-    assert abs(r.t_x[1, 2] - single.t_x) < 1e-12
-    st = post_stack(2.0, 1.5)
-    s = solve(st, np.array([9.0, 11.0]), harmonics=4)
-    assert abs(s.t00()[1, 1, 1] - single.t_y) < 1e-10
-
-
-def test_dispersive_material():
-    si = Material.table("Si", [8.0, 12.0], [3.40, 3.44])
-    a = post_response(2.0, 2.0, 10.0, n_post=si, harmonics=3)
-    b = post_response(2.0, 2.0, 10.0, n_post=3.42, harmonics=3)
-    assert abs(a.t_x - b.t_x) < 1e-12
-    with pytest.raises(InputError):
-        si.n(13.0)
-
-
-# --- bad input ---------------------------------------------------------------------------------
-
-@pytest.mark.parametrize("kw", [dict(wx_um=0.0), dict(wx_um=-1.0), dict(wy_um=4.0), dict(wy_um=5.0),
-                                dict(height_um=0.0), dict(period_um=-4.0), dict(wavelength_um=0.0),
-                                dict(harmonics=2), dict(harmonics=1.5), dict(n_post=-3.42),
-                                dict(n_post=3.42 - 0.1j), dict(n_post=float("nan")),
-                                dict(factorization="naive"), dict(incidence="side")])
-def test_bad_input_raises_input_error(kw):
-    args = dict(wx_um=2.0, wy_um=2.0, wavelength_um=10.0)
-    args.update(kw)
-    with pytest.raises(InputError):
-        post_response(args.pop("wx_um"), args.pop("wy_um"), args.pop("wavelength_um"), **args)
-
+# --- bad input ------------------------------------------------------------------------------------
 
 def test_bad_geometry_raises_input_error():
     with pytest.raises(InputError):
@@ -288,9 +194,9 @@ def test_bad_geometry_raises_input_error():
         check_index("n", 0.0)
 
 
-# --- independent solver ------------------------------------------------------------------------
+# --- independent solver ---------------------------------------------------------------------------
 
-def test_cross_check_grcwa_laurent_identical_harmonics():
+def test_cross_check_grcwa_laurent_identical_harmonics(post_stack):
     """grcwa (plain Laurent rule, FFT of a grid) at the same rectangular harmonic set.
 
     The grid is chosen so that the sampled rectangle has an odd number of samples centred on the

@@ -1,0 +1,164 @@
+"""The library of a platform as a report: numbers (JSON, a table), the paper's Fig. 7b/7c and the files
+``metafovea library`` writes.
+
+:func:`library_report` sweeps (or loads from the cache) the library of a :class:`~metafovea.library.PlatformSweep`
+and selects both post sets; :meth:`LibraryReport.write` writes library.npz (``Library.save``), postset_x.npz
+(foveal lens, focuses x), postset_y.npz (perifoveal lens, focuses y), fig7b_phase_maps.png,
+fig7c_selected_posts.png and library.json.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from metafovea.io import atomic_write_bytes, atomic_write_json
+from metafovea.library import Library, PlatformSweep, PostSet, postset_table
+from metafovea.report import fig_to_png
+
+#: the lens each post set is for (each lens focuses its own polarisation and passes the other)
+LENS_OF = {"x": "foveal", "y": "perifoveal"}
+#: figures of merit of a post set reported per lens (keys of ``PostSet.info``)
+POST_SET_NUMBERS = ("expected_focusing_efficiency", "pass_coherent_transmission", "max_abs_phase_error_rad",
+                    "rms_phase_error_rad", "pass_phase_spread_rad", "pass_phase_rms_rad", "mean_T_focus",
+                    "mean_T_pass", "phase_offset_focus_rad", "phase_offset_pass_rad")
+DPI = 110
+
+
+@dataclass(frozen=True)
+class LibraryReport:
+    """A platform's library, both post sets (``{'x': foveal, 'y': perifoveal}``), the wavelength they were
+    chosen at (um) and the seconds the library took (computed or loaded from the cache)."""
+
+    library: Library
+    post_sets: dict[str, PostSet]
+    design_wavelength_um: float
+    elapsed_s: float
+
+    def numbers(self) -> dict[str, Any]:
+        """The JSON numbers: library size, solver settings, convergence estimates, and per lens its post set's
+        figures of merit and per-level table."""
+        lib, meta = self.library, self.library.meta
+        M = int(meta["harmonics"])
+        return {
+            "library": {"n_wx": int(lib.wx_um.size), "n_wy": int(lib.wy_um.size),
+                        "wavelengths_um": lib.wavelengths_um, "harmonics": M, "plane_waves": (2 * M + 1) ** 2,
+                        "factorization": meta.get("factorization"), "incidence": meta.get("incidence"),
+                        "elapsed_s": self.elapsed_s, "from_cache": bool(meta.get("from_cache")),
+                        "max_error_estimate": meta.get("max_error_estimate"),
+                        "median_error_estimate": meta.get("median_error_estimate"), "key": meta.get("key"),
+                        "conventions": meta.get("conventions")},
+            "design_wavelength_um": self.design_wavelength_um,
+            "post_sets": {pol: {"lens": LENS_OF[pol], "focuses": pol, "levels": postset_table(ps),
+                                **{k: ps.info[k] for k in POST_SET_NUMBERS}}
+                          for pol, ps in self.post_sets.items()}}
+
+    def format(self) -> str:
+        """The human-readable table ``metafovea library`` prints."""
+        d = self.numbers()
+        lb = d["library"]
+        lines = [f"library: {lb['n_wx']} x {lb['n_wy']} posts x {self.library.wavelengths_um.size} wavelength(s), "
+                 f"M = {lb['harmonics']} ({lb['plane_waves']} plane waves, {lb['factorization']}), light from the "
+                 f"{lb['incidence']}, {lb['elapsed_s']:.1f} s{' (cache)' if lb['from_cache'] else ''}; "
+                 f"convergence estimate max {lb['max_error_estimate']:.3g}, median {lb['median_error_estimate']:.3g}"]
+        for pol, p in d["post_sets"].items():
+            lines += ["", f"{p['lens']} lens (focuses {pol}, posts chosen at {self.design_wavelength_um:g} um): "
+                          f"expected focusing efficiency {p['expected_focusing_efficiency']:.3f}, max phase error "
+                          f"{p['max_abs_phase_error_rad']:.3f} rad, pass-through phase spread "
+                          f"{p['pass_phase_spread_rad']:.3f} rad, pass-through transmission "
+                          f"{p['pass_coherent_transmission']:.3f}",
+                      "  level  wx_um  wy_um  target  phase_f  T_f    phase_p  T_p"]
+            lines += [f"  {r['level']:5d}  {r['wx_um']:5.2f}  {r['wy_um']:5.2f}  {r['target_phase_rad']:6.3f}  "
+                      f"{r['phase_focus_rad']:7.3f}  {r['T_focus']:.3f}  {r['phase_pass_rad']:7.3f}  {r['T_pass']:.3f}"
+                      for r in p["levels"]]
+        return "\n".join(lines)
+
+    def write(self, out_dir: Path) -> list[Path]:
+        """Write the library, both post sets, Fig. 7b/7c and library.json into ``out_dir`` (which must exist)."""
+        out_dir = Path(out_dir)
+        written = [self.library.save(out_dir / "library.npz")]
+        written += [ps.save(out_dir / f"postset_{pol}.npz") for pol, ps in self.post_sets.items()]
+        il = self.library.index_of_wavelength(self.design_wavelength_um)
+        written.append(atomic_write_bytes(out_dir / "fig7b_phase_maps.png", phase_maps_png(self.library, il)))
+        written.append(atomic_write_bytes(out_dir / "fig7c_selected_posts.png",
+                                          selected_posts_png(self.library, il, self.post_sets)))
+        written.append(atomic_write_json(out_dir / "library.json", self.numbers()))
+        return written
+
+
+def library_report(sweep: PlatformSweep) -> LibraryReport:
+    """Compute (or load from the cache) the library of ``sweep`` and select both post sets."""
+    t0 = time.perf_counter()
+    lib = sweep.library()
+    elapsed = time.perf_counter() - t0
+    return LibraryReport(lib, sweep.select(lib), sweep.design_wavelength_um, elapsed)
+
+
+def _duty_cycle_extent(lib: Library) -> tuple[float, list[float]]:
+    p = float(lib.meta.get("period_um", 4.0))
+    return p, [lib.wy_um[0] / p, lib.wy_um[-1] / p, lib.wx_um[0] / p, lib.wx_um[-1] / p]
+
+
+def phase_maps_png(lib: Library, il: int) -> bytes:
+    """Fig. 7b: phase and |t|^2 of the zero order for x- and y-polarised light over the (wx, wy) grid."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    _, ext = _duty_cycle_extent(lib)
+    fig, axs = plt.subplots(2, 2, figsize=(9, 8))
+    for j, pol in enumerate(("x", "y")):
+        t = getattr(lib, f"t_{pol}")[il]
+        im = axs[0, j].imshow(np.angle(t) % (2 * np.pi), origin="lower", extent=ext, cmap="twilight",
+                              vmin=0, vmax=2 * np.pi, aspect="auto")
+        axs[0, j].set_title(f"phase of t_{pol} (rad)")
+        fig.colorbar(im, ax=axs[0, j])
+        im = axs[1, j].imshow(np.abs(t) ** 2, origin="lower", extent=ext, cmap="viridis", vmin=0, vmax=1,
+                              aspect="auto")
+        axs[1, j].set_title(f"|t_{pol}|^2")
+        fig.colorbar(im, ax=axs[1, j])
+    for ax in axs.ravel():
+        ax.set_xlabel("duty cycle wy / p")
+        ax.set_ylabel("duty cycle wx / p")
+    fig.suptitle(f"Fig. 7b: zero-order response, lambda = {lib.wavelengths_um[il]:g} um")
+    png = fig_to_png(fig, dpi=DPI)
+    plt.close(fig)
+    return png
+
+
+def selected_posts_png(lib: Library, il: int, post_sets: dict[str, PostSet]) -> bytes:
+    """Fig. 7c: each lens' posts on the phase map of its polarisation, and their phases and efficiencies."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    p, ext = _duty_cycle_extent(lib)
+    fig, axs = plt.subplots(2, 2, figsize=(10, 8))
+    for j, (pol, ps) in enumerate(post_sets.items()):
+        t = getattr(lib, f"t_{pol}")[il]
+        axs[0, j].imshow(np.angle(t) % (2 * np.pi), origin="lower", extent=ext, cmap="twilight", vmin=0,
+                         vmax=2 * np.pi, aspect="auto")
+        axs[0, j].plot(ps.widths_um[:, 1] / p, ps.widths_um[:, 0] / p, "o", mfc="none", mec="k", ms=9)
+        for k, (a, b) in enumerate(ps.widths_um):
+            axs[0, j].annotate(str(k), (b / p, a / p), textcoords="offset points", xytext=(5, 5), fontsize=8)
+        axs[0, j].set_xlabel("wy / p")
+        axs[0, j].set_ylabel("wx / p")
+        axs[0, j].set_title(f"{LENS_OF[pol]} lens posts on phase of t_{pol}")
+        k = np.arange(ps.levels)
+        axs[1, j].plot(k, 2 * np.pi * k / ps.levels, "k--", label="target")
+        axs[1, j].plot(k, np.unwrap(np.angle(ps.t_focus)), "o-", label=f"phase t_{pol} (focus)")
+        axs[1, j].plot(k, np.angle(ps.t_pass), "s-", label="phase of pass-through pol.")
+        axs[1, j].bar(k, np.abs(ps.t_focus) ** 2, alpha=0.25, label="T focus")
+        axs[1, j].set_xlabel("level")
+        axs[1, j].set_ylabel("rad / efficiency")
+        axs[1, j].legend(fontsize=7)
+        axs[1, j].set_title(f"eff. {ps.info['expected_focusing_efficiency']:.2f}, pass spread "
+                            f"{ps.info['pass_phase_spread_rad']:.2f} rad")
+    fig.suptitle("Fig. 7c: selected birefringent posts")
+    png = fig_to_png(fig, dpi=DPI)
+    plt.close(fig)
+    return png

@@ -1,0 +1,88 @@
+"""`metafovea library`: the files it writes, its JSON, and bad input (exit 2, one line naming the flag)."""
+
+from __future__ import annotations
+
+import json
+import warnings
+
+import pytest
+
+from metafovea.cli import main
+from metafovea.io import load_npz
+from metafovea.library import PostSet
+
+
+def _err(capsys) -> str:
+    err = capsys.readouterr().err.strip()
+    assert "Traceback" not in err
+    return err
+
+
+def test_library_writes_figures_and_json(tmp_path, capsys):
+    out = tmp_path / "out"
+    argv = ["library", "--grid-step-um", "1.0", "--harmonics", "5", "--cache-dir", str(tmp_path / "c"),
+            "--out", str(out), "--no-progress", "--workers", "1"]
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        assert main(argv + ["--levels", "2", "--json"]) == 0
+    data = json.loads(capsys.readouterr().out)
+    assert set(data["post_sets"]) == {"x", "y"}
+    assert data["post_sets"]["x"]["lens"] == "foveal" and len(data["post_sets"]["y"]["levels"]) == 2
+    files = ("library.npz", "postset_x.npz", "postset_y.npz", "fig7b_phase_maps.png", "fig7c_selected_posts.png",
+             "library.json")
+    for f in files:
+        assert (out / f).is_file()
+    assert data["files"] == sorted(files)
+    assert json.loads((out / "library.json").read_text())["post_sets"] == data["post_sets"]
+    assert PostSet.load(out / "postset_y.npz").polarization == "y"
+    arrays, meta = load_npz(out / "library.npz")
+    assert meta["harmonics"] == 5 and arrays["t_x"].shape == (1, 3, 3)
+    # existing output is not overwritten without --force
+    assert main(argv) == 2
+    assert "--force" in _err(capsys)
+    # the table names both lenses and the cache
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        assert main(argv + ["--levels", "2", "--force"]) == 0
+    text = capsys.readouterr().out
+    assert "(cache)" in text and "foveal lens (focuses x" in text and "perifoveal lens (focuses y" in text
+
+
+@pytest.mark.parametrize("step", ["1.5", "4", "3", "0.0001", "0", "-1"])
+def test_library_cli_bad_step_names_option_and_writes_nothing(tmp_path, capsys, step):
+    out = tmp_path / "lib"
+    rc = main(["library", "--grid-step-um", step, "--harmonics", "5", "--cache-dir", str(tmp_path / "c"),
+               "--no-progress", "--out", str(out)])
+    err = _err(capsys)
+    assert rc == 2 and "--grid-step-um" in err and len(err.splitlines()) == 1
+    assert not out.exists()
+
+
+def test_library_cli_platform_min_feature_names_file(tmp_path, capsys):
+    plat = tmp_path / "plat.toml"
+    plat.write_text("period_um = 3.0\nmin_feature_um = 1.6\n")
+    assert main(["library", str(plat), "--cache-dir", str(tmp_path / "c"), "--no-progress"]) == 2
+    err = _err(capsys)
+    assert "plat.toml" in err and "min_feature_um" in err and "1.5" in err
+
+
+def test_library_cli_too_few_converged_posts_names_levels(tmp_path, capsys):
+    """'library = 4 is invalid' named no option; now --levels with what to change."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        rc = main(["library", "--grid-step-um", "1.3", "--harmonics", "5", "--levels", "6",
+                   "--cache-dir", str(tmp_path / "c"), "--no-progress"])
+    err = _err(capsys)
+    assert rc == 2
+    last = err.splitlines()[-1]
+    assert last.startswith("metafovea library: error: --levels = ") and "--harmonics" in last
+
+
+def test_library_cli_convergence_warning_is_one_line(tmp_path, capfd):
+    """The NotConvergedWarning was printed with Python's source line of the call ('  lib = compute_library(')."""
+    rc = main(["library", "--grid-step-um", "1.3", "--harmonics", "5", "--levels", "3",
+               "--cache-dir", str(tmp_path / "c"), "--no-progress"])
+    out, err = capfd.readouterr()
+    assert rc == 0
+    lines = [x for x in err.splitlines() if x.strip()]
+    assert lines and all(x.startswith("metafovea library: warning: ") for x in lines), err

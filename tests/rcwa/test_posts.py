@@ -1,0 +1,102 @@
+"""The batched post response (metafovea.rcwa.posts) against the general solver and its limits: x/y
+symmetry, empty and full cells, convergence with harmonics and its estimate, batching, dispersion, bad input."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from metafovea.errors import InputError, NotConvergedWarning
+from metafovea.materials import Material
+from metafovea.rcwa import Layer, Stack, solve
+from metafovea.rcwa.posts import post_response
+
+NSI = 3.42
+
+
+# --- against the general solver and its limits ----------------------------------------------------
+
+def test_txx_equals_tyy_of_swapped_post_full_basis(post_stack):
+    a = solve(post_stack(2.6, 1.1), 10.0, harmonics=4, symmetry="none")
+    b = solve(post_stack(1.1, 2.6), 10.0, harmonics=4, symmetry="none")
+    assert abs(a.t00()[0, 0] - b.t00()[1, 1]) < 1e-10
+    assert abs(a.t00()[1, 1] - b.t00()[0, 0]) < 1e-10
+    r = post_response(2.6, 1.1, harmonics=4)
+    assert abs(r.t_x - a.t00()[0, 0]) < 1e-10 and abs(r.t_y - a.t00()[1, 1]) < 1e-10
+
+
+def test_fill_factor_limits():
+    empty = solve(Stack(4.0, 4.0, [Layer(10.0, 1.0)], NSI, 1.0), 10.0, harmonics=1)
+    full = solve(Stack(4.0, 4.0, [Layer(10.0, NSI)], NSI, 1.0), 10.0, harmonics=1)
+    small = post_response(1e-3, 1e-3, harmonics=4)
+    assert abs(small.t_x - empty.t00()[0, 0]) < 1e-5 and abs(small.t_y - empty.t00()[1, 1]) < 1e-5
+    # field t of the empty layer: 1.547511 with phase 2 pi h / lambda = 2 pi == 0
+    assert abs(empty.t00_field()[0, 0] - 1.547511) < 1e-6
+    big = post_response(4.0 - 1e-5, 4.0 - 1e-5, harmonics=4)
+    assert abs(big.t_x - full.t00()[0, 0]) < 5e-4 and abs(big.t_y - full.t00()[1, 1]) < 5e-4
+    assert abs(big.T_x - full.total_T()[0]) < 1e-5
+    # a 1 nm air gap is not negligible for the field crossing it: effective-medium phase shift
+    gap = post_response(4.0 - 1e-3, 4.0 - 1e-3, harmonics=4)
+    f = (4.0 - 1e-3) / 4.0
+    n_eff = np.sqrt(1 / (f / NSI ** 2 + (1 - f)))
+    dphi = np.angle(gap.t_x / full.t00()[0, 0])
+    assert abs(dphi - 2 * np.pi * 10.0 / 10.0 * (n_eff - NSI)) < 0.01
+
+
+# --- convergence ----------------------------------------------------------------------------------
+
+def test_convergence_li_beats_laurent():
+    M_ref = 12
+    ref = np.angle(post_response(2.0, 2.0, harmonics=M_ref, polarizations=("x",)).t_x)
+    err_li = [abs(np.angle(post_response(2.0, 2.0, harmonics=M, polarizations=("x",)).t_x) - ref)
+              for M in (4, 6, 8)]
+    err_la = abs(np.angle(post_response(2.0, 2.0, harmonics=8, factorization="laurent",
+                                        polarizations=("x",)).t_x) - ref)
+    assert err_li[0] > err_li[1] > err_li[2]
+    assert err_li[2] < 0.01          # M = 8 (289 plane waves) within 0.01 rad of M = 12
+    assert err_la > 10 * err_li[2]   # the Laurent rule is far off at the same truncation
+    # the published range of converged values for the 2 x 2 um post
+    assert -0.74 < ref < -0.70
+
+
+def test_error_estimate_and_not_converged_warning():
+    with pytest.warns(NotConvergedWarning):
+        r = post_response(3.6, 3.6, harmonics=5, tol=1e-4)
+    assert r.info["max_error_estimate"] > 1e-4
+    r = post_response(2.0, 2.0, harmonics=8, estimate=True, polarizations=("x",))
+    assert 1e-4 < float(r.err_x) < 0.05
+
+
+# --- batching, dispersion, bad input --------------------------------------------------------------
+
+def test_batching_over_widths_and_wavelengths(post_stack):
+    wx = np.array([1.0, 2.0, 3.0])[:, None]
+    wl = np.array([9.0, 10.0, 11.0])[None, :]
+    r = post_response(wx, 1.5, wl, harmonics=4)
+    assert r.t_x.shape == (3, 3)
+    single = post_response(2.0, 1.5, 11.0, harmonics=4)
+    assert abs(r.t_x[1, 2] - single.t_x) < 1e-12
+    st = post_stack(2.0, 1.5)
+    s = solve(st, np.array([9.0, 11.0]), harmonics=4)
+    assert abs(s.t00()[1, 1, 1] - single.t_y) < 1e-10
+
+
+def test_dispersive_material():
+    si = Material.table("Si", [8.0, 12.0], [3.40, 3.44])
+    a = post_response(2.0, 2.0, 10.0, n_post=si, harmonics=3)
+    b = post_response(2.0, 2.0, 10.0, n_post=3.42, harmonics=3)
+    assert abs(a.t_x - b.t_x) < 1e-12
+    with pytest.raises(InputError):
+        si.n(13.0)
+
+
+@pytest.mark.parametrize("kw", [dict(wx_um=0.0), dict(wx_um=-1.0), dict(wy_um=4.0), dict(wy_um=5.0),
+                                dict(height_um=0.0), dict(period_um=-4.0), dict(wavelength_um=0.0),
+                                dict(harmonics=2), dict(harmonics=1.5), dict(n_post=-3.42),
+                                dict(n_post=3.42 - 0.1j), dict(n_post=float("nan")),
+                                dict(factorization="naive"), dict(incidence="side")])
+def test_bad_input_raises_input_error(kw):
+    args = dict(wx_um=2.0, wy_um=2.0, wavelength_um=10.0)
+    args.update(kw)
+    with pytest.raises(InputError):
+        post_response(args.pop("wx_um"), args.pop("wy_um"), args.pop("wavelength_um"), **args)
