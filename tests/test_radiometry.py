@@ -9,8 +9,8 @@ import pytest
 
 from metafovea.config import SystemDesign
 from metafovea.errors import InputError
-from metafovea.radiometry import (BandRadiance, planck_radiance, psf_wavelengths, spectral_transmission,
-                                  spectral_weights)
+from metafovea.radiometry import (BandRadiance, check_band, planck_radiance, psf_wavelengths,
+                                  spectral_transmission, spectral_weights)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -76,3 +76,11 @@ def test_psf_wavelength_planck_weight_converges_with_the_bins(filter_enabled):
     assert abs(means[61] - means[481]) < 1e-3
     ref = _planck_weighted_mean_um(br.band_um, br.filter_um, s.scene_temperature_k)
     assert abs(means[481] - ref) < 1e-5 and abs(means[61] - ref) < 1e-3
+
+
+def test_planck_value_and_band_checks():
+    """B(10 um, 300 K) = 9.923 W m^-2 sr^-1 um^-1; a reversed band is refused with a reason."""
+    b = planck_radiance([10.0], 300.0)
+    assert b[0] == pytest.approx(9.923, rel=1e-3)  # W / (m^2 sr um)
+    with pytest.raises(InputError, match="reversed"):
+        check_band((14.0, 8.0))
