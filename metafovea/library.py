@@ -2,6 +2,13 @@
 
 A :class:`PostSet` is what the later stages (lens, layout, optics) consume: the N posts actually used
 by one lens, level ``k`` targeting the wrapped phase ``2 pi k / N`` for the lens' own polarisation.
+
+* :func:`compute_library` sweeps a (wx, wy) grid (settings in :class:`LibraryOptions`), cached and resumable;
+  :func:`width_grid` is the grid a platform's min feature allows.
+* :func:`select_posts` chooses one lens' posts from a :class:`Library` (the paper's Fig. 7c).
+* :class:`PlatformSweep` / :func:`platform_post_sets`: a platform's library and both lenses' post sets, the
+  path ``metafovea library``, ``design --library`` and ``validate`` share; :mod:`metafovea.library_report`
+  turns it into numbers, figures and files.
 """
 
 from __future__ import annotations

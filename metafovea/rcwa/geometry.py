@@ -63,10 +63,6 @@ class Layer:
                 raise InputError("shapes", type(s).__name__, "Rectangle instances")
         object.__setattr__(self, "shapes", shapes)
 
-    @property
-    def is_uniform(self) -> bool:
-        return not self.shapes
-
 
 @dataclass(frozen=True)
 class Stack:
