@@ -30,6 +30,8 @@ COMMAND_MODULES = ("validate", "design", "library", "layout", "psf", "simulate",
 #: library parameter name -> the flag a user typed, per command (an InputError raised deep in a stage names the
 #: parameter; the CLI reports the flag). Only names that differ from their flag need an entry.
 PARAMETER_FLAGS: dict[str, dict[str, str]] = {
+    "design": {"post_set": "--post-set", "from_library": "--library"},
+    "library": {"grid_step_um": "--grid-step-um", "levels": "--levels"},
     "psf": {"band_um": "--band-um", "filter_um": "--filter-um", "pixel_pitch_um": "--pixel-um",
             "field_deg": "--field-deg", "error": "--error", "temperature_k": "--temperature-k",
             "n_wavelengths": "--wavelengths", "wavelength_um": "--wavelength-um", "window_um": "--window-um"},
