@@ -113,18 +113,19 @@ class PostSet:
         return atomic_save_npz(path, meta, widths_um=self.widths_um, t_x=self.t_x, t_y=self.t_y)
 
     @classmethod
-    def load(cls, path: str | Path) -> "PostSet":
-        arrays, meta = _load_checked(path, "PostSet")
+    def load(cls, path: str | Path, name: str = "path") -> "PostSet":
+        """Read a file written by :meth:`save`; errors name the file as ``name`` (a CLI passes its flag)."""
+        arrays, meta = _load_checked(path, "PostSet", name)
         try:
             return cls(meta["polarization"], meta["period_um"], meta["height_um"], meta["wavelength_um"],
                        arrays["widths_um"], arrays["t_x"], arrays["t_y"], source=meta["source"],
                        info=meta.get("info", {}))
         except KeyError as e:
-            raise InputError("path", str(path), "a PostSet file written by PostSet.save",
+            raise InputError(name, str(path), "a PostSet file written by PostSet.save",
                              detail=f"missing {e.args[0]!r}") from None
 
 
-def _load_checked(path: str | Path, kind: str) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
+def _load_checked(path: str | Path, kind: str, name: str = "path") -> tuple[dict[str, np.ndarray], dict[str, Any]]:
     """``load_npz`` of a file that must be a ``kind`` ('PostSet' or 'Library') file: anything else (a TOML
     passed by mistake, a truncated or pickled .npz) is an :class:`InputError`, not a numpy/zip traceback."""
     import zipfile
@@ -135,17 +136,17 @@ def _load_checked(path: str | Path, kind: str) -> tuple[dict[str, np.ndarray], d
     except OSError:
         magic = b"PK\x03\x04"  # let load_npz report a missing or unreadable file
     if magic != b"PK\x03\x04":
-        raise InputError("path", str(path), f"a {kind} .npz file written by {kind}.save",
+        raise InputError(name, str(path), f"a {kind} .npz file written by {kind}.save",
                          detail="not an .npz (zip) file") from None
     try:
-        arrays, meta = load_npz(path)
+        arrays, meta = load_npz(path, name)
     except InputError:
         raise
     except (ValueError, OSError, EOFError, KeyError, zipfile.BadZipFile, UnicodeDecodeError) as e:
-        raise InputError("path", str(path), f"a {kind} .npz file written by {kind}.save",
+        raise InputError(name, str(path), f"a {kind} .npz file written by {kind}.save",
                          detail=" ".join(str(e).split())[:120] or type(e).__name__) from None
     if not isinstance(meta, dict) or meta.get("type") != kind:
-        raise InputError("path", str(path), f"a {kind} file written by {kind}.save")
+        raise InputError(name, str(path), f"a {kind} file written by {kind}.save")
     return arrays, meta
 
 

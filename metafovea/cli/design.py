@@ -97,7 +97,7 @@ def run(args: argparse.Namespace) -> int:
     samples = check_int("--samples", args.samples, 1000, 1 << 26)
     if args.post_set and args.library:
         raise InputError("--library", True, "either --post-set FILE or --library, not both")
-    post_set = PostSet.load(args.post_set) if args.post_set else None
+    post_set = PostSet.load(args.post_set, name="--post-set") if args.post_set else None
     out_root = prepare_output(args.out, args.force, is_dir=True) if args.out else None
     summaries = design_lenses(lenses, post_set=post_set, from_library=args.library, samples=samples,
                               progress=sys.stderr.isatty())

@@ -296,10 +296,7 @@ def load_spec(design: str | os.PathLike | LensDesign, post_set: str | os.PathLik
         if isinstance(post_set, PostSet):
             ps = post_set
         else:
-            try:
-                ps = PostSet.load(post_set)
-            except InputError as e:  # PostSet.load names its file 'path'
-                raise InputError("--post-set", post_set, e.allowed, detail=e.detail) from None
+            ps = PostSet.load(post_set, name="--post-set")
         if levels is not None and levels != ps.levels:
             raise InputError("--levels", levels, f"the number of posts in {post_set} ({ps.levels})")
         if ps.polarization != d.polarization:
