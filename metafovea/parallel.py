@@ -64,7 +64,12 @@ def get_executor(workers: int | None = None, scheduler: str | None = None):
         raise InputError("workers", workers, "an integer >= 1")
     if workers == 1:
         return SerialExecutor()
-    return cf.ProcessPoolExecutor(max_workers=workers)
+    # forkserver, not fork: a process that has started JAX's (or OpenBLAS') threads must not fork (JAX warns that
+    # os.fork() may deadlock; the library sweep runs after JAX in validate and in the test suite)
+    import multiprocessing
+
+    method = "forkserver" if "forkserver" in multiprocessing.get_all_start_methods() else "spawn"
+    return cf.ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context(method))
 
 
 def run_tasks(fn: Callable, items: Iterable[Any], *, workers: int | None = None,
