@@ -15,7 +15,7 @@ import time
 
 import numpy as np
 
-from metafovea.reconstruct import SlidingLSQ, alternating, lsq_known_alpha, snapshot, video
+from metafovea.reconstruct import SlidingLSQ, alternating, snapshot, video
 from metafovea.reconstruct.metrics import psnr
 from metafovea.reconstruct.synthetic import measure, polariser_alpha, scene
 

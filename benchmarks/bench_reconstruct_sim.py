@@ -28,9 +28,7 @@ from metafovea.reconstruct.metrics import psnr
 
 def run(path: str, window: int, n_windows: int) -> list[dict]:
     m = Measurement.load(path)
-    fc = m.meta.get("foveal_constraint") or {}
-    geo = {"scale": float(fc.get("scale", m.meta.get("scale", 6.0))), "foveal_gain": float(fc.get("gain", 1.0)),
-           "foveal_offset": float(fc.get("offset_dn", 0.0))}
+    geo = m.foveal_constraint.as_kwargs()
     T = m.frames.shape[0]
     starts = list(range(0, T - window + 1, max(1, (T - window + 1) // n_windows)))[:n_windows]
     t1, t2 = m.truth_x1, m.truth_x2

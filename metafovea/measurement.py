@@ -30,7 +30,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, Sequence
 
 import numpy as np
 
@@ -40,6 +40,11 @@ from metafovea.io import atomic_save_npz, load_npz, prepare_output
 KIND = "measurement"
 OPTIONAL = ("alpha", "truth_x1", "truth_x2", "fpn", "fpn_u", "fpn_v", "fpn_s", "fpn_weights", "theta_rad",
             "calibration")
+
+
+def _real(a: np.ndarray) -> bool:
+    """Real numbers (not complex, not bool, not objects or strings)."""
+    return np.issubdtype(a.dtype, np.number) and not np.iscomplexobj(a)
 
 
 @dataclass(frozen=True)
@@ -91,7 +96,10 @@ class FovealConstraint:
 
 @dataclass(frozen=True)
 class Measurement:
-    """Frames plus known mixing ratios, ground truth and metadata (see module docstring)."""
+    """Frames plus known mixing ratios, ground truth and metadata (see module docstring).
+
+    Every array is checked on construction (shape against the frames, real numbers, finite where a NaN would
+    make it meaningless); ``source`` (the file :meth:`load` read, if any) is named in those errors."""
 
     frames: np.ndarray
     times_s: np.ndarray
@@ -101,45 +109,70 @@ class Measurement:
     fpn: np.ndarray | None = None
     meta: dict[str, Any] = field(default_factory=dict)
     extras: dict[str, np.ndarray] = field(default_factory=dict)  # fpn_u, fpn_v, fpn_s, fpn_weights, theta_rad
+    source: str | None = field(default=None, compare=False)  #: the file this was loaded from
 
     def __post_init__(self) -> None:
+        src = self.source
         f = np.asarray(self.frames)
         if f.ndim == 2:
             f = f[None]
         if f.ndim != 3 or f.shape[0] < 1 or min(f.shape[1:]) < 1:
-            raise InputError("frames", f"array of shape {np.shape(self.frames)}", "a (T, H, W) array with T >= 1")
-        if not np.issubdtype(f.dtype, np.number) or np.iscomplexobj(f):
-            raise InputError("frames", str(f.dtype), "real numbers")
+            raise InputError("frames", f"array of shape {np.shape(self.frames)}", "a (T, H, W) array with T >= 1",
+                             source=src)
+        if not _real(f):
+            raise InputError("frames", str(f.dtype), "real numbers", source=src)
+        if not np.any(np.isfinite(f)):
+            raise InputError("frames", "no finite value", "frames with finite pixel values (NaN/inf pixels are "
+                             "masked, but all of them are non-finite)", source=src)
         f = f.astype(np.float32, copy=False)
         T, H, W = f.shape
-        t = np.asarray(self.times_s, dtype=np.float64).reshape(-1)
+        t = np.asarray(self.times_s)
+        t = t.astype(np.float64).reshape(-1) if _real(t) else np.full(np.shape(t), np.nan).reshape(-1)
         if t.shape != (T,) or not np.all(np.isfinite(t)):
-            raise InputError("times_s", f"array of shape {t.shape}", f"({T},) finite times in seconds")
+            raise InputError("times_s", f"array of shape {t.shape}", f"({T},) finite times in seconds", source=src)
         object.__setattr__(self, "frames", f)
         object.__setattr__(self, "times_s", t)
         if self.alpha is not None:
-            a = np.asarray(self.alpha, dtype=np.float64).reshape(-1)
-            if a.shape != (T,):
-                raise InputError("alpha", f"array of shape {a.shape}", f"({T},) mixing ratios")
-            fin = a[np.isfinite(a)]
-            if fin.size and (fin.min() < -1e-9 or fin.max() > 1 + 1e-9):
-                raise InputError("alpha", float(fin.min() if fin.min() < 0 else fin.max()), "values in [0, 1]")
-            object.__setattr__(self, "alpha", a)
+            object.__setattr__(self, "alpha", self._checked_alpha(T))
         for name in ("truth_x1", "truth_x2"):
             v = getattr(self, name)
             if v is not None:
-                v = np.asarray(v, dtype=np.float32)
-                if v.shape not in ((H, W), (T, H, W)):
-                    raise InputError(name, f"array of shape {v.shape}", f"({H}, {W}) or ({T}, {H}, {W})")
-                object.__setattr__(self, name, v)
+                v = np.asarray(v)
+                if not _real(v) or v.shape not in ((H, W), (T, H, W)):
+                    raise InputError(name, f"array of shape {v.shape}, dtype {v.dtype}",
+                                     f"real values of shape (H, W) = {(H, W)} or (T, H, W) = {(T, H, W)}", source=src)
+                if not np.all(np.isfinite(v)):
+                    raise InputError(name, "array with NaN/inf", "finite truth images", source=src)
+                object.__setattr__(self, name, v.astype(np.float32, copy=False))
         if self.fpn is not None:
-            v = np.asarray(self.fpn, dtype=np.float32)
-            if v.shape != (H, W):
-                raise InputError("fpn", f"array of shape {v.shape}", f"({H}, {W})")
-            object.__setattr__(self, "fpn", v)
+            v = np.asarray(self.fpn)
+            if not _real(v) or v.shape != (H, W):
+                raise InputError("fpn", f"array of shape {v.shape}, dtype {v.dtype}",
+                                 f"real values of the frames' (H, W) = {(H, W)}", source=src)
+            if not np.all(np.isfinite(v)):
+                raise InputError("fpn", "array with NaN/inf", "a finite fixed pattern", source=src)
+            object.__setattr__(self, "fpn", v.astype(np.float32, copy=False))
         bad = set(self.extras) - set(OPTIONAL)
         if bad:
-            raise InputError("extras", sorted(bad), "keys among " + ", ".join(OPTIONAL[4:]))
+            raise InputError("extras", sorted(bad), "keys among " + ", ".join(OPTIONAL[4:]), source=src)
+        cal = self.extras.get("calibration")
+        if cal is not None and (not _real(np.asarray(cal)) or np.ndim(cal) not in (2, 3)
+                                or np.shape(cal)[-2:] != (H, W)):
+            raise InputError("calibration", f"array of shape {np.shape(cal)}",
+                             f"(Tc, H, W) or (H, W) frames with (H, W) = {(H, W)}", source=src)
+
+    def _checked_alpha(self, T: int) -> np.ndarray:
+        """``alpha`` as ``(T,)`` float64: real, one per frame, finite values in [0, 1] (NaN = unknown)."""
+        raw = np.asarray(self.alpha)
+        if not _real(raw) or raw.ndim == 0 or raw.size != T:
+            raise InputError("alpha", f"array of shape {raw.shape}, dtype {raw.dtype}",
+                             f"one real mixing ratio per frame, shape ({T},)", source=self.source)
+        a = raw.astype(np.float64).reshape(-1)
+        fin = a[np.isfinite(a)]
+        if fin.size and (fin.min() < -1e-9 or fin.max() > 1 + 1e-9):
+            raise InputError("alpha", float(fin.min() if fin.min() < 0 else fin.max()), "values in [0, 1]",
+                             source=self.source)
+        return a
 
     # ----------------------------------------------------------------------------------------------
     @property
@@ -175,6 +208,14 @@ class Measurement:
         x2 = self.truth_x2[k] if self.truth_x2.ndim == 3 else self.truth_x2
         return x1, x2
 
+    def truth_over(self, spans: Sequence[tuple[int, int]]) -> tuple[np.ndarray | None, np.ndarray | None]:
+        """The noise-free ``(x1, x2)`` that outputs made from frames ``start:stop`` (one ``(start, stop)`` per output)
+        show: a static truth as stored ``(H, W)``; a video truth averaged over each output's frames, ``(K, H, W)``
+        float64; ``None`` for an image the file does not hold."""
+        return tuple(t if t is None or t.ndim == 2 else
+                     np.stack([t[a:b].mean(axis=0, dtype=np.float64) for a, b in spans])
+                     for t in (self.truth_x1, self.truth_x2))  # type: ignore[return-value]
+
     # ----------------------------------------------------------------------------------------------
     def save(self, path: str | Path, force: bool = False) -> Path:
         """Write atomically (refuses to overwrite unless ``force``)."""
@@ -192,29 +233,23 @@ class Measurement:
 
     @classmethod
     def load(cls, path: str | Path) -> "Measurement":
-        """Read a file written by :meth:`save` (or converted from a real camera, see the docs)."""
+        """Read a file written by :meth:`save` (or converted from a real camera, see the docs).
+
+        Every way a file can fail to be a Measurement (unreadable, no frames, arrays that do not fit the frames)
+        is an :class:`InputError`; one about an array names the file as its ``source``."""
         p = Path(path)
         if not p.is_file():
             raise InputError("measurement", str(p), "an existing measurement .npz file")
-        import zipfile
-        import zlib
-
-        try:
-            arrays, meta = load_npz(p)
-        except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile, zlib.error, UnicodeDecodeError) as e:
-            raise InputError("measurement", str(p), "a readable .npz measurement file",
-                             detail=" ".join(str(e).split())[:160] or type(e).__name__) from None
-        if not isinstance(meta, dict):
-            raise InputError("__meta__", type(meta).__name__, "a JSON object (mapping)", source=str(p))
+        arrays, meta = load_npz(p, name="measurement")
         if "frames" not in arrays:
-            raise InputError("measurement", str(p), "an .npz with an array 'frames' (T, H, W)")
+            raise InputError("measurement", str(p), "a Measurement .npz holding a 'frames' (T, H, W) array")
         times = arrays.get("times_s")
         if times is None:
             fps = float(meta.get("frame_rate_hz", 12.0))
             times = np.arange(arrays["frames"].shape[0]) / fps
         extras = {k: arrays[k] for k in OPTIONAL[4:] if k in arrays}
         return cls(frames=arrays["frames"], times_s=times, alpha=arrays.get("alpha"), truth_x1=arrays.get("truth_x1"),
-                   truth_x2=arrays.get("truth_x2"), fpn=arrays.get("fpn"), meta=meta, extras=extras)
+                   truth_x2=arrays.get("truth_x2"), fpn=arrays.get("fpn"), meta=meta, extras=extras, source=str(p))
 
     def summary(self) -> dict[str, Any]:
         T, H, W = self.shape

@@ -14,12 +14,15 @@ checked against and how long it took:
    alternating minimisation, the double deep image prior with a small network, single-frame snapshot)
    scored against the simulator's ground truth: the speed-against-error table.
 
-The report is written as JSON and one self-contained HTML page.
+The report is written as JSON and one self-contained HTML page (:class:`metafovea.report.HtmlReport`, figures via
+:func:`metafovea.report.fig_to_png`); :func:`format_report` is the text ``metafovea validate`` prints. Every
+reconstruction row goes through :func:`metafovea.reconstruct.reconstruct_measurement`, the pipeline the
+``reconstruct`` command runs, and is scored by :func:`metafovea.reconstruct.metrics.score`
+(:func:`reconstruction_table`).
 """
 
 from __future__ import annotations
 
-import argparse
 import dataclasses
 import logging
 import math
@@ -30,15 +33,15 @@ import warnings
 from dataclasses import dataclass
 from datetime import datetime, timezone
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable
 
 import numpy as np
 
-from metafovea.config import SystemDesign, load_system
+from metafovea.config import SystemDesign
 from metafovea.design_report import format_summary, summary_dict
-from metafovea.errors import check_int
-from metafovea.io import atomic_write_bytes, atomic_write_json, prepare_output, to_json
+from metafovea.io import atomic_write_bytes, atomic_write_json
 from metafovea.lens import summarize
+from metafovea.measurement import Measurement
 from metafovea.parallel import blas_threads
 
 log = logging.getLogger(__name__)
@@ -66,17 +69,16 @@ class ValidateOptions:
     progress: bool = False
 
 
-class _Stages:
-    """Prints one line per stage (to stderr when interactive) and records timings."""
+def _progress(enabled: bool) -> Callable[[str], None]:
+    """A ``say(msg)`` that prints one line per stage with the elapsed time (to stderr), or does nothing."""
+    t0 = time.perf_counter()
 
-    def __init__(self, progress: bool):
-        self.progress = progress
-        self.t0 = time.perf_counter()
-
-    def say(self, msg: str) -> None:
-        if self.progress:
-            sys.stderr.write(f"[{time.perf_counter() - self.t0:6.1f} s] {msg}\n")
+    def say(msg: str) -> None:
+        if enabled:
+            sys.stderr.write(f"[{time.perf_counter() - t0:6.1f} s] {msg}\n")
             sys.stderr.flush()
+
+    return say
 
 
 def _airy_ee(r_um: float, wavelength_um: float, f_number: float) -> float:
@@ -114,135 +116,95 @@ def _psf_stage(system: SystemDesign, post_sets: dict[str, Any], lens_summaries: 
     return out
 
 
-def _score(x1: np.ndarray, x2: np.ndarray, t1: np.ndarray, t2: np.ndarray) -> dict[str, float]:
-    from metafovea.reconstruct.metrics import psnr, ssim
-    r1 = float(np.ptp(t1)) or 1.0
-    r2 = float(np.ptp(t2)) or 1.0
-    x1d = np.asarray(x1, np.float64)
-    # level-free PSNR: after removing the mean error (the alpha gauge / offset part of the error)
-    lf1 = x1d - float(np.mean(x1d - np.asarray(t1, np.float64)))
-    return {"psnr_x1": psnr(x1, t1, r1), "psnr_x2": psnr(x2, t2, r2), "ssim_x1": ssim(x1, t1, r1),
-            "ssim_x2": ssim(x2, t2, r2), "psnr_x1_level_free": psnr(lf1, t1, r1)}
+#: the image metrics of a table row, in the row's order
+ROW_METRICS = ("psnr_x1", "psnr_x2", "ssim_x1", "ssim_x2", "psnr_x1_level_free")
 
 
-def _truth_at(truth: np.ndarray, start: int, window: int) -> np.ndarray:
-    return truth if truth.ndim == 2 else truth[start:start + window].mean(axis=0)
+def reconstruction_table(meas: Measurement, opts: ValidateOptions, label: str, *, run_dip: bool = True,
+                         say: Callable[[str], None] | None = None) -> dict[str, Any]:
+    """Run every method on one measurement (with closed-shutter ``calibration`` frames in its extras and the
+    simulator's truth): ``{'rows', 'images', 'truth', 'fpn'}``, the rows of the speed-against-error table (case
+    ``label``), the first output of each method and its truth, and the FPN estimate's report."""
+    from metafovea.reconstruct import denoise, estimate_fpn, reconstruct_measurement
+    from metafovea.reconstruct.metrics import score
 
-
-def _reconstruct_stage(meas: Any, opts: ValidateOptions, st: _Stages, label: str,
-                       run_dip: bool = True) -> dict[str, Any]:
-    """Run every method on one measurement; returns rows of the speed-against-error table and images."""
-    from metafovea.reconstruct import alternating, denoise, dip, estimate_fpn, snapshot, video
-
-    Y = np.asarray(meas.frames)
-    T, H, W = Y.shape
-    a_true = np.asarray(meas.alpha, dtype=float)
-    fc = meas.meta.get("foveal_constraint", {})
-    scale = float(fc.get("scale", meas.meta.get("scale", 6.0)))
-    gain = float(fc.get("gain", 1.0))
-    off = float(fc.get("offset_dn", 0.0))
+    say = say or (lambda msg: None)
+    T = meas.shape[0]
     w = min(opts.window, T)
     rows: list[dict[str, Any]] = []
     images: dict[str, tuple[np.ndarray, np.ndarray]] = {}
 
+    def add(method: str, secs: float, unit: str, n: int, x1s: np.ndarray, x2s: np.ndarray, metrics: dict[str, float],
+            alpha_mae: float | None = None, extra: dict[str, Any] | None = None) -> None:
+        row = {"case": label, "method": method, "seconds": secs, "unit": unit, "n": n,
+               "ms_per_unit": 1000.0 * secs / max(n, 1), **{k: metrics[k] for k in ROW_METRICS}}
+        if alpha_mae is not None:
+            row["alpha_mae"] = alpha_mae
+        rows.append({**row, **(extra or {})})
+        images[method] = (np.asarray(x1s[0]), np.asarray(x2s[0]))
+
     # fixed-pattern noise from the closed-shutter calibration frames stored with the measurement
     t = time.perf_counter()
-    C = np.asarray(meas.extras["calibration"], dtype=np.float64)
-    fpn, finfo = estimate_fpn(calibration=C, bound=max(0.1 * float(np.ptp(Y)), 1e-9))
+    fpn, finfo = estimate_fpn(calibration=np.asarray(meas.extras["calibration"], dtype=np.float64),
+                              bound=max(0.1 * float(np.ptp(meas.frames)), 1e-9))
     t_fpn = time.perf_counter() - t
-    true_fpn = meas.fpn
     fpn_err = None
-    if true_fpn is not None:
-        tf = np.asarray(true_fpn, dtype=np.float64)
+    if meas.fpn is not None:
+        tf = np.asarray(meas.fpn, dtype=np.float64)
         fpn_err = float(np.sqrt(np.mean(((fpn - fpn.mean()) - (tf - tf.mean())) ** 2)) / (np.std(tf) or 1.0))
-    Yc = (Y - fpn[None]).astype(np.float32)
-    t1, t2 = meas.truth_x1, meas.truth_x2
-
-    def add(method: str, secs: float, per: str, n: int, x1, x2, starts, alpha_est=None, extra=None, span=None):
-        # span: frames each output shows (the window; 1 for a single-frame method on a video truth)
-        span = w if span is None else span
-        scores = [_score(x1[k], x2[k], _truth_at(t1, s, span), _truth_at(t2, s, span))
-                  for k, s in enumerate(starts)]
-        row = {"case": label, "method": method, "seconds": secs, "unit": per, "n": n,
-               "ms_per_unit": 1000.0 * secs / max(n, 1),
-               **{k: float(np.mean([sc[k] for sc in scores])) for k in scores[0]}}
-        if alpha_est is not None:
-            row["alpha_mae"] = float(np.mean(np.abs(np.asarray(alpha_est) - a_true[:len(alpha_est)]))) \
-                if np.ndim(alpha_est) == 1 else float(np.mean([np.mean(np.abs(ae - a_true[s:s + w]))
-                                                               for ae, s in zip(alpha_est, starts)]))
-        if extra:
-            row.update(extra)
-        rows.append(row)
-        images[method] = (np.asarray(x1[0]), np.asarray(x2[0]))
 
     # known alpha: sliding windows over the whole sequence, without and with FPN correction
-    st.say(f"{label}: least squares, known alpha ({T} frames, window {w})")
+    say(f"{label}: least squares, known alpha ({T} frames, window {w})")
+    plain = reconstruct_measurement(meas, "lsq", window=w, level_free=True)
+    add("lsq, no FPN correction", plain.seconds, "window", plain.outputs, plain.x1s, plain.x2s, plain.metrics)
+    lsq = reconstruct_measurement(meas, "lsq", window=w, fpn=fpn, level_free=True)
+    add("lsq (known alpha)", lsq.seconds + t_fpn / max(lsq.outputs, 1), "window", lsq.outputs, lsq.x1s, lsq.x2s,
+        lsq.metrics, extra={"condition_max": float(np.max(lsq.reconstruction.info.get("condition", [np.nan])))})
+    # TV denoising of the LSQ images, timed on every len/8-th window
     t = time.perf_counter()
-    rec = video(Y, a_true, window=w, method="lsq")
-    secs = time.perf_counter() - t
-    starts = rec.info["window_starts"]
-    add("lsq, no FPN correction", secs, "window", len(starts), rec.x1, rec.x2, starts)
-    t = time.perf_counter()
-    rec = video(Yc, a_true, window=w, method="lsq")
-    secs = time.perf_counter() - t + t_fpn / max(len(starts), 1)
-    add("lsq (known alpha)", secs, "window", len(starts), rec.x1, rec.x2, starts,
-        extra={"condition_max": float(np.max(rec.info.get("condition", [np.nan])))})
-    lsq_x1, lsq_x2 = rec.x1, rec.x2
-    t = time.perf_counter()
-    k_tv = list(range(0, len(starts), max(1, len(starts) // 8)))
-    d1 = np.stack([denoise(lsq_x1[k], "tv") for k in k_tv])
-    d2 = np.stack([denoise(lsq_x2[k], "tv") for k in k_tv])
-    secs = (time.perf_counter() - t) * len(starts) / len(k_tv)
-    add("lsq + TV denoise", secs, "window", len(starts), d1, d2, [starts[k] for k in k_tv])
+    k_tv = list(range(0, lsq.outputs, max(1, lsq.outputs // 8)))
+    d1 = np.stack([denoise(lsq.x1s[k], "tv") for k in k_tv])
+    d2 = np.stack([denoise(lsq.x2s[k], "tv") for k in k_tv])
+    secs = (time.perf_counter() - t) * lsq.outputs / len(k_tv)
+    t1, t2 = meas.truth_over([lsq.spans[k] for k in k_tv])
+    add("lsq + TV denoise", secs, "window", lsq.outputs, d1, d2, score((d1, d2), t1, t2, level_free=True))
 
     # unknown alpha: alternating minimisation with the foveal gauge, on windows spread over the sequence
     n_alt = max(1, min(opts.alternating_windows, T - w + 1))
     alt_starts = np.linspace(0, T - w, n_alt).round().astype(int).tolist()
-    st.say(f"{label}: alternating minimisation, unknown alpha ({n_alt} windows)")
-    x1s, x2s, als, gauge = [], [], [], []
-    t = time.perf_counter()
-    for s in alt_starts:
-        r = alternating(Yc[s:s + w], scale=scale, foveal_gain=gain, foveal_offset=off, strict=False)
-        x1s.append(r.x1)
-        x2s.append(r.x2)
-        als.append(r.alpha)
-        gauge.append(bool(r.info.get("alpha_identified", r.info.get("gauge_applied", False))))
-    secs = time.perf_counter() - t
-    add("alternating (unknown alpha)", secs, "window", n_alt, np.stack(x1s), np.stack(x2s), alt_starts,
-        alpha_est=als, extra={"alpha_identified_windows": int(sum(gauge))})
+    say(f"{label}: alternating minimisation, unknown alpha ({n_alt} windows)")
+    alt = reconstruct_measurement(meas, "alternating", window=w, starts=alt_starts, fpn=fpn,
+                                  solver={"strict": False}, level_free=True)
+    add("alternating (unknown alpha)", alt.seconds, "window", alt.outputs, alt.x1s, alt.x2s, alt.metrics,
+        alt.alpha_mae, {"alpha_identified_windows": int(sum(alt.reconstruction.info["window_alpha_identified"]))})
 
     # double deep image prior, small network (the paper's is 128 channels and thousands of steps), warm
     # started from the classical solver: x_k = x_alternating_k + zero-mean network correction, each image
     # normalised by its own range, alpha refined from the classical estimate (random starts reach only
     # -4 / 14 dB in this budget; the warm start keeps the classical result, see BENCHMARKS.md)
     if run_dip:
-        st.say(f"{label}: deep image prior, warm start ({opts.dip_channels} channels, {opts.dip_steps} steps)")
+        say(f"{label}: deep image prior, warm start ({opts.dip_channels} channels, {opts.dip_steps} steps)")
         # the same windows as the alternating row, so that the two rows compare
-        d1, d2, da = [], [], []
-        t = time.perf_counter()
-        for s in alt_starts:
-            r = dip(Yc[s:s + w], channels=opts.dip_channels, steps=opts.dip_steps, rng=opts.seed, init="classical",
-                    scale=scale, foveal_gain=gain, foveal_offset=off)
-            d1.append(r.x1)
-            d2.append(r.x2)
-            da.append(r.alpha)
-        secs = time.perf_counter() - t
-        add(f"dip (warm start from alternating, {opts.dip_channels} ch, {opts.dip_steps} steps)", secs, "window",
-            len(alt_starts), np.stack(d1), np.stack(d2), alt_starts, alpha_est=da,
-            extra={"steps": opts.dip_steps, "channels": opts.dip_channels, "init": "classical"})
+        d = reconstruct_measurement(meas, "dip", window=w, starts=alt_starts, fpn=fpn, level_free=True,
+                                    solver={"channels": opts.dip_channels, "steps": opts.dip_steps, "rng": opts.seed,
+                                            "init": "classical"})
+        add(f"dip (warm start from alternating, {opts.dip_channels} ch, {opts.dip_steps} steps)", d.seconds,
+            "window", d.outputs, d.x1s, d.x2s, d.metrics, d.alpha_mae,
+            {"steps": opts.dip_steps, "channels": opts.dip_channels, "init": "classical"})
 
-    # single snapshot: one frame near alpha = 0.5
-    k = int(np.argmin(np.abs(a_true - 0.5)))
-    st.say(f"{label}: single-frame snapshot (frame {k}, alpha {a_true[k]:.2f})")
-    t = time.perf_counter()
-    r = snapshot(Yc[k], alpha=float(a_true[k]), scale=scale, foveal_gain=gain, foveal_offset=off,
-                 iterations=opts.snapshot_iterations)
-    secs = time.perf_counter() - t
-    add("snapshot (one frame)", secs, "frame", 1, r.x1[None], r.x2[None], [k], span=1)
+    # single snapshot: one frame near alpha = 0.5, scored against that frame's truth
+    k = int(np.argmin(np.abs(meas.alpha - 0.5)))
+    say(f"{label}: single-frame snapshot (frame {k}, alpha {meas.alpha[k]:.2f})")
+    snap = reconstruct_measurement(meas, "snapshot", frame=k, known_alpha=True, fpn=fpn, level_free=True,
+                                   solver={"iterations": opts.snapshot_iterations})
+    add("snapshot (one frame)", snap.seconds, "frame", 1, snap.x1s, snap.x2s, snap.metrics)
     # the unseparated frame as the floor a snapshot method has to beat
-    y = Yc[k].astype(np.float64)
-    add("no separation (frame as both images)", 0.0, "frame", 1, y[None], y[None], [k], span=1)
-    return {"rows": rows, "images": images, "truth": (np.asarray(_truth_at(t1, 0, w)), np.asarray(_truth_at(t2, 0, w))),
+    y = (meas.frames[k] - fpn).astype(np.float32).astype(np.float64)
+    t1, t2 = (t if t.ndim == 2 else t[0] for t in meas.truth_over([(k, k + 1)]))
+    add("no separation (frame as both images)", 0.0, "frame", 1, y[None], y[None],
+        score((y, y), t1, t2, level_free=True))
+    truth = tuple(np.asarray(t if t.ndim == 2 else t[0]) for t in meas.truth_over([(0, w)]))
+    return {"rows": rows, "images": images, "truth": truth,
             "fpn": {"identified": finfo.get("identified"), "rank": finfo.get("rank"),
                     "relative_rms_error": fpn_err, "seconds": t_fpn}}
 
@@ -281,13 +243,13 @@ def validate_system(system: SystemDesign, opts: ValidateOptions | None = None,
     from metafovea.library import platform_post_sets
 
     opts = opts or ValidateOptions()
-    st = _Stages(opts.progress)
+    say = _progress(opts.progress)
     report: dict[str, Any] = {"created_utc": datetime.now(timezone.utc).isoformat(timespec="seconds"),
                               "options": dataclasses.asdict(opts), "system": {"expansion": system.expansion},
                               "stages": {}}
     t_all = time.perf_counter()
 
-    st.say("library: RCWA scatterer library of the platform (cached after the first run) and post sets")
+    say("library: RCWA scatterer library of the platform (cached after the first run) and post sets")
     t = time.perf_counter()
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
@@ -301,7 +263,7 @@ def validate_system(system: SystemDesign, opts: ValidateOptions | None = None,
                                                          "pass_phase_spread_rad", "pass_coherent_transmission")}
                       for pol, ps in post_sets.items()}}
 
-    st.say("design: both lenses")
+    say("design: both lenses")
     t = time.perf_counter()
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
@@ -310,7 +272,7 @@ def validate_system(system: SystemDesign, opts: ValidateOptions | None = None,
     report["stages"]["design"] = {"seconds": time.perf_counter() - t,
                                   "lenses": {k: summary_dict(v) for k, v in lenses.items()}}
 
-    st.say("psf: on-axis PSFs of both lenses")
+    say("psf: on-axis PSFs of both lenses")
     t = time.perf_counter()
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
@@ -322,7 +284,7 @@ def validate_system(system: SystemDesign, opts: ValidateOptions | None = None,
     figs: dict[str, bytes] = {}
     for i_case, filt in enumerate(opts.filters):
         label = (f"{opts.scene}, 10 um filter" if filt else f"{opts.scene}, 8-14 um")
-        st.say(f"simulate: {label}, {opts.frames} frames + {opts.calibration_frames} calibration frames")
+        say(f"simulate: {label}, {opts.frames} frames + {opts.calibration_frames} calibration frames")
         t = time.perf_counter()
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
@@ -333,7 +295,7 @@ def validate_system(system: SystemDesign, opts: ValidateOptions | None = None,
         t = time.perf_counter()
         run_dip = opts.dip_cases == "all" or (opts.dip_cases == "last" and i_case == len(opts.filters) - 1)
         with blas_threads(1):
-            res = _reconstruct_stage(meas, opts, st, label, run_dip=run_dip)
+            res = reconstruction_table(meas, opts, label, run_dip=run_dip, say=say)
         cases[label] = {"simulate_seconds": t_sim, "reconstruct_seconds": time.perf_counter() - t,
                         "frames": list(np.shape(meas.frames)), "haze_fraction": meas.meta.get("haze_fraction"),
                         "netd_effective_k": meas.meta.get("netd_effective_k"), "fpn": res["fpn"],
@@ -346,7 +308,7 @@ def validate_system(system: SystemDesign, opts: ValidateOptions | None = None,
     report["_summaries"] = lenses
     if out_dir is not None:
         _write_report(report, figs, out_dir)
-    st.say(f"done in {report['seconds_total']:.1f} s")
+    say(f"done in {report['seconds_total']:.1f} s")
     return report
 
 
@@ -414,42 +376,23 @@ def format_table(rows: list[dict[str, Any]]) -> str:
     return "\n".join(lines)
 
 
-def run_validate(args: argparse.Namespace) -> int:
-    seed = check_int("--seed", args.seed, 0, 2**63 - 1)
-    frames = check_int("--frames", args.frames, 3, 100_000)  # the unknown-alpha solver needs 3 frames
-    dip_steps = check_int("--dip-steps", args.dip_steps, 1, 100_000)
-    system = load_system(args.system_file) if args.system_file else SystemDesign.paper()
-    from metafovea.imaging.scene import make_scene
-    make_scene(args.scene)  # a bad --scene is reported before minutes of library and PSF work
-    if args.out:
-        out = prepare_output(args.out, args.force, is_dir=True)
-    else:
-        stamp = datetime.now().strftime("%Y%m%d-%H%M%S")
-        out = prepare_output(Path("out") / f"validate-{stamp}", False, is_dir=True)
-    opts = ValidateOptions(seed=seed, frames=frames, scene=args.scene, progress=not args.json,
-                           dip_steps=dip_steps,
-                           filters=(False, True) if args.filter == "both" else (args.filter == "on",))
-    rep = validate_system(system, opts, out)
-    summaries = rep.pop("_summaries")
-    if args.json:
-        print(to_json(rep))
-        return 0
-    print(f"system: {'built-in paper prototype' if not args.system_file else args.system_file}, "
-          f"field expansion f1/f2 = {system.expansion:g}x")
+def format_report(rep: dict[str, Any], summaries: dict[str, Any], system: str, out_dir: Path) -> str:
+    """The text ``metafovea validate`` prints: the system, both lenses' design summaries, the library, the PSFs and
+    the speed-against-error table of :func:`validate_system`'s report ``rep`` (written to ``out_dir``)."""
+    lines = [f"system: {system}, field expansion f1/f2 = {rep['system']['expansion']:g}x"]
     for name, s in summaries.items():
-        print(f"\n== design: {name} ==")
-        print(format_summary(s))
+        lines += [f"\n== design: {name} ==", format_summary(s)]
     lib = rep["stages"]["library"]
-    print(f"\n== library: {lib['posts']} posts, {lib['seconds']:.1f} s{' (cache)' if lib['from_cache'] else ''} ==")
+    lines.append(f"\n== library: {lib['posts']} posts, {lib['seconds']:.1f} s{' (cache)' if lib['from_cache'] else ''} ==")
     for pol, v in lib["post_sets"].items():
-        print(f"  post set {pol}: expected efficiency {v['expected_focusing_efficiency']:.3f}, max phase error "
-              f"{v['max_abs_phase_error_rad']:.3f} rad, pass-through spread {v['pass_phase_spread_rad']:.3f} rad")
-    print("\n== psf (on axis, 10 um) ==")
+        lines.append(f"  post set {pol}: expected efficiency {v['expected_focusing_efficiency']:.3f}, max phase error "
+                     f"{v['max_abs_phase_error_rad']:.3f} rad, pass-through spread {v['pass_phase_spread_rad']:.3f} rad")
+    lines.append("\n== psf (on axis, 10 um) ==")
     for n, v in rep["stages"]["psf"]["lenses"].items():
-        print(f"  {n}: EE17 {v['ee17']:.4f} (paraxial Airy {v['ee17_paraxial_airy']:.4f}), EE24 {v['ee24']:.4f}, "
-              f"MTF@10 {v['mtf_10']:.4f}, MTF@29.4 {v['mtf_29p4']:.4f}; fabricated/continuous peak "
-              f"{v['peak_ratio_fabricated_vs_continuous']:.3f} (design estimate {v['expected_peak_ratio_from_design']:.3f})")
-    print("\n== reconstruction: speed against error ==")
-    print(format_table(rep["table"]))
-    print(f"\nreport: {out / 'validate.html'} (and validate.json); total {rep['seconds_total']:.1f} s")
-    return 0
+        lines.append(f"  {n}: EE17 {v['ee17']:.4f} (paraxial Airy {v['ee17_paraxial_airy']:.4f}), EE24 {v['ee24']:.4f}, "
+                     f"MTF@10 {v['mtf_10']:.4f}, MTF@29.4 {v['mtf_29p4']:.4f}; fabricated/continuous peak "
+                     f"{v['peak_ratio_fabricated_vs_continuous']:.3f} "
+                     f"(design estimate {v['expected_peak_ratio_from_design']:.3f})")
+    lines += ["\n== reconstruction: speed against error ==", format_table(rep["table"]),
+              f"\nreport: {out_dir / 'validate.html'} (and validate.json); total {rep['seconds_total']:.1f} s"]
+    return "\n".join(lines)

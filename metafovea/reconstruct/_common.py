@@ -1,14 +1,17 @@
-"""Shared helpers of the reconstruction stage: input validation, random generators, timers."""
+"""Shared helpers of the reconstruction stage: input validation, options with keyword overrides, the noise
+estimator, timers."""
 
 from __future__ import annotations
 
 import time
 from contextlib import contextmanager
-from typing import Any, Iterator, Sequence
+from typing import Any, Iterator, TypeVar
 
 import numpy as np
 
-from metafovea.errors import InputError, check_choice, check_int  # noqa: F401  (re-exported)
+from metafovea.errors import InputError
+
+O = TypeVar("O")
 
 
 def image_dtype(a: np.ndarray) -> np.dtype:
@@ -92,10 +95,30 @@ class Timings(dict):
             self[name] = self.get(name, 0.0) + (time.perf_counter() - t0)
 
 
-def shape_hw(x: np.ndarray) -> tuple[int, int]:
-    return int(x.shape[-2]), int(x.shape[-1])
+def with_overrides(cls: type[O], options: O | None, overrides: dict[str, Any]) -> O:
+    """``options`` (default ``cls()``) with the fields named in ``overrides`` replaced; an unknown name is an
+    :class:`InputError` that lists the known ones (the solvers' keyword arguments are these fields)."""
+    import dataclasses
+
+    opt = cls() if options is None else options
+    if not isinstance(opt, cls):
+        raise InputError("options", type(opt).__name__, f"a {cls.__name__}")
+    if not overrides:
+        return opt
+    fields = {f.name for f in dataclasses.fields(cls)}  # type: ignore[arg-type]
+    bad = sorted(set(overrides) - fields)
+    if bad:
+        raise InputError("option", bad[0], f"a field of {cls.__name__}: " + ", ".join(sorted(fields)))
+    return dataclasses.replace(opt, **overrides)  # type: ignore[type-var]
 
 
-def check_same_shape(name: str, a: np.ndarray, shape: Sequence[int]) -> None:
-    if tuple(a.shape) != tuple(shape):
-        raise InputError(name, f"array of shape {a.shape}", f"shape {tuple(shape)}")
+def estimate_noise(img: np.ndarray) -> float:
+    """Gaussian noise std of one image (Immerkaer 1996, fast Laplacian-difference estimator)."""
+    from scipy.signal import convolve2d
+
+    x = np.asarray(img, dtype=np.float64)
+    if x.shape[0] < 3 or x.shape[1] < 3 or not np.all(np.isfinite(x)):
+        x = np.nan_to_num(x)
+    k = np.array([[1, -2, 1], [-2, 4, -2], [1, -2, 1]], dtype=np.float64)
+    r = convolve2d(x, k, mode="valid")
+    return float(np.sqrt(np.pi / 2) * np.abs(r).sum() / (6.0 * r.size))

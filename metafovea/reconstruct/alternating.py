@@ -63,13 +63,15 @@ from __future__ import annotations
 
 import logging
 import math
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
 
 from metafovea.errors import InputError, as_float, check_choice, check_int
-from metafovea.reconstruct._common import Timings, as_frames, image_dtype, valid_mask
-from metafovea.reconstruct.lsq import _lsq_masked, normal_matrix, solve_weights, MAX_CONDITION
+from metafovea.reconstruct._common import Timings, as_frames, image_dtype, valid_mask, with_overrides
+from metafovea.reconstruct.denoise import denoise
+from metafovea.reconstruct.lsq import MAX_CONDITION, _lsq_masked, normal_matrix, solve_weights
 from metafovea.reconstruct.operators import FovealOperator, lowpass, lowpass_noise_factor
 from metafovea.reconstruct.result import Reconstruction
 
@@ -137,8 +139,67 @@ def _alpha_step(Y: np.ndarray, x1: np.ndarray, x2: np.ndarray, M: np.ndarray | N
     return (r @ d) / np.maximum(Mf.astype(np.float64) @ (d * d), 1e-300)
 
 
-def _tv(x: np.ndarray) -> float:
+def anisotropic_tv(x: np.ndarray) -> float:
+    """Anisotropic total variation ``sum |x[i+1, j] - x[i, j]| + |x[i, j+1] - x[i, j]|`` of one image (the guard's
+    smoothness term; not smoothed, no gradient)."""
     return float(np.abs(np.diff(x, axis=0)).sum() + np.abs(np.diff(x, axis=1)).sum())
+
+
+@dataclass(frozen=True)
+class _GaugeBand:
+    """Where the gauge is fitted: the constraint grid without ``margin`` border pixels (``inner``), low-passed by
+    ``blur``; the spatial structure compared with contrast gain ``gam``, the mean level with ``gain``/``bias`` as
+    one extra row of weight ``w_mean``."""
+
+    inner: tuple[slice, slice]
+    n_px: int
+    blur: float
+    w_mean: float
+    gam: float
+    gain: float
+    bias: float
+
+    def parts(self, u: np.ndarray, sig: float) -> tuple[np.ndarray, float]:
+        """(mean-free low-pass band, mean) of a constraint-grid image, the border left out."""
+        m = float(u[self.inner].mean())
+        return (lowpass(u, sig)[self.inner] - m).ravel(), m
+
+    def fit(self, o: FovealOperator, x2d: np.ndarray, d: np.ndarray,
+            psis: tuple[float, ...]) -> tuple[float, float, np.ndarray, np.ndarray, np.ndarray]:
+        """Best ``(chi^2, psi, R0, Rp, Rc)`` over the extra blurs ``psis`` for the geometry ``o``: the residual of
+        the gauge ``(p, c)`` is ``R0 + p Rp + c Rc`` (band rows, then the weighted mean row)."""
+        Dx2, Dd_full, Cx2, Cd_full = o.D(x2d), o.D(d), o.C(x2d), o.C(d)
+        Cd, Cd_m = self.parts(Cd_full, self.blur)
+        C2, C2_m = self.parts(Cx2, self.blur)
+        g, gam, w = self.gain, self.gam, self.w_mean
+        best = None
+        for psi in psis:
+            # the foveal side is blurred by psi more (the perifoveal PSF's extra blur in the crop)
+            sd = math.hypot(self.blur, psi)
+            Dd, Dd_m = self.parts(Dd_full, sd)
+            D2, D2_m = self.parts(Dx2, sd)
+            R0 = np.concatenate([D2 - gam * C2, [w * (D2_m - g * C2_m - self.bias)]])
+            Rp = np.concatenate([Dd, [w * Dd_m]])
+            Rc = np.concatenate([-gam * Cd, [-w * g * Cd_m]])
+            (pt, ct), *_ = np.linalg.lstsq(np.stack([Rp, Rc], axis=1), -R0, rcond=None)
+            chi = float(np.sum((R0 + pt * Rp + ct * Rc) ** 2))
+            if best is None or chi < best[0]:
+                best = (chi, float(psi), R0, Rp, Rc)
+        return best
+
+
+def _gauge_band(op: FovealOperator, blur: float, mean_weight: float, contrast_gain: float | None,
+                margin: int | None) -> _GaugeBand:
+    h, w = op.low_shape
+    mg = min(int(math.ceil(2.0 * blur)) + 2, min(h, w) // 8) if margin is None else int(margin)
+    mg = max(0, min(mg, (min(h, w) - 2) // 2))
+    n_px = (h - 2 * mg) * (w - 2 * mg)
+    gam = op.gain if contrast_gain is None else float(contrast_gain)
+    if not gam > 0:
+        raise InputError("foveal_contrast", contrast_gain, "a positive contrast gain (None: foveal_gain)")
+    return _GaugeBand(inner=(slice(mg, h - mg), slice(mg, w - mg)), n_px=n_px, blur=float(blur),
+                      w_mean=math.sqrt(max(float(mean_weight), 0.0) * n_px), gam=float(gam), gain=op.gain,
+                      bias=op.bias)
 
 
 def foveal_gauge(x1: np.ndarray, x2: np.ndarray, alpha: np.ndarray, op: FovealOperator, *,
@@ -174,55 +235,16 @@ def foveal_gauge(x1: np.ndarray, x2: np.ndarray, alpha: np.ndarray, op: FovealOp
         return x1, x2, alpha, rep
     x1d, x2d = x1.astype(np.float64), x2.astype(np.float64)
     d = x1d - x2d
-    h, w = op.low_shape
-    mg = min(int(math.ceil(2.0 * blur)) + 2, min(h, w) // 8) if margin is None else int(margin)
-    mg = max(0, min(mg, (min(h, w) - 2) // 2))
-    inner = (slice(mg, h - mg), slice(mg, w - mg))
-    rep["margin"] = mg
-    n_px = (h - 2 * mg) * (w - 2 * mg)
-    w_mean = math.sqrt(max(float(mean_weight), 0.0) * n_px)
-
-    def parts(u: np.ndarray, sig: float) -> tuple[np.ndarray, float]:
-        """(mean-free low-pass band, mean) of a constraint-grid image, ``mg`` border pixels left out."""
-        m = float(u[inner].mean())
-        return (lowpass(u, sig)[inner] - m).ravel(), m
-
-    gam = op.gain if contrast_gain is None else float(contrast_gain)
-    if not gam > 0:
-        raise InputError("foveal_contrast", contrast_gain, "a positive contrast gain (None: foveal_gain)")
-    gam = float(gam)
-    rep["contrast_gain"] = gam
-    g, bias = op.gain, op.bias
+    band = _gauge_band(op, blur, mean_weight, contrast_gain, margin)
+    rep["margin"] = band.inner[0].start
+    rep["contrast_gain"] = band.gam
     if isinstance(psf_blur, str):
         if psf_blur != "fit":
             raise InputError("foveal_psf", psf_blur, "'fit' or the extra blur (Gaussian sigma, constraint pixels)")
         grid: tuple[float, ...] = PSF_GRID
     else:
         grid = (float(psf_blur),)
-
-    def fit(o: FovealOperator, psis: tuple[float, ...]) -> tuple[float, float, np.ndarray, np.ndarray, np.ndarray]:
-        """Best (chi^2, psi, R0, Rp, Rc) over the extra blurs ``psis`` for the geometry ``o``."""
-        Dx2, Dd_full, Cx2, Cd_full = o.D(x2d), o.D(d), o.C(x2d), o.C(d)
-        Cd, Cd_m = parts(Cd_full, blur)
-        C2, C2_m = parts(Cx2, blur)
-        best = None
-        for psi in psis:
-            # the foveal side is blurred by psi more (the perifoveal PSF's extra blur in the crop)
-            sd = math.hypot(blur, psi)
-            Dd, Dd_m = parts(Dd_full, sd)
-            D2, D2_m = parts(Dx2, sd)
-            # residual vector R(p, c) = R0 + p R_p + c R_c: band rows, then the weighted mean row
-            R0 = np.concatenate([D2 - gam * C2, [w_mean * (D2_m - g * C2_m - bias)]])
-            Rp = np.concatenate([Dd, [w_mean * Dd_m]])
-            Rc = np.concatenate([-gam * Cd, [-w_mean * g * Cd_m]])
-            (pt, ct), *_ = np.linalg.lstsq(np.stack([Rp, Rc], axis=1), -R0, rcond=None)
-            chi = float(np.sum((R0 + pt * Rp + ct * Rc) ** 2))
-            if best is None or chi < best[0]:
-                best = (chi, float(psi), R0, Rp, Rc)
-        return best
-
-    best = fit(op, grid)
-    _, psi, R0, Rp, Rc = best
+    _, psi, R0, Rp, Rc = band.fit(op, x2d, d, grid)
     rep["psf_blur"] = float(psi)
     B = np.stack([Rp, Rc], axis=1)
     # conditioning of the spatial structure (translation invariant: a dark level in the data would
@@ -242,23 +264,37 @@ def foveal_gauge(x1: np.ndarray, x2: np.ndarray, alpha: np.ndarray, op: FovealOp
     n1 = x2d + p * d
     n2 = x2d + c * d
     # x1 = x2 + 1 d: the current gauge is (p, c) = (1, 0)
-    r_old = R0 + Rp
-    r_new = R0 + p * Rp + c * Rc
-    chi_old, chi_new = float(np.sum(r_old ** 2)), float(np.sum(r_new ** 2))
-    n_eff = n_px
-    rep["foveal_rms_before"] = float(np.sqrt(chi_old / n_eff))
-    rep["foveal_rms_after"] = float(np.sqrt(chi_new / n_eff))
+    chi_old, chi_new = float(np.sum((R0 + Rp) ** 2)), float(np.sum((R0 + p * Rp + c * Rc) ** 2))
+    rep["foveal_rms_before"] = float(np.sqrt(chi_old / band.n_px))
+    rep["foveal_rms_after"] = float(np.sqrt(chi_new / band.n_px))
     rep["alpha_range_after"] = [float(a_new.min()), float(a_new.max())]
     if mode == "foveal":
         rep.update(applied=True, reason="gauge='foveal'")
         return n1.astype(x1.dtype), n2.astype(x2.dtype), a_new, rep
+    reasons = _guard(rep, band, op, (x1d, x2d), (n1, n2), a_new, (chi_old, chi_new), noise, psi, d)
+    if reasons:
+        rep["reason"] = "; ".join(reasons)
+        log.info("foveal gauge fix rejected: %s", rep["reason"])
+        return x1, x2, alpha, rep
+    rep.update(applied=True, reason="improves the fit")
+    return n1.astype(x1.dtype), n2.astype(x2.dtype), a_new, rep
+
+
+def _guard(rep: dict[str, Any], band: _GaugeBand, op: FovealOperator, old: tuple[np.ndarray, np.ndarray],
+           new: tuple[np.ndarray, np.ndarray], a_new: np.ndarray, chis: tuple[float, float],
+           noise: tuple[float, float] | None, psi: float, d: np.ndarray) -> list[str]:
+    """The reasons (module docstring, "Guard") not to apply the fix ``old -> new``; none: apply it. Records the
+    expected misfit, the objectives and the TV ratio in ``rep``."""
+    chi_old, chi_new = chis
+    n_eff = band.n_px
     reasons = []
     if a_new.min() < -ALPHA_TOL or a_new.max() > 1 + ALPHA_TOL:
         reasons.append(f"alpha would leave [0, 1] ({a_new.min():.3f}..{a_new.max():.3f})")
     # noise level of the constraint residual: D averages scale^2 pixels of x1, C picks one of x2
     # (times the gain); the low-pass averages further
     s1, s2 = noise if noise is not None else (0.0, 0.0)
-    var_r = max((s1 ** 2 / op.scale ** 2 + gam ** 2 * s2 ** 2) * lowpass_noise_factor(blur, (h, w)), 1e-300)
+    var_r = max((s1 ** 2 / op.scale ** 2 + band.gam ** 2 * s2 ** 2) * lowpass_noise_factor(band.blur, op.low_shape),
+                1e-300)
     rep["foveal_rms_expected"] = float(math.sqrt(var_r))
     if chi_old - chi_new <= 6.0 * var_r:  # Delta chi^2 of 2 parameters: mean 2 var_r under "no change"
         reasons.append("foveal misfit reduction within noise")
@@ -268,8 +304,8 @@ def foveal_gauge(x1: np.ndarray, x2: np.ndarray, alpha: np.ndarray, op: FovealOp
                        f"vs {math.sqrt(chi_old / n_eff):.3g} before, noise {math.sqrt(var_r):.3g}): wrong "
                        f"scale/offset/gain?")
     # objective: foveal misfit (chi^2 / n in units of var_r) + TV (relative to the current value)
-    tv_old = _tv(x1d) + _tv(x2d)
-    tv_new = _tv(n1) + _tv(n2)
+    tv_old = anisotropic_tv(old[0]) + anisotropic_tv(old[1])
+    tv_new = anisotropic_tv(new[0]) + anisotropic_tv(new[1])
     vr = max(var_r, 1e-300)
     j_old = chi_old / vr / n_eff + tv_old / max(tv_old, 1e-300)
     j_new = chi_new / vr / n_eff + tv_new / max(tv_old, 1e-300)
@@ -287,33 +323,23 @@ def foveal_gauge(x1: np.ndarray, x2: np.ndarray, alpha: np.ndarray, op: FovealOp
             continue
         if o2.low_shape != op.low_shape:
             continue
-        chi2 = fit(o2, (psi,))[0]
+        chi2 = band.fit(o2, old[1], d, (psi,))[0]
         if chi2 < 0.5 * chi_new:
             reasons.append(f"scale {o2.scale:.4g} fits the foveal constraint better than {op.scale:.4g} "
                            f"(misfit {math.sqrt(chi2 / n_eff):.3g} vs {math.sqrt(chi_new / n_eff):.3g}): wrong scale?")
             break
-    if reasons:
-        rep["reason"] = "; ".join(reasons)
-        log.info("foveal gauge fix rejected: %s", rep["reason"])
-        return x1, x2, alpha, rep
-    rep.update(applied=True, reason="improves the fit")
-    return n1.astype(x1.dtype), n2.astype(x2.dtype), a_new, rep
+    return reasons
 
 
-def alternating(frames: Any, *, scale: float = 6.0, offset: tuple[float, float] = (0.0, 0.0),
-                foveal_gain: float = 1.0, foveal_offset: float = 0.0, foveal_blur: float = FOVEAL_BLUR,
-                foveal_mean: float = 1.0, foveal_contrast: float | None = None, foveal_psf: float | str = "fit",
-                gauge: str = "auto", prior: str | None = "tv", init: str = "svd", iterations: int = 10,
-                tol: float = 1e-4, saturation: float | None = None, noise_sigma: float | None = None,
-                max_condition: float = MAX_CONDITION, alpha_from: str = "data",
-                strict: bool = True) -> Reconstruction:
-    """Unknown-alpha separation of ``frames (T, H, W)`` (see module docstring).
+@dataclass(frozen=True)
+class AlternatingOptions:
+    """The knobs of :func:`alternating` (each is also a keyword argument of it).
 
-    Parameters
+    Attributes
     ----------
     scale, offset: foveal constraint geometry (``f1/f2``; registration offset of the crop in x2 px).
     foveal_gain, foveal_offset: radiometry of the constraint ``D x1 = foveal_gain C x2 + foveal_offset``
-        (a Measurement's ``meta['foveal_constraint']`` ``gain`` and ``offset_dn``).
+        (a Measurement's :class:`~metafovea.measurement.FovealConstraint`).
     foveal_blur, foveal_mean, foveal_contrast: the gauge fit's low-pass sigma (constraint pixels),
         weight of the mean-level equation, and contrast gain (``None``: ``foveal_gain``);
         foveal_psf: extra blur of the perifoveal crop (``'fit'``: estimated); see :func:`foveal_gauge`.
@@ -321,118 +347,181 @@ def alternating(frames: Any, *, scale: float = 6.0, offset: tuple[float, float] 
     prior: ``'tv'``, ``'nlm'``, ``'bilateral'`` or ``None`` (plain alternating LSQ).
     init: ``'svd'`` (data-optimal subspace, default) or ``'means'`` (paper: frame means).
     iterations, tol: alternating iterations and stopping tolerance on ``max |delta alpha|``.
+    saturation: samples ``>=`` this are invalid (like NaN/inf); noise_sigma: the frames' noise std (``None``:
+        from the rank-2 fit's residual); max_condition: of the x-step's normal matrix.
+    alpha_from: ``'data'`` (alpha-step on the un-regularised images) or ``'prior'`` (on the prior's).
+    strict: refuse (``InputError``) when the gauge cannot be fixed, instead of a flagged result.
+    """
+
+    scale: float = 6.0
+    offset: tuple[float, float] = (0.0, 0.0)
+    foveal_gain: float = 1.0
+    foveal_offset: float = 0.0
+    foveal_blur: float = FOVEAL_BLUR
+    foveal_mean: float = 1.0
+    foveal_contrast: float | None = None
+    foveal_psf: float | str = "fit"
+    gauge: str = "auto"
+    prior: str | None = "tv"
+    init: str = "svd"
+    iterations: int = 10
+    tol: float = 1e-4
+    saturation: float | None = None
+    noise_sigma: float | None = None
+    max_condition: float = MAX_CONDITION
+    alpha_from: str = "data"
+    strict: bool = True
+
+
+@dataclass
+class _Window:
+    """The frames being separated: ``Y`` as given, ``Yf`` with invalid samples filled (refilled from the model
+    while iterating), ``M`` the valid-sample mask (``None``: all valid), ``dt`` the output dtype."""
+
+    Y: np.ndarray
+    Yf: np.ndarray
+    M: np.ndarray | None
+    dt: np.dtype
+
+    def residual(self, a: np.ndarray, x1: np.ndarray, x2: np.ndarray) -> np.ndarray:
+        r = self.Yf - a[:, None, None] * x1[None] - (1 - a)[:, None, None] * x2[None]
+        return r if self.M is None else np.where(self.M, r, 0.0)
+
+
+def _channel_noise_gain(a: np.ndarray) -> np.ndarray:
+    """Noise std of (x1, x2) per unit frame noise for mixing ratios ``a``."""
+    return np.sqrt(np.diag(np.linalg.inv(normal_matrix(a) + 1e-12 * np.eye(2))))
+
+
+def _window(frames: Any, saturation: float | None) -> _Window:
+    Y = as_frames(frames, min_frames=3)
+    dt = image_dtype(Y)
+    M = valid_mask(Y, saturation)
+    Yf = Y
+    if M is not None:
+        # fill invalid samples with the per-pixel mean of the valid ones (refilled from the model later)
+        with np.errstate(invalid="ignore"):
+            fill = np.nanmean(np.where(M, Y, np.nan), axis=0)
+        fill = np.nan_to_num(fill, nan=float(np.nanmean(np.where(M, Y, np.nan))))
+        Yf = np.where(M, Y, fill[None]).astype(dt)
+    return _Window(Y=Y, Yf=Yf, M=M, dt=dt)
+
+
+def _initial_alpha(win: _Window, init: str, info: dict[str, Any]) -> np.ndarray:
+    """Step 1: alpha from the frame means, or the data-optimal subspace in the frame-mean gauge."""
+    a0 = frame_mean_alpha(win.Yf)
+    if init != "svd":
+        return a0.copy()
+    a, sinfo = subspace_alpha(win.Yf, a0)
+    info.update(sinfo)
+    if sinfo["subspace_snr"] < 2.0:
+        raise InputError("frames", f"{win.Y.shape[0]} frames whose variation is at the noise level "
+                         f"(subspace SNR {sinfo['subspace_snr']:.3g})",
+                         "frames in which the polariser visibly changes the mixture",
+                         detail="alpha is not identifiable: the polariser is stopped or one channel is dark")
+    return a
+
+
+def _alternate(win: _Window, x1: np.ndarray, x2: np.ndarray, a: np.ndarray, cond: float, opt: AlternatingOptions,
+               prior: str | None, sig: float, gain: np.ndarray,
+               absolute: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray, float, list[float], int]:
+    """Step 3: x-step (LSQ, then the prior) and alpha-step until alpha moves less than ``tol``; returns
+    ``(x1, x2, alpha, condition, loss history, iterations)``. ``absolute``: the gauge was fixed (alpha clipped to
+    [0, 1]); ``gain``: the channels' noise gain for the prior when no iteration runs."""
+    history: list[float] = []
+    it_done = 0
+    if absolute:
+        a = np.clip(a, 0.0, 1.0)
+    for it in range(opt.iterations):
+        a_prev = a
+        x1, x2, cond = _lsq(win.Yf, a, win.M, win.dt, opt.max_condition)
+        if prior is not None:
+            gain = _channel_noise_gain(a)
+            x1p = denoise(x1, prior, sigma=sig * gain[0])
+            x2p = denoise(x2, prior, sigma=sig * gain[1])
+            a = _alpha_step(win.Yf, x1p, x2p, win.M) if opt.alpha_from == "prior" else _alpha_step(win.Yf, x1, x2, win.M)
+            x1, x2 = x1p, x2p
+        else:
+            a = _alpha_step(win.Yf, x1, x2, win.M)
+        if absolute:
+            a = np.clip(a, 0.0, 1.0)
+        if win.M is not None:
+            model = a[:, None, None] * x1[None] + (1 - a)[:, None, None] * x2[None]
+            win.Yf = np.where(win.M, win.Y, model).astype(win.dt)
+        r = win.residual(a, x1, x2)
+        history.append(float(np.sqrt(np.mean(r.astype(np.float64) ** 2))))
+        it_done = it + 1
+        if np.max(np.abs(a - a_prev)) < opt.tol:
+            break
+    if opt.iterations == 0 and prior is not None:
+        x1 = denoise(x1, prior, sigma=sig * gain[0])
+        x2 = denoise(x2, prior, sigma=sig * gain[1])
+    return x1, x2, a, cond, history, it_done
+
+
+def alternating(frames: Any, options: AlternatingOptions | None = None, **overrides: Any) -> Reconstruction:
+    """Unknown-alpha separation of ``frames (T, H, W)`` (see module docstring).
+
+    ``options`` (:class:`AlternatingOptions`; its fields can also be given as keywords,
+    ``alternating(Y, scale=6, strict=False)``) holds the foveal constraint, the gauge fit and guard, the prior,
+    the initialisation and the stopping rule.
 
     ``info`` reports ``alpha_identified`` (True when the gauge fix was applied, i.e. alpha is absolute;
     False when it is only known up to the frame-mean gauge), the gauge report, the loss history and
     the final data RMS residual.
     """
+    opt = with_overrides(AlternatingOptions, options, overrides)
     tm = Timings()
-    gauge = check_choice("gauge", gauge, ("auto", "foveal", "none"))
-    init = check_choice("init", init, ("svd", "means"))
+    gauge = check_choice("gauge", opt.gauge, ("auto", "foveal", "none"))
+    init = check_choice("init", opt.init, ("svd", "means"))
+    prior = opt.prior
     if prior is not None:
         prior = check_choice("prior", prior, ("tv", "nlm", "bilateral", "none"))
         prior = None if prior == "none" else prior
-    iterations = check_int("iterations", iterations, 0, 10000)
-    alpha_from = check_choice("alpha_from", alpha_from, ("data", "prior"))
-    tol = as_float("tol", tol)
+    opt = replace(opt, iterations=check_int("iterations", opt.iterations, 0, 10000),
+                  alpha_from=check_choice("alpha_from", opt.alpha_from, ("data", "prior")), tol=as_float("tol", opt.tol))
     with tm.measure("init"):
-        Y = as_frames(frames, min_frames=3)
-        T, H, W = Y.shape
-        dt = image_dtype(Y)
-        op = FovealOperator((H, W), scale, offset, gain=foveal_gain, bias=foveal_offset)
-        foveal_blur = as_float("foveal_blur", foveal_blur)
+        win = _window(frames, opt.saturation)
+        T, H, W = win.Y.shape
+        op = FovealOperator((H, W), opt.scale, opt.offset, gain=opt.foveal_gain, bias=opt.foveal_offset)
+        foveal_blur = as_float("foveal_blur", opt.foveal_blur)
         if not 0.0 <= foveal_blur <= 0.25 * min(op.low_shape):
             raise InputError("foveal_blur", foveal_blur, f"0 <= foveal_blur <= {0.25 * min(op.low_shape):g} "
                              f"(Gaussian sigma in constraint pixels; the constraint is {op.low_shape})")
-        M = valid_mask(Y, saturation)
-        Yf = Y
-        if M is not None:
-            # fill invalid samples with the per-pixel mean of the valid ones (refilled from the model later)
-            with np.errstate(invalid="ignore"):
-                fill = np.nanmean(np.where(M, Y, np.nan), axis=0)
-            fill = np.nan_to_num(fill, nan=float(np.nanmean(np.where(M, Y, np.nan))))
-            Yf = np.where(M, Y, fill[None]).astype(dt)
-        a0 = frame_mean_alpha(Yf)
         info: dict[str, Any] = {"init": init, "prior": prior, "scale": op.scale, "offset": list(op.offset),
                                 "foveal_gain": op.gain, "foveal_offset": op.bias}
-        if init == "svd":
-            a, sinfo = subspace_alpha(Yf, a0)
-            info.update(sinfo)
-            if sinfo["subspace_snr"] < 2.0:
-                raise InputError("frames", f"{T} frames whose variation is at the noise level "
-                                 f"(subspace SNR {sinfo['subspace_snr']:.3g})",
-                                 "frames in which the polariser visibly changes the mixture",
-                                 detail="alpha is not identifiable: the polariser is stopped or one channel is dark")
-        else:
-            a = a0.copy()
-        x1, x2, cond = _lsq(Yf, a, M, dt, max_condition)
-    # noise level: residual of the rank-2 fit
-    def _resid(a_, x1_, x2_):
-        r = Yf - a_[:, None, None] * x1_[None] - (1 - a_)[:, None, None] * x2_[None]
-        if M is not None:
-            r = np.where(M, r, 0.0)
-        return r
-
-    sig = noise_sigma
-    if sig is None:
-        r = _resid(a, x1, x2)
-        n_valid = r.size if M is None else int(M.sum())
+        a = _initial_alpha(win, init, info)
+        x1, x2, cond = _lsq(win.Yf, a, win.M, win.dt, opt.max_condition)
+    sig = opt.noise_sigma
+    if sig is None:  # noise level: residual of the rank-2 fit
+        r = win.residual(a, x1, x2)
+        n_valid = r.size if win.M is None else int(win.M.sum())
         sig = float(np.sqrt(np.sum(r.astype(np.float64) ** 2) / max(n_valid - 2 * H * W, 1)))
     info["noise_sigma"] = sig
     with tm.measure("gauge"):
-        gain = np.sqrt(np.diag(np.linalg.inv(normal_matrix(a) + 1e-12 * np.eye(2))))
+        gain = _channel_noise_gain(a)
         x1, x2, a, grep = foveal_gauge(x1, x2, a, op, noise=(sig * gain[0], sig * gain[1]), mode=gauge,
-                                      blur=foveal_blur, mean_weight=as_float("foveal_mean", foveal_mean),
-                                      contrast_gain=None if foveal_contrast is None else
-                                      as_float("foveal_contrast", foveal_contrast),
-                                      psf_blur=foveal_psf if isinstance(foveal_psf, str) else
-                                      as_float("foveal_psf", foveal_psf))
+                                      blur=foveal_blur, mean_weight=as_float("foveal_mean", opt.foveal_mean),
+                                      contrast_gain=None if opt.foveal_contrast is None else
+                                      as_float("foveal_contrast", opt.foveal_contrast),
+                                      psf_blur=opt.foveal_psf if isinstance(opt.foveal_psf, str) else
+                                      as_float("foveal_psf", opt.foveal_psf))
     info["gauge"] = grep
-    if strict and gauge != "none" and not grep["applied"]:
+    if opt.strict and gauge != "none" and not grep["applied"]:
         raise InputError("frames", f"{T} frames", "frames in which the foveal constraint fixes the alpha gauge",
                          detail=f"gauge fix not applied: {grep.get('reason')}; alpha is only known up to an "
                                 f"affine map (polariser too slow, one channel barely observed, or the foveal "
                                 f"geometry scale/offset is wrong); pass strict=False (metafovea reconstruct "
                                 f"--no-strict) to get the frame-mean-gauge result")
-    history = []
-    it_done = 0
     with tm.measure("alternate"):
-        if grep["applied"]:
-            a = np.clip(a, 0.0, 1.0)
-        for it in range(iterations):
-            a_prev = a
-            x1, x2, cond = _lsq(Yf, a, M, dt, max_condition)
-            if prior is not None:
-                from metafovea.reconstruct.denoise import denoise
-
-                gain = np.sqrt(np.diag(np.linalg.inv(normal_matrix(a) + 1e-12 * np.eye(2))))
-                x1p = denoise(x1, prior, sigma=sig * gain[0])
-                x2p = denoise(x2, prior, sigma=sig * gain[1])
-                a = _alpha_step(Yf, x1p, x2p, M) if alpha_from == "prior" else _alpha_step(Yf, x1, x2, M)
-                x1, x2 = x1p, x2p
-            else:
-                a = _alpha_step(Yf, x1, x2, M)
-            if grep["applied"]:
-                a = np.clip(a, 0.0, 1.0)
-            if M is not None:
-                model = a[:, None, None] * x1[None] + (1 - a)[:, None, None] * x2[None]
-                Yf = np.where(M, Y, model).astype(dt)
-            r = _resid(a, x1, x2)
-            history.append(float(np.sqrt(np.mean(r.astype(np.float64) ** 2))))
-            it_done = it + 1
-            if np.max(np.abs(a - a_prev)) < tol:
-                break
-        if iterations == 0 and prior is not None:
-            from metafovea.reconstruct.denoise import denoise
-
-            x1 = denoise(x1, prior, sigma=sig * gain[0])
-            x2 = denoise(x2, prior, sigma=sig * gain[1])
+        x1, x2, a, cond, history, it_done = _alternate(win, x1, x2, a, cond, opt, prior, sig, gain, grep["applied"])
     info.update(iterations=it_done, loss_history=history, condition=float(cond),
                 alpha_identified=bool(grep["applied"]),
                 alpha_gauge="absolute (foveal constraint)" if grep["applied"] else
                 "relative: frame means rescaled to [0, 1] (foveal fix not applied)",
                 foveal_rms=float(np.sqrt(np.mean(op.residual(x1.astype(np.float64), x2.astype(np.float64)) ** 2))))
-    if M is not None:
-        info["masked_samples"] = int(M.size - M.sum())
-    return Reconstruction(x1=np.asarray(x1, dtype=dt), x2=np.asarray(x2, dtype=dt), alpha=np.asarray(a, dtype=np.float64),
-                          fpn=None, method="alternating", timings=dict(tm), info=info)
+    if win.M is not None:
+        info["masked_samples"] = int(win.M.size - win.M.sum())
+    return Reconstruction(x1=np.asarray(x1, dtype=win.dt), x2=np.asarray(x2, dtype=win.dt),
+                          alpha=np.asarray(a, dtype=np.float64), fpn=None, method="alternating", timings=dict(tm),
+                          info=info)

@@ -1,15 +1,33 @@
-"""The top-level :func:`reconstruct` dispatcher."""
+"""The reconstruction stage's two entry points: :func:`reconstruct` (arrays in, one solver) and
+:func:`reconstruct_measurement` (a Measurement in: the pipeline's rules, used by ``metafovea reconstruct``,
+``metafovea validate`` and notebooks alike)."""
 
 from __future__ import annotations
 
-from typing import Any
+import time
+from dataclasses import replace
+from typing import Any, Sequence
 
 import numpy as np
 
 from metafovea.errors import InputError, check_choice
-from metafovea.reconstruct.result import Reconstruction
+from metafovea.measurement import FovealConstraint, Measurement
+from metafovea.reconstruct.alternating import alternating
+from metafovea.reconstruct.deep_prior import dip
+from metafovea.reconstruct.denoise import denoise as denoise_image
+from metafovea.reconstruct.fpn import estimate_fpn
+from metafovea.reconstruct.lsq import lsq_known_alpha
+from metafovea.reconstruct.metrics import score
+from metafovea.reconstruct.result import PipelineResult, Reconstruction
+from metafovea.reconstruct.snapshot import snapshot
+from metafovea.reconstruct.video import video
 
+#: the solvers, in the CLI's words (``--method``)
 METHODS = ("lsq", "alternating", "dip", "snapshot")
+#: fixed-pattern noise handling of :func:`reconstruct_measurement` (``--fpn``)
+FPN_MODES = ("none", "prior", "calibration", "file")
+#: frames per window unless told (or all frames of a shorter sequence)
+DEFAULT_WINDOW = 8
 
 
 def reconstruct(frames: Any, alpha: Any = None, method: str = "lsq", *, fpn: Any = None,
@@ -22,13 +40,8 @@ def reconstruct(frames: Any, alpha: Any = None, method: str = "lsq", *, fpn: Any
     ``calibration`` frames) or ``'prior'`` (low-rank prior on the separated images).
     Other keywords go to the method's function; the foveal constraint ``D x1 = foveal_gain C x2 +
     foveal_offset`` (keywords ``scale``, ``foveal_gain``, ``foveal_offset``; a Measurement's
-    ``meta['foveal_constraint']``) is used by alternating, dip, snapshot and the FPN prior.
+    :class:`~metafovea.measurement.FovealConstraint`) is used by alternating, dip, snapshot and the FPN prior.
     """
-    from metafovea.reconstruct.alternating import alternating
-    from metafovea.reconstruct.fpn import estimate_fpn
-    from metafovea.reconstruct.lsq import lsq_known_alpha
-    from metafovea.reconstruct.snapshot import snapshot
-
     method = check_choice("method", method, METHODS)
     # the foveal constraint, kept for the FPN prior (lsq below drops these keywords)
     geo = {k: kw[k] for k in ("scale", "foveal_gain", "foveal_offset") if k in kw}
@@ -60,8 +73,6 @@ def reconstruct(frames: Any, alpha: Any = None, method: str = "lsq", *, fpn: Any
             raise InputError("alpha", "given", "alpha=None for method='alternating' (use method='lsq' with known alpha)")
         rec = alternating(frames, **kw)
     elif method == "dip":
-        from metafovea.reconstruct.deep_prior import dip
-
         rec = dip(frames, alpha=alpha, **kw)
     else:
         fr = np.asarray(frames)
@@ -80,3 +91,150 @@ def reconstruct(frames: Any, alpha: Any = None, method: str = "lsq", *, fpn: Any
         rec = Reconstruction(x1=rec.x1, x2=rec.x2, alpha=rec.alpha, fpn=f, method=rec.method,
                              timings=rec.timings, info={**rec.info, "fpn": finfo})
     return rec
+
+
+def reconstruct_measurement(m: Measurement, method: str = "lsq", *, known_alpha: bool = False,
+                            window: int | None = None, stride: int = 1, starts: Sequence[int] | None = None,
+                            fpn: str | np.ndarray = "none", denoise: str | None = None, frame: int = 0,
+                            constraint: FovealConstraint | None = None, solver: dict[str, Any] | None = None,
+                            level_free: bool = False, progress: bool = False) -> PipelineResult:
+    """Reconstruct a Measurement by the pipeline's rules and score it against its truth.
+
+    Parameters
+    ----------
+    m : Measurement
+    method : {'lsq', 'alternating', 'dip', 'snapshot'}
+        ``lsq`` uses the file's alpha; ``snapshot`` separates the single frame ``frame``.
+    known_alpha : bool
+        Use the file's alpha with ``dip`` (held fixed) or ``snapshot`` (implied by ``lsq``; refused with
+        ``alternating``, which estimates it).
+    window, stride, starts : int, int, sequence of int
+        Frames per window (default: 8, or all frames of a shorter sequence). A sequence longer than the window,
+        or explicit window ``starts``, is reconstructed window by window (:func:`~metafovea.reconstruct.video`),
+        every ``stride``-th frame or at ``starts``; otherwise the whole sequence is one window.
+    fpn : {'none', 'prior', 'calibration', 'file'} or ndarray, shape (H, W)
+        Fixed-pattern noise: ``file`` subtracts the file's ``fpn`` (e.g. a dark-frame calibration), an array
+        subtracts that pattern; ``calibration`` estimates it from the file's ``calibration`` frames and
+        ``prior`` from the separated images (both on one window only).
+    denoise : {'tv', 'bilateral', 'nlm'} or None
+        Denoise the outputs: inside LSQ (noise level from its residual), after the other methods (noise level
+        estimated from each image).
+    constraint : FovealConstraint
+        Default: the file's (:attr:`Measurement.foveal_constraint`).
+    solver : dict
+        Keywords of the method's function (``regularize`` for lsq; ``strict`` for alternating; ``steps``,
+        ``channels``, ``rng``, ``init`` for dip; ``iterations`` for snapshot).
+    level_free : bool
+        Add the level-free PSNRs to the metrics (see :func:`~metafovea.reconstruct.metrics.score`).
+
+    Returns
+    -------
+    PipelineResult
+        The reconstruction, the frames each output covers, the time taken, metrics against the truth each output
+        shows (a video truth averaged over the output's frames) and, when alpha was estimated, its error.
+    """
+    method = check_choice("method", method, METHODS)
+    T = m.shape[0]
+    fc = constraint if constraint is not None else m.foveal_constraint
+    if method != "snapshot" and T < 2:
+        raise InputError("frames", f"{T} frame", "at least 2 frames (or --method snapshot for a single frame)",
+                         source=m.source)
+    window = min(DEFAULT_WINDOW, T) if window is None else window
+    if method != "snapshot" and not 2 <= window <= T:
+        raise InputError("window", window, f"2 <= window <= number of frames ({T})")
+    alpha = _file_alpha(m, method, known_alpha)
+    kw = {**fc.as_kwargs(), **(solver or {})}
+    if "regularize" in kw and method != "lsq":
+        raise InputError("regularize", kw["regularize"], "only with method 'lsq' (--method lsq)")
+    frames, fpn_kw = _fpn(m, fpn)
+    video_out = method != "snapshot" and (T > window or starts is not None)
+    if video_out and fpn_kw:
+        raise InputError("fpn", fpn, "'none' or 'file' for multi-window sequences (estimate FPN on one window)")
+    t0 = time.perf_counter()
+    if method == "snapshot":
+        if not 0 <= frame < T:
+            raise InputError("frame", frame, f"0 <= frame < {T}")
+        a = None if alpha is None else alpha[frame:frame + 1]
+        rec = _denoised(reconstruct(frames[frame][None], a, method="snapshot", **kw, **fpn_kw), denoise)
+        spans = ((frame, frame + 1),)
+    elif video_out:
+        rec = video(frames, alpha, window=window, stride=stride, starts=starts, method=method, denoise=denoise,
+                    progress=progress, **kw)
+        spans = tuple((s, s + window) for s in rec.info["window_starts"])
+    else:
+        if denoise and method == "lsq":
+            kw["denoise"] = denoise
+        rec = reconstruct(frames, alpha, method=method, **kw, **fpn_kw)
+        rec = rec if method == "lsq" else _denoised(rec, denoise)
+        spans = ((0, T),)
+    seconds = time.perf_counter() - t0
+    res = PipelineResult(reconstruction=rec, spans=spans, seconds=seconds, constraint=fc, frames=T, source=m.source)
+    return replace(res, metrics=_metrics(m, res, level_free), alpha_mae=_alpha_mae(m, res, alpha is None))
+
+
+def _file_alpha(m: Measurement, method: str, known_alpha: bool) -> np.ndarray | None:
+    """The file's alpha when the method uses it (lsq, or ``known_alpha``); None otherwise."""
+    if method == "alternating" and known_alpha:
+        raise InputError("known_alpha", True, "not with method 'alternating' (it estimates alpha; use lsq)")
+    if not (known_alpha or method == "lsq"):
+        return None
+    if m.alpha is None:
+        raise InputError("alpha", "absent", f"an 'alpha' array in the measurement for "
+                         f"{'--known-alpha' if known_alpha else '--method lsq'} (or --method alternating / "
+                         f"dip / snapshot for unknown alpha)", source=m.source)
+    return m.alpha
+
+
+def _fpn(m: Measurement, fpn: str | np.ndarray) -> tuple[np.ndarray, dict[str, Any]]:
+    """The frames with a given pattern subtracted, and the keywords of :func:`reconstruct` for an estimated one."""
+    pattern = None
+    if isinstance(fpn, str):
+        mode = check_choice("fpn", fpn, FPN_MODES)
+        if mode == "prior":
+            return m.frames, {"fpn": "prior"}
+        if mode == "calibration":
+            if "calibration" not in m.extras:
+                raise InputError("fpn", "calibration", "a measurement with a 'calibration' frame array",
+                                 source=m.source)
+            return m.frames, {"fpn": "calibration", "calibration": m.extras["calibration"]}
+        if mode == "file":
+            if m.fpn is None:
+                raise InputError("fpn", "file", "a measurement with an 'fpn' (H, W) array", source=m.source)
+            pattern = m.fpn
+    else:
+        pattern = np.asarray(fpn)
+        if pattern.shape != m.shape[1:] or not np.all(np.isfinite(pattern)):
+            raise InputError("fpn", f"array of shape {pattern.shape}", f"a finite (H, W) = {m.shape[1:]} pattern")
+    if pattern is None:
+        return m.frames, {}
+    return (m.frames - pattern[None]).astype(np.float32), {}
+
+
+def _denoised(rec: Reconstruction, method: str | None) -> Reconstruction:
+    """``rec`` with both images denoised (noise level estimated from each image)."""
+    if not method:
+        return rec
+    return Reconstruction(x1=denoise_image(rec.x1, method), x2=denoise_image(rec.x2, method), alpha=rec.alpha,
+                          fpn=rec.fpn, method=rec.method, timings=rec.timings, info={**rec.info, "denoise": method})
+
+
+def _metrics(m: Measurement, res: PipelineResult, level_free: bool) -> dict[str, float] | str | None:
+    """Scores against the truth each output shows; None without truth."""
+    if m.truth_x1 is None and m.truth_x2 is None:
+        return None
+    if res.nonfinite_pixels:
+        return "not computed: NaN pixels in the reconstruction"
+    # a video truth: the mean over each output's frames
+    t1, t2 = (t if t is None or t.ndim == 2 or res.reconstruction.is_video else t[0] for t in m.truth_over(res.spans))
+    return score(res.reconstruction, t1, t2, level_free=level_free)
+
+
+def _alpha_mae(m: Measurement, res: PipelineResult, estimated: bool) -> float | None:
+    """Mean over outputs of the mean |alpha estimate - file alpha| over the output's frames."""
+    rec = res.reconstruction
+    if not (estimated and m.alpha_known) or rec.info.get("alpha_assumed"):
+        return None
+    per_output = rec.info.get("alpha_windows") if rec.is_video else [rec.alpha]
+    if per_output is None:
+        return None
+    return float(np.mean([np.mean(np.abs(np.asarray(ae) - m.alpha[a:b])) for ae, (a, b) in zip(per_output, res.spans)]))

@@ -34,13 +34,17 @@ from __future__ import annotations
 import functools
 import logging
 import time
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
 
-from metafovea.errors import InputError, as_float, check_choice, check_int
-from metafovea.errors import as_rng
-from metafovea.reconstruct._common import Timings, as_alpha, as_frames, image_dtype
+from metafovea.errors import InputError, as_float, as_rng, check_choice, check_int
+from metafovea.reconstruct._common import Timings, as_alpha, as_frames, image_dtype, with_overrides
+from metafovea.reconstruct.alternating import alternating, frame_mean_alpha
+from metafovea.reconstruct.denoise import denoise
+from metafovea.reconstruct.lsq import lsq_known_alpha
+from metafovea.reconstruct.operators import FovealOperator
 from metafovea.reconstruct.result import Reconstruction
 
 log = logging.getLogger(__name__)
@@ -117,7 +121,8 @@ def _make_step(depth: int, learn_alpha: bool, foveal: bool, residual: bool = Fal
     net = _build(depth)
     head = _head(residual)
 
-    def tv(x):
+    def mean_abs_tv(x):
+        """Anisotropic TV per pixel: the mean |vertical| plus the mean |horizontal| difference."""
         return jnp.mean(jnp.abs(jnp.diff(x, axis=0))) + jnp.mean(jnp.abs(jnp.diff(x, axis=1)))
 
     def excl(x1, x2):
@@ -141,7 +146,7 @@ def _make_step(depth: int, learn_alpha: bool, foveal: bool, residual: bool = Fal
         g2 = head(net(p["g2"], data["z2"]), data["b2"], data["ab"][2:4])
         a = jax.nn.sigmoid(p["alpha"]) if learn_alpha else data["a"]
         model = a[:, None, None] * g1[None] + (1 - a)[:, None, None] * g2[None]
-        loss = jnp.mean((data["y"] - model) ** 2) + tvw * (tv(g1) + tv(g2)) + exw * excl(g1, g2)
+        loss = jnp.mean((data["y"] - model) ** 2) + tvw * (mean_abs_tv(g1) + mean_abs_tv(g2)) + exw * excl(g1, g2)
         if foveal:
             Dm = data["D"]
             r = Dm[0] @ g1 @ Dm[1].T - gain_n * (Dm[2] @ g2 @ Dm[3].T) - bias_n
@@ -221,23 +226,17 @@ def _initial_images(Y: np.ndarray, init: Any, alpha: Any, a_init: np.ndarray | N
     if init == "random":
         return None, None, None
     if init == "classical":
-        from metafovea.reconstruct.alternating import alternating
-
         if alpha is None and a_init is None:
             r = alternating(Y, scale=scale, foveal_gain=gain, foveal_offset=offset, strict=False)
             return np.asarray(r.x1, np.float64), np.asarray(r.x2, np.float64), np.asarray(r.alpha, np.float64)
         if Y.shape[0] < 3:
             raise InputError("init", init, "'lsq' for fewer than 3 frames")
-    from metafovea.reconstruct.lsq import lsq_known_alpha
-
     a = alpha if alpha is not None else a_init
     if a is None:
         raise InputError("init", init, "'lsq' needs alpha or alpha_init as an array (or use init='classical')")
     ls = lsq_known_alpha(Y, a, regularize="difference")
     x1, x2 = np.asarray(ls.x1, np.float64), np.asarray(ls.x2, np.float64)
     if init == "classical":  # alpha known: the classical estimate is the LSQ images with the TV prior
-        from metafovea.reconstruct.denoise import denoise
-
         x1, x2 = np.asarray(denoise(x1, "tv"), np.float64), np.asarray(denoise(x2, "tv"), np.float64)
     return x1, x2, None
 
@@ -251,13 +250,208 @@ def _range(x: np.ndarray) -> tuple[float, float]:
     return lo - 0.05 * span, span * 1.1
 
 
-def dip(frames: Any, alpha: Any = None, *, channels: int = 32, depth: int = 3, skip_channels: int = 4,
-        input_channels: int = 8, steps: int = 2000, lr: float | None = None, tv_weight: float | None = None,
-        exclusion_weight: float | None = None, foveal_weight: float = 0.0, scale: float = 6.0,
-        foveal_gain: float = 1.0, foveal_offset: float = 0.0, alpha_init: Any = "means",
-        init: Any = "random", warm: str = "residual", warm_steps: int = 40, alpha_lr: float | None = None,
-        checkpoints: Any = (), rng: Any = None, log_every: int = 0) -> Reconstruction:
+@dataclass(frozen=True)
+class DipOptions:
+    """The knobs of :func:`dip` (each is also a keyword argument of it).
+
+    Attributes
+    ----------
+    channels, depth, skip_channels, input_channels: the skip-U-Net (per network).
+    steps: Adam steps of the DIP loss; lr, alpha_lr: learning rates (``None``: see :func:`dip`).
+    tv_weight, exclusion_weight: loss weights (``None``: the paper's 0.01 for a random start, 0.001 after a warm
+        start); foveal_weight: of the foveal term ``||D x1 - foveal_gain C x2 - foveal_offset||^2`` (0: off).
+    scale, foveal_gain, foveal_offset: the foveal constraint (also used by the classical warm start).
+    alpha_init: ``'means'`` or ``(T,)`` initial mixing ratios (unknown alpha); init: ``'random'``, ``'lsq'``,
+        ``'classical'`` or an ``(x1, x2)`` pair; warm: ``'residual'`` or ``'fit'`` (``warm_steps`` supervised steps).
+    checkpoints: step counts recorded in ``info['checkpoints']``; rng: seed of the weights and inputs;
+        log_every: log the loss every so many steps (0: never).
+    """
+
+    channels: int = 32
+    depth: int = 3
+    skip_channels: int = 4
+    input_channels: int = 8
+    steps: int = 2000
+    lr: float | None = None
+    tv_weight: float | None = None
+    exclusion_weight: float | None = None
+    foveal_weight: float = 0.0
+    scale: float = 6.0
+    foveal_gain: float = 1.0
+    foveal_offset: float = 0.0
+    alpha_init: Any = "means"
+    init: Any = "random"
+    warm: str = "residual"
+    warm_steps: int = 40
+    alpha_lr: float | None = None
+    checkpoints: Any = ()
+    rng: Any = None
+    log_every: int = 0
+
+
+def _checked(opt: DipOptions, H: int, W: int) -> tuple[DipOptions, list[int]]:
+    """The integer and choice options checked; the sorted checkpoint steps."""
+    channels = check_int("channels", opt.channels, 1, 4096)
+    depth = check_int("depth", opt.depth, 1, 8)
+    if min(H, W) < 2 ** depth:
+        raise InputError("frames", f"{H} x {W} pixels", f"at least {2 ** depth} x {2 ** depth} pixels for a "
+                         f"depth-{depth} network (or a smaller depth: 2**depth <= min(H, W) = {min(H, W)})")
+    steps = check_int("steps", opt.steps, 1, 10_000_000)
+    warm = check_choice("warm", opt.warm, WARMS)
+    warm_steps = check_int("warm_steps", opt.warm_steps, 0, 10_000_000)
+    try:
+        cps = sorted({int(c) for c in np.atleast_1d(np.asarray(opt.checkpoints, dtype=float))
+                      if np.isfinite(c) and float(c).is_integer() and 0 <= c <= steps})
+        if len(cps) != np.size(opt.checkpoints):
+            raise ValueError
+    except (TypeError, ValueError):
+        raise InputError("checkpoints", opt.checkpoints, f"step counts between 0 and steps = {steps}") from None
+    return replace(opt, channels=channels, depth=depth, steps=steps, warm=warm, warm_steps=warm_steps), cps
+
+
+@dataclass(frozen=True)
+class _Units:
+    """The frames' normalised units ``yn = 0.05 + 0.9 (y - lo) / span`` and, per image, its own units ``u_k``
+    (``x_k`` normalised = ``ab[2k] + ab[2k+1] u_k``; ``base_k``: the warm start in those units)."""
+
+    lo: float
+    span: float
+    base1: np.ndarray
+    base2: np.ndarray
+    ab: list[float]
+
+    def to_frames(self, g: np.ndarray) -> np.ndarray:
+        return (g - 0.05) / 0.9 * self.span + self.lo
+
+
+def _units(Y: np.ndarray, xi1: np.ndarray | None, xi2: np.ndarray | None, known: np.ndarray | None,
+           residual: bool) -> _Units:
+    """Normalisation of the frames and of each image (see :func:`dip`); ``known``: the given (or initial) alpha of
+    a random start, whose LSQ images widen the range."""
+    H, W = Y.shape[1:]
+    lo, hi = float(Y.min()), float(Y.max())
+    if xi1 is not None:
+        lo = min(lo, float(np.min(xi1)), float(np.min(xi2)))
+        hi = max(hi, float(np.max(xi1)), float(np.max(xi2)))
+    elif known is not None:
+        ls = lsq_known_alpha(Y, known, regularize="difference")
+        lo = min(lo, float(np.min(ls.x1)), float(np.min(ls.x2)))
+        hi = max(hi, float(np.max(ls.x1)), float(np.max(ls.x2)))
+    span = hi - lo if hi > lo else 1.0
+    if xi1 is None:
+        return _Units(lo, span, np.zeros((H, W)), np.zeros((H, W)), [0.0, 1.0, 0.0, 1.0])
+    # image k in its own units u_k (lo_k + span_k u_k in DN; global normalised: A_k + B_k u_k)
+    (lo1, s1), (lo2, s2) = _range(xi1), _range(xi2)
+    if not residual:
+        # sigmoid range [0.05, 0.95] over the initial image's range
+        lo1, s1, lo2, s2 = lo1 - s1 * 0.05 / 0.9, s1 / 0.9, lo2 - s2 * 0.05 / 0.9, s2 / 0.9
+    # residual: u_k = (x - x_init_k) / span_k + base_k, base_k = normalised x_init_k
+    base1, base2 = (xi1 - lo1) / s1, (xi2 - lo2) / s2
+    ab = [0.05 + 0.9 * (lo1 - lo) / span, 0.9 * s1 / span, 0.05 + 0.9 * (lo2 - lo) / span, 0.9 * s2 / span]
+    return _Units(lo, span, base1, base2, ab)
+
+
+def _weights(opt: DipOptions, warm_start: bool, op: FovealOperator | None, u: _Units) -> dict[str, float]:
+    """Loss weights, learning rates and the foveal constraint in the frames' normalised units."""
+    lr = as_float("lr", (WARM_LR if warm_start else PAPER_LR) if opt.lr is None else opt.lr)
+    if lr <= 0:
+        raise InputError("lr", lr, "a positive learning rate")
+    alpha_lr = as_float("alpha_lr", (lr / 10 if warm_start else lr) if opt.alpha_lr is None else opt.alpha_lr)
+    # the constraint in normalised units yn = A y + B: D x1n = gain C x2n + (1 - gain) B + A bias
+    A_n, B_n = 0.9 / u.span, 0.05 - 0.9 * u.lo / u.span
+    w_def = WARM_WEIGHT if warm_start else PAPER_WEIGHT
+    w = {"tv": as_float("tv_weight", w_def if opt.tv_weight is None else opt.tv_weight),
+         "exclusion": as_float("exclusion_weight", w_def if opt.exclusion_weight is None else opt.exclusion_weight),
+         "foveal": as_float("foveal_weight", opt.foveal_weight),
+         "gain_n": 1.0 if op is None else float(op.gain),
+         "bias_n": 0.0 if op is None else float((1 - op.gain) * B_n + A_n * op.bias), "lr": lr, "alpha_lr": alpha_lr}
+    if min(w["tv"], w["exclusion"], w["foveal"]) < 0:
+        raise InputError("tv_weight/exclusion_weight/foveal_weight", (w["tv"], w["exclusion"], w["foveal"]),
+                         "weights >= 0")
+    return w
+
+
+def _networks(gen: np.random.Generator, opt: DipOptions, shape: tuple[int, int], residual: bool,
+              a0: np.ndarray | None) -> tuple[dict[str, Any], Any, Any]:
+    """The two networks' weights (output layers zeroed for the residual warm start; the logit of ``a0`` when alpha
+    is learned) and their fixed random inputs, drawn from ``gen`` in that order."""
+    import jax
+    import jax.numpy as jnp
+
+    params = {"g1": _init_params(gen, opt.input_channels, opt.channels, opt.depth, opt.skip_channels),
+              "g2": _init_params(gen, opt.input_channels, opt.channels, opt.depth, opt.skip_channels)}
+    if residual:
+        for g in ("g1", "g2"):
+            params[g]["out"]["w"][:] = 0.0
+    if a0 is not None:
+        a_c = np.clip(a0, 0.02, 0.98)
+        params["alpha"] = np.log(a_c / (1 - a_c)).astype(np.float32)
+    params = jax.tree_util.tree_map(jnp.asarray, params)
+    z1 = jnp.asarray(gen.uniform(0, 0.1, (1, opt.input_channels, *shape)).astype(np.float32))
+    z2 = jnp.asarray(gen.uniform(0, 0.1, (1, opt.input_channels, *shape)).astype(np.float32))
+    return params, z1, z2
+
+
+def _warm_fit(params: dict[str, Any], z1: Any, z2: Any, u: _Units, opt: DipOptions, lr: float,
+              hist: list[float]) -> dict[str, Any]:
+    """The supervised warm start (``warm='fit'``): ``warm_steps`` Adam steps fitting each network to its image."""
+    import jax
+    import jax.numpy as jnp
+
+    fstep = _make_fit_step(opt.depth)
+    fdata = {"z1": z1, "z2": z2, "t1": jnp.asarray(u.base1.astype(np.float32)),
+             "t2": jnp.asarray(u.base2.astype(np.float32)),
+             "c": jnp.asarray(np.array([0, 0, 0, 0, 0, lr, 0.0], np.float32))}
+    nets = {"g1": params["g1"], "g2": params["g2"]}
+    fm = jax.tree_util.tree_map(jnp.zeros_like, nets)
+    fv = jax.tree_util.tree_map(jnp.zeros_like, nets)
+    for k in range(1, opt.warm_steps + 1):
+        nets, fm, fv, fl = fstep(nets, fm, fv, float(k), fdata)
+        if k % max(1, opt.warm_steps // 50) == 0 or k == opt.warm_steps:
+            hist.append(float(fl))
+    return {**params, **nets}
+
+
+def _optimise(step: Any, params: dict[str, Any], data: dict[str, Any], opt: DipOptions, cps: list[int],
+              images: Any, tm: Timings) -> tuple[dict[str, Any], list[float], list[dict[str, Any]]]:
+    """The Adam loop of the DIP loss: ``(params, loss history, checkpoints)``; the first step (which compiles)
+    is timed as ``compile``, the others as ``steps``."""
+    import jax
+    import jax.numpy as jnp
+
+    recorded: list[dict[str, Any]] = []
+    t_start = time.perf_counter()
+
+    def record(k: int, p: dict[str, Any]) -> None:
+        if k in cps:
+            x1_, x2_, a_ = images(p)
+            recorded.append({"step": k, "x1": x1_, "x2": x2_, "alpha": a_, "seconds": time.perf_counter() - t_start})
+
+    m = jax.tree_util.tree_map(jnp.zeros_like, params)
+    v = jax.tree_util.tree_map(jnp.zeros_like, params)
+    hist: list[float] = []
+    record(0, params)
+    with tm.measure("compile"):
+        params, m, v, loss = step(params, m, v, 1.0, data)
+        hist.append(float(loss))
+    record(1, params)
+    t0 = time.perf_counter()
+    with tm.measure("steps"):
+        for k in range(2, opt.steps + 1):
+            params, m, v, loss = step(params, m, v, float(k), data)
+            if k % max(1, opt.steps // 200) == 0 or k == opt.steps:
+                hist.append(float(loss))
+            if opt.log_every and k % opt.log_every == 0:
+                log.info("dip step %d/%d loss %.4g (%.2f s/step)", k, opt.steps, float(loss),
+                         (time.perf_counter() - t0) / (k - 1))
+            record(k, params)
+    return params, hist, recorded
+
+
+def dip(frames: Any, alpha: Any = None, options: DipOptions | None = None, **overrides: Any) -> Reconstruction:
     """Fit the double DIP to ``frames (T, H, W)``; ``alpha`` given = held fixed, else learned.
+
+    ``options`` (:class:`DipOptions`; its fields can also be given as keywords, ``dip(Y, steps=20, rng=0)``).
 
     ``alpha_init`` (unknown alpha): ``'means'`` initialises alpha from the frame means as in the paper
     (which labels the brighter frames as more foveal: wrong when the foveal channel is the darker one, as
@@ -299,172 +493,66 @@ def dip(frames: Any, alpha: Any = None, *, channels: int = 32, depth: int = 3, s
     import jax
     import jax.numpy as jnp
 
-    from metafovea.reconstruct.alternating import frame_mean_alpha
-    from metafovea.reconstruct.operators import FovealOperator
-
+    opt = with_overrides(DipOptions, options, overrides)
     tm = Timings()
     Y = as_frames(frames, min_frames=2)
     if not np.all(np.isfinite(Y)):
         raise InputError("frames", "frames with NaN/inf", "finite frames for the DIP (mask/fill them first)")
     T, H, W = Y.shape
-    channels = check_int("channels", channels, 1, 4096)
-    depth = check_int("depth", depth, 1, 8)
-    if min(H, W) < 2 ** depth:
-        raise InputError("frames", f"{H} x {W} pixels", f"at least {2 ** depth} x {2 ** depth} pixels for a "
-                         f"depth-{depth} network (or a smaller depth: 2**depth <= min(H, W) = {min(H, W)})")
-    steps = check_int("steps", steps, 1, 10_000_000)
-    warm = check_choice("warm", warm, WARMS)
-    warm_steps = check_int("warm_steps", warm_steps, 0, 10_000_000)
-    try:
-        cps = sorted({int(c) for c in np.atleast_1d(np.asarray(checkpoints, dtype=float))
-                      if np.isfinite(c) and float(c).is_integer() and 0 <= c <= steps})
-        if len(cps) != np.size(checkpoints):
-            raise ValueError
-    except (TypeError, ValueError):
-        raise InputError("checkpoints", checkpoints, f"step counts between 0 and steps = {steps}") from None
-    gen = as_rng(rng)
+    opt, cps = _checked(opt, H, W)
+    gen = as_rng(opt.rng)
     dt = image_dtype(Y)
-    lo, hi = float(Y.min()), float(Y.max())
     a_init = None
-    if alpha is None and not (isinstance(alpha_init, str) and alpha_init == "means"):
-        if isinstance(alpha_init, str):
-            raise InputError("alpha_init", alpha_init, "'means' or an array of T mixing ratios")
-        a_init = as_alpha(alpha_init, T, name="alpha_init")
+    if alpha is None and not (isinstance(opt.alpha_init, str) and opt.alpha_init == "means"):
+        if isinstance(opt.alpha_init, str):
+            raise InputError("alpha_init", opt.alpha_init, "'means' or an array of T mixing ratios")
+        a_init = as_alpha(opt.alpha_init, T, name="alpha_init")
     if alpha is not None:
         alpha = as_alpha(alpha, T)
     with tm.measure("init"):
-        xi1, xi2, a_cl = _initial_images(Y, init, alpha, a_init, float(scale), float(foveal_gain),
-                                         float(foveal_offset))
+        xi1, xi2, a_cl = _initial_images(Y, opt.init, alpha, a_init, float(opt.scale), float(opt.foveal_gain),
+                                         float(opt.foveal_offset))
     warm_start = xi1 is not None
-    lr = as_float("lr", (WARM_LR if warm_start else PAPER_LR) if lr is None else lr)
-    if lr <= 0:
-        raise InputError("lr", lr, "a positive learning rate")
+    residual = warm_start and opt.warm == "residual"
     if a_cl is not None:
         a_init = a_cl
-    if warm_start:
-        lo = min(lo, float(np.min(xi1)), float(np.min(xi2)))
-        hi = max(hi, float(np.max(xi1)), float(np.max(xi2)))
-    elif alpha is not None or a_init is not None:
-        from metafovea.reconstruct.lsq import lsq_known_alpha
-
-        ls = lsq_known_alpha(Y, alpha if alpha is not None else a_init, regularize="difference")
-        lo = min(lo, float(np.min(ls.x1)), float(np.min(ls.x2)))
-        hi = max(hi, float(np.max(ls.x1)), float(np.max(ls.x2)))
-    span = hi - lo if hi > lo else 1.0
+    u = _units(Y, xi1, xi2, alpha if alpha is not None else a_init, residual)
+    op = FovealOperator((H, W), opt.scale, gain=opt.foveal_gain, bias=opt.foveal_offset) if opt.foveal_weight else None
+    w = _weights(opt, warm_start, op, u)
     # frames in [0.05, 0.95] so that both images fit the sigmoid's range with some margin
-    Yn = (0.05 + 0.9 * (Y.astype(np.float64) - lo) / span).astype(np.float32)
-    residual = warm_start and warm == "residual"
-    # image k in its own units u_k (lo_k + span_k u_k in DN; global normalised: A_k + B_k u_k)
-    if warm_start:
-        (lo1, s1), (lo2, s2) = _range(xi1), _range(xi2)
-        if residual:
-            # u_k = (x - x_init_k) / span_k + base_k, base_k = normalised x_init_k
-            base1, base2 = (xi1 - lo1) / s1, (xi2 - lo2) / s2
-        else:
-            # sigmoid range [0.05, 0.95] over the initial image's range
-            lo1, s1, lo2, s2 = lo1 - s1 * 0.05 / 0.9, s1 / 0.9, lo2 - s2 * 0.05 / 0.9, s2 / 0.9
-            base1, base2 = (xi1 - lo1) / s1, (xi2 - lo2) / s2
-        ab = [0.05 + 0.9 * (lo1 - lo) / span, 0.9 * s1 / span, 0.05 + 0.9 * (lo2 - lo) / span, 0.9 * s2 / span]
-    else:
-        base1 = base2 = np.zeros((H, W))
-        ab = [0.0, 1.0, 0.0, 1.0]
+    Yn = (0.05 + 0.9 * (Y.astype(np.float64) - u.lo) / u.span).astype(np.float32)
     learn_alpha = alpha is None
-    if learn_alpha:
-        a0 = frame_mean_alpha(Yn) if a_init is None else a_init
-    else:
-        a0 = alpha
-    if alpha_lr is None:
-        alpha_lr = lr / 10 if warm_start else lr
-    alpha_lr = as_float("alpha_lr", alpha_lr)
-    z_alpha = np.log(np.clip(a0, 0.02, 0.98) / (1 - np.clip(a0, 0.02, 0.98))).astype(np.float32)
-    params = {"g1": _init_params(gen, input_channels, channels, depth, skip_channels),
-              "g2": _init_params(gen, input_channels, channels, depth, skip_channels)}
-    if residual:
-        for g in ("g1", "g2"):
-            params[g]["out"]["w"][:] = 0.0
-    if learn_alpha:
-        params["alpha"] = z_alpha
-    params = jax.tree_util.tree_map(jnp.asarray, params)
-    z1 = jnp.asarray(gen.uniform(0, 0.1, (1, input_channels, H, W)).astype(np.float32))
-    z2 = jnp.asarray(gen.uniform(0, 0.1, (1, input_channels, H, W)).astype(np.float32))
-    net = _build(depth)
-    head = _head(residual)
-    op = FovealOperator((H, W), scale, gain=foveal_gain, bias=foveal_offset) if foveal_weight else None
-    # the constraint in normalised units yn = A y + B: D x1n = gain C x2n + (1 - gain) B + A bias
-    A_n, B_n = 0.9 / span, 0.05 - 0.9 * lo / span
-    bias_n = 0.0 if op is None else float((1 - op.gain) * B_n + A_n * op.bias)
-    gain_n = 1.0 if op is None else float(op.gain)
-    w_def = WARM_WEIGHT if warm_start else PAPER_WEIGHT
-    tvw = as_float("tv_weight", w_def if tv_weight is None else tv_weight)
-    exw = as_float("exclusion_weight", w_def if exclusion_weight is None else exclusion_weight)
-    fw = as_float("foveal_weight", foveal_weight)
-    if min(tvw, exw, fw) < 0:
-        raise InputError("tv_weight/exclusion_weight/foveal_weight", (tvw, exw, fw), "weights >= 0")
+    a0 = (frame_mean_alpha(Yn) if a_init is None else a_init) if learn_alpha else alpha
+    params, z1, z2 = _networks(gen, opt, (H, W), residual, a0 if learn_alpha else None)
+    net, head = _build(opt.depth), _head(residual)
     # everything that varies between calls is an argument of the jitted step, so a second call with
     # the same shapes and switches (another window of a video, a test's rerun) reuses the compilation
     data = {"y": jnp.asarray(Yn), "z1": z1, "z2": z2, "a": jnp.asarray(a0.astype(np.float32)),
-            "b1": jnp.asarray(base1.astype(np.float32)), "b2": jnp.asarray(base2.astype(np.float32)),
-            "ab": jnp.asarray(np.array(ab, np.float32)),
+            "b1": jnp.asarray(u.base1.astype(np.float32)), "b2": jnp.asarray(u.base2.astype(np.float32)),
+            "ab": jnp.asarray(np.array(u.ab, np.float32)),
             "D": [jnp.asarray(m_.astype(np.float32)) for m_ in (op.Dy, op.Dx, op.Cy, op.Cx)] if op else [],
-            "c": jnp.asarray(np.array([tvw, exw, fw, gain_n, bias_n, lr, alpha_lr], np.float32))}
+            "c": jnp.asarray(np.array([w["tv"], w["exclusion"], w["foveal"], w["gain_n"], w["bias_n"], w["lr"],
+                                       w["alpha_lr"]], np.float32))}
 
-    def images(p):
+    def images(p: dict[str, Any]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         g1 = np.asarray(head(net(p["g1"], z1), data["b1"], data["ab"][0:2]), dtype=np.float64)
         g2 = np.asarray(head(net(p["g2"], z2), data["b2"], data["ab"][2:4]), dtype=np.float64)
         a = np.asarray(jax.nn.sigmoid(p["alpha"]), dtype=np.float64) if learn_alpha else np.asarray(a0, np.float64)
-        return ((g1 - 0.05) / 0.9 * span + lo).astype(dt), ((g2 - 0.05) / 0.9 * span + lo).astype(dt), a
+        return u.to_frames(g1).astype(dt), u.to_frames(g2).astype(dt), a
 
     fit_hist: list[float] = []
-    if warm_start and warm == "fit" and warm_steps:
-        fstep = _make_fit_step(depth)
-        fdata = {"z1": z1, "z2": z2, "t1": jnp.asarray(base1.astype(np.float32)),
-                 "t2": jnp.asarray(base2.astype(np.float32)),
-                 "c": jnp.asarray(np.array([0, 0, 0, 0, 0, lr, 0.0], np.float32))}
-        nets = {"g1": params["g1"], "g2": params["g2"]}
-        fm = jax.tree_util.tree_map(jnp.zeros_like, nets)
-        fv = jax.tree_util.tree_map(jnp.zeros_like, nets)
+    if warm_start and opt.warm == "fit" and opt.warm_steps:
         with tm.measure("warm_fit"):
-            for k in range(1, warm_steps + 1):
-                nets, fm, fv, fl = fstep(nets, fm, fv, float(k), fdata)
-                if k % max(1, warm_steps // 50) == 0 or k == warm_steps:
-                    fit_hist.append(float(fl))
-        params = {**params, **nets}
-    recorded: list[dict[str, Any]] = []
-
-    def record(k, p):
-        if k in cps:
-            x1_, x2_, a_ = images(p)
-            recorded.append({"step": k, "x1": x1_, "x2": x2_, "alpha": a_,
-                             "seconds": time.perf_counter() - t_start})
-
-    step = _make_step(depth, learn_alpha, op is not None, residual)
-    m = jax.tree_util.tree_map(jnp.zeros_like, params)
-    v = jax.tree_util.tree_map(jnp.zeros_like, params)
-    hist: list[float] = []
-    t_start = time.perf_counter()
-    record(0, params)
-    with tm.measure("compile"):
-        params, m, v, loss = step(params, m, v, 1.0, data)
-        hist.append(float(loss))
-    record(1, params)
-    t0 = time.perf_counter()
-    with tm.measure("steps"):
-        for k in range(2, steps + 1):
-            params, m, v, loss = step(params, m, v, float(k), data)
-            if k % max(1, steps // 200) == 0 or k == steps:
-                hist.append(float(loss))
-            if log_every and k % log_every == 0:
-                log.info("dip step %d/%d loss %.4g (%.2f s/step)", k, steps, float(loss),
-                         (time.perf_counter() - t0) / (k - 1))
-            record(k, params)
+            params = _warm_fit(params, z1, z2, u, opt, w["lr"], fit_hist)
+    step = _make_step(opt.depth, learn_alpha, op is not None, residual)
+    params, hist, recorded = _optimise(step, params, data, opt, cps, images, tm)
     x1, x2, a = images(params)
-    info = {"steps": steps, "channels": channels, "depth": depth, "loss_history": hist, "alpha_learned": learn_alpha,
-            "tv_weight": tvw, "exclusion_weight": exw, "foveal_weight": fw,
-            "foveal_gain": gain_n, "foveal_offset": None if op is None else op.bias,
-            "init": init if isinstance(init, str) else "images", "warm": warm if warm_start else None,
-            "warm_fit_history": fit_hist, "lr": lr, "alpha_lr": alpha_lr, "checkpoints": recorded,
-            "initial_alpha": np.asarray(a0, np.float64),
-            "seconds_per_step": tm["steps"] / max(steps - 1, 1)}
+    info = {"steps": opt.steps, "channels": opt.channels, "depth": opt.depth, "loss_history": hist,
+            "alpha_learned": learn_alpha, "tv_weight": w["tv"], "exclusion_weight": w["exclusion"],
+            "foveal_weight": w["foveal"], "foveal_gain": w["gain_n"], "foveal_offset": None if op is None else op.bias,
+            "init": opt.init if isinstance(opt.init, str) else "images", "warm": opt.warm if warm_start else None,
+            "warm_fit_history": fit_hist, "lr": w["lr"], "alpha_lr": w["alpha_lr"], "checkpoints": recorded,
+            "initial_alpha": np.asarray(a0, np.float64), "seconds_per_step": tm["steps"] / max(opt.steps - 1, 1)}
     if warm_start:
         info["initial"] = (xi1.astype(dt), xi2.astype(dt))
     return Reconstruction(x1=x1, x2=x2, alpha=np.asarray(a, dtype=np.float64), fpn=None, method="dip",

@@ -12,12 +12,14 @@ times the channel's noise gain), so weights follow a stated rule instead of a ha
 
 from __future__ import annotations
 
-
 import numpy as np
 
 from metafovea.errors import InputError, as_float, check_choice
+from metafovea.reconstruct._common import estimate_noise
 
-METHODS = ("tv", "bilateral", "nlm", "none")
+#: the denoisers (``--denoise``)
+DENOISERS = ("tv", "bilateral", "nlm")
+METHODS = DENOISERS + ("none",)
 
 
 def denoise(x: np.ndarray, method: str = "tv", *, sigma: float | None = None, weight: float | None = None,
@@ -48,8 +50,6 @@ def denoise(x: np.ndarray, method: str = "tv", *, sigma: float | None = None, we
         out[bad] = np.nan
         return out
     if sigma is None:
-        from metafovea.reconstruct.lsq import estimate_noise
-
         sigma = estimate_noise(x)
     sigma = as_float("sigma", sigma)
     if sigma <= 0:

@@ -31,8 +31,9 @@ from typing import Any
 
 import numpy as np
 
-from metafovea.errors import InputError, as_float
-from metafovea.reconstruct._common import Timings, as_alpha, as_frames, image_dtype, valid_mask
+from metafovea.errors import InputError, as_float, check_int
+from metafovea.reconstruct._common import Timings, as_alpha, as_frames, estimate_noise, image_dtype, valid_mask
+from metafovea.reconstruct.denoise import denoise as denoise_image
 from metafovea.reconstruct.result import Reconstruction
 
 log = logging.getLogger(__name__)
@@ -156,18 +157,6 @@ def _lsq_masked(Y: np.ndarray, a: np.ndarray, M: np.ndarray, max_condition: floa
     return x1.reshape(H, W).astype(dt), x2.reshape(H, W).astype(dt), info
 
 
-def estimate_noise(img: np.ndarray) -> float:
-    """Gaussian noise std of one image (Immerkaer 1996, fast Laplacian-difference estimator)."""
-    from scipy.signal import convolve2d
-
-    x = np.asarray(img, dtype=np.float64)
-    if x.shape[0] < 3 or x.shape[1] < 3 or not np.all(np.isfinite(x)):
-        x = np.nan_to_num(x)
-    k = np.array([[1, -2, 1], [-2, 4, -2], [1, -2, 1]], dtype=np.float64)
-    r = convolve2d(x, k, mode="valid")
-    return float(np.sqrt(np.pi / 2) * np.abs(r).sum() / (6.0 * r.size))
-
-
 def lsq_known_alpha(frames: Any, alpha: Any, *, max_condition: float = MAX_CONDITION,
                     regularize: str | float | None = None, saturation: float | None = None,
                     denoise: str | None = None, denoise_kw: dict[str, Any] | None = None,
@@ -204,8 +193,6 @@ def lsq_known_alpha(frames: Any, alpha: Any, *, max_condition: float = MAX_CONDI
             info.update(minfo)
     info["frames"] = T
     if denoise:
-        from metafovea.reconstruct.denoise import denoise as _denoise
-
         with tm.measure("denoise"):
             sig = noise_sigma
             if sig is None and T > 2 and M is None:
@@ -217,8 +204,8 @@ def lsq_known_alpha(frames: Any, alpha: Any, *, max_condition: float = MAX_CONDI
                 gains = tuple(info["noise_gain"])
             info["noise_sigma"] = float(sig)
             kw = dict(denoise_kw or {})
-            x1 = _denoise(x1, denoise, sigma=sig * gains[0], **kw)
-            x2 = _denoise(x2, denoise, sigma=sig * gains[1], **kw)
+            x1 = denoise_image(x1, denoise, sigma=sig * gains[0], **kw)
+            x2 = denoise_image(x2, denoise, sigma=sig * gains[1], **kw)
         info["denoise"] = denoise
     return Reconstruction(x1=x1, x2=x2, alpha=a, fpn=None, method="lsq", timings=dict(tm), info=info)
 
@@ -247,8 +234,6 @@ class SlidingLSQ:
     def __init__(self, window: int = 8, *, max_condition: float = MAX_CONDITION,
                  regularize: str | float | None = None, refresh: int = 4096,
                  out_dtype: Any = None) -> None:
-        from metafovea.errors import check_int
-
         self.window = check_int("window", window, 2, 100000)
         self.max_condition = as_float("max_condition", max_condition)
         self.regularize = regularize
@@ -267,12 +252,6 @@ class SlidingLSQ:
     @property
     def ready(self) -> bool:
         return len(self._frames) == self.window
-
-    def reset(self) -> None:
-        self._frames.clear()
-        self._alpha.clear()
-        self._say = self._sy = None
-        self.shape = None
 
     def _rebuild(self) -> None:
         F = np.stack(self._frames).astype(np.float64)

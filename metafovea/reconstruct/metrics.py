@@ -1,4 +1,5 @@
-"""Image-quality metrics (PSNR, SSIM) on top of scikit-image, usable by the report stage."""
+"""Image-quality metrics (PSNR, SSIM) on top of scikit-image, and :func:`score`, the one scorer of a
+reconstruction against truth (the CLI, ``validate`` and the benchmarks use it)."""
 
 from __future__ import annotations
 
@@ -52,10 +53,21 @@ def ssim(est: np.ndarray, ref: np.ndarray, data_range: float | None = None) -> f
     return float(structural_similarity(ref, est, data_range=_data_range(ref, data_range), win_size=win))
 
 
+def level_free_image(est: np.ndarray, ref: np.ndarray) -> np.ndarray:
+    """``est`` with its mean error against ``ref`` removed (float64): what is left when the alpha gauge or an offset
+    is off."""
+    est, ref = _pair(est, ref)
+    return est - float(np.mean(est - ref))
+
+
 def score(rec: Any, truth_x1: np.ndarray | None = None, truth_x2: np.ndarray | None = None,
-          data_range: float | None = None) -> dict[str, float]:
+          data_range: float | None = None, *, level_free: bool = False) -> dict[str, float]:
     """PSNR/SSIM of a :class:`~metafovea.reconstruct.Reconstruction` (or ``(x1, x2)`` tuple) against
-    truth; a video (``(K, H, W)``) is scored window by window and averaged."""
+    truth; a video (``(K, H, W)``) is scored window by window and averaged.
+
+    ``truth_x*``: one ``(H, W)`` image, or one per output ``(K, H, W)``; ``None`` skips that image.
+    ``data_range`` defaults to each reference's own range. ``level_free`` adds ``psnr_x1_level_free`` /
+    ``psnr_x2_level_free``: the PSNR after removing the mean error (see :func:`level_free_image`)."""
     x1, x2 = (rec.x1, rec.x2) if hasattr(rec, "x1") else rec
     out: dict[str, float] = {}
     for name, est, ref in (("x1", x1, truth_x1), ("x2", x2, truth_x2)):
@@ -75,4 +87,7 @@ def score(rec: Any, truth_x1: np.ndarray | None = None, truth_x2: np.ndarray | N
             raise InputError(f"truth_{name}", f"array of shape {ref.shape}", f"the estimate's shape {ests.shape[-2:]}")
         out[f"psnr_{name}"] = float(np.mean([psnr(e, r, data_range) for e, r in zip(ests, refs)]))
         out[f"ssim_{name}"] = float(np.mean([ssim(e, r, data_range) for e, r in zip(ests, refs)]))
+        if level_free:
+            out[f"psnr_{name}_level_free"] = float(np.mean([psnr(level_free_image(e, r), r, data_range)
+                                                           for e, r in zip(ests, refs)]))
     return out

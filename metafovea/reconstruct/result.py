@@ -59,3 +59,73 @@ class Reconstruction:
         return cls(x1=arrays["x1"], x2=arrays["x2"], alpha=arrays["alpha"], fpn=arrays.get("fpn"),
                    method=meta.get("method", "?"), timings=dict(meta.get("timings", {})),
                    info=dict(meta.get("info", {})))
+
+
+@dataclass(frozen=True)
+class PipelineResult:
+    """What :func:`~metafovea.reconstruct.reconstruct_measurement` made of a Measurement.
+
+    Attributes
+    ----------
+    reconstruction: the :class:`Reconstruction` (one window, or a video of ``(K, H, W)`` images).
+    spans: ``(start, stop)`` frames each output covers (``stop`` exclusive; one frame for a snapshot).
+    seconds: wall-clock of the reconstruction (FPN estimation and denoising included, file reading not).
+    constraint: the foveal constraint the solvers used (a :class:`~metafovea.measurement.FovealConstraint`).
+    frames: number of frames of the measurement; source: its file, if it was read from one.
+    metrics: :func:`~metafovea.reconstruct.metrics.score` against the truth each output shows (``None`` without
+        truth; a sentence saying why when it could not be computed).
+    alpha_mae: mean absolute error of the estimated mixing ratios against the file's (window mean; ``None`` when
+        alpha was given or the file does not know it).
+    """
+
+    reconstruction: Reconstruction
+    spans: tuple[tuple[int, int], ...]
+    seconds: float
+    constraint: Any
+    frames: int
+    source: str | None = None
+    metrics: dict[str, float] | str | None = None
+    alpha_mae: float | None = None
+
+    @property
+    def outputs(self) -> int:
+        return len(self.spans)
+
+    @property
+    def x1s(self) -> np.ndarray:
+        """Foveal images, one per output: ``(K, H, W)``."""
+        x = np.asarray(self.reconstruction.x1)
+        return x if x.ndim == 3 else x[None]
+
+    @property
+    def x2s(self) -> np.ndarray:
+        """Perifoveal images, one per output: ``(K, H, W)``."""
+        x = np.asarray(self.reconstruction.x2)
+        return x if x.ndim == 3 else x[None]
+
+    @property
+    def nonfinite_pixels(self) -> int:
+        """NaN/inf values in x1 and x2 (pixels without valid samples, e.g. dead pixels)."""
+        r = self.reconstruction
+        return int(np.sum(~np.isfinite(r.x1)) + np.sum(~np.isfinite(r.x2)))
+
+    def summary(self, files: list[str] | None = None) -> dict[str, Any]:
+        """A JSON-ready summary: method, frames, outputs, timings, conditioning, gauge, FPN, metrics."""
+        rec = self.reconstruction
+        out: dict[str, Any] = {"measurement": self.source, "method": rec.method, "frames": int(self.frames),
+                               "foveal_constraint": self.constraint.as_kwargs(), "outputs": self.outputs,
+                               "seconds": self.seconds, "ms_per_output": 1e3 * self.seconds / max(self.outputs, 1),
+                               "timings": rec.timings, "files": list(files or [])}
+        for key in ("condition", "alpha_identified", "iterations"):
+            if key in rec.info:
+                v = rec.info[key]
+                out[key] = float(np.nanmax(np.asarray(v, dtype=float))) if isinstance(v, list) else v
+        if "gauge" in rec.info:
+            out["gauge"] = {k: rec.info["gauge"].get(k) for k in ("applied", "reason")}
+        if "fpn" in rec.info:
+            out["fpn"] = rec.info["fpn"].get("identified")
+        if self.nonfinite_pixels:
+            out["nonfinite_pixels"] = self.nonfinite_pixels
+        if self.metrics is not None:
+            out["metrics"] = self.metrics
+        return out

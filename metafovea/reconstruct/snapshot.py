@@ -167,7 +167,9 @@ def exclusion_loss(x1: np.ndarray, x2: np.ndarray, g0: float, levels: int = 2) -
     return val, g1_tot, g2_tot
 
 
-def _tv(z: np.ndarray, eps: float) -> tuple[float, np.ndarray]:
+def mean_charbonnier_tv(z: np.ndarray, eps: float) -> tuple[float, np.ndarray]:
+    """Value and gradient of the Charbonnier-smoothed TV (:func:`~metafovea.reconstruct.operators.tv_charbonnier`)
+    per pixel (divided by ``z.size``): the snapshot loss's TV term, independent of the image size."""
     val, g = tv_charbonnier(z, eps)
     return val / z.size, g / z.size
 
@@ -249,8 +251,8 @@ def snapshot(frame: Any, *, alpha: float | None = None, scale: float = 6.0,
             f = mu * float(np.sum(r * r)) / m
             g1 = mu * 2 * op.DT(r) / m
             g2 = -mu * 2 * op.gain * op.CT(r) / m
-            t1, tg1 = _tv(x1, eps)
-            t2, tg2 = _tv(x2, eps)
+            t1, tg1 = mean_charbonnier_tv(x1, eps)
+            t2, tg2 = mean_charbonnier_tv(x2, eps)
             e, eg1, eg2 = exclusion_loss(x1, x2, g0)
             f += lt * (t1 + t2) / g0 + le * e
             g1 = g1 + lt * tg1 / g0 + le * eg1

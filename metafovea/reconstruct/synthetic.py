@@ -11,10 +11,9 @@ from typing import Any
 
 import numpy as np
 
-from metafovea.errors import as_rng
+from metafovea.errors import InputError, as_rng, check_int
 from metafovea.reconstruct._common import as_alpha
 from metafovea.reconstruct.operators import FovealOperator
-from metafovea.errors import InputError, check_int
 
 
 def _gray(name: str) -> np.ndarray:

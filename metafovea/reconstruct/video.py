@@ -10,36 +10,71 @@ scalars), which is the throughput path (see BENCHMARKS). For a live camera use
 from __future__ import annotations
 
 import logging
-from typing import Any
+from typing import Any, Sequence
 
 import numpy as np
 
 from metafovea.errors import InputError, check_choice, check_int
 from metafovea.reconstruct._common import Timings, as_alpha, as_frames, image_dtype, valid_mask
-from metafovea.reconstruct.lsq import MAX_CONDITION, lsq_known_alpha, solve_weights
+from metafovea.reconstruct.alternating import alternating
+from metafovea.reconstruct.deep_prior import dip
+from metafovea.reconstruct.denoise import denoise as denoise_image
+from metafovea.reconstruct.lsq import MAX_CONDITION, lsq_known_alpha, residual_sigma, solve_weights
 from metafovea.reconstruct.result import Reconstruction
 
 log = logging.getLogger(__name__)
 
 
-def window_starts(n_frames: int, window: int, stride: int) -> np.ndarray:
+def window_starts(n_frames: int, window: int, stride: int, starts: Sequence[int] | None = None) -> np.ndarray:
+    """First frame of each window: every ``stride``-th, or the given ``starts`` (checked to fit the sequence)."""
     window = check_int("window", window, 2, 1_000_000)
     stride = check_int("stride", stride, 1, 1_000_000)
     if window > n_frames:
         raise InputError("window", window, f"2 <= window <= number of frames ({n_frames})")
-    return np.arange(0, n_frames - window + 1, stride)
+    if starts is None:
+        return np.arange(0, n_frames - window + 1, stride)
+    out = np.array([check_int("starts", s, 0, n_frames - window) for s in np.atleast_1d(starts)], dtype=int)
+    if out.size == 0:
+        raise InputError("starts", list(starts), f"at least one window start in 0..{n_frames - window}")
+    return out
 
 
-def video(frames: Any, alpha: Any = None, *, window: int = 8, stride: int = 1, method: str = "lsq",
-          denoise: str | None = None, max_condition: float = MAX_CONDITION,
+def _lsq_windows(Y: np.ndarray, a: np.ndarray, starts: np.ndarray, window: int, it: Any, M: np.ndarray | None,
+                 max_condition: float, regularize: str | float | None,
+                 saturation: float | None) -> tuple[np.ndarray, np.ndarray]:
+    """Known-alpha LSQ of every window: ``(out (K, 2, H*W), condition (K,))``; one BLAS call per window."""
+    T, H, W = Y.shape
+    out = np.empty((len(starts), 2, H * W), dtype=image_dtype(Y))
+    conds = np.empty(len(starts))
+    Yf = Y.reshape(T, -1)
+    for k in it:
+        s = starts[k]
+        try:
+            Wt, rep = solve_weights(a[s:s + window], max_condition=max_condition, regularize=regularize, quiet=True)
+        except InputError as e:
+            raise InputError("alpha", f"window {k} (frames {s}..{s + window - 1})", e.allowed,
+                             detail=str(e)) from None
+        conds[k] = rep["condition"]
+        if M is None:
+            np.matmul(Wt.astype(out.dtype), Yf[s:s + window], out=out[k])
+        else:
+            r = lsq_known_alpha(Y[s:s + window], a[s:s + window], max_condition=max_condition,
+                                regularize=regularize, saturation=saturation)
+            out[k, 0], out[k, 1] = r.x1.ravel(), r.x2.ravel()
+    return out, conds
+
+
+def video(frames: Any, alpha: Any = None, *, window: int = 8, stride: int = 1, starts: Sequence[int] | None = None,
+          method: str = "lsq", denoise: str | None = None, max_condition: float = MAX_CONDITION,
           regularize: str | float | None = None, saturation: float | None = None,
           progress: bool = False, **kw: Any) -> Reconstruction:
-    """Reconstruct every sliding window of ``frames (T, H, W)``.
+    """Reconstruct every sliding window of ``frames (T, H, W)`` (or the windows that begin at ``starts``).
 
     ``method``: ``'lsq'`` (needs ``alpha``), ``'alternating'`` (alpha estimated per window; extra
     keywords go to :func:`~metafovea.reconstruct.alternating.alternating`) or ``'dip'``.
     Returns a :class:`Reconstruction` whose ``x1``, ``x2`` are ``(K, H, W)``; ``info`` holds
-    ``window_starts``, per-window ``condition`` (and, for unknown alpha, ``alpha_windows``).
+    ``window_starts``, per-window ``condition`` (and, for unknown alpha, ``alpha_windows``; for alternating,
+    ``window_alpha_identified``).
     A window whose normal matrix is too ill-conditioned raises :class:`InputError` naming the window
     unless ``regularize`` is given.
     """
@@ -47,7 +82,7 @@ def video(frames: Any, alpha: Any = None, *, window: int = 8, stride: int = 1, m
     tm = Timings()
     Y = as_frames(frames, min_frames=2)
     T, H, W = Y.shape
-    starts = window_starts(T, window, stride)
+    starts = window_starts(T, window, stride, starts)
     K = len(starts)
     dt = image_dtype(Y)
     info: dict[str, Any] = {"window": int(window), "stride": int(stride), "window_starts": starts.tolist()}
@@ -56,37 +91,18 @@ def video(frames: Any, alpha: Any = None, *, window: int = 8, stride: int = 1, m
         from tqdm import tqdm
 
         it = tqdm(it, desc=f"reconstruct ({method})", unit="window")
+    gains = None
     if method == "lsq":
         if alpha is None:
             raise InputError("alpha", None, "mixing ratios (T,) for method='lsq' (or use method='alternating')")
         a = as_alpha(alpha, T)
         M = valid_mask(Y, saturation)
         with tm.measure("solve"):
-            out = np.empty((K, 2, H * W), dtype=dt)
-            conds = np.empty(K)
-            Yf = Y.reshape(T, -1)
-            for k in it:
-                s = starts[k]
-                try:
-                    Wt, rep = solve_weights(a[s:s + window], max_condition=max_condition, regularize=regularize,
-                                            quiet=True)
-                except InputError as e:
-                    raise InputError("alpha", f"window {k} (frames {s}..{s + window - 1})", e.allowed,
-                                     detail=str(e)) from None
-                conds[k] = rep["condition"]
-                if M is None:
-                    np.matmul(Wt.astype(dt), Yf[s:s + window], out=out[k])
-                else:
-                    r = lsq_known_alpha(Y[s:s + window], a[s:s + window], max_condition=max_condition,
-                                        regularize=regularize, saturation=saturation)
-                    out[k, 0], out[k, 1] = r.x1.ravel(), r.x2.ravel()
+            out, conds = _lsq_windows(Y, a, starts, window, it, M, max_condition, regularize, saturation)
         out = out.reshape(K, 2, H, W)
         x1, x2 = out[:, 0], out[:, 1]
         info["condition"] = conds.tolist()
-        gains = None
         if denoise:
-            from metafovea.reconstruct.lsq import residual_sigma
-
             with tm.measure("denoise"):
                 s0 = starts[0]
                 sig = (residual_sigma(Y[s0:s0 + window], a[s0:s0 + window], x1[0], x2[0])
@@ -102,37 +118,33 @@ def video(frames: Any, alpha: Any = None, *, window: int = 8, stride: int = 1, m
     else:
         x1 = np.empty((K, H, W), dtype=dt)
         x2 = np.empty((K, H, W), dtype=dt)
-        aw = []
-        gains = None
+        aw, identified = [], []
         with tm.measure("solve"):
             for k in it:
                 s = starts[k]
                 if method == "alternating":
-                    from metafovea.reconstruct.alternating import alternating
-
                     try:
                         r = alternating(Y[s:s + window], saturation=saturation, **kw)
                     except InputError as e:
                         raise InputError("frames", f"window {k} (frames {s}..{s + window - 1})", e.allowed,
                                          detail=str(e)) from None
+                    identified.append(bool(r.info["alpha_identified"]))
                 else:
-                    from metafovea.reconstruct.deep_prior import dip
-
                     r = dip(Y[s:s + window], alpha=None if alpha is None else np.asarray(alpha)[s:s + window], **kw)
                 x1[k], x2[k] = r.x1, r.x2
                 aw.append(np.asarray(r.alpha).tolist())
         info["alpha_windows"] = aw
+        if method == "alternating":
+            info["window_alpha_identified"] = identified
         alpha_out = np.asarray(alpha, dtype=np.float64) if alpha is not None else np.full(T, np.nan)
     if denoise:
-        from metafovea.reconstruct.denoise import denoise as _dn
-
         with tm.measure("denoise"):
-            if method == "lsq" and gains is not None:
-                x1 = np.stack([_dn(x1[k], denoise, sigma=sig * gains[k][0]) for k in range(K)])
-                x2 = np.stack([_dn(x2[k], denoise, sigma=sig * gains[k][1]) for k in range(K)])
+            if gains is not None:
+                x1 = np.stack([denoise_image(x1[k], denoise, sigma=sig * gains[k][0]) for k in range(K)])
+                x2 = np.stack([denoise_image(x2[k], denoise, sigma=sig * gains[k][1]) for k in range(K)])
             else:
-                x1 = _dn(x1, denoise)
-                x2 = _dn(x2, denoise)
+                x1 = denoise_image(x1, denoise)
+                x2 = denoise_image(x2, denoise)
         info["denoise"] = denoise
     total = sum(tm.values())
     info["windows"] = K

@@ -1,0 +1,89 @@
+"""Writing a :class:`~metafovea.reconstruct.PipelineResult`: the Reconstruction ``.npz`` and, next to it, the last
+output's foveal and perifoveal images (``<stem>_x1.png``, ``<stem>_x2.png``, one PNG pixel per image pixel) and a
+side-by-side figure with colour bars (``<stem>.png``). Every path is checked before anything is computed
+(:func:`prepare_outputs`), so a run that would overwrite a file without ``force`` writes nothing."""
+
+from __future__ import annotations
+
+import io
+import os
+from pathlib import Path
+
+import numpy as np
+
+from metafovea.errors import InputError
+from metafovea.io import atomic_write_bytes, prepare_output
+from metafovea.reconstruct.result import PipelineResult
+
+
+def figure_paths(out: str | os.PathLike) -> list[Path]:
+    """The PNG files written next to the reconstruction ``out``."""
+    stem = Path(out).with_suffix("")
+    return [Path(f"{stem}_x1.png"), Path(f"{stem}_x2.png"), Path(f"{stem}.png")]
+
+
+def prepare_outputs(measurement: str | os.PathLike, out: str | os.PathLike | None = None, *, figures: bool = True,
+                    force: bool = False) -> tuple[Path, list[Path]]:
+    """``(reconstruction path, figure paths)`` for a reconstruction of the file ``measurement``, all checked.
+
+    ``out`` defaults to ``<measurement>_rec.npz``; it must end in ``.npz``, must not be the measurement itself,
+    and neither it nor a figure may exist unless ``force``."""
+    src = Path(measurement)
+    path = Path(out) if out else src.with_name(src.stem + "_rec.npz")
+    if path.suffix.lower() != ".npz":
+        raise InputError("--out", str(path), "a file name ending in .npz")
+    if path.resolve() == src.resolve() or (path.exists() and src.exists() and os.path.samefile(path, src)):
+        raise InputError("--out", str(path), "a path other than the measurement itself (it would be overwritten)")
+    path = prepare_output(path, force)
+    pngs = figure_paths(path) if figures else []
+    for name in pngs:
+        prepare_output(name, force)
+    return path, pngs
+
+
+def write_outputs(result: PipelineResult, out: str | os.PathLike, figures: list[Path] | None = None, *,
+                  title: str = "") -> list[str]:
+    """Save ``result.reconstruction`` to ``out`` and the figures (see module docstring) of its last output;
+    returns the files written."""
+    rec = result.reconstruction
+    rec.save(out)
+    files = [str(out)]
+    if figures:
+        x1, x2 = result.x1s[-1], result.x2s[-1]
+        for name, data in zip(figures, (image_png(x1), image_png(x2), pair_figure(x1, x2, title or rec.method))):
+            atomic_write_bytes(name, data)
+            files.append(str(name))
+    return files
+
+
+def image_png(img: np.ndarray) -> bytes:
+    """One image as a PNG, one pixel per array element, in the inferno palette (NaN shown as 0)."""
+    import matplotlib
+
+    matplotlib.use("Agg", force=False)
+    import matplotlib.pyplot as plt
+
+    buf = io.BytesIO()
+    plt.imsave(buf, np.nan_to_num(np.asarray(img, dtype=np.float64)), cmap="inferno", format="png")
+    return buf.getvalue()
+
+
+def pair_figure(x1: np.ndarray, x2: np.ndarray, title: str) -> bytes:
+    """The foveal and perifoveal images side by side with colour bars (PNG)."""
+    import matplotlib
+
+    matplotlib.use("Agg", force=False)
+    import matplotlib.pyplot as plt
+
+    from metafovea.report import fig_to_png
+
+    fig, axs = plt.subplots(1, 2, figsize=(9, 4.2), constrained_layout=True)
+    for ax, img, name in ((axs[0], x1, "foveal x1"), (axs[1], x2, "perifoveal x2")):
+        im = ax.imshow(img, cmap="inferno")
+        ax.set_title(name)
+        ax.set_axis_off()
+        fig.colorbar(im, ax=ax, shrink=0.8)
+    fig.suptitle(title)
+    png = fig_to_png(fig, dpi=110)
+    plt.close(fig)
+    return png
