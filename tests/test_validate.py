@@ -1,13 +1,18 @@
-"""`metafovea validate` end to end on a small crop (the full-size run is the README's main job)."""
+"""`metafovea validate` end to end on a small crop (the full-size run is the README's main job), and the
+speed-against-error table's scoring rules."""
 
 import dataclasses
 import json
 
+import numpy as np
 import pytest
 
-from metafovea.cli import main
 from metafovea.config import SystemDesign
-from metafovea.validate import ValidateOptions, validate_system
+from metafovea.measurement import Measurement
+from metafovea.reconstruct.metrics import score
+from metafovea.reconstruct.synthetic import polariser_alpha, scene
+from metafovea.validate import (TABLE_COLUMNS, ValidateOptions, format_report, format_table, reconstruction_table,
+                                validate_system)
 
 
 @pytest.fixture
@@ -39,50 +44,41 @@ def test_validate_small_runs_every_stage(tmp_path, monkeypatch, small_system):
     html = (out / "validate.html").read_text()
     assert "speed against error" in html and "data:image/png;base64" in html
     assert json.loads((out / "validate.json").read_text())["table"]
-
-
-def test_validate_cli_bad_input(tmp_path, capsys):
-    assert main(["validate", "--frames", "1", "--out", str(tmp_path / "x")]) == 2
-    assert "--frames" in capsys.readouterr().err
-    d = tmp_path / "full"
-    d.mkdir()
-    (d / "f").write_text("x")
-    assert main(["validate", "--out", str(d)]) == 2
-    assert "--force" in capsys.readouterr().err
+    text = format_report(rep, rep["_summaries"], "small", out)
+    assert text.startswith("system: small, field expansion f1/f2 = 6x") and "== design: foveal ==" in text
+    assert format_table(rep["table"]) in text and text.rstrip().endswith(f"total {rep['seconds_total']:.1f} s")
 
 
 def test_single_frame_rows_are_scored_against_that_frames_truth_of_a_video():
     """Snapshot and 'no separation' show one frame: on a video scene (truth (T, H, W)) they are scored
     against the truth of that frame, not against the mean over the 8 frames after it."""
-    from types import SimpleNamespace
-
-    import numpy as np
-
-    from metafovea.reconstruct.synthetic import polariser_alpha, scene
-    from metafovea.validate import _reconstruct_stage, _score, _Stages
-
     T, n = 8, 48
     x1, x2 = scene(n)
     ramp = 1.0 + np.arange(T)[:, None, None]  # strongly changing scene
     t1, t2 = x1[None] * ramp, x2[None] * ramp[::-1]
     a = polariser_alpha(T)
     frames = (a[:, None, None] * t1 + (1 - a[:, None, None]) * t2).astype(np.float32)
-    meas = SimpleNamespace(frames=frames, alpha=a, meta={"scale": 6.0}, fpn=None, truth_x1=t1, truth_x2=t2,
-                           extras={"calibration": np.zeros((4, n, n), np.float32)})
+    meas = Measurement(frames=frames, times_s=np.arange(T) / 12.0, alpha=a, truth_x1=t1, truth_x2=t2,
+                       meta={"scale": 6.0}, extras={"calibration": np.zeros((4, n, n), np.float32)})
     opts = ValidateOptions(frames=T, alternating_windows=1, snapshot_iterations=5)
-    res = _reconstruct_stage(meas, opts, _Stages(False), "video", run_dip=False)
+    res = reconstruction_table(meas, opts, "video", run_dip=False)
     row = next(r for r in res["rows"] if r["method"].startswith("no separation"))
     k = int(np.argmin(np.abs(a - 0.5)))
     y = frames[k].astype(np.float64)
-    want = _score(y, y, t1[k], t2[k])
+    want = score((y, y), meas.truth_x1[k], meas.truth_x2[k], level_free=True)
     assert row["psnr_x1"] == pytest.approx(want["psnr_x1"]) and row["psnr_x2"] == pytest.approx(want["psnr_x2"])
+    assert row["psnr_x1_level_free"] == pytest.approx(want["psnr_x1_level_free"])
+    # a window row against the truth averaged over the window's frames
+    lsq = next(r for r in res["rows"] if r["method"] == "lsq (known alpha)")
+    m1, m2 = (t[0] for t in meas.truth_over([(0, T)]))
+    assert lsq["n"] == 1 and lsq["psnr_x1"] == pytest.approx(score(res["images"]["lsq (known alpha)"], m1, m2)["psnr_x1"])
 
 
-@pytest.mark.parametrize("argv, name", [(["--frames", "2"], "--frames"), (["--dip-steps", "0"], "--dip-steps"),
-                                        (["--scene", "no-such-scene"], "scene")])
-def test_validate_bad_arguments_fail_before_any_work(tmp_path, capsys, argv, name):
-    out = tmp_path / "v"
-    assert main(["validate", *argv, "--out", str(out)]) == 2
-    err = capsys.readouterr().err
-    assert name in err and err.count("\n") == 1
-    assert not out.exists()
+def test_table_columns_and_format():
+    row = {"case": "c", "method": "m", "ms_per_unit": 1.234, "unit": "window", "psnr_x1": 20.0,
+           "psnr_x1_level_free": 21.0, "psnr_x2": 30.0, "ssim_x1": 0.5, "ssim_x2": 0.75}
+    head, line = format_table([row]).splitlines()
+    assert head.split()[:3] == ["case", "method", "ms/unit"] and line.split() == ["c", "m", "1.23", "20.00", "21.00",
+                                                                                 "30.00", "0.500", "0.750"]
+    assert format_table([{**row, "alpha_mae": 0.01234}]).splitlines()[1].endswith("0.0123")
+    assert TABLE_COLUMNS[:2] == ("case", "method") and "psnr_x1_level_free" in TABLE_COLUMNS

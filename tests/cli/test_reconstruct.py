@@ -1,32 +1,30 @@
-"""QA regression tests for reconstruct, split out of tests/test_qa_*.py: merge each into its subject test file
-(keep the bug sentence as its docstring), then delete this file."""
+"""``metafovea reconstruct`` through :func:`metafovea.cli.main`: outputs, summaries, and every bad input as one
+line with exit status 2 (nothing written)."""
 
 from __future__ import annotations
-import argparse
+
+import dataclasses
 import json
+
 import numpy as np
 import pytest
-from metafovea.cli import reconstruct as cli_reconstruct
-from metafovea.errors import InputError
+
+from metafovea.cli import main
+from metafovea.errors import InputError, as_rng
 from metafovea.io import atomic_save_npz
+from metafovea.measurement import Measurement
+from metafovea.reconstruct import Reconstruction
 from metafovea.reconstruct.metrics import score
 from metafovea.reconstruct.synthetic import measure, polariser_alpha, scene
 
 
 def _run(argv, capsys):
-    rc = cli_reconstruct.run(_parse([str(a) for a in argv]))
+    rc = main(["reconstruct", *[str(a) for a in argv]])
     cap = capsys.readouterr()
     return rc, cap.out, cap.err
 
 
-def _parse(argv):
-    p = argparse.ArgumentParser(prog="metafovea")
-    sub = p.add_subparsers(dest="command")
-    cli_reconstruct.add_parser(sub)
-    return p.parse_args(["reconstruct", *argv])
-
-
-def _save(path, T=10, n=48, **over):
+def _save(path, T=10, n=48, meta=None, **over):
     x1, x2 = scene(n)
     a = polariser_alpha(T)
     arrays = dict(frames=measure(x1, x2, a, sigma=0.0, rng=0, dtype=np.float32), times_s=np.arange(T) / 12.0,
@@ -36,8 +34,106 @@ def _save(path, T=10, n=48, **over):
             arrays.pop(k, None)
         else:
             arrays[k] = v
-    atomic_save_npz(path, meta={"scale": 6}, **arrays)
+    atomic_save_npz(path, meta={"scale": 6} if meta is None else meta, **arrays)
     return path
+
+
+@pytest.fixture()
+def meas(tmp_path):
+    x1, x2 = scene(64)
+    T = 10
+    a = polariser_alpha(T)
+    frames = measure(x1, x2, a, sigma=0.01, rng=0, dtype=np.float32)
+    path = tmp_path / "meas.npz"
+    atomic_save_npz(path, meta={"scale": 6, "pixel_pitch_um": 17.0}, frames=frames, times_s=np.arange(T) / 12.0,
+                    alpha=a, truth_x1=x1, truth_x2=x2)
+    return path
+
+
+def test_cli_lsq_single_window_json(meas, tmp_path, capsys):
+    out = tmp_path / "rec.npz"
+    rc, stdout, err = _run([meas, "--window", "10", "--out", out, "--json"], capsys)
+    assert rc == 0, err
+    s = json.loads(stdout)
+    assert s["metrics"]["psnr_x1"] > 40 and s["condition"] < 10
+    assert list(s)[:9] == ["measurement", "method", "frames", "foveal_constraint", "outputs", "seconds",
+                           "ms_per_output", "timings", "files"]
+    rec = Reconstruction.load(out)
+    assert rec.x1.shape == (64, 64)
+    assert (tmp_path / "rec_x1.png").stat().st_size > 0 and (tmp_path / "rec.png").exists()
+    # refuses to overwrite without --force
+    assert _run([meas, "--window", "10", "--out", out], capsys)[0] == 2
+    assert _run([meas, "--window", "10", "--out", out, "--force"], capsys)[0] == 0
+
+
+def test_cli_video_and_alternating(meas, tmp_path, capsys):
+    out = tmp_path / "v.npz"
+    rc, stdout, _ = _run([meas, "--out", out, "--no-figures"], capsys)
+    assert rc == 0 and Reconstruction.load(out).x1.shape == (3, 64, 64)
+    assert "3 reconstruction(s)" in stdout and "psnr_x1" in stdout and "wrote" in stdout
+    out2 = tmp_path / "alt.npz"
+    rc, stdout, _ = _run([meas, "--method", "alternating", "--window", "10", "--out", out2, "--json",
+                          "--no-figures"], capsys)
+    assert rc == 0
+    s = json.loads(stdout)
+    assert s["alpha_identified"] and s["gauge"]["applied"] and s["metrics"]["psnr_x1"] > 40
+    assert Reconstruction.load(out2).info["alpha_identified"]
+
+
+def test_cli_errors(meas, tmp_path, capsys):
+    rc, _, err = _run([meas, "--window", "20", "--out", tmp_path / "a.npz"], capsys)
+    assert rc == 2 and "window" in err
+    assert _run([tmp_path / "missing.npz"], capsys)[0] == 2
+    bare = tmp_path / "bare.npz"
+    atomic_save_npz(bare, meta={}, frames=np.zeros((4, 16, 16)), times_s=np.arange(4.0))
+    rc, _, err = _run([bare, "--window", "4", "--out", tmp_path / "b.npz"], capsys)
+    assert rc == 2 and "alpha" in err
+
+
+def test_cli_foveal_constraint_from_meta(dn_scene, tmp_path, capsys):
+    x1, x2, G, B = dn_scene
+    a = polariser_alpha(10)
+    frames = measure(x1, x2, a, sigma=0.6, rng=0, dtype=np.float32)
+    meta = {"scale": 6.0, "units": "DN",
+            "foveal_constraint": {"scale": 6.0, "gain": G, "offset_dn": B, "relation": "..."}}
+    path = tmp_path / "meas.npz"
+    atomic_save_npz(path, meta=meta, frames=frames, times_s=np.arange(10) / 12.0, alpha=a, truth_x1=x1, truth_x2=x2)
+    rc, stdout, _ = _run([path, "--method", "alternating", "--window", "10", "--out", tmp_path / "alt.npz", "--json",
+                          "--no-figures"], capsys)
+    assert rc == 0
+    s = json.loads(stdout)
+    assert s["foveal_constraint"] == {"scale": 6.0, "foveal_gain": G, "foveal_offset": B}
+    assert s["alpha_identified"] and s["gauge"]["applied"]
+    # overriding the file's gain with 1 breaks the constraint: clear error, exit 2
+    rc, _, err = _run([path, "--method", "alternating", "--window", "10", "--out", tmp_path / "b.npz",
+                       "--no-figures", "--foveal-gain", "1"], capsys)
+    assert rc == 2 and "gauge" in err
+
+
+@pytest.fixture(scope="module")
+def dn_scene():
+    """x1 in [1700, 1760] DN, D x1 == 0.3 C x2 + 700 exactly (x2 ~ 3300-3500 DN)."""
+    G, B = 0.3, 700.0
+    return (*scene(96, lo=1700.0, hi=1760.0, foveal_gain=G, foveal_offset=B), G, B)
+
+
+def test_cli_on_a_simulated_measurement(tmp_path, capsys):
+    """The saved simulator file: constraint from the metadata, stored pattern subtracted (--fpn file), unknown
+    alpha identified."""
+    from metafovea.config import SystemDesign
+    from metafovea.imaging import simulate
+
+    s = SystemDesign.paper()
+    s = dataclasses.replace(s, sensor=dataclasses.replace(s.sensor, crop=(192, 192), pixels=(192, 192)))
+    m = simulate(s, "bars", frames=8, psf="airy", rng=0)
+    path = m.save(tmp_path / "meas.npz")
+    rc, stdout, err = _run([path, "--method", "alternating", "--window", "8", "--fpn", "file", "--out",
+                            tmp_path / "rec.npz", "--json", "--no-figures"], capsys)
+    assert rc == 0, err
+    out = json.loads(stdout)
+    assert out["foveal_constraint"]["foveal_gain"] == pytest.approx(m.meta["foveal_constraint"]["gain"])
+    d = float(np.sqrt(np.mean((m.truth_x1 - m.truth_x2).astype(np.float64) ** 2)))
+    assert out["alpha_identified"] and out["metrics"]["psnr_x2"] > 20 * np.log10(np.ptp(m.truth_x2) / (2 * 0.01 * d))
 
 
 @pytest.mark.parametrize("kind", ["text", "empty", "object", "badjson", "listjson"])
@@ -57,21 +153,35 @@ def test_files_that_are_not_measurements_are_input_errors(tmp_path, capsys, kind
     assert not (tmp_path / "r.npz").exists()
 
 
+@pytest.mark.parametrize("kind", ["empty", "truncated", "corrupt-member", "listjson"])
+def test_measurement_load_and_reconstruct_refuse_damaged_files(tmp_path, capsys, kind):
+    good = _save(tmp_path / "good.npz")
+    p = tmp_path / "bad.npz"
+    if kind == "empty":
+        p.write_bytes(b"")
+    elif kind == "truncated":
+        p.write_bytes(good.read_bytes()[:3000])
+    elif kind == "corrupt-member":
+        np.savez_compressed(p, frames=np.random.default_rng(0).random((4, 32, 32)).astype(np.float32))
+        b = bytearray(p.read_bytes())
+        for i in range(200, 1500):
+            b[i] ^= 0x55
+        p.write_bytes(bytes(b))
+    else:
+        np.savez(p, frames=np.ones((4, 16, 16), np.float32), __meta__=np.frombuffer(b"[1]", np.uint8))
+    with pytest.raises(InputError):
+        Measurement.load(p)
+    rc, _, err = _run([p, "--out", tmp_path / "r.npz"], capsys)
+    assert rc == 2 and err.count("\n") == 1
+
+
 def test_truth_of_the_wrong_shape_is_an_input_error(tmp_path, capsys):
     m = _save(tmp_path / "m.npz", truth_x1=np.ones((5, 5), np.float32))
     rc, _, err = _run([m, "--window", "10", "--no-figures"], capsys)
-    assert rc == 2 and "truth_x1" in err
+    assert rc == 2 and "truth_x1" in err and str(m) in err
     m = _save(tmp_path / "m2.npz", truth_x2=np.ones((3, 48, 48), np.float32))  # 3 truth frames for 10 frames
     rc, _, err = _run([m, "--window", "10", "--no-figures"], capsys)
     assert rc == 2 and "truth_x2" in err
-
-
-def test_score_refuses_truth_with_another_number_of_frames():
-    x = np.zeros((2, 8, 8))
-    with pytest.raises(InputError, match="truth_x1"):
-        score((x, x), np.zeros((5, 8, 8)), None)
-    with pytest.raises(InputError, match="truth_x1"):
-        score((x, x), np.zeros((4, 4)), None)
 
 
 def test_video_truth_is_scored_against_each_windows_mean(tmp_path, capsys):
@@ -91,8 +201,6 @@ def test_video_truth_is_scored_against_each_windows_mean(tmp_path, capsys):
     rc, out, _ = _run([m, "--method", "snapshot", "--frame", "3", "--no-figures", "--json", "--force",
                        "--out", tmp_path / "snap.npz"], capsys)
     assert rc == 0
-    from metafovea.reconstruct import Reconstruction
-
     rec = Reconstruction.load(tmp_path / "snap.npz")
     assert json.loads(out)["metrics"] == pytest.approx(score(rec, t1[3], t2[3]))  # that frame's truth, not frame 0's
 
@@ -140,6 +248,8 @@ def test_bad_fpn_and_calibration_arrays_are_named(tmp_path, capsys):
     m = _save(tmp_path / "c.npz", calibration=np.zeros((4, 3, 3), np.float32))
     rc, _, err = _run([m, "--window", "10", "--fpn", "calibration", "--no-figures"], capsys)
     assert rc == 2 and "calibration" in err
+    rc, _, err = _run([_save(tmp_path / "n.npz"), "--window", "10", "--fpn", "calibration", "--no-figures"], capsys)
+    assert rc == 2 and "'calibration' frame array" in err
 
 
 @pytest.mark.parametrize("argv", [["--stride", "0"], ["--window", "1"], ["--window", "11"]])
@@ -149,29 +259,7 @@ def test_window_and_stride_ranges(tmp_path, capsys, argv):
     assert rc == 2 and argv[0] in err.replace("window =", "--window =") and err.count("\n") == 1
 
 
-def test_fpn_prior_with_known_alpha_uses_the_given_foveal_constraint(monkeypatch):
-    """The lsq path dropped scale/gain/offset before the FPN prior saw them (it used gain 1, offset 0)."""
-    import metafovea.reconstruct.fpn as fpn_mod
-    from metafovea.reconstruct import reconstruct
-
-    seen = {}
-    real = fpn_mod.estimate_fpn
-
-    def spy(**kw):
-        seen.update({k: kw.get(k) for k in ("scale", "foveal_gain", "foveal_offset")})
-        return real(**kw)
-
-    monkeypatch.setattr(fpn_mod, "estimate_fpn", spy)
-    x1, x2 = scene(48)
-    a = polariser_alpha(8)
-    Y = measure(x1, x2, a, sigma=0.0, rng=0)
-    reconstruct(Y, a, method="lsq", fpn="prior", scale=4.0, foveal_gain=0.3, foveal_offset=5.0)
-    assert seen == {"scale": 4.0, "foveal_gain": 0.3, "foveal_offset": 5.0}
-
-
 def test_snapshot_honours_denoise(tmp_path, capsys):
-    from metafovea.reconstruct import Reconstruction
-
     x1, x2 = scene(48)
     a = polariser_alpha(4)
     frames = measure(x1, x2, a, sigma=0.05, rng=1, dtype=np.float32)
@@ -189,8 +277,6 @@ def test_snapshot_honours_denoise(tmp_path, capsys):
 
 def test_no_strict_gives_the_frame_mean_gauge_result_the_error_points_to(tmp_path, capsys):
     """The alternating solver's error told CLI users to 'pass strict=False', which the CLI had no way to do."""
-    from metafovea.reconstruct import Reconstruction
-
     x1 = np.random.default_rng(0).random((48, 48))  # unrelated to x2: the foveal constraint cannot fix the gauge
     _, x2 = scene(48)
     a = polariser_alpha(8)
@@ -204,31 +290,7 @@ def test_no_strict_gives_the_frame_mean_gauge_result_the_error_points_to(tmp_pat
     assert Reconstruction.load(tmp_path / "m_rec.npz").info["alpha_identified"] is False
 
 
-def test_dip_on_frames_too_small_for_the_network_names_the_frame_size():
-    from metafovea.reconstruct.deep_prior import dip
-
-    with pytest.raises(InputError, match="at least 8 x 8 pixels") as e:
-        dip(np.ones((4, 4, 6), np.float32), steps=1)
-    assert e.value.parameter == "frames"
-
-
-@pytest.mark.parametrize("method", ["tv", "bilateral", "nlm"])
-def test_denoise_keeps_dead_pixels_nan_without_spreading_or_failing(method):
-    from metafovea.reconstruct import denoise
-
-    x1, _ = scene(48)
-    noisy = x1 + 0.05 * np.random.default_rng(0).standard_normal(x1.shape)
-    img = noisy.copy()
-    img[10, 20] = np.nan
-    out = denoise(img, method, sigma=0.05)
-    assert np.isnan(out[10, 20]) and np.isfinite(np.delete(out.ravel(), 10 * 48 + 20)).all()
-    with pytest.raises(InputError):
-        denoise(np.full((8, 8), np.nan), method, sigma=0.05)
-
-
 def test_cli_dead_pixel_with_denoise(tmp_path, capsys):
-    from metafovea.reconstruct import Reconstruction
-
     x1, x2 = scene(48)
     a = polariser_alpha(10)
     frames = measure(x1, x2, a, sigma=0.01, rng=0, dtype=np.float32)
@@ -264,6 +326,8 @@ def test_regularize_option_is_what_the_ill_conditioned_error_points_to(tmp_path,
         assert rc == 0, err
     rc, _, err = _run([m, "--window", "10", "--regularize", "-1", "--no-figures", "--force"], capsys)
     assert rc == 2 and "--regularize" in err
+    rc, _, err = _run([m, "--method", "alternating", "--regularize", "difference", "--no-figures", "--force"], capsys)
+    assert rc == 2 and "--regularize" in err and "--method lsq" in err
 
 
 def test_negative_seed_and_impossible_scale_are_input_errors(tmp_path, capsys):
@@ -273,34 +337,14 @@ def test_negative_seed_and_impossible_scale_are_input_errors(tmp_path, capsys):
     for bad in ("-5", "0.5", "1e9"):
         rc, _, err = _run([m, "--window", "10", "--scale", bad, "--no-figures"], capsys)
         assert rc == 2 and "--scale" in err
-    from metafovea.reconstruct._common import as_rng
-
     with pytest.raises(InputError, match="seed"):
         as_rng(-3)
 
 
-@pytest.mark.parametrize("kind", ["empty", "truncated", "corrupt-member", "listjson"])
-def test_measurement_load_and_reconstruct_refuse_damaged_files(tmp_path, capsys, kind):
-    from metafovea.measurement import Measurement
-
-    good = _save(tmp_path / "good.npz")
-    p = tmp_path / "bad.npz"
-    if kind == "empty":
-        p.write_bytes(b"")
-    elif kind == "truncated":
-        p.write_bytes(good.read_bytes()[:3000])
-    elif kind == "corrupt-member":
-        np.savez_compressed(p, frames=np.random.default_rng(0).random((4, 32, 32)).astype(np.float32))
-        b = bytearray(p.read_bytes())
-        for i in range(200, 1500):
-            b[i] ^= 0x55
-        p.write_bytes(bytes(b))
-    else:
-        np.savez(p, frames=np.ones((4, 16, 16), np.float32), __meta__=np.frombuffer(b"[1]", np.uint8))
-    with pytest.raises(InputError):
-        Measurement.load(p)
-    rc, _, err = _run([p, "--out", tmp_path / "r.npz"], capsys)
-    assert rc == 2 and err.count("\n") == 1
+def test_known_alpha_is_refused_with_alternating(tmp_path, capsys):
+    rc, _, err = _run([_save(tmp_path / "m.npz"), "--method", "alternating", "--known-alpha", "--no-figures"],
+                      capsys)
+    assert rc == 2 and "--known-alpha" in err and err.count("\n") == 1
 
 
 def test_default_window_covers_a_sequence_shorter_than_8_frames(tmp_path, capsys):

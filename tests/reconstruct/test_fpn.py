@@ -1,0 +1,70 @@
+"""Fixed-pattern noise: not identifiable from the mixture alone; from calibration frames or the low-rank prior."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from metafovea.errors import InputError
+from metafovea.reconstruct import estimate_fpn, reconstruct
+from metafovea.reconstruct.fpn import project_lowrank
+from metafovea.reconstruct.metrics import psnr
+from metafovea.reconstruct.synthetic import lowrank_fpn, measure
+
+
+def test_fpn_not_identifiable_from_mixture_alone(truth, alpha8):
+    """(x1 + f, x2 + f) explains the frames exactly as well as (x1, x2): the estimator refuses the mixture alone."""
+    x1, x2 = truth
+    f = lowrank_fpn(x1.shape, amplitude=0.1, rng=1)
+    Y1 = measure(x1, x2, alpha8, sigma=0.0, fpn=f)
+    Y2 = measure(x1 + f, x2 + f, alpha8, sigma=0.0)
+    assert np.allclose(Y1, Y2)
+    with pytest.raises(InputError, match="not identifiable"):
+        estimate_fpn()
+
+
+def test_calibration_frames_recover_the_pattern_up_to_its_mean(truth):
+    x1, _ = truth
+    f = lowrank_fpn(x1.shape, rank=3, amplitude=0.1, rng=1)
+    cal = measure(np.full_like(x1, 0.5), np.full_like(x1, 0.5), np.full(16, 0.5), sigma=0.01, fpn=f, rng=2)
+    est, info = estimate_fpn(calibration=cal, rank=3)
+    assert info["identified"] == "calibration" and abs(est.mean()) < 1e-12
+    # the calibration noise averages down as 1/sqrt(frames); the low-rank projection removes most of the rest
+    assert np.sqrt(np.mean((est - (f - f.mean())) ** 2)) < 0.01 / np.sqrt(16)
+
+
+def test_strong_fpn_with_calibration_and_prior(truth, alpha8):
+    x1, x2 = truth
+    f = lowrank_fpn(x1.shape, rank=3, amplitude=0.1, rng=1)
+    Y = measure(x1, x2, alpha8, sigma=0.01, fpn=f, rng=0)
+    cal = measure(np.full_like(x1, 0.5), np.full_like(x1, 0.5), np.full(4, 0.5), sigma=0.01, fpn=f, rng=2)
+    plain = reconstruct(Y, alpha8)
+    withcal = reconstruct(Y, alpha8, fpn="calibration", calibration=cal)
+    prior = reconstruct(Y, alpha8, fpn="prior", fpn_kw={"rank": 3, "iterations": 60})
+    p0, pc, pp = (psnr(r.x1, x1, 1.0) for r in (plain, withcal, prior))
+    assert pc > p0 + 8
+    assert pp > p0 + 3
+    assert withcal.info["fpn"]["identified"] == "calibration"
+    assert prior.info["fpn"]["identified"] == "prior"
+    assert np.abs(prior.fpn).max() <= 0.1 + 1e-12 and abs(prior.fpn.mean()) < 1e-12
+    assert np.linalg.matrix_rank(prior.fpn, tol=1e-8) <= 3 + 1  # + the zero-mean shift
+
+
+def test_fpn_prior_constraint_in_the_images_units(dn):
+    """The FPN prior's foveal term holds for gain/offset truth: on images that satisfy the constraint the estimate
+    stays small; with the relation ignored it tries to explain a 1000-DN misfit."""
+    x1, x2 = dn.x1, dn.x2
+    f_ok, _ = estimate_fpn(x1=x1, x2=x2, foveal_gain=dn.gain, foveal_offset=dn.offset, rank=2, iterations=20)
+    f_bad, _ = estimate_fpn(x1=x1, x2=x2, rank=2, iterations=20)
+    assert np.abs(f_ok).max() < 0.5 * np.abs(f_bad).max()
+    # the bound is relative to the images' range (0.1 x 199 DN here; x2 after re-centring the mean)
+    assert np.abs(f_bad).max() <= 2 * 0.1 * max(np.ptp(x1), np.ptp(x2))
+
+
+def test_project_lowrank_is_zero_mean_low_rank_and_bounded():
+    """Zero mean, rank <= rank (+ the mean shift), clipped to the bound (up to the re-centring after the clip)."""
+    rng = np.random.default_rng(0)
+    f = project_lowrank(rng.normal(size=(30, 40)), 2, 0.5)
+    assert abs(f.mean()) < 1e-12 and 0.45 < np.abs(f).max() <= 0.5 * 1.02
+    g = project_lowrank(np.outer(rng.normal(size=30), rng.normal(size=40)), 1, np.inf)
+    assert np.linalg.matrix_rank(g - g.mean(), tol=1e-9) <= 2

@@ -1,0 +1,39 @@
+"""The Reconstruction file (round trip, frozen, refuses other files) and the pipeline result's views."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from metafovea.errors import InputError
+from metafovea.measurement import FovealConstraint
+from metafovea.reconstruct import PipelineResult, Reconstruction, reconstruct
+from metafovea.reconstruct.synthetic import measure
+
+
+def test_reconstruction_save_load(tmp_path, truth, alpha8):
+    Y = measure(*truth, alpha8, sigma=0.01, rng=0, dtype=np.float32)
+    r = reconstruct(Y, alpha8, method="lsq")
+    p = tmp_path / "rec.npz"
+    r.save(p)
+    q = Reconstruction.load(p)
+    assert np.array_equal(q.x1, r.x1) and q.x1.dtype == np.float32 and q.method == "lsq"
+    assert q.info["condition"] == pytest.approx(r.info["condition"])
+    with pytest.raises(AttributeError):
+        r.method = "x"  # frozen
+    np.savez(tmp_path / "other.npz", a=np.zeros(2))
+    with pytest.raises(InputError):
+        Reconstruction.load(tmp_path / "other.npz")
+
+
+def test_pipeline_result_stacks_outputs_and_counts_nan():
+    x = np.zeros((4, 4), np.float32)
+    x[1, 2] = np.nan
+    rec = Reconstruction(x1=x, x2=np.ones((4, 4), np.float32), alpha=np.array([0.5]), method="snapshot",
+                         info={"iterations": 3})
+    res = PipelineResult(reconstruction=rec, spans=((2, 3),), seconds=0.5, constraint=FovealConstraint(), frames=5)
+    assert res.outputs == 1 and res.x1s.shape == (1, 4, 4) and res.nonfinite_pixels == 1
+    s = res.summary(["a.npz"])
+    assert s["outputs"] == 1 and s["ms_per_output"] == pytest.approx(500.0) and s["nonfinite_pixels"] == 1
+    assert s["foveal_constraint"] == {"scale": 6.0, "foveal_gain": 1.0, "foveal_offset": 0.0}
+    assert s["iterations"] == 3 and s["files"] == ["a.npz"] and "metrics" not in s

@@ -1,0 +1,144 @@
+"""The Measurement file and its metadata (metafovea/measurement.py, the one reader of both): every array checked
+against the frames with the file named, damaged files refused, the foveal constraint's fallbacks."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from metafovea.config import SensorDesign, SystemDesign
+from metafovea.errors import InputError
+from metafovea.imaging import simulate
+from metafovea.io import atomic_save_npz
+from metafovea.measurement import FovealConstraint, Measurement
+
+
+def small_system(n: int = 48, **sensor_kw) -> SystemDesign:
+    return replace(SystemDesign.paper(), sensor=replace(SensorDesign(), crop=(n, n), **sensor_kw))
+
+
+def delta_psf() -> dict:
+    return {"foveal": np.ones((1, 1)), "perifoveal": np.ones((1, 1))}
+
+
+def _arrays(T: int = 4, n: int = 16, **over) -> dict[str, np.ndarray]:
+    rng = np.random.default_rng(0)
+    arrays = {"frames": rng.random((T, n, n)).astype(np.float32), "times_s": np.arange(T) / 12.0,
+              "alpha": np.linspace(0.1, 0.9, T), "truth_x1": rng.random((n, n)).astype(np.float32),
+              "truth_x2": rng.random((n, n)).astype(np.float32)}
+    for k, v in over.items():
+        if v is None:
+            arrays.pop(k, None)
+        else:
+            arrays[k] = v
+    return arrays
+
+
+def _file(path, meta=None, **over):
+    atomic_save_npz(path, meta={"scale": 6.0} if meta is None else meta, **_arrays(**over))
+    return path
+
+
+def test_measurement_roundtrip_and_no_clobber(tmp_path):
+    s = small_system(24)
+    m = simulate(s, "bars", frames=3, psf=delta_psf(), supersample=1, fpn_drift=0.1, rng=2)
+    p = m.save(tmp_path / "m.npz")
+    r = Measurement.load(p)
+    assert np.array_equal(r.frames, m.frames) and np.array_equal(r.alpha, m.alpha)
+    assert r.frames.dtype == np.float32 and r.meta["scale"] == 6.0 and r.meta["units"] == "DN"
+    np.testing.assert_allclose(r.fpn_frame(2), m.fpn_frame(2), rtol=1e-5, atol=1e-3)
+    assert r.source == str(p) and m.source is None  # the file it was read from
+    with pytest.raises(InputError, match="force"):
+        m.save(tmp_path / "m.npz")
+    m.save(tmp_path / "m.npz", force=True)
+    with pytest.raises(InputError):
+        Measurement.load(tmp_path / "absent.npz")
+    with pytest.raises(InputError, match="alpha"):
+        Measurement(frames=np.zeros((2, 4, 4)), times_s=[0, 1], alpha=[0.5])
+
+
+@pytest.mark.parametrize("damage", ["empty", "truncated", "garbage", "text"])
+def test_damaged_files_are_input_errors(tmp_path, damaged, damage):
+    good = _file(tmp_path / "good.npz")
+    with pytest.raises(InputError) as e:
+        Measurement.load(damaged(good, tmp_path / "bad.npz", damage))
+    assert e.value.parameter == "measurement"
+
+
+@pytest.mark.parametrize("kind", ["object", "badjson", "listjson", "noframes"])
+def test_files_that_are_not_measurements(tmp_path, kind):
+    p = tmp_path / "x.npz"
+    if kind == "object":
+        np.savez(p, frames=np.array([{"a": 1}], dtype=object))
+    elif kind == "noframes":
+        atomic_save_npz(p, meta={}, images=np.ones((4, 8, 8)))
+    else:
+        meta = b"{not json" if kind == "badjson" else b"[1, 2]"
+        np.savez(p, frames=np.ones((4, 16, 16), np.float32), __meta__=np.frombuffer(meta, np.uint8))
+    with pytest.raises(InputError) as e:
+        Measurement.load(p)
+    assert e.value.parameter == "measurement" and str(p) in str(e.value)
+
+
+@pytest.mark.parametrize("key, value, match", [
+    ("truth_x1", np.ones((5, 5), np.float32), "truth_x1"),
+    ("truth_x2", np.ones((3, 16, 16), np.float32), "truth_x2"),  # 3 truth frames for 4 frames
+    ("truth_x1", np.full((16, 16), np.nan, np.float32), "NaN"),
+    ("alpha", np.array(0.5), "one real mixing ratio per frame"),
+    ("alpha", np.linspace(0.1, 0.9, 4).astype(complex), "one real mixing ratio per frame"),
+    ("alpha", np.array([0.1, 0.2, 1.5, 0.3]), r"\[0, 1\]"),
+    ("fpn", np.ones((4, 4), np.float32), "fpn"),
+    ("fpn", np.where(np.eye(16) > 0, np.nan, 0.0).astype(np.float32), "finite fixed pattern"),
+    ("calibration", np.zeros((4, 3, 3), np.float32), "calibration"),
+    ("frames", np.full((4, 16, 16), np.nan, np.float32), "no finite value"),
+    ("frames", np.ones((2, 3, 4, 5), np.float32), "frames"),
+    ("times_s", np.arange(3.0), "times_s"),
+])
+def test_arrays_that_do_not_fit_the_frames_name_the_file_and_the_key(tmp_path, key, value, match):
+    """The reconstruct command re-checked the file with its own rules; Measurement.load now does, and says which
+    file and which key."""
+    p = _file(tmp_path / "m.npz", **{key: value})
+    with pytest.raises(InputError, match=match) as e:
+        Measurement.load(p)
+    assert e.value.parameter == key and e.value.source == str(p)
+
+
+def test_optional_arrays_and_defaults(tmp_path):
+    """Without times_s the frame rate gives the times; NaN alpha means unknown; a video truth is accepted."""
+    p = _file(tmp_path / "m.npz", meta={"frame_rate_hz": 10.0}, times_s=None,
+              alpha=np.array([0.1, np.nan, 0.5, 0.7]), truth_x1=np.ones((4, 16, 16)))
+    m = Measurement.load(p)
+    assert np.allclose(m.times_s, np.arange(4) / 10.0) and not m.alpha_known
+    assert m.truth_x1.shape == (4, 16, 16) and m.truth_x1.dtype == np.float32
+
+
+def test_truth_over_averages_a_video_truth_over_each_outputs_frames():
+    T, n = 6, 8
+    t1 = np.arange(T, dtype=np.float32)[:, None, None] * np.ones((T, n, n), np.float32)
+    m = Measurement(frames=np.ones((T, n, n)), times_s=np.arange(T), truth_x1=t1, truth_x2=np.ones((n, n)))
+    x1, x2 = m.truth_over([(0, 2), (3, 6)])
+    assert x1.shape == (2, n, n) and np.allclose(x1[:, 0, 0], [0.5, 4.0]) and x1.dtype == np.float64
+    assert x2.shape == (n, n)  # a static truth as stored
+    assert Measurement(frames=np.ones((T, n, n)), times_s=np.arange(T)).truth_over([(0, 1)]) == (None, None)
+
+
+def test_foveal_constraint_fallbacks_and_explicit_values():
+    """One reader of meta['foveal_constraint']: the file's values, then meta['scale'] with gain 1 and offset 0,
+    then scale 6; explicit values win."""
+    meta = {"scale": 6.0, "foveal_constraint": {"scale": 6.0, "gain": 0.3, "offset_dn": 700.0, "relation": "..."}}
+    assert FovealConstraint.from_meta(meta).as_kwargs() == {"scale": 6.0, "foveal_gain": 0.3, "foveal_offset": 700.0}
+    assert FovealConstraint.from_meta({"scale": 5.0}).as_kwargs() == {"scale": 5.0, "foveal_gain": 1.0,
+                                                                      "foveal_offset": 0.0}
+    assert FovealConstraint.from_meta({}) == FovealConstraint(6.0, 1.0, 0.0)
+    assert FovealConstraint.from_meta(meta, gain=0.5).gain == 0.5
+    m = Measurement(frames=np.ones((2, 8, 8)), times_s=[0, 1], meta=meta)
+    assert m.foveal_constraint == FovealConstraint(6.0, 0.3, 700.0) and m.scale == 6.0
+    for bad in ({"foveal_constraint": {"gain": -1}}, {"foveal_constraint": {"gain": "x"}},
+                {"foveal_constraint": [1, 2]}, {"foveal_constraint": {"scale": 0.5}}):
+        with pytest.raises(InputError):
+            FovealConstraint.from_meta(bad)
+    with pytest.raises(InputError) as e:
+        FovealConstraint.from_meta({}, scale=1e9)
+    assert e.value.parameter == "--scale"
