@@ -35,6 +35,8 @@ PARAMETER_FLAGS: dict[str, dict[str, str]] = {
     "psf": {"band_um": "--band-um", "filter_um": "--filter-um", "pixel_pitch_um": "--pixel-um",
             "field_deg": "--field-deg", "error": "--error", "temperature_k": "--temperature-k",
             "n_wavelengths": "--wavelengths", "wavelength_um": "--wavelength-um", "window_um": "--window-um"},
+    "reconstruct": {"window": "--window", "frame": "--frame", "fpn": "--fpn", "known_alpha": "--known-alpha",
+                    "regularize": "--regularize", "steps": "--steps", "channels": "--channels"},
     "simulate": {"extinction": "--extinction", "tau_s": "--tau", "fpn_drift": "--drift", "netd_k": "--netd"},
 }
 
