@@ -60,14 +60,14 @@ def cli_error_line(capsys) -> str:
     return err
 
 
-@pytest.fixture
+@pytest.fixture(scope="session")
 def lens_toml():
     """Factory fixture: ``lens_toml(tmp_path, name="qa", f_mm=0.8, d_mm=0.4, levels=8, lattice="integer",
     pol="x")`` writes a small lens TOML and returns its path."""
     return write_lens_toml
 
 
-@pytest.fixture
+@pytest.fixture(scope="session")
 def cli_error():
     """Factory fixture: ``cli_error(capsys)`` returns the command's stderr and asserts it holds no traceback."""
     return cli_error_line

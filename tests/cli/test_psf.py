@@ -11,21 +11,10 @@ from metafovea.cli import main
 from metafovea.config import load_lens
 from metafovea.optics import max_field_deg
 
-TOML = """name = "tiny"
-f_mm = 4.0
-diameter_mm = 2.0
-wavelength_um = 10.0
-polarization = "x"
-levels = 8
-lattice = "integer"
-"""
-
-
 @pytest.fixture(scope="module")
-def tiny(tmp_path_factory):
+def tiny(tmp_path_factory, lens_toml):
     d = tmp_path_factory.mktemp("tiny")
-    path = d / "tiny.toml"
-    path.write_text(TOML)
+    path = lens_toml(d, name="tiny", f_mm=4.0, d_mm=2.0)
     out = d / "report"
     stdout = io.StringIO()
     with contextlib.redirect_stdout(stdout):
@@ -84,10 +73,9 @@ def test_window_ok_for_a_looser_error(tiny, tmp_path):
     assert 150 <= m["samples"] * m["pitch_um"] <= 150 + 2 * m["pitch_um"]
 
 
-def test_two_lenses_in_two_processes(tiny, tmp_path, capsys):
+def test_two_lenses_in_two_processes(tiny, tmp_path, capsys, lens_toml):
     path, out1, _ = tiny
-    other = tmp_path / "tiny2.toml"
-    other.write_text(TOML.replace('"tiny"', '"tiny2"').replace("f_mm = 4.0", "f_mm = 3.0"))
+    other = lens_toml(tmp_path, name="tiny2", f_mm=3.0, d_mm=2.0)
     out = tmp_path / "o"
     assert main(["psf", str(path), str(other), "--field-deg", "0", "3", "--wavelengths", "9", "--jobs", "2",
                  "--out", str(out)]) == 0

@@ -12,21 +12,10 @@ from metafovea.optics import SamplingError, psf, sensor_psf
 from metafovea.optics.report import psf_report, psf_reports
 from metafovea.radiometry import psf_wavelengths
 
-TOML = """name = "tiny"
-f_mm = 4.0
-diameter_mm = 2.0
-wavelength_um = 10.0
-polarization = "x"
-levels = 8
-lattice = "integer"
-"""
-
-
 @pytest.fixture(scope="module")
-def tiny(tmp_path_factory):
+def tiny(tmp_path_factory, lens_toml):
     d = tmp_path_factory.mktemp("tiny")
-    path = d / "tiny.toml"
-    path.write_text(TOML)
+    path = lens_toml(d, name="tiny", f_mm=4.0, d_mm=2.0)
     out = d / "report"
     res = psf_report(load_lens(path), out, fields_deg=[0.0, 3.0], n_wavelengths=9)
     return path, out, res
