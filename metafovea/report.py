@@ -1,6 +1,7 @@
 """Self-contained HTML reports: headings, tables and PNG figures embedded as base64.
 
-Used by ``metafovea validate``; any stage that wants an HTML page builds an :class:`HtmlReport`.
+The one home of figure output: :func:`fig_to_png` (the only ``savefig``), :func:`array_png` (an array as an
+image, one pixel per element) and :class:`HtmlReport` (every HTML page).
 """
 
 from __future__ import annotations
@@ -17,6 +18,19 @@ from metafovea.io import atomic_write_text
 def fig_to_png(fig: Any, dpi: int = 100) -> bytes:
     buf = _io.BytesIO()
     fig.savefig(buf, format="png", dpi=dpi, bbox_inches="tight")
+    return buf.getvalue()
+
+
+def array_png(img: Any, cmap: str = "inferno") -> bytes:
+    """One image as a PNG, one pixel per array element, in the colour map ``cmap`` (NaN shown as 0)."""
+    import matplotlib
+
+    matplotlib.use("Agg", force=False)
+    import matplotlib.pyplot as plt
+    import numpy as np
+
+    buf = _io.BytesIO()
+    plt.imsave(buf, np.nan_to_num(np.asarray(img, dtype=np.float64)), cmap=cmap, format="png")
     return buf.getvalue()
 
 

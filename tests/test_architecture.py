@@ -25,7 +25,7 @@ RANK = {
 SIBLINGS = {("layout", "optics"), ("optics", "layout")}
 #: ideas that must have exactly one home (the issue that cut them found each written two or three times)
 ONE_HOME = ("blas_threads", "as_rng", "spectral_weights", "planck_radiance", "psf_wavelengths", "jsonable",
-            "cache_dir", "fig_to_png", "score")
+            "cache_dir", "fig_to_png", "array_png", "score", "file_stem")
 #: the longest functions allowed, with the reason each reads better whole (lines, including the docstring)
 MAX_FUNCTION_LINES = 120
 LONG_FUNCTIONS: dict[str, str] = {}

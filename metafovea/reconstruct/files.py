@@ -5,7 +5,6 @@ side-by-side figure with colour bars (``<stem>.png``). Every path is checked bef
 
 from __future__ import annotations
 
-import io
 import os
 from pathlib import Path
 
@@ -13,6 +12,7 @@ import numpy as np
 
 from metafovea.errors import InputError
 from metafovea.io import atomic_write_bytes, prepare_output
+from metafovea.report import array_png, fig_to_png
 from metafovea.reconstruct.result import PipelineResult
 
 
@@ -50,22 +50,10 @@ def write_outputs(result: PipelineResult, out: str | os.PathLike, figures: list[
     files = [str(out)]
     if figures:
         x1, x2 = result.x1s[-1], result.x2s[-1]
-        for name, data in zip(figures, (image_png(x1), image_png(x2), pair_figure(x1, x2, title or rec.method))):
+        for name, data in zip(figures, (array_png(x1), array_png(x2), pair_figure(x1, x2, title or rec.method))):
             atomic_write_bytes(name, data)
             files.append(str(name))
     return files
-
-
-def image_png(img: np.ndarray) -> bytes:
-    """One image as a PNG, one pixel per array element, in the inferno palette (NaN shown as 0)."""
-    import matplotlib
-
-    matplotlib.use("Agg", force=False)
-    import matplotlib.pyplot as plt
-
-    buf = io.BytesIO()
-    plt.imsave(buf, np.nan_to_num(np.asarray(img, dtype=np.float64)), cmap="inferno", format="png")
-    return buf.getvalue()
 
 
 def pair_figure(x1: np.ndarray, x2: np.ndarray, title: str) -> bytes:
@@ -74,8 +62,6 @@ def pair_figure(x1: np.ndarray, x2: np.ndarray, title: str) -> bytes:
 
     matplotlib.use("Agg", force=False)
     import matplotlib.pyplot as plt
-
-    from metafovea.report import fig_to_png
 
     fig, axs = plt.subplots(1, 2, figsize=(9, 4.2), constrained_layout=True)
     for ax, img, name in ((axs[0], x1, "foveal x1"), (axs[1], x2, "perifoveal x2")):
