@@ -51,3 +51,19 @@ def tile_counts():
             c += np.bincount(v, minlength=levels)
         return c
     return count
+
+
+def _retype_one_reference(src, dst, old: str, new: str, start: float = 0.5):
+    """Copy the GDSII file ``src`` to ``dst`` with one SREF to cell ``old`` (the first after ``start`` of the file)
+    pointing to cell ``new`` instead (same-length names): a tampered file whose counts per type change."""
+    data = bytearray(src.read_bytes())
+    i = data.index(b"\x00\x08\x12\x06" + old.encode(), int(len(data) * start))
+    data[i + 4:i + 4 + len(new)] = new.encode()
+    dst.write_bytes(bytes(data))
+    return dst
+
+
+@pytest.fixture(scope="session")
+def retype_reference():
+    """Factory fixture: ``retype_reference(src, dst, old, new, start=0.5)`` (see :func:`_retype_one_reference`)."""
+    return _retype_one_reference

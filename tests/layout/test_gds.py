@@ -93,7 +93,7 @@ def test_hierarchical_gds_max_refs(tmp_path, spec, flat, max_refs):
     assert db.Region(top.begin_shapes_rec(ly.layer(1, 0))).count() == exp.total
 
 
-def test_hierarchical_resume_and_tamper(tmp_path, spec):
+def test_hierarchical_resume_and_tamper(tmp_path, spec, retype_reference):
     ref = tmp_path / "ref.gds"
     export_layout(spec, ref, "gds", max_refs=64)
     p = tmp_path / "r.gds"
@@ -102,11 +102,7 @@ def test_hierarchical_resume_and_tamper(tmp_path, spec):
     res = export_layout(spec, p, "gds", max_refs=64)
     assert res.resumed_bands == 2 and p.read_bytes() == ref.read_bytes()
     # moving one post reference into another type is seen through the hierarchy
-    data = bytearray(p.read_bytes())
-    i = data.index(b"\x00\x08\x12\x06P003", len(data) // 3)
-    data[i + 7] = ord("4")
-    q = tmp_path / "t.gds"
-    q.write_bytes(bytes(data))
+    q = retype_reference(p, tmp_path / "t.gds", "P003", "P004", start=1 / 3)
     for reader in ("stream", "klayout"):
         rep = verify_layout(q, spec, reader=reader)
         assert not rep.ok

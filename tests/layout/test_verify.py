@@ -23,17 +23,13 @@ def test_readback_verifies(spec, exported, key, reader):
     assert min(rep.bbox_nm[:2]) == 0  # origin convention: lower-left of the frame at (0, 0)
 
 
-def test_verify_detects_mismatch(tmp_path, spec, design, small_frame, exported):
+def test_verify_detects_mismatch(tmp_path, spec, design, small_frame, exported, retype_reference):
     p, _ = exported[("gds", False)]
     other = make_spec(design.with_(f_um=1600.0), band_rows=16, **small_frame)
     rep = verify_layout(p, other, reader="klayout")
     assert not rep.ok and any("expected" in m for m in rep.mismatches)
     # tamper with one reference (P000 -> P001): both readers see the changed counts
-    data = bytearray(p.read_bytes())
-    i = data.index(b"\x00\x08\x12\x06P000", len(data) // 2)
-    data[i + 7] = ord("1")
-    q = tmp_path / "t.gds"
-    q.write_bytes(bytes(data))
+    q = retype_reference(p, tmp_path / "t.gds", "P000", "P001")
     for reader in ("klayout", "stream"):
         rep = verify_layout(q, spec, reader=reader)
         assert not rep.ok
