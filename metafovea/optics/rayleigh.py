@@ -22,8 +22,9 @@ row = y.
                   nodes on each), and the kernel across the block is ``exp(i k n.delta)`` times a quadratic
                   Taylor factor in the offset ``delta`` (phase and amplitude), so each block is six separable
                   matrix Fourier sums. Errors: the quadrature rule's (nodes from the phase slope) plus the
-                  Taylor remainder, evaluated on a 5 x 5 set of offsets of every block against the exact
-                  kernel; blocks whose share exceeds the budget are split.
+                  Taylor remainder, evaluated at every block's corners and edge midpoints against the exact
+                  kernel (x 2); blocks whose share exceeds the budget are split (down to single samples,
+                  where no Taylor factor is used).
 ``rs_reference``  the brute-force reference: polar quadrature over the aperture, Gauss-Legendre per Fresnel zone
                   of the lens phase radially and the trapezoidal rule azimuthally (nodes from the phase slope
                   along each zone's outer ring), the exact kernel at every node and output point. Seconds for a
@@ -52,7 +53,7 @@ from .pupil import Pupil
 #: largest value between the probes exceeds the largest probe by well under this).
 TAYLOR_SAFETY = 2.0
 #: Block side (samples) bounds.
-BLOCK_MAX, BLOCK_MIN = 64, 2
+BLOCK_MAX, BLOCK_MIN = 64, 1
 
 
 # ----------------------------------------------------------------------------------------------
@@ -241,17 +242,6 @@ def _block(pupil: Pupil, xb: float, yb: float, dxs: np.ndarray, dys: np.ndarray,
     return U, TAYLOR_SAFETY * worst + quad, (nt, nr)
 
 
-def _block_px(pupil: Pupil, pitch: float, error: float) -> int:
-    """First block side (samples) from the Taylor remainder's scaling: cubic phase ~ k d^3 NA / z^2 and the squared
-    quadratic term ~ (k d^2 NA^2 / z)^2 / 2, each held to ``error`` (refined per block afterwards)."""
-    k, z = pupil.k, pupil.z_um
-    na = max(pupil.lens.na, 1e-3)
-    d1 = (error * z * z / (k * na)) ** (1 / 3)
-    d2 = math.sqrt(math.sqrt(2 * error) * z / (k * na * na))
-    b = int(2 * min(d1, d2) / pitch) + 1
-    return max(BLOCK_MIN * 4, min(BLOCK_MAX, b))
-
-
 def rs_field(pupil: Pupil, xs: Any, ys: Any, *, error: float = 1e-4, workers: int = 2, block_px: int | None = None
              ) -> tuple[np.ndarray, dict[str, Any]]:
     """Complex field (len(ys), len(xs)) of the pupil's focusing order at the plane ``pupil.z_um`` (exact RS).
@@ -263,7 +253,6 @@ def rs_field(pupil: Pupil, xs: Any, ys: Any, *, error: float = 1e-4, workers: in
     """
     xs = np.asarray(xs, dtype=float).reshape(-1)
     ys = np.asarray(ys, dtype=float).reshape(-1)
-    pitch = float(np.diff(xs).mean()) if xs.size > 1 else (float(np.diff(ys).mean()) if ys.size > 1 else 1.0)
     q = error * 1e-3
     B = BLOCK_MAX if block_px is None else int(block_px)
     todo = [(j0, min(ys.size, j0 + B), i0, min(xs.size, i0 + B))

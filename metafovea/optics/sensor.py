@@ -36,12 +36,13 @@ from typing import Any
 import numpy as np
 
 from metafovea.config import LensDesign
-from metafovea.errors import NotConvergedWarning, check_choice, check_int, check_positive, check_range
+from metafovea.errors import InputError, NotConvergedWarning, check_choice, check_int, check_positive, check_range
 from metafovea.library import PostSet
 
 from . import propagate as prop
 from .psf import (
     ENGINES,
+    MFT_OFF_AXIS_NOTE,
     PSF,
     _check_field,
     _field_pair,
@@ -502,6 +503,8 @@ def sensor_psf(lens: LensDesign, *, pixel_pitch_um: float, field_deg: float | tu
     wl, w = check_wavelengths(lens, wavelengths_um, weights)
     error = check_range("error", error, 0.0, 0.5)
     engine = check_choice("engine", engine, ENGINES)
+    if engine == "rs":
+        raise InputError("engine", engine, "'auto', 'hankel', 'mft' or 'geometric' for a sensor PSF (rs: psf)")
     _check_field(lens, field_deg, wl)
     fpair = _field_pair(field_deg)
     sets: list[PupilSet] = [build_pupils(lens, float(l), field_deg=field_deg, post_set=post_set,
@@ -558,6 +561,9 @@ def sensor_psf(lens: LensDesign, *, pixel_pitch_um: float, field_deg: float | tu
             "order_efficiency": float(np.dot(w, [s.info["order_efficiency"] for s in sets])),
             "quantize": quantize, "lattice": lattice, "z_um": z,
             "error_definition": "max abs error / PSF peak pixel (estimate)"}
+    if not on_axis and t.engines.get("mft"):
+        info["model_note"] = MFT_OFF_AXIS_NOTE.replace("use engine 'rs'", "not in error_estimate; psf() with "
+                                                       "engine 'rs' gives the fine-grid PSF exactly")
     log.info("sensor_psf %s field %s: %s, %d px, sum %.4g, err %.2g, %.3f s", lens.name, fpair, eng_name, g.size,
              pix.sum(), est_rel, info["seconds"])
     return PSF(pix, p, (float(chief[0]), float(chief[1])), wl, w, fpair, sets[0].info["polarization"], eng_name,

@@ -1,0 +1,101 @@
+"""The Rayleigh-Sommerfeld engines: the brute-force reference against a closed form, the windowed engine and the
+PSF's error_estimate against the reference on off-axis cases of scaled lenses (the estimate must be at least
+the true error), and what the direction-sine engine says off axis."""
+
+import math
+
+import numpy as np
+import pytest
+
+from metafovea.config import LensDesign
+from metafovea.errors import InputError
+from metafovea.optics import build_pupils, mft_field, psf, sensor_psf
+from metafovea.optics.rayleigh import rs_field, rs_reference, zone_radii
+
+
+def _on_axis_focus_exact(lens: LensDesign, wl: float) -> complex:
+    """RS field of the continuous hyperbolic lens at its focus on axis (lambda = lambda0): there r = L(rho), so
+    U = (2 pi f / (i lambda)) e^{ikf} [ln(L_a / f) + (1/L_a - 1/f) / (i k)]."""
+    k = 2 * np.pi / wl
+    f, a = lens.f_um, lens.radius_um
+    La = math.hypot(a, f)
+    return (2 * np.pi * f / (1j * wl)) * np.exp(1j * k * f) * (math.log(La / f) + (1 / La - 1 / f) / (1j * k))
+
+
+@pytest.mark.parametrize("f, d", [(2000.0, 1000.0), (1500.0, 1500.0)])
+def test_reference_and_windowed_engine_at_the_focus_against_the_closed_form(f, d):
+    lens = LensDesign("cf", f, d)
+    pu = build_pupils(lens, 10.0, quantize=False, lattice=False).focus
+    exact = _on_axis_focus_exact(lens, 10.0)
+    ref = rs_reference(pu, [0.0], [0.0])[0, 0]
+    # the reference keeps the absolute phase; the windowed engine's per-block phase is arbitrary (intensity)
+    assert abs(ref - exact) / abs(exact) < 1e-9
+    U, info = rs_field(pu, np.linspace(-20, 20, 9), np.linspace(-20, 20, 9), error=1e-6)
+    true = abs(abs(U[4, 4]) ** 2 - abs(exact) ** 2)
+    assert true <= info["intensity_error"] <= 1e-6 * abs(exact) ** 2
+    assert zone_radii(pu)[-1] == lens.radius_um
+
+
+def test_reference_is_converged():
+    lens = LensDesign("cv", 2000.0, 2000.0)
+    pu = build_pupils(lens, 10.0, field_deg=6.0, quantize=True, lattice=True).focus
+    c = pu.chief_ray_um()
+    xs, ys = c[0] + np.linspace(-30, 60, 7), np.linspace(-40, 40, 5)
+    a = rs_reference(pu, xs, ys)
+    b = rs_reference(pu, xs, ys, nodes_per_zone=28, phi_margin=160)
+    assert np.abs(a - b).max() / np.abs(b).max() < 1e-9
+
+
+# (f um, D um, field deg, fabricated lens (8 levels + lattice), wavelength um): F/1 and F/2, fields up to near
+# each lens' field, one off the design wavelength (chromatic defocus)
+CASES = [(2000.0, 1000.0, 5.0, False, 10.0), (2000.0, 2000.0, 3.0, False, 10.0), (2000.0, 2000.0, 8.0, True, 10.0),
+         (3000.0, 1500.0, 10.0, True, 10.0), (1500.0, 1500.0, 15.0, False, 10.0), (4000.0, 2000.0, 2.0, True, 9.0),
+         (2500.0, 1250.0, 1.0, False, 10.5)]
+
+
+@pytest.mark.parametrize("f, d, field, fab, wl", CASES)
+def test_psf_error_estimate_bounds_the_true_error_off_axis(f, d, field, fab, wl):
+    lens = LensDesign("sc", f, d)
+    P = psf(lens, field_deg=field, wavelengths_um=[wl], quantize=fab, lattice=fab, error=1e-4)
+    assert P.engine == "rs" and math.isfinite(P.error_estimate)
+    assert P.error_estimate <= 1e-4  # the engine met the requested error by its own account
+    xs, ys = P.coords()
+    pu = build_pupils(lens, wl, field_deg=field, quantize=fab, lattice=fab).focus
+    # the reference on every 3rd sample and on the 9 x 9 samples around the peak
+    j, i = np.unravel_index(int(np.argmax(P.intensity)), P.shape)
+    rows = sorted(set(range(0, P.shape[0], 3)) | set(range(max(0, j - 4), min(P.shape[0], j + 5))))
+    cols = sorted(set(range(0, P.shape[1], 3)) | set(range(max(0, i - 4), min(P.shape[1], i + 5))))
+    U = rs_reference(pu, xs[cols], ys[rows])
+    ref = np.abs(U) ** 2 * P.pitch_um ** 2 / (math.pi * lens.radius_um ** 2)
+    true = float(np.abs(P.intensity[np.ix_(rows, cols)] - ref).max() / ref.max())
+    assert true <= P.error_estimate
+    # the direction-sine model on the same points is far off: the edge diffraction it leaves out
+    Um = mft_field(pu, xs[cols], ys[rows], error=1e-8)
+    mft_err = np.abs(np.abs(Um) ** 2 * P.pitch_um ** 2 / (math.pi * lens.radius_um ** 2) - ref).max() / ref.max()
+    assert mft_err > 10 * true
+
+
+def test_windowed_engine_estimate_grows_when_blocks_are_forced_large():
+    # one 64-sample block over a strongly aberrated PSF of a small, short lens: the Taylor remainder is large,
+    # and the engine splits the block until its evaluated remainder meets the budget
+    lens = LensDesign("tb", 1500.0, 1500.0)
+    pu = build_pupils(lens, 10.0, field_deg=12.0, quantize=False, lattice=False).focus
+    c = pu.chief_ray_um()
+    xs, ys = c[0] + np.linspace(-20, 180, 64), np.linspace(-100, 100, 64)
+    U, info = rs_field(pu, xs, ys, error=1e-4, block_px=64)
+    assert info["splits"] >= 1 and info["blocks"] > 1
+    ref = rs_reference(pu, xs[::7], ys[::7])
+    true = np.abs(np.abs(U[::7, ::7]) ** 2 - np.abs(ref) ** 2).max()
+    assert true <= info["intensity_error"] <= 1e-4 * (np.abs(U) ** 2).max()
+
+
+def test_direction_sine_engine_off_axis_says_it_is_not_bounded():
+    lens = LensDesign("nb", 2000.0, 1000.0)
+    P = psf(lens, field_deg=4.0, engine="mft")
+    assert math.isinf(P.error_estimate) and "edge" in P.info["model_note"]
+    on = psf(lens, field_deg=0.0, engine="mft")
+    assert math.isfinite(on.error_estimate) and "model_note" not in on.info
+    S = sensor_psf(lens, pixel_pitch_um=17.0, field_deg=4.0, engine="mft")
+    assert "edge" in S.info["model_note"]
+    with pytest.raises(InputError, match="engine"):
+        sensor_psf(lens, pixel_pitch_um=17.0, field_deg=4.0, engine="rs")
