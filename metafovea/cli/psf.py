@@ -29,7 +29,14 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
     p.add_argument("--temperature-k", type=float, default=300.0, help="scene temperature for Planck weights")
     p.add_argument("--wavelengths", type=int, default=61, help="wavelength bins across the band (geometric "
                    "around the design wavelength; metafovea.radiometry.psf_wavelengths)")
-    p.add_argument("--pixel-um", type=float, default=17.0, help="sensor pixel pitch (um)")
+    p.add_argument("--pixel-um", type=float, default=None,
+                   help="sensor pixel pitch in um (default: the system's, 17 um in the paper's camera)")
+    p.add_argument("--relay", type=float, default=None,
+                   help="relay magnification between the focal plane and the sensor (default: the system's, 0.5 in "
+                        "the paper's camera: a 17 um pixel covers 34 um of the focal plane)")
+    p.add_argument("--system", default=None,
+                   help="system TOML (e.g. designs/system.toml): sensor pitch, relay and the lens-to-sensor "
+                        "distances of its two lenses (matched by lens name; default: the paper's camera)")
     p.add_argument("--wavelength-um", type=float, default=None,
                    help="wavelength of the monochromatic PSFs in um (default: the design wavelength)")
     p.add_argument("--window-um", type=float, default=None,
@@ -61,7 +68,14 @@ def run(args: argparse.Namespace) -> int:
         filt = (c, w)
     check_positive("--temperature-k", args.temperature_k, "K", hi=1e5)
     check_positive("--error", args.error, hi=0.5)
-    check_positive("--pixel-um", args.pixel_um, "um", hi=1e4)
+    from metafovea.config import SystemDesign, load_system
+
+    system = load_system(args.system) if args.system is not None else SystemDesign.paper()
+    pixel_um = system.sensor.pixel_pitch_um if args.pixel_um is None else check_positive("--pixel-um", args.pixel_um,
+                                                                                         "um", hi=1e4)
+    relay = system.relay_magnification if args.relay is None else check_positive("--relay", args.relay, hi=10.0)
+    distances = ({system.foveal.name: system.lens_to_sensor_um[0], system.perifoveal.name: system.lens_to_sensor_um[1]}
+                 if args.system is not None else None)
     check_int("--wavelengths", args.wavelengths, 1, MAX_WAVELENGTHS)
     if args.wavelength_um is not None:
         check_positive("--wavelength-um", args.wavelength_um, "um", hi=1e4)
@@ -70,15 +84,17 @@ def run(args: argparse.Namespace) -> int:
     jobs = check_int("--jobs", args.jobs, 1, 64) if args.jobs is not None else None
     summary = psf_reports(args.designs, args.out, force=args.force, fields_deg=args.field_deg, band_um=band,
                           filter_um=filt, temperature_k=args.temperature_k, n_wavelengths=args.wavelengths,
-                          pixel_pitch_um=args.pixel_um, error=args.error, wavelength_um=args.wavelength_um,
-                          window_um=args.window_um, jobs=jobs)
+                          pixel_pitch_um=pixel_um, error=args.error, wavelength_um=args.wavelength_um,
+                          window_um=args.window_um, jobs=jobs, relay_magnification=relay, distances_um=distances)
     if args.json:
         print(to_json(summary))
     else:
         for name, s in summary.items():
             m0 = s["monochromatic"][0]
             print(f"{name}: on-axis {m0['engine']} (err {m0['error_estimate']:.1g}), "
-                  f"{len(s['sensor'])} fields, {s['seconds']:.1f} s -> {s['html']}"
+                  f"{len(s['sensor'])} fields, pixels {s['pixel_pitch_um']:.4g} um at the focal plane "
+                  f"({pixel_um:g} um / {relay:g}x relay), sensor at {s['z_um'] / 1000:g} mm, "
+                  f"{s['seconds']:.1f} s -> {s['html']}"
                   + (f"  [{len(set(s['warnings']))} warnings]" if s["warnings"] else ""))
     return 0
 

@@ -13,6 +13,7 @@ Relative illumination: ``cos^4`` of the field angle (:func:`relative_illuminatio
 from __future__ import annotations
 
 import math
+import warnings
 from dataclasses import dataclass
 from typing import Any
 
@@ -90,6 +91,12 @@ def channels_for(system: SystemDesign, *, pixel_pitch_um: float | None = None,
         check_int("sensor crop (rows, columns)", v, 8, 8192)
     fp = pitch / m
     f1, f2 = system.lens_to_sensor_um
+    from metafovea.optics.psf import defocus_note  # optics stage (above imaging): allowed
+
+    for lens, z in ((system.foveal, f1), (system.perifoveal, f2)):
+        note = defocus_note(lens, z)
+        if note:
+            warnings.warn(note, UserWarning, stacklevel=2)
     return (Channel("foveal", system.foveal, f1, fp, shp), Channel("perifoveal", system.perifoveal, f2, fp, shp))
 
 

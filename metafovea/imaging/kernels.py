@@ -191,6 +191,7 @@ class OpticsPSFProvider:
 
         size_px += 1 - size_px % 2
         key = {"lens": asdict(channel.lens), "pitch_um": round(float(pitch_um), 9), "field_deg": round(float(field_deg), 9),
+               "z_um": round(float(channel.focal_length_um), 6),
                "wavelengths_um": np.round(np.asarray(wavelengths_um, dtype=float), 9).tolist(),
                "weights": np.round(np.asarray(weights, dtype=float) / np.sum(weights), 12).tolist(),
                "size_px": int(size_px), "error": self.error, "kind": "sensor_psf"}
@@ -208,7 +209,7 @@ class OpticsPSFProvider:
 
         psf = sensor_psf(channel.lens, pixel_pitch_um=pitch_um, field_deg=field_deg,
                          wavelengths_um=np.asarray(wavelengths_um), weights=np.asarray(weights),
-                         size_px=size_px, error=self.error)
+                         size_px=size_px, error=self.error, z_um=channel.focal_length_um)
         k = _as_odd_kernel(np.asarray(psf.intensity, dtype=np.float64))
         src = f"metafovea.optics.sensor_psf ({getattr(psf, 'engine', '?')})"
         err = getattr(psf, "error_estimate", None)

@@ -183,6 +183,21 @@ def diffraction_radius_um(lens: LensDesign) -> float:
     return 0.60983 * lens.wavelength_um / lens.na
 
 
+def depth_of_focus_um(lens: LensDesign) -> float:
+    """Half-width of the focal depth (um): 2 lambda0 (f/D)^2 (+-80 um for the F/2 lens, +-20 um for F/1)."""
+    return 2.0 * lens.wavelength_um * (lens.f_um / lens.diameter_um) ** 2
+
+
+def defocus_note(lens: LensDesign, z_um: float) -> str | None:
+    """A warning line when the lens-to-sensor distance ``z_um`` is beyond the depth of focus (None otherwise)."""
+    dz = float(z_um) - lens.f_um
+    dof = depth_of_focus_um(lens)
+    if abs(dz) <= dof:
+        return None
+    return (f"lens '{lens.name}': lens-to-sensor distance {z_um / 1000:g} mm differs from its focal length "
+            f"{lens.f_mm:g} mm by {dz:+.1f} um, beyond the depth of focus +-{dof:.1f} um: the PSFs are defocused")
+
+
 def nyquist_pitch_um(lens: LensDesign) -> float:
     """Largest sample pitch that samples the intensity without aliasing: lambda0 / (4 NA)."""
     return lens.wavelength_um / (4.0 * lens.na)

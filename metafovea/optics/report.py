@@ -14,14 +14,14 @@ from typing import Any, Sequence
 import numpy as np
 
 from metafovea.config import LensDesign, load_lens
-from metafovea.errors import InputError, check_int
+from metafovea.errors import InputError, check_int, check_positive
 from metafovea.io import atomic_write_bytes, atomic_write_json, file_stem, prepare_output
 from metafovea.radiometry import psf_wavelengths
 from metafovea.report import HtmlReport, fig_to_png
 
-from .mtf import diffraction_mtf, encircled_energy, pupil_mtf, strehl
+from .mtf import diffraction_mtf, encircled_energy, pixel_mtf, pupil_mtf, strehl
 from .propagate import SamplingError
-from .psf import diffraction_radius_um, encircled_energy_on_axis, psf
+from .psf import defocus_note, diffraction_radius_um, encircled_energy_on_axis, psf
 from .pupil import EVANESCENT_MARGIN, max_field_deg
 from .sensor import sensor_psf
 
@@ -38,8 +38,14 @@ def psf_report(lens: LensDesign, out_dir: str | Path, *, fields_deg: list[float]
                band_um: tuple[float, float] = (8.0, 14.0), filter_um: tuple[float, float] | None = None,
                temperature_k: float = 300.0, n_wavelengths: int = 61, pixel_pitch_um: float = 17.0,
                error: float = 1e-4, post_set: Any = None, wavelength_um: float | None = None,
-               window_um: float | None = None) -> dict[str, Any]:
+               window_um: float | None = None, relay_magnification: float = 1.0,
+               z_um: float | None = None) -> dict[str, Any]:
     """Compute the report numbers and write figures, ``psf_report.json`` and ``psf_report.html``.
+
+    Geometry: ``pixel_pitch_um`` is the sensor's pixel pitch; behind a relay of ``relay_magnification`` a pixel
+    covers ``pixel_pitch_um / relay_magnification`` of the lens' focal plane (the pitch the sensor PSFs and the
+    pixel-radius encircled energy use). ``z_um``: the lens-to-sensor (focal-plane) distance (default: the focal
+    length); a distance beyond the depth of focus is warned about and the PSFs are those of the defocused plane.
 
     ``wavelength_um``: the monochromatic PSFs' wavelength (default: the design wavelength); ``window_um``:
     full width of the fine monochromatic PSF windows (default: sized from the rays; a given window that
@@ -53,6 +59,10 @@ def psf_report(lens: LensDesign, out_dir: str | Path, *, fields_deg: list[float]
 
     t0 = time.perf_counter()
     stem = file_stem(lens.name)
+    relay = check_positive("relay_magnification", relay_magnification, hi=10.0)
+    sensor_pixel_um = pixel_pitch_um
+    pixel_pitch_um = sensor_pixel_um / relay  # at the focal plane
+    z = lens.f_um if z_um is None else check_positive("z_um", z_um, "um")
     mono_wl = [lens.wavelength_um if wavelength_um is None else float(wavelength_um)]
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
@@ -63,16 +73,20 @@ def psf_report(lens: LensDesign, out_dir: str | Path, *, fields_deg: list[float]
     res: dict[str, Any] = {"mono_wavelength_um": mono_wl[0], "lens": lens.name, "f_mm": lens.f_mm,
                            "diameter_mm": lens.diameter_mm, "na": lens.na, "wavelength_um": lens.wavelength_um,
                            "polarization": lens.polarization, "mtf_cutoff_cyc_per_mm": cut,
-                           "requested_error": error, "warnings": []}
+                           "requested_error": error, "warnings": [], "z_um": z, "defocus_um": z - lens.f_um,
+                           "sensor_pixel_um": sensor_pixel_um, "relay_magnification": relay}
+    note = defocus_note(lens, z)
+    if note:
+        res["warnings"].append(note)
     try:
         figs = {"psf_mono.png": _monochromatic(plt, lens, res, fields_deg, mono_wl, post_set, error, window_um,
-                                               pixel_pitch_um),
-                "mtf.png": _mtf(plt, lens, res, fields_deg, cut)}
+                                               pixel_pitch_um, z),
+                "mtf.png": _mtf(plt, lens, res, fields_deg, cut, z, pixel_pitch_um)}
         wl, w = psf_wavelengths(band_um, design_um=lens.wavelength_um, temperature_k=temperature_k,
                                 filter_um=filter_um, n=n_wavelengths)
         res["spectral"] = {"n_wavelengths": int(wl.size), "band_um": band_um, "filter_um": filter_um,
                            "temperature_k": temperature_k}
-        figs["ee_field.png"] = _sensor(plt, lens, res, fields_deg, mono_wl, wl, w, post_set, error, pixel_pitch_um)
+        figs["ee_field.png"] = _sensor(plt, lens, res, fields_deg, mono_wl, wl, w, post_set, error, pixel_pitch_um, z)
     except InputError as e:
         if e.parameter == "wavelengths_um" and wavelength_um is not None:
             raise InputError("wavelength_um", wavelength_um, e.allowed) from None
@@ -87,7 +101,7 @@ def psf_report(lens: LensDesign, out_dir: str | Path, *, fields_deg: list[float]
 
 
 def _monochromatic(plt: Any, lens: LensDesign, res: dict[str, Any], fields_deg: list[float], mono_wl: list[float],
-                   post_set: Any, error: float, window_um: float | None, pixel_pitch_um: float) -> bytes:
+                   post_set: Any, error: float, window_um: float | None, pixel_pitch_um: float, z: float) -> bytes:
     """Monochromatic PSFs (fabricated lens) on axis, at mid-field and at the last field: ``res['monochromatic']``
     and the figure. A PSF too aberrated for the fine grid is shown on a pixel grid of a quarter pitch instead."""
     mono = []
@@ -97,13 +111,13 @@ def _monochromatic(plt: Any, lens: LensDesign, res: dict[str, Any], fields_deg: 
             warnings.simplefilter("always")
             try:
                 P = psf(lens, field_deg=fd, quantize=True, lattice=True, post_set=post_set, error=error,
-                        wavelengths_um=mono_wl, window_um=window_um)
+                        wavelengths_um=mono_wl, window_um=window_um, z_um=z)
             except SamplingError as e:  # the aberrated PSF needs too large a window: pixel grid instead
                 if window_um is not None:
                     raise SamplingError(e.parameter, e.value, e.allowed.replace(
                         "(pass allow_truncation=True to accept)", "(or a larger error)")) from None
                 P = sensor_psf(lens, pixel_pitch_um=pixel_pitch_um / 4, field_deg=fd, post_set=post_set,
-                               error=max(error, 1e-3), wavelengths_um=mono_wl)
+                               error=max(error, 1e-3), wavelengths_um=mono_wl, z_um=z)
                 res["warnings"].append(f"field {fd:.3g} deg: fine PSF not computed ({e}); pixel-grid PSF shown")
         res["warnings"] += [str(w.message) for w in ws]
         xs, ys = P.coords()
@@ -123,25 +137,39 @@ def _monochromatic(plt: Any, lens: LensDesign, res: dict[str, Any], fields_deg: 
     return png
 
 
-def _mtf(plt: Any, lens: LensDesign, res: dict[str, Any], fields_deg: list[float], cut: float) -> bytes:
-    """MTF against the diffraction limit (exact pupil autocorrelation, design wavelength): ``res['mtf']``."""
+def _mtf(plt: Any, lens: LensDesign, res: dict[str, Any], fields_deg: list[float], cut: float, z: float,
+         pixel_pitch_um: float) -> bytes:
+    """MTF of the focusing order (exact pupil autocorrelation, design wavelength, at the plane ``z``): the
+    continuous-phase and the fabricated (8-level + lattice) lens on axis, the fabricated lens times the pixel
+    aperture, and the continuous lens at two fields: ``res['mtf']``. Haze (other orders) is not in these curves:
+    it lowers every frequency above 0 by the focusing order's share of the power."""
     nu = np.linspace(0, cut, 41)
-    fig, ax = plt.subplots(figsize=(6, 4))
-    ax.plot(nu, diffraction_mtf(nu, cut), "k--", label="paraxial diffraction limit")
-    ax.plot(nu, pupil_mtf(lens, nu), label="on axis (non-paraxial, continuous)")
-    mt = {"nu_cyc_per_mm": nu, "on_axis": pupil_mtf(lens, nu)}
+    fig, ax = plt.subplots(figsize=(6.5, 4.2))
+    paraxial_cut = lens.diameter_um / (lens.wavelength_um * lens.f_um) * 1000
+    nu_p = np.clip(nu, 0, paraxial_cut)
+    ax.plot(nu_p, diffraction_mtf(nu_p, paraxial_cut), "k--", lw=1,
+            label=f"paraxial diffraction limit (cutoff D/(lambda f) = {paraxial_cut:.1f}/mm)")
+    cont = pupil_mtf(lens, nu, z_um=z)
+    fab = pupil_mtf(lens, nu, quantize=True, lattice=True, z_um=z)
+    pix = pixel_mtf(nu, pixel_pitch_um)
+    ax.plot(nu, cont, label="on axis, continuous phase (optical)")
+    ax.plot(nu, fab, label=f"on axis, {lens.levels}-level + lattice (optical)")
+    ax.plot(nu, fab * pix, label=f"on axis, {lens.levels}-level x {pixel_pitch_um:.3g} um pixel")
+    mt = {"nu_cyc_per_mm": nu, "on_axis": cont, "on_axis_fabricated": fab, "on_axis_fabricated_pixel": fab * pix,
+          "paraxial_cutoff_cyc_per_mm": paraxial_cut, "z_um": z}
     for fd in (fields_deg[len(fields_deg) // 2], fields_deg[-1]):
         if fd == 0:
             continue
         try:
-            t = pupil_mtf(lens, nu, field_deg=fd, angle_rad=0.0)
-            s = pupil_mtf(lens, nu, field_deg=fd, angle_rad=math.pi / 2)
-            ax.plot(nu, t, label=f"{fd:.2f} deg tangential")
-            ax.plot(nu, s, ":", label=f"{fd:.2f} deg sagittal")
+            t = pupil_mtf(lens, nu, field_deg=fd, angle_rad=0.0, z_um=z)
+            s = pupil_mtf(lens, nu, field_deg=fd, angle_rad=math.pi / 2, z_um=z)
+            ax.plot(nu, t, label=f"{fd:.2f} deg tangential (continuous)")
+            ax.plot(nu, s, ":", label=f"{fd:.2f} deg sagittal (continuous)")
             mt[f"{fd:.3f}_tangential"], mt[f"{fd:.3f}_sagittal"] = t, s
-        except Exception as e:
+        except (InputError, ValueError, FloatingPointError) as e:
             res["warnings"].append(f"MTF at {fd:.3g} deg not computed: {e}")
-    ax.set_xlabel("cycles/mm"); ax.set_ylabel("MTF"); ax.legend(fontsize=7); fig.tight_layout()
+    ax.set_xlabel("spatial frequency at the focal plane (cycles/mm)"); ax.set_ylabel("MTF (focusing order)")
+    ax.legend(fontsize=6.5); fig.tight_layout()
     res["mtf"] = mt
     png = fig_to_png(fig, dpi=DPI)
     plt.close(fig)
@@ -149,13 +177,14 @@ def _mtf(plt: Any, lens: LensDesign, res: dict[str, Any], fields_deg: list[float
 
 
 def _sensor(plt: Any, lens: LensDesign, res: dict[str, Any], fields_deg: list[float], mono_wl: list[float],
-            wl: np.ndarray, w: np.ndarray, post_set: Any, error: float, pixel_pitch_um: float) -> bytes:
+            wl: np.ndarray, w: np.ndarray, post_set: Any, error: float, pixel_pitch_um: float, z: float) -> bytes:
     """Encircled energy and broadband sensor PSFs over the field: ``res['on_axis_ee_pixel_radius']`` (power within
     one pixel pitch of the axis, exact radial integral, no pixel grid), ``res['sensor']`` and the figure."""
     res["on_axis_ee_pixel_radius"] = {
         "radius_um": pixel_pitch_um,
-        "mono": encircled_energy_on_axis(lens, pixel_pitch_um, wavelengths_um=mono_wl, post_set=post_set),
-        "band": encircled_energy_on_axis(lens, pixel_pitch_um, wavelengths_um=wl, weights=w, post_set=post_set)}
+        "mono": encircled_energy_on_axis(lens, pixel_pitch_um, wavelengths_um=mono_wl, post_set=post_set, z_um=z),
+        "band": encircled_energy_on_axis(lens, pixel_pitch_um, wavelengths_um=wl, weights=w, post_set=post_set,
+                                         z_um=z)}
     radii = np.linspace(0, 6 * diffraction_radius_um(lens) + 2 * pixel_pitch_um, 40)
     fig, ax = plt.subplots(1, 2, figsize=(11, 4))
     sens = []
@@ -163,9 +192,9 @@ def _sensor(plt: Any, lens: LensDesign, res: dict[str, Any], fields_deg: list[fl
         with warnings.catch_warnings(record=True) as ws:
             warnings.simplefilter("always")
             mono_s = sensor_psf(lens, pixel_pitch_um=pixel_pitch_um, field_deg=fd, post_set=post_set, error=error,
-                                wavelengths_um=mono_wl)
+                                wavelengths_um=mono_wl, z_um=z)
             poly = sensor_psf(lens, pixel_pitch_um=pixel_pitch_um, field_deg=fd, wavelengths_um=wl, weights=w,
-                              post_set=post_set, error=error)
+                              post_set=post_set, error=error, z_um=z)
         res["warnings"] += [f"field {fd:.3g} deg: {x.message}" for x in ws]
         c = tuple(s // 2 for s in poly.shape)
         cm = tuple(s // 2 for s in mono_s.shape)
@@ -210,7 +239,11 @@ def _page(res: dict[str, Any], figs: dict[str, bytes]) -> HtmlReport:
     page.paragraph(f"On axis, power within r = {ee['radius_um']:g} um (exact radial integral): "
                    f"{res['mono_wavelength_um']:g} um {ee['mono']:.4f}, band {ee['band']:.4g} "
                    "(fractions of the incident power).")
-    page.heading(f"Sensor PSFs ({res['pixel_pitch_um']:g} um pixels) across the field")
+    page.paragraph(f"Geometry: lens to focal plane {res['z_um'] / 1000:g} mm (defocus {res['defocus_um']:+.1f} um from f); "
+                   f"sensor pixels of {res['sensor_pixel_um']:g} um behind a {res['relay_magnification']:g}x relay: "
+                   f"{res['pixel_pitch_um']:.4g} um at the focal plane (the pixel the sensor PSFs integrate over).")
+    page.heading(f"Sensor PSFs ({res['sensor_pixel_um']:g} um sensor pixels = {res['pixel_pitch_um']:.4g} um at the "
+                 "focal plane) across the field")
     page.table(["field deg", "chief-ray pixel, design wl", "chief-ray pixel, band", "band power in window", "engines",
                 "error est."],
                [[f"{s['field_deg']:.3f}", f"{s['mono_center_pixel']:.4g}", f"{s['poly_center_pixel']:.4g}",
@@ -233,14 +266,17 @@ def psf_reports(designs: Sequence[str | Path | LensDesign], out_dir: str | Path,
                 filter_um: tuple[float, float] | None = None, temperature_k: float = 300.0,
                 n_wavelengths: int = 61, pixel_pitch_um: float = 17.0, error: float = 1e-4,
                 wavelength_um: float | None = None, window_um: float | None = None,
-                jobs: int | None = None) -> dict[str, dict[str, Any]]:
+                jobs: int | None = None, relay_magnification: float = 1.0,
+                distances_um: dict[str, float] | None = None) -> dict[str, dict[str, Any]]:
     """:func:`psf_report` of every lens (TOML paths or :class:`LensDesign`) into ``out_dir``, one process per lens.
 
     Everything that can be refused is refused before any work and before ``out_dir`` is made: a band, filter
     and scene temperature that give no light; two lenses whose names make the same file stem (their reports
     would overwrite each other); wavelengths that leave a lens' rim evanescent even on axis; fields outside a
     lens' field at the longest wavelength used. ``out_dir`` must be new or empty unless ``force``. ``jobs``
-    defaults to min(2, lenses, CPUs). Returns, per lens name, its seconds, monochromatic and sensor rows,
+    defaults to min(2, lenses, CPUs). ``pixel_pitch_um`` is the sensor pitch behind a relay of
+    ``relay_magnification``; ``distances_um`` maps a lens name to its lens-to-sensor distance (default: its
+    focal length). Returns, per lens name, its seconds, monochromatic and sensor rows,
     warnings and the path of its HTML page.
     """
     _check_light(band_um, filter_um, temperature_k)
@@ -249,17 +285,22 @@ def psf_reports(designs: Sequence[str | Path | LensDesign], out_dir: str | Path,
     for lens in lenses:
         _check_wavelengths_and_fields(lens, band_um, filter_um, wavelength_um, fields_deg)
     jobs = min(2, len(lenses), os.cpu_count() or 1) if jobs is None else check_int("jobs", jobs, 1, 64)
+    check_positive("relay_magnification", relay_magnification, hi=10.0)
+    dist = dict(distances_um or {})
+    for name, z in dist.items():
+        check_positive(f"distance of lens '{name}'", z, "um")
     out = prepare_output(out_dir, force, is_dir=True)
     kw = dict(fields_deg=fields_deg, band_um=band_um, filter_um=filter_um, temperature_k=temperature_k,
               n_wavelengths=n_wavelengths, pixel_pitch_um=pixel_pitch_um, error=error,
-              wavelength_um=wavelength_um, window_um=window_um)
+              wavelength_um=wavelength_um, window_um=window_um, relay_magnification=relay_magnification)
+    kws = [{**kw, "z_um": dist.get(lens.name)} for lens in lenses]
     if jobs > 1 and len(lenses) > 1:
         # one process per lens (the report of a lens is single-threaded)
         from concurrent.futures import ProcessPoolExecutor
         with ProcessPoolExecutor(max_workers=min(jobs, len(lenses))) as ex:
-            outcomes = list(ex.map(_report_one, lenses, [str(out)] * len(lenses), [kw] * len(lenses)))
+            outcomes = list(ex.map(_report_one, lenses, [str(out)] * len(lenses), kws))
     else:
-        outcomes = [_report_one(lens, str(out), kw) for lens in lenses]
+        outcomes = [_report_one(lens, str(out), k) for lens, k in zip(lenses, kws)]
     summary = {}
     for lens, (kind, val) in zip(lenses, outcomes):
         if kind == "input_error":
@@ -276,7 +317,8 @@ def _report_one(lens: LensDesign, out: str, kw: dict[str, Any]) -> tuple[str, An
         res = psf_report(lens, out, **kw)
     except InputError as e:
         return "input_error", (type(e), e.parameter, e.value, e.allowed, e.source, e.detail)
-    return "ok", {k: res[k] for k in ("seconds", "monochromatic", "sensor", "warnings")}
+    return "ok", {k: res[k] for k in ("seconds", "monochromatic", "sensor", "warnings", "pixel_pitch_um", "z_um",
+                                      "relay_magnification")}
 
 
 def _check_light(band: tuple[float, float], filt: tuple[float, float] | None, temperature_k: float) -> None:

@@ -4,6 +4,7 @@ option typed, two lenses in two processes give the numbers of one."""
 import contextlib
 import io
 import json
+from pathlib import Path
 
 import pytest
 
@@ -132,3 +133,26 @@ def test_psf_band_beyond_evanescent_limit_names_band(tmp_path, capsys, opts, fla
     err = cli_error(capsys)
     assert rc == 2 and err.startswith("metafovea psf: error: " + flag), err
     assert not (tmp_path / "o").exists()
+
+
+def test_psf_takes_relay_and_distances_from_the_system_file(tmp_path, capsys, lens_toml):
+    import shutil
+
+    from metafovea.config import load_system
+
+    d = tmp_path / "designs"
+    shutil.copytree(Path(__file__).resolve().parents[2] / "designs", d)
+    text = (d / "system.toml").read_text().replace("magnification = 0.5", "magnification = 0.25")
+    (d / "system.toml").write_text(text)
+    system = load_system(d / "system.toml")
+    small = lens_toml(tmp_path, name=system.perifoveal.name, f_mm=25.0, d_mm=2.0)
+    out = tmp_path / "o"
+    capsys.readouterr()
+    rc = main(["psf", str(small), "--system", str(d / "system.toml"), "--field-deg", "0", "--wavelengths", "3",
+               "--out", str(out), "--json"])
+    assert rc == 0
+    s = json.loads(capsys.readouterr().out)[system.perifoveal.name]
+    assert s["relay_magnification"] == 0.25 and s["pixel_pitch_um"] == pytest.approx(17.0 / 0.25)
+    assert s["z_um"] == system.lens_to_sensor_um[1]
+    rc = main(["psf", str(small), "--relay", "0", "--out", str(tmp_path / "p")])
+    assert rc == 2 and "--relay" in capsys.readouterr().err

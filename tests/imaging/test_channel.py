@@ -40,3 +40,17 @@ def test_relative_illumination_is_cos4_of_the_chief_ray_angle():
 def test_channel_crop_too_small_is_named():
     with pytest.raises(InputError, match="sensor crop"):
         channels_for(SystemDesign.paper(), shape=(4, 64))
+
+
+def test_sensor_beyond_the_depth_of_focus_is_warned_about():
+    import dataclasses
+    import warnings
+
+    paper = SystemDesign.paper()
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        channels_for(paper)  # the paper's distances are the focal lengths
+    moved = dataclasses.replace(paper, lens_to_sensor_um=(paper.lens_to_sensor_um[0], 25_100.0))
+    with pytest.warns(UserWarning, match=r"perifoveal.*\+100.0 um, beyond the depth of focus \+-20.0 um"):
+        _, c2 = channels_for(moved)
+    assert c2.focal_length_um == 25_100.0

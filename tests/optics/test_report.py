@@ -97,3 +97,23 @@ def test_psf_report_truncating_window_is_refused(tiny, tmp_path):
     with pytest.raises(SamplingError, match="for error 0.0001") as e:
         psf_report(load_lens(path), tmp_path, fields_deg=[0.0], n_wavelengths=3, window_um=150.0)
     assert e.value.parameter == "window_um" and "allow_truncation" not in str(e.value)
+
+
+def test_relay_and_lens_to_sensor_distance_are_honoured(tmp_path, lens_toml):
+    """A 17 um sensor pixel behind a 0.5x relay covers 34 um of the focal plane; a sensor 200 um behind the focus of
+    an F/2 lens (depth of focus +-80 um) is warned about and its PSFs are those of the defocused plane."""
+    lens = load_lens(lens_toml(tmp_path, name="geo", f_mm=4.0, d_mm=2.0))
+    focus = psf_report(lens, tmp_path / "a", fields_deg=[0.0], n_wavelengths=5, relay_magnification=0.5)
+    assert focus["pixel_pitch_um"] == pytest.approx(34.0) and focus["sensor_pixel_um"] == 17.0
+    assert focus["on_axis_ee_pixel_radius"]["radius_um"] == pytest.approx(34.0)
+    assert not any("depth of focus" in w for w in focus["warnings"])
+    z = lens.f_um + 200.0
+    off = psf_report(lens, tmp_path / "b", fields_deg=[0.0], n_wavelengths=5, relay_magnification=0.5, z_um=z)
+    assert off["z_um"] == z and off["defocus_um"] == pytest.approx(200.0)
+    assert any("depth of focus" in w and "+200.0 um" in w for w in off["warnings"])
+    assert off["monochromatic"][0]["peak_fraction_per_um2"] < 0.5 * focus["monochromatic"][0]["peak_fraction_per_um2"]
+    P = psf(lens, quantize=True, lattice=True, z_um=z)
+    assert off["monochromatic"][0]["peak_fraction_per_um2"] == pytest.approx(P.intensity.max() / P.pitch_um ** 2,
+                                                                             rel=1e-9)
+    page = (tmp_path / "b" / "geo_psf_report.html").read_text()
+    assert "0.5x relay" in page and "34 um at the focal plane" in page
