@@ -181,11 +181,23 @@ def encircled_energy(psf: PSF, radii_um: Any, center_um: tuple[float, float] | N
 
 
 def strehl(psf: PSF) -> float:
-    """Peak / peak of the aberration-free pupil with the same amplitude (``info['ideal_peak_fraction']``)."""
-    ip = psf.info.get("ideal_peak_fraction")
+    """Strehl ratio: peak / peak of the aberration-free pupil with the same amplitude (order coefficient and lattice
+    factor included, ``info['diffraction_limited_peak_fraction']``): 1 for the lens in focus on axis."""
+    ip = psf.info.get("diffraction_limited_peak_fraction")
     if not ip:
-        raise InputError("psf", "no ideal peak", "a PSF from metafovea.optics.psf()")
+        raise InputError("psf", "no diffraction-limited peak", "a PSF from metafovea.optics.psf()")
     return float(psf.intensity.max() / ip)
+
+
+def focusing_efficiency(psf: PSF) -> float:
+    """Peak / peak of the ideal continuous-phase lens (unit transmission, no lattice): what quantisation, the
+    lattice and the posts cost at the focus on top of the aberrations (``info['ideal_peak_fraction']`` / |c_1|^2
+    folded in: the ideal peak is that of a unit pupil)."""
+    ip = psf.info.get("ideal_peak_fraction")
+    eff = psf.info.get("order_efficiency")
+    if not ip or eff is None:
+        raise InputError("psf", "no ideal peak", "a PSF from metafovea.optics.psf()")
+    return float(psf.intensity.max() / (ip / max(eff) if max(eff) > 0 else ip))
 
 
 def fwhm_um(psf: PSF) -> tuple[float, float]:

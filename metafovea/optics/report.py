@@ -19,7 +19,7 @@ from metafovea.io import atomic_write_bytes, atomic_write_json, file_stem, prepa
 from metafovea.radiometry import psf_wavelengths
 from metafovea.report import HtmlReport, fig_to_png
 
-from .mtf import diffraction_mtf, encircled_energy, pixel_mtf, pupil_mtf, strehl
+from .mtf import diffraction_mtf, encircled_energy, focusing_efficiency, pixel_mtf, pupil_mtf, strehl
 from .propagate import SamplingError
 from .psf import defocus_note, diffraction_radius_um, encircled_energy_on_axis, psf
 from .pupil import EVANESCENT_MARGIN, max_field_deg
@@ -105,7 +105,7 @@ def _monochromatic(plt: Any, lens: LensDesign, res: dict[str, Any], fields_deg: 
     """Monochromatic PSFs (fabricated lens) on axis, at mid-field and at the last field: ``res['monochromatic']``
     and the figure. A PSF too aberrated for the fine grid is shown on a pixel grid of a quarter pitch instead."""
     mono = []
-    fig, axs = plt.subplots(1, 3, figsize=(12, 3.6))
+    fig, axs = plt.subplots(1, 3, figsize=(13, 4.0))
     for ax, fd in zip(axs, [0.0, fields_deg[len(fields_deg) // 2], fields_deg[-1]]):
         with warnings.catch_warnings(record=True) as ws:
             warnings.simplefilter("always")
@@ -120,21 +120,36 @@ def _monochromatic(plt: Any, lens: LensDesign, res: dict[str, Any], fields_deg: 
                                error=max(error, 1e-3), wavelengths_um=mono_wl, z_um=z)
                 res["warnings"].append(f"field {fd:.3g} deg: fine PSF not computed ({e}); pixel-grid PSF shown")
         res["warnings"] += [str(w.message) for w in ws]
+        fine = "diffraction_limited_peak_fraction" in P.info
         xs, ys = P.coords()
-        ax.imshow(P.intensity, origin="lower", extent=[xs[0], xs[-1], ys[0], ys[-1]], cmap="magma")
-        ax.set_title(f"{fd:.2f} deg, {P.engine}, err {P.error_estimate:.1g}", fontsize=9)
-        ax.set_xlabel("x (um)")
+        im = ax.imshow(P.intensity / P.pitch_um ** 2, origin="lower", extent=[xs[0], xs[-1], ys[0], ys[-1]],
+                       cmap="magma")
+        fig.colorbar(im, ax=ax, fraction=0.046, pad=0.03).set_label("fraction of incident power per um^2", fontsize=7)
+        grid = "optical, fine grid" if fine else f"pixel grid {P.pitch_um:.3g} um"
+        held = "" if P.energy_fraction > 0.95 * _focus_power(P) else f", window holds {P.energy_fraction:.0%}"
+        ax.set_title(f"{fd:.2f} deg, {lens.levels}-level + lattice ({grid}{held})\n{P.engine}, err "
+                     f"{P.error_estimate:.1g}", fontsize=8)
+        ax.set_xlabel("x at the focal plane (um)")
         mono.append({"field_deg": fd, "engine": P.engine, "error_estimate": P.error_estimate,
                      "pitch_um": P.pitch_um, "samples": P.shape[0], "energy_fraction": P.energy_fraction,
+                     "grid": "fine" if fine else "pixel",
                      "peak_fraction_per_um2": float(P.intensity.max() / P.pitch_um ** 2),
-                     "strehl": strehl(P) if "ideal_peak_fraction" in P.info else None,
+                     "strehl": strehl(P) if fine else None,
+                     "focusing_efficiency": focusing_efficiency(P) if fine else None,
                      "seconds": P.info.get("seconds")})
-    axs[0].set_ylabel("y (um)")
+    axs[0].set_ylabel("y at the focal plane (um)")
     fig.tight_layout()
     res["monochromatic"] = mono
     png = fig_to_png(fig, dpi=DPI)
     plt.close(fig)
     return png
+
+
+def _focus_power(P: Any) -> float:
+    """Power of the focusing order (fraction of the incident): what a window holding the whole PSF would sum to."""
+    eff = P.info.get("order_efficiency", 1.0)
+    eff = float(np.dot(P.weights, eff)) if np.ndim(eff) else float(eff)
+    return eff
 
 
 def _mtf(plt: Any, lens: LensDesign, res: dict[str, Any], fields_deg: list[float], cut: float, z: float,
@@ -203,16 +218,25 @@ def _sensor(plt: Any, lens: LensDesign, res: dict[str, Any], fields_deg: list[fl
                      "poly_engine": poly.engine, "poly_error_estimate": poly.error_estimate,
                      "mono_engine": mono_s.engine, "mono_error_estimate": mono_s.error_estimate,
                      "size_px": poly.shape[0], "seconds": poly.info["seconds"] + mono_s.info["seconds"]})
-        if fd in (fields_deg[0], fields_deg[-1]):
+        if fd == 0.0:  # on axis the exact radial integral of the optical PSF (no pixels)
+            r_ee = radii[1:]
+            ee = [encircled_energy_on_axis(lens, r, wavelengths_um=mono_wl, post_set=post_set, z_um=z) for r in r_ee]
+            eep = [encircled_energy_on_axis(lens, r, wavelengths_um=wl, weights=w, post_set=post_set, z_um=z)
+                   for r in r_ee]
+            ax[0].plot(r_ee, ee, label=f"on axis, {mono_wl[0]:g} um (optical, exact)")
+            ax[0].plot(r_ee, eep, "--", label="on axis, band (optical, exact)")
+        elif fd == fields_deg[-1]:
             ee = encircled_energy(mono_s, radii, center_um=mono_s.center_um)
-            ax[0].plot(radii, ee, label=f"{fd:.2f} deg, {mono_wl[0]:g} um")
+            ax[0].plot(radii, ee, label=f"{fd:.2f} deg, {mono_wl[0]:g} um (pixel-integrated)")
             eep = encircled_energy(poly, radii, center_um=poly.center_um)
-            ax[0].plot(radii, eep, "--", label=f"{fd:.2f} deg, polychromatic")
-    ax[0].set_xlabel("radius (um)"); ax[0].set_ylabel("encircled energy (of incident)"); ax[0].legend(fontsize=7)
+            ax[0].plot(radii, eep, "--", label=f"{fd:.2f} deg, band (pixel-integrated)")
+    ax[0].set_xlabel("radius at the focal plane (um)"); ax[0].set_ylabel("encircled energy (of incident)")
+    ax[0].legend(fontsize=7)
     ax[1].semilogy([s["field_deg"] for s in sens], [s["mono_center_pixel"] for s in sens], "o-",
                    label=f"{mono_wl[0]:g} um")
     ax[1].semilogy([s["field_deg"] for s in sens], [s["poly_center_pixel"] for s in sens], "s-", label="band")
-    ax[1].set_xlabel("field (deg)"); ax[1].set_ylabel("power in the chief-ray pixel"); ax[1].legend()
+    ax[1].set_xlabel("field (deg)"); ax[1].set_ylabel(f"power in the chief-ray pixel ({pixel_pitch_um:.3g} um)")
+    ax[1].legend()
     fig.tight_layout()
     res["sensor"] = sens
     png = fig_to_png(fig, dpi=DPI)
@@ -228,14 +252,21 @@ def _page(res: dict[str, Any], figs: dict[str, bytes]) -> HtmlReport:
         f"f = {res['f_mm']:g} mm, D = {res['diameter_mm']:g} mm, NA = {res['na']:.4f}, design wavelength "
         f"{res['wavelength_um']:g} um, polarisation {res['polarization']}; MTF cutoff 2NA/lambda = "
         f"{res['mtf_cutoff_cyc_per_mm']:.2f} cycles/mm. Requested error {res['requested_error']:g} (max abs / peak). "
-        "Scalar Debye (direction-sine) model, lattice sampling and N-level quantisation included in the PSFs; "
+        "Scalar thin-element model: Hankel / direction-sine integral on axis, exact Rayleigh-Sommerfeld integral over "
+        "the hard-edged aperture off axis; lattice sampling and N-level quantisation included in the PSFs; "
         f"spectral weights: Planck at {sp['temperature_k']:g} K, band {sp['band_um']}, filter {sp['filter_um']}, "
         f"{sp['n_wavelengths']} wavelength bins (geometric around the design wavelength).")
     page.heading("Monochromatic PSFs (engine, sampling, error estimate)")
-    page.table(["field deg", "engine", "error est.", "pitch um", "energy in window", "Strehl"],
-               [[f"{m['field_deg']:.3f}", m["engine"], f"{m['error_estimate']:.2g}", f"{m['pitch_um']:.3g}",
-                 f"{m['energy_fraction']:.4f}", "" if m["strehl"] is None else f"{m['strehl']:.4f}"]
+    page.table(["field (deg)", "engine", "grid", "error estimate (of peak)", "pitch (um)", "power in window",
+                "Strehl ratio", "peak / ideal continuous lens"],
+               [[f"{m['field_deg']:.3f}", m["engine"], m["grid"], f"{m['error_estimate']:.2g}", f"{m['pitch_um']:.3g}",
+                 f"{m['energy_fraction']:.4f}", "-" if m["strehl"] is None else f"{m['strehl']:.4f}",
+                 "-" if m["focusing_efficiency"] is None else f"{m['focusing_efficiency']:.4f}"]
                 for m in res["monochromatic"]])
+    page.paragraph("Strehl ratio: peak over the aberration-free peak of the same pupil amplitude (posts, levels and "
+                   "lattice included); peak / ideal continuous lens: what quantisation, lattice and posts cost at the "
+                   "focus on top of the aberrations. 'pixel' rows are PSFs too aberrated for the fine grid, shown "
+                   "on a pixel grid (no Strehl).")
     page.paragraph(f"On axis, power within r = {ee['radius_um']:g} um (exact radial integral): "
                    f"{res['mono_wavelength_um']:g} um {ee['mono']:.4f}, band {ee['band']:.4g} "
                    "(fractions of the incident power).")
