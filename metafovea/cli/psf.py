@@ -46,6 +46,7 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
     p.add_argument("--out", default="psf_report", help="output directory (must be new or empty)")
     p.add_argument("--force", action="store_true", help="overwrite existing output")
     p.add_argument("--json", action="store_true", help="print the numbers as JSON")
+    p.add_argument("-q", "--quiet", action="store_true", help="no progress bars")
     p.add_argument("--jobs", type=int, default=None,
                    help="processes, one lens each (default: min(2, lenses, CPUs))")
     p.set_defaults(func=run)
@@ -85,7 +86,8 @@ def run(args: argparse.Namespace) -> int:
     summary = psf_reports(args.designs, args.out, force=args.force, fields_deg=args.field_deg, band_um=band,
                           filter_um=filt, temperature_k=args.temperature_k, n_wavelengths=args.wavelengths,
                           pixel_pitch_um=pixel_um, error=args.error, wavelength_um=args.wavelength_um,
-                          window_um=args.window_um, jobs=jobs, relay_magnification=relay, distances_um=distances)
+                          window_um=args.window_um, jobs=jobs, relay_magnification=relay, distances_um=distances,
+                          progress=not args.quiet)
     if args.json:
         print(to_json(summary))
     else:

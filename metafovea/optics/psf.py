@@ -366,28 +366,38 @@ def psf(lens: LensDesign, *, wavelengths_um: Any = None, weights: Any = None, fi
                eng_name, float(max(est_rel, 1e-16)), float(inten.sum()), info)
 
 
-def encircled_energy_on_axis(lens: LensDesign, radius_um: float, *, wavelengths_um: Any = None, weights: Any = None,
+def encircled_energy_on_axis(lens: LensDesign, radius_um: Any, *, wavelengths_um: Any = None, weights: Any = None,
                              post_set: PostSet | None = None, quantize: bool = True, lattice: bool = True,
-                             z_um: float | None = None, n: int = 400) -> float:
+                             z_um: float | None = None, n: int = 400) -> Any:
     """Fraction of the incident power within ``radius_um`` of the axis for an on-axis source (exact).
 
     Radial Gauss quadrature of the batched Hankel profiles of every wavelength's focusing order (lattice
-    factor azimuthally averaged) plus the haze orders (uniform disks). No pixel grid involved.
+    factor azimuthally averaged) plus the haze orders (uniform disks). No pixel grid involved. ``radius_um``: a
+    number (returns a float) or an array of radii (returns an array; one Hankel pass for all of them: ``n``
+    Gauss nodes on [0, r_1] and on each interval between consecutive sorted radii).
     """
-    r0 = check_positive("radius_um", radius_um, "um")
+    scalar = np.ndim(radius_um) == 0
+    radii = np.atleast_1d(np.asarray(radius_um, dtype=float)).reshape(-1)
+    for r0 in radii:
+        check_positive("radius_um", float(r0), "um")
     wl, w = check_wavelengths(lens, wavelengths_um, weights)
     sets = [build_pupils(lens, float(l), post_set=post_set, quantize=quantize, lattice=lattice, z_um=z_um)
             for l in wl]
     x, gw = prop._gl(check_int("n", n, 8, 100000))
-    r = 0.5 * r0 * (x + 1.0)
-    rw = 0.5 * r0 * gw
+    order = np.argsort(radii)
+    edges = np.concatenate([[0.0], radii[order]])
+    a, b = edges[:-1], edges[1:]
+    r = (0.5 * (b - a)[:, None] * (x[None, :] + 1.0) + a[:, None]).ravel()
+    rw = (0.5 * (b - a)[:, None] * gw[None, :]).ravel()
     idx = [i for i, s in enumerate(sets) if s.focus is not None]
-    total = 0.0
+    seg = np.zeros(radii.size)
     if idx:
         U = prop.hankel_profiles([sets[i].focus for i in idx], r, error=1e-9)
-        ee = (U.real ** 2 + U.imag ** 2) @ (2 * math.pi * r * rw) / (math.pi * lens.radius_um ** 2)
-        total += float(np.dot(w[idx], ee))
+        dens = (U.real ** 2 + U.imag ** 2) * (2 * math.pi * r * rw) / (math.pi * lens.radius_um ** 2)
+        seg = np.cumsum((w[idx] @ dens).reshape(radii.size, x.size).sum(axis=1))
+    total = np.empty(radii.size)
+    total[order] = seg
     for wk, s in zip(w, sets):
         for h in s.haze:
-            total += wk * h.power_fraction * min(1.0, (r0 / h.radius_um) ** 2)
-    return total
+            total += wk * h.power_fraction * np.minimum(1.0, (radii / h.radius_um) ** 2)
+    return float(total[0]) if scalar else total

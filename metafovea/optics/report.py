@@ -9,12 +9,13 @@ import os
 import time
 import warnings
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any, Callable, Sequence
 
 import numpy as np
 
 from metafovea.config import LensDesign, load_lens
 from metafovea.errors import InputError, check_int, check_positive
+from metafovea.parallel import blas_threads
 from metafovea.io import atomic_write_bytes, atomic_write_json, file_stem, prepare_output
 from metafovea.radiometry import psf_wavelengths
 from metafovea.report import HtmlReport, fig_to_png
@@ -39,7 +40,7 @@ def psf_report(lens: LensDesign, out_dir: str | Path, *, fields_deg: list[float]
                temperature_k: float = 300.0, n_wavelengths: int = 61, pixel_pitch_um: float = 17.0,
                error: float = 1e-4, post_set: Any = None, wavelength_um: float | None = None,
                window_um: float | None = None, relay_magnification: float = 1.0,
-               z_um: float | None = None) -> dict[str, Any]:
+               z_um: float | None = None, progress: bool = False, position: int = 0) -> dict[str, Any]:
     """Compute the report numbers and write figures, ``psf_report.json`` and ``psf_report.html``.
 
     Geometry: ``pixel_pitch_um`` is the sensor's pixel pitch; behind a relay of ``relay_magnification`` a pixel
@@ -51,6 +52,7 @@ def psf_report(lens: LensDesign, out_dir: str | Path, *, fields_deg: list[float]
     full width of the fine monochromatic PSF windows (default: sized from the rays; a given window that
     truncates the PSF above ``error`` raises :class:`metafovea.optics.propagate.SamplingError`).
     An error about the wavelengths of a monochromatic PSF names ``wavelength_um`` when it was given.
+    ``progress``: a progress bar (on a terminal) per step, at line ``position``.
     """
     import matplotlib
 
@@ -78,19 +80,34 @@ def psf_report(lens: LensDesign, out_dir: str | Path, *, fields_deg: list[float]
     note = defocus_note(lens, z)
     if note:
         res["warnings"].append(note)
+    from tqdm.auto import tqdm
+
+    bar = tqdm(total=4 + len(fields_deg), desc=f"psf {lens.name}", unit="step", position=position, leave=True,
+               disable=None if progress else True)
+
+    def tick(what: str) -> None:
+        bar.set_postfix_str(what, refresh=False)
+        bar.update(1)
+
     try:
-        figs = {"psf_mono.png": _monochromatic(plt, lens, res, fields_deg, mono_wl, post_set, error, window_um,
-                                               pixel_pitch_um, z),
-                "mtf.png": _mtf(plt, lens, res, fields_deg, cut, z, pixel_pitch_um)}
+        # single-threaded steps first, the fine off-axis PSFs (two threads) last: when two lenses run side by
+        # side the cores are free by then
         wl, w = psf_wavelengths(band_um, design_um=lens.wavelength_um, temperature_k=temperature_k,
                                 filter_um=filter_um, n=n_wavelengths)
         res["spectral"] = {"n_wavelengths": int(wl.size), "band_um": band_um, "filter_um": filter_um,
                            "temperature_k": temperature_k}
-        figs["ee_field.png"] = _sensor(plt, lens, res, fields_deg, mono_wl, wl, w, post_set, error, pixel_pitch_um, z)
+        ee_png = _sensor(plt, lens, res, fields_deg, mono_wl, wl, w, post_set, error, pixel_pitch_um, z, tick)
+        mtf_png = _mtf(plt, lens, res, fields_deg, cut, z, pixel_pitch_um)
+        tick("MTF")
+        figs = {"psf_mono.png": _monochromatic(plt, lens, res, fields_deg, mono_wl, post_set, error, window_um,
+                                               pixel_pitch_um, z, tick),
+                "mtf.png": mtf_png, "ee_field.png": ee_png}
     except InputError as e:
+        bar.close()
         if e.parameter == "wavelengths_um" and wavelength_um is not None:
             raise InputError("wavelength_um", wavelength_um, e.allowed) from None
         raise
+    bar.close()
     res["pixel_pitch_um"] = pixel_pitch_um
     res["seconds"] = time.perf_counter() - t0
     for name, data in figs.items():
@@ -101,7 +118,8 @@ def psf_report(lens: LensDesign, out_dir: str | Path, *, fields_deg: list[float]
 
 
 def _monochromatic(plt: Any, lens: LensDesign, res: dict[str, Any], fields_deg: list[float], mono_wl: list[float],
-                   post_set: Any, error: float, window_um: float | None, pixel_pitch_um: float, z: float) -> bytes:
+                   post_set: Any, error: float, window_um: float | None, pixel_pitch_um: float, z: float,
+                   tick: Callable[[str], None]) -> bytes:
     """Monochromatic PSFs (fabricated lens) on axis, at mid-field and at the last field: ``res['monochromatic']``
     and the figure. A PSF too aberrated for the fine grid is shown on a pixel grid of a quarter pitch instead."""
     mono = []
@@ -137,6 +155,7 @@ def _monochromatic(plt: Any, lens: LensDesign, res: dict[str, Any], fields_deg: 
                      "strehl": strehl(P) if fine else None,
                      "focusing_efficiency": focusing_efficiency(P) if fine else None,
                      "seconds": P.info.get("seconds")})
+        tick(f"PSF {fd:.2f} deg")
     axs[0].set_ylabel("y at the focal plane (um)")
     fig.tight_layout()
     res["monochromatic"] = mono
@@ -159,6 +178,7 @@ def _mtf(plt: Any, lens: LensDesign, res: dict[str, Any], fields_deg: list[float
     aperture, and the continuous lens at two fields: ``res['mtf']``. Haze (other orders) is not in these curves:
     it lowers every frequency above 0 by the focusing order's share of the power."""
     nu = np.linspace(0, cut, 41)
+    nu_f = nu[::2]  # the field curves (pupil autocorrelations of aberrated pupils: seconds each)
     fig, ax = plt.subplots(figsize=(6.5, 4.2))
     paraxial_cut = lens.diameter_um / (lens.wavelength_um * lens.f_um) * 1000
     nu_p = np.clip(nu, 0, paraxial_cut)
@@ -170,19 +190,23 @@ def _mtf(plt: Any, lens: LensDesign, res: dict[str, Any], fields_deg: list[float
     ax.plot(nu, cont, label="on axis, continuous phase (optical)")
     ax.plot(nu, fab, label=f"on axis, {lens.levels}-level + lattice (optical)")
     ax.plot(nu, fab * pix, label=f"on axis, {lens.levels}-level x {pixel_pitch_um:.3g} um pixel")
-    mt = {"nu_cyc_per_mm": nu, "on_axis": cont, "on_axis_fabricated": fab, "on_axis_fabricated_pixel": fab * pix,
+    mt = {"nu_cyc_per_mm": nu, "nu_field_cyc_per_mm": nu_f, "on_axis": cont, "on_axis_fabricated": fab, "on_axis_fabricated_pixel": fab * pix,
           "paraxial_cutoff_cyc_per_mm": paraxial_cut, "z_um": z}
-    for fd in (fields_deg[len(fields_deg) // 2], fields_deg[-1]):
-        if fd == 0:
-            continue
-        try:
-            t = pupil_mtf(lens, nu, field_deg=fd, angle_rad=0.0, z_um=z)
-            s = pupil_mtf(lens, nu, field_deg=fd, angle_rad=math.pi / 2, z_um=z)
-            ax.plot(nu, t, label=f"{fd:.2f} deg tangential (continuous)")
-            ax.plot(nu, s, ":", label=f"{fd:.2f} deg sagittal (continuous)")
+    from concurrent.futures import ThreadPoolExecutor
+
+    fields = [fd for fd in dict.fromkeys((fields_deg[len(fields_deg) // 2], fields_deg[-1])) if fd != 0]
+    with blas_threads(1), ThreadPoolExecutor(2) as ex:  # four independent autocorrelations, two at a time
+        jobs = {(fd, a): ex.submit(pupil_mtf, lens, nu_f, field_deg=fd, angle_rad=a, z_um=z)
+                for fd in fields for a in (0.0, math.pi / 2)}
+        for fd in fields:
+            try:
+                t, s = jobs[(fd, 0.0)].result(), jobs[(fd, math.pi / 2)].result()
+            except (InputError, ValueError, FloatingPointError) as e:
+                res["warnings"].append(f"MTF at {fd:.3g} deg not computed: {e}")
+                continue
+            ax.plot(nu_f, t, label=f"{fd:.2f} deg tangential (continuous)")
+            ax.plot(nu_f, s, ":", label=f"{fd:.2f} deg sagittal (continuous)")
             mt[f"{fd:.3f}_tangential"], mt[f"{fd:.3f}_sagittal"] = t, s
-        except (InputError, ValueError, FloatingPointError) as e:
-            res["warnings"].append(f"MTF at {fd:.3g} deg not computed: {e}")
     ax.set_xlabel("spatial frequency at the focal plane (cycles/mm)"); ax.set_ylabel("MTF (focusing order)")
     ax.legend(fontsize=6.5); fig.tight_layout()
     res["mtf"] = mt
@@ -192,7 +216,8 @@ def _mtf(plt: Any, lens: LensDesign, res: dict[str, Any], fields_deg: list[float
 
 
 def _sensor(plt: Any, lens: LensDesign, res: dict[str, Any], fields_deg: list[float], mono_wl: list[float],
-            wl: np.ndarray, w: np.ndarray, post_set: Any, error: float, pixel_pitch_um: float, z: float) -> bytes:
+            wl: np.ndarray, w: np.ndarray, post_set: Any, error: float, pixel_pitch_um: float, z: float,
+            tick: Callable[[str], None]) -> bytes:
     """Encircled energy and broadband sensor PSFs over the field: ``res['on_axis_ee_pixel_radius']`` (power within
     one pixel pitch of the axis, exact radial integral, no pixel grid), ``res['sensor']`` and the figure."""
     res["on_axis_ee_pixel_radius"] = {
@@ -203,14 +228,26 @@ def _sensor(plt: Any, lens: LensDesign, res: dict[str, Any], fields_deg: list[fl
     radii = np.linspace(0, 6 * diffraction_radius_um(lens) + 2 * pixel_pitch_um, 40)
     fig, ax = plt.subplots(1, 2, figsize=(11, 4))
     sens = []
-    for fd in fields_deg:
-        with warnings.catch_warnings(record=True) as ws:
-            warnings.simplefilter("always")
-            mono_s = sensor_psf(lens, pixel_pitch_um=pixel_pitch_um, field_deg=fd, post_set=post_set, error=error,
-                                wavelengths_um=mono_wl, z_um=z)
-            poly = sensor_psf(lens, pixel_pitch_um=pixel_pitch_um, field_deg=fd, wavelengths_um=wl, weights=w,
-                              post_set=post_set, error=error, z_um=z)
-        res["warnings"] += [f"field {fd:.3g} deg: {x.message}" for x in ws]
+
+    def both(fd: float) -> tuple[Any, Any]:
+        mono_s = sensor_psf(lens, pixel_pitch_um=pixel_pitch_um, field_deg=fd, post_set=post_set, error=error,
+                            wavelengths_um=mono_wl, z_um=z)
+        return mono_s, sensor_psf(lens, pixel_pitch_um=pixel_pitch_um, field_deg=fd, wavelengths_um=wl, weights=w,
+                                  post_set=post_set, error=error, z_um=z)
+
+    # two fields at a time (numpy releases the GIL in the engines); the warnings of all fields are recorded
+    # together (catch_warnings is process-wide) and each names its field
+    from concurrent.futures import ThreadPoolExecutor
+
+    with warnings.catch_warnings(record=True) as ws, blas_threads(1), ThreadPoolExecutor(2) as ex:
+        warnings.simplefilter("always")
+        futures = [ex.submit(both, fd) for fd in fields_deg]
+        done = []
+        for fd, fu in zip(fields_deg, futures):
+            done.append(fu.result())
+            tick(f"sensor PSFs {fd:.2f} deg")
+    res["warnings"] += [str(x.message) for x in ws]
+    for fd, (mono_s, poly) in zip(fields_deg, done):
         c = tuple(s // 2 for s in poly.shape)
         cm = tuple(s // 2 for s in mono_s.shape)
         sens.append({"field_deg": fd, "mono_center_pixel": float(mono_s.intensity[cm]),
@@ -220,9 +257,8 @@ def _sensor(plt: Any, lens: LensDesign, res: dict[str, Any], fields_deg: list[fl
                      "size_px": poly.shape[0], "seconds": poly.info["seconds"] + mono_s.info["seconds"]})
         if fd == 0.0:  # on axis the exact radial integral of the optical PSF (no pixels)
             r_ee = radii[1:]
-            ee = [encircled_energy_on_axis(lens, r, wavelengths_um=mono_wl, post_set=post_set, z_um=z) for r in r_ee]
-            eep = [encircled_energy_on_axis(lens, r, wavelengths_um=wl, weights=w, post_set=post_set, z_um=z)
-                   for r in r_ee]
+            ee = encircled_energy_on_axis(lens, r_ee, wavelengths_um=mono_wl, post_set=post_set, z_um=z, n=48)
+            eep = encircled_energy_on_axis(lens, r_ee, wavelengths_um=wl, weights=w, post_set=post_set, z_um=z, n=48)
             ax[0].plot(r_ee, ee, label=f"on axis, {mono_wl[0]:g} um (optical, exact)")
             ax[0].plot(r_ee, eep, "--", label="on axis, band (optical, exact)")
         elif fd == fields_deg[-1]:
@@ -298,7 +334,7 @@ def psf_reports(designs: Sequence[str | Path | LensDesign], out_dir: str | Path,
                 n_wavelengths: int = 61, pixel_pitch_um: float = 17.0, error: float = 1e-4,
                 wavelength_um: float | None = None, window_um: float | None = None,
                 jobs: int | None = None, relay_magnification: float = 1.0,
-                distances_um: dict[str, float] | None = None) -> dict[str, dict[str, Any]]:
+                distances_um: dict[str, float] | None = None, progress: bool = False) -> dict[str, dict[str, Any]]:
     """:func:`psf_report` of every lens (TOML paths or :class:`LensDesign`) into ``out_dir``, one process per lens.
 
     Everything that can be refused is refused before any work and before ``out_dir`` is made: a band, filter
@@ -324,7 +360,7 @@ def psf_reports(designs: Sequence[str | Path | LensDesign], out_dir: str | Path,
     kw = dict(fields_deg=fields_deg, band_um=band_um, filter_um=filter_um, temperature_k=temperature_k,
               n_wavelengths=n_wavelengths, pixel_pitch_um=pixel_pitch_um, error=error,
               wavelength_um=wavelength_um, window_um=window_um, relay_magnification=relay_magnification)
-    kws = [{**kw, "z_um": dist.get(lens.name)} for lens in lenses]
+    kws = [{**kw, "z_um": dist.get(lens.name), "progress": progress, "position": i} for i, lens in enumerate(lenses)]
     if jobs > 1 and len(lenses) > 1:
         # one process per lens (the report of a lens is single-threaded)
         from concurrent.futures import ProcessPoolExecutor
