@@ -144,13 +144,13 @@ def _monochromatic(plt: Any, lens: LensDesign, res: dict[str, Any], fields_deg: 
                        cmap="magma")
         fig.colorbar(im, ax=ax, fraction=0.046, pad=0.03).set_label("fraction of incident power per um^2", fontsize=7)
         grid = "optical, fine grid" if fine else f"pixel grid {P.pitch_um:.3g} um"
-        held = "" if P.energy_fraction > 0.95 * _focus_power(P) else f", window holds {P.energy_fraction:.0%}"
-        ax.set_title(f"{fd:.2f} deg, {lens.levels}-level + lattice ({grid}{held})\n{P.engine}, err "
-                     f"{P.error_estimate:.1g}", fontsize=8)
+        bound = "edge diffraction not bounded" if "model_note" in P.info else f"err {P.error_estimate:.1g}"
+        ax.set_title(f"{fd:.2f} deg, {lens.levels}-level + lattice ({grid})\n{P.engine}, {bound}, "
+                     f"{P.energy_fraction:.0%} of incident power in window", fontsize=8)
         ax.set_xlabel("x at the focal plane (um)")
         mono.append({"field_deg": fd, "engine": P.engine, "error_estimate": P.error_estimate,
                      "pitch_um": P.pitch_um, "samples": P.shape[0], "energy_fraction": P.energy_fraction,
-                     "grid": "fine" if fine else "pixel",
+                     "grid": "fine" if fine else "pixel", "model_note": P.info.get("model_note"),
                      "peak_fraction_per_um2": float(P.intensity.max() / P.pitch_um ** 2),
                      "strehl": strehl(P) if fine else None,
                      "focusing_efficiency": focusing_efficiency(P) if fine else None,
@@ -162,13 +162,6 @@ def _monochromatic(plt: Any, lens: LensDesign, res: dict[str, Any], fields_deg: 
     png = fig_to_png(fig, dpi=DPI)
     plt.close(fig)
     return png
-
-
-def _focus_power(P: Any) -> float:
-    """Power of the focusing order (fraction of the incident): what a window holding the whole PSF would sum to."""
-    eff = P.info.get("order_efficiency", 1.0)
-    eff = float(np.dot(P.weights, eff)) if np.ndim(eff) else float(eff)
-    return eff
 
 
 def _mtf(plt: Any, lens: LensDesign, res: dict[str, Any], fields_deg: list[float], cut: float, z: float,
@@ -295,7 +288,9 @@ def _page(res: dict[str, Any], figs: dict[str, bytes]) -> HtmlReport:
     page.heading("Monochromatic PSFs (engine, sampling, error estimate)")
     page.table(["field (deg)", "engine", "grid", "error estimate (of peak)", "pitch (um)", "power in window",
                 "Strehl ratio", "peak / ideal continuous lens"],
-               [[f"{m['field_deg']:.3f}", m["engine"], m["grid"], f"{m['error_estimate']:.2g}", f"{m['pitch_um']:.3g}",
+               [[f"{m['field_deg']:.3f}", m["engine"], m["grid"],
+                 "not bounded (edge diffraction)" if m.get("model_note") else f"{m['error_estimate']:.2g}",
+                 f"{m['pitch_um']:.3g}",
                  f"{m['energy_fraction']:.4f}", "-" if m["strehl"] is None else f"{m['strehl']:.4f}",
                  "-" if m["focusing_efficiency"] is None else f"{m['focusing_efficiency']:.4f}"]
                 for m in res["monochromatic"]])
