@@ -9,7 +9,9 @@ Files, in the order light meets them::
                reference for small apertures), mft_field / mft_intensity_multi (windowed direction-sine
                transform, any field), hankel_field / hankel_profiles (1-D, on axis); SamplingError,
                AliasingWarning
-    psf        the PSF type; psf() (field PSF on a fine grid, hankel or mft per wavelength);
+    rayleigh   rs_field (the windowed exact Rayleigh-Sommerfeld engine over the hard-edged aperture: off-axis
+               PSFs, with an evaluated error estimate) and rs_reference (brute force, polar per Fresnel zone)
+    psf        the PSF type; psf() (field PSF on a fine grid: hankel on axis, rs off axis, mft on request);
                encircled_energy_on_axis (exact radial integral); diffraction_radius_um, nyquist_pitch_um
     sensor     sensor_psf(): the PSF integrated over pixels, broadband, on and off axis (batched hankel on
                axis; batched mft near focus and the geometric ray engine elsewhere off axis, with an error
@@ -26,10 +28,11 @@ from .propagate import (AliasingWarning, SamplingError, asm_propagate, hankel_fi
                         mft_intensity_multi)
 from .psf import PSF, diffraction_radius_um, encircled_energy_on_axis, nyquist_pitch_um, psf
 from .pupil import Pupil, build_pupils, field_direction, max_field_deg
+from .rayleigh import rs_field, rs_reference
 from .sensor import box_integrate, disk_pixels, sensor_psf
 
 __all__ = ["PSF", "AliasingWarning", "Pupil", "SamplingError", "asm_propagate", "box_integrate", "build_pupils",
            "diffraction_mtf", "diffraction_radius_um", "disk_pixels", "encircled_energy", "encircled_energy_on_axis",
            "field_direction", "fwhm_um", "hankel_field", "hankel_profiles", "max_field_deg", "mft_field",
            "mft_intensity_multi", "mtf_2d", "mtf_radial", "mtf_slices", "nyquist_pitch_um", "pixel_mtf",
-           "psf", "pupil_mtf", "sensor_psf", "strehl"]
+           "psf", "pupil_mtf", "rs_field", "rs_reference", "sensor_psf", "strehl"]

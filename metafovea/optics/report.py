@@ -22,7 +22,7 @@ from metafovea.report import HtmlReport, fig_to_png
 
 from .mtf import diffraction_mtf, encircled_energy, focusing_efficiency, pixel_mtf, pupil_mtf, strehl
 from .propagate import SamplingError
-from .psf import defocus_note, diffraction_radius_um, encircled_energy_on_axis, psf
+from .psf import defocus_note, depth_of_focus_um, diffraction_radius_um, encircled_energy_on_axis, psf
 from .pupil import EVANESCENT_MARGIN, max_field_deg
 from .sensor import sensor_psf
 
@@ -99,9 +99,10 @@ def psf_report(lens: LensDesign, out_dir: str | Path, *, fields_deg: list[float]
         ee_png = _sensor(plt, lens, res, fields_deg, mono_wl, wl, w, post_set, error, pixel_pitch_um, z, tick)
         mtf_png = _mtf(plt, lens, res, fields_deg, cut, z, pixel_pitch_um)
         tick("MTF")
+        focus_png = _through_focus(plt, lens, res, mono_wl, wl, w, post_set, pixel_pitch_um, z)
         figs = {"psf_mono.png": _monochromatic(plt, lens, res, fields_deg, mono_wl, post_set, error, window_um,
                                                pixel_pitch_um, z, tick),
-                "mtf.png": mtf_png, "ee_field.png": ee_png}
+                "mtf.png": mtf_png, "ee_field.png": ee_png, "through_focus.png": focus_png}
     except InputError as e:
         bar.close()
         if e.parameter == "wavelengths_um" and wavelength_um is not None:
@@ -159,6 +160,40 @@ def _monochromatic(plt: Any, lens: LensDesign, res: dict[str, Any], fields_deg: 
     axs[0].set_ylabel("y at the focal plane (um)")
     fig.tight_layout()
     res["monochromatic"] = mono
+    png = fig_to_png(fig, dpi=DPI)
+    plt.close(fig)
+    return png
+
+
+def _through_focus(plt: Any, lens: LensDesign, res: dict[str, Any], mono_wl: list[float], wl: np.ndarray,
+                   w: np.ndarray, post_set: Any, pixel_pitch_um: float, z: float) -> bytes:
+    """On-axis through-focus curves of the fabricated lens (exact radial integrals, optical PSF): the power within
+    one focal-plane pixel pitch of the axis at the design wavelength and over the band, against the focal-plane
+    distance, f +- 3 depths of focus, with the sensor's plane marked: ``res['through_focus']``."""
+    dof = depth_of_focus_um(lens)
+    lo, hi = min(lens.f_um - 3 * dof, z - dof), max(lens.f_um + 3 * dof, z + dof)
+    zs = np.linspace(lo, hi, 41)
+    zb = zs[::4]
+    mono = [float(encircled_energy_on_axis(lens, pixel_pitch_um, wavelengths_um=mono_wl, post_set=post_set, z_um=v,
+                                           n=96)) for v in zs]
+    band = [float(encircled_energy_on_axis(lens, pixel_pitch_um, wavelengths_um=wl, weights=w, post_set=post_set,
+                                           z_um=v, n=96)) for v in zb]
+    r_d = diffraction_radius_um(lens)
+    core = [float(encircled_energy_on_axis(lens, r_d, wavelengths_um=mono_wl, post_set=post_set, z_um=v, n=96))
+            for v in zs]
+    fig, ax = plt.subplots(figsize=(6.5, 4.0))
+    ax.semilogy((zs - lens.f_um), mono, label=f"{mono_wl[0]:g} um, r = pixel pitch {pixel_pitch_um:.3g} um")
+    ax.semilogy((zs - lens.f_um), core, label=f"{mono_wl[0]:g} um, r = first zero {r_d:.3g} um")
+    ax.semilogy((zb - lens.f_um), band, "s--", label=f"band (Planck-weighted), r = {pixel_pitch_um:.3g} um")
+    ax.axvline(z - lens.f_um, color="k", lw=0.8, ls=":", label="sensor plane")
+    ax.axvspan(-dof, dof, color="0.9", label=f"depth of focus +-{dof:.0f} um")
+    ax.set_xlabel("focal-plane distance - f (um)")
+    ax.set_ylabel("power within r of the axis (of incident)")
+    ax.set_title(f"through focus, on axis, {lens.levels}-level + lattice (optical PSF, exact)", fontsize=9)
+    ax.legend(fontsize=7); fig.tight_layout()
+    res["through_focus"] = {"defocus_um": zs - lens.f_um, "mono": mono, "mono_core": core, "core_radius_um": r_d,
+                            "band_defocus_um": zb - lens.f_um,
+                            "band": band, "radius_um": pixel_pitch_um, "depth_of_focus_um": dof}
     png = fig_to_png(fig, dpi=DPI)
     plt.close(fig)
     return png

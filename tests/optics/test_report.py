@@ -23,11 +23,11 @@ def tiny(tmp_path_factory, lens_toml):
 
 def test_writes_png_json_html(tiny):
     _, out, res = tiny
-    for name in ("psf_mono.png", "mtf.png", "ee_field.png"):
+    for name in ("psf_mono.png", "mtf.png", "ee_field.png", "through_focus.png"):
         data = (out / f"tiny_{name}").read_bytes()
         assert data[:8] == b"\x89PNG\r\n\x1a\n" and len(data) > 1000
     page = (out / "tiny_psf_report.html").read_text()
-    assert page.lower().startswith("<!doctype html>") and page.count("data:image/png;base64,") == 3
+    assert page.lower().startswith("<!doctype html>") and page.count("data:image/png;base64,") == 4
     assert "PSF / MTF report: tiny" in page and page.count("<table>") == 2
     on_file = json.loads((out / "tiny_psf_report.json").read_text())
     assert on_file["lens"] == "tiny" and len(on_file["sensor"]) == 2 and on_file["spectral"]["n_wavelengths"] >= 9
@@ -117,3 +117,21 @@ def test_relay_and_lens_to_sensor_distance_are_honoured(tmp_path, lens_toml):
                                                                              rel=1e-9)
     page = (tmp_path / "b" / "geo_psf_report.html").read_text()
     assert "0.5x relay" in page and "34 um at the focal plane" in page
+
+
+def test_through_focus_curve(tiny):
+    """The curve's in-focus value is the report's exact on-axis pixel-radius energy, the core energy peaks at focus
+    and falls symmetrically (non-paraxial lens: to within a few per cent) beyond the depth of focus."""
+    import numpy as np
+
+    _, _, res = tiny
+    tf = res["through_focus"]
+    dz = np.asarray(tf["defocus_um"])
+    i0 = int(np.argmin(np.abs(dz)))
+    assert abs(dz[i0]) < 1e-6 * res["f_mm"] * 1000
+    assert tf["mono"][i0] == pytest.approx(res["on_axis_ee_pixel_radius"]["mono"], rel=1e-6)
+    core = np.asarray(tf["mono_core"])
+    assert abs(int(np.argmax(core)) - i0) <= 1
+    assert core[0] < 0.9 * core[i0] and core[-1] < 0.9 * core[i0]
+    assert core[0] == pytest.approx(core[-1], rel=0.05)
+    assert tf["depth_of_focus_um"] == pytest.approx(2 * 10.0 * 2.0 ** 2)
