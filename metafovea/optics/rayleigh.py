@@ -263,7 +263,7 @@ def _plan(pupil: Pupil, xs: np.ndarray, ys: np.ndarray, error: float, q: float, 
         return boxes
     from .propagate import mft_field  # the preview
 
-    A = np.abs(mft_field(pupil, xs[::2], ys[::2], error=1e-4))
+    A = np.abs(mft_field(pupil, xs[::2], ys[::2], error=1e-3))
     jp, ip = (2 * int(v) for v in np.unravel_index(int(np.argmax(A)), A.shape))
     c0 = min(max(0, ip - 32), max(0, xs.size - 64))
     r0 = min(max(0, jp - 32), max(0, ys.size - 64))
