@@ -171,7 +171,9 @@ def _through_focus(plt: Any, lens: LensDesign, res: dict[str, Any], mono_wl: lis
     one focal-plane pixel pitch of the axis at the design wavelength and over the band, against the focal-plane
     distance, f +- 3 depths of focus, with the sensor's plane marked: ``res['through_focus']``."""
     dof = depth_of_focus_um(lens)
-    lo, hi = min(lens.f_um - 3 * dof, z - dof), max(lens.f_um + 3 * dof, z + dof)
+    span = min(3 * dof, 0.5 * lens.f_um)  # slow lenses (F/50: dof of tens of mm) stay at positive distances
+    lo, hi = min(lens.f_um - span, z - span / 3), max(lens.f_um + span, z + span / 3)
+    lo = max(lo, 0.25 * min(lens.f_um, z))
     zs = np.linspace(lo, hi, 41)
     zb = zs[::4]
     mono = [float(encircled_energy_on_axis(lens, pixel_pitch_um, wavelengths_um=mono_wl, post_set=post_set, z_um=v,
