@@ -102,7 +102,8 @@ def psf_report(lens: LensDesign, out_dir: str | Path, *, fields_deg: list[float]
         focus_png = _through_focus(plt, lens, res, mono_wl, wl, w, post_set, pixel_pitch_um, z)
         figs = {"psf_mono.png": _monochromatic(plt, lens, res, fields_deg, mono_wl, post_set, error, window_um,
                                                pixel_pitch_um, z, tick),
-                "mtf.png": mtf_png, "ee_field.png": ee_png, "through_focus.png": focus_png}
+                "mtf.png": mtf_png, "ee_field.png": ee_png, "through_focus.png": focus_png,
+                "wavefront.png": _wavefront(plt, lens, res, post_set)}
     except InputError as e:
         bar.close()
         if e.parameter == "wavelengths_um" and wavelength_um is not None:
@@ -160,6 +161,52 @@ def _monochromatic(plt: Any, lens: LensDesign, res: dict[str, Any], fields_deg: 
     axs[0].set_ylabel("y at the focal plane (um)")
     fig.tight_layout()
     res["monochromatic"] = mono
+    png = fig_to_png(fig, dpi=DPI)
+    plt.close(fig)
+    return png
+
+
+def _wavefront(plt: Any, lens: LensDesign, res: dict[str, Any], post_set: Any) -> bytes:
+    """Phase error of the fabricated lens (posts on the lattice, N levels, the post set's phases) against the
+    continuous hyperbolic phase, on 120 um patches at the centre and at the rim, sampled at a sixteenth of the
+    period (so the hold over each 4 um cell shows): ``res['wavefront']`` (rms and max after the common phase is
+    removed). Ideal posts (no post set): quantisation and lattice only, rms ~ pi / (N sqrt 3)."""
+    from metafovea.lens import design_phase, quantize_phase  # lens stage (above optics): allowed
+
+    p, n = lens.period_um, lens.levels
+    o = 0.0 if lens.lattice == "integer" else 0.5
+    if post_set is not None:
+        target = 2 * np.pi * np.arange(n) / n
+        ph = np.angle(post_set.t_focus)
+        level_ph = target + np.angle(np.exp(1j * (ph - target)))
+    else:
+        level_ph = 2 * np.pi * np.arange(n) / n
+    half = 60.0
+    ax1 = np.arange(-half, half, p / 16) + p / 32
+    fig, axs = plt.subplots(1, 2, figsize=(10, 4.2))
+    out: dict[str, Any] = {"sampling_um": p / 16, "patch_um": 2 * half,
+                           "post_set": "ideal posts" if post_set is None else getattr(post_set, "source", "post set")}
+    for axp, (name, cx) in zip(axs, (("centre", 0.0), ("rim", lens.radius_um - half - p))):
+        X, Y = cx + ax1[None, :], ax1[:, None] + 0.0 * ax1[None, :]
+        cont = design_phase(lens, X, Y)
+        xs = (np.floor(X / p - o + 0.5) + o) * p
+        ys = (np.floor(Y / p - o + 0.5) + o) * p
+        fab = level_ph[quantize_phase(design_phase(lens, xs, ys), n)]
+        d = np.exp(1j * (fab - cont))
+        err = np.angle(d * np.exp(-1j * np.angle(d.mean())))  # common phase removed
+        out[name] = {"center_um": [cx, 0.0], "rms_rad": float(np.sqrt(np.mean(err ** 2))),
+                     "max_rad": float(np.abs(err).max())}
+        lim = max(out[name]["max_rad"], 1e-3)
+        im = axp.imshow(err, origin="lower", cmap="RdBu_r", vmin=-lim, vmax=lim,
+                        extent=[X.min() - p / 32, X.max() + p / 32, ax1[0] - p / 32, ax1[-1] + p / 32])
+        fig.colorbar(im, ax=axp, fraction=0.046, pad=0.03).set_label("phase error (rad)", fontsize=8)
+        axp.set_title(f"{name}: rms {out[name]['rms_rad']:.3f} rad, max {out[name]['max_rad']:.2f} rad", fontsize=9)
+        axp.set_xlabel("x on the lens (um)")
+    axs[0].set_ylabel("y on the lens (um)")
+    fig.suptitle(f"{lens.levels}-level lens on the {p:g} um lattice ({out['post_set']}) against the continuous "
+                 "phase", fontsize=9)
+    fig.tight_layout()
+    res["wavefront"] = out
     png = fig_to_png(fig, dpi=DPI)
     plt.close(fig)
     return png

@@ -23,11 +23,11 @@ def tiny(tmp_path_factory, lens_toml):
 
 def test_writes_png_json_html(tiny):
     _, out, res = tiny
-    for name in ("psf_mono.png", "mtf.png", "ee_field.png", "through_focus.png"):
+    for name in ("psf_mono.png", "mtf.png", "ee_field.png", "through_focus.png", "wavefront.png"):
         data = (out / f"tiny_{name}").read_bytes()
         assert data[:8] == b"\x89PNG\r\n\x1a\n" and len(data) > 1000
     page = (out / "tiny_psf_report.html").read_text()
-    assert page.lower().startswith("<!doctype html>") and page.count("data:image/png;base64,") == 4
+    assert page.lower().startswith("<!doctype html>") and page.count("data:image/png;base64,") == 5
     assert "PSF / MTF report: tiny" in page and page.count("<table>") == 2
     on_file = json.loads((out / "tiny_psf_report.json").read_text())
     assert on_file["lens"] == "tiny" and len(on_file["sensor"]) == 2 and on_file["spectral"]["n_wavelengths"] >= 9
@@ -135,3 +135,21 @@ def test_through_focus_curve(tiny):
     assert core[0] < 0.9 * core[i0] and core[-1] < 0.9 * core[i0]
     assert core[0] == pytest.approx(core[-1], rel=0.05)
     assert tf["depth_of_focus_um"] == pytest.approx(2 * 10.0 * 2.0 ** 2)
+
+
+def test_wavefront_error_of_ideal_posts_is_the_quantisation(tiny):
+    """With ideal posts the phase error against the continuous lens is the N-level quantisation (uniform, rms
+    pi / (N sqrt 3)) plus the hold over each lattice cell (uniform over +-pi p / zone width): where a patch spans
+    several zones (the rim) their rms add in quadrature; at the centre the phase hardly varies across the patch."""
+    import math
+
+    path, _, res = tiny
+    lens = load_lens(path)
+    wf = res["wavefront"]
+    assert wf["post_set"] == "ideal posts"
+    r = wf["rim"]["center_um"][0]
+    zone = lens.wavelength_um * math.hypot(r, lens.f_um) / r  # local zone width at the rim patch
+    q = math.pi / (lens.levels * math.sqrt(3))
+    hold = math.pi * lens.period_um / zone / math.sqrt(3)
+    assert wf["rim"]["rms_rad"] == pytest.approx(math.hypot(q, hold), rel=0.05)
+    assert wf["centre"]["rms_rad"] < wf["rim"]["rms_rad"] and wf["rim"]["max_rad"] <= math.pi
