@@ -20,7 +20,7 @@ from metafovea.io import atomic_write_bytes, atomic_write_json, file_stem, prepa
 from metafovea.radiometry import psf_wavelengths
 from metafovea.report import HtmlReport, fig_to_png
 
-from .mtf import diffraction_mtf, encircled_energy, focusing_efficiency, pixel_mtf, pupil_mtf, strehl
+from .mtf import diffraction_mtf, encircled_energy, focusing_efficiency, mtf_slices, pixel_mtf, pupil_mtf, strehl
 from .propagate import SamplingError
 from .psf import defocus_note, depth_of_focus_um, diffraction_radius_um, encircled_energy_on_axis, psf
 from .pupil import EVANESCENT_MARGIN, max_field_deg
@@ -303,7 +303,9 @@ def _sensor(plt: Any, lens: LensDesign, res: dict[str, Any], fields_deg: list[fl
         "band": encircled_energy_on_axis(lens, pixel_pitch_um, wavelengths_um=wl, weights=w, post_set=post_set,
                                          z_um=z)}
     radii = np.linspace(0, 6 * diffraction_radius_um(lens) + 2 * pixel_pitch_um, 40)
-    fig, ax = plt.subplots(1, 2, figsize=(11, 4))
+    fig, ax = plt.subplots(1, 3, figsize=(16, 4))
+    nyq = 1000.0 / (2 * pixel_pitch_um)  # cycles/mm at the focal plane
+    nu_m = np.array([0.5 * nyq, nyq])
     sens = []
 
     def both(fd: float) -> tuple[Any, Any]:
@@ -332,6 +334,11 @@ def _sensor(plt: Any, lens: LensDesign, res: dict[str, Any], fields_deg: list[fl
                      "poly_engine": poly.engine, "poly_error_estimate": poly.error_estimate,
                      "mono_engine": mono_s.engine, "mono_error_estimate": mono_s.error_estimate,
                      "size_px": poly.shape[0], "seconds": poly.info["seconds"] + mono_s.info["seconds"]})
+        # MTF of the pixel-integrated PSFs (pixel aperture included; normalised to the light in the window)
+        for key, P in (("mono", mono_s), ("poly", poly)):
+            m = mtf_slices(P, nu_m)
+            sens[-1][f"{key}_mtf"] = {"nu_cyc_per_mm": nu_m.tolist(), "tangential": m["tangential"].tolist(),
+                                      "sagittal": m["sagittal"].tolist()}
         if fd == 0.0:  # on axis the exact radial integral of the optical PSF (no pixels)
             r_ee = radii[1:]
             ee = encircled_energy_on_axis(lens, r_ee, wavelengths_um=mono_wl, post_set=post_set, z_um=z, n=48)
@@ -350,6 +357,16 @@ def _sensor(plt: Any, lens: LensDesign, res: dict[str, Any], fields_deg: list[fl
     ax[1].semilogy([s["field_deg"] for s in sens], [s["poly_center_pixel"] for s in sens], "s-", label="band")
     ax[1].set_xlabel("field (deg)"); ax[1].set_ylabel(f"power in the chief-ray pixel ({pixel_pitch_um:.3g} um)")
     ax[1].legend()
+    fd_all = [s["field_deg"] for s in sens]
+    for j, (ls, what) in enumerate(((":", "Nyquist/2"), ("-", "Nyquist"))):
+        ax[2].plot(fd_all, [s["mono_mtf"]["tangential"][j] for s in sens], ls, marker="o", color="C0",
+                   label=f"{mono_wl[0]:g} um tangential, {nu_m[j]:.1f}/mm ({what})")
+        ax[2].plot(fd_all, [s["mono_mtf"]["sagittal"][j] for s in sens], ls, marker="^", color="C1",
+                   label=f"{mono_wl[0]:g} um sagittal, {nu_m[j]:.1f}/mm")
+        ax[2].plot(fd_all, [s["poly_mtf"]["tangential"][j] for s in sens], ls, marker="s", color="C2",
+                   label=f"band tangential, {nu_m[j]:.1f}/mm")
+    ax[2].set_xlabel("field (deg)"); ax[2].set_ylabel("MTF (pixel-integrated PSF, pixel aperture included)")
+    ax[2].set_ylim(0, 1.02); ax[2].legend(fontsize=6)
     fig.tight_layout()
     res["sensor"] = sens
     png = fig_to_png(fig, dpi=DPI)

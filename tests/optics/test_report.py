@@ -153,3 +153,19 @@ def test_wavefront_error_of_ideal_posts_is_the_quantisation(tiny):
     hold = math.pi * lens.period_um / zone / math.sqrt(3)
     assert wf["rim"]["rms_rad"] == pytest.approx(math.hypot(q, hold), rel=0.05)
     assert wf["centre"]["rms_rad"] < wf["rim"]["rms_rad"] and wf["rim"]["max_rad"] <= math.pi
+
+
+def test_mtf_against_field_from_the_sensor_psfs(tiny):
+    """The report's MTF at half the pixel Nyquist frequency and at Nyquist, per field, equals mtf_slices of the
+    sensor PSF it shows (the field's tangential and sagittal directions; values in [0, 1])."""
+    from metafovea.optics import mtf_slices
+
+    path, _, res = tiny
+    lens = load_lens(path)
+    s0 = res["sensor"][0]
+    nu = s0["mono_mtf"]["nu_cyc_per_mm"]
+    assert nu[1] == pytest.approx(1000.0 / (2 * res["pixel_pitch_um"]))
+    P = sensor_psf(lens, pixel_pitch_um=res["pixel_pitch_um"], field_deg=0.0, error=1e-4)
+    m = mtf_slices(P, nu)
+    assert s0["mono_mtf"]["tangential"] == pytest.approx(list(m["tangential"]), rel=1e-9)
+    assert len(res["sensor"]) == 2 and all(0 <= v <= 1 for s in res["sensor"] for v in s["poly_mtf"]["sagittal"])
