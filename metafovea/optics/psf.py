@@ -178,6 +178,24 @@ def _check_field(lens: LensDesign, field_deg: Any, wl: np.ndarray) -> None:
                          f"{wl.max():g} um: beyond it the rim of the lens sends light into evanescent directions")
 
 
+def checked_inputs(lens: LensDesign, *, wavelengths_um: Any, weights: Any, error: Any, engine: Any, refused: str,
+                   allowed: str, field_deg: Any, post_set: PostSet | None, polarization: str | None,
+                   quantize: bool, lattice: bool, z_um: float | None
+                   ) -> tuple[np.ndarray, np.ndarray, float, str, tuple[float, float], list[Any]]:
+    """The input checks psf() and sensor_psf() share: (wavelengths, weights, error, engine, field pair, the
+    pupil sets per wavelength). ``refused``: the engine this caller does not run (``allowed`` says what it does)."""
+    wl, w = check_wavelengths(lens, wavelengths_um, weights)
+    error = check_range("error", error, 0.0, 0.5)
+    engine = check_choice("engine", engine, ENGINES)
+    if engine == refused:
+        raise InputError("engine", engine, allowed)
+    _check_field(lens, field_deg, wl)
+    fpair = _field_pair(field_deg)
+    sets = [build_pupils(lens, float(l), field_deg=field_deg, post_set=post_set, polarization=polarization,
+                         quantize=quantize, lattice=lattice, z_um=z_um) for l in wl]
+    return wl, w, error, engine, fpair, sets
+
+
 def diffraction_radius_um(lens: LensDesign) -> float:
     """First-zero radius of the focusing order (um): 0.61 lambda0 / NA, the same at every wavelength."""
     return 0.60983 * lens.wavelength_um / lens.na
@@ -286,15 +304,10 @@ def psf(lens: LensDesign, *, wavelengths_um: Any = None, weights: Any = None, fi
     ``allow_truncation``).
     """
     t0 = time.perf_counter()
-    wl, w = check_wavelengths(lens, wavelengths_um, weights)
-    error = check_range("error", error, 0.0, 0.5)
-    engine = check_choice("engine", engine, ENGINES)
-    if engine == "geometric":
-        raise InputError("engine", engine, "'auto', 'hankel', 'mft' or 'rs' for a fine-grid PSF (geometric: sensor_psf)")
-    _check_field(lens, field_deg, wl)
-    fpair = _field_pair(field_deg)
-    sets = [build_pupils(lens, float(l), field_deg=field_deg, post_set=post_set, polarization=polarization,
-                         quantize=quantize, lattice=lattice, z_um=z_um) for l in wl]
+    wl, w, error, engine, fpair, sets = checked_inputs(
+        lens, wavelengths_um=wavelengths_um, weights=weights, error=error, engine=engine, refused="geometric",
+        allowed="'auto', 'hankel', 'mft' or 'rs' for a fine-grid PSF (geometric: sensor_psf)", field_deg=field_deg,
+        post_set=post_set, polarization=polarization, quantize=quantize, lattice=lattice, z_um=z_um)
     pupils = [s.focus for s in sets if s.focus is not None]
     if not pupils:
         _no_focus_error(lens, wl, polarization)

@@ -46,7 +46,7 @@ from scipy import special
 
 from metafovea.parallel import blas_threads
 
-from .propagate import _gl, nodes_for_phase
+from .propagate import _gl, mft_field, nodes_for_phase
 from .pupil import Pupil
 
 #: Safety factor on the evaluated Taylor remainder (it is a smooth, mostly cubic function of the offset: its
@@ -261,8 +261,6 @@ def _plan(pupil: Pupil, xs: np.ndarray, ys: np.ndarray, error: float, q: float, 
              for j0 in range(0, ys.size, size) for i0 in range(0, xs.size, size)]
     if block_px is not None or xs.size * ys.size <= 64 * 64:
         return boxes
-    from .propagate import mft_field  # the preview
-
     A = np.abs(mft_field(pupil, xs[::2], ys[::2], error=1e-3))
     jp, ip = (2 * int(v) for v in np.unravel_index(int(np.argmax(A)), A.shape))
     c0 = min(max(0, ip - 32), max(0, xs.size - 64))

@@ -8,6 +8,7 @@ import math
 import os
 import time
 import warnings
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import Any, Callable, Sequence
 
@@ -269,8 +270,6 @@ def _mtf(plt: Any, lens: LensDesign, res: dict[str, Any], fields_deg: list[float
     ax.plot(nu, fab * pix, label=f"on axis, {lens.levels}-level x {pixel_pitch_um:.3g} um pixel")
     mt = {"nu_cyc_per_mm": nu, "nu_field_cyc_per_mm": nu_f, "on_axis": cont, "on_axis_fabricated": fab, "on_axis_fabricated_pixel": fab * pix,
           "paraxial_cutoff_cyc_per_mm": paraxial_cut, "z_um": z}
-    from concurrent.futures import ThreadPoolExecutor
-
     fields = [fd for fd in dict.fromkeys((fields_deg[len(fields_deg) // 2], fields_deg[-1])) if fd != 0]
     with blas_threads(1), ThreadPoolExecutor(2) as ex:  # four independent autocorrelations, two at a time
         jobs = {(fd, a): ex.submit(pupil_mtf, lens, nu_f, field_deg=fd, angle_rad=a, z_um=z)
@@ -316,8 +315,6 @@ def _sensor(plt: Any, lens: LensDesign, res: dict[str, Any], fields_deg: list[fl
 
     # two fields at a time (numpy releases the GIL in the engines); the warnings of all fields are recorded
     # together (catch_warnings is process-wide) and each names its field
-    from concurrent.futures import ThreadPoolExecutor
-
     with warnings.catch_warnings(record=True) as ws, blas_threads(1), ThreadPoolExecutor(2) as ex:
         warnings.simplefilter("always")
         futures = [ex.submit(both, fd) for fd in fields_deg]

@@ -36,24 +36,21 @@ from typing import Any
 import numpy as np
 
 from metafovea.config import LensDesign
-from metafovea.errors import InputError, NotConvergedWarning, check_choice, check_int, check_positive, check_range
+from metafovea.errors import NotConvergedWarning, check_int, check_positive
 from metafovea.library import PostSet
 
 from . import propagate as prop
 from .psf import (
-    ENGINES,
     MFT_OFF_AXIS_NOTE,
     PSF,
-    _check_field,
-    _field_pair,
     _ideal_peak,
     _wave_engine,
-    check_wavelengths,
+    checked_inputs,
     diffraction_radius_um,
     focus_intensity,
     nyquist_pitch_um,
 )
-from .pupil import Pupil, PupilSet, build_pupils, field_direction
+from .pupil import Pupil, PupilSet, field_direction
 
 log = logging.getLogger(__name__)
 
@@ -500,16 +497,10 @@ def sensor_psf(lens: LensDesign, *, pixel_pitch_um: float, field_deg: float | tu
     t0 = time.perf_counter()
     p = check_positive("pixel_pitch_um", pixel_pitch_um, "um", hi=1e4)
     budget = SENSOR_BUDGET if budget is None else check_positive("budget", budget)
-    wl, w = check_wavelengths(lens, wavelengths_um, weights)
-    error = check_range("error", error, 0.0, 0.5)
-    engine = check_choice("engine", engine, ENGINES)
-    if engine == "rs":
-        raise InputError("engine", engine, "'auto', 'hankel', 'mft' or 'geometric' for a sensor PSF (rs: psf)")
-    _check_field(lens, field_deg, wl)
-    fpair = _field_pair(field_deg)
-    sets: list[PupilSet] = [build_pupils(lens, float(l), field_deg=field_deg, post_set=post_set,
-                                         polarization=polarization, quantize=quantize, lattice=lattice,
-                                         z_um=z_um) for l in wl]
+    wl, w, error, engine, fpair, sets = checked_inputs(
+        lens, wavelengths_um=wavelengths_um, weights=weights, error=error, engine=engine, refused="rs",
+        allowed="'auto', 'hankel', 'mft' or 'geometric' for a sensor PSF (rs: psf)", field_deg=field_deg,
+        post_set=post_set, polarization=polarization, quantize=quantize, lattice=lattice, z_um=z_um)
     z = lens.f_um if z_um is None else float(z_um)
     s0 = field_direction(field_deg)
     chief = z * s0 / math.sqrt(1.0 - float(s0 @ s0))
