@@ -47,6 +47,9 @@ class PlatformDesign:
     substrate_thickness_um: float = 500.0
     min_feature_um: float = 0.5
     wavelength_um: float = LAMBDA0_UM
+    substrate_resistivity_ohm_cm: float = 15.0  # the paper's 10-20 ohm cm wafers
+    substrate_dopant: str = "p"  # boron (the common prime wafer; the paper does not say): 2.7x the electrons' loss
+    substrate_extra_absorption_per_cm: float = 0.0  # measured lattice / oxygen absorption, added to free carriers
 
     def __post_init__(self) -> None:
         check_positive("period_um", self.period_um, "um", hi=1e4)
@@ -57,6 +60,10 @@ class PlatformDesign:
         check_positive("substrate_thickness_um", self.substrate_thickness_um, "um")
         check_range("min_feature_um", self.min_feature_um, 0.0, self.period_um, hi_inclusive=False)
         check_positive("wavelength_um", self.wavelength_um, "um", hi=1e4)
+        check_positive("substrate_resistivity_ohm_cm", self.substrate_resistivity_ohm_cm, "ohm cm", hi=1e6)
+        check_choice("substrate_dopant", self.substrate_dopant, ("n", "p"))
+        check_range("substrate_extra_absorption_per_cm", self.substrate_extra_absorption_per_cm, 0.0, 1e3,
+                    unit="1/cm", lo_inclusive=True)
 
 
 @dataclass(frozen=True)
@@ -295,6 +302,12 @@ def load_platform(path: str | Path) -> PlatformDesign:
         substrate_thickness_um=r.num("substrate_thickness_um", d.substrate_thickness_um, unit="um"),
         min_feature_um=r.num("min_feature_um", d.min_feature_um, 0.0, period, unit="um"),
         wavelength_um=r.num("wavelength_um", d.wavelength_um, hi=1e4, unit="um"),
+        substrate_resistivity_ohm_cm=r.num("substrate_resistivity_ohm_cm", d.substrate_resistivity_ohm_cm, hi=1e6,
+                                           unit="ohm cm"),
+        substrate_dopant=r.choice("substrate_dopant", d.substrate_dopant, ("n", "p")),
+        substrate_extra_absorption_per_cm=r.num("substrate_extra_absorption_per_cm",
+                                                d.substrate_extra_absorption_per_cm, 0.0, 1e3, unit="1/cm",
+                                                lo_inclusive=True),
     )
     r.done()
     return out

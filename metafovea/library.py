@@ -43,6 +43,8 @@ class PostSet:
     widths_um: (N, 2) float, [wx, wy] side widths of level k's post (x and y extent, um).
     t_x, t_y: (N,) complex, zero-order field transmission for x- and y-polarised light (power
         normalised, exp(-i omega t); see metafovea.rcwa for reference planes).
+    R_x, R_y: (N,) zero-order (specular) power reflectance back into the wafer, or None when unknown
+        (an ideal set has 0; a file written before they were stored has None).
     source: 'rcwa' (selected from a computed library) or 'ideal' (exact phases, unit transmission,
         widths a monotonic ramp: for layout and optics tests only; not a physical design).
     info: free-form numbers (phase errors, pass-through spread, efficiency estimates).
@@ -57,6 +59,8 @@ class PostSet:
     t_y: np.ndarray
     source: str = "rcwa"
     info: dict[str, Any] = field(default_factory=dict)
+    R_x: np.ndarray | None = None
+    R_y: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         check_choice("polarization", self.polarization, POLARIZATIONS)
@@ -70,6 +74,13 @@ class PostSet:
         object.__setattr__(self, "t_y", np.asarray(self.t_y, dtype=complex).reshape(-1))
         if self.t_x.shape[0] != w.shape[0] or self.t_y.shape[0] != w.shape[0]:
             raise InputError("t_x/t_y", (self.t_x.shape, self.t_y.shape), f"length N = {w.shape[0]}")
+        for name in ("R_x", "R_y"):
+            r = getattr(self, name)
+            if r is not None:
+                r = np.asarray(r, dtype=float).reshape(-1)
+                if r.shape[0] != w.shape[0] or not np.all((r >= 0) & (r <= 1)):
+                    raise InputError(name, r.tolist(), f"N = {w.shape[0]} reflectances in [0, 1]")
+                object.__setattr__(self, name, r)
 
     @property
     def levels(self) -> int:
@@ -84,6 +95,19 @@ class PostSet:
     def t_pass(self) -> np.ndarray:
         """(N,) transmission of the pass-through (other) polarisation."""
         return self.t_y if self.polarization == "x" else self.t_x
+
+    def transmission(self, polarization: str) -> np.ndarray:
+        """(N,) zero-order field transmission of ``polarization`` light."""
+        return self.t_x if check_choice("polarization", polarization, POLARIZATIONS) == "x" else self.t_y
+
+    def reflectance(self, polarization: str) -> tuple[np.ndarray, str]:
+        """(N,) specular power reflectance back into the wafer for ``polarization`` light and where it comes
+        from: the RCWA value, or ``1 - |t|^2`` (every loss taken as specular reflection: an upper bound) when
+        the set does not carry it."""
+        r = self.R_x if check_choice("polarization", polarization, POLARIZATIONS) == "x" else self.R_y
+        if r is not None:
+            return r, "ideal posts: none" if self.source == "ideal" else f"{self.source} zero-order reflection"
+        return np.clip(1.0 - np.abs(self.transmission(polarization)) ** 2, 0.0, 1.0), "1 - |t|^2 (upper bound)"
 
     @classmethod
     def ideal(cls, levels: int, *, period_um: float = 4.0, height_um: float = 10.0,
@@ -104,13 +128,15 @@ class PostSet:
         t_p = np.ones(n, dtype=complex)
         t_x, t_y = (t_f, t_p) if pol == "x" else (t_p, t_f)
         return cls(pol, period_um, float(height_um), float(wavelength_um), widths, t_x, t_y,
-                   source="ideal", info={"note": "ideal phases; widths are a ramp, not a physical design"})
+                   source="ideal", info={"note": "ideal phases; widths are a ramp, not a physical design"},
+                   R_x=np.zeros(n), R_y=np.zeros(n))
 
     def save(self, path: str | Path) -> Path:
         meta = {"type": "PostSet", "polarization": self.polarization, "period_um": self.period_um,
                 "height_um": self.height_um, "wavelength_um": self.wavelength_um,
                 "source": self.source, "info": self.info, "units": "um"}
-        return atomic_save_npz(path, meta, widths_um=self.widths_um, t_x=self.t_x, t_y=self.t_y)
+        extra = {k: getattr(self, k) for k in ("R_x", "R_y") if getattr(self, k) is not None}
+        return atomic_save_npz(path, meta, widths_um=self.widths_um, t_x=self.t_x, t_y=self.t_y, **extra)
 
     @classmethod
     def load(cls, path: str | Path, name: str = "path") -> "PostSet":
@@ -119,7 +145,7 @@ class PostSet:
         try:
             return cls(meta["polarization"], meta["period_um"], meta["height_um"], meta["wavelength_um"],
                        arrays["widths_um"], arrays["t_x"], arrays["t_y"], source=meta["source"],
-                       info=meta.get("info", {}))
+                       info=meta.get("info", {}), R_x=arrays.get("R_x"), R_y=arrays.get("R_y"))
         except KeyError as e:
             raise InputError(name, str(path), "a PostSet file written by PostSet.save",
                              detail=f"missing {e.args[0]!r}") from None
@@ -547,6 +573,16 @@ def select_posts(lib: Library, polarization: str, levels: int = 8, *, wavelength
         raise InputError("library", int(np.count_nonzero(ok)), f"at least levels = {N} usable (converged) posts")
     tf, tp = tf_all[ok], tp_all[ok]
     wxc, wyc = WX[ok], WY[ok]
+    # specular reflection back into the entry side: entering through the wafer, 'other' is the reflected
+    # higher orders (only the zero order exists in air), so R_00 = R - other; entering from air, R is specular
+    specular = {}
+    for q in POLARIZATIONS:
+        if f"R_{q}" not in lib.arrays or f"other_{q}" not in lib.arrays:
+            specular[q] = None  # a library without reflections (hand-made): PostSet.reflectance bounds it
+            continue
+        R_all, oth_all = lib.arrays[f"R_{q}"][il], lib.arrays[f"other_{q}"][il]
+        spec = R_all if lib.meta.get("incidence") == "superstrate" else R_all - oth_all
+        specular[q] = np.clip(np.nan_to_num(spec[ok]), 0.0, 1.0)
     af, ap = np.angle(tf), np.angle(tp)
     loss = tw * ((1 - np.abs(tf) ** 2) + (1 - np.abs(tp) ** 2))
     targets = 2 * np.pi * np.arange(N) / N
@@ -591,7 +627,9 @@ def select_posts(lib: Library, polarization: str, levels: int = 8, *, wavelength
         "incidence": lib.meta.get("incidence"),
     }
     return PostSet(pol, float(lib.meta.get("period_um", 4.0)), float(lib.meta.get("height_um", 10.0)),
-                   float(lib.wavelengths_um[il]), widths, t_x, t_y, source="rcwa", info=info)
+                   float(lib.wavelengths_um[il]), widths, t_x, t_y, source="rcwa", info=info,
+                   R_x=None if specular["x"] is None else specular["x"][choice],
+                   R_y=None if specular["y"] is None else specular["y"][choice])
 
 
 def postset_table(ps: PostSet) -> list[dict[str, float]]:
@@ -701,3 +739,32 @@ def platform_post_sets(platform: PlatformDesign | None = None, levels: int = 8, 
                           None if wavelengths_um is None else tuple(wavelengths_um), opts)
     lib = sweep.library()
     return sweep.select(lib), lib
+
+
+#: what :func:`system_post_sets` accepts for ``posts``
+POST_SOURCES = ("rcwa", "ideal")
+
+
+def system_post_sets(system: Any, posts: Any = "rcwa", *, options: LibraryOptions | None = None
+                     ) -> tuple[dict[str, PostSet], str]:
+    """Both lenses' post sets ``{'x': ..., 'y': ...}`` of a :class:`~metafovea.config.SystemDesign` and their
+    source: ``'rcwa'`` (the platform's RCWA library, computed once and cached: the fabricated lenses; the
+    default), ``'ideal'`` (:meth:`PostSet.ideal`: a simplified model), or a dict of PostSets given."""
+    lenses = (system.foveal, system.perifoveal)
+    if isinstance(posts, dict):
+        for lens in lenses:
+            ps = posts.get(lens.polarization)
+            if not isinstance(ps, PostSet) or ps.polarization != lens.polarization or ps.levels != lens.levels:
+                raise InputError("posts", sorted(posts), f"a PostSet for the {lens.name} lens ('{lens.polarization}', "
+                                 f"{lens.levels} levels) under key '{lens.polarization}'")
+        return {lens.polarization: posts[lens.polarization] for lens in lenses}, "given"
+    src = check_choice("posts", posts, POST_SOURCES)
+    if src == "ideal":
+        return {lens.polarization: PostSet.ideal(lens.levels, period_um=lens.period_um, height_um=lens.post_height_um,
+                                                 wavelength_um=lens.wavelength_um, polarization=lens.polarization)
+                for lens in lenses}, "ideal"
+    out = {}
+    for lens in lenses:
+        sets, _ = platform_post_sets(system.platform, lens.levels, options=options)
+        out[lens.polarization] = sets[lens.polarization]
+    return out, "rcwa"

@@ -46,6 +46,11 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
     g.add_argument("--no-haze", action="store_true", help="drop the chromatic haze (power outside the PSF window)")
     g.add_argument("--supersample", help="samples per pixel per axis (default 3 static, 2 video scenes)")
     g.add_argument("--relay", help="relay magnification (default from the system file, e.g. 0.5 or 0.3)")
+    g.add_argument("--posts", default="rcwa", choices=("rcwa", "ideal"),
+                   help="the lenses' posts: rcwa (the platform's RCWA library, cached: the fabricated lenses; default) "
+                        "or ideal (exact phases, lossless: a simplified model)")
+    g.add_argument("--no-train", action="store_true",
+                   help="each lens alone: no wafers, other lens or aperture ring (a simplified model)")
     s = p.add_argument_group("polariser and sensor")
     s.add_argument("--polarizer", default="sync", choices=("sync", "free"),
                    help="sync: locked to the frames, known phase; free: running with an unknown random phase")
@@ -87,7 +92,8 @@ def _options(args: argparse.Namespace, frames: int) -> Any:
         netd_k=_num("--netd", args.netd),
         fpn_rank=0 if args.no_fpn else (None if args.fpn_rank is None else check_int("--fpn-rank", args.fpn_rank, 0, 10000)),
         fpn_amplitude=_num("--fpn-amplitude", args.fpn_amplitude), fpn_drift=_num("--drift", args.drift),
-        noise=not args.no_noise, quantize=not args.no_quantize, progress=sys.stderr.isatty())
+        noise=not args.no_noise, quantize=not args.no_quantize, progress=sys.stderr.isatty(),
+        posts=args.posts, optical_train=not args.no_train)
 
 
 def _print_scenes(as_json: bool) -> None:
@@ -103,6 +109,7 @@ def _print_scenes(as_json: bool) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from metafovea.imaging.simulate import simulate_to_files
+    from metafovea.optics.train import throughput_lines
 
     if getattr(args, "list_scenes", False):
         _print_scenes(args.json)
@@ -122,6 +129,8 @@ def run(args: argparse.Namespace) -> int:
         print(f"haze fraction foveal {summary['haze_fraction']['foveal']:.3f}, "
               f"perifoveal {summary['haze_fraction']['perifoveal']:.3f}; "
               f"simulated in {result.seconds['simulate']:.2f} s, total {result.seconds['total']:.2f} s")
+        train = result.measurement.meta["optical_train"]
+        print("\n".join(throughput_lines(train)) if isinstance(train, list) else f"optical train {train['note']}")
         for k, v in summary["files"].items():
             print(f"  {k}: {v}")
     return 0

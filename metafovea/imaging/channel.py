@@ -7,7 +7,8 @@ channel with focal length ``f`` sees field angles ``(atan(x / f), atan(y / f))``
 the lens centre). The foveal channel (``f1 = 150 mm``, x-polarised) thus sees the centre of the
 perifoveal channel's (``f2 = 25 mm``, y-polarised) field magnified ``f1 / f2 = 6`` times.
 
-Relative illumination: ``cos^4`` of the field angle (:func:`relative_illumination_map`).
+Relative illumination: ``cos^4`` of the field angle, times the part of the bundle the other lens' aperture ring
+lets through (:func:`relative_illumination_map`).
 """
 
 from __future__ import annotations
@@ -100,10 +101,12 @@ def channels_for(system: SystemDesign, *, pixel_pitch_um: float | None = None,
     return (Channel("foveal", system.foveal, f1, fp, shp), Channel("perifoveal", system.perifoveal, f2, fp, shp))
 
 
-def relative_illumination_map(ch: Channel) -> np.ndarray:
-    """``cos^4`` of the field angle at each pixel centre, ``(H, W)``."""
+def relative_illumination_map(ch: Channel, clear_fraction: Any = None) -> np.ndarray:
+    """``cos^4`` of the field angle at each pixel centre, ``(H, W)``, times ``clear_fraction(tan(field))`` when
+    given (the other lens' aperture ring: :meth:`metafovea.optics.train.ChannelTrain.clear_fraction`)."""
     H, W = ch.shape
     y = ch.positions_um(H, 1, 0)
     x = ch.positions_um(W, 1, 0)
     r2 = (x[None, :] ** 2 + y[:, None] ** 2) / ch.focal_length_um ** 2
-    return 1.0 / (1.0 + r2) ** 2
+    ri = 1.0 / (1.0 + r2) ** 2
+    return ri if clear_fraction is None else ri * clear_fraction(np.sqrt(r2))

@@ -171,9 +171,10 @@ class OpticsPSFProvider:
     """Calls ``metafovea.optics.sensor_psf`` (imported lazily) and caches each kernel on disk, keyed by
     a hash of all its inputs (lens, pitch, field, wavelengths, weights, window, error)."""
 
-    def __init__(self, cache_dir: str | Path | None = None, error: float = 1e-4):
+    def __init__(self, cache_dir: str | Path | None = None, error: float = 1e-4, post_sets: dict | None = None):
         self.cache_dir = Path(cache_dir) if cache_dir else io_cache_dir("psf")
         self.error = error
+        self.post_sets = post_sets or {}  # {'x': PostSet, 'y': PostSet}: the fabricated lenses (None: ideal posts)
 
     @staticmethod
     def available() -> bool:
@@ -190,7 +191,12 @@ class OpticsPSFProvider:
         from metafovea.io import atomic_save_npz, input_hash, load_npz
 
         size_px += 1 - size_px % 2
-        key = {"lens": asdict(channel.lens), "pitch_um": round(float(pitch_um), 9), "field_deg": round(float(field_deg), 9),
+        ps = self.post_sets.get(channel.lens.polarization)
+        if ps is not None and ps.source == "ideal":
+            ps = None  # the same PSF as sensor_psf's ideal posts
+        posts = None if ps is None else {"t_x": np.round(np.stack([ps.t_x.real, ps.t_x.imag]), 9).tolist(),
+                                         "t_y": np.round(np.stack([ps.t_y.real, ps.t_y.imag]), 9).tolist()}
+        key = {"lens": asdict(channel.lens), "posts": posts, "pitch_um": round(float(pitch_um), 9), "field_deg": round(float(field_deg), 9),
                "z_um": round(float(channel.focal_length_um), 6),
                "wavelengths_um": np.round(np.asarray(wavelengths_um, dtype=float), 9).tolist(),
                "weights": np.round(np.asarray(weights, dtype=float) / np.sum(weights), 12).tolist(),
@@ -209,7 +215,7 @@ class OpticsPSFProvider:
 
         psf = sensor_psf(channel.lens, pixel_pitch_um=pitch_um, field_deg=field_deg,
                          wavelengths_um=np.asarray(wavelengths_um), weights=np.asarray(weights),
-                         size_px=size_px, error=self.error, z_um=channel.focal_length_um)
+                         size_px=size_px, error=self.error, z_um=channel.focal_length_um, post_set=ps)
         k = _as_odd_kernel(np.asarray(psf.intensity, dtype=np.float64))
         src = f"metafovea.optics.sensor_psf ({getattr(psf, 'engine', '?')})"
         err = getattr(psf, "error_estimate", None)
@@ -222,12 +228,14 @@ class OpticsPSFProvider:
         return Kernel(k, pitch_um, 0.5 * size_px * pitch_um, src, err)
 
 
-def resolve_provider(psf: str | PSFProvider | dict | None, cache_dir: str | Path | None = None) -> tuple[Any, str]:
+def resolve_provider(psf: str | PSFProvider | dict | None, cache_dir: str | Path | None = None,
+                     post_sets: dict | None = None) -> tuple[Any, str]:
     """``psf``: 'auto' (optics if importable, else analytic Airy), 'optics', 'airy', 'gaussian:SIGMA_UM',
-    a dict of kernels, or a provider callable. Returns (provider, name)."""
+    a dict of kernels, or a provider callable. ``post_sets``: the lenses' posts for the optics provider.
+    Returns (provider, name)."""
     if psf is None or psf == "auto":
         if OpticsPSFProvider.available():
-            return OpticsPSFProvider(cache_dir), "optics"
+            return OpticsPSFProvider(cache_dir, post_sets=post_sets), "optics"
         log.warning("metafovea.optics.sensor_psf is not available: using the analytic Airy + haze PSF model")
         return airy_provider, "airy"
     if isinstance(psf, dict):
@@ -239,7 +247,7 @@ def resolve_provider(psf: str | PSFProvider | dict | None, cache_dir: str | Path
         if s == "optics":
             if not OpticsPSFProvider.available():
                 raise InputError("psf", psf, "'auto', 'airy' or 'gaussian:SIGMA_UM' (metafovea.optics is not installed)")
-            return OpticsPSFProvider(cache_dir), "optics"
+            return OpticsPSFProvider(cache_dir, post_sets=post_sets), "optics"
         if s == "airy":
             return airy_provider, "airy"
         if s.startswith("gaussian"):
@@ -320,8 +328,16 @@ def _kernel_tv_distance(a: np.ndarray, b: np.ndarray) -> float:
 def build_channel_optics(channel: Channel, provider: Any, radiance: BandRadiance, *, ss: int = 1,
                          psf_size_px: int | None = None, field_patches: int | str = 1,
                          patch_threshold: float = 0.2, scene_temperature_k: float = 300.0,
-                         haze: bool = True, n_psf_wavelengths: int = 31) -> ChannelOptics:
-    """Ask the provider for the channel's kernel(s) and build the haze model (see module docstring)."""
+                         haze: bool = True, n_psf_wavelengths: int = 31, transmitted: float = 1.0,
+                         leaks: Any = ()) -> ChannelOptics:
+    """Ask the provider for the channel's kernel(s) and build the haze model (see module docstring).
+
+    ``transmitted``: the fraction of the incident power the focusing metasurface transmits (the optical
+    train's ``T_ms``; 1 for ideal posts): kernels are divided by it, so that kernels and haze share out the light
+    that left the lens (the train's throughput counts the rest). ``leaks``: ``(power, radius_um)`` pairs of
+    broad disks on top (the other lens' pass-through ripple, :class:`metafovea.optics.train.Leak`), power relative
+    to the channel's throughput."""
+    tr = check_positive("transmitted", transmitted, hi=1.0)
     ss = check_int("supersample", ss, 1, 8)
     pitch = channel.focal_pitch_um / ss
     size = psf_size_px or (2 * int(math.ceil(3 * ss)) + 1)
@@ -335,6 +351,8 @@ def build_channel_optics(channel: Channel, provider: Any, radiance: BandRadiance
         if not isinstance(k, Kernel):
             arr = _as_odd_kernel(k)
             k = Kernel(arr, pitch, 0.5 * arr.shape[0] * pitch, "callable")
+        if tr != 1.0:
+            k = Kernel(k.intensity / tr, k.pitch_um, k.window_radius_um, k.source, k.error_estimate)
         s = float(k.intensity.sum())
         if s > 1.0 + 1e-6:
             raise InputError("psf kernel sum", s, "<= 1 (the fraction of the channel's power inside the window)")
@@ -376,31 +394,47 @@ def build_channel_optics(channel: Channel, provider: Any, radiance: BandRadiance
                 kernels.append(kk.intensity if same else _rotate(kk.intensity, math.atan2(y, x)))
                 centres.append((r, c))
     info["mode"] = "shift-invariant" if n == 1 else f"{n} x {n} patches"
-    # ---- haze ---------------------------------------------------------------------------------------
+    # ---- haze and glare: disks (radius in sensor pixels, weight) near ones in the kernel, far ones coarse ------
     ksum = float(k0.intensity.sum())
     haze_w = max(0.0, 1.0 - ksum) if haze else 0.0
     rho = chromatic_blur_radius_um(channel, lam_psf)
     out = rho > k0.window_radius_um
-    far_w, far_kernel, coarse = 0.0, None, 1
+    radii, weights = [], []
     if haze_w > 1e-9 and np.any(out):
-        rho_px = rho[out] / channel.focal_pitch_um  # sensor pixels
-        w_out = w_psf[out] / w_psf[out].sum()
+        radii.append(rho[out] / channel.focal_pitch_um)
+        weights.append(haze_w * w_psf[out] / w_psf[out].sum())
+    leak_list = [(float(p), float(r)) for p, r in leaks if p > 0]
+    if leak_list:
+        radii.append(np.array([r for _, r in leak_list]) / channel.focal_pitch_um)
+        weights.append(np.array([p for p, _ in leak_list]))
+    far_w, far_kernel, coarse = 0.0, None, 1
+    if radii:
+        rho_px, w_all = np.concatenate(radii), np.concatenate(weights)
         near = rho_px <= NEAR_HAZE_PX
-        fn = float(np.sum(w_out[near]))
+        near_w = float(np.sum(w_all[near]))
         if np.any(near):
-            kn = disk_mixture_kernel(rho_px[near] * ss, w_out[near], 1.0)
-            kernels = [_embed_add(k, kn, haze_w * fn) for k in kernels]
+            kn = disk_mixture_kernel(rho_px[near] * ss, w_all[near], 1.0)
+            kernels = [_embed_add(k, kn, near_w) for k in kernels]
         if np.any(~near):
-            far_w = haze_w * (1.0 - fn)
+            far_w = float(np.sum(w_all[~near]))
             coarse = max(1, int(math.ceil(float(rho_px[~near].max()) / FAR_HAZE_SAMPLES)))
-            far_kernel = disk_mixture_kernel(rho_px[~near] / coarse, w_out[~near], 1.0)
-        info["haze"] = {"fraction": haze_w, "near_fraction": haze_w * fn, "far_fraction": far_w,
-                        "max_radius_px": float(rho_px.max()), "far_coarse_px": coarse}
+            far_kernel = disk_mixture_kernel(rho_px[~near] / coarse, w_all[~near], 1.0)
+    if haze_w > 1e-9 and np.any(out):
+        h_rho = rho[out] / channel.focal_pitch_um
+        h_near = float(np.sum(w_psf[out][h_rho <= NEAR_HAZE_PX]) / w_psf[out].sum())
+        info["haze"] = {"fraction": haze_w, "near_fraction": haze_w * h_near, "far_fraction": haze_w * (1 - h_near),
+                        "max_radius_px": float(h_rho.max()), "far_coarse_px": coarse}
     elif haze_w > 1e-9:
         info["haze"] = {"fraction": 0.0, "lost_fraction": haze_w,
                         "note": "power outside the kernel window is not redistributed (no chromatic blur beyond it)"}
     else:
         info["haze"] = {"fraction": 0.0}
+    if leak_list:
+        info["glare"] = {"fraction": float(sum(p for p, _ in leak_list)),
+                         "max_radius_px": float(max(r for _, r in leak_list) / channel.focal_pitch_um),
+                         "source": "the other lens' pass-through ripple (metafovea.optics.train)"}
+    if tr != 1.0:
+        info["kernel_divided_by_metasurface_transmission"] = tr
     return ChannelOptics(channel, ss, kernels, centres, n, far_w, far_kernel, coarse, info)
 
 

@@ -34,7 +34,9 @@ import numpy as np
 from metafovea.config import SystemDesign, load_system
 from metafovea.errors import InputError, as_rng, check_int
 from metafovea.io import atomic_write_bytes, prepare_output
+from metafovea.library import system_post_sets
 from metafovea.measurement import Measurement
+from metafovea.optics.train import camera_trains
 from metafovea.radiometry import BandRadiance
 from metafovea.report import fig_to_png
 from metafovea.imaging.channel import Channel, channels_for
@@ -80,6 +82,8 @@ class SimulationOptions:
     scene_params: dict[str, Any] = field(default_factory=dict)
     calibration_frames: int = 0  # closed-shutter frames (same FPN and noise model), stored as 'calibration'
     progress: bool = False
+    posts: Any = "rcwa"  # 'rcwa' (the fabricated lenses, library cached) | 'ideal' (simplified) | {pol: PostSet}
+    optical_train: bool = True  # False: each lens alone (no wafers, other lens or ring): a simplified model
 
 
 def _child_rngs(rng: Any, n: int) -> list[np.random.Generator]:
@@ -125,7 +129,9 @@ class Camera:
     """The simulated camera: sensor, the (foveal, perifoveal) channels, band radiance and polariser.
 
     ``na_gains``: each channel's radiometric gain ``(NA_i / NA_2)^2`` relative to the perifoveal (F/1) one;
-    ``gains``: the same times the polariser's extinction gain ``1 + eps`` (what the frames see).
+    ``optical_gains``: the same times the channel's optical-train throughput (:mod:`metafovea.optics.train`:
+    wafers, both lenses' posts, the aperture ring; 1 without a train); ``gains``: those times the polariser's
+    extinction gain ``1 + eps`` (what the frames see). ``post_sets``/``posts``: the lenses' posts and their source.
     """
 
     sensor: SensorModel
@@ -133,6 +139,9 @@ class Camera:
     filter_enabled: bool
     radiance: BandRadiance
     polarizer: Polarizer
+    trains: tuple[Any, Any] | None = None
+    post_sets: dict[str, Any] | None = None
+    posts: str = "ideal"
 
     @property
     def na_gains(self) -> list[float]:
@@ -140,9 +149,17 @@ class Camera:
         return [(ch.na / ch2.na) ** 2 for ch in self.channels]
 
     @property
+    def optical_gains(self) -> list[float]:
+        t = [1.0, 1.0] if self.trains is None else [tr.throughput for tr in self.trains]
+        return [g * ti for g, ti in zip(self.na_gains, t)]
+
+    @property
     def gains(self) -> list[float]:
         ext_gain = 1.0 + self.polarizer.extinction
-        return [g * ext_gain for g in self.na_gains]
+        return [g * ext_gain for g in self.optical_gains]
+
+    def train_summaries(self) -> list[dict[str, Any]] | None:
+        return None if self.trains is None else [tr.summary() for tr in self.trains]
 
 
 def camera_for(system: SystemDesign, opt: SimulationOptions) -> Camera:
@@ -160,7 +177,12 @@ def camera_for(system: SystemDesign, opt: SimulationOptions) -> Camera:
                     phase_rad=None if opt.polarizer_phase_deg is None else math.radians(opt.polarizer_phase_deg),
                     extinction=system.polarizer_extinction if opt.extinction is None else opt.extinction,
                     tau_s=opt.bolometer_tau_s)
-    return Camera(sensor, channels, fe, radiance, pol)
+    post_sets, posts = system_post_sets(system, opt.posts)
+    trains = None
+    if opt.optical_train:
+        wl, w = radiance.psf_wavelengths(system.platform.wavelength_um, system.scene_temperature_k)
+        trains = camera_trains(system, post_sets, wl, w, posts=posts)
+    return Camera(sensor, channels, fe, radiance, pol, trains, post_sets, posts)
 
 
 def _options(options: SimulationOptions | None, overrides: dict[str, Any]) -> SimulationOptions:
@@ -282,7 +304,7 @@ def _measurement_meta(system: SystemDesign, camera: Camera, sc: Scene, opt: Simu
     """The Measurement's metadata: units, scene, foveal constraint, gains, sensor, polariser, radiometry, PSFs."""
     sensor, pol, radiance, fe = camera.sensor, camera.polarizer, camera.radiance, camera.filter_enabled
     ch1, ch2 = camera.channels
-    g, gains = camera.na_gains, camera.gains
+    g, gains = camera.optical_gains, camera.gains
     r = g[0] / g[1]
     return {
         "kind": "measurement",
@@ -298,6 +320,10 @@ def _measurement_meta(system: SystemDesign, camera: Camera, sc: Scene, opt: Simu
             "relation": "downsample(truth_x1, scale) ~= gain * centre_crop(truth_x2) + offset_dn",
         },
         "channel_gain": {"x1": gains[0], "x2": gains[1]},
+        "channel_gain_note": "(NA_i / NA_F1)^2 x optical-train throughput x (1 + polariser extinction leak)",
+        "optical_train": camera.train_summaries() or {"note": "off: each lens alone, no wafers, other lens or "
+                                                               "ring (a simplified model)"},
+        "posts": camera.posts,
         "dn_per_k_300K": {"x1": sensor.counts_per_k * gains[0], "x2": sensor.counts_per_k * gains[1]},
         "netd_effective_k": {"x1": sensor.netd_k / gains[0], "x2": sensor.netd_k / gains[1]},
         "pixel_pitch_um": sensor.pixel_pitch_um,
@@ -345,17 +371,22 @@ def simulate(system: SystemDesign, scene: str | Path | Scene, options: Simulatio
     check_memory(n_frames, sensor.shape, video=not sc.static, calibration_frames=n_cal)
 
     t_psf = time.perf_counter()
-    provider, provider_name = resolve_provider(opt.psf, opt.psf_cache_dir)
+    provider, provider_name = resolve_provider(opt.psf, opt.psf_cache_dir, camera.post_sets)
+    trains = camera.trains or (None, None)
     optics = [build_channel_optics(ch, provider, camera.radiance, ss=ss, psf_size_px=opt.psf_size_px,
                                    field_patches=opt.field_patches, patch_threshold=opt.patch_threshold,
-                                   scene_temperature_k=system.scene_temperature_k, haze=opt.haze)
-              for ch in camera.channels]
+                                   scene_temperature_k=system.scene_temperature_k, haze=opt.haze,
+                                   transmitted=1.0 if tr is None or provider_name != "optics" else tr.metasurface_transmission,
+                                   leaks=() if tr is None else [(lk.power_fraction / tr.throughput, lk.radius_um)
+                                                                for lk in tr.leaks])
+              for ch, tr in zip(camera.channels, trains)]
     t_psf = time.perf_counter() - t_psf
     for o in optics:
         log.info("%s channel PSF: %s", o.channel.name, o.info)
 
     t_render = time.perf_counter()
-    renderers = [ChannelRenderer(sc, o, camera.radiance, opt.relative_illumination) for o in optics]
+    renderers = [ChannelRenderer(sc, o, camera.radiance, opt.relative_illumination,
+                                 None if tr is None else tr.clear_fraction) for o, tr in zip(optics, trains)]
     x1, x2 = _truth_images(renderers, camera, times, static=sc.static, progress=opt.progress, name=sc.name)
     t_render = time.perf_counter() - t_render
 

@@ -47,19 +47,22 @@ def test_end_to_end_simulated_paper_measurement():
     r = reconstruct(m.frames, method="alternating", fpn=m.fpn, **geo)
     assert r.info["gauge"]["applied"]
     err = float(np.max(np.abs(r.alpha - m.alpha)))
-    assert err < 0.01  # measured 0.003-0.005 over seeds 0-2
-    # an alpha error e moves the images by ~e |x1 - x2| (1700 DN here, against a 9 DN foveal and
-    # ~90 DN perifoveal contrast): the PSNR floor that error budget allows
+    # measured 0.023-0.029 over seeds 0-3 (0.003-0.005 before the optical train: its throughput of 0.31 leaves
+    # the foveal bars 1.9 DN of contrast against 2 DN of noise)
+    bound = 0.05
+    assert err < bound
+    # an alpha error e moves the images by ~e |x1 - x2| (~500 DN here, against a 1.9 DN foveal and
+    # ~70 DN perifoveal contrast): the PSNR floor that error budget allows
     d = float(np.sqrt(np.mean((t1 - t2).astype(np.float64) ** 2)))
     for est, ref in ((r.x1, t1), (r.x2, t2)):
-        assert psnr(est, ref) > 20 * np.log10(np.ptp(ref) / (2 * 0.01 * d))
+        assert psnr(est, ref) > 20 * np.log10(np.ptp(ref) / (2 * bound * d))
     # without the gain/offset (identity relation) the gauge cannot be fixed: a clear error
     with pytest.raises(InputError, match="gauge"):
         reconstruct(m.frames, method="alternating", fpn=m.fpn, scale=geo["scale"])
     # the pipeline on the Measurement: the constraint from its metadata, the stored pattern subtracted
     res = reconstruct_measurement(m, "alternating", window=8, fpn="file")
     assert res.constraint == m.foveal_constraint and res.reconstruction.info["alpha_identified"]
-    assert res.alpha_mae < 0.01 and res.metrics["psnr_x2"] > 20 * np.log10(np.ptp(t2) / (2 * 0.01 * d))
+    assert res.alpha_mae < bound and res.metrics["psnr_x2"] > 20 * np.log10(np.ptp(t2) / (2 * bound * d))
 
 
 def test_dispatcher_errors(truth, alpha8):
