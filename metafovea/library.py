@@ -749,7 +749,8 @@ def system_post_sets(system: Any, posts: Any = "rcwa", *, options: LibraryOption
                      ) -> tuple[dict[str, PostSet], str]:
     """Both lenses' post sets ``{'x': ..., 'y': ...}`` of a :class:`~metafovea.config.SystemDesign` and their
     source: ``'rcwa'`` (the platform's RCWA library, computed once and cached: the fabricated lenses; the
-    default), ``'ideal'`` (:meth:`PostSet.ideal`: a simplified model), or a dict of PostSets given."""
+    default), ``'ideal'`` (:meth:`PostSet.ideal`: a simplified model), or a dict of PostSets given (named by their
+    common ``source``)."""
     lenses = (system.foveal, system.perifoveal)
     if isinstance(posts, dict):
         for lens in lenses:
@@ -757,7 +758,8 @@ def system_post_sets(system: Any, posts: Any = "rcwa", *, options: LibraryOption
             if not isinstance(ps, PostSet) or ps.polarization != lens.polarization or ps.levels != lens.levels:
                 raise InputError("posts", sorted(posts), f"a PostSet for the {lens.name} lens ('{lens.polarization}', "
                                  f"{lens.levels} levels) under key '{lens.polarization}'")
-        return {lens.polarization: posts[lens.polarization] for lens in lenses}, "given"
+        srcs = {posts[lens.polarization].source for lens in lenses}
+        return {lens.polarization: posts[lens.polarization] for lens in lenses}, srcs.pop() if len(srcs) == 1 else "given"
     src = check_choice("posts", posts, POST_SOURCES)
     if src == "ideal":
         return {lens.polarization: PostSet.ideal(lens.levels, period_um=lens.period_um, height_um=lens.post_height_um,

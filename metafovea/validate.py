@@ -9,7 +9,9 @@ checked against and how long it took:
 3. **psf**: on-axis PSFs at the design wavelength with the RCWA post sets on the real lattice, checked
    against the paraxial Airy encircled energy and the lattice-efficiency estimate of the design stage;
 4. **simulate**: a bundled thermal scene through the paper's camera (broadband 8-14 um as designed, and
-   with the 10 um / 0.5 um filter), with closed-shutter calibration frames for the fixed-pattern noise;
+   with the 10 um / 0.5 um filter), with closed-shutter calibration frames for the fixed-pattern noise, through
+   the camera's optical train with the library's post sets (:mod:`metafovea.optics.train`: its per-channel
+   throughput is printed, the same numbers ``simulate`` and ``psf`` print for the same posts);
 5. **reconstruct**: every method (known-alpha least squares, with TV denoising, unknown-alpha
    alternating minimisation, the double deep image prior with a small network, single-frame snapshot)
    scored against the simulator's ground truth: the speed-against-error table.
@@ -42,6 +44,7 @@ from metafovea.design_report import format_summary, summary_dict
 from metafovea.io import atomic_write_bytes, atomic_write_json
 from metafovea.lens import summarize
 from metafovea.measurement import Measurement
+from metafovea.optics.train import throughput_lines
 from metafovea.parallel import blas_threads
 
 log = logging.getLogger(__name__)
@@ -290,7 +293,7 @@ def validate_system(system: SystemDesign, opts: ValidateOptions | None = None,
             warnings.simplefilter("ignore")
             meas = simulate(system, opts.scene, rng=opts.seed, frames=opts.frames, filter_enabled=filt,
                             psf_cache_dir=opts.cache_dir, calibration_frames=opts.calibration_frames,
-                            psf=opts.psf)
+                            psf=opts.psf, posts=post_sets)
         t_sim = time.perf_counter() - t
         t = time.perf_counter()
         run_dip = opts.dip_cases == "all" or (opts.dip_cases == "last" and i_case == len(opts.filters) - 1)
@@ -299,7 +302,8 @@ def validate_system(system: SystemDesign, opts: ValidateOptions | None = None,
         cases[label] = {"simulate_seconds": t_sim, "reconstruct_seconds": time.perf_counter() - t,
                         "frames": list(np.shape(meas.frames)), "haze_fraction": meas.meta.get("haze_fraction"),
                         "netd_effective_k": meas.meta.get("netd_effective_k"), "fpn": res["fpn"],
-                        "foveal_constraint": meas.meta.get("foveal_constraint")}
+                        "foveal_constraint": meas.meta.get("foveal_constraint"),
+                        "optical_train": meas.meta.get("optical_train")}
         rows.extend(res["rows"])
         figs[label] = _figure(label, res)
     report["stages"]["simulate_reconstruct"] = cases
@@ -358,6 +362,8 @@ def _write_report(report: dict[str, Any], figs: dict[str, bytes], out_dir: Path)
         html.heading(label, 3)
         html.paragraph(f"simulate {c['simulate_seconds']:.1f} s, reconstruct {c['reconstruct_seconds']:.1f} s; "
                        f"haze fraction {c['haze_fraction']}; FPN {c['fpn']}")
+        if isinstance(c.get("optical_train"), list):
+            html.pre("\n".join(throughput_lines(c["optical_train"])))
         html.image(png, label)
         atomic_write_bytes(out_dir / f"reconstruction_{label.replace(' ', '_').replace(',', '')}.png", png)
     html.write(out_dir / "validate.html")
@@ -393,6 +399,9 @@ def format_report(rep: dict[str, Any], summaries: dict[str, Any], system: str, o
                      f"MTF@10 {v['mtf_10']:.4f}, MTF@29.4 {v['mtf_29p4']:.4f}; fabricated/continuous peak "
                      f"{v['peak_ratio_fabricated_vs_continuous']:.3f} "
                      f"(design estimate {v['expected_peak_ratio_from_design']:.3f})")
+    for label, c in rep["stages"]["simulate_reconstruct"].items():
+        lines.append(f"\n== optical train ({label}) ==")
+        lines += [f"  {ln}" for ln in throughput_lines(c["optical_train"])]
     lines += ["\n== reconstruction: speed against error ==", format_table(rep["table"]),
               f"\nreport: {out_dir / 'validate.html'} (and validate.json); total {rep['seconds_total']:.1f} s"]
     return "\n".join(lines)

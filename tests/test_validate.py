@@ -30,6 +30,17 @@ def test_validate_small_runs_every_stage(tmp_path, monkeypatch, small_system):
     out.mkdir()
     rep = validate_system(small_system, opts, out)
     assert set(rep["stages"]) == {"library", "design", "psf", "simulate_reconstruct"}
+    # the simulation went through the optical train with the library's post sets: the throughput it printed is
+    # the train of those posts (what psf and simulate print for them)
+    from metafovea.library import platform_post_sets
+    from metafovea.optics.train import system_trains, throughput_lines
+
+    ps, _ = platform_post_sets(small_system.platform, 8, grid_step_um=0.5, harmonics=5)
+    trains = [t.summary() for t in system_trains(small_system, ps, "rcwa", filter_enabled=True)]
+    case = next(iter(rep["stages"]["simulate_reconstruct"].values()))
+    assert json.loads(json.dumps(case["optical_train"])) == json.loads(json.dumps(trains))
+    text = format_report(rep, rep["_summaries"], "paper", out)
+    assert all(line in text for line in throughput_lines(trains))
     methods = {r["method"].split(" (")[0] for r in rep["table"]}
     assert {"lsq", "lsq + TV denoise", "alternating", "dip", "snapshot"} <= methods
     rows = {r["method"].split(" (")[0]: r for r in rep["table"]}

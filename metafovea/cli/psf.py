@@ -37,6 +37,9 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
     p.add_argument("--system", default=None,
                    help="system TOML (e.g. designs/system.toml): sensor pitch, relay and the lens-to-sensor "
                         "distances of its two lenses (matched by lens name; default: the paper's camera)")
+    p.add_argument("--posts", default="rcwa", choices=("rcwa", "ideal"),
+                   help="the lenses' posts: rcwa (the platform's RCWA post set for each lens' polarisation and "
+                        "levels, library cached: the fabricated lens; default) or ideal (a simplified model)")
     p.add_argument("--wavelength-um", type=float, default=None,
                    help="wavelength of the monochromatic PSFs in um (default: the design wavelength)")
     p.add_argument("--window-um", type=float, default=None,
@@ -87,10 +90,13 @@ def run(args: argparse.Namespace) -> int:
                           filter_um=filt, temperature_k=args.temperature_k, n_wavelengths=args.wavelengths,
                           pixel_pitch_um=pixel_um, error=args.error, wavelength_um=args.wavelength_um,
                           window_um=args.window_um, jobs=jobs, relay_magnification=relay, distances_um=distances,
-                          progress=not args.quiet)
+                          progress=not args.quiet, system=system, posts=args.posts)
     if args.json:
         print(to_json(summary))
     else:
+        from metafovea.optics.train import throughput_lines
+
+        trains = summary.pop("optical_train")
         for name, s in summary.items():
             m0 = s["monochromatic"][0]
             print(f"{name}: on-axis {m0['engine']} (err {m0['error_estimate']:.1g}), "
@@ -98,6 +104,7 @@ def run(args: argparse.Namespace) -> int:
                   f"({pixel_um:g} um / {relay:g}x relay), sensor at {s['z_um'] / 1000:g} mm, "
                   f"{s['seconds']:.1f} s -> {s['html']}"
                   + (f"  [{len(set(s['warnings']))} warnings]" if s["warnings"] else ""))
+        print("\n".join(throughput_lines(trains)))
     return 0
 
 

@@ -36,7 +36,7 @@ from metafovea.errors import InputError, as_rng, check_int
 from metafovea.io import atomic_write_bytes, prepare_output
 from metafovea.library import system_post_sets
 from metafovea.measurement import Measurement
-from metafovea.optics.train import camera_trains
+from metafovea.optics.train import system_trains
 from metafovea.radiometry import BandRadiance
 from metafovea.report import fig_to_png
 from metafovea.imaging.channel import Channel, channels_for
@@ -178,10 +178,7 @@ def camera_for(system: SystemDesign, opt: SimulationOptions) -> Camera:
                     extinction=system.polarizer_extinction if opt.extinction is None else opt.extinction,
                     tau_s=opt.bolometer_tau_s)
     post_sets, posts = system_post_sets(system, opt.posts)
-    trains = None
-    if opt.optical_train:
-        wl, w = radiance.psf_wavelengths(system.platform.wavelength_um, system.scene_temperature_k)
-        trains = camera_trains(system, post_sets, wl, w, posts=posts)
+    trains = system_trains(system, post_sets, posts, filter_enabled=fe) if opt.optical_train else None
     return Camera(sensor, channels, fe, radiance, pol, trains, post_sets, posts)
 
 

@@ -14,8 +14,9 @@ from typing import Any, Callable, Sequence
 
 import numpy as np
 
-from metafovea.config import LensDesign, load_lens
-from metafovea.errors import InputError, check_int, check_positive
+from metafovea.config import LensDesign, SystemDesign, load_lens
+from metafovea.errors import InputError, check_choice, check_int, check_positive
+from metafovea.library import POST_SOURCES, platform_post_sets, system_post_sets
 from metafovea.parallel import blas_threads
 from metafovea.io import atomic_write_bytes, atomic_write_json, file_stem, prepare_output
 from metafovea.radiometry import psf_wavelengths
@@ -26,6 +27,7 @@ from .propagate import SamplingError
 from .psf import defocus_note, depth_of_focus_um, diffraction_radius_um, encircled_energy_on_axis, psf
 from .pupil import EVANESCENT_MARGIN, max_field_deg
 from .sensor import sensor_psf
+from .train import POSTS_NOTE_IDEAL, system_trains, throughput_lines
 
 log = logging.getLogger(__name__)
 
@@ -41,7 +43,8 @@ def psf_report(lens: LensDesign, out_dir: str | Path, *, fields_deg: list[float]
                temperature_k: float = 300.0, n_wavelengths: int = 61, pixel_pitch_um: float = 17.0,
                error: float = 1e-4, post_set: Any = None, wavelength_um: float | None = None,
                window_um: float | None = None, relay_magnification: float = 1.0,
-               z_um: float | None = None, progress: bool = False, position: int = 0) -> dict[str, Any]:
+               z_um: float | None = None, progress: bool = False, position: int = 0,
+               trains: list[dict[str, Any]] | None = None) -> dict[str, Any]:
     """Compute the report numbers and write figures, ``psf_report.json`` and ``psf_report.html``.
 
     Geometry: ``pixel_pitch_um`` is the sensor's pixel pitch; behind a relay of ``relay_magnification`` a pixel
@@ -53,7 +56,9 @@ def psf_report(lens: LensDesign, out_dir: str | Path, *, fields_deg: list[float]
     full width of the fine monochromatic PSF windows (default: sized from the rays; a given window that
     truncates the PSF above ``error`` raises :class:`metafovea.optics.propagate.SamplingError`).
     An error about the wavelengths of a monochromatic PSF names ``wavelength_um`` when it was given.
-    ``progress``: a progress bar (on a terminal) per step, at line ``position``.
+    ``progress``: a progress bar (on a terminal) per step, at line ``position``. ``post_set``: the lens' posts (None:
+    ideal posts, a simplified model the page says it is). ``trains``: the camera's optical-train summaries
+    (:meth:`metafovea.optics.train.ChannelTrain.summary`), shown and stored with the report.
     """
     import matplotlib
 
@@ -77,7 +82,12 @@ def psf_report(lens: LensDesign, out_dir: str | Path, *, fields_deg: list[float]
                            "diameter_mm": lens.diameter_mm, "na": lens.na, "wavelength_um": lens.wavelength_um,
                            "polarization": lens.polarization, "mtf_cutoff_cyc_per_mm": cut,
                            "requested_error": error, "warnings": [], "z_um": z, "defocus_um": z - lens.f_um,
-                           "sensor_pixel_um": sensor_pixel_um, "relay_magnification": relay}
+                           "sensor_pixel_um": sensor_pixel_um, "relay_magnification": relay,
+                           "posts": "ideal" if post_set is None else post_set.source,
+                           "optical_train": trains}
+    if post_set is None:
+        res["warnings"].append(f"{POSTS_NOTE_IDEAL} (the PSFs of a lens the platform's RCWA post set was not "
+                               "chosen for, or --posts ideal)")
     note = defocus_note(lens, z)
     if note:
         res["warnings"].append(note)
@@ -411,6 +421,13 @@ def _page(res: dict[str, Any], figs: dict[str, bytes]) -> HtmlReport:
                 for s in res["sensor"]])
     for name, png in figs.items():
         page.image(png, name)
+    if res.get("optical_train"):
+        page.heading("Optical train: throughput per channel (wafers, both lenses' posts, aperture ring)")
+        page.pre("\n".join(throughput_lines(res["optical_train"])))
+        page.paragraph("The PSFs above are this lens' own (its posts included), relative to the power reaching it; "
+                       "the throughput is what the camera's channels deliver to the focal plane (the PSF's power "
+                       "times the wafers, the other lens' coherent pass-through and its ring); the glare is the "
+                       "other lens' pass-through ripple (leakage), spread over the disks listed.")
     page.heading("Warnings")
     for w in dict.fromkeys(res["warnings"]) or ["none"]:
         page.paragraph(w)
@@ -427,7 +444,8 @@ def psf_reports(designs: Sequence[str | Path | LensDesign], out_dir: str | Path,
                 n_wavelengths: int = 61, pixel_pitch_um: float = 17.0, error: float = 1e-4,
                 wavelength_um: float | None = None, window_um: float | None = None,
                 jobs: int | None = None, relay_magnification: float = 1.0,
-                distances_um: dict[str, float] | None = None, progress: bool = False) -> dict[str, dict[str, Any]]:
+                distances_um: dict[str, float] | None = None, progress: bool = False,
+                system: SystemDesign | None = None, posts: str = "rcwa") -> dict[str, dict[str, Any]]:
     """:func:`psf_report` of every lens (TOML paths or :class:`LensDesign`) into ``out_dir``, one process per lens.
 
     Everything that can be refused is refused before any work and before ``out_dir`` is made: a band, filter
@@ -436,8 +454,12 @@ def psf_reports(designs: Sequence[str | Path | LensDesign], out_dir: str | Path,
     lens' field at the longest wavelength used. ``out_dir`` must be new or empty unless ``force``. ``jobs``
     defaults to min(2, lenses, CPUs). ``pixel_pitch_um`` is the sensor pitch behind a relay of
     ``relay_magnification``; ``distances_um`` maps a lens name to its lens-to-sensor distance (default: its
-    focal length). Returns, per lens name, its seconds, monochromatic and sensor rows,
-    warnings and the path of its HTML page.
+    focal length). ``posts``: 'rcwa' (each lens gets the platform's RCWA post set for its polarisation and levels:
+    the fabricated lens; the library is computed once and cached) or 'ideal' (a simplified model). ``system``
+    (default: the paper's camera): the platform of the posts and the optical train whose per-channel throughput
+    every report shows (the same numbers ``simulate`` and ``validate`` print). Returns, per lens name, its
+    seconds, monochromatic and sensor rows, warnings and the path of its HTML page, and under ``"optical_train"``
+    the trains' summaries.
     """
     _check_light(band_um, filter_um, temperature_k)
     lenses = [d if isinstance(d, LensDesign) else load_lens(d) for d in designs]
@@ -449,11 +471,21 @@ def psf_reports(designs: Sequence[str | Path | LensDesign], out_dir: str | Path,
     dist = dict(distances_um or {})
     for name, z in dist.items():
         check_positive(f"distance of lens '{name}'", z, "um")
+    check_choice("posts", posts, POST_SOURCES)
+    system = system or SystemDesign.paper()
     out = prepare_output(out_dir, force, is_dir=True)
+    post_sets = {}
+    if posts == "rcwa":
+        for lens in lenses:
+            key = (lens.polarization, lens.levels)
+            if key not in post_sets:
+                post_sets[key] = platform_post_sets(system.platform, lens.levels)[0][lens.polarization]
+    trains = [t.summary() for t in system_trains(system, *system_post_sets(system, posts))]
     kw = dict(fields_deg=fields_deg, band_um=band_um, filter_um=filter_um, temperature_k=temperature_k,
               n_wavelengths=n_wavelengths, pixel_pitch_um=pixel_pitch_um, error=error,
               wavelength_um=wavelength_um, window_um=window_um, relay_magnification=relay_magnification)
-    kws = [{**kw, "z_um": dist.get(lens.name), "progress": progress, "position": i} for i, lens in enumerate(lenses)]
+    kws = [{**kw, "z_um": dist.get(lens.name), "progress": progress, "position": i, "trains": trains,
+            "post_set": post_sets.get((lens.polarization, lens.levels))} for i, lens in enumerate(lenses)]
     if jobs > 1 and len(lenses) > 1:
         # one process per lens (the report of a lens is single-threaded)
         from concurrent.futures import ProcessPoolExecutor
@@ -467,6 +499,7 @@ def psf_reports(designs: Sequence[str | Path | LensDesign], out_dir: str | Path,
             cls, parameter, value, allowed, source, detail = val
             raise cls(parameter, value, allowed, source=source, detail=detail)
         summary[lens.name] = {**val, "html": str(Path(out) / f"{file_stem(lens.name)}_psf_report.html")}
+    summary["optical_train"] = trains
     return summary
 
 
@@ -478,7 +511,7 @@ def _report_one(lens: LensDesign, out: str, kw: dict[str, Any]) -> tuple[str, An
     except InputError as e:
         return "input_error", (type(e), e.parameter, e.value, e.allowed, e.source, e.detail)
     return "ok", {k: res[k] for k in ("seconds", "monochromatic", "sensor", "warnings", "pixel_pitch_um", "z_um",
-                                      "relay_magnification")}
+                                      "relay_magnification", "posts")}
 
 
 def _check_light(band: tuple[float, float], filt: tuple[float, float] | None, temperature_k: float) -> None:

@@ -329,6 +329,21 @@ def camera_trains(system: SystemDesign, post_sets: dict[str, PostSet], wavelengt
             channel_train(system, "perifoveal", post_sets, wavelengths_um, weights, posts=posts))
 
 
+#: wavelength bins of the band average (radiometry.psf_wavelengths; the factors vary slowly with wavelength)
+TRAIN_WAVELENGTHS = 31
+
+
+def system_trains(system: SystemDesign, post_sets: dict[str, PostSet], posts: str = "rcwa", *,
+                  filter_enabled: bool | None = None) -> tuple[ChannelTrain, ChannelTrain]:
+    """(foveal, perifoveal) trains of ``system`` over its band (and filter, when enabled), Planck-weighted at the
+    scene temperature: what ``psf``, ``simulate`` and ``validate`` all print."""
+    from metafovea.radiometry import BandRadiance
+
+    radiance = BandRadiance.for_system(system, filter_enabled=filter_enabled)
+    wl, w = radiance.psf_wavelengths(system.platform.wavelength_um, system.scene_temperature_k, TRAIN_WAVELENGTHS)
+    return camera_trains(system, post_sets, wl, w, posts=posts)
+
+
 def throughput_lines(summaries: list[dict[str, Any]]) -> list[str]:
     """The per-channel throughput and its breakdown as printed by ``psf``, ``simulate`` and ``validate`` (from
     :meth:`ChannelTrain.summary` dicts, so a stored run prints the same)."""

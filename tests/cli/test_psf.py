@@ -93,8 +93,9 @@ def test_two_lenses_in_two_processes(tiny, tmp_path, capsys, lens_toml):
 
 
 @pytest.mark.parametrize("opts,flag", [
-    (["--wavelength-um", "5"], "--wavelength-um"),
-    (["--wavelength-um", "2.5"], "--wavelength-um"),
+    # zero first-order efficiency at lambda0 / lambda = 2, 4 holds for exact phases (RCWA posts leave a little)
+    (["--wavelength-um", "5", "--posts", "ideal"], "--wavelength-um"),
+    (["--wavelength-um", "2.5", "--posts", "ideal"], "--wavelength-um"),
     (["--wavelengths", "100000"], "--wavelengths"),
     (["--temperature-k", "1"], "--temperature-k"),
     (["--pixel-um", "1e6"], "--pixel-um"),
@@ -156,3 +157,24 @@ def test_psf_takes_relay_and_distances_from_the_system_file(tmp_path, capsys, le
     assert s["z_um"] == system.lens_to_sensor_um[1]
     rc = main(["psf", str(small), "--relay", "0", "--out", str(tmp_path / "p")])
     assert rc == 2 and "--relay" in capsys.readouterr().err
+
+
+def test_psf_and_simulate_print_the_same_throughput(tiny, tmp_path, capsys):
+    """The optical train's per-channel throughput (wafers, both lenses' RCWA posts, the ring) of the paper's camera:
+    the psf report's numbers are the ones `metafovea simulate` prints and stores."""
+    from metafovea.measurement import Measurement
+    from metafovea.optics.train import throughput_lines
+
+    trains = tiny[2]["optical_train"]
+    assert [t["channel"] for t in trains] == ["foveal", "perifoveal"] and {t["posts"] for t in trains} == {"rcwa"}
+    for t in trains:
+        assert 0.2 < t["throughput"] < 0.5
+        assert t["throughput"] == pytest.approx(float(__import__("numpy").prod(list(t["factors"].values()))), rel=2e-3)
+    capsys.readouterr()
+    rc = main(["simulate", "--frames", "1", "--psf", "airy", "--no-tiff", "--no-preview", "--out",
+               str(tmp_path / "m.npz")])
+    out = capsys.readouterr().out
+    assert rc == 0
+    for line in throughput_lines(trains):
+        assert line in out
+    assert Measurement.load(tmp_path / "m.npz").meta["optical_train"] == json.loads(json.dumps(trains))
