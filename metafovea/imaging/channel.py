@@ -8,7 +8,7 @@ the lens centre). The foveal channel (``f1 = 150 mm``, x-polarised) thus sees th
 perifoveal channel's (``f2 = 25 mm``, y-polarised) field magnified ``f1 / f2 = 6`` times.
 
 Relative illumination: ``cos^4`` of the field angle, times the part of the bundle the other lens' aperture ring
-lets through (:func:`relative_illumination_map`).
+lets through and the posts' change at oblique incidence (:func:`relative_illumination_map`).
 """
 
 from __future__ import annotations
@@ -101,12 +101,12 @@ def channels_for(system: SystemDesign, *, pixel_pitch_um: float | None = None,
     return (Channel("foveal", system.foveal, f1, fp, shp), Channel("perifoveal", system.perifoveal, f2, fp, shp))
 
 
-def relative_illumination_map(ch: Channel, clear_fraction: Any = None) -> np.ndarray:
-    """``cos^4`` of the field angle at each pixel centre, ``(H, W)``, times ``clear_fraction(tan(field))`` when
-    given (the other lens' aperture ring: :meth:`metafovea.optics.train.ChannelTrain.clear_fraction`)."""
+def relative_illumination_map(ch: Channel, field_factor: Any = None) -> np.ndarray:
+    """``cos^4`` of the field angle at each pixel centre, ``(H, W)``, times ``field_factor(tan_x, tan_y)`` when
+    given (the other lens' aperture ring and the posts at oblique incidence:
+    :meth:`metafovea.optics.train.ChannelTrain.field_factor`)."""
     H, W = ch.shape
-    y = ch.positions_um(H, 1, 0)
-    x = ch.positions_um(W, 1, 0)
-    r2 = (x[None, :] ** 2 + y[:, None] ** 2) / ch.focal_length_um ** 2
-    ri = 1.0 / (1.0 + r2) ** 2
-    return ri if clear_fraction is None else ri * clear_fraction(np.sqrt(r2))
+    ty = (ch.positions_um(H, 1, 0) / ch.focal_length_um)[:, None]
+    tx = (ch.positions_um(W, 1, 0) / ch.focal_length_um)[None, :]
+    ri = 1.0 / (1.0 + tx ** 2 + ty ** 2) ** 2
+    return ri if field_factor is None else ri * field_factor(tx, ty)

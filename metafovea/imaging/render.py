@@ -58,14 +58,14 @@ class ChannelRenderer:
     SUB = 3  # supersampling of each coarse haze sample (small hot objects must not be missed)
 
     def __init__(self, scene: Scene, optics: ChannelOptics, radiance: BandRadiance,
-                 relative_illumination: bool = True, clear_fraction: Any = None):
+                 relative_illumination: bool = True, field_factor: Any = None):
         self.scene, self.optics, self.radiance = scene, optics, radiance
         ch, ss = optics.channel, optics.ss
         H, W = ch.shape
         m = optics.margin
         self.ya = np.arctan(ch.positions_um(H, ss, m) / ch.focal_length_um)
         self.xa = np.arctan(ch.positions_um(W, ss, m) / ch.focal_length_um)
-        self.ri = relative_illumination_map(ch, clear_fraction) if relative_illumination else None
+        self.ri = relative_illumination_map(ch, field_factor) if relative_illumination else None
         self.far = optics.far_kernel is not None and optics.far_weight > 0
         if self.far:
             q, km = optics.far_coarse, optics.far_kernel.shape[0] // 2

@@ -383,7 +383,7 @@ def simulate(system: SystemDesign, scene: str | Path | Scene, options: Simulatio
 
     t_render = time.perf_counter()
     renderers = [ChannelRenderer(sc, o, camera.radiance, opt.relative_illumination,
-                                 None if tr is None else tr.clear_fraction) for o, tr in zip(optics, trains)]
+                                 None if tr is None else tr.field_factor) for o, tr in zip(optics, trains)]
     x1, x2 = _truth_images(renderers, camera, times, static=sc.static, progress=opt.progress, name=sc.name)
     t_render = time.perf_counter() - t_render
 

@@ -16,7 +16,7 @@ import numpy as np
 
 from metafovea.config import LensDesign, SystemDesign, load_lens
 from metafovea.errors import InputError, check_choice, check_int, check_positive
-from metafovea.library import POST_SOURCES, platform_post_sets, system_post_sets
+from metafovea.library import POST_SOURCES, oblique_response, platform_post_sets, system_post_sets
 from metafovea.parallel import blas_threads
 from metafovea.io import atomic_write_bytes, atomic_write_json, file_stem, prepare_output
 from metafovea.radiometry import psf_wavelengths
@@ -44,7 +44,7 @@ def psf_report(lens: LensDesign, out_dir: str | Path, *, fields_deg: list[float]
                error: float = 1e-4, post_set: Any = None, wavelength_um: float | None = None,
                window_um: float | None = None, relay_magnification: float = 1.0,
                z_um: float | None = None, progress: bool = False, position: int = 0,
-               trains: list[dict[str, Any]] | None = None) -> dict[str, Any]:
+               trains: list[dict[str, Any]] | None = None, oblique: Any = None) -> dict[str, Any]:
     """Compute the report numbers and write figures, ``psf_report.json`` and ``psf_report.html``.
 
     Geometry: ``pixel_pitch_um`` is the sensor's pixel pitch; behind a relay of ``relay_magnification`` a pixel
@@ -58,7 +58,9 @@ def psf_report(lens: LensDesign, out_dir: str | Path, *, fields_deg: list[float]
     An error about the wavelengths of a monochromatic PSF names ``wavelength_um`` when it was given.
     ``progress``: a progress bar (on a terminal) per step, at line ``position``. ``post_set``: the lens' posts (None:
     ideal posts, a simplified model the page says it is). ``trains``: the camera's optical-train summaries
-    (:meth:`metafovea.optics.train.ChannelTrain.summary`), shown and stored with the report.
+    (:meth:`metafovea.optics.train.ChannelTrain.summary`), shown and stored with the report. ``oblique``: the
+    posts' :class:`~metafovea.library.ObliqueResponse`; an off-axis PSF uses the posts at its field when that
+    changes its focusing order's power by more than ``error`` (the change is reported per field either way).
     """
     import matplotlib
 
@@ -91,6 +93,7 @@ def psf_report(lens: LensDesign, out_dir: str | Path, *, fields_deg: list[float]
     note = defocus_note(lens, z)
     if note:
         res["warnings"].append(note)
+    posts_at = _field_posts(lens, post_set, oblique, error, res)
     from tqdm.auto import tqdm
 
     bar = tqdm(total=4 + len(fields_deg), desc=f"psf {lens.name}", unit="step", position=position, leave=True,
@@ -107,11 +110,11 @@ def psf_report(lens: LensDesign, out_dir: str | Path, *, fields_deg: list[float]
                                 filter_um=filter_um, n=n_wavelengths)
         res["spectral"] = {"n_wavelengths": int(wl.size), "band_um": band_um, "filter_um": filter_um,
                            "temperature_k": temperature_k}
-        ee_png = _sensor(plt, lens, res, fields_deg, mono_wl, wl, w, post_set, error, pixel_pitch_um, z, tick)
+        ee_png = _sensor(plt, lens, res, fields_deg, mono_wl, wl, w, posts_at, error, pixel_pitch_um, z, tick)
         mtf_png = _mtf(plt, lens, res, fields_deg, cut, z, pixel_pitch_um)
         tick("MTF")
         focus_png = _through_focus(plt, lens, res, mono_wl, wl, w, post_set, pixel_pitch_um, z)
-        figs = {"psf_mono.png": _monochromatic(plt, lens, res, fields_deg, mono_wl, post_set, error, window_um,
+        figs = {"psf_mono.png": _monochromatic(plt, lens, res, fields_deg, mono_wl, posts_at, error, window_um,
                                                pixel_pitch_um, z, tick),
                 "mtf.png": mtf_png, "ee_field.png": ee_png, "through_focus.png": focus_png,
                 "wavefront.png": _wavefront(plt, lens, res, post_set)}
@@ -130,8 +133,35 @@ def psf_report(lens: LensDesign, out_dir: str | Path, *, fields_deg: list[float]
     return res
 
 
+def _field_posts(lens: LensDesign, post_set: Any, oblique: Any, error: float,
+                 res: dict[str, Any]) -> Callable[[float], Any]:
+    """``field_deg -> posts`` for the PSFs: ``post_set`` at normal incidence, or the posts at the field (along +x)
+    where that moves the focusing order's power by more than ``error``; each decision goes to
+    ``res['oblique_incidence']``."""
+    from .pupil import order_coefficients
+
+    res["oblique_incidence"] = {}
+    if post_set is None or oblique is None:
+        res["oblique_incidence"]["note"] = "not modelled (ideal posts or no oblique response)"
+        return lambda fd: post_set
+    tau = post_set.t_focus
+    c0 = abs(complex(order_coefficients(tau, lens.levels, np.array([1]))[0])) ** 2
+    cache: dict[float, Any] = {}
+
+    def at(fd: float) -> Any:
+        fd = float(fd)
+        if fd not in cache:
+            obl = oblique.post_set_at(post_set, abs(fd), 0.0)
+            c = abs(complex(order_coefficients(obl.t_focus, lens.levels, np.array([1]))[0])) ** 2
+            use = abs(c / c0 - 1) > error
+            cache[fd] = obl if use else post_set
+            res["oblique_incidence"][f"{fd:.4f}"] = {"field_deg": fd, "focusing_power_factor": c / c0, "applied": use}
+        return cache[fd]
+    return at
+
+
 def _monochromatic(plt: Any, lens: LensDesign, res: dict[str, Any], fields_deg: list[float], mono_wl: list[float],
-                   post_set: Any, error: float, window_um: float | None, pixel_pitch_um: float, z: float,
+                   posts_at: Callable[[float], Any], error: float, window_um: float | None, pixel_pitch_um: float, z: float,
                    tick: Callable[[str], None]) -> bytes:
     """Monochromatic PSFs (fabricated lens) on axis, at mid-field and at the last field: ``res['monochromatic']``
     and the figure. A PSF too aberrated for the fine grid is shown on a pixel grid of a quarter pitch instead."""
@@ -141,13 +171,13 @@ def _monochromatic(plt: Any, lens: LensDesign, res: dict[str, Any], fields_deg: 
         with warnings.catch_warnings(record=True) as ws:
             warnings.simplefilter("always")
             try:
-                P = psf(lens, field_deg=fd, quantize=True, lattice=True, post_set=post_set, error=error,
+                P = psf(lens, field_deg=fd, quantize=True, lattice=True, post_set=posts_at(fd), error=error,
                         wavelengths_um=mono_wl, window_um=window_um, z_um=z)
             except SamplingError as e:  # the aberrated PSF needs too large a window: pixel grid instead
                 if window_um is not None:
                     raise SamplingError(e.parameter, e.value, e.allowed.replace(
                         "(pass allow_truncation=True to accept)", "(or a larger error)")) from None
-                P = sensor_psf(lens, pixel_pitch_um=pixel_pitch_um / 4, field_deg=fd, post_set=post_set,
+                P = sensor_psf(lens, pixel_pitch_um=pixel_pitch_um / 4, field_deg=fd, post_set=posts_at(fd),
                                error=max(error, 1e-3), wavelengths_um=mono_wl, z_um=z)
                 res["warnings"].append(f"field {fd:.3g} deg: fine PSF not computed ({e}); pixel-grid PSF shown")
         res["warnings"] += [str(w.message) for w in ws]
@@ -302,10 +332,11 @@ def _mtf(plt: Any, lens: LensDesign, res: dict[str, Any], fields_deg: list[float
 
 
 def _sensor(plt: Any, lens: LensDesign, res: dict[str, Any], fields_deg: list[float], mono_wl: list[float],
-            wl: np.ndarray, w: np.ndarray, post_set: Any, error: float, pixel_pitch_um: float, z: float,
-            tick: Callable[[str], None]) -> bytes:
+            wl: np.ndarray, w: np.ndarray, posts_at: Callable[[float], Any], error: float, pixel_pitch_um: float,
+            z: float, tick: Callable[[str], None]) -> bytes:
     """Encircled energy and broadband sensor PSFs over the field: ``res['on_axis_ee_pixel_radius']`` (power within
     one pixel pitch of the axis, exact radial integral, no pixel grid), ``res['sensor']`` and the figure."""
+    post_set = posts_at(0.0)
     res["on_axis_ee_pixel_radius"] = {
         "radius_um": pixel_pitch_um,
         "mono": encircled_energy_on_axis(lens, pixel_pitch_um, wavelengths_um=mono_wl, post_set=post_set, z_um=z),
@@ -318,10 +349,10 @@ def _sensor(plt: Any, lens: LensDesign, res: dict[str, Any], fields_deg: list[fl
     sens = []
 
     def both(fd: float) -> tuple[Any, Any]:
-        mono_s = sensor_psf(lens, pixel_pitch_um=pixel_pitch_um, field_deg=fd, post_set=post_set, error=error,
+        mono_s = sensor_psf(lens, pixel_pitch_um=pixel_pitch_um, field_deg=fd, post_set=posts_at(fd), error=error,
                             wavelengths_um=mono_wl, z_um=z)
         return mono_s, sensor_psf(lens, pixel_pitch_um=pixel_pitch_um, field_deg=fd, wavelengths_um=wl, weights=w,
-                                  post_set=post_set, error=error, z_um=z)
+                                  post_set=posts_at(fd), error=error, z_um=z)
 
     # two fields at a time (numpy releases the GIL in the engines); the warnings of all fields are recorded
     # together (catch_warnings is process-wide) and each names its field
@@ -421,6 +452,15 @@ def _page(res: dict[str, Any], figs: dict[str, bytes]) -> HtmlReport:
                 for s in res["sensor"]])
     for name, png in figs.items():
         page.image(png, name)
+    obl = {k: v for k, v in res.get("oblique_incidence", {}).items() if k != "note"}
+    page.heading("Posts at oblique incidence (the field along x, light entering through the wafer)")
+    if obl:
+        page.table(["field (deg)", "focusing-order power vs normal incidence", "used for the PSFs"],
+                   [[f"{v['field_deg']:.3f}", f"{v['focusing_power_factor']:.5f}", "yes" if v["applied"] else
+                     f"no (change below the requested {res['requested_error']:g})"]
+                    for v in sorted(obl.values(), key=lambda v: v["field_deg"])])
+    else:
+        page.paragraph(res.get("oblique_incidence", {}).get("note", "not modelled"))
     if res.get("optical_train"):
         page.heading("Optical train: throughput per channel (wafers, both lenses' posts, aperture ring)")
         page.pre("\n".join(throughput_lines(res["optical_train"])))
@@ -480,12 +520,14 @@ def psf_reports(designs: Sequence[str | Path | LensDesign], out_dir: str | Path,
             key = (lens.polarization, lens.levels)
             if key not in post_sets:
                 post_sets[key] = platform_post_sets(system.platform, lens.levels)[0][lens.polarization]
+    obliques = {key: oblique_response(ps, system.platform) for key, ps in post_sets.items()}
     trains = [t.summary() for t in system_trains(system, *system_post_sets(system, posts))]
     kw = dict(fields_deg=fields_deg, band_um=band_um, filter_um=filter_um, temperature_k=temperature_k,
               n_wavelengths=n_wavelengths, pixel_pitch_um=pixel_pitch_um, error=error,
               wavelength_um=wavelength_um, window_um=window_um, relay_magnification=relay_magnification)
     kws = [{**kw, "z_um": dist.get(lens.name), "progress": progress, "position": i, "trains": trains,
-            "post_set": post_sets.get((lens.polarization, lens.levels))} for i, lens in enumerate(lenses)]
+            "post_set": post_sets.get((lens.polarization, lens.levels)),
+            "oblique": obliques.get((lens.polarization, lens.levels))} for i, lens in enumerate(lenses)]
     if jobs > 1 and len(lenses) > 1:
         # one process per lens (the report of a lens is single-threaded)
         from concurrent.futures import ProcessPoolExecutor

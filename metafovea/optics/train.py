@@ -46,7 +46,7 @@ polariser's own losses are common to both channels and not modelled.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -67,6 +67,8 @@ ELEMENTARY_CHARGE_C = 1.602176634e-19
 FOOTPRINT_SAMPLES = 1 << 16
 #: diffraction orders -LEAK_ORDERS..LEAK_ORDERS of the pass-through ripple that are followed
 LEAK_ORDERS = 8
+#: oblique incidence is applied where it changes a channel's throughput by more than this (relative)
+OBLIQUE_MIN_EFFECT = 1e-4
 
 POSTS_NOTE_IDEAL = ("ideal posts (exact phases, unit transmission and pass-through, no reflection): a "
                     "simplified model, not the fabricated lens")
@@ -180,6 +182,10 @@ class ChannelTrain:
     ring: tuple[float, float, float]
     metasurface_transmission: float  #: T_ms of the focusing lens (what its PSF's power is relative to)
     notes: tuple[str, ...] = field(default_factory=tuple)
+    #: (field angles deg, factor in the xz plane, factor in the yz plane) of oblique incidence relative to the
+    #: axis, or None when not applied (see ``oblique_note``)
+    oblique: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
+    oblique_note: str = ""
 
     @property
     def leak_fraction(self) -> float:
@@ -190,6 +196,22 @@ class ChannelTrain:
         """Unclipped fraction of the bundle at ``tan(field angle)`` (array) by the other lens' ring."""
         r_beam, r_clear, shift = self.ring
         return circle_overlap_fraction(r_beam, r_clear, shift * np.asarray(field_tan, dtype=float))
+
+    def oblique_factor(self, tan_x: Any, tan_y: Any) -> np.ndarray:
+        """Throughput at the field (tan of the angles along x and y) relative to the axis from the posts' oblique
+        incidence (1 where not applied)."""
+        tx, ty = np.asarray(tan_x, dtype=float), np.asarray(tan_y, dtype=float)
+        if self.oblique is None:
+            return np.ones(np.broadcast_shapes(tx.shape, ty.shape))
+        grid, g0, g1 = self.oblique
+        th = np.degrees(np.arctan(np.hypot(tx, ty)))
+        c2 = np.where(th > 0, tx ** 2 / np.maximum(tx ** 2 + ty ** 2, 1e-300), 1.0)
+        return c2 * np.interp(th, grid, g0) + (1 - c2) * np.interp(th, grid, g1)
+
+    def field_factor(self, tan_x: Any, tan_y: Any) -> np.ndarray:
+        """Throughput at the field relative to the axis, beyond ``cos^4``: the other lens' ring and oblique
+        incidence on the posts."""
+        return self.clear_fraction(np.hypot(tan_x, tan_y)) * self.oblique_factor(tan_x, tan_y)
 
     def clipping_starts_deg(self) -> float:
         r_beam, r_clear, shift = self.ring
@@ -210,7 +232,7 @@ class ChannelTrain:
                 "throughput": self.throughput, "factors": dict(self.factors), "sources": dict(self.sources),
                 "leak_fraction": self.leak_fraction, "leak_orders": self.leak_orders(),
                 "lens_transmission": self.lens_transmission, "ring_clipping_starts_deg": self.clipping_starts_deg(),
-                "notes": list(self.notes)}
+                "oblique_incidence": self.oblique_note, "notes": list(self.notes)}
 
 
 def _wafer_terms(lens: LensDesign, post_set: PostSet, pol: str, fractions: np.ndarray, wl: np.ndarray,
@@ -227,9 +249,17 @@ def _wafer_terms(lens: LensDesign, post_set: PostSet, pol: str, fractions: np.nd
 
 
 def channel_train(system: SystemDesign, channel: str, post_sets: dict[str, PostSet], wavelengths_um: Any,
-                  weights: Any, *, posts: str = "rcwa", samples: int = FOOTPRINT_SAMPLES) -> ChannelTrain:
+                  weights: Any, *, posts: str = "rcwa", samples: int = FOOTPRINT_SAMPLES,
+                  oblique: dict[str, Any] | None = None, max_field_deg: float = 0.0,
+                  error: float = OBLIQUE_MIN_EFFECT) -> ChannelTrain:
     """The optical train of ``channel`` ('foveal' or 'perifoveal') of ``system`` with the post sets
-    ``{'x': foveal lens' set, 'y': perifoveal lens' set}``, averaged over the wavelengths with ``weights``."""
+    ``{'x': foveal lens' set, 'y': perifoveal lens' set}``, averaged over the wavelengths with ``weights``.
+
+    ``oblique``: ``{polarisation of a lens: ObliqueResponse of its post set}`` (:func:`metafovea.library.oblique_response`):
+    the posts off axis. The focusing lens and a front other lens see the field's plane wave; a back other lens
+    sees the focusing lens' converging cone (on axis: angles up to atan(D / 2 z), averaged over the pupil; its
+    shift with the field is left out). The field dependence is applied when it changes the throughput by more than
+    ``error`` anywhere up to ``max_field_deg`` (the channel's corner), and its size is reported either way."""
     plat = system.platform
     lenses = {"foveal": (system.foveal, system.lens_to_sensor_um[0]),
               "perifoveal": (system.perifoveal, system.lens_to_sensor_um[1])}
@@ -250,6 +280,16 @@ def channel_train(system: SystemDesign, channel: str, post_sets: dict[str, PostS
     pO, _ = level_fractions(O, min(r_foot, O.radius_um), samples=samples, rng=2)
     psL, psO = post_sets[L.polarization], post_sets[O.polarization]
     t_msL, _, gL, r_msL, srcL = _wafer_terms(L, psL, pol, pL, wl, r_b, alpha, d)
+    cone = None
+    if oblique and O.polarization in oblique and front:
+        # the back lens sees the converging cone: ratios averaged over the pupil (uniform in h^2, both planes)
+        h = L.radius_um * np.sqrt((np.arange(32) + 0.5) / 32)
+        f = oblique[O.polarization].factor(pol, np.degrees(np.arctan(h / zL)), 0.0) + \
+            oblique[O.polarization].factor(pol, np.degrees(np.arctan(h / zL)), 0.5 * math.pi)
+        cone = 0.5 * f.mean(axis=0)
+        tau = psO.transmission(pol)
+        cone_power = abs(complex(pO @ (tau * cone))) ** 2 / abs(complex(pO @ tau)) ** 2
+        psO = replace(psO, t_x=psO.t_x * cone) if pol == "x" else replace(psO, t_y=psO.t_y * cone)
     t_msO, d0, gO, r_msO, srcO = _wafer_terms(O, psO, pol, pO, wl, r_b, alpha, d)
     coh = np.abs(d0) ** 2
     t_b = 1.0 - r_b
@@ -318,8 +358,45 @@ def channel_train(system: SystemDesign, channel: str, post_sets: dict[str, PostS
             t_ms, _, g, _, _ = _wafer_terms(lens, ps, q, fr, lam0, r_b, a0, d)
             lens_t[role][q] = float(t_b * t_ms * g[0])
     notes = [POSTS_NOTE_IDEAL] if posts == "ideal" else []
+    if cone is not None:
+        sources[f"{O.name} lens: pass-through, coherent"] += (
+            f"; posts at the converging cone's angles (up to {math.degrees(math.atan(L.radius_um / zL)):.1f} deg): "
+            f"x{cone_power:.4f} against normal incidence")
+    obl, obl_note = _oblique_field(L, O, psL, psO, pol, pL, pO, front, oblique, max_field_deg, error)
     return ChannelTrain(channel, pol, posts, factors, sources, throughput, tuple(leaks), lens_t, ring, t_msL,
-                        tuple(notes))
+                        tuple(notes), obl, obl_note)
+
+
+def _oblique_field(L: LensDesign, O: LensDesign, psL: PostSet, psO: PostSet, pol: str, pL: np.ndarray,
+                   pO: np.ndarray, front: bool, oblique: dict[str, Any] | None, max_field_deg: float,
+                   error: float) -> tuple[tuple[np.ndarray, np.ndarray, np.ndarray] | None, str]:
+    """The field factor of oblique incidence (focusing lens: its focusing order; a front other lens: its coherent
+    pass-through), relative to the axis, in the xz and yz planes, and what was decided."""
+    if not oblique or L.polarization not in oblique:
+        return None, "not modelled (no oblique-incidence response of the posts: ideal or given posts)"
+    grid = np.linspace(0.0, max(max_field_deg, 1e-3) * 1.05, 33)
+    tauL = psL.transmission(pol)
+    c1_0 = abs(complex(order_coefficients(tauL, L.levels, np.array([1]))[0])) ** 2
+    g = []
+    for az in (0.0, 0.5 * math.pi):
+        fL = oblique[L.polarization].factor(pol, grid, az)
+        c1 = np.abs(np.array([complex(order_coefficients(tauL * fk, L.levels, np.array([1]))[0]) for fk in fL])) ** 2
+        gi = c1 / c1_0
+        if not front and O.polarization in oblique:
+            fO = oblique[O.polarization].factor(pol, grid, az)
+            tauO = psO.transmission(pol)
+            d0 = np.abs((fO * tauO[None, :]) @ pO) ** 2
+            gi = gi * d0 / abs(complex(tauO @ pO)) ** 2
+        g.append(gi)
+    effect = float(max(np.max(np.abs(g[0] - 1)), np.max(np.abs(g[1] - 1))))
+    worst = float(min(g[0][-1], g[1][-1]))
+    what = (f"posts off axis (RCWA, harmonics {oblique[L.polarization].harmonics}, estimate "
+            f"{oblique[L.polarization].error:.1g}): throughput x{worst:.4f} at {grid[-1] / 1.05:.1f} deg "
+            f"(worse plane of incidence), up to {100 * effect:.2f} % over the field")
+    if effect <= error:
+        return None, f"{what}: below {error:g}, not applied"
+    return (grid, g[0], g[1]), f"{what}: applied (relative illumination)"
+
 
 
 def camera_trains(system: SystemDesign, post_sets: dict[str, PostSet], wavelengths_um: Any, weights: Any, *,
@@ -334,14 +411,25 @@ TRAIN_WAVELENGTHS = 31
 
 
 def system_trains(system: SystemDesign, post_sets: dict[str, PostSet], posts: str = "rcwa", *,
-                  filter_enabled: bool | None = None) -> tuple[ChannelTrain, ChannelTrain]:
+                  filter_enabled: bool | None = None, oblique: bool = True) -> tuple[ChannelTrain, ChannelTrain]:
     """(foveal, perifoveal) trains of ``system`` over its band (and filter, when enabled), Planck-weighted at the
-    scene temperature: what ``psf``, ``simulate`` and ``validate`` all print."""
+    scene temperature: what ``psf``, ``simulate`` and ``validate`` all print. With RCWA posts (and ``oblique``)
+    the posts' oblique-incidence response (:func:`metafovea.library.oblique_response`, cached) is included up
+    to each channel's sensor corner (sensor crop, pitch, relay and distance of ``system``)."""
+    from metafovea.library import oblique_response
     from metafovea.radiometry import BandRadiance
 
     radiance = BandRadiance.for_system(system, filter_enabled=filter_enabled)
     wl, w = radiance.psf_wavelengths(system.platform.wavelength_um, system.scene_temperature_k, TRAIN_WAVELENGTHS)
-    return camera_trains(system, post_sets, wl, w, posts=posts)
+    obl = None
+    if oblique and all(ps.source == "rcwa" for ps in post_sets.values()):
+        obl = {pol: oblique_response(ps, system.platform) for pol, ps in post_sets.items()}
+    half_diag = 0.5 * math.hypot(*system.sensor.crop) * system.sensor.pixel_pitch_um / system.relay_magnification
+    out = []
+    for channel, z in (("foveal", system.lens_to_sensor_um[0]), ("perifoveal", system.lens_to_sensor_um[1])):
+        out.append(channel_train(system, channel, post_sets, wl, w, posts=posts, oblique=obl,
+                                 max_field_deg=math.degrees(math.atan(half_diag / z))))
+    return out[0], out[1]
 
 
 def throughput_lines(summaries: list[dict[str, Any]]) -> list[str]:
@@ -359,6 +447,8 @@ def throughput_lines(summaries: list[dict[str, Any]]) -> list[str]:
             lines.append("    glare (largest orders): " + ", ".join(
                 f"order {o['order']:+d} {100 * o['fraction']:.3f} % in disks of {o['radius_min_um'] / 1000:.2f}-"
                 f"{o['radius_max_um'] / 1000:.2f} mm" for o in big[:3]))
+        if s.get("oblique_incidence"):
+            lines.append(f"    oblique incidence: {s['oblique_incidence']}")
         lines.extend(f"    note: {n}" for n in s["notes"])
     for s in summaries:
         tp = s["lens_transmission"]["focusing"]  # over its whole aperture

@@ -43,7 +43,10 @@ def test_alpha_one_is_foveal_and_alpha_zero_is_perifoveal(small_system, gauss_ps
     np.testing.assert_allclose(m.frames, mix, rtol=1e-5)
     # the two channels differ: the foveal one sees a magnified, dimmer (F/2) view
     assert not np.allclose(m.truth_x1, m.truth_x2)
-    assert m.meta["foveal_constraint"]["gain"] == pytest.approx((0.24254 / 0.44721) ** 2, rel=1e-3)
+    # the gain between the channels: (NA_1 / NA_2)^2 times the ratio of their optical-train throughputs
+    tr = m.meta["optical_train"]
+    assert m.meta["foveal_constraint"]["gain"] == pytest.approx(
+        (0.24254 / 0.44721) ** 2 * tr[0]["throughput"] / tr[1]["throughput"], rel=1e-3)
 
 
 def test_downsampled_foveal_matches_centre_of_perifoveal(small_system, delta_psf, gauss_psf, quiet):
@@ -186,3 +189,34 @@ def test_simulate_to_files_refuses_to_overwrite_what_it_reads_even_with_force(tm
     assert scene.read_bytes() == before and tif.read_bytes() == b"a scene picture"
     with pytest.raises(InputError, match=".npz"):
         simulate_to_files(None, "bars", tmp_path / "m.tif")
+
+
+def test_the_optical_train_sets_gain_and_relative_illumination(small_system, delta_psf, quiet):
+    """A uniform scene through the full paper crop: each channel's level is the train's throughput (and its glare),
+    and the perifoveal image falls off to the corner as cos^4 times the foveal lens' ring (clipping beyond
+    11.3 deg) times the posts at oblique incidence."""
+    import math
+
+    from metafovea.library import system_post_sets
+    from metafovea.optics.train import system_trains
+
+    s = small_system(290)
+    on = simulate(s, "uniform", frames=1, psf=delta_psf, supersample=1, **quiet)
+    off = simulate(s, "uniform", frames=1, psf=delta_psf, supersample=1, optical_train=False, **quiet)
+    trains = system_trains(s, *system_post_sets(s))
+    dark = on.meta["dark_dn"]
+    for img_on, img_off, tr in ((on.truth_x1, off.truth_x1, trains[0]), (on.truth_x2, off.truth_x2, trains[1])):
+        c = (145, 145)
+        # a uniform scene also fills the glare disks of the other lens' pass-through ripple
+        assert (img_on[c] - dark) / (img_off[c] - dark) == pytest.approx(
+            tr.throughput * (1 + tr.leak_fraction) * float(tr.field_factor(17 / 25000, 17 / 25000)), rel=3e-4)
+    # the corner pixel of the perifoveal image: field tan = (144.5 * 34 um) / 25 mm along both axes
+    t = 144.5 * 34.0 / 25000.0
+    cos4 = 1.0 / (1.0 + 2 * t * t) ** 2
+    corner = (on.truth_x2[0, 0] - dark) / (on.truth_x2[145, 145] - dark)
+    centre_t = 0.5 * 34.0 / 25000.0
+    expect = cos4 * float(trains[1].field_factor(t, t)) / (1.0 / (1.0 + 2 * centre_t ** 2) ** 2)
+    assert corner == pytest.approx(expect, rel=2e-3)
+    assert float(trains[1].clear_fraction(math.hypot(t, t))) < 0.8  # the ring clips the corner
+    assert on.meta["posts"] == "rcwa" and isinstance(on.meta["optical_train"], list)
+    assert "simplified" in off.meta["optical_train"]["note"]

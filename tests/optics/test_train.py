@@ -216,3 +216,44 @@ def test_thicker_lossier_wafers_transmit_less():
     a0 = math.exp(-float(silicon_absorption_per_cm(10.0, 15.0, "p")) * 0.05)
     a1 = math.exp(-(float(silicon_absorption_per_cm(10.0, 15.0, "p")) + 2.0) * 0.1)
     assert t / base == pytest.approx((a1 / a0) ** 2, rel=1e-9)
+
+
+def test_oblique_incidence_factor_against_posts_solved_at_the_corner():
+    """The perifoveal channel's throughput at its sensor corner (15.6 deg, field along x) relative to the axis: the
+    focusing order of the perifoveal posts and the coherent pass-through of the foveal posts, both solved directly
+    by RCWA at that angle, against the train's interpolated field factor."""
+    from metafovea.library import oblique_response, system_post_sets
+    from metafovea.optics.pupil import order_coefficients
+    from metafovea.optics.train import system_trains
+    from metafovea.rcwa.geometry import Layer, Rectangle, Stack
+    from metafovea.rcwa.solve import solve
+
+    system = SystemDesign.paper()
+    posts, name = system_post_sets(system)
+    fov_tr, per_tr = system_trains(system, posts, name)
+    theta = math.degrees(math.atan(0.5 * math.hypot(290, 290) * 34.0 / 25000.0))
+    assert per_tr.oblique is not None and "applied" in per_tr.oblique_note
+
+    def solved(ps, pol):
+        out = []
+        for wx, wy in ps.widths_um:
+            st = Stack(4.0, 4.0, (Layer(10.0, 1.0, (Rectangle(wx, wy, 3.42),)),), 3.42, 1.0)
+            th = math.degrees(math.asin(math.sin(math.radians(theta)) / 3.42))
+            j = solve(st, 10.0, harmonics=5, theta_deg=th, incidence="substrate", check_energy=False).t00("substrate")
+            j0 = solve(st, 10.0, harmonics=5, check_energy=False).t00("substrate")
+            out.append(j[0, 0] / j0[0, 0] if pol == "x" else j[1, 1] / j0[1, 1])  # xz plane: x is p, y is s
+        return ps.transmission(pol) * np.array(out)
+
+    per, fov = posts["y"], posts["x"]
+    c = lambda t: abs(complex(order_coefficients(t, 8, np.array([1]))[0])) ** 2
+    focus = c(solved(per, "y")) / c(per.transmission("y"))
+    p_fov, _ = level_fractions(system.foveal, system.perifoveal.radius_um, samples=1 << 16, rng=2)
+    d0 = abs(complex(p_fov @ solved(fov, "y"))) ** 2 / abs(complex(p_fov @ fov.transmission("y"))) ** 2
+    expect = focus * d0
+    got = float(per_tr.oblique_factor(math.tan(math.radians(theta)), 0.0))
+    err = max(oblique_response(per, system.platform).error, oblique_response(fov, system.platform).error)
+    assert expect < 0.99  # a few per cent at the corner: worth modelling
+    assert got == pytest.approx(expect, abs=4 * err)
+    # the foveal channel's light crosses the perifoveal posts as a converging cone (up to 14 deg)
+    src = fov_tr.sources["perifoveal lens: pass-through, coherent"]
+    assert "converging cone" in src
