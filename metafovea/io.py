@@ -158,6 +158,30 @@ def cache_dir(stage: str) -> Path:
     return cache_root() / stage
 
 
+@contextlib.contextmanager
+def cache_lock(path: str | os.PathLike) -> Iterator[None]:
+    """Hold an exclusive lock on ``<path>.lock`` (made if missing): two processes that both miss a cache entry
+    compute it once, the second waiting and then reading what the first wrote. Where file locks are not
+    available (no ``fcntl``, or a file system that refuses them) nothing is locked and both compute."""
+    lock = Path(f"{os.fspath(path)}.lock")
+    try:
+        import fcntl
+
+        lock.parent.mkdir(parents=True, exist_ok=True)
+        fh = open(lock, "a+")
+    except (ImportError, OSError):
+        yield
+        return
+    try:
+        try:
+            fcntl.flock(fh.fileno(), fcntl.LOCK_EX)
+        except OSError:
+            pass
+        yield
+    finally:
+        fh.close()  # closing releases the lock
+
+
 def input_hash(obj: Any) -> str:
     """Stable short hash of JSON-serialisable inputs (cache keys)."""
     return hashlib.sha256(to_json(obj, indent=None).encode()).hexdigest()[:16]

@@ -13,6 +13,7 @@ by one lens, level ``k`` targeting the wrapped phase ``2 pi k / N`` for the lens
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import math
 import time
@@ -25,7 +26,7 @@ import numpy as np
 
 from metafovea.config import POLARIZATIONS, PlatformDesign
 from metafovea.errors import InputError, NotConvergedWarning, check_choice, check_int, check_positive, check_range
-from metafovea.io import atomic_save_npz, input_hash, load_npz
+from metafovea.io import atomic_save_npz, cache_lock, input_hash, load_npz
 from metafovea.io import cache_dir as io_cache_dir
 from metafovea.parallel import run_tasks
 
@@ -402,11 +403,16 @@ def compute_library(wx_um: Sequence[float], wy_um: Sequence[float] | None = None
     cdir = Path(opts.cache_dir) if opts.cache_dir is not None else io_cache_dir("library")
     final = cdir / f"library-{sweep.key}.npz"
     lib = _cached_library(final) if opts.use_cache else None
-    if lib is None:
+    if lib is None and opts.use_cache:
+        # one process computes, others (test workers, a second command) wait for its file
+        with cache_lock(final):
+            lib = _cached_library(final)
+            if lib is None:
+                lib = _run_sweep(sweep, opts, cdir / f"library-{sweep.key}.parts")
+                lib.save(final)
+                _remove_parts(cdir / f"library-{sweep.key}.parts")
+    elif lib is None:
         lib = _run_sweep(sweep, opts, cdir / f"library-{sweep.key}.parts")
-        if opts.use_cache:
-            lib.save(final)
-            _remove_parts(cdir / f"library-{sweep.key}.parts")
     _warn_convergence(lib, sweep.tol)
     return lib
 
@@ -875,27 +881,42 @@ def oblique_response(post_set: PostSet, platform: PlatformDesign | None = None, 
            "n_superstrate": plat.n_superstrate}
     path = Path(cache_dir) if cache_dir else io_cache_dir("library")
     path = path / f"oblique_{input_hash(key)}.npz"
-    ratios = err = None
+    ratios, err = _cached_oblique(path)
+    lock = cache_lock(path) if ratios is None else contextlib.nullcontext()
+    with lock:
+        if ratios is None:
+            ratios, err = _cached_oblique(path)  # another process may have written it meanwhile
+        if ratios is None:
+            ratios, err = _solve_oblique(post_set, plat, angles, m, key, path)
+    return ObliqueResponse(angles, {"x": ratios[:, :, 0, :], "y": ratios[:, :, 1, :]}, err, m)
+
+
+def _cached_oblique(path: Path) -> tuple[np.ndarray | None, float | None]:
     if path.is_file():
         try:
             arrays, meta = load_npz(path)
-            ratios, err = arrays["ratios"], float(meta["error"])
+            return arrays["ratios"], float(meta["error"])
         except Exception as e:  # noqa: BLE001 - a damaged cache entry is recomputed
             log.warning("ignoring unreadable oblique-incidence cache %s: %s", path, e)
-    if ratios is None:
-        ratios = _oblique_ratios(post_set.widths_um, plat, angles, post_set.wavelength_um, m)
-        lower = _oblique_ratios(post_set.widths_um, plat, angles, post_set.wavelength_um, m - 1)
-        err = float(np.max(np.abs(ratios - lower)))
-        # interpolation: solve at the midpoints (in angle^2) of the upper segments and compare
-        mids = np.sqrt(0.5 * (angles[1:] ** 2 + angles[:-1] ** 2))[-2:]
-        solved = _oblique_ratios(post_set.widths_um, plat, np.concatenate([[0.0], mids]), post_set.wavelength_um, m)
-        trial = ObliqueResponse(angles, {"x": ratios[:, :, 0, :], "y": ratios[:, :, 1, :]}, err, m)
-        for i, th in enumerate(mids, start=1):
-            for plane, az in ((0, 0.0), (1, 0.5 * math.pi)):
-                for q, pol in enumerate(POLARIZATIONS):
-                    err = max(err, float(np.max(np.abs(trial.factor(pol, th, az) - solved[i, plane, q]))))
-        try:
-            atomic_save_npz(path, {"kind": "oblique-cache", "key": key, "error": err}, ratios=ratios)
-        except OSError as e:
-            log.warning("could not cache the oblique-incidence response in %s: %s", path, e)
-    return ObliqueResponse(angles, {"x": ratios[:, :, 0, :], "y": ratios[:, :, 1, :]}, err, m)
+    return None, None
+
+
+def _solve_oblique(post_set: PostSet, plat: PlatformDesign, angles: np.ndarray, m: int, key: dict[str, Any],
+                   path: Path) -> tuple[np.ndarray, float]:
+    """The ratios at ``m`` harmonics and their error estimate (truncation, interpolation), written to ``path``."""
+    ratios = _oblique_ratios(post_set.widths_um, plat, angles, post_set.wavelength_um, m)
+    lower = _oblique_ratios(post_set.widths_um, plat, angles, post_set.wavelength_um, m - 1)
+    err = float(np.max(np.abs(ratios - lower)))
+    # interpolation: solve at the midpoints (in angle^2) of the upper segments and compare
+    mids = np.sqrt(0.5 * (angles[1:] ** 2 + angles[:-1] ** 2))[-2:]
+    solved = _oblique_ratios(post_set.widths_um, plat, np.concatenate([[0.0], mids]), post_set.wavelength_um, m)
+    trial = ObliqueResponse(angles, {"x": ratios[:, :, 0, :], "y": ratios[:, :, 1, :]}, err, m)
+    for i, th in enumerate(mids, start=1):
+        for plane, az in ((0, 0.0), (1, 0.5 * math.pi)):
+            for q, pol in enumerate(POLARIZATIONS):
+                err = max(err, float(np.max(np.abs(trial.factor(pol, th, az) - solved[i, plane, q]))))
+    try:
+        atomic_save_npz(path, {"kind": "oblique-cache", "key": key, "error": err}, ratios=ratios)
+    except OSError as e:
+        log.warning("could not cache the oblique-incidence response in %s: %s", path, e)
+    return ratios, err

@@ -96,3 +96,27 @@ def test_file_stem_cannot_name_a_path():
     from metafovea.io import file_stem
 
     assert file_stem("../../x") == "_.._x" and file_stem("a/b") == "a_b" and file_stem("..") == "lens"
+
+
+def test_cache_lock_serialises_two_holders(tmp_path):
+    """Two workers that miss the same cache entry: the second waits until the first has written it."""
+    import threading
+    import time
+
+    from metafovea.io import cache_lock
+
+    events = []
+
+    def hold(name, delay):
+        time.sleep(delay)
+        with cache_lock(tmp_path / "entry.npz"):
+            events.append((name, "in"))
+            time.sleep(0.2)
+            events.append((name, "out"))
+
+    a = threading.Thread(target=hold, args=("a", 0.0))
+    b = threading.Thread(target=hold, args=("b", 0.05))
+    a.start(), b.start()
+    a.join(), b.join()
+    assert events == [("a", "in"), ("a", "out"), ("b", "in"), ("b", "out")]
+    assert (tmp_path / "entry.npz.lock").is_file()
