@@ -50,6 +50,8 @@ MAX_PSF_SIZE = 1025
 NEAR_HAZE_PX = 6.0
 #: coarse-grid haze kernels are kept within this radius (coarse samples)
 FAR_HAZE_SAMPLES = 48
+#: glare disks are rendered in bands of radii within this factor, each on its own coarse grid
+GLARE_BAND = 4.0
 
 
 # ----------------------------------------------------------------------------------------------
@@ -297,6 +299,15 @@ class ChannelOptics:
     far_kernel: np.ndarray | None  # on the coarse grid
     far_coarse: int  # coarse sample = far_coarse sensor pixels
     info: dict[str, Any] = field(default_factory=dict)
+    #: further far components on their own coarse grids, ``(weight, kernel, coarse)``: the glare of the other
+    #: lens' pass-through (disks of mm, which on the haze's grid would blur the haze)
+    extra_far: tuple[tuple[float, np.ndarray, int], ...] = ()
+
+    def far_parts(self) -> list[tuple[float, np.ndarray, int]]:
+        """Every far component ``(weight, normalised kernel on its coarse grid, coarse sample in pixels)``."""
+        parts = [(self.far_weight, self.far_kernel, self.far_coarse)] if (
+            self.far_kernel is not None and self.far_weight > 0) else []
+        return parts + [p for p in self.extra_far if p[0] > 0]
 
     @property
     def margin(self) -> int:
@@ -394,31 +405,36 @@ def build_channel_optics(channel: Channel, provider: Any, radiance: BandRadiance
                 kernels.append(kk.intensity if same else _rotate(kk.intensity, math.atan2(y, x)))
                 centres.append((r, c))
     info["mode"] = "shift-invariant" if n == 1 else f"{n} x {n} patches"
-    # ---- haze and glare: disks (radius in sensor pixels, weight) near ones in the kernel, far ones coarse ------
+    # ---- haze and glare: disks (radius in sensor pixels, weight); near ones in the kernel, far ones coarse ------
     ksum = float(k0.intensity.sum())
     haze_w = max(0.0, 1.0 - ksum) if haze else 0.0
     rho = chromatic_blur_radius_um(channel, lam_psf)
     out = rho > k0.window_radius_um
-    radii, weights = [], []
-    if haze_w > 1e-9 and np.any(out):
-        radii.append(rho[out] / channel.focal_pitch_um)
-        weights.append(haze_w * w_psf[out] / w_psf[out].sum())
-    leak_list = [(float(p), float(r)) for p, r in leaks if p > 0]
-    if leak_list:
-        radii.append(np.array([r for _, r in leak_list]) / channel.focal_pitch_um)
-        weights.append(np.array([p for p, _ in leak_list]))
     far_w, far_kernel, coarse = 0.0, None, 1
-    if radii:
-        rho_px, w_all = np.concatenate(radii), np.concatenate(weights)
+    extra: list[tuple[float, np.ndarray, int]] = []
+    leak_list = [(float(p), float(r)) for p, r in leaks if p > 0]
+    comps = []
+    if haze_w > 1e-9 and np.any(out):
+        comps.append(("haze", rho[out] / channel.focal_pitch_um, haze_w * w_psf[out] / w_psf[out].sum()))
+    if leak_list:
+        # glare disks span 0.5-50 mm: bands of radii within a factor GLARE_BAND, each on a grid its disks resolve
+        g_rho = np.array([r for _, r in leak_list]) / channel.focal_pitch_um
+        g_w = np.array([p for p, _ in leak_list])
+        band = np.floor(np.log(np.maximum(g_rho, NEAR_HAZE_PX) / NEAR_HAZE_PX) / math.log(GLARE_BAND)).astype(int)
+        for b in np.unique(band):
+            comps.append(("glare", g_rho[band == b], g_w[band == b]))
+    for name, rho_px, w_all in comps:
         near = rho_px <= NEAR_HAZE_PX
-        near_w = float(np.sum(w_all[near]))
         if np.any(near):
             kn = disk_mixture_kernel(rho_px[near] * ss, w_all[near], 1.0)
-            kernels = [_embed_add(k, kn, near_w) for k in kernels]
+            kernels = [_embed_add(k, kn, float(np.sum(w_all[near]))) for k in kernels]
         if np.any(~near):
-            far_w = float(np.sum(w_all[~near]))
-            coarse = max(1, int(math.ceil(float(rho_px[~near].max()) / FAR_HAZE_SAMPLES)))
-            far_kernel = disk_mixture_kernel(rho_px[~near] / coarse, w_all[~near], 1.0)
+            q = max(1, int(math.ceil(float(rho_px[~near].max()) / FAR_HAZE_SAMPLES)))
+            kf = disk_mixture_kernel(rho_px[~near] / q, w_all[~near], 1.0)
+            if name == "haze":
+                far_w, far_kernel, coarse = float(np.sum(w_all[~near])), kf, q
+            else:
+                extra.append((float(np.sum(w_all[~near])), kf, q))
     if haze_w > 1e-9 and np.any(out):
         h_rho = rho[out] / channel.focal_pitch_um
         h_near = float(np.sum(w_psf[out][h_rho <= NEAR_HAZE_PX]) / w_psf[out].sum())
@@ -435,7 +451,7 @@ def build_channel_optics(channel: Channel, provider: Any, radiance: BandRadiance
                          "source": "the other lens' pass-through ripple (metafovea.optics.train)"}
     if tr != 1.0:
         info["kernel_divided_by_metasurface_transmission"] = tr
-    return ChannelOptics(channel, ss, kernels, centres, n, far_w, far_kernel, coarse, info)
+    return ChannelOptics(channel, ss, kernels, centres, n, far_w, far_kernel, coarse, info, tuple(extra))
 
 
 def _embed_add(a: np.ndarray, b: np.ndarray, wb: float) -> np.ndarray:

@@ -66,15 +66,19 @@ class ChannelRenderer:
         self.ya = np.arctan(ch.positions_um(H, ss, m) / ch.focal_length_um)
         self.xa = np.arctan(ch.positions_um(W, ss, m) / ch.focal_length_um)
         self.ri = relative_illumination_map(ch, field_factor) if relative_illumination else None
-        self.far = optics.far_kernel is not None and optics.far_weight > 0
-        if self.far:
-            q, km = optics.far_coarse, optics.far_kernel.shape[0] // 2
-            self.yc = np.arctan(ch.positions_um(H, self.SUB, km * self.SUB, coarse=q) / ch.focal_length_um)
-            self.xc = np.arctan(ch.positions_um(W, self.SUB, km * self.SUB, coarse=q) / ch.focal_length_um)
+        # far components, each on its own coarse grid: the chromatic haze, then the glare (ChannelOptics.far_parts)
+        self.parts = []
+        for weight, kernel, q in optics.far_parts():
+            km = kernel.shape[0] // 2
             nh, nw = round(H * self.SUB / q), round(W * self.SUB / q)
-            # output sample o of the valid convolution sits at ((o + 0.5) - n_fine / (2 SUB)) q pixels
-            self.ry = (np.arange(H) + 0.5 - H / 2.0) / q + nh / (2.0 * self.SUB) - 0.5
-            self.rx = (np.arange(W) + 0.5 - W / 2.0) / q + nw / (2.0 * self.SUB) - 0.5
+            self.parts.append({
+                "weight": weight, "kernel": kernel,
+                "yc": np.arctan(ch.positions_um(H, self.SUB, km * self.SUB, coarse=q) / ch.focal_length_um),
+                "xc": np.arctan(ch.positions_um(W, self.SUB, km * self.SUB, coarse=q) / ch.focal_length_um),
+                # output sample o of the valid convolution sits at ((o + 0.5) - n_fine / (2 SUB)) q pixels
+                "ry": (np.arange(H) + 0.5 - H / 2.0) / q + nh / (2.0 * self.SUB) - 0.5,
+                "rx": (np.arange(W) + 0.5 - W / 2.0) / q + nw / (2.0 * self.SUB) - 0.5})
+        self.far = bool(self.parts)
         self.incremental = (not scene.static and optics.n_patches == 1
                             and scene.dynamic_regions(0.0) is not None)
         self._bg: dict[str, np.ndarray] | None = None
@@ -88,10 +92,10 @@ class ChannelRenderer:
             temp, eps = self.scene.sample(ax, ay, t)
         return self.radiance.apparent(temp, eps, self.scene.reflected_k)
 
-    def _coarse_radiance(self, r0: int, r1: int, c0: int, c1: int, t: float | None) -> np.ndarray:
-        """Coarse samples [r0, r1) x [c0, c1), each the mean of SUB x SUB samples."""
+    def _coarse_radiance(self, part: dict, r0: int, r1: int, c0: int, c1: int, t: float | None) -> np.ndarray:
+        """Coarse samples [r0, r1) x [c0, c1) of a far component's grid, each the mean of SUB x SUB samples."""
         S = self.SUB
-        L = self._radiance(self.yc[r0 * S:r1 * S], self.xc[c0 * S:c1 * S], t)
+        L = self._radiance(part["yc"][r0 * S:r1 * S], part["xc"][c0 * S:c1 * S], t)
         return L.reshape(r1 - r0, S, c1 - c0, S).mean(axis=(1, 3))
 
     def _fine_image(self, L: np.ndarray) -> np.ndarray:
@@ -113,28 +117,28 @@ class ChannelRenderer:
             img += wy[i][:, None] * wx[j][None, :] * _conv_valid(sub, k)
         return img
 
-    def _finish(self, fine: np.ndarray, hz: np.ndarray | None) -> np.ndarray:
+    def _finish(self, fine: np.ndarray, hz: list[np.ndarray]) -> np.ndarray:
         from scipy.ndimage import map_coordinates
 
         ch, ss = self.optics.channel, self.optics.ss
         H, W = ch.shape
         img = fine.reshape(H, ss, W, ss).mean(axis=(1, 3)) if ss > 1 else fine.copy()
-        if hz is not None:
-            yy, xx = np.meshgrid(self.ry, self.rx, indexing="ij")
-            img += self.optics.far_weight * map_coordinates(hz, [yy.ravel(), xx.ravel()], order=1,
-                                                            mode="nearest").reshape(H, W)
+        for part, h in zip(self.parts, hz):
+            yy, xx = np.meshgrid(part["ry"], part["rx"], indexing="ij")
+            img += part["weight"] * map_coordinates(h, [yy.ravel(), xx.ravel()], order=1,
+                                                    mode="nearest").reshape(H, W)
         if self.ri is not None:
             img *= self.ri
         return img
 
-    def _full(self, t: float | None) -> tuple[np.ndarray, np.ndarray | None, np.ndarray, np.ndarray | None]:
+    def _full(self, t: float | None) -> tuple[np.ndarray, list[np.ndarray], np.ndarray, list[np.ndarray]]:
         L = self._radiance(self.ya, self.xa, t)
         fine = self._fine_image(L)
-        hz = Lc = None
-        if self.far:
-            S = self.SUB
-            Lc = self._coarse_radiance(0, self.yc.size // S, 0, self.xc.size // S, t)
-            hz = _conv_valid(Lc, self.optics.far_kernel)
+        hz, Lc = [], []
+        S = self.SUB
+        for part in self.parts:
+            Lc.append(self._coarse_radiance(part, 0, part["yc"].size // S, 0, part["xc"].size // S, t))
+            hz.append(_conv_valid(Lc[-1], part["kernel"]))
         return fine, hz, L, Lc
 
     @staticmethod
@@ -171,7 +175,7 @@ class ChannelRenderer:
             self._bg = {"fine": fine, "hz": hz, "L": L, "Lc": Lc}
         bg = self._bg
         fine = bg["fine"].copy()
-        hz = None if bg["hz"] is None else bg["hz"].copy()
+        hz = [h.copy() for h in bg["hz"]]
         k = self.optics.kernels[0]
         m = k.shape[0] // 2
         boxes = self.scene.dynamic_regions(t) or []
@@ -180,14 +184,15 @@ class ChannelRenderer:
         for r0, r1, c0, c1 in fine_boxes:
             d = self._radiance(self.ya[r0:r1], self.xa[c0:c1], t) - bg["L"][r0:r1, c0:c1]
             self._add_full(fine, d, k, r0, c0, m)
-        if hz is not None:
-            S = self.SUB
-            kf = self.optics.far_kernel
-            coarse_boxes = _merge_overlapping_boxes([self._range(self.yc, y0, y1, S) + self._range(self.xc, x0, x1, S)
+        S = self.SUB
+        for part, h, Lc in zip(self.parts, hz, bg["Lc"]):
+            kf = part["kernel"]
+            coarse_boxes = _merge_overlapping_boxes([self._range(part["yc"], y0, y1, S)
+                                                     + self._range(part["xc"], x0, x1, S)
                                                      for (x0, y0, x1, y1) in boxes])
             for q0, q1, p0, p1 in coarse_boxes:
-                dc = self._coarse_radiance(q0, q1, p0, p1, t) - bg["Lc"][q0:q1, p0:p1]
-                self._add_full(hz, dc, kf, q0, p0, kf.shape[0] // 2)
+                dc = self._coarse_radiance(part, q0, q1, p0, p1, t) - Lc[q0:q1, p0:p1]
+                self._add_full(h, dc, kf, q0, p0, kf.shape[0] // 2)
         return self._finish(fine, hz)
 
 

@@ -302,7 +302,9 @@ def _measurement_meta(system: SystemDesign, camera: Camera, sc: Scene, opt: Simu
     sensor, pol, radiance, fe = camera.sensor, camera.polarizer, camera.radiance, camera.filter_enabled
     ch1, ch2 = camera.channels
     g, gains = camera.optical_gains, camera.gains
-    r = g[0] / g[1]
+    # the gain a flat-field calibration measures: a uniform scene fills each channel's glare disks too
+    glare = [1.0, 1.0] if camera.trains is None else [1.0 + tr.leak_fraction for tr in camera.trains]
+    r = g[0] * glare[0] / (g[1] * glare[1])
     return {
         "kind": "measurement",
         "units": "DN",
@@ -315,6 +317,7 @@ def _measurement_meta(system: SystemDesign, camera: Camera, sc: Scene, opt: Simu
         "foveal_constraint": {
             "scale": system.expansion, "gain": r, "offset_dn": (1.0 - r) * sensor.dark_dn,
             "relation": "downsample(truth_x1, scale) ~= gain * centre_crop(truth_x2) + offset_dn",
+            "gain_note": "flat-field ratio of the channels: (NA_1 / NA_2)^2, the trains' throughputs and their glare",
         },
         "channel_gain": {"x1": gains[0], "x2": gains[1]},
         "channel_gain_note": "(NA_i / NA_F1)^2 x optical-train throughput x (1 + polariser extinction leak)",
