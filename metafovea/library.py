@@ -840,9 +840,12 @@ def _oblique_ratios(widths_um: np.ndarray, platform: PlatformDesign, angles_deg:
     from metafovea.rcwa.geometry import Layer, Rectangle, Stack
     from metafovea.rcwa.solve import solve
 
+    from tqdm.auto import tqdm
+
     n_sub = platform.n_substrate
     out = np.ones((len(angles_deg), 2, 2, widths_um.shape[0]), complex)
-    for k, (wx, wy) in enumerate(widths_um):
+    for k, (wx, wy) in enumerate(tqdm(widths_um, desc=f"posts off axis (M={harmonics})", unit="post", leave=False,
+                                      disable=None)):
         st = Stack(platform.period_um, platform.period_um,
                    (Layer(platform.post_height_um, platform.n_superstrate, (Rectangle(wx, wy, platform.n_post),)),),
                    n_sub, platform.n_superstrate)
