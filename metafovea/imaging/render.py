@@ -78,7 +78,6 @@ class ChannelRenderer:
                 # output sample o of the valid convolution sits at ((o + 0.5) - n_fine / (2 SUB)) q pixels
                 "ry": (np.arange(H) + 0.5 - H / 2.0) / q + nh / (2.0 * self.SUB) - 0.5,
                 "rx": (np.arange(W) + 0.5 - W / 2.0) / q + nw / (2.0 * self.SUB) - 0.5})
-        self.far = bool(self.parts)
         self.incremental = (not scene.static and optics.n_patches == 1
                             and scene.dynamic_regions(0.0) is not None)
         self._bg: dict[str, np.ndarray] | None = None

@@ -159,13 +159,6 @@ def _taylor_coefficients(k: float, z: float, R: np.ndarray) -> tuple[np.ndarray,
     return l1, l2, l3
 
 
-def _kernel_factor_exact(k: float, z: float, R: np.ndarray, nd: np.ndarray, d2: float) -> np.ndarray:
-    """K(r)/K(R) exp(i k (r - R - n.d)) for the exact distance r = sqrt(R^2 + 2 R n.d + |d|^2)."""
-    r = np.sqrt(R * R + 2 * R * nd + d2)
-    return (R * R / (r * r)) * (1.0 - 1.0 / (1j * k * r)) / (1.0 - 1.0 / (1j * k * R)) * \
-        np.exp(1j * k * (d2 - nd * nd) / (r + R + nd))
-
-
 def _taylor_remainder(k: float, z: float, R: np.ndarray, u: np.ndarray, vv: np.ndarray, h: np.ndarray,
                       l1: np.ndarray, l2: np.ndarray, l3: np.ndarray, dxs: np.ndarray, dys: np.ndarray,
                       Ep: np.ndarray, Ey: np.ndarray) -> float:
