@@ -19,6 +19,8 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, Callable
 
+import numpy as np
+
 from metafovea.errors import InputError, check_choice, check_int, check_positive, check_range
 from metafovea.units import LAMBDA0_UM, PHASE_SIGN, UM_PER_MM
 
@@ -47,6 +49,8 @@ class PlatformDesign:
     substrate_thickness_um: float = 500.0
     min_feature_um: float = 0.5
     wavelength_um: float = LAMBDA0_UM
+    min_gap_um: float | None = None  # smallest gap between neighbouring posts (default: min_feature_um)
+    max_aspect_ratio: float = 20.0  # post height / smallest side: a typical limit of Bosch deep silicon etching
     substrate_resistivity_ohm_cm: float = 15.0  # the paper's 10-20 ohm cm wafers
     substrate_dopant: str = "p"  # boron (the common prime wafer; the paper does not say): 2.7x the electrons' loss
     substrate_extra_absorption_per_cm: float = 0.0  # measured lattice / oxygen absorption, added to free carriers
@@ -60,10 +64,32 @@ class PlatformDesign:
         check_positive("substrate_thickness_um", self.substrate_thickness_um, "um")
         check_range("min_feature_um", self.min_feature_um, 0.0, self.period_um, hi_inclusive=False)
         check_positive("wavelength_um", self.wavelength_um, "um", hi=1e4)
+        if self.min_gap_um is not None:
+            check_range("min_gap_um", self.min_gap_um, 0.0, self.period_um, hi_inclusive=False, lo_inclusive=True)
+        check_positive("max_aspect_ratio", self.max_aspect_ratio, hi=1e4)
         check_positive("substrate_resistivity_ohm_cm", self.substrate_resistivity_ohm_cm, "ohm cm", hi=1e6)
         check_choice("substrate_dopant", self.substrate_dopant, ("n", "p"))
         check_range("substrate_extra_absorption_per_cm", self.substrate_extra_absorption_per_cm, 0.0, 1e3,
                     unit="1/cm", lo_inclusive=True)
+
+    def fabrication_violations(self, widths_um: Any, height_um: float | None = None) -> list[str]:
+        """The fabrication rules (``min_feature_um``, ``min_gap_um``, ``max_aspect_ratio``) that posts of
+        ``widths_um`` ``(N, 2)`` break, one sentence each naming the post, the value and the rule."""
+        w = np.asarray(widths_um, dtype=float).reshape(-1, 2)
+        h = self.post_height_um if height_um is None else float(height_um)
+        gap_min = self.min_feature_um if self.min_gap_um is None else self.min_gap_um
+        out = []
+        for k, (wx, wy) in enumerate(w):
+            side = min(wx, wy)
+            if side < self.min_feature_um - 1e-9:
+                out.append(f"post {k}: side {side:.3f} um below min_feature_um = {self.min_feature_um:g} um")
+            gap = self.period_um - max(wx, wy)
+            if gap < gap_min - 1e-9:
+                out.append(f"post {k}: gap {gap:.3f} um below min_gap_um = {gap_min:g} um")
+            if h / side > self.max_aspect_ratio + 1e-9:
+                out.append(f"post {k}: aspect ratio {h / side:.1f} (height {h:g} um / side {side:.3f} um) above "
+                           f"max_aspect_ratio = {self.max_aspect_ratio:g}")
+        return out
 
 
 @dataclass(frozen=True)
@@ -302,6 +328,9 @@ def load_platform(path: str | Path) -> PlatformDesign:
         substrate_thickness_um=r.num("substrate_thickness_um", d.substrate_thickness_um, unit="um"),
         min_feature_um=r.num("min_feature_um", d.min_feature_um, 0.0, period, unit="um"),
         wavelength_um=r.num("wavelength_um", d.wavelength_um, hi=1e4, unit="um"),
+        min_gap_um=r.get("min_gap_um", None, lambda k, v: check_range(k, v, 0.0, period, hi_inclusive=False,
+                                                                     lo_inclusive=True, unit="um", source=str(path))),
+        max_aspect_ratio=r.num("max_aspect_ratio", d.max_aspect_ratio, hi=1e4),
         substrate_resistivity_ohm_cm=r.num("substrate_resistivity_ohm_cm", d.substrate_resistivity_ohm_cm, hi=1e6,
                                            unit="ohm cm"),
         substrate_dopant=r.choice("substrate_dopant", d.substrate_dopant, ("n", "p")),

@@ -546,7 +546,7 @@ def usable_posts(lib: Library, wavelength_um: float | None = None, *, max_error:
 
 def select_posts(lib: Library, polarization: str, levels: int = 8, *, wavelength_um: float | None = None,
                  pass_weight: float = 1.0, transmission_weight: float = 0.5, max_error: float | None = 0.05,
-                 n_offsets: int = 72) -> PostSet:
+                 n_offsets: int = 72, platform: PlatformDesign | None = None) -> PostSet:
     """Choose ``levels`` posts for the lens that focuses ``polarization``.
 
     Level k must give the focusing polarisation the phase ``phi0 + 2 pi k / N`` (phi0 free), while the
@@ -575,8 +575,17 @@ def select_posts(lib: Library, polarization: str, levels: int = 8, *, wavelength
     tp_all = (lib.t_y if pol == "x" else lib.t_x)[il]
     WX, WY = np.meshgrid(lib.wx_um, lib.wy_um, indexing="ij")
     ok = usable_posts(lib, wavelength_um, max_error=max_error)
+    n_rules = 0
+    if platform is not None:
+        # the platform's fabrication rules: posts that break one are never chosen
+        h = float(lib.meta.get("height_um", platform.post_height_um))
+        fab = np.array([not platform.fabrication_violations([[a, b]], h) for a, b in zip(WX.ravel(), WY.ravel())])
+        fab = fab.reshape(WX.shape)
+        n_rules = int(np.count_nonzero(ok & ~fab))
+        ok &= fab
     if np.count_nonzero(ok) < N:
-        raise InputError("library", int(np.count_nonzero(ok)), f"at least levels = {N} usable (converged) posts")
+        raise InputError("library", int(np.count_nonzero(ok)), f"at least levels = {N} usable (converged) posts"
+                         + (" that meet the platform's fabrication rules" if platform is not None else ""))
     tf, tp = tf_all[ok], tp_all[ok]
     wxc, wyc = WX[ok], WY[ok]
     # specular reflection back into the entry side: entering through the wafer, 'other' is the reflected
@@ -629,6 +638,10 @@ def select_posts(lib: Library, polarization: str, levels: int = 8, *, wavelength
         "expected_focusing_efficiency": eff_focus,
         "pass_coherent_transmission": float(abs(np.mean(tps)) ** 2),
         "weights": {"pass": pw, "transmission": tw}, "max_error": max_error,
+        "fabrication_rules": None if platform is None else {
+            "min_feature_um": platform.min_feature_um,
+            "min_gap_um": platform.min_feature_um if platform.min_gap_um is None else platform.min_gap_um,
+            "max_aspect_ratio": platform.max_aspect_ratio, "posts_excluded": n_rules},
         "library_key": lib.meta.get("key"), "harmonics": lib.meta.get("harmonics"),
         "incidence": lib.meta.get("incidence"),
     }
@@ -727,7 +740,8 @@ class PlatformSweep:
                              f"at most the {n_ok} of {lib.wx_um.size} x {lib.wy_um.size} posts converged at {wl:g} um "
                              "(convergence estimate <= 0.05): use more --harmonics, a finer --grid-step-um or fewer "
                              f"--levels{diffracts}")
-        return {pol: select_posts(lib, pol, self.levels, wavelength_um=wl) for pol in POLARIZATIONS}
+        return {pol: select_posts(lib, pol, self.levels, wavelength_um=wl, platform=self.platform)
+                for pol in POLARIZATIONS}
 
 
 def platform_post_sets(platform: PlatformDesign | None = None, levels: int = 8, *, grid_step_um: float = 0.1,

@@ -129,3 +129,20 @@ def test_lens_name_cannot_escape_output_directory(tmp_path, monkeypatch, capsys,
     assert main(["psf", str(toml), "--field-deg", "0", "--wavelengths", "2", "--out", str(out)]) == 0
     written = [p for p in tmp_path.rglob("*") if p.is_file() and p.suffix in (".html", ".json", ".png")]
     assert written and all(p.parent == out for p in written), written
+
+
+def test_fabrication_rules_name_the_post_and_the_rule(tmp_path):
+    from metafovea.config import PlatformDesign, load_platform
+
+    p = PlatformDesign()
+    assert p.fabrication_violations([[1.6, 1.3], [3.0, 1.0], [0.6, 2.0]]) == []  # the paper's posts pass
+    v = p.fabrication_violations([[0.2, 2.0], [3.8, 1.0], [0.45, 0.45]])
+    assert any("post 0" in s and "min_feature_um" in s for s in v)
+    assert any("post 1" in s and "min_gap_um" in s for s in v)
+    assert any("post 2" in s and "max_aspect_ratio" in s for s in v)  # 10 / 0.45 = 22 > 20
+    f = tmp_path / "plat.toml"
+    f.write_text('name = "p"\nmax_aspect_ratio = 12.0\nmin_gap_um = 1.0\n')
+    q = load_platform(f)
+    assert q.max_aspect_ratio == 12.0 and q.min_gap_um == 1.0
+    assert any("aspect ratio 16.7" in s for s in q.fabrication_violations([[0.6, 2.0]]))
+    assert any("gap" in s for s in q.fabrication_violations([[3.2, 1.0]]))

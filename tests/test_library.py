@@ -287,3 +287,18 @@ def test_oblique_response_against_direct_solves_at_unseen_angles(tmp_path):
     # cached: the same numbers from the file
     again = oblique_response(ps, cache_dir=tmp_path)
     assert again.error == ob.error and np.array_equal(again.ratio["x"], ob.ratio["x"])
+
+
+def test_selection_keeps_to_the_platform_fabrication_rules():
+    """A stricter etch (aspect ratio at most 12) excludes the thin posts: none is chosen, and the count is reported."""
+    from dataclasses import replace as dc_replace
+
+    from metafovea.config import PlatformDesign
+    from metafovea.library import platform_post_sets
+
+    strict = dc_replace(PlatformDesign(), max_aspect_ratio=12.0)
+    sets, _ = platform_post_sets(strict, 8, grid_step_um=0.5, harmonics=5)
+    for ps in sets.values():
+        assert ps.widths_um.min() >= 10.0 / 12.0 - 1e-9
+        assert strict.fabrication_violations(ps.widths_um) == []
+        assert ps.info["fabrication_rules"]["posts_excluded"] > 0

@@ -24,9 +24,11 @@ def register(sub: Any) -> None:
     p.add_argument("--lattice", help="site positions: integer (post at the centre) or half")
     p.add_argument("--name", help="lens name (default: lens)")
     p.add_argument("--post-set", help="a PostSet .npz (from `metafovea library`) to list posts per level")
-    p.add_argument("--library", action="store_true",
-                   help="select the posts from the platform's RCWA library (computed on first use, ~1 min on "
-                        "2 cores, then cached) and list post widths per level and the expected efficiency")
+    p.add_argument("--posts", default="rcwa", choices=("rcwa", "ideal"),
+                   help="rcwa (default): select the posts from the platform's RCWA library (computed on first use, "
+                        "~35 s on 2 cores, then cached) and list post widths per level and the expected efficiency; "
+                        "ideal: no post set (quantisation and lattice only, a simplified model)")
+    p.add_argument("--library", action="store_true", help="the same as --posts rcwa (the default)")
     p.add_argument("--samples", default=str(1 << 20), help="sites sampled for the lattice efficiency (default 2^20)")
     p.add_argument("--out", help="write the design bundle (JSON, TOML, CSV, PNG figures) into this directory")
     p.add_argument("--force", action="store_true", help="overwrite existing output")
@@ -99,8 +101,10 @@ def run(args: argparse.Namespace) -> int:
         raise InputError("--library", True, "either --post-set FILE or --library, not both")
     post_set = PostSet.load(args.post_set, name="--post-set") if args.post_set else None
     out_root = prepare_output(args.out, args.force, is_dir=True) if args.out else None
-    summaries = design_lenses(lenses, post_set=post_set, from_library=args.library, samples=samples,
-                              progress=sys.stderr.isatty())
+    if args.library and args.posts == "ideal":
+        raise InputError("--library", True, "not together with --posts ideal")
+    summaries = design_lenses(lenses, post_set=post_set, from_library=post_set is None and args.posts == "rcwa",
+                              samples=samples, progress=sys.stderr.isatty())
     if out_root is not None:
         write_design_bundles(lenses, summaries, out_root)
     if args.json:

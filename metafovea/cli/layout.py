@@ -29,7 +29,11 @@ def _patch(s: str | None):
 
 def _common(p: argparse.ArgumentParser) -> None:
     p.add_argument("--levels", type=int, default=None, help="phase levels N (default: the design's)")
-    p.add_argument("--post-set", default=None, help="PostSet .npz (default: ideal N-level post set)")
+    p.add_argument("--post-set", default=None, help="PostSet .npz (default: the platform's RCWA post set, see --posts)")
+    p.add_argument("--posts", default="rcwa", choices=("rcwa", "ideal"),
+                   help="without --post-set: rcwa (the RCWA library's post set for the lens' polarisation and "
+                        "levels, computed once and cached: what a fab should write; default) or ideal (an "
+                        "idealised width ramp, not a physical design; named in the label and the summary)")
     p.add_argument("--patch", default=None, metavar="X,Y,W",
                    help="only sites with centre in the square of width W around (X, Y), mm from the lens centre")
     p.add_argument("--grid-nm", type=int, default=5, help="manufacturing grid for positions and sizes (nm)")
@@ -95,7 +99,7 @@ def _inputs(args, design_path: str):
     if args.test_array and args.patch:
         raise InputError("--patch", args.patch, "not together with --test-array")
     spec = load_spec(design_path, args.post_set, args.levels, grid_nm=args.grid_nm, patch_mm=_patch(args.patch),
-                     band_rows=getattr(args, "band_rows", 32), ring_width_um=args.ring_width_um)
+                     band_rows=getattr(args, "band_rows", 32), ring_width_um=args.ring_width_um, posts=args.posts)
     return spec, (TestArraySpec(spec, block=args.block) if args.test_array else None)
 
 
@@ -113,6 +117,9 @@ def run_export(args) -> int:
     elif "posts_per_s" in res:
         print(f"wrote {res['path']}: {res['posts']:,} posts, {res['bytes']:,} bytes, {res['seconds']:.2f} s"
               + (f" (resumed after {res['resumed_bands']} bands)" if res.get("resumed_bands") else ""))
+        print(f"  posts: {spec.post_set.source} post set, widths (um) "
+              + " ".join(f"{a:.2f}x{b:.2f}" for a, b in spec.post_set.widths_um)
+              + ("  [idealised ramp, not a physical design]" if spec.post_set.source == "ideal" else ""))
     else:
         print(f"wrote {res['path']}: {res['triangles']:,} triangles, {res['bytes']:,} bytes")
     return 0

@@ -63,6 +63,14 @@ class ExportResult:
         return d
 
 
+def _with_posts(res: dict[str, Any], spec: LayoutSpec) -> dict[str, Any]:
+    """The result with the post set written: its source and widths (the JSON names an idealised set as such)."""
+    ps = spec.post_set
+    res["post_set"] = {"source": ps.source, "widths_um": ps.widths_um.tolist(),
+                       "note": "idealised width ramp, not a physical design" if ps.source == "ideal" else None}
+    return res
+
+
 class ExportError(InputError):
     """Writing failed (disk full, not writable); nothing under the final name."""
 
@@ -624,14 +632,15 @@ def export_file(spec: LayoutSpec, out: str | os.PathLike | None = None, fmt: str
             raise InputError("--format", fmt, "gds or oas with --flat/--test-array")
         return export_mesh(spec, path, fmt, force=force, substrate_thickness_um=substrate_thickness_um)
     if test_array is not None:
-        return export_test_array(test_array, path, fmt, flat=flat, force=force).as_dict()
+        return _with_posts(export_test_array(test_array, path, fmt, flat=flat, force=force).as_dict(), spec)
     if not 0 <= compress <= 9:
         raise InputError("--compress", compress, "an integer 0..9")
     if workers is not None and workers < 1:
         raise InputError("--workers", workers, "an integer >= 1")
     workers = workers if workers is not None else max(1, min(2, os.cpu_count() or 1))
-    return export_layout(spec, path, fmt, flat=flat, force=force, resume=resume, workers=workers,
-                         scheduler=scheduler, progress=progress, compress=compress, max_refs=max_refs).as_dict()
+    return _with_posts(export_layout(spec, path, fmt, flat=flat, force=force, resume=resume, workers=workers,
+                                     scheduler=scheduler, progress=progress, compress=compress,
+                                     max_refs=max_refs).as_dict(), spec)
 
 
 __all__ = ["DEFAULT_DIR", "ExportError", "ExportResult", "FORMATS", "SUFFIXES", "TestArraySpec", "export_file",

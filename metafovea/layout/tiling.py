@@ -27,13 +27,13 @@ from __future__ import annotations
 
 import math
 import os
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
 
-from metafovea.config import LensDesign, load_design
-from metafovea.errors import InputError, check_int, check_range
+from metafovea.config import LensDesign, PlatformDesign, load_design
+from metafovea.errors import InputError, check_choice, check_int, check_range
 from metafovea.lens import EMPTY, row_half_counts, site_index_range
 from metafovea.library import PostSet
 from metafovea.units import NM_PER_UM, TWO_PI
@@ -215,7 +215,8 @@ class LayoutSpec:
         name = "".join(ch if (ch.isascii() and ch.isprintable()) else "?" for ch in d.name)  # ASCII text records
         s = (f"metafovea {name} f={d.f_mm:g}mm D={d.diameter_mm:g}mm lambda={d.wavelength_um:g}um "
              f"pol={d.polarization} p={d.period_um:g}um N={self.levels} lattice={d.lattice} "
-             f"grid={self.grid_nm}nm dbu=1nm centre=({self.centre_nm},{self.centre_nm})nm")
+             f"grid={self.grid_nm}nm dbu=1nm centre=({self.centre_nm},{self.centre_nm})nm "
+             f"posts={self.post_set.source}")
         if self.patch_um is not None:
             s += " patch=({:g},{:g},{:g})um".format(*self.patch_um)
         return s
@@ -232,14 +233,41 @@ class LayoutSpec:
                 min(2 * c, max(0, c + int(round((y - w / 2) * NM_PER_UM)))))
 
 
-def make_spec(design: LensDesign, post_set: PostSet | None = None, levels: int | None = None, *,
+def lens_platform(design: LensDesign, platform: PlatformDesign | None = None) -> PlatformDesign:
+    """The platform a lens is made on: ``platform``, or the default silicon platform with the lens' period and post
+    height (its RCWA library and fabrication rules)."""
+    if platform is not None:
+        return platform
+    return replace(PlatformDesign(), period_um=design.period_um, post_height_um=design.post_height_um,
+                   wavelength_um=design.wavelength_um)
+
+
+def make_spec(design: LensDesign, post_set: PostSet | str | None = "rcwa", levels: int | None = None, *,
               grid_nm: int = 5, patch_mm: tuple[float, float, float] | None = None,
-              band_rows: int = 32, **kw: Any) -> LayoutSpec:
-    """Validated :class:`LayoutSpec` (``patch_mm`` = centre x, centre y, width in mm)."""
+              band_rows: int = 32, platform: PlatformDesign | None = None, **kw: Any) -> LayoutSpec:
+    """Validated :class:`LayoutSpec` (``patch_mm`` = centre x, centre y, width in mm).
+
+    ``post_set``: a :class:`PostSet`, ``'rcwa'`` (default, also for None: the platform's RCWA post set for the
+    lens' polarisation and levels, library computed once and cached: the posts a fab should write) or
+    ``'ideal'`` (the idealised ramp of :meth:`PostSet.ideal`, not a physical design; the label says so). Posts
+    that break the platform's fabrication rules (:meth:`PlatformDesign.fabrication_violations`) are refused."""
     n = design.levels if levels is None else check_int("--levels", levels, 2, 256)
-    if post_set is None:
-        post_set = PostSet.ideal(n, period_um=design.period_um, polarization=design.polarization,
-                                 height_um=design.post_height_um, wavelength_um=design.wavelength_um)
+    plat = lens_platform(design, platform)
+    if post_set is None or isinstance(post_set, str):
+        src = check_choice("posts", post_set or "rcwa", ("rcwa", "ideal"))
+        if src == "ideal":
+            post_set = PostSet.ideal(n, period_um=design.period_um, polarization=design.polarization,
+                                     height_um=design.post_height_um, wavelength_um=design.wavelength_um)
+        else:
+            from metafovea.library import platform_post_sets
+
+            post_set = platform_post_sets(plat, n)[0][design.polarization]
+    if post_set.source != "ideal":
+        bad = plat.fabrication_violations(post_set.widths_um, post_set.height_um)
+        if bad:
+            raise InputError("--post-set", f"{post_set.source} post set",
+                             f"posts that meet the platform's fabrication rules ({bad[0]}"
+                             + (f"; {len(bad) - 1} more" if len(bad) > 1 else "") + ")")
     if post_set.levels != n:
         raise InputError("--levels", n, f"the number of posts in the post set ({post_set.levels})")
     if abs(post_set.period_um - design.period_um) > 1e-9:
@@ -283,15 +311,16 @@ def make_spec(design: LensDesign, post_set: PostSet | None = None, levels: int |
 
 
 def load_spec(design: str | os.PathLike | LensDesign, post_set: str | os.PathLike | PostSet | None = None,
-              levels: int | None = None, **kw: Any) -> LayoutSpec:
+              levels: int | None = None, *, posts: str = "rcwa", **kw: Any) -> LayoutSpec:
     """:func:`make_spec` from a lens design file and an optional PostSet ``.npz`` (as ``metafovea export`` and
     ``metafovea verify`` read them; objects are accepted too). The post set must be for the design's
     polarisation and, with ``levels``, hold that many posts; ``levels`` defaults to the post set's, else the
-    design's. ``kw``: :func:`make_spec`'s keywords."""
+    design's. Without a post set, ``posts`` ('rcwa', default, or 'ideal') says which. ``kw``: :func:`make_spec`'s
+    keywords."""
     d = design if isinstance(design, LensDesign) else load_design(design)
     if not isinstance(d, LensDesign):
         raise InputError("design", design, "a lens design file (with f_mm, diameter_mm, ...)")
-    ps = None
+    ps: Any = check_choice("--posts", posts, ("rcwa", "ideal"))
     if post_set:
         if isinstance(post_set, PostSet):
             ps = post_set
@@ -301,7 +330,7 @@ def load_spec(design: str | os.PathLike | LensDesign, post_set: str | os.PathLik
             raise InputError("--levels", levels, f"the number of posts in {post_set} ({ps.levels})")
         if ps.polarization != d.polarization:
             raise InputError("--post-set", post_set, f"a post set for polarisation {d.polarization!r}")
-    if levels is None and ps is not None:
+    if levels is None and isinstance(ps, PostSet):
         levels = ps.levels
     return make_spec(d, ps, levels, **kw)
 

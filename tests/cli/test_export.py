@@ -30,8 +30,14 @@ def test_export_writes_and_refuses(tmp_path, capsys, toml):
     assert res["path"].endswith("cli.oas") and os.path.isfile(res["path"])
     assert res["posts"] == sum(res["counts"]) > 0 and res["bytes"] == os.path.getsize(res["path"])
     assert main(["export", *args, "--out", str(out)]) == 0
-    line = capsys.readouterr().out.strip()
+    line, posts_line = capsys.readouterr().out.strip().splitlines()
     assert line.startswith(f"wrote {out}.gds: {res['posts']:,} posts, ") and line.endswith(" s")
+    # by default the cells are the RCWA library's post set, named as such
+    from metafovea.library import platform_post_sets
+
+    rcwa = platform_post_sets(None, 8)[0]["x"]
+    assert res["post_set"]["source"] == "rcwa" and res["post_set"]["widths_um"] == rcwa.widths_um.tolist()
+    assert posts_line.startswith("  posts: rcwa post set") and "idealised" not in posts_line
     # existing output: exit 2 with a one-line error
     assert main(["export", *args, "--format", "oas", "--out", str(out)]) == 2
     err = capsys.readouterr().err
@@ -131,3 +137,28 @@ def test_non_ascii_lens_name_exports_and_verifies(tmp_path, capsys, name, fmt, r
     assert main(["export", str(toml), "--format", fmt, "--out", str(out), "--quiet", "--ring-width-um", "20"]) == 0
     assert main(["verify", str(out), "--design", str(toml), "--quiet", "--ring-width-um", "20",
                  "--reader", reader]) == 0, capsys.readouterr().err
+
+
+def test_export_labels_an_idealised_post_set_and_refuses_posts_that_break_the_rules(tmp_path, capsys, toml):
+    """`--posts ideal` is the width ramp and every output says so; a post set with a 0.2 um post (the platform's
+    minimum feature is 0.5 um) is refused, naming the rule."""
+    import gdstk
+
+    from metafovea.library import PostSet
+
+    out = tmp_path / "ideal.gds"
+    assert main(["export", str(toml), "--patch", "0,0,0.1", "--posts", "ideal", "--out", str(out), "--quiet"]) == 0
+    text = capsys.readouterr().out
+    assert "ideal post set" in text and "idealised ramp, not a physical design" in text
+    labels = [lb.text for c in gdstk.read_gds(str(out)).cells for lb in c.labels]
+    assert any("posts=ideal" in t for t in labels)
+    ideal = PostSet.ideal(8, polarization="x")
+    w = ideal.widths_um.copy()
+    w[3] = [0.2, 2.0]
+    bad = PostSet("x", 4.0, 10.0, 10.0, w, ideal.t_x, ideal.t_y, source="rcwa")
+    bad.save(tmp_path / "bad.npz")
+    rc = main(["export", str(toml), "--patch", "0,0,0.1", "--post-set", str(tmp_path / "bad.npz"),
+               "--out", str(tmp_path / "bad.gds")])
+    err = capsys.readouterr().err.strip()
+    assert rc == 2 and "min_feature_um" in err and "post 3" in err and len(err.splitlines()) == 1
+    assert not (tmp_path / "bad.gds").exists()

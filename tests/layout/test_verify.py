@@ -3,6 +3,7 @@ tampered reference is a mismatch; the reader ``auto`` stands for."""
 
 from __future__ import annotations
 
+import numpy as np
 import pytest
 
 from metafovea.layout import make_spec
@@ -42,3 +43,71 @@ def test_auto_reader_by_format_and_size():
     assert choose_reader("auto", "oas", (16 << 20) - 1) == "klayout"
     assert choose_reader("auto", "oas", 16 << 20) == "gdstk"
     assert choose_reader("gdstk", "gds", 1) == "gdstk"
+
+
+TAMPERS = {"swap": "of the wrong type for their site", "move": "already taken", "duplicate": "already taken",
+           "delete": "hold no post", "off_lattice": "off their lattice site"}
+
+
+def _tamper(src, dst, how: str, spec) -> None:
+    """Rewrite an exported file with gdstk, one post changed: two neighbouring posts of different types swapped,
+    one moved onto its (occupied) neighbour's site, one duplicated, one deleted, or one shifted 1 um off its
+    site. Counts per type stay the same for a swap and a move: what a verifier of counts alone would miss."""
+    import gdstk
+
+    oas = str(src).endswith(".oas")
+    lib = gdstk.read_oas(str(src), unit=1e-6) if oas else gdstk.read_gds(str(src), unit=1e-6)
+    top = next(c for c in lib.top_level() if c.name not in spec.post_names)
+    plain = []
+    for r in top.references:
+        offs = r.repetition.get_offsets() + np.array(r.origin) if r.repetition.size else [np.array(r.origin)]
+        plain += [(r.cell, (float(o[0]), float(o[1]))) for o in offs]
+    top.remove(*top.references)
+    p = spec.design.period_um
+    # sites share one fractional offset in units of the period: floor keeps neighbours one apart
+    where = {(int(np.floor(o[0] / p + 1e-6)), int(np.floor(o[1] / p + 1e-6))): i for i, (c, o) in enumerate(plain)}
+    # a post in the middle and its right-hand neighbour of another type
+    keys = sorted(where)
+    for key in keys[len(keys) // 2:]:
+        j = where.get((key[0] + 1, key[1]))
+        i = where[key]
+        if j is not None and plain[i][0].name != plain[j][0].name:
+            break
+    else:
+        raise AssertionError("no neighbouring posts of different types")
+    (ci, oi), (cj, oj) = plain[i], plain[j]
+    if how == "swap":
+        plain[i], plain[j] = (cj, oi), (ci, oj)
+    elif how == "move":
+        plain[i] = (ci, oj)
+    elif how == "duplicate":
+        plain.append((ci, oi))
+    elif how == "delete":
+        del plain[i]
+    elif how == "off_lattice":
+        plain[i] = (ci, (oi[0] + 1.0, oi[1]))
+    for c, o in plain:
+        top.add(gdstk.Reference(c, o))
+    if oas:
+        lib.write_oas(str(dst))
+    else:
+        lib.write_gds(str(dst))
+
+
+@pytest.mark.parametrize("fmt,readers", [("gds", ("klayout", "gdstk", "stream")), ("oas", ("klayout", "gdstk"))])
+@pytest.mark.parametrize("how", sorted(TAMPERS))
+def test_verify_checks_every_post(tmp_path, spec, exported, fmt, readers, how):
+    """Post by post: a swapped, moved, duplicated, missing or off-lattice post in a real exported file (GDSII and
+    OASIS) fails with every reader, naming what is wrong and where; the untampered rewrite passes."""
+    src = exported[(fmt, False)][0]
+    same = tmp_path / f"same.{fmt}"
+    _tamper(src, same, "none", spec)  # rewritten by gdstk, nothing changed
+    for reader in readers:
+        assert verify_layout(same, spec, reader=reader).ok, reader
+    bad = tmp_path / f"{how}.{fmt}"
+    _tamper(src, bad, how, spec)
+    for reader in readers:
+        rep = verify_layout(bad, spec, reader=reader)
+        assert not rep.ok, (how, reader)
+        assert any(TAMPERS[how] in m for m in rep.mismatches), (how, reader, rep.mismatches)
+        assert rep.sites is not None and rep.sites["posts"] > 60_000

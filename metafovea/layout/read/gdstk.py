@@ -16,7 +16,7 @@ from metafovea.layout.read.base import Observed, captured_stderr, sniff_format, 
 
 
 def read_gdstk(path: Path, lattice: tuple[int, int, int] | None, posts_layer: tuple[int, int],
-               post_names: Any = None) -> Observed:
+               post_names: Any = None, sink: Any = None, sizes: dict | None = None) -> Observed:
     """Read ``path`` (GDSII or OASIS) with gdstk; arguments as :func:`~metafovea.layout.read.klayout.read_klayout`."""
     import gdstk
 
@@ -119,6 +119,8 @@ def read_gdstk(path: Path, lattice: tuple[int, int, int] | None, posts_layer: tu
         memo[cell.name] = (refs, flatc, int(off), pbb, layers)
         return memo[cell.name]
 
+    if sink is not None:
+        _walk_posts(top, np.zeros(2, dtype=np.int64), is_post, list(post_names or []), posts_layer, sizes or {}, sink)
     refs, flatc, off, pbb, layers = content(top)
     ob.ref_counts.update(refs)
     ob.flat_counts.update(flatc)
@@ -128,3 +130,26 @@ def read_gdstk(path: Path, lattice: tuple[int, int, int] | None, posts_layer: tu
     ob.bbox = (int(round(a * s)), int(round(b * s)), int(round(c2 * s)), int(round(d * s)))
     ob.off_lattice = int(off)
     return ob
+
+
+def _walk_posts(cell: Any, off: np.ndarray, is_post: Any, names: list[str], posts_layer: tuple[int, int],
+                sizes: dict, sink: Any) -> None:
+    """Hand every post under ``cell`` (placed at ``off``, nm) to ``sink(x, y, type)``: references to post cells
+    by name, posts-layer rectangles by size (type -1 for neither)."""
+    index = {nm: k for k, nm in enumerate(names)}
+    for r in cell.references:
+        child = r.cell
+        nm = child.name if hasattr(child, "name") else str(child)
+        o = np.array([r.origin[0], r.origin[1]])
+        pos = np.asarray(r.repetition.get_offsets()) + o if r.repetition.size else o[None, :]
+        pos = np.rint(pos * 1e3).astype(np.int64) + off
+        if not hasattr(child, "name") or is_post(child):
+            sink(pos[:, 0], pos[:, 1], np.full(len(pos), index.get(nm, -1)))
+        else:
+            for p in pos:
+                _walk_posts(child, p, is_post, names, posts_layer, sizes, sink)
+    rects = [p for p in cell.polygons if (p.layer, p.datatype) == posts_layer]
+    if rects:
+        b = np.array([np.rint(np.r_[p.points.min(0), p.points.max(0)] * 1e3) for p in rects], dtype=np.int64)
+        k = np.array([sizes.get((int(q[2] - q[0]), int(q[3] - q[1])), -1) for q in b])
+        sink((b[:, 0] + b[:, 2]) // 2 + off[0], (b[:, 1] + b[:, 3]) // 2 + off[1], k)

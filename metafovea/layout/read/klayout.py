@@ -14,9 +14,11 @@ from metafovea.layout.read.base import Observed, sniff_format
 
 
 def read_klayout(path: Path, lattice: tuple[int, int, int] | None, posts_layer: tuple[int, int],
-                 post_names: Any = None) -> Observed:
+                 post_names: Any = None, sink: Any = None, sizes: dict | None = None) -> Observed:
     """Read ``path`` (GDSII or OASIS) with KLayout; ``lattice``: see :func:`~metafovea.layout.read.base.lattice_of`
-    (None: positions are not checked); ``post_names``: the post cells (default: cells without children)."""
+    (None: positions are not checked); ``post_names``: the post cells (default: cells without children);
+    ``sink``: called as ``sink(x_nm, y_nm, type)`` with every post (absolute centre; type the index of its cell
+    in ``post_names``, or of its size in ``sizes`` for a flat rectangle; -1 for neither)."""
     import klayout.db as db
 
     fmt = sniff_format(path)
@@ -103,6 +105,9 @@ def read_klayout(path: Path, lattice: tuple[int, int, int] | None, posts_layer: 
         memo[ci] = (refs, flatc, int(off))
         return memo[ci]
 
+    if sink is not None:
+        _walk_posts(ly, top.cell_index(), 0, 0, is_post, {nm: k for k, nm in enumerate(post_names or [])},
+                    sizes or {}, li_posts, sink)
     refs, flatc, off = content(top.cell_index())
     ob.ref_counts.update(refs)
     ob.flat_counts.update(flatc)
@@ -115,3 +120,27 @@ def read_klayout(path: Path, lattice: tuple[int, int, int] | None, posts_layer: 
         ob.bbox = (b.left, b.bottom, b.right, b.top)
     ob.off_lattice = int(off)
     return ob
+
+
+def _walk_posts(ly: Any, ci: int, ox: int, oy: int, is_post: Any, index: dict, sizes: dict, li_posts: Any,
+                sink: Any) -> None:
+    """Hand every post under cell ``ci`` (placed at ``(ox, oy)``) to ``sink(x, y, type)``: references to post
+    cells by name (``index``), posts-layer shapes by size (``sizes``); type -1 for neither."""
+    import numpy as np
+
+    cell = ly.cell(ci)
+    for inst in cell.each_inst():
+        arr = inst.cell_inst
+        child = ly.cell(inst.cell_index)
+        disps = [inst.trans.disp] if arr.size() == 1 else [t.disp for t in arr.each_trans()]
+        if is_post(child):
+            sink(np.array([d.x + ox for d in disps]), np.array([d.y + oy for d in disps]),
+                 np.full(len(disps), index.get(child.name, -1)))
+        else:
+            for d in disps:
+                _walk_posts(ly, inst.cell_index, d.x + ox, d.y + oy, is_post, index, sizes, li_posts, sink)
+    if li_posts is not None:
+        bs = [sh.bbox() for sh in cell.shapes(li_posts).each()]
+        if bs:
+            sink(np.array([b.center().x + ox for b in bs]), np.array([b.center().y + oy for b in bs]),
+                 np.array([sizes.get((b.width(), b.height()), -1) for b in bs]))

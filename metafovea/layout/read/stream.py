@@ -76,9 +76,19 @@ class GdsScanner:
     CHUNK = 32 << 20
 
     def __init__(self, path: Path, lattice: tuple[int, int, int] | None, posts_layer: tuple[int, int],
-                 progress: bool = False, post_names: Any = None):
+                 progress: bool = False, post_names: Any = None, sink: Any = None, sizes: dict | None = None):
         self.path, self.lattice, self.posts_layer, self.progress = path, lattice, posts_layer, progress
         self.post_names = None if post_names is None else set(post_names)
+        # the post-by-post check: posts are handed to ``sink`` as they are read, at the positions written,
+        # which are absolute when every structure is placed once at the origin (checked in _content)
+        self.sink, self.sizes = sink, dict(sizes or {})
+        names = list(post_names or [])
+        words = np.array([int.from_bytes(n.encode("ascii", "replace")[:4].ljust(4, b"\0"), "little") for n in names],
+                         dtype=np.uint32)
+        order = np.argsort(words)
+        self._pw, self._pk = words[order], order.astype(np.int64)
+        self._index = {n: k for k, n in enumerate(names)}
+        self.placements: dict[str, int] = {}
 
     def run(self) -> Observed:
         self.ob = Observed("stream", "gds")
@@ -217,12 +227,27 @@ class GdsScanner:
         self._boundary_run(np.frombuffer(buf, dtype=_BND_DTYPE, count=m, offset=pos))
         return 64 * m
 
+    def _post_kinds(self, words: np.ndarray) -> np.ndarray:
+        """Type index of each SNAME word, -2 for a name that is no post cell (a structure)."""
+        if self._pw.size == 0:
+            return np.full(words.shape, -2, dtype=np.int64)
+        i = np.clip(np.searchsorted(self._pw, words), 0, self._pw.size - 1)
+        return np.where(self._pw[i] == words, self._pk[i], -2)
+
+    def _sink_refs(self, words: np.ndarray, xy: np.ndarray) -> None:
+        k = self._post_kinds(words)
+        sel = k >= 0
+        if sel.any():
+            self.sink(xy[sel, 0], xy[sel, 1], k[sel])
+
     def _sref_run(self, words, xy32) -> None:
         """A run of plain SREFs: counts (and posts off the lattice) per cell name (hashed bincount,
         collision-checked) and the refs within ``_SLACK_DBU`` of the run's extremes as bounding-box
         candidates."""
         words = np.ascontiguousarray(words)
         xy = xy32.astype(np.int64)
+        if self.sink is not None:
+            self._sink_refs(words, xy)
         bad = None
         if self.lattice is not None:
             cx, oP, P = self.lattice
@@ -286,6 +311,12 @@ class GdsScanner:
         if not rect.all():
             ob.anomalies.append(f"{int((~rect).sum())} non-rectangular boundaries in {cur}")
         ld = v["layer"].astype(np.int64) * 65536 + v["dt"].astype(np.int64)
+        if self.sink is not None and cur not in self._index:  # a post cell's own rectangle is not a post
+            onp = ld == self.posts_layer[0] * 65536 + self.posts_layer[1]
+            if onp.any():
+                kk = np.array([self.sizes.get((int(w), int(h)), -1)
+                               for w, h in zip((x1 - x0)[onp].tolist(), (y1 - y0)[onp].tolist())], dtype=np.int64)
+                self.sink(((x0 + x1) // 2)[onp], ((y0 + y1) // 2)[onp], kk)
         key = ((x1 - x0) << 32) + (y1 - y0)
         comb = np.stack([ld, key], 1)
         uk, inv = np.unique(comb, axis=0, return_inverse=True)
@@ -326,6 +357,8 @@ class GdsScanner:
             if self.lattice is not None:
                 cx, oP, P = self.lattice
                 rr["off"] += int(((p[0] - cx - oP) % P != 0) or ((p[1] - cx - oP) % P != 0))
+            if self.sink is not None and el.get("sname") in self._index:
+                self.sink(np.array([p[0]]), np.array([p[1]]), np.array([self._index[el["sname"]]]))
             return 0
         if t == 0x0B:  # AREF
             cols, rows = el.get("colrow", (1, 1))
@@ -342,6 +375,10 @@ class GdsScanner:
                 cx, oP, P = self.lattice
                 bad = bool(((o - cx - oP) % P != 0).any() or (dc % P != 0).any() or (dr % P != 0).any())
                 rr["off"] += cols * rows if bad else 0
+            if self.sink is not None and el.get("sname") in self._index:
+                ii, jj = np.meshgrid(np.arange(cols), np.arange(rows))
+                pts = o[None, :] + ii.reshape(-1, 1) * dc[None, :] + jj.reshape(-1, 1) * dr[None, :]
+                self.sink(pts[:, 0], pts[:, 1], np.full(len(pts), self._index[el["sname"]]))
             return 0
         lay = (el.get("layer", -1), el.get("dt", 0))
         if t == 0x0C:
@@ -354,6 +391,9 @@ class GdsScanner:
             len(set(xy[:4, 1].tolist())) == 2 and (xy[0] == xy[4]).all()
         fd = self.flat.setdefault(self.cur, {})
         bad = 0
+        if is_rect and lay == self.posts_layer and self.sink is not None and self.cur not in self._index:
+            self.sink(np.array([(b[0] + b[2]) // 2]), np.array([(b[1] + b[3]) // 2]),
+                      np.array([self.sizes.get((b[2] - b[0], b[3] - b[1]), -1)]))
         if is_rect and lay == self.posts_layer and self.lattice is not None:
             cx, oP, P = self.lattice
             bad = int((((b[0] + b[2]) // 2 - cx - oP) % P != 0) or (((b[1] + b[3]) // 2 - cx - oP) % P != 0))
@@ -454,8 +494,14 @@ class GdsScanner:
                 e[2] = rr["min"] if e[2] is None else np.minimum(e[2], rr["min"])
                 e[3] = rr["max"] if e[3] is None else np.maximum(e[3], rr["max"])
                 continue
-            sP, sF, soff, sT = self._content(nm, is_post, memo, stack + (S,))
+            self.placements[nm] = self.placements.get(nm, 0) + rr["n"]
             n, mn, mx = rr["n"], np.asarray(rr["min"]), np.asarray(rr["max"])
+            if self.sink is not None and (self.placements[nm] > 1 or np.any(mn != 0) or np.any(mx != 0)):
+                self.ob.anomalies.append(
+                    f"structure {nm} is placed {self.placements[nm]} time(s) at offsets {mn.tolist()}..{mx.tolist()}: "
+                    "the streaming reader checks posts one by one only in structures placed once at the origin "
+                    "(as metafovea writes them); use --reader gdstk")
+            sP, sF, soff, sT = self._content(nm, is_post, memo, stack + (S,))
             if lat is not None and (np.any(mn != mx) or np.any(mn % lat[2] != 0)):
                 self.ob.anomalies.append(f"references to structure {nm} at offsets {mn.tolist()}..{mx.tolist()}: "
                                          "the lattice check needs them at one multiple of the period")
@@ -476,9 +522,10 @@ class GdsScanner:
         return memo[S]
 
 
-def read_stream(path: Path, lattice, posts_layer, progress: bool = False, post_names: Any = None) -> Observed:
+def read_stream(path: Path, lattice, posts_layer, progress: bool = False, post_names: Any = None,
+                sink: Any = None, sizes: dict | None = None) -> Observed:
     """Read the GDSII file ``path`` with :class:`GdsScanner` (an OASIS file is an :class:`InputError`);
     arguments as :func:`~metafovea.layout.read.klayout.read_klayout`, ``progress``: a bar over the bytes."""
     if sniff_format(path) != "gds":
         raise InputError("--reader", "stream", "klayout or gdstk for OASIS files (the scanner reads GDSII)")
-    return GdsScanner(path, lattice, posts_layer, progress, post_names).run()
+    return GdsScanner(path, lattice, posts_layer, progress, post_names, sink, sizes).run()
