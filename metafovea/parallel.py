@@ -69,7 +69,33 @@ def get_executor(workers: int | None = None, scheduler: str | None = None):
     import multiprocessing
 
     method = "forkserver" if "forkserver" in multiprocessing.get_all_start_methods() else "spawn"
-    return cf.ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context(method))
+    return cf.ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context(method),
+                                  initializer=_worker_init, initargs=(os.getpid(),))
+
+
+def _worker_init(owner_pid: int) -> None:
+    """In each worker process: leave SIGINT to the command (a Ctrl-C reaches the whole process group: the command
+    stops the pool and the running tasks finish), and die with the command even when it is killed hard (SIGKILL
+    runs no clean-up; the workers are children of the forkserver, not of the command, so a watchdog thread checks
+    that ``owner_pid`` is alive twice a second)."""
+    import signal
+    import threading
+    import time
+
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)
+
+    def watch() -> None:
+        while True:
+            time.sleep(0.5)
+            try:
+                os.kill(owner_pid, 0)
+            except ProcessLookupError:
+                os._exit(1)
+            except PermissionError:
+                pass
+
+    threading.Thread(target=watch, name="metafovea-owner-watch", daemon=True).start()
 
 
 def run_tasks(fn: Callable, items: Iterable[Any], *, workers: int | None = None,

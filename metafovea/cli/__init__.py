@@ -94,5 +94,19 @@ def main(argv: Sequence[str] | None = None) -> int:
     return int(rc or 0)
 
 
+def _interrupt(signum: int, frame: object) -> None:
+    raise KeyboardInterrupt(f"signal {signum}")
+
+
+def console_main() -> int:
+    """The ``metafovea`` command: :func:`main` with SIGINT and SIGTERM both stopping the run (exit 130, the
+    resumable state kept), also when the shell started it with SIGINT ignored (a background job)."""
+    import signal
+
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, _interrupt)
+    return main()
+
+
 if __name__ == "__main__":
-    raise SystemExit(main())
+    raise SystemExit(console_main())

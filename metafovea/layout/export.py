@@ -464,9 +464,14 @@ def export_layout(spec: LayoutSpec, path: str | os.PathLike, fmt: str = "gds", *
             with contextlib.suppress(OSError):
                 fh.close()
         if e.errno in (errno.ENOSPC, errno.EDQUOT, errno.EFBIG):
+            # what reached the disk (``offset`` is only brought up to date at the end of the bands)
+            try:
+                written = part.stat().st_size
+            except OSError:
+                written = offset
             raise ExportError(path, "a location with enough free space",
-                              f"disk full (or file size limit) after {offset:,} bytes; the partial output {part.name} is kept for "
-                              "resuming (rerun the same command after freeing space, or delete it)") from None
+                              f"disk full (or file size limit) after {written:,} bytes; the partial output {part.name} "
+                              "is kept for resuming (rerun the same command after freeing space, or delete it)") from None
         raise ExportError(path, "a writable location", f"{e.strerror or e}") from None
     except BaseException:
         if fh is not None:

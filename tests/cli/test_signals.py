@@ -1,0 +1,130 @@
+"""Process hygiene of the ``metafovea`` command: SIGINT to the process group (Ctrl-C) or SIGTERM stops a library
+sweep and an export within seconds with exit 130, keeps what can be resumed, and leaves no worker process, also
+when started as a background job (SIGINT inherited as ignored); a hard kill takes the workers with it."""
+
+from __future__ import annotations
+
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+REPO = Path(__file__).resolve().parents[2]
+pytestmark = pytest.mark.skipif(sys.platform != "linux", reason="process groups and /proc (Linux)")
+
+
+def _metafovea() -> list[str]:
+    """The installed ``metafovea`` command (or the same entry point through this Python)."""
+    exe = shutil.which("metafovea")
+    return [exe] if exe else [sys.executable, "-c", "from metafovea.cli import console_main; "
+                                                   "raise SystemExit(console_main())"]
+
+
+def _command(args, tmp_path, ignore_sigint=False):
+    """Start ``metafovea ARGS`` in its own process group (optionally with SIGINT ignored, as a shell starts a
+    background job)."""
+    cmd = [*_metafovea(), *args]
+    env = {**os.environ, "METAFOVEA_CACHE": str(tmp_path / "cache")}
+    pre = (lambda: signal.signal(signal.SIGINT, signal.SIG_IGN)) if ignore_sigint else None
+    return subprocess.Popen(cmd, cwd=tmp_path, env=env, start_new_session=True, preexec_fn=pre,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+
+
+def _group_alive(pgid: int) -> list[int]:
+    out = []
+    for d in Path("/proc").iterdir():
+        if d.name.isdigit():
+            try:
+                if os.getpgid(int(d.name)) == pgid:
+                    out.append(int(d.name))
+            except (ProcessLookupError, PermissionError):
+                pass
+    return out
+
+
+def _wait_for(cond, timeout):
+    t0 = time.monotonic()
+    while time.monotonic() - t0 < timeout:
+        if cond():
+            return True
+        time.sleep(0.05)
+    return False
+
+
+@pytest.mark.parametrize("sig,ignore", [(signal.SIGINT, True), (signal.SIGTERM, False)])
+def test_library_sweep_stops_on_a_signal_and_resumes(tmp_path, sig, ignore):
+    args = ["library", "--grid-step-um", "0.25", "--harmonics", "8", "--workers", "2", "--out", str(tmp_path / "o"),
+            "--cache-dir", str(tmp_path / "lib")]
+    p = _command(args, tmp_path, ignore_sigint=ignore)
+    parts = lambda: list((tmp_path / "lib").glob("*.parts/*"))  # noqa: E731
+    assert _wait_for(lambda: parts() or p.poll() is not None, 120), "no row finished"
+    assert p.poll() is None, "the sweep finished before the signal: make it longer"
+    t0 = time.monotonic()
+    os.killpg(p.pid, sig)
+    rc = p.wait(timeout=30)
+    stopped = time.monotonic() - t0
+    assert rc == 130, p.stderr.read()
+    assert stopped < 15
+    assert _wait_for(lambda: not _group_alive(p.pid), 5), _group_alive(p.pid)  # no worker left
+    done = len(parts())
+    assert done >= 1  # the finished rows are kept
+    if sig != signal.SIGINT:
+        return
+    # a second run resumes from them and finishes
+    q = _command(args, tmp_path)
+    out, err = q.communicate(timeout=300)
+    assert q.returncode == 0, err
+
+
+def test_export_stops_on_sigint_and_keeps_its_journal(tmp_path):
+    design = REPO / "designs" / "foveal.toml"
+    out = tmp_path / "lens.oas"
+    p = _command(["export", str(design), "--format", "oas", "--posts", "ideal", "--out", str(out), "--quiet"],
+                 tmp_path, ignore_sigint=True)
+    part = tmp_path / ".lens.oas.part"
+    assert _wait_for(lambda: (part.is_file() and part.stat().st_size > (1 << 20)) or p.poll() is not None, 180)
+    assert p.poll() is None, "the export finished before the signal"
+    os.killpg(p.pid, signal.SIGINT)
+    rc = p.wait(timeout=20)
+    assert rc == 130, p.stderr.read()
+    assert not out.exists() and part.is_file() and (tmp_path / ".lens.oas.part.json").is_file()
+
+
+def test_a_hard_kill_takes_the_workers_with_it(tmp_path):
+    args = ["library", "--grid-step-um", "0.25", "--harmonics", "8", "--workers", "2", "--out", str(tmp_path / "o"),
+            "--cache-dir", str(tmp_path / "lib")]
+    p = _command(args, tmp_path)
+    assert _wait_for(lambda: len(_group_alive(p.pid)) >= 4 or p.poll() is not None, 60)  # command + pool started
+    time.sleep(1.0)
+    assert p.poll() is None
+    os.kill(p.pid, signal.SIGKILL)
+    p.wait(timeout=10)
+    assert _wait_for(lambda: not _group_alive(p.pid), 10), _group_alive(p.pid)
+
+
+def test_a_full_disk_reports_the_bytes_written(tmp_path):
+    """Regression: the disk-full message said 20,410 bytes when 200 MB had been written. A 4 MiB file-size limit
+    (EFBIG, the same path as ENOSPC) stops the export: the message gives what reached the disk."""
+    import re
+    import resource
+
+    limit = 4 << 20
+
+    def pre():
+        signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
+        resource.setrlimit(resource.RLIMIT_FSIZE, (limit, limit))
+
+    cmd = [*_metafovea(), "export", str(REPO / "designs" / "foveal.toml"), "--format", "oas", "--posts", "ideal", "--out",
+           str(tmp_path / "lens.oas"), "--quiet"]
+    r = subprocess.run(cmd, cwd=tmp_path, preexec_fn=pre, capture_output=True, text=True, timeout=300)
+    assert r.returncode == 2, r.stderr
+    m = re.search(r"after ([\d,]+) bytes", r.stderr)
+    assert m, r.stderr
+    written = int(m.group(1).replace(",", ""))
+    assert written == (tmp_path / ".lens.oas.part").stat().st_size
+    assert limit // 2 < written <= limit
