@@ -51,6 +51,7 @@ class PlatformDesign:
     wavelength_um: float = LAMBDA0_UM
     min_gap_um: float | None = None  # smallest gap between neighbouring posts (default: min_feature_um)
     max_aspect_ratio: float = 20.0  # post height / smallest side: a typical limit of Bosch deep silicon etching
+    edge_bias_um: float = 0.05  # +- edge bias per side the posts are chosen to tolerate (lithography + DRIE)
     substrate_resistivity_ohm_cm: float = 15.0  # the paper's 10-20 ohm cm wafers
     substrate_dopant: str = "p"  # boron (the common prime wafer; the paper does not say): 2.7x the electrons' loss
     substrate_extra_absorption_per_cm: float = 0.0  # measured lattice / oxygen absorption, added to free carriers
@@ -67,6 +68,7 @@ class PlatformDesign:
         if self.min_gap_um is not None:
             check_range("min_gap_um", self.min_gap_um, 0.0, self.period_um, hi_inclusive=False, lo_inclusive=True)
         check_positive("max_aspect_ratio", self.max_aspect_ratio, hi=1e4)
+        check_range("edge_bias_um", self.edge_bias_um, 0.0, self.period_um / 4, lo_inclusive=True, unit="um")
         check_positive("substrate_resistivity_ohm_cm", self.substrate_resistivity_ohm_cm, "ohm cm", hi=1e6)
         check_choice("substrate_dopant", self.substrate_dopant, ("n", "p"))
         check_range("substrate_extra_absorption_per_cm", self.substrate_extra_absorption_per_cm, 0.0, 1e3,
@@ -331,6 +333,7 @@ def load_platform(path: str | Path) -> PlatformDesign:
         min_gap_um=r.get("min_gap_um", None, lambda k, v: check_range(k, v, 0.0, period, hi_inclusive=False,
                                                                      lo_inclusive=True, unit="um", source=str(path))),
         max_aspect_ratio=r.num("max_aspect_ratio", d.max_aspect_ratio, hi=1e4),
+        edge_bias_um=r.num("edge_bias_um", d.edge_bias_um, 0.0, period / 4, unit="um", lo_inclusive=True),
         substrate_resistivity_ohm_cm=r.num("substrate_resistivity_ohm_cm", d.substrate_resistivity_ohm_cm, hi=1e6,
                                            unit="ohm cm"),
         substrate_dopant=r.choice("substrate_dopant", d.substrate_dopant, ("n", "p")),

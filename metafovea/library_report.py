@@ -10,14 +10,14 @@ fig7c_selected_posts.png and library.json.
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from metafovea.io import atomic_write_bytes, atomic_write_json
-from metafovea.library import Library, PlatformSweep, PostSet, postset_table
+from metafovea.library import Library, PlatformSweep, PostSet, bias_table, postset_table
 from metafovea.report import fig_to_png
 
 #: the lens each post set is for (each lens focuses its own polarisation and passes the other)
@@ -38,6 +38,7 @@ class LibraryReport:
     post_sets: dict[str, PostSet]
     design_wavelength_um: float
     elapsed_s: float
+    edge_bias: dict[str, Any] = field(default_factory=dict)  #: pol -> :func:`metafovea.library.bias_table`
 
     def numbers(self) -> dict[str, Any]:
         """The JSON numbers: library size, solver settings, convergence estimates, and per lens its post set's
@@ -54,7 +55,8 @@ class LibraryReport:
                         "conventions": meta.get("conventions")},
             "design_wavelength_um": self.design_wavelength_um,
             "post_sets": {pol: {"lens": LENS_OF[pol], "focuses": pol, "levels": postset_table(ps),
-                                **{k: ps.info[k] for k in POST_SET_NUMBERS}}
+                                **{k: ps.info[k] for k in POST_SET_NUMBERS}, "edge_bias": self.edge_bias.get(pol),
+                                "fabrication_rules": ps.info.get("fabrication_rules")}
                           for pol, ps in self.post_sets.items()}}
 
     def format(self) -> str:
@@ -75,6 +77,9 @@ class LibraryReport:
             lines += [f"  {r['level']:5d}  {r['wx_um']:5.2f}  {r['wy_um']:5.2f}  {r['target_phase_rad']:6.3f}  "
                       f"{r['phase_focus_rad']:7.3f}  {r['T_focus']:.3f}  {r['phase_pass_rad']:7.3f}  {r['T_pass']:.3f}"
                       for r in p["levels"]]
+            eb = p.get("edge_bias")
+            if eb:
+                lines += _bias_lines(eb)
         return "\n".join(lines)
 
     def write(self, out_dir: Path) -> list[Path]:
@@ -95,7 +100,11 @@ def library_report(sweep: PlatformSweep) -> LibraryReport:
     t0 = time.perf_counter()
     lib = sweep.library()
     elapsed = time.perf_counter() - t0
-    return LibraryReport(lib, sweep.select(lib), sweep.design_wavelength_um, elapsed)
+    sets = sweep.select(lib)
+    delta = sweep.platform.edge_bias_um
+    il = int(np.argmin(np.abs(lib.wavelengths_um - sweep.design_wavelength_um)))
+    bias = {pol: bias_table(lib, ps.widths_um, pol, delta, il) for pol, ps in sets.items()} if delta > 0 else {}
+    return LibraryReport(lib, sets, sweep.design_wavelength_um, elapsed, bias)
 
 
 def _duty_cycle_extent(lib: Library) -> tuple[float, list[float]]:
@@ -162,3 +171,25 @@ def selected_posts_png(lib: Library, il: int, post_sets: dict[str, PostSet]) -> 
     png = fig_to_png(fig, dpi=DPI)
     plt.close(fig)
     return png
+
+
+def _bias_lines(eb: dict[str, Any]) -> list[str]:
+    """The +-delta edge-bias table of one post set, beside the nominal column (:func:`metafovea.library.bias_table`)."""
+    d = eb["delta_um"]
+    pb = eb["per_bias"]
+    cols = (("-", f"-{1000 * d:.0f} nm"), ("0", "nominal"), ("+", f"+{1000 * d:.0f} nm"))
+    lines = [f"  edge bias +-{1000 * d:.0f} nm per side (widths +-{2000 * d:.0f} nm), common shift removed:",
+             "    " + " " * 34 + "".join(f"{name:>10}" for _, name in cols)]
+    for key, label in (("rms_phase_error_rad", "focusing phase error rms (rad)"),
+                       ("max_abs_phase_error_rad", "focusing phase error max (rad)"),
+                       ("expected_focusing_efficiency", "expected focusing efficiency"),
+                       ("pass_phase_spread_rad", "pass-through phase spread (rad)"),
+                       ("common_shift_rad", "common focusing shift (rad)")):
+        lines.append(f"    {label:<34}" + "".join(f"{pb[c][key]:>10.3f}" for c, _ in cols))
+    rows = {r["bias"]: r for r in eb["levels"]}
+    lines.append("    level  phase error -/0/+ (rad)        pass-through phase -/0/+ (rad)")
+    for k in range(len(rows["0"]["phase_error_rad"])):
+        pe = "/".join(f"{rows[c]['phase_error_rad'][k]:+.3f}" for c, _ in cols)
+        pp = "/".join(f"{rows[c]['pass_phase_rad'][k]:+.3f}" for c, _ in cols)
+        lines.append(f"    {k:5d}  {pe:<30} {pp}")
+    return lines
