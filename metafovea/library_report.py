@@ -39,6 +39,7 @@ class LibraryReport:
     design_wavelength_um: float
     elapsed_s: float
     edge_bias: dict[str, Any] = field(default_factory=dict)  #: pol -> :func:`metafovea.library.bias_table`
+    bound: dict[str, Any] = field(default_factory=dict)  #: :func:`convergence_bounds`
 
     def numbers(self) -> dict[str, Any]:
         """The JSON numbers: library size, solver settings, convergence estimates, and per lens its post set's
@@ -54,10 +55,23 @@ class LibraryReport:
                         "median_error_estimate": meta.get("median_error_estimate"), "key": meta.get("key"),
                         "conventions": meta.get("conventions")},
             "design_wavelength_um": self.design_wavelength_um,
+            "convergence_bound": self._bound_numbers(),
             "post_sets": {pol: {"lens": LENS_OF[pol], "focuses": pol, "levels": postset_table(ps),
                                 **{k: ps.info[k] for k in POST_SET_NUMBERS}, "edge_bias": self.edge_bias.get(pol),
                                 "fabrication_rules": ps.info.get("fabrication_rules")}
                           for pol, ps in self.post_sets.items()}}
+
+    def _bound_numbers(self) -> dict[str, Any] | None:
+        if not self.bound:
+            return None
+        lib, arrays = self.library, self.bound["arrays"]
+        il = int(np.argmin(np.abs(lib.wavelengths_um - self.design_wavelength_um)))
+        chosen = {}
+        for pol, ps in self.post_sets.items():
+            ix = [int(np.argmin(np.abs(lib.wx_um - w))) for w in ps.widths_um[:, 0]]
+            iy = [int(np.argmin(np.abs(lib.wy_um - w))) for w in ps.widths_um[:, 1]]
+            chosen[pol] = float(max(max(arrays["x"][il, a, b], arrays["y"][il, a, b]) for a, b in zip(ix, iy)))
+        return {k: v for k, v in self.bound.items() if k != "arrays"} | {"chosen": chosen}
 
     def format(self) -> str:
         """The human-readable table ``metafovea library`` prints."""
@@ -66,7 +80,14 @@ class LibraryReport:
         lines = [f"library: {lb['n_wx']} x {lb['n_wy']} posts x {self.library.wavelengths_um.size} wavelength(s), "
                  f"M = {lb['harmonics']} ({lb['plane_waves']} plane waves, {lb['factorization']}), light from the "
                  f"{lb['incidence']}, {lb['elapsed_s']:.1f} s{' (cache)' if lb['from_cache'] else ''}; "
-                 f"convergence estimate max {lb['max_error_estimate']:.3g}, median {lb['median_error_estimate']:.3g}"]
+                 f"step |t(M) - t(M-2)| max {lb['max_error_estimate']:.3g}, median {lb['median_error_estimate']:.3g}"]
+        bd = d.get("convergence_bound")
+        if bd:
+            lines.append(f"truncation-error bound 3 max(|t(M) - t(M-2)|, |t(M) - t(M-4)|): max {bd['max']:.3g}, "
+                         f"median {bd['median']:.3g}"
+                         + (f", {100 * bd['above_tol']:.0f} % of the posts above --tol {bd['tol']:g}"
+                            if bd.get("above_tol") is not None else "")
+                         + "; chosen posts: " + ", ".join(f"{pol} up to {v:.3g}" for pol, v in bd["chosen"].items()))
         for pol, p in d["post_sets"].items():
             lines += ["", f"{p['lens']} lens (focuses {pol}, posts chosen at {self.design_wavelength_um:g} um): "
                           f"expected focusing efficiency {p['expected_focusing_efficiency']:.3f}, max phase error "
@@ -101,10 +122,35 @@ def library_report(sweep: PlatformSweep) -> LibraryReport:
     lib = sweep.library()
     elapsed = time.perf_counter() - t0
     sets = sweep.select(lib)
+    bound = convergence_bounds(lib, sweep)
     delta = sweep.platform.edge_bias_um
     il = int(np.argmin(np.abs(lib.wavelengths_um - sweep.design_wavelength_um)))
     bias = {pol: bias_table(lib, ps.widths_um, pol, delta, il) for pol, ps in sets.items()} if delta > 0 else {}
-    return LibraryReport(lib, sets, sweep.design_wavelength_um, elapsed, bias)
+    return LibraryReport(lib, sets, sweep.design_wavelength_um, elapsed, bias, bound)
+
+
+def convergence_bounds(lib: Library, sweep: PlatformSweep) -> dict[str, Any]:
+    """The library's truncation-error bound (:func:`metafovea.rcwa.posts.convergence_bound`) for every post: its
+    step to M - 2 (stored with it) and to M - 4 (a small extra sweep at M - 4, cached like the library), max,
+    median, the posts above the warning tolerance, and the bound of each chosen post."""
+    from dataclasses import replace
+
+    from metafovea.library import compute_library
+    from metafovea.rcwa.posts import BOUND_FACTOR, MIN_POST_HARMONICS
+
+    M = int(lib.meta["harmonics"])
+    if M - 4 < MIN_POST_HARMONICS or not np.all(np.isfinite(lib.err_x)):
+        return {}
+    opts = replace(sweep.options.with_platform(sweep.platform), harmonics=M - 4, estimate=False, tol=None,
+                   progress=False)
+    low = compute_library(lib.wx_um, lib.wy_um, tuple(lib.wavelengths_um.tolist()), options=opts)
+    b = {q: BOUND_FACTOR * np.maximum(lib.arrays[f"err_{q}"], np.abs(lib.arrays[f"t_{q}"] - low.arrays[f"t_{q}"]))
+         for q in ("x", "y")}
+    allb = np.concatenate([b["x"].ravel(), b["y"].ravel()])
+    tol = sweep.options.tol
+    return {"max": float(np.nanmax(allb)), "median": float(np.nanmedian(allb)), "harmonics": M,
+            "above_tol": None if tol is None else float(np.mean(allb > tol)), "tol": tol,
+            "arrays": b}
 
 
 def _duty_cycle_extent(lib: Library) -> tuple[float, list[float]]:

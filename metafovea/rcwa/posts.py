@@ -50,7 +50,8 @@ class PostResponse:
     R_x, R_y: total reflected efficiency (all orders).
     other_x, other_y: efficiency in all orders other than the transmitted zero order and the
         reflected zero order (substrate/air diffraction), i.e. 1 - T - R00 for lossless posts.
-    err_x, err_y: convergence estimate |t(M) - t(M - 2)| (NaN if not computed).
+    err_x, err_y: the difference |t(M) - t(M - 2)| (NaN if not computed). Not a bound: against a harmonics-22
+        reference it understates the error for ~60 % of random posts; :func:`convergence_bound` is one.
     """
 
     wx_um: np.ndarray
@@ -146,6 +147,22 @@ def _zero_order_x(wx, wy, wl, *, period, height, eps_post, eps_fill, eps_sub, ep
     return t, T, R, other, ev
 
 
+#: factor of :func:`convergence_bound`, set on 96 random posts against a harmonics-22 reference (M = 8, 10, 12)
+BOUND_FACTOR = 3.0
+
+
+def convergence_bound(t_m: np.ndarray, t_m2: np.ndarray, t_m4: np.ndarray) -> np.ndarray:
+    """A bound on |t(M) - t(converged)|: ``BOUND_FACTOR * max(|t(M) - t(M-2)|, |t(M) - t(M-4)|)``.
+
+    Against a harmonics-22 reference on 96 random posts of the paper's platform (0.5-3.5 um sides) it holds for
+    99 % (M = 10), 100 % (M = 8) and 97 % (M = 12) of the posts; |t(M) - t(M-2)| alone holds for 38 % at M = 10
+    (the convergence of Li's rule is not monotone near the posts' resonances). Tested in
+    ``tests/rcwa/test_posts.py`` on posts drawn there."""
+    a = np.abs(np.asarray(t_m) - np.asarray(t_m2))
+    b = np.abs(np.asarray(t_m) - np.asarray(t_m4))
+    return BOUND_FACTOR * np.maximum(a, b)
+
+
 def post_response(wx_um, wy_um, wavelength_um=10.0, *, period_um: float = 4.0, height_um: float = 10.0,
                   n_post: IndexLike = SILICON, n_surround: IndexLike = AIR, n_substrate: IndexLike = SILICON,
                   n_superstrate: IndexLike = AIR, harmonics: int = 8, factorization: str = "li",
@@ -155,9 +172,9 @@ def post_response(wx_um, wy_um, wavelength_um=10.0, *, period_um: float = 4.0, h
 
     wx_um, wy_um, wavelength_um broadcast together. ``harmonics`` is M (orders |m|, |n| <= M,
     (2M+1)^2 plane waves; in the parity basis the eigenproblem has (M+1)^2 + M^2 unknowns).
-    ``estimate`` also solves at M - 2 and returns ``err = |t(M) - t(M-2)|`` (a conservative
-    estimate of the truncation error for Li's rule, whose error decays like M^-2..M^-2.5); with
-    ``tol`` a :class:`NotConvergedWarning` names the posts whose estimate exceeds it.
+    ``estimate`` also solves at M - 2 and returns ``err = |t(M) - t(M-2)|``, the step between truncations (not a
+    bound on the error: convergence is not monotone, see :func:`convergence_bound`); with ``tol`` a
+    :class:`NotConvergedWarning` names the posts whose step exceeds it.
     """
     period = check_positive("period_um", period_um, "um")
     height = check_positive("height_um", height_um, "um")
