@@ -120,6 +120,8 @@ def run_export(args) -> int:
         print(f"  posts: {spec.post_set.source} post set, widths (um) "
               + " ".join(f"{a:.2f}x{b:.2f}" for a, b in spec.post_set.widths_um)
               + ("  [idealised ramp, not a physical design]" if spec.post_set.source == "ideal" else ""))
+        from metafovea.layout.tiling import drc_line
+        print("  " + drc_line(res["drc"]))
     else:
         print(f"wrote {res['path']}: {res['triangles']:,} triangles, {res['bytes']:,} bytes")
     return 0
@@ -139,6 +141,9 @@ def run_verify(args) -> int:
         status = "OK" if rep.ok else "MISMATCH"
         print(f"{status}: {rep.file} ({rep.format}, read by {rep.reader} in {rep.seconds_read:.1f} s): "
               f"{rep.posts:,} posts, expected {rep.expected_posts:,}")
+        if rep.drc is not None:
+            from metafovea.layout.tiling import drc_line
+            print("  " + drc_line(rep.drc))
         for m in rep.mismatches:
             print(f"  - {m}", file=sys.stderr)
     return 0 if rep.ok else 1

@@ -33,7 +33,7 @@ from metafovea.errors import InputError, check_choice, check_int
 from metafovea.io import file_stem, input_hash, prepare_output
 from metafovea.layout import gds, oasis
 from metafovea.layout.mesh import MESH_FORMATS, export_mesh
-from metafovea.layout.tiling import Expected, LayoutSpec
+from metafovea.layout.tiling import Expected, LayoutSpec, drc_summary
 
 FORMATS = ("gds", "oas")  #: layout formats (:func:`export_layout`)
 #: every format :func:`export_file` writes, and the file-name suffixes each accepts
@@ -68,6 +68,7 @@ def _with_posts(res: dict[str, Any], spec: LayoutSpec) -> dict[str, Any]:
     ps = spec.post_set
     res["post_set"] = {"source": ps.source, "widths_um": ps.widths_um.tolist(),
                        "note": "idealised width ramp, not a physical design" if ps.source == "ideal" else None}
+    res["drc"] = drc_summary(spec)
     return res
 
 

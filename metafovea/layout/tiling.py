@@ -242,6 +242,31 @@ def lens_platform(design: LensDesign, platform: PlatformDesign | None = None) ->
                    wavelength_um=design.wavelength_um)
 
 
+def drc_summary(spec: LayoutSpec, platform: PlatformDesign | None = None) -> dict[str, Any]:
+    """The written posts against the platform's fabrication rules: smallest side and gap, largest aspect ratio
+    (cell sizes on the manufacturing grid), each rule's limit and whether it is met."""
+    plat = lens_platform(spec.design, platform)
+    w = spec.post_sizes_nm / NM_PER_UM
+    side = float(w.min())
+    gap = float(spec.design.period_um - w.max())
+    ar = float(spec.design.post_height_um / side)
+    gap_min = plat.min_feature_um if plat.min_gap_um is None else plat.min_gap_um
+    return {"min_side_um": side, "min_gap_um": gap, "max_aspect_ratio": ar,
+            "rules": {"min_feature_um": plat.min_feature_um, "min_gap_um": gap_min,
+                      "max_aspect_ratio": plat.max_aspect_ratio},
+            "ok": bool(side >= plat.min_feature_um - 1e-9 and gap >= gap_min - 1e-9
+                       and ar <= plat.max_aspect_ratio + 1e-9),
+            "grid_nm": spec.grid_nm}
+
+
+def drc_line(d: dict[str, Any]) -> str:
+    """One line of :func:`drc_summary` for the export and verify summaries."""
+    r = d["rules"]
+    return (f"DRC {'OK' if d['ok'] else 'VIOLATED'}: smallest side {d['min_side_um']:.3f} um (>= {r['min_feature_um']:g}), "
+            f"smallest gap {d['min_gap_um']:.3f} um (>= {r['min_gap_um']:g}), aspect ratio {d['max_aspect_ratio']:.1f} "
+            f"(<= {r['max_aspect_ratio']:g}), on a {d['grid_nm']} nm grid")
+
+
 def make_spec(design: LensDesign, post_set: PostSet | str | None = "rcwa", levels: int | None = None, *,
               grid_nm: int = 5, patch_mm: tuple[float, float, float] | None = None,
               band_rows: int = 32, platform: PlatformDesign | None = None, **kw: Any) -> LayoutSpec:

@@ -24,7 +24,8 @@ import numpy as np
 
 from metafovea.errors import InputError, check_choice
 from metafovea.layout.read import Observed, lattice_of, read_gdstk, read_klayout, read_stream, sniff_format
-from metafovea.layout.tiling import DBU_UM, Expected, LayoutSpec, expected_content, has_frame, mark_boxes_nm
+from metafovea.layout.tiling import (DBU_UM, Expected, LayoutSpec, drc_line, drc_summary, expected_content, has_frame,
+                                     mark_boxes_nm)
 
 READERS = ("auto", "klayout", "gdstk", "stream")
 STREAM_THRESHOLD_BYTES = 256 << 20
@@ -51,6 +52,7 @@ class VerifyReport:
     structures: int = 0
     max_elements_per_structure: int = 0
     sites: dict[str, int] | None = None  #: the post-by-post check's counts (SiteCheck), None when not run
+    drc: dict[str, Any] | None = None  #: the post cells read against the platform's rules (tiling.drc_summary)
 
     def as_dict(self) -> dict[str, Any]:
         return dict(self.__dict__)
@@ -315,13 +317,16 @@ def verify_layout(path: str | os.PathLike, spec: LayoutSpec, *, reader: str = "a
         mm, counts = compare(ob, spec, exp)
     if check is not None:
         mm += check.mismatches(exp.total)
+    drc = drc_summary(spec)
+    if not drc["ok"]:
+        mm.append(drc_line(drc))
     if max_refs is not None and ob.max_refs > max_refs:
         mm.append(f"a structure holds {ob.max_refs:,} elements (references and shapes), more than --max-refs "
                   f"{max_refs}")
     return VerifyReport(not mm, str(path), ob.reader, fmt, int(counts.sum()), exp.total, counts.tolist(),
                         exp.counts.tolist(), ob.posts_bbox, exp.posts_bbox_nm, ob.bbox,
                         sorted([list(x) for x in ob.layers]), mm, t_read, t_exp, size, ob.structures, ob.max_refs,
-                        None if check is None else check.summary())
+                        None if check is None else check.summary(), drc)
 
 
 __all__ = ["READERS", "STREAM_THRESHOLD_BYTES", "SiteCheck", "VerifyReport", "choose_reader", "compare",

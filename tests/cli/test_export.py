@@ -30,7 +30,8 @@ def test_export_writes_and_refuses(tmp_path, capsys, toml):
     assert res["path"].endswith("cli.oas") and os.path.isfile(res["path"])
     assert res["posts"] == sum(res["counts"]) > 0 and res["bytes"] == os.path.getsize(res["path"])
     assert main(["export", *args, "--out", str(out)]) == 0
-    line, posts_line = capsys.readouterr().out.strip().splitlines()
+    line, posts_line, drc_line = capsys.readouterr().out.strip().splitlines()
+    assert drc_line.startswith("  DRC OK: smallest side")
     assert line.startswith(f"wrote {out}.gds: {res['posts']:,} posts, ") and line.endswith(" s")
     # by default the cells are the RCWA library's post set, named as such
     from metafovea.library import platform_post_sets
@@ -38,6 +39,7 @@ def test_export_writes_and_refuses(tmp_path, capsys, toml):
     rcwa = platform_post_sets(None, 8)[0]["x"]
     assert res["post_set"]["source"] == "rcwa" and res["post_set"]["widths_um"] == rcwa.widths_um.tolist()
     assert posts_line.startswith("  posts: rcwa post set") and "idealised" not in posts_line
+    assert res["drc"]["ok"] and res["drc"]["max_aspect_ratio"] == pytest.approx(10 / min(min(w) for w in rcwa.widths_um))
     # existing output: exit 2 with a one-line error
     assert main(["export", *args, "--format", "oas", "--out", str(out)]) == 2
     err = capsys.readouterr().err

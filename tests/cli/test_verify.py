@@ -24,9 +24,10 @@ def test_verify_exit_status(tmp_path, capsys, exported_gds, cli_error):
     common = ["--design", str(toml), "--quiet"]
     capsys.readouterr()
     assert main(["verify", str(gds), *common, "--ring-width-um", "50"]) == 0
-    out = capsys.readouterr().out.strip()
+    out, drc = capsys.readouterr().out.strip().splitlines()
     n = out.split()[-1]
     assert out.startswith(f"OK: {gds} (gds, read by klayout in ") and out.endswith(f"): {n} posts, expected {n}")
+    assert drc.startswith("  DRC OK:")
     # mismatching design parameters (another ring width moves the lens centre): exit 1, mismatches on stderr
     assert main(["verify", str(gds), *common]) == 1
     cap = capsys.readouterr()
