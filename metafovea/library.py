@@ -544,6 +544,29 @@ def usable_posts(lib: Library, wavelength_um: float | None = None, *, max_error:
     return ok
 
 
+def _fabricable(lib: Library, platform: PlatformDesign, WX: np.ndarray, WY: np.ndarray) -> np.ndarray:
+    """(n_wx, n_wy) bool: posts that meet the platform's fabrication rules."""
+    h = float(lib.meta.get("height_um", platform.post_height_um))
+    fab = np.array([not platform.fabrication_violations([[a, b]], h) for a, b in zip(WX.ravel(), WY.ravel())])
+    return fab.reshape(WX.shape)
+
+
+def _bias_sensitivity(lib: Library, tf_all: np.ndarray, tp_all: np.ndarray, WX: np.ndarray, WY: np.ndarray,
+                      ok: np.ndarray, delta: float) -> np.ndarray:
+    """Per post, the tolerance cost of a +-delta edge bias (widths +-2 delta, library interpolated): each post's
+    phase moves, and a shift common to all levels does no harm, so the cost is its deviation from the typical shift
+    of the usable posts (focusing and pass-through phase; this keeps the per-level argmin exact). NaN for posts
+    whose biased widths leave the library."""
+    sens = np.zeros(WX.shape)
+    for sgn in (-1.0, 1.0):
+        for t_all in (tf_all, tp_all):
+            d = _wrap(np.angle(_interp_t(lib, t_all, WX + sgn * 2 * delta, WY + sgn * 2 * delta)) - np.angle(t_all))
+            fin = ok & np.isfinite(d)
+            typical = float(np.angle(np.sum(np.exp(1j * d[fin])))) if fin.any() else 0.0
+            sens += 0.5 * _wrap(d - typical) ** 2
+    return sens
+
+
 def select_posts(lib: Library, polarization: str, levels: int = 8, *, wavelength_um: float | None = None,
                  pass_weight: float = 1.0, transmission_weight: float = 0.5, max_error: float | None = 0.05,
                  n_offsets: int = 72, platform: PlatformDesign | None = None,
@@ -585,29 +608,16 @@ def select_posts(lib: Library, polarization: str, levels: int = 8, *, wavelength
     ok = usable_posts(lib, wavelength_um, max_error=max_error)
     n_rules = 0
     if platform is not None:
-        # the platform's fabrication rules: posts that break one are never chosen
-        h = float(lib.meta.get("height_um", platform.post_height_um))
-        fab = np.array([not platform.fabrication_violations([[a, b]], h) for a, b in zip(WX.ravel(), WY.ravel())])
-        fab = fab.reshape(WX.shape)
+        fab = _fabricable(lib, platform, WX, WY)  # posts that break a fabrication rule are never chosen
         n_rules = int(np.count_nonzero(ok & ~fab))
         ok &= fab
     if np.count_nonzero(ok) < N:
         raise InputError("library", int(np.count_nonzero(ok)), f"at least levels = {N} usable (converged) posts"
                          + (" that meet the platform's fabrication rules" if platform is not None else ""))
-    # tolerance: under a +-delta edge bias (widths +-2 delta, library interpolated) every post's phase moves; a
-    # shift common to all levels does no harm, so the cost is each post's deviation from the typical shift of the
-    # usable posts (for the focusing and the pass-through phase), which keeps the per-level argmin below exact;
-    # posts whose biased widths leave the library are not used
     delta = 0.0 if platform is None else platform.edge_bias_um
     sens = np.zeros(WX.shape)
     if delta > 0 and bias_weight > 0:
-        for sgn in (-1.0, 1.0):
-            for t_all in (tf_all, tp_all):
-                d = _wrap(np.angle(_interp_t(lib, t_all, WX + sgn * 2 * delta, WY + sgn * 2 * delta))
-                          - np.angle(t_all))
-                fin = ok & np.isfinite(d)
-                typical = float(np.angle(np.sum(np.exp(1j * d[fin])))) if fin.any() else 0.0
-                sens += 0.5 * _wrap(d - typical) ** 2
+        sens = _bias_sensitivity(lib, tf_all, tp_all, WX, WY, ok, delta)
         ok &= np.isfinite(sens)
         if np.count_nonzero(ok) < N:
             raise InputError("edge_bias_um", delta, f"a bias that leaves at least levels = {N} posts inside the library")
