@@ -57,7 +57,7 @@ def _wait_for(cond, timeout):
 
 
 @pytest.mark.parametrize("sig,ignore", [(signal.SIGINT, True), (signal.SIGTERM, False)])
-def test_library_sweep_stops_on_a_signal_and_resumes(tmp_path, sig, ignore):
+def test_library_sweep_stops_on_a_signal_and_keeps_its_rows(tmp_path, sig, ignore):
     args = ["library", "--grid-step-um", "0.25", "--harmonics", "8", "--workers", "2", "--out", str(tmp_path / "o"),
             "--cache-dir", str(tmp_path / "lib")]
     p = _command(args, tmp_path, ignore_sigint=ignore)
@@ -71,14 +71,7 @@ def test_library_sweep_stops_on_a_signal_and_resumes(tmp_path, sig, ignore):
     assert rc == 130, p.stderr.read()
     assert stopped < 15
     assert _wait_for(lambda: not _group_alive(p.pid), 5), _group_alive(p.pid)  # no worker left
-    done = len(parts())
-    assert done >= 1  # the finished rows are kept
-    if sig != signal.SIGINT:
-        return
-    # a second run resumes from them and finishes
-    q = _command(args, tmp_path)
-    out, err = q.communicate(timeout=300)
-    assert q.returncode == 0, err
+    assert len(parts()) >= 1  # the finished rows are kept (resuming from them: tests/test_library.py)
 
 
 def test_export_stops_on_sigint_and_keeps_its_journal(tmp_path):
