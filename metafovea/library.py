@@ -882,11 +882,21 @@ def system_post_sets(system: Any, posts: Any = "rcwa", *, options: LibraryOption
         return {lens.polarization: PostSet.ideal(lens.levels, period_um=lens.period_um, height_um=lens.post_height_um,
                                                  wavelength_um=lens.wavelength_um, polarization=lens.polarization)
                 for lens in lenses}, "ideal"
-    out = {}
+    sets = rcwa_post_sets(system.platform, lenses, options=options)
+    return {lens.polarization: sets[(lens.polarization, lens.levels)] for lens in lenses}, "rcwa"
+
+
+def rcwa_post_sets(platform: PlatformDesign, lenses: Iterable[Any], *, options: LibraryOptions | None = None
+                   ) -> dict[tuple[str, int], PostSet]:
+    """The platform's RCWA post set for each lens' (polarisation, levels): one library, one selection per number
+    of levels."""
+    out: dict[tuple[str, int], PostSet] = {}
     for lens in lenses:
-        sets, _ = platform_post_sets(system.platform, lens.levels, options=options)
-        out[lens.polarization] = sets[lens.polarization]
-    return out, "rcwa"
+        key = (lens.polarization, lens.levels)
+        if key not in out:
+            sets, _ = platform_post_sets(platform, lens.levels, options=options)
+            out.update({(pol, lens.levels): ps for pol, ps in sets.items()})
+    return out
 
 
 # ================================================================================================
@@ -924,7 +934,7 @@ class ObliqueResponse:
         a2 = self.angles_deg ** 2
         out = []
         for plane in (0, 1):
-            re = np.stack([np.interp(th2[..., 0], a2, r[:, plane, k].real, right=None) for k in range(r.shape[2])], -1)
+            re = np.stack([np.interp(th2[..., 0], a2, r[:, plane, k].real) for k in range(r.shape[2])], -1)
             im = np.stack([np.interp(th2[..., 0], a2, r[:, plane, k].imag) for k in range(r.shape[2])], -1)
             # beyond the last angle: continue the last segment's slope in theta^2
             over = th2[..., 0] > a2[-1]

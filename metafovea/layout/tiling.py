@@ -284,9 +284,9 @@ def make_spec(design: LensDesign, post_set: PostSet | str | None = "rcwa", level
             post_set = PostSet.ideal(n, period_um=design.period_um, polarization=design.polarization,
                                      height_um=design.post_height_um, wavelength_um=design.wavelength_um)
         else:
-            from metafovea.library import platform_post_sets
+            from metafovea.library import rcwa_post_sets
 
-            post_set = platform_post_sets(plat, n)[0][design.polarization]
+            post_set = rcwa_post_sets(plat, [replace(design, levels=n)])[(design.polarization, n)]
     if post_set.source != "ideal":
         bad = plat.fabrication_violations(post_set.widths_um, post_set.height_um)
         if bad:

@@ -16,7 +16,7 @@ import numpy as np
 
 from metafovea.config import LensDesign, SystemDesign, load_lens
 from metafovea.errors import InputError, check_choice, check_int, check_positive
-from metafovea.library import POST_SOURCES, oblique_response, platform_post_sets, system_post_sets
+from metafovea.library import POST_SOURCES, oblique_response, rcwa_post_sets, system_post_sets
 from metafovea.parallel import blas_threads
 from metafovea.io import atomic_write_bytes, atomic_write_json, file_stem, prepare_output
 from metafovea.radiometry import psf_wavelengths
@@ -514,13 +514,9 @@ def psf_reports(designs: Sequence[str | Path | LensDesign], out_dir: str | Path,
     check_choice("posts", posts, POST_SOURCES)
     system = system or SystemDesign.paper()
     out = prepare_output(out_dir, force, is_dir=True)
-    post_sets = {}
-    if posts == "rcwa":
-        for lens in lenses:
-            key = (lens.polarization, lens.levels)
-            if key not in post_sets:
-                post_sets[key] = platform_post_sets(system.platform, lens.levels)[0][lens.polarization]
-    obliques = {key: oblique_response(ps, system.platform) for key, ps in post_sets.items()}
+    post_sets = rcwa_post_sets(system.platform, lenses) if posts == "rcwa" else {}
+    used = {(lens.polarization, lens.levels) for lens in lenses} & set(post_sets)
+    obliques = {key: oblique_response(post_sets[key], system.platform) for key in used}
     trains = [t.summary() for t in system_trains(system, *system_post_sets(system, posts))]
     kw = dict(fields_deg=fields_deg, band_um=band_um, filter_um=filter_um, temperature_k=temperature_k,
               n_wavelengths=n_wavelengths, pixel_pitch_um=pixel_pitch_um, error=error,
