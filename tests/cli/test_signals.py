@@ -61,7 +61,7 @@ def test_library_sweep_stops_on_a_signal_and_keeps_its_rows(tmp_path, sig, ignor
     args = ["library", "--grid-step-um", "0.25", "--harmonics", "8", "--workers", "2", "--out", str(tmp_path / "o"),
             "--cache-dir", str(tmp_path / "lib")]
     p = _command(args, tmp_path, ignore_sigint=ignore)
-    parts = lambda: list((tmp_path / "lib").glob("*.parts/*"))  # noqa: E731
+    parts = lambda: list((tmp_path / "lib").glob("*.parts/row-*.npz"))  # noqa: E731
     assert _wait_for(lambda: parts() or p.poll() is not None, 120), "no row finished"
     assert p.poll() is None, "the sweep finished before the signal: make it longer"
     t0 = time.monotonic()
