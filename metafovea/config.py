@@ -55,6 +55,12 @@ class PlatformDesign:
     substrate_resistivity_ohm_cm: float = 15.0  # the paper's 10-20 ohm cm wafers
     substrate_dopant: str = "p"  # boron (the common prime wafer; the paper does not say): 2.7x the electrons' loss
     substrate_extra_absorption_per_cm: float = 0.0  # measured lattice / oxygen absorption, added to free carriers
+    wafer_diameter_mm: float = 100.0  # the wafer the lens is written on (layout: wafer outline, die frame)
+    wafer_flat_mm: float | None = None  # primary flat length (default: SEMI M1 for the diameter; 0: none)
+    wafer_edge_exclusion_mm: float = 3.0  # no die closer than this to the wafer's edge or flat
+    write_bias_um: float = 0.0  # process pre-bias: added to each post edge when written (widths + 2 x bias)
+    posts_resist_tone: str = "negative"  # exposure 1: polygons are the posts (resist stays where written)
+    ring_resist_tone: str = "positive"  # exposure 2 (lift-off): polygons are the aluminium (resist opens)
 
     def __post_init__(self) -> None:
         check_positive("period_um", self.period_um, "um", hi=1e4)
@@ -73,6 +79,15 @@ class PlatformDesign:
         check_choice("substrate_dopant", self.substrate_dopant, ("n", "p"))
         check_range("substrate_extra_absorption_per_cm", self.substrate_extra_absorption_per_cm, 0.0, 1e3,
                     unit="1/cm", lo_inclusive=True)
+        check_range("wafer_diameter_mm", self.wafer_diameter_mm, 1.0, 1000.0, unit="mm", lo_inclusive=True)
+        if self.wafer_flat_mm is not None:
+            check_range("wafer_flat_mm", self.wafer_flat_mm, 0.0, self.wafer_diameter_mm, unit="mm", lo_inclusive=True)
+        check_range("wafer_edge_exclusion_mm", self.wafer_edge_exclusion_mm, 0.0, self.wafer_diameter_mm / 4,
+                    unit="mm", lo_inclusive=True)
+        check_range("write_bias_um", self.write_bias_um, -self.period_um / 4, self.period_um / 4, unit="um",
+                    lo_inclusive=True, hi_inclusive=True)
+        check_choice("posts_resist_tone", self.posts_resist_tone, ("negative", "positive"))
+        check_choice("ring_resist_tone", self.ring_resist_tone, ("negative", "positive"))
 
     def fabrication_violations(self, widths_um: Any, height_um: float | None = None) -> list[str]:
         """The fabrication rules (``min_feature_um``, ``min_gap_um``, ``max_aspect_ratio``) that posts of
@@ -340,6 +355,14 @@ def load_platform(path: str | Path) -> PlatformDesign:
         substrate_extra_absorption_per_cm=r.num("substrate_extra_absorption_per_cm",
                                                 d.substrate_extra_absorption_per_cm, 0.0, 1e3, unit="1/cm",
                                                 lo_inclusive=True),
+        wafer_diameter_mm=r.num("wafer_diameter_mm", d.wafer_diameter_mm, 1.0, 1000.0, unit="mm", lo_inclusive=True),
+        wafer_flat_mm=r.get("wafer_flat_mm", None, lambda k, v: check_range(k, v, 0.0, 1000.0, unit="mm",
+                                                                         lo_inclusive=True, source=str(path))),
+        wafer_edge_exclusion_mm=r.num("wafer_edge_exclusion_mm", d.wafer_edge_exclusion_mm, 0.0, 250.0, unit="mm",
+                                      lo_inclusive=True),
+        write_bias_um=r.num("write_bias_um", d.write_bias_um, -period / 4, period / 4, unit="um", lo_inclusive=True),
+        posts_resist_tone=r.choice("posts_resist_tone", d.posts_resist_tone, ("negative", "positive")),
+        ring_resist_tone=r.choice("ring_resist_tone", d.ring_resist_tone, ("negative", "positive")),
     )
     r.done()
     return out

@@ -65,6 +65,11 @@ def add_export_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--max-refs", type=int, default=None, metavar="N",
                    help="GDSII: hierarchical, at most N elements per structure (Heidelberg DWL 66: 8192); "
                         "posts in leaf structures, intermediate structures, top cell")
+    p.add_argument("--date", default=None, metavar="YYYY-MM-DD",
+                   help="date in the labels (default: SOURCE_DATE_EPOCH if set, else today, UTC)")
+    p.add_argument("--dwl", action="store_true",
+                   help="GDSII for the Heidelberg DWL 66: posts as rectangles in one structure per band side, at "
+                        "most 8192 structure definitions and 8192 references per structure")
     p.add_argument("--substrate-um", type=float, default=None, help="mesh substrate thickness (um)")
     _common(p)
     p.set_defaults(func=run_export)
@@ -81,6 +86,8 @@ def add_verify_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--reader", default="auto", help="auto | klayout | gdstk | stream (GDSII scanner)")
     p.add_argument("--max-refs", type=int, default=None, metavar="N",
                    help="also fail when a structure holds more than N elements (references and shapes)")
+    p.add_argument("--dwl", action="store_true",
+                   help="also fail beyond the Heidelberg DWL 66 limits (8192 structures, 8192 references each)")
     _common(p)
     p.set_defaults(func=run_verify)
     return p
@@ -98,8 +105,11 @@ def _inputs(args, design_path: str):
 
     if args.test_array and args.patch:
         raise InputError("--patch", args.patch, "not together with --test-array")
+    from metafovea.layout.frame import layout_date
+
     spec = load_spec(design_path, args.post_set, args.levels, grid_nm=args.grid_nm, patch_mm=_patch(args.patch),
-                     band_rows=getattr(args, "band_rows", 32), ring_width_um=args.ring_width_um, posts=args.posts)
+                     band_rows=getattr(args, "band_rows", 32), ring_width_um=args.ring_width_um, posts=args.posts,
+                     date=layout_date(getattr(args, "date", None)))
     return spec, (TestArraySpec(spec, block=args.block) if args.test_array else None)
 
 
@@ -107,7 +117,7 @@ def run_export(args) -> int:
     from metafovea.layout.export import export_file
 
     spec, ta = _inputs(args, args.design)
-    res = export_file(spec, args.out, args.format, test_array=ta, flat=args.flat, max_refs=args.max_refs,
+    res = export_file(spec, args.out, args.format, test_array=ta, flat=args.flat, max_refs=args.max_refs, dwl=args.dwl,
                       substrate_thickness_um=args.substrate_um, force=args.force, resume=not args.no_resume,
                       workers=args.workers, scheduler=args.scheduler, progress=not (args.quiet or args.json),
                       compress=args.compress)
@@ -122,6 +132,10 @@ def run_export(args) -> int:
               + ("  [idealised ramp, not a physical design]" if spec.post_set.source == "ideal" else ""))
         from metafovea.layout.tiling import drc_line
         print("  " + drc_line(res["drc"]))
+        extra = res.get("extra") or {}
+        if extra.get("printed_label"):
+            print(f"  printed label: {extra['printed_label']}")
+            print(f"  {extra['tone']}")
     else:
         print(f"wrote {res['path']}: {res['triangles']:,} triangles, {res['bytes']:,} bytes")
     return 0
@@ -133,7 +147,7 @@ def run_verify(args) -> int:
     spec, ta = _inputs(args, args.design)
     rep = verify_layout(args.file, spec, reader=args.reader, test_array=ta,
                         workers=1 if args.workers is None else args.workers,
-                        progress=not (args.quiet or args.json), max_refs=args.max_refs)
+                        progress=not (args.quiet or args.json), max_refs=args.max_refs, dwl=args.dwl)
     if args.json:
         from metafovea.io import to_json
         print(to_json(rep.as_dict()))

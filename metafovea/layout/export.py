@@ -21,7 +21,7 @@ import os
 import queue
 import threading
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from functools import partial
 from itertools import islice
 from pathlib import Path
@@ -298,12 +298,12 @@ class _Journal:
     """The resume journal next to the part file: tasks written, byte offset, counts so far and (hierarchical
     GDSII) the leaf structures per task, under the key of everything that fixes the file's content."""
 
-    def __init__(self, path: Path, key: str, total: int):
-        self.path, self.key, self.total = path, key, total
+    def __init__(self, path: Path, key: str, total: int, date: str = ""):
+        self.path, self.key, self.total, self.date = path, key, total, date
 
     def write(self, done: int, offset: int, counts: np.ndarray, leaves: list[int]) -> None:
         _write_journal(self.path, {"key": self.key, "bands_done": done, "offset": offset, "counts": counts.tolist(),
-                                   "total_bands": self.total, "leaves": leaves})
+                                   "total_bands": self.total, "leaves": leaves, "date": self.date})
 
     def resumable(self, j: dict[str, Any] | None, part: Path, hier: bool) -> bool:
         """Whether journal ``j`` (from :func:`_load_journal`) describes a consistent partial export of this key."""
@@ -343,8 +343,8 @@ def _gds_task(spec: LayoutSpec, flat: bool, task):
     return pieces, counts, None
 
 
-def _gds_task_hier(spec: LayoutSpec, flat: bool, max_refs: int, task):
-    return gds.encode_task_hier(spec, flat, max_refs, task)
+def _gds_task_hier(spec: LayoutSpec, flat: bool, leaf_max: int | None, task):
+    return gds.encode_task_hier(spec, flat, leaf_max, task)
 
 
 def _oas_task(spec: LayoutSpec, compress: int, task):
@@ -352,20 +352,30 @@ def _oas_task(spec: LayoutSpec, compress: int, task):
     return pieces, counts, None
 
 
-def _encoder(spec: LayoutSpec, fmt: str, flat: bool, compress: int, max_refs: int | None):
-    """``(header, footer, top_open, top_elements, encode)``: the bytes before and after the posts, the top
-    structure's opening records and element count (hierarchical GDSII, whose footer is built at the end), and
-    the task encoder (picklable, for processes)."""
-    top_open, top_elements = b"", 0
+#: Heidelberg DWL 66: at most this many structure definitions, and references per structure
+DWL_LIMIT = 8192
+
+
+def _encoder(spec: LayoutSpec, fmt: str, flat: bool, compress: int, max_refs: int | None, dwl: bool = False):
+    """``(header, footer, top_open, frame_elements, encode)``: the bytes before and after the posts, the top
+    structure's opening records and its frame elements (hierarchical GDSII, whose footer is built at the end),
+    and the task encoder (picklable, for processes). ``max_refs``: leaves of at most that many posts; ``dwl``:
+    one leaf per task side (posts as boundaries), references per structure and definitions within
+    :data:`DWL_LIMIT`."""
+    top_open, frame_el = b"", []
     if fmt == "gds":
         header, footer = gds.gds_header(spec, flat), gds.gds_footer()
-        if max_refs is None:
-            return header, footer, top_open, top_elements, partial(_gds_task, spec, flat)
-        header, top_open, top_elements = gds.split_top(header)
-        if top_elements >= max_refs:
-            raise InputError("--max-refs", max_refs, f"more than the {top_elements} frame elements of the top cell")
-        return header, footer, top_open, top_elements, partial(_gds_task_hier, spec, flat, max_refs)
-    return oasis.oas_header(spec), oasis.oas_footer(), top_open, top_elements, partial(_oas_task, spec, compress)
+        if max_refs is None and not dwl:
+            return header, footer, top_open, frame_el, partial(_gds_task, spec, flat)
+        header, top_open, frame_el = gds.split_top(header)
+        if dwl:
+            leaves = 2 * len(spec.tasks()) + 1
+            if leaves > DWL_LIMIT - 64:
+                raise InputError("--band-rows", spec.band_rows, f"more rows per task: {leaves:,} leaf structures "
+                                 f"exceed the DWL 66 limit of {DWL_LIMIT} definitions")
+            return header, footer, top_open, frame_el, partial(_gds_task_hier, spec, flat, None)
+        return header, footer, top_open, frame_el, partial(_gds_task_hier, spec, flat, max_refs)
+    return oasis.oas_header(spec), oasis.oas_footer(), top_open, frame_el, partial(_oas_task, spec, compress)
 
 
 def _publish(part: Path, path: Path, jpath: Path) -> None:
@@ -384,13 +394,16 @@ def export_layout(spec: LayoutSpec, path: str | os.PathLike, fmt: str = "gds", *
                   force: bool = False, resume: bool = True, workers: int | None = 1,
                   scheduler: str | None = None, progress: bool = False, compress: int = 1,
                   inflight: int | None = None, max_refs: int | None = None, threads: bool = True,
-                  direct: bool = True, _stop_after: int | None = None) -> ExportResult:
+                  direct: bool = True, dwl: bool = False, _stop_after: int | None = None) -> ExportResult:
     """Write the lens (or patch) layout of ``spec`` to ``path`` as GDSII (``'gds'``) or OASIS (``'oas'``).
 
     ``flat`` (GDSII only): one rectangle per post instead of one reference. ``max_refs`` (GDSII only):
     hierarchical file with at most that many elements per structure (posts in leaf structures, a tree of
     intermediate structures, the top cell holding the frame and its children), e.g. 8192 for the
-    Heidelberg DWL 66. ``compress``: OASIS deflate level for the per-task CBLOCKs (0 = none).
+    Heidelberg DWL 66 if it counts every element. ``dwl`` (GDSII only): the Heidelberg DWL 66 mode: posts as
+    boundaries in one leaf structure per task side, the frame in one structure, a tree of references above them:
+    at most :data:`DWL_LIMIT` structure definitions and references per structure (shapes per structure are not
+    limited: no layout of a large lens meets both limits counting every shape). ``compress``: OASIS deflate level for the per-task CBLOCKs (0 = none).
     ``workers``: local threads (``threads=False``: processes) encoding tasks while the writer thread
     writes; the output bytes do not depend on it. ``direct``: write with ``O_DIRECT`` where the file
     system allows it (see :class:`DirectFile`). ``_stop_after``: stop (as if interrupted) after that many
@@ -403,23 +416,32 @@ def export_layout(spec: LayoutSpec, path: str | os.PathLike, fmt: str = "gds", *
         if fmt != "gds":
             raise InputError("--max-refs", max_refs, "only with --format gds (OASIS has no such limit)")
         max_refs = check_int("--max-refs", max_refs, 16, 1 << 30)
+    if dwl:
+        if fmt != "gds" or max_refs is not None:
+            raise InputError("--dwl", True, "only with --format gds and without --max-refs")
+        flat = True
     path = Path(path)
     bands = spec.tasks()
-    key = input_hash({"v": JOURNAL_VERSION, "spec": spec.key(), "fmt": fmt, "flat": flat, "compress": compress,
-                      "max_refs": max_refs})
-    header, footer, top_open, top_elements, enc = _encoder(spec, fmt, flat, compress, max_refs)
+    skey = spec.key()
+    skey.pop("date", None)  # the labels' date: a resumed export keeps the date its part file was started with
+    key = input_hash({"v": JOURNAL_VERSION, "spec": skey, "fmt": fmt, "flat": flat, "compress": compress,
+                      "max_refs": max_refs, "dwl": dwl})
     prepare_output(path, force)
     part, jpath = part_paths(path)
-    journal = _Journal(jpath, key, len(bands))
+    j = _load_journal(jpath) if resume else None
+    if j is not None and j.get("key") == key and isinstance(j.get("date"), str) and j["date"] != spec.date:
+        spec = replace(spec, date=j["date"])
+    header, footer, top_open, frame_el, enc = _encoder(spec, fmt, flat, compress, max_refs, dwl)
+    journal = _Journal(jpath, key, len(bands), spec.date)
 
     t0 = time.perf_counter()
     start, offset = 0, len(header)
     counts = np.zeros(spec.levels, dtype=np.int64)
     leaves: list[int] = []  # leaf structures per task (max_refs)
-    j = _load_journal(jpath) if resume else None
     fh = None
     try:
-        if journal.resumable(j, part, max_refs is not None):
+        hier = max_refs is not None or dwl
+        if journal.resumable(j, part, hier):
             start, offset = int(j["bands_done"]), int(j["offset"])
             counts += np.asarray(j["counts"], dtype=np.int64)
             leaves = [int(v) for v in j.get("leaves", [])]
@@ -435,7 +457,7 @@ def export_layout(spec: LayoutSpec, path: str | os.PathLike, fmt: str = "gds", *
         if progress:
             from tqdm.auto import tqdm
             bar = tqdm(total=len(bands), initial=start, unit="band", desc=f"export {path.name}")
-        ck = _Checkpoint(fh, journal, counts, leaves, start, offset, hier=max_refs is not None,
+        ck = _Checkpoint(fh, journal, counts, leaves, start, offset, hier=hier,
                          every_task=_stop_after is not None, bar=bar)
         writer = _Writer(fh, ck)
         try:
@@ -451,9 +473,10 @@ def export_layout(spec: LayoutSpec, path: str | os.PathLike, fmt: str = "gds", *
             fh.close()
             fh = None
             raise KeyboardInterrupt("stopped after %d bands (test)" % ck.done)
-        if max_refs is not None:
+        if hier:
             names = [gds.leaf_name(t, i) for t, n in enumerate(leaves) for i in range(n)]
-            footer = gds.hierarchy_footer(spec, top_open, top_elements, names, max_refs)
+            footer = (gds.hierarchy_footer(spec, top_open, frame_el, names, DWL_LIMIT, frame_max=len(frame_el))
+                      if dwl else gds.hierarchy_footer(spec, top_open, frame_el, names, max_refs))
         fh.write(footer)
         offset += len(footer)
         fh.sync()
@@ -481,8 +504,11 @@ def export_layout(spec: LayoutSpec, path: str | os.PathLike, fmt: str = "gds", *
         raise
     dt = time.perf_counter() - t0
     extra = {}
-    if max_refs is not None:
-        extra = {"max_refs": max_refs, "leaf_structures": int(sum(leaves))}
+    if hier:
+        extra = {"max_refs": DWL_LIMIT if dwl else max_refs, "leaf_structures": int(sum(leaves)), "dwl": dwl}
+    from metafovea.layout.frame import content_hash
+    extra.update(date=spec.date, content_hash=content_hash(spec), printed_label=spec.printed_text(),
+                 tone=spec.tone_text())
     return ExportResult(path, fmt, flat, int(counts.sum()), counts.tolist(), offset, dt, len(bands), start, extra)
 
 
@@ -599,13 +625,13 @@ def export_test_array(ta: TestArraySpec, path: str | os.PathLike, fmt: str = "gd
 # one file, as `metafovea export` writes it
 # ----------------------------------------------------------------------------------------------
 def output_path(spec: LayoutSpec, fmt: str, out: str | os.PathLike | None = None, *, test_array: bool = False,
-                flat: bool = False, max_refs: int | None = None) -> Path:
+                flat: bool = False, max_refs: int | None = None, dwl: bool = False) -> Path:
     """Where :func:`export_file` writes: ``out`` with ``.<fmt>`` added when it ends in none of the known
     suffixes (:data:`SUFFIXES`), or ``gds_export/<name>[_cal][_patch][_flat][_h<max_refs>].<fmt>`` (``name``:
     the lens name with anything but letters, digits, ``-_.`` replaced by ``_``, so that it names no other
     folder). A suffix of another format is an :class:`InputError` (tools trust the suffix)."""
     name = file_stem(spec.design.name) + ("_cal" if test_array else "") + ("_patch" if spec.patch_um else "") + \
-        ("_flat" if flat else "") + (f"_h{max_refs}" if max_refs else "")
+        ("_flat" if flat and not dwl else "") + (f"_h{max_refs}" if max_refs else "") + ("_dwl" if dwl else "")
     path = Path(out) if out else DEFAULT_DIR / name
     known = tuple(x for v in SUFFIXES.values() for x in v)
     if path.suffix.lower() not in known:
@@ -619,6 +645,7 @@ def output_path(spec: LayoutSpec, fmt: str, out: str | os.PathLike | None = None
 
 def export_file(spec: LayoutSpec, out: str | os.PathLike | None = None, fmt: str = "gds", *,
                 test_array: TestArraySpec | None = None, flat: bool = False, max_refs: int | None = None,
+                dwl: bool = False,
                 substrate_thickness_um: float | None = None, force: bool = False, resume: bool = True,
                 workers: int | None = None, scheduler: str | None = None, progress: bool = False,
                 compress: int = 1) -> dict[str, Any]:
@@ -630,7 +657,9 @@ def export_file(spec: LayoutSpec, out: str | os.PathLike | None = None, fmt: str
     fmt_given, fmt = fmt, str(fmt).lower()
     if fmt not in SUFFIXES:
         raise InputError("--format", fmt_given, "one of 'gds', 'oas', 'stl', 'glb'")
-    path = output_path(spec, fmt, out, test_array=test_array is not None, flat=flat, max_refs=max_refs)
+    if dwl and (fmt != "gds" or test_array is not None or max_refs is not None):
+        raise InputError("--dwl", True, "only with --format gds for a lens (not --test-array, not --max-refs)")
+    path = output_path(spec, fmt, out, test_array=test_array is not None, flat=flat, max_refs=max_refs, dwl=dwl)
     if max_refs is not None and (fmt != "gds" or test_array is not None):
         raise InputError("--max-refs", max_refs, "only with --format gds for a lens (not --test-array)")
     if fmt in MESH_FORMATS:
@@ -646,7 +675,7 @@ def export_file(spec: LayoutSpec, out: str | os.PathLike | None = None, fmt: str
     workers = workers if workers is not None else max(1, min(2, os.cpu_count() or 1))
     return _with_posts(export_layout(spec, path, fmt, flat=flat, force=force, resume=resume, workers=workers,
                                      scheduler=scheduler, progress=progress, compress=compress,
-                                     max_refs=max_refs).as_dict(), spec)
+                                     max_refs=max_refs, dwl=dwl).as_dict(), spec)
 
 
 __all__ = ["DEFAULT_DIR", "ExportError", "ExportResult", "FORMATS", "SUFFIXES", "TestArraySpec", "export_file",

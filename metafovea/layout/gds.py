@@ -18,8 +18,8 @@ import tempfile
 
 import numpy as np
 
-from metafovea.layout.tiling import (LayoutSpec, band_levels, has_frame, mark_boxes_nm, ring_polygons_nm,
-                                     task_levels, task_rows)
+from metafovea.layout.frame import frame_shapes
+from metafovea.layout.tiling import LayoutSpec, band_levels, task_levels, task_rows, used_levels
 from metafovea.units import NM_PER_UM
 
 ENDSTR_ENDLIB = bytes.fromhex("00040700") + bytes.fromhex("00040400")
@@ -63,18 +63,13 @@ def _library(spec: LayoutSpec, flat: bool):
     pl, pd = spec.layers.posts
     sz = spec.post_sizes_nm / NM_PER_UM
     if not flat:
-        for name, (wx, wy) in zip(spec.post_names, sz):
-            c = lib.new_cell(name)
+        for k in used_levels(spec):
+            wx, wy = sz[k]
+            c = lib.new_cell(spec.post_names[k])
             c.add(gdstk.rectangle((-wx / 2, -wy / 2), (wx / 2, wy / 2), layer=pl, datatype=pd))
     top = lib.new_cell(spec.top_name)
-    if has_frame(spec):
-        al, ad = spec.layers.aperture
-        for pts in ring_polygons_nm(spec):
-            top.add(gdstk.Polygon(pts / NM_PER_UM, layer=al, datatype=ad))
-        ml, md = spec.layers.marks
-        for x0, y0, x1, y1 in mark_boxes_nm(spec):
-            top.add(gdstk.rectangle((x0 / NM_PER_UM, y0 / NM_PER_UM), (x1 / NM_PER_UM, y1 / NM_PER_UM),
-                                    layer=ml, datatype=md))
+    for sh in frame_shapes(spec):
+        top.add(gdstk.Polygon(sh.points / NM_PER_UM, layer=sh.layer[0], datatype=sh.layer[1]))
     tl, tt = spec.layers.label
     lx, ly = spec.label_position_nm()
     top.add(gdstk.Label(spec.label_text(), (lx / NM_PER_UM, ly / NM_PER_UM), layer=tl, texttype=tt))
@@ -249,9 +244,9 @@ def leaf_name(task: int, i: int) -> str:
     return f"L{task:05d}_{i:05d}"
 
 
-def encode_task_hier(spec: LayoutSpec, flat: bool, max_refs: int, task):
-    """The task's posts as leaf structures ``L<task>_<i>`` of at most ``max_refs`` posts each (SREFs, or
-    BOUNDARYs with ``flat``): ``(pieces, counts, leaves)``."""
+def encode_task_hier(spec: LayoutSpec, flat: bool, leaf_max: int | None, task):
+    """The task's posts as leaf structures ``L<task>_<i>`` of at most ``leaf_max`` posts each (SREFs, or
+    BOUNDARYs with ``flat``; ``None``: one leaf per task and side): ``(pieces, counts, leaves)``."""
     recs, counts = encode_task_records(spec, flat, task)
     size = BOUNDARY_BYTES if flat else SREF_BYTES
     pieces: list = []
@@ -259,42 +254,60 @@ def encode_task_hier(spec: LayoutSpec, flat: bool, max_refs: int, task):
     end = _ENDSTR
     for rec in recs:
         n = rec.size // size
-        for a in range(0, n, max_refs):
+        step = n if leaf_max is None else leaf_max
+        for a in range(0, n, max(step, 1)):
             pieces.append(bgnstr(leaf_name(task[0], i)))
-            pieces.append(rec[a * size:min(n, a + max_refs) * size])
+            pieces.append(rec[a * size:min(n, a + step) * size])
             pieces.append(end)
             i += 1
     return pieces, counts, i
 
 
-def split_top(header: bytes) -> tuple[bytes, bytes, int]:
+def split_top(header: bytes) -> tuple[bytes, bytes, list[bytes]]:
     """A gdstk library without its last ENDSTR/ENDLIB -> (everything before the top structure, the top
-    structure's records up to its elements' end, the number of elements in the top structure)."""
-    pos, last, n_el = 0, None, 0
+    structure's opening records (BGNSTR, STRNAME), its elements' records one per element)."""
+    pos, last = 0, None
     while pos < len(header):
         ln = int.from_bytes(header[pos:pos + 2], "big")
-        rt = header[pos + 2]
-        if rt == 0x05:
-            last, n_el = pos, 0
-        elif rt == 0x11:
-            n_el += 1
+        if header[pos + 2] == 0x05:
+            last = pos
         pos += ln
     if last is None:
         raise RuntimeError("unexpected gdstk output: no structure")
-    return header[:last], header[last:], n_el
+    pos, head_end, elements, start = last, None, [], None
+    while pos < len(header):
+        ln = int.from_bytes(header[pos:pos + 2], "big")
+        rt = header[pos + 2]
+        if head_end is None and rt not in (0x05, 0x06):
+            head_end = pos
+        if start is None and head_end is not None:
+            start = pos
+        pos += ln
+        if rt == 0x11:  # ENDEL
+            elements.append(header[start:pos])
+            start = None
+    return header[:last], header[last:head_end if head_end is not None else pos], elements
 
 
-def hierarchy_footer(spec: LayoutSpec, top_open: bytes, top_elements: int, leaves: list[str],
-                     max_refs: int) -> bytes:
-    """Intermediate structures ``M<level>_<i>`` (each referencing at most ``max_refs`` structures, all
-    at the origin), then the top structure (frame elements + references), ENDLIB."""
-    cap = max_refs - top_elements
-    if cap < 1:
-        raise ValueError("max_refs below the number of frame elements in the top cell")
+def frame_name(i: int) -> str:
+    return f"F{i:05d}"
+
+
+def hierarchy_footer(spec: LayoutSpec, top_open: bytes, frame_elements: list[bytes], leaves: list[str],
+                     max_refs: int, frame_max: int | None = None) -> bytes:
+    """The frame's elements in structures ``F<i>`` of at most ``frame_max`` elements (default ``max_refs``),
+    intermediate structures ``M<level>_<i>`` (each referencing at most ``max_refs`` structures, all at the
+    origin) over the frame and the leaves, then the top structure (references only), ENDLIB."""
+    fm = max_refs if frame_max is None else frame_max
     out = bytearray()
-    names = list(leaves)
+    names = []
+    for i in range(0, len(frame_elements), fm):
+        nm = frame_name(i // fm)
+        out += bgnstr(nm) + b"".join(frame_elements[i:i + fm]) + _ENDSTR
+        names.append(nm)
+    names += list(leaves)
     level = 0
-    while len(names) > cap:
+    while len(names) > max_refs:
         level += 1
         nxt = []
         for i in range(0, len(names), max_refs):

@@ -19,7 +19,8 @@ import zlib
 import numpy as np
 
 from metafovea.layout.gds import band_index, task_index
-from metafovea.layout.tiling import LayoutSpec, has_frame, mark_boxes_nm, ring_polygons_nm
+from metafovea.layout.frame import frame_shapes
+from metafovea.layout.tiling import LayoutSpec, used_levels
 
 MAGIC = b"%SEMI-OASIS\r\n"
 
@@ -109,21 +110,19 @@ def oas_header(spec: LayoutSpec) -> bytes:
     """Magic, START, cell names, the post cells and the top cell's frame (ring, marks, label)."""
     out = bytearray(MAGIC)
     out += bytes([1]) + astring("1.0") + bytes([0]) + uint(1000) + uint(0) + bytes(12)
-    names = spec.post_names + [spec.top_name]
-    for n in names:
-        out += bytes([3]) + astring(n)
+    used = used_levels(spec)
+    for k in used:  # CELLNAME with explicit reference numbers: the post types a patch does not use are not defined
+        out += bytes([4]) + astring(spec.post_names[k]) + uint(k)
+    out += bytes([4]) + astring(spec.top_name) + uint(spec.levels)
     pl, pd = spec.layers.posts
-    for k, (wx, wy) in enumerate(spec.post_sizes_nm.tolist()):
+    sizes = spec.post_sizes_nm.tolist()
+    for k in used:
+        wx, wy = sizes[k]
         out += bytes([13]) + uint(k)
         out += rectangle(pl, pd, -(wx // 2), -(wy // 2), wx, wy)
     out += bytes([13]) + uint(spec.levels)
-    if has_frame(spec):
-        al, ad = spec.layers.aperture
-        for pts in ring_polygons_nm(spec):
-            out += polygon(al, ad, pts)
-        ml, md = spec.layers.marks
-        for x0, y0, x1, y1 in mark_boxes_nm(spec):
-            out += rectangle(ml, md, x0, y0, x1 - x0, y1 - y0)
+    for sh in frame_shapes(spec):
+        out += polygon(sh.layer[0], sh.layer[1], sh.points)
     tl, tt = spec.layers.label
     lx, ly = spec.label_position_nm()
     out += text(tl, tt, lx, ly, spec.label_text())

@@ -3,17 +3,18 @@
 Conventions (all files written by :mod:`metafovea.layout`)
 ---------------------------------------------------------
 * Database unit 1 nm (``UNITS`` 1e-3 user unit = 1 um, 1e-9 m). Inside the package lengths are um.
-* Origin: the lower-left corner of the chip frame (the bounding box of the alignment marks) is
-  ``(0, 0)``; the lens centre is at ``(C, C)`` with ``C`` = :attr:`LayoutSpec.centre_nm`, so every
-  coordinate in the file is >= 0 (OASIS repetitions and DWL tools are happy with that).
+* Origin: the lower-left corner of the wafer's bounding square is ``(0, 0)``; the lens centre (the wafer's
+  centre) is at ``(C, C)`` with ``C`` = :attr:`LayoutSpec.centre_nm`, so every coordinate in the file is >= 0
+  (OASIS repetitions and DWL tools are happy with that). A patch keeps the full lens' coordinates.
 * Site ``(ix, iy)`` (see :mod:`metafovea.lens`) has its post centred at
   ``C + snap((ix + o) p)``, ``C + snap((iy + o) p)`` (nm), ``snap`` rounding to the manufacturing grid.
-* Post sizes: ``post_set.widths_um[k]`` (wx, wy) rounded to twice the grid, so that a post centred
-  on a grid point has its edges on the grid.
-* Layers (layer, datatype): posts (1, 0), aluminium aperture ring (2, 0), alignment marks (3, 0),
-  text label (10, 0). One cell per post type named ``P000``..``P{N-1}`` holding one rectangle centred
-  at the cell origin, one top cell (``<NAME>_LENS``) holding the ring, the marks, the label and one
-  reference per post.
+* Post sizes: ``post_set.widths_um[k]`` (wx, wy) plus twice the platform's ``write_bias_um`` (process
+  pre-bias), rounded to twice the grid, so that a post centred on a grid point has its edges on the grid.
+* Layers (layer, datatype), see :mod:`metafovea.layout.frame`: posts (1, 0), aluminium aperture ring (2, 0),
+  exposure-1 marks and vernier scales (3, 0), exposure-2 marks and vernier scales (4, 0), die frame (5, 0),
+  printed label (6, 0), text label (10, 0), wafer outline (11, 0). One cell per post type named
+  ``P000``..``P{N-1}`` holding one rectangle centred at the cell origin (a patch defines the types it uses),
+  one top cell (``<NAME>_LENS``) holding the frame, the label and one reference per post.
 * Bands: the lens is generated in bands of ``band_rows`` site rows across the window's columns; a band
   is a tile of :mod:`metafovea.lens` (``evaluate_tile``), evaluated on the half with x >= 0 and
   mirrored (the phase is even in x, so the mirror is exact).
@@ -44,10 +45,19 @@ MAX_COORD_NM = 2**31 - 1  #: largest coordinate a 32-bit GDSII/OASIS reader hold
 
 @dataclass(frozen=True)
 class Layers:
-    posts: tuple[int, int] = (1, 0)
-    aperture: tuple[int, int] = (2, 0)
-    marks: tuple[int, int] = (3, 0)
-    label: tuple[int, int] = (10, 0)
+    posts: tuple[int, int] = (1, 0)  #: exposure 1 (etched): the posts
+    aperture: tuple[int, int] = (2, 0)  #: exposure 2 (lift-off): the aluminium aperture ring
+    marks: tuple[int, int] = (3, 0)  #: exposure 1: alignment crosses, verniers' main scales
+    marks2: tuple[int, int] = (4, 0)  #: exposure 2: marks matching the crosses, verniers' second scales
+    die: tuple[int, int] = (5, 0)  #: exposure 1: the die frame (dicing outline)
+    printed: tuple[int, int] = (6, 0)  #: exposure 1: the printed label (polygon text)
+    label: tuple[int, int] = (10, 0)  #: non-printing text record with every parameter
+    wafer: tuple[int, int] = (11, 0)  #: non-printing wafer outline
+
+    def exposures(self) -> dict[str, list[tuple[int, int]]]:
+        """Which layers each exposure writes, and the non-printing ones."""
+        return {"exposure 1": [self.posts, self.marks, self.die, self.printed],
+                "exposure 2": [self.aperture, self.marks2], "non-printing": [self.label, self.wafer]}
 
 
 @dataclass(frozen=True)
@@ -71,6 +81,21 @@ class LayoutSpec:
     mark_width_um: float = 20.0
     patch_um: tuple[float, float, float] | None = None
     band_rows: int = 32
+    mark_clearance_um: float = 5.0  # exposure-2 squares from the cross arms
+    vernier_pitch_um: float = 8.0  # main scale pitch (bars half of it)
+    vernier_step_um: float = 0.25  # second scale pitch - main pitch: the overlay resolution
+    vernier_bars: int = 21  # bars per scale (odd): range +-(bars - 1) / 2 x step
+    vernier_length_um: float = 40.0
+    die_margin_um: float = 1000.0  # from the outermost frame element to the scribe lane
+    scribe_width_um: float = 100.0
+    label_height_um: float = 250.0  # printed label character height
+    wafer_diameter_mm: float = 100.0
+    wafer_flat_mm: float | None = None  # None: SEMI M1 for the diameter (none for 200/300 mm), 0: no flat
+    wafer_edge_exclusion_mm: float = 3.0
+    write_bias_um: float = 0.0  # process pre-bias per edge
+    posts_resist_tone: str = "negative"
+    ring_resist_tone: str = "positive"
+    date: str = ""  # written in the labels (ISO date); not part of the resume key
 
     # -- derived -----------------------------------------------------------------------------
     @property
@@ -94,12 +119,27 @@ class LayoutSpec:
 
     @property
     def frame_half_um(self) -> float:
-        """Half-size of the chip frame (marks' bounding box), um, on the 1 um grid."""
+        """Half-size of the marks' bounding box, um, on the 1 um grid."""
         return float(math.ceil(self.ring_outer_um + self.mark_offset_um + self.mark_size_um / 2))
 
     @property
+    def wafer_flat_distance_um(self) -> float:
+        """Distance from the wafer centre to the primary flat (um); the radius when it has none."""
+        from metafovea.layout.frame import SEMI_FLAT_MM
+
+        R = self.wafer_diameter_mm * 500.0
+        L = self.wafer_flat_mm
+        if L is None:
+            L = SEMI_FLAT_MM.get(min(SEMI_FLAT_MM, key=lambda d: abs(d - self.wafer_diameter_mm)), 0.0) \
+                if self.wafer_diameter_mm < 190 else 0.0
+            L = min(L, self.wafer_diameter_mm * 0.6)
+        half = min(L * 500.0, R)
+        return math.sqrt(max(R * R - half * half, 0.0))
+
+    @property
     def centre_nm(self) -> int:
-        return int(round(self.frame_half_um * NM_PER_UM))
+        """The lens (and wafer) centre in file coordinates: the wafer radius (or the frame's half-size if larger)."""
+        return int(round(max(float(math.ceil(self.wafer_diameter_mm * 500.0)), self.frame_half_um) * NM_PER_UM))
 
     def snap(self, v_nm: Any) -> np.ndarray:
         g = self.grid_nm
@@ -109,7 +149,7 @@ class LayoutSpec:
     def post_sizes_nm(self) -> np.ndarray:
         """(N, 2) int64 post widths (wx, wy) in nm, on a 2 * grid raster (>= 2 * grid)."""
         g2 = 2 * self.grid_nm
-        w = np.rint(self.post_set.widths_um * NM_PER_UM / g2).astype(np.int64) * g2
+        w = np.rint((self.post_set.widths_um + 2 * self.write_bias_um) * NM_PER_UM / g2).astype(np.int64) * g2
         return np.maximum(w, g2)
 
     def site_x_nm(self, ix: Any) -> np.ndarray:
@@ -203,23 +243,51 @@ class LayoutSpec:
         return out
 
     def key(self) -> dict[str, Any]:
-        """JSON-able description of everything that determines the file content."""
+        """JSON-able description of everything that determines the file content (the date is kept apart:
+        :func:`metafovea.layout.frame.content_hash` leaves it out, the export journal stores it)."""
         from dataclasses import asdict
         return {"design": asdict(self.design), "widths_um": self.post_set.widths_um.tolist(),
                 "levels": self.levels, "grid_nm": self.grid_nm, "layers": asdict(self.layers),
                 "ring": [self.ring_inner_um, self.ring_outer_um], "marks": [self.mark_offset_um,
-                self.mark_size_um, self.mark_width_um], "patch_um": self.patch_um, "band_rows": self.band_rows}
+                self.mark_size_um, self.mark_width_um, self.mark_clearance_um],
+                "verniers": [self.vernier_pitch_um, self.vernier_step_um, self.vernier_bars, self.vernier_length_um],
+                "die": [self.die_margin_um, self.scribe_width_um], "label_height_um": self.label_height_um,
+                "wafer": [self.wafer_diameter_mm, self.wafer_flat_distance_um, self.wafer_edge_exclusion_mm],
+                "write_bias_um": self.write_bias_um, "tone": [self.posts_resist_tone, self.ring_resist_tone],
+                "posts": self.post_set.source, "patch_um": self.patch_um, "band_rows": self.band_rows,
+                "date": self.date}
+
+    def tone_text(self) -> str:
+        """The resist tones, in words (the label and the README say the same)."""
+        return (f"tone: posts {self.posts_resist_tone} (polygons = silicon kept"
+                + ("" if self.posts_resist_tone == "negative" else "; invert layer 1 at conversion") + "), ring "
+                + f"{self.ring_resist_tone} lift-off (polygons = aluminium kept"
+                + ("" if self.ring_resist_tone == "positive" else "; invert layer 2 at conversion") + ")")
 
     def label_text(self) -> str:
+        from metafovea.layout.frame import content_hash
+
         d = self.design
         name = "".join(ch if (ch.isascii() and ch.isprintable()) else "?" for ch in d.name)  # ASCII text records
+        ex = "; ".join(f"{k}: " + ",".join(f"{a}/{b}" for a, b in v) for k, v in self.layers.exposures().items())
         s = (f"metafovea {name} f={d.f_mm:g}mm D={d.diameter_mm:g}mm lambda={d.wavelength_um:g}um "
              f"pol={d.polarization} p={d.period_um:g}um N={self.levels} lattice={d.lattice} "
              f"grid={self.grid_nm}nm dbu=1nm centre=({self.centre_nm},{self.centre_nm})nm "
-             f"posts={self.post_set.source}")
+             f"posts={self.post_set.source} write_bias={self.write_bias_um:g}um "
+             f"wafer={self.wafer_diameter_mm:g}mm date={self.date or 'none'} hash={content_hash(self)}")
         if self.patch_um is not None:
             s += " patch=({:g},{:g},{:g})um".format(*self.patch_um)
-        return s
+        return s + f" | {self.tone_text()} | {ex}"
+
+    def printed_text(self) -> str:
+        """The printed label's line (polygon text on the wafer): lens, focal length and aperture, polarisation,
+        levels, post set, date and content hash."""
+        from metafovea.layout.frame import content_hash
+
+        d = self.design
+        name = "".join(ch if (ch.isascii() and ch.isalnum()) else "-" for ch in d.name.upper())
+        return (f"{name} F{d.f_mm:g} D{d.diameter_mm:g} POL-{d.polarization.upper()} N{self.levels} "
+                f"{self.post_set.source.upper()} {self.date or 'NODATE'} #{content_hash(self)}")
 
     def label_position_nm(self) -> tuple[int, int]:
         if self.patch_um is None:
@@ -312,6 +380,13 @@ def make_spec(design: LensDesign, post_set: PostSet | str | None = "rcwa", level
                                 ("mark_width_um", "mark_width_um", False)):
         if kw.get(name) is not None:
             kw[name] = check_range(flag, kw[name], 0.0, MAX_COORD_NM / NM_PER_UM, unit="um", lo_inclusive=lo_incl)
+    for name in ("wafer_diameter_mm", "wafer_flat_mm", "wafer_edge_exclusion_mm", "write_bias_um", "posts_resist_tone",
+                 "ring_resist_tone"):
+        if kw.get(name) is None:
+            kw[name] = getattr(plat, name)
+    if kw.get("date") is None:
+        from metafovea.layout.frame import layout_date
+        kw["date"] = layout_date()
     spec = LayoutSpec(design, post_set, n, grid_nm=grid_nm, patch_um=patch, band_rows=band_rows, **kw)
     if 2 * spec.centre_nm > MAX_COORD_NM:
         raise InputError("--ring-width-um" if "ring_width_um" in kw else "diameter_mm",
@@ -319,6 +394,9 @@ def make_spec(design: LensDesign, post_set: PostSet | str | None = "rcwa", level
                          f"a layout frame (lens diameter + 2 x (ring gap + ring width + marks) = "
                          f"{2 * spec.frame_half_um / 1000:.6g} mm) of at most {MAX_COORD_NM / 1e6:.6g} mm: "
                          "GDSII/OASIS coordinates are 32-bit integers of 1 nm")
+    if patch is None:
+        from metafovea.layout.frame import frame_shapes
+        frame_shapes(spec)  # the die must fit the wafer: an InputError naming wafer_diameter_mm if not
     if np.any(spec.post_sizes_nm >= spec.design.period_um * NM_PER_UM):
         raise InputError("--grid-nm", grid_nm, "a grid on which the post widths stay below the period")
     if patch is not None and not spec.bands():
@@ -499,37 +577,12 @@ def expected_content(spec: LayoutSpec, *, workers: int | None = 1, scheduler: st
 # ----------------------------------------------------------------------------------------------
 # frame geometry (ring, marks, label), in nm
 # ----------------------------------------------------------------------------------------------
-def ring_polygons_nm(spec: LayoutSpec, tolerance_um: float = 0.05) -> list[np.ndarray]:
-    """The aluminium ring as four quarter-annulus polygons (each (n, 2) int64 nm, snapped)."""
-    import gdstk
-
-    c = spec.centre_nm / NM_PER_UM
-    out = []
-    for q in range(4):
-        a0 = q * math.pi / 2
-        poly = gdstk.ellipse((c, c), spec.ring_outer_um, inner_radius=spec.ring_inner_um,
-                             initial_angle=a0, final_angle=a0 + math.pi / 2, tolerance=tolerance_um)
-        pts = spec.snap(poly.points * NM_PER_UM)
-        keep = np.ones(len(pts), bool)
-        keep[1:] = np.any(pts[1:] != pts[:-1], axis=1)
-        pts = pts[keep]
-        if np.all(pts[0] == pts[-1]):
-            pts = pts[:-1]
-        out.append(pts)
-    return out
-
-
-def mark_boxes_nm(spec: LayoutSpec) -> list[tuple[int, int, int, int]]:
-    """Alignment crosses (two boxes each) at the four compass points outside the ring."""
-    c = spec.centre_nm
-    d = int(round((spec.ring_outer_um + spec.mark_offset_um) * NM_PER_UM))
-    a = int(round(spec.mark_size_um * NM_PER_UM / 2))
-    w = int(round(spec.mark_width_um * NM_PER_UM / 2))
-    boxes = []
-    for mx, my in ((c + d, c), (c - d, c), (c, c + d), (c, c - d)):
-        boxes.append((mx - a, my - w, mx + a, my + w))
-        boxes.append((mx - w, my - a, mx + w, my + a))
-    return boxes
+def used_levels(spec: LayoutSpec) -> list[int]:
+    """The post types a layout references: all of them for the full lens, those the patch's sites use for a patch
+    (a file defines only these cells, so no unused cell shows up as an extra top cell)."""
+    if spec.patch_um is None:
+        return list(range(spec.levels))
+    return [int(k) for k in np.flatnonzero(expected_content(spec, workers=1).counts)]
 
 
 def has_frame(spec: LayoutSpec) -> bool:
@@ -537,4 +590,4 @@ def has_frame(spec: LayoutSpec) -> bool:
 
 
 __all__ = ["DBU_UM", "EMPTY", "Expected", "Layers", "LayoutSpec", "MAX_COORD_NM", "band_levels", "expected_content",
-           "has_frame", "load_spec", "make_spec", "mark_boxes_nm", "ring_polygons_nm", "task_levels", "task_rows"]
+           "has_frame", "load_spec", "make_spec", "task_levels", "task_rows", "used_levels"]

@@ -24,8 +24,8 @@ import numpy as np
 
 from metafovea.errors import InputError, check_choice
 from metafovea.layout.read import Observed, lattice_of, read_gdstk, read_klayout, read_stream, sniff_format
-from metafovea.layout.tiling import (DBU_UM, Expected, LayoutSpec, drc_line, drc_summary, expected_content, has_frame,
-                                     mark_boxes_nm)
+from metafovea.layout.frame import expected_frame, frame_bbox_nm
+from metafovea.layout.tiling import (DBU_UM, Expected, LayoutSpec, drc_line, drc_summary, expected_content, has_frame)
 
 READERS = ("auto", "klayout", "gdstk", "stream")
 STREAM_THRESHOLD_BYTES = 256 << 20
@@ -200,7 +200,7 @@ def compare(ob: Observed, spec: LayoutSpec, exp: Expected, *, top_name: str | No
     frame = has_frame(spec) if frame is None else frame
     if abs(ob.dbu_um - DBU_UM) > 1e-12:
         mm.append(f"database unit {ob.dbu_um:g} um, expected 0.001 um (1 nm)")
-    tops = [t for t in ob.top_cells if t not in spec.post_names]  # unused post cells are harmless
+    tops = [t for t in ob.top_cells if t not in spec.post_names]  # an unused post cell of a small lens is harmless
     if tops != [top_name]:
         mm.append(f"top cells {ob.top_cells}, expected exactly one named {top_name!r}")
     sizes = spec.post_sizes_nm
@@ -239,19 +239,38 @@ def compare(ob: Observed, spec: LayoutSpec, exp: Expected, *, top_name: str | No
     if ob.posts_bbox != (None if exp.posts_bbox_nm is None else tuple(exp.posts_bbox_nm)):
         mm.append(f"posts bounding box {ob.posts_bbox} nm, expected {exp.posts_bbox_nm}")
     if frame:
-        boxes = mark_boxes_nm(spec)
-        fb = (min(b[0] for b in boxes), min(b[1] for b in boxes), max(b[2] for b in boxes), max(b[3] for b in boxes))
+        fb = frame_bbox_nm(spec)
         if ob.bbox != fb:
-            mm.append(f"layout bounding box {ob.bbox} nm, expected {fb} (the alignment marks)")
+            mm.append(f"layout bounding box {ob.bbox} nm, expected {fb} (the wafer outline)")
+        mm += frame_mismatches(ob, spec)
     if ob.bbox is not None and min(ob.bbox[:2]) < 0:
         mm.append(f"negative coordinates in the layout bounding box {ob.bbox}")
     L = spec.layers
     if expected_layers is None:
-        expected_layers = {L.posts, L.label} | ({L.aperture, L.marks} if frame else set())
+        expected_layers = {L.posts, L.label} | (set(expected_frame(spec)) if frame else set())
     if set(ob.layers) != set(expected_layers):
         mm.append(f"layers {sorted(ob.layers)}, expected {sorted(expected_layers)}")
     mm += ob.anomalies[:20]
     return mm, counts
+
+
+def frame_mismatches(ob: Observed, spec: LayoutSpec) -> list[str]:
+    """The frame layers as read (polygons and bounding box per layer, top cell through the hierarchy) against the
+    frame the design implies (:func:`metafovea.layout.frame.expected_frame`): a missing, extra or moved ring
+    sector, mark, vernier bar, label glyph, die or wafer outline piece. Skipped (with no sentence) by a reader that
+    does not report per-layer shapes."""
+    if ob.frame_layers is None:
+        return []
+    names = {v: k for k, v in vars(spec.layers).items()}
+    out = []
+    for lay, (n, bb) in expected_frame(spec).items():
+        got = ob.frame_layers.get(lay)
+        if got is None:
+            out.append(f"layer {lay[0]}/{lay[1]} ({names.get(lay, '?')}): missing, expected {n} polygons")
+        elif (got[0], tuple(got[1])) != (n, bb):
+            out.append(f"layer {lay[0]}/{lay[1]} ({names.get(lay, '?')}): {got[0]} polygons in {tuple(got[1])} nm, "
+                       f"expected {n} in {bb}")
+    return out
 
 
 def choose_reader(reader: str, fmt: str, size: int) -> str:
@@ -263,15 +282,44 @@ def choose_reader(reader: str, fmt: str, size: int) -> str:
     return "klayout" if size < (16 << 20) else "gdstk"
 
 
+def label_spec(path: Path, spec: LayoutSpec) -> tuple[LayoutSpec, list[str]]:
+    """``spec`` as the file's text label completes it (its date, which the printed label shows, and the patch when
+    ``spec`` has none), and the mismatches the label shows: no label, a patch other than ``spec``'s, a content
+    hash other than the design's (another design, post set, frame or pre-bias)."""
+    from dataclasses import replace
+
+    from metafovea.layout.frame import content_hash, parse_label
+    from metafovea.layout.read.base import read_label
+
+    text = read_label(path)
+    if text is None:
+        return spec, ["no metafovea text label (layer 10) in the file's first or last 4 MiB"]
+    lab = parse_label(text)
+    mm = []
+    if lab["date"]:
+        spec = replace(spec, date=lab["date"])
+    if lab["patch_um"] is not None and spec.patch_um is None:
+        spec = replace(spec, patch_um=lab["patch_um"])
+    elif spec.patch_um is not None and (lab["patch_um"] is None
+                                        or not np.allclose(lab["patch_um"], spec.patch_um, rtol=0, atol=1e-3)):
+        mm.append(f"the label's patch {lab['patch_um']} um, expected {spec.patch_um} um (--patch)")
+    if lab["hash"] != content_hash(spec):
+        mm.append(f"the label's content hash {lab['hash']}, the design gives {content_hash(spec)} (another design, "
+                  "post set, frame or write bias)")
+    return spec, mm
+
+
 def verify_layout(path: str | os.PathLike, spec: LayoutSpec, *, reader: str = "auto", test_array: Any = None,
                   workers: int | None = 1, progress: bool = False, expected: Expected | None = None,
-                  max_refs: int | None = None) -> VerifyReport:
+                  max_refs: int | None = None, dwl: bool = False) -> VerifyReport:
     """Read ``path`` back and compare it with ``spec`` (or with the calibration array ``test_array``, a
     :class:`~metafovea.layout.export.TestArraySpec`).
 
     Hierarchical files are counted through the hierarchy (cells not named like post cells are
-    expanded); ``max_refs``: also a mismatch when a structure holds more references than that;
-    ``workers``: processes for the expected counts."""
+    expanded); ``max_refs``: also a mismatch when a structure holds more elements than that; ``dwl``: also a
+    mismatch beyond the Heidelberg DWL 66 limits (structure definitions, references per structure);
+    ``workers``: processes for the expected counts. The file's text label gives the date (shown by the printed
+    label) and, when ``spec`` has none, the patch; its content hash must be the design's."""
     if workers is not None and workers < 1:
         raise InputError("--workers", workers, "an integer >= 1")
     if max_refs is not None and max_refs < 1:
@@ -283,6 +331,9 @@ def verify_layout(path: str | os.PathLike, spec: LayoutSpec, *, reader: str = "a
     fmt = sniff_format(path)
     size = path.stat().st_size
     reader = choose_reader(reader, fmt, size)
+    label_mm: list[str] = []
+    if test_array is None:
+        spec, label_mm = label_spec(path, spec)
     lat = lattice_of(spec)
     t0 = time.perf_counter()
     if test_array is not None:
@@ -315,6 +366,7 @@ def verify_layout(path: str | os.PathLike, spec: LayoutSpec, *, reader: str = "a
                              expected_layers={spec.layers.posts, spec.layers.label})
     else:
         mm, counts = compare(ob, spec, exp)
+    mm += label_mm
     if check is not None:
         mm += check.mismatches(exp.total)
     drc = drc_summary(spec)
@@ -323,6 +375,12 @@ def verify_layout(path: str | os.PathLike, spec: LayoutSpec, *, reader: str = "a
     if max_refs is not None and ob.max_refs > max_refs:
         mm.append(f"a structure holds {ob.max_refs:,} elements (references and shapes), more than --max-refs "
                   f"{max_refs}")
+    if dwl:
+        from metafovea.layout.export import DWL_LIMIT
+        if ob.structures > DWL_LIMIT:
+            mm.append(f"{ob.structures:,} structure definitions, more than the DWL 66 limit of {DWL_LIMIT}")
+        if ob.max_references > DWL_LIMIT:
+            mm.append(f"a structure holds {ob.max_references:,} references, more than the DWL 66 limit of {DWL_LIMIT}")
     return VerifyReport(not mm, str(path), ob.reader, fmt, int(counts.sum()), exp.total, counts.tolist(),
                         exp.counts.tolist(), ob.posts_bbox, exp.posts_bbox_nm, ob.bbox,
                         sorted([list(x) for x in ob.layers]), mm, t_read, t_exp, size, ob.structures, ob.max_refs,

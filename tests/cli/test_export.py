@@ -30,8 +30,10 @@ def test_export_writes_and_refuses(tmp_path, capsys, toml):
     assert res["path"].endswith("cli.oas") and os.path.isfile(res["path"])
     assert res["posts"] == sum(res["counts"]) > 0 and res["bytes"] == os.path.getsize(res["path"])
     assert main(["export", *args, "--out", str(out)]) == 0
-    line, posts_line, drc_line = capsys.readouterr().out.strip().splitlines()
+    line, posts_line, drc_line, printed, tone = capsys.readouterr().out.strip().splitlines()
     assert drc_line.startswith("  DRC OK: smallest side")
+    assert printed.startswith("  printed label: SMALL F1.5 D1.2 POL-X N8 RCWA 20") and "#" in printed
+    assert tone.startswith("  tone: posts negative")
     assert line.startswith(f"wrote {out}.gds: {res['posts']:,} posts, ") and line.endswith(" s")
     # by default the cells are the RCWA library's post set, named as such
     from metafovea.library import platform_post_sets

@@ -28,10 +28,10 @@ def test_verify_exit_status(tmp_path, capsys, exported_gds, cli_error):
     n = out.split()[-1]
     assert out.startswith(f"OK: {gds} (gds, read by klayout in ") and out.endswith(f"): {n} posts, expected {n}")
     assert drc.startswith("  DRC OK:")
-    # mismatching design parameters (another ring width moves the lens centre): exit 1, mismatches on stderr
+    # mismatching design parameters (another ring width): exit 1, the label's content hash on stderr
     assert main(["verify", str(gds), *common]) == 1
     cap = capsys.readouterr()
-    assert cap.out.startswith("MISMATCH: ") and "  - posts bounding box" in cap.err
+    assert cap.out.startswith("MISMATCH: ") and "  - the label's content hash" in cap.err
     # a limit on the elements per structure
     assert main(["verify", str(gds), *common, "--ring-width-um", "50", "--max-refs", "100"]) == 1
     assert "--max-refs 100" in capsys.readouterr().err

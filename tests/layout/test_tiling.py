@@ -88,7 +88,7 @@ def test_frame_beyond_32bit_coordinates_refused():
     """--ring-width-um 1e9 silently wrapped the 32-bit coordinates: a frame beyond them is refused."""
     d = LensDesign("t", 900.0, 500.0)
     # just inside: fine; just outside (the ring alone is legal, the frame is not): refused
-    ok = make_spec(d, ring_width_um=1.0e6)
+    ok = make_spec(d, ring_width_um=1.0e6, wafer_diameter_mm=2100.0)
     assert 2 * ok.centre_nm <= MAX_COORD_NM
     with pytest.raises(InputError, match="32-bit"):
-        make_spec(d, ring_width_um=1.08e6)
+        make_spec(d, ring_width_um=1.08e6, wafer_diameter_mm=2100.0)

@@ -24,7 +24,9 @@ class Observed:
     ``ref_counts``: post cell name -> references to it in the top cell (through the hierarchy);
     ``flat_counts``: ``(w, h)`` -> posts-layer rectangles in the top cell (through the hierarchy);
     ``off_lattice``: posts whose centre is not on a lattice site; ``max_refs``: most elements (reference
-    instances + shapes + texts) in one structure; ``anomalies``: anything else that is wrong, as sentences.
+    instances + shapes + texts) in one structure; ``max_references``: most reference records in one structure;
+    ``frame_layers``: polygons and bounding box per layer other than the posts' (the frame);
+    ``anomalies``: anything else that is wrong, as sentences.
     """
 
     reader: str
@@ -41,6 +43,9 @@ class Observed:
     anomalies: list[str] = field(default_factory=list)
     structures: int = 0
     max_refs: int = 0  # most elements (reference instances + shapes + texts) in one structure
+    #: (layer, datatype) -> [polygons, bbox] of every layer but the posts', through the hierarchy (None: not read)
+    frame_layers: dict | None = None
+    max_references: int = 0  # most reference records (SREF/AREF or instances) in one structure
 
 
 def union_bbox(a: BBox | None, b: BBox | None) -> BBox | None:
@@ -50,6 +55,25 @@ def union_bbox(a: BBox | None, b: BBox | None) -> BBox | None:
     if b is None:
         return a
     return (min(a[0], b[0]), min(a[1], b[1]), max(a[2], b[2]), max(a[3], b[3]))
+
+
+def read_label(path: Path, span: int = 4 << 20) -> str | None:
+    """The metafovea text label of a layout file (``metafovea ...`` in a TEXT record), found in its first and last
+    ``span`` bytes (the label is in the header, or in the footer of a hierarchical GDSII), without parsing the
+    file: None when there is none."""
+    import re
+
+    size = path.stat().st_size
+    with open(path, "rb") as fh:
+        chunks = [fh.read(span)]
+        if size > span:
+            fh.seek(max(span, size - span))
+            chunks.append(fh.read())
+    for c in chunks:
+        m = re.search(rb"metafovea [\x20-\x7e]+", c)
+        if m:
+            return m.group(0).decode("ascii")
+    return None
 
 
 def sniff_format(path: Path) -> str:

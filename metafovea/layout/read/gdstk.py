@@ -67,8 +67,14 @@ def read_gdstk(path: Path, lattice: tuple[int, int, int] | None, posts_layer: tu
         pbb = None
         layers = set()
         nrefs = 0
+        frame: dict = {}
         for p in cell.polygons:
             layers.add((p.layer, p.datatype))
+            if (p.layer, p.datatype) != posts_layer:
+                pts = np.rint(p.points * s).astype(np.int64)
+                e = frame.setdefault((p.layer, p.datatype), [0, None])
+                e[0] += 1
+                e[1] = union_bbox(e[1], (*pts.min(0).tolist(), *pts.max(0).tolist()))
         for lb in cell.labels:
             layers.add((lb.layer, lb.texttype))
         for r in cell.references:
@@ -92,7 +98,12 @@ def read_gdstk(path: Path, lattice: tuple[int, int, int] | None, posts_layer: tu
                               int(pos[:, 0].max()) + ccx + w // 2, int(pos[:, 1].max()) + ccy + h // 2)
                         pbb = union_bbox(pbb, bb)
                 continue
-            sr, sf, so, sb, sl = content(child)
+            sr, sf, so, sb, sl, sfr = content(child)
+            for lay, (fn, fb) in sfr.items():
+                e = frame.setdefault(lay, [0, None])
+                e[0] += len(pos) * fn
+                e[1] = union_bbox(e[1], (fb[0] + int(pos[:, 0].min()), fb[1] + int(pos[:, 1].min()),
+                                         fb[2] + int(pos[:, 0].max()), fb[3] + int(pos[:, 1].max())))
             if lattice is not None and np.any(pos % lattice[2] != 0):
                 ob.anomalies.append(f"references to structure {nm} off the lattice period")
             n = len(pos)
@@ -106,6 +117,7 @@ def read_gdstk(path: Path, lattice: tuple[int, int, int] | None, posts_layer: tu
                 pbb = union_bbox(pbb, (sb[0] + int(pos[:, 0].min()), sb[1] + int(pos[:, 1].min()),
                                        sb[2] + int(pos[:, 0].max()), sb[3] + int(pos[:, 1].max())))
         ob.max_refs = max(ob.max_refs, nrefs + len(cell.polygons) + len(cell.labels))
+        ob.max_references = max(ob.max_references, len(cell.references))
         for p in cell.polygons:
             if (p.layer, p.datatype) == posts_layer:
                 pts = np.rint(p.points * s).astype(np.int64)
@@ -116,12 +128,13 @@ def read_gdstk(path: Path, lattice: tuple[int, int, int] | None, posts_layer: tu
                 if lattice is not None:
                     cx, oP, P = lattice
                     off += ((int(x0 + x1) // 2 - cx - oP) % P != 0) or ((int(y0 + y1) // 2 - cx - oP) % P != 0)
-        memo[cell.name] = (refs, flatc, int(off), pbb, layers)
+        memo[cell.name] = (refs, flatc, int(off), pbb, layers, frame)
         return memo[cell.name]
 
     if sink is not None:
         _walk_posts(top, np.zeros(2, dtype=np.int64), is_post, list(post_names or []), posts_layer, sizes or {}, sink)
-    refs, flatc, off, pbb, layers = content(top)
+    refs, flatc, off, pbb, layers, frame = content(top)
+    ob.frame_layers = frame
     ob.ref_counts.update(refs)
     ob.flat_counts.update(flatc)
     ob.layers |= layers

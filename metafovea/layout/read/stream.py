@@ -192,7 +192,8 @@ class GdsScanner:
 
     def _ref(self, name: str) -> dict[str, Any]:
         """The current structure's reference summary for child ``name``."""
-        return self.refs.setdefault(self.cur, {}).setdefault(name, {"n": 0, "min": None, "max": None, "off": 0})
+        return self.refs.setdefault(self.cur, {}).setdefault(name, {"n": 0, "min": None, "max": None, "off": 0,
+                                                                          "records": 0})
 
     def _sref_block(self, buf: bytes, pos: int) -> int:
         """Bytes of the run of plain 28-byte SREF groups (4-character SNAME, one point) at ``pos``, reduced
@@ -266,6 +267,7 @@ class GdsScanner:
             for g, (w, n, b) in enumerate(zip(uw.tolist(), cnt.tolist(), nbad.tolist())):
                 rr = self._ref(_word_name(w))
                 rr["n"] += int(n)
+                rr["records"] += int(n)
                 rr["off"] += int(round(b))
                 rr["min"] = mins[g] if rr["min"] is None else np.minimum(rr["min"], mins[g])
                 rr["max"] = maxs[g] if rr["max"] is None else np.maximum(rr["max"], maxs[g])
@@ -288,6 +290,7 @@ class GdsScanner:
         for w, n, b in triples:
             rr = self._ref(_word_name(w))
             rr["n"] += int(n)
+            rr["records"] += int(n)
             rr["off"] += int(round(b))
         x, y = xy[:, 0], xy[:, 1]
         sel = ((x <= x.min() + _SLACK_DBU) | (x >= x.max() - _SLACK_DBU) | (y <= y.min() + _SLACK_DBU)
@@ -304,13 +307,14 @@ class GdsScanner:
         xy = v["xy"].astype(np.int64)
         x, y = xy[:, 0::2], xy[:, 1::2]
         x0, x1, y0, y1 = x.min(1), x.max(1), y.min(1), y.max(1)
-        rect = ((np.count_nonzero(x == x0[:, None], axis=1) == 3)
-                & (np.count_nonzero(y == y0[:, None], axis=1) == 3)
-                & (x[:, 0] == x[:, 4]) & (y[:, 0] == y[:, 4])
-                & ((x[:, :4] == x0[:, None]) | (x[:, :4] == x1[:, None])).all(1))
-        if not rect.all():
-            ob.anomalies.append(f"{int((~rect).sum())} non-rectangular boundaries in {cur}")
+        # a rectangle (starting at any corner, either orientation): closed, every edge axis-parallel and
+        # non-degenerate, horizontal and vertical edges alternating
+        hx, hy = np.diff(x, axis=1) != 0, np.diff(y, axis=1) != 0
+        rect = ((x[:, 0] == x[:, 4]) & (y[:, 0] == y[:, 4]) & (hx ^ hy).all(1) & (hx[:, :3] != hx[:, 1:]).all(1))
         ld = v["layer"].astype(np.int64) * 65536 + v["dt"].astype(np.int64)
+        bad_rect = ~rect & (ld == self.posts_layer[0] * 65536 + self.posts_layer[1])
+        if bad_rect.any():
+            ob.anomalies.append(f"{int(bad_rect.sum())} non-rectangular boundaries on the posts layer in {cur}")
         if self.sink is not None and cur not in self._index:  # a post cell's own rectangle is not a post
             onp = ld == self.posts_layer[0] * 65536 + self.posts_layer[1]
             if onp.any():
@@ -349,6 +353,7 @@ class GdsScanner:
         if t == 0x0A:  # SREF
             rr = self._ref(el.get("sname", "?"))
             rr["n"] += 1
+            rr["records"] += 1
             p = xy[0]
             rr["min"] = p if rr["min"] is None else np.minimum(rr["min"], p)
             rr["max"] = p if rr["max"] is None else np.maximum(rr["max"], p)
@@ -367,6 +372,7 @@ class GdsScanner:
             dr = (pr - o) // max(rows, 1)
             rr = self._ref(el.get("sname", "?"))
             rr["n"] += cols * rows
+            rr["records"] += 1
             corners = np.array([o, o + dc * (cols - 1), o + dr * (rows - 1), o + dc * (cols - 1) + dr * (rows - 1)])
             mn, mx = corners.min(0), corners.max(0)
             rr["min"] = mn if rr["min"] is None else np.minimum(rr["min"], mn)
@@ -439,6 +445,8 @@ class GdsScanner:
             if name in refs:
                 ob.anomalies.append(f"cell {name} has child cells")
         ob.structures = len(self.structs)
+        ob.max_references = max((sum(rr["records"] for rr in refs.get(S, {}).values()) for S in self.structs),
+                                default=0)
         ob.max_refs = max((sum(rr["n"] for rr in refs.get(S, {}).values())
                            + sum(e[0] for e in flat.get(S, {}).values()) + len(self.texts.get(S, []))
                            for S in self.structs), default=0)
@@ -459,12 +467,17 @@ class GdsScanner:
                 if (l_, d_) == self.posts_layer:
                     pbb = union_bbox(pbb, b)
                 ob.layers.add((l_, d_))
+        ob.frame_layers = {}
         for (lay, wh), (n, b) in F_.items():
             ob.layers.add(lay)
             bb = union_bbox(bb, b)
             if lay == self.posts_layer:
                 ob.flat_counts[wh] += n
                 pbb = union_bbox(pbb, b)
+            else:
+                e = ob.frame_layers.setdefault(lay, [0, None])
+                e[0] += n
+                e[1] = union_bbox(e[1], b)
         for (lay, x, y) in T_:
             ob.layers.add(lay)
             bb = union_bbox(bb, (x, y, x, y))
