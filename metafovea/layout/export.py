@@ -32,6 +32,7 @@ import numpy as np
 from metafovea.errors import InputError, check_choice, check_int
 from metafovea.io import file_stem, input_hash, prepare_output
 from metafovea.layout import gds, oasis
+from metafovea.layout.directfile import DirectFile
 from metafovea.layout.mesh import MESH_FORMATS, export_mesh
 from metafovea.layout.tiling import Expected, LayoutSpec, drc_summary
 
@@ -152,120 +153,6 @@ class _Writer(threading.Thread):
         if self.exc is not None:
             exc, self.exc = self.exc, None
             raise exc
-
-
-class DirectFile:
-    """Sequential writer with ``O_DIRECT`` (no page-cache copy: on the benchmark machine the kernel's
-    buffered write path costs more CPU than the encoding) through an aligned staging buffer; falls back
-    to plain writes where ``O_DIRECT`` is refused (tmpfs, some network file systems) or ``direct=False``.
-
-    ``flush()`` makes every byte written so far part of the file (the last partial block goes through a
-    buffered descriptor and is rewritten, aligned, by a later direct write), so a journal written after
-    ``flush()`` is consistent. ``offset`` (resume): truncate the file there and continue."""
-
-    BLOCK = 4096
-
-    def __init__(self, path: Path, offset: int | None = None, *, direct: bool = True, staging: int = 32 << 20):
-        import mmap
-
-        self.path = path
-        new = offset is None
-        self.bfd = os.open(path, os.O_RDWR | os.O_CREAT | (os.O_TRUNC if new else 0), 0o666)
-        self.dfd = -1
-        self.pos = 0 if new else int(offset)
-        self.buf = None
-        try:
-            if not new:
-                os.ftruncate(self.bfd, self.pos)
-            if direct and hasattr(os, "O_DIRECT"):
-                try:
-                    self.dfd = os.open(path, os.O_WRONLY | os.O_DIRECT)
-                except OSError:
-                    self.dfd = -1
-            if self.dfd >= 0:
-                self.cap = staging
-                self.buf = mmap.mmap(-1, staging)
-                self.mv = memoryview(self.buf)
-                self.base = self.pos - self.pos % self.BLOCK
-                self.fill = self.pos - self.base
-                if self.fill:
-                    self.mv[:self.fill] = os.pread(self.bfd, self.fill, self.base)
-        except BaseException:
-            self.close()
-            raise
-
-    @property
-    def direct(self) -> bool:
-        return self.dfd >= 0
-
-    def _pwrite_all(self, fd: int, mv: memoryview, off: int) -> None:
-        while len(mv):
-            try:
-                n = os.pwrite(fd, mv, off)
-            except OSError as e:
-                if fd == self.dfd and e.errno == errno.EINVAL:  # alignment refused after all: buffered
-                    fd = self.bfd
-                    continue
-                raise
-            if n <= 0:
-                raise OSError(errno.EIO, "short write")
-            mv, off = mv[n:], off + n
-            if len(mv) and fd == self.dfd:  # short direct write (size limit): finish buffered
-                fd = self.bfd
-
-    def _drain(self, keep_tail: bool) -> None:
-        a = self.fill - self.fill % self.BLOCK
-        if a:
-            self._pwrite_all(self.dfd, self.mv[:a], self.base)
-        tail = self.fill - a
-        if tail:
-            self._pwrite_all(self.bfd, self.mv[a:self.fill], self.base + a)
-            if not keep_tail:
-                self.base += self.fill
-                self.fill = 0
-                return
-            self.mv[:tail] = self.mv[a:self.fill]
-        self.base += a
-        self.fill = tail
-
-    def write(self, data: Any) -> int:
-        m = memoryview(data).cast("B")
-        n = len(m)
-        if self.dfd < 0:
-            self._pwrite_all(self.bfd, m, self.pos)
-            self.pos += n
-            return n
-        while len(m):
-            k = min(len(m), self.cap - self.fill)
-            self.mv[self.fill:self.fill + k] = m[:k]
-            self.fill += k
-            m = m[k:]
-            if self.fill == self.cap:  # cap is a multiple of BLOCK: all aligned
-                self._drain(keep_tail=False)
-        self.pos += n
-        return n
-
-    def flush(self) -> None:
-        if self.dfd >= 0 and self.fill:
-            self._drain(keep_tail=True)
-
-    def sync(self) -> None:
-        self.flush()
-        if self.dfd >= 0:
-            os.fsync(self.dfd)
-        os.fsync(self.bfd)
-
-    def close(self) -> None:
-        for fd in (self.dfd, self.bfd):
-            if fd >= 0:
-                with contextlib.suppress(OSError):
-                    os.close(fd)
-        self.dfd = self.bfd = -1
-        if self.buf is not None:
-            with contextlib.suppress(BufferError):
-                self.mv.release()
-                self.buf.close()
-            self.buf = None
 
 
 def part_paths(path: Path) -> tuple[Path, Path]:

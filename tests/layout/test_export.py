@@ -185,6 +185,32 @@ def test_direct_file_matches_buffered(tmp_path, spec, exported):
     assert p.read_bytes() == exported[("gds", False)][0].read_bytes()
 
 
+def test_direct_file_background_error_is_raised(tmp_path, monkeypatch):
+    """A failed background write (disk full) comes back as the OSError of the next write or flush, not lost."""
+    import errno
+    import os
+
+    f = DirectFile(tmp_path / "e.bin", staging=16384)
+    if not f.direct:
+        f.close()
+        pytest.skip("no O_DIRECT on this file system")
+    real = os.pwrite
+
+    def full(fd, data, off):
+        if fd == f.dfd:
+            raise OSError(errno.ENOSPC, "No space left on device")
+        return real(fd, data, off)
+
+    monkeypatch.setattr(os, "pwrite", full)
+    with pytest.raises(OSError) as e:
+        for _ in range(8):
+            f.write(np.zeros(16384, np.uint8))  # the second write hands the first buffer off, later ones see it
+        f.flush()
+    assert e.value.errno == errno.ENOSPC
+    monkeypatch.setattr(os, "pwrite", real)
+    f.close()
+
+
 def test_refuses_overwrite_without_force(tmp_path, spec):
     p = tmp_path / "x.gds"
     export_layout(spec, p, "gds")
