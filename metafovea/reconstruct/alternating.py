@@ -73,6 +73,7 @@ from metafovea.reconstruct._common import Timings, as_frames, image_dtype, valid
 from metafovea.reconstruct.denoise import denoise
 from metafovea.reconstruct.lsq import MAX_CONDITION, _lsq_masked, normal_matrix, solve_weights
 from metafovea.reconstruct.operators import FovealOperator, lowpass, lowpass_noise_factor
+from metafovea.reconstruct.polarizer import ALPHA_SE_MAX
 from metafovea.reconstruct.result import Reconstruction
 
 log = logging.getLogger(__name__)
@@ -343,7 +344,12 @@ class AlternatingOptions:
     foveal_blur, foveal_mean, foveal_contrast: the gauge fit's low-pass sigma (constraint pixels),
         weight of the mean-level equation, and contrast gain (``None``: ``foveal_gain``);
         foveal_psf: extra blur of the perifoveal crop (``'fit'``: estimated); see :func:`foveal_gauge`.
-    gauge: ``'auto'`` (guarded foveal fix), ``'foveal'`` (always), ``'none'``.
+    gauge: ``'auto'`` (the polariser model when given and its fit holds, else the guarded foveal fix),
+        ``'polarizer'`` (the polariser model only), ``'foveal'`` (always the foveal fix), ``'none'``.
+    polarizer: a :class:`~metafovea.reconstruct.polarizer.PolarizerModel` (frame times, rate, mode, extinction):
+        fixes the gauge from alpha's known mean and amplitude (see :func:`polarizer_gauge_step`).
+    polarizer_alpha: ``'model'`` (alpha of the fitted constant-rate rotation; the images are then the least-squares
+        images for it, no alternation) or ``'frames'`` (each frame's own alpha in the fixed gauge, then alternation).
     prior: ``'tv'``, ``'nlm'``, ``'bilateral'`` or ``None`` (plain alternating LSQ).
     init: ``'svd'`` (data-optimal subspace, default) or ``'means'`` (paper: frame means).
     iterations, tol: alternating iterations and stopping tolerance on ``max |delta alpha|``.
@@ -362,6 +368,8 @@ class AlternatingOptions:
     foveal_contrast: float | None = None
     foveal_psf: float | str = "fit"
     gauge: str = "auto"
+    polarizer: Any = None
+    polarizer_alpha: str = "model"
     prior: str | None = "tv"
     init: str = "svd"
     iterations: int = 10
@@ -459,6 +467,51 @@ def _alternate(win: _Window, x1: np.ndarray, x2: np.ndarray, a: np.ndarray, cond
     return x1, x2, a, cond, history, it_done
 
 
+def polarizer_gauge_step(win: _Window, x1: np.ndarray, x2: np.ndarray, alpha: np.ndarray, op: FovealOperator,
+                         model: Any, sig: float, use: str = "model"
+                         ) -> tuple[np.ndarray, np.ndarray, np.ndarray, dict[str, Any]]:
+    """Fix the gauge with the polariser model (:func:`~metafovea.reconstruct.polarizer.polarizer_gauge`): the fit
+    gives ``(a, b)``; a free-running polariser's two candidates (the sign of ``a`` swaps the channels) are told
+    apart by the foveal constraint's misfit (reported with their ratio). ``use``: ``'model'`` returns the fitted
+    rotation's alpha (:func:`~metafovea.reconstruct.polarizer.model_alpha`), ``'frames'`` each frame's own
+    (:func:`~metafovea.reconstruct.polarizer.gauged_alpha`). Returns ``(x1, x2, alpha, report)`` (the images in the
+    fixed gauge); the report's ``alpha_se`` is each frame's standard error."""
+    from metafovea.reconstruct.polarizer import gauged_alpha, model_alpha, polarizer_gauge
+
+    x1d, x2d = x1.astype(np.float64), x2.astype(np.float64)
+    d = x1d - x2d
+    # data-term noise of alpha_hat: the per-frame alpha-step's std, sig / ||d|| over the valid pixels
+    n_valid = d.size if win.M is None else float(np.mean(win.M.sum(axis=(1, 2))))
+    dnorm = math.sqrt(float(np.mean(d ** 2)) * n_valid)
+    fit = polarizer_gauge(alpha, model, alpha_noise=sig / dnorm if dnorm > 0 else None)
+    rep: dict[str, Any] = {"applied": False, "fit": {k: v for k, v in fit.items() if k != "cov"}}
+    if fit["status"] != "ok":
+        rep["reason"] = fit.get("reason", fit["status"])
+        return x1, x2, alpha, rep
+    cands = []
+    for sign in ((1.0, -1.0) if fit["swap_ambiguous"] else (1.0,)):
+        al, se = gauged_alpha(alpha, fit, sign)
+        a_, b_ = (fit["a"], fit["b"]) if sign > 0 else (-fit["a"], fit["b"] + fit["a"])
+        n1, n2 = x2d + (a_ + b_) * d, x2d + b_ * d
+        mis = float(np.sqrt(np.mean(op.residual(n1, n2) ** 2)))
+        cands.append((mis, sign, al, se, n1, n2))
+    cands.sort(key=lambda c: c[0])
+    mis, sign, al, se, n1, n2 = cands[0]
+    if use == "model":
+        al_f = al
+        al, se = model_alpha(model, fit, sign)
+        rep["frames_vs_model_rms"] = float(np.sqrt(np.mean((al_f - al) ** 2)))
+    rep.update(applied=True, reason="polariser model (known mean and amplitude of alpha)", sign=sign, alpha_from=use,
+               alpha_se=se.tolist(), alpha_se_max=float(se.max()), foveal_rms=mis)
+    if fit.get("irregular"):
+        rep["warning"] = (f"alpha deviates from a constant-rate rotation by {fit['jitter_rms']:.2g} rms beyond the "
+                          f"noise ({fit['alpha_noise_absolute']:.2g}): scene motion or an irregular polariser; "
+                          + ("using the fitted rotation" if use == "model" else "following each frame"))
+    if len(cands) > 1:
+        rep["channel_assignment"] = {"by": "foveal constraint", "misfit_ratio": cands[1][0] / max(mis, 1e-300)}
+    return n1.astype(x1.dtype), n2.astype(x2.dtype), al, rep
+
+
 def alternating(frames: Any, options: AlternatingOptions | None = None, **overrides: Any) -> Reconstruction:
     """Unknown-alpha separation of ``frames (T, H, W)`` (see module docstring).
 
@@ -472,7 +525,7 @@ def alternating(frames: Any, options: AlternatingOptions | None = None, **overri
     """
     opt = with_overrides(AlternatingOptions, options, overrides)
     tm = Timings()
-    gauge = check_choice("gauge", opt.gauge, ("auto", "foveal", "none"))
+    gauge = check_choice("gauge", opt.gauge, ("auto", "polarizer", "foveal", "none"))
     init = check_choice("init", opt.init, ("svd", "means"))
     prior = opt.prior
     if prior is not None:
@@ -499,26 +552,46 @@ def alternating(frames: Any, options: AlternatingOptions | None = None, **overri
         sig = float(np.sqrt(np.sum(r.astype(np.float64) ** 2) / max(n_valid - 2 * H * W, 1)))
     info["noise_sigma"] = sig
     with tm.measure("gauge"):
+        prep = None
+        if opt.polarizer is not None and gauge in ("auto", "polarizer"):
+            use = check_choice("polarizer_alpha", opt.polarizer_alpha, ("model", "frames"))
+            x1, x2, a, prep = polarizer_gauge_step(win, x1, x2, a, op, opt.polarizer, sig, use)
+            info["polarizer_gauge"] = prep
         gain = _channel_noise_gain(a)
-        x1, x2, a, grep = foveal_gauge(x1, x2, a, op, noise=(sig * gain[0], sig * gain[1]), mode=gauge,
+        fmode = "none" if (prep is not None and prep["applied"]) or gauge == "polarizer" else gauge
+        x1, x2, a, grep = foveal_gauge(x1, x2, a, op, noise=(sig * gain[0], sig * gain[1]), mode=fmode,
                                       blur=foveal_blur, mean_weight=as_float("foveal_mean", opt.foveal_mean),
                                       contrast_gain=None if opt.foveal_contrast is None else
                                       as_float("foveal_contrast", opt.foveal_contrast),
                                       psf_blur=opt.foveal_psf if isinstance(opt.foveal_psf, str) else
                                       as_float("foveal_psf", opt.foveal_psf))
+        if prep is not None and prep["applied"]:
+            grep["reason"] = "not needed: the polariser model fixed the gauge (the foveal constraint chose the channels)"
     info["gauge"] = grep
-    if opt.strict and gauge != "none" and not grep["applied"]:
-        raise InputError("frames", f"{T} frames", "frames in which the foveal constraint fixes the alpha gauge",
-                         detail=f"gauge fix not applied: {grep.get('reason')}; alpha is only known up to an "
+    fixed = bool(grep["applied"] or (prep is not None and prep["applied"]))
+    if opt.strict and gauge != "none" and not fixed:
+        why = grep.get("reason") if prep is None else f"{prep.get('reason')}; foveal: {grep.get('reason')}"
+        raise InputError("frames", f"{T} frames", "frames in which the polariser model or the foveal constraint fixes "
+                         "the alpha gauge",
+                         detail=f"gauge fix not applied: {why}; alpha is only known up to an "
                                 f"affine map (polariser too slow, one channel barely observed, or the foveal "
                                 f"geometry scale/offset is wrong); pass strict=False (metafovea reconstruct "
                                 f"--no-strict) to get the frame-mean-gauge result")
     with tm.measure("alternate"):
-        x1, x2, a, cond, history, it_done = _alternate(win, x1, x2, a, cond, opt, prior, sig, gain, grep["applied"])
+        by_pol = prep is not None and prep["applied"]
+        if by_pol and prep["alpha_from"] == "model":  # alpha is the rotation's: the images are its LSQ images
+            x1, x2, cond = _lsq(win.Yf, a, win.M, win.dt, opt.max_condition)
+            x1, x2, a, cond, history, it_done = _alternate(win, x1, x2, a, cond, replace(opt, iterations=0), prior,
+                                                           sig, _channel_noise_gain(a), fixed)
+        else:
+            x1, x2, a, cond, history, it_done = _alternate(win, x1, x2, a, cond, opt, prior, sig, gain, fixed)
+    se_max = prep["alpha_se_max"] if by_pol else None
     info.update(iterations=it_done, loss_history=history, condition=float(cond),
-                alpha_identified=bool(grep["applied"]),
-                alpha_gauge="absolute (foveal constraint)" if grep["applied"] else
-                "relative: frame means rescaled to [0, 1] (foveal fix not applied)",
+                alpha_identified=bool(grep["applied"] or (by_pol and se_max <= ALPHA_SE_MAX)),
+                alpha_se_max=se_max, alpha_se_threshold=ALPHA_SE_MAX,
+                noise_gain=_channel_noise_gain(np.asarray(a, dtype=np.float64)).tolist(),
+                alpha_gauge="absolute (polariser model)" if by_pol else "absolute (foveal constraint)"
+                if grep["applied"] else "relative: frame means rescaled to [0, 1] (foveal fix not applied)",
                 foveal_rms=float(np.sqrt(np.mean(op.residual(x1.astype(np.float64), x2.astype(np.float64)) ** 2))))
     if win.M is not None:
         info["masked_samples"] = int(win.M.size - win.M.sum())

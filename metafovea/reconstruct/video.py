@@ -124,7 +124,9 @@ def video(frames: Any, alpha: Any = None, *, window: int = 8, stride: int = 1, s
                 s = starts[k]
                 if method == "alternating":
                     try:
-                        r = alternating(Y[s:s + window], saturation=saturation, **kw)
+                        pol = kw.get("polarizer")
+                        wkw = {**kw, "polarizer": pol.window(s, window)} if pol is not None else kw
+                        r = alternating(Y[s:s + window], saturation=saturation, **wkw)
                     except InputError as e:
                         raise InputError("frames", f"window {k} (frames {s}..{s + window - 1})", e.allowed,
                                          detail=str(e)) from None

@@ -1,0 +1,256 @@
+"""What the reconstruction knows about the rotating polariser, and the alpha gauge it fixes.
+
+The data term leaves ``alpha`` known only up to an affine map (``alpha_hat = a alpha + b``, see
+:mod:`metafovea.reconstruct.alternating`). The polariser fixes it: the sensor sees the effective ratio
+
+    alpha_t = 1/2 + s cos(Omega t + phi),   Omega = 4 pi f_p,   s = A (1 - e) / (2 (1 + e)),
+
+(:class:`metafovea.imaging.polarizer.Polarizer`: extinction leak ``e``, bolometer lag ``tau`` with amplitude
+``A = 1 / sqrt(1 + (Omega tau)^2)`` and phase lag ``atan(Omega tau)``), whose mean (1/2) and amplitude ``s`` are
+known from the system, whatever the rotation's phase. Fitting ``alpha_hat_t = A0 + B cos(Omega t) + C sin(Omega t)``
+gives ``a = +-hypot(B, C) / s`` and ``b = A0 - a / 2``. A synchronised polariser (``mode='sync'``: rate and phase
+known) regresses ``alpha_hat`` on the model directly; a free-running one (``'free'``) also fits ``Omega`` within
+``rate_tolerance`` of the nominal rate and leaves the sign of ``a`` open (the sign swaps the two channels), which
+the caller settles with the foveal constraint.
+
+Two ways to use the fit: the fitted rotation's alpha (:func:`model_alpha`, the default: a motor turns at a
+constant rate, and a frame's own ``alpha_hat`` is biased wherever the scene moves between frames: on the simulated
+waving hand the per-frame alpha is off by 0.0096 and the fitted rotation by 0.0015), or each frame's own
+``alpha_t = (alpha_hat_t - b) / a`` (:func:`gauged_alpha`: follows a rotation that jitters). The fit's residual
+gives the uncertainty of ``(a, b)``, of the phase and frequency and of every ``alpha_t`` (delta method), and
+flags a stopped polariser (amplitude at the noise level) or an irregular sequence (residual well above the
+data-term noise of ``alpha_hat``: scene motion or a jittering rotation).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, replace
+from typing import Any
+
+import numpy as np
+
+from metafovea.errors import InputError, check_choice, check_range
+
+#: alpha counts as identified when its standard error (gauge and per-frame) is below this in every frame
+ALPHA_SE_MAX = 5e-3
+#: residual rms above this many times the data-term noise of alpha_hat: an irregular rotation
+JITTER_FACTOR = 3.0
+
+
+@dataclass(frozen=True)
+class PolarizerModel:
+    """The polariser as the reconstruction knows it: frame times, nominal rate, mode (phase known or not),
+    extinction leak and bolometer time constant (see module docstring)."""
+
+    times_s: np.ndarray
+    rate_hz: float = 2.0
+    mode: str = "free"
+    phase_rad: float | None = None  # sync: the rotation's phase at t = 0
+    extinction: float = 0.0
+    tau_s: float = 0.0
+    rate_tolerance: float = 0.05  # free: the actual rate is searched within +- this fraction of rate_hz
+
+    def __post_init__(self) -> None:
+        t = np.asarray(self.times_s, dtype=np.float64).reshape(-1)
+        if not np.all(np.isfinite(t)):
+            raise InputError("times_s", "non-finite", "finite frame times (s)")
+        object.__setattr__(self, "times_s", t)
+        check_range("polarizer rate_hz", self.rate_hz, 0.0, 1000.0, unit="Hz")
+        object.__setattr__(self, "mode", check_choice("polarizer mode", self.mode, ("sync", "free")))
+        if self.mode == "sync" and self.phase_rad is None:
+            raise InputError("polarizer phase_rad", None, "the rotation's phase for a synchronised polariser")
+        check_range("extinction", self.extinction, 0.0, 0.5, lo_inclusive=True)
+        check_range("tau_s", self.tau_s, 0.0, 10.0, lo_inclusive=True, unit="s")
+        check_range("rate_tolerance", self.rate_tolerance, 0.0, 0.5, lo_inclusive=True)
+
+    @classmethod
+    def from_meta(cls, meta: dict[str, Any], times_s: Any) -> "PolarizerModel | None":
+        """The model a measurement's metadata gives (``polarizer_hz``, ``polarizer``: mode, extinction, tau_s and,
+        in sync mode, phase_rad); None when the file says nothing about its polariser. A free-running polariser's
+        realised phase and rate (the simulator records them as truth) are not used."""
+        p = meta.get("polarizer")
+        if not isinstance(p, dict):
+            return None
+        mode = str(p.get("mode", "free"))
+        rate = float(meta.get("polarizer_hz", p.get("rate_hz", 2.0)))
+        phase = float(p["phase_rad"]) if mode == "sync" and p.get("phase_rad") is not None else None
+        if mode == "sync" and phase is None:
+            mode = "free"
+        return cls(times_s, rate_hz=rate, mode=mode, phase_rad=phase, extinction=float(p.get("extinction", 0.0)),
+                   tau_s=float(p.get("tau_s", 0.0)))
+
+    def window(self, start: int, n: int) -> "PolarizerModel":
+        return replace(self, times_s=self.times_s[start:start + n])
+
+    @property
+    def omega(self) -> float:
+        """Angular frequency of alpha (rad/s): twice the rotation's."""
+        return 4 * math.pi * self.rate_hz
+
+    @property
+    def lag_rad(self) -> float:
+        return math.atan(self.omega * self.tau_s)
+
+    @property
+    def amplitude(self) -> float:
+        """``s``: half the peak-to-peak range of the effective alpha."""
+        amp = 1.0 / math.sqrt(1.0 + (self.omega * self.tau_s) ** 2)
+        return 0.5 * amp * (1.0 - self.extinction) / (1.0 + self.extinction)
+
+    def alpha(self, times_s: Any = None, omega: float | None = None, phase: float | None = None) -> np.ndarray:
+        """The model's effective alpha at ``times_s`` (default the frames'), for a phase of alpha ``phase``
+        (default ``2 phase_rad - lag``)."""
+        t = self.times_s if times_s is None else np.asarray(times_s, dtype=np.float64)
+        w = self.omega if omega is None else omega
+        ph = (2 * float(self.phase_rad or 0.0) - self.lag_rad) if phase is None else phase
+        return 0.5 + self.amplitude * np.cos(w * t + ph)
+
+
+def _design(t: np.ndarray, w: float) -> np.ndarray:
+    return np.stack([np.ones_like(t), np.cos(w * t), np.sin(w * t)], axis=1)
+
+
+def _free_omega(t: np.ndarray, y: np.ndarray, model: PolarizerModel) -> tuple[float, float]:
+    """The alpha frequency within the model's tolerance with the smallest sinusoid-fit residual (grid, then a
+    parabolic refinement), and the residual's curvature there (d^2 rss / d omega^2; 0 when not resolved)."""
+    w0 = model.omega
+    tol = model.rate_tolerance
+    if tol == 0:
+        return w0, 0.0
+    grid = w0 * (1 + np.linspace(-tol, tol, 201))
+
+    def rss(w: float) -> float:
+        X = _design(t, w)
+        coef, *_ = np.linalg.lstsq(X, y, rcond=None)
+        return float(np.sum((y - X @ coef) ** 2))
+
+    r = np.array([rss(w) for w in grid])
+    i = int(np.argmin(r))
+    step = float(grid[1] - grid[0])
+    if 0 < i < len(grid) - 1:
+        den = r[i - 1] - 2 * r[i] + r[i + 1]
+        if den > 0:
+            w = float(grid[i] + 0.5 * step * (r[i - 1] - r[i + 1]) / den)
+            h = 0.25 * step
+            curv = (rss(w - h) - 2 * rss(w) + rss(w + h)) / (h * h)
+            return w, max(curv, 0.0)
+    return float(grid[i]), 0.0
+
+
+def polarizer_gauge(alpha_hat: np.ndarray, model: PolarizerModel, *, alpha_noise: float | None = None) -> dict[str, Any]:
+    """Fit the model to the data-term ``alpha_hat`` (any affine gauge): returns ``a``, ``b`` (``alpha_hat = a alpha
+    + b``; free mode: the ``a > 0`` candidate, ``swap_ambiguous`` True), their covariance, the residual rms, the
+    fitted frequency and phase, ``status`` ('ok', 'stopped', 'too few frames') and, with ``alpha_noise`` (the
+    data-term noise std of ``alpha_hat`` in its gauge), the rotation's irregularity (``jitter_rms``, in the
+    absolute gauge) and ``irregular`` when the residual exceeds :data:`JITTER_FACTOR` times that noise."""
+    y = np.asarray(alpha_hat, dtype=np.float64).reshape(-1)
+    t = model.times_s
+    if t.shape != y.shape:
+        raise InputError("times_s", f"{t.size} times", f"one time per frame ({y.size})")
+    T = y.size
+    s = model.amplitude
+    out: dict[str, Any] = {"mode": model.mode, "amplitude_model": s, "frames": T}
+    n_par = 2 if model.mode == "sync" else 4
+    if T < n_par + 2:
+        out.update(status="too few frames", reason=f"{T} frames for {n_par} parameters (need {n_par + 2})")
+        return out
+    if model.mode == "sync":
+        m = model.alpha()
+        X = np.stack([m, np.ones_like(m)], axis=1)
+        coef, *_ = np.linalg.lstsq(X, y, rcond=None)
+        res = y - X @ coef
+        var = float(np.sum(res ** 2)) / (T - 2)
+        cov = var * np.linalg.inv(X.T @ X)
+        a, b = float(coef[0]), float(coef[1])
+        out.update(omega=model.omega, phase=2 * float(model.phase_rad) - model.lag_rad, swap_ambiguous=False,
+                   t_centre=float(t.mean()), var_phase_centre=0.0, var_omega=0.0)
+        out["phase_centre"] = out["phase"] + model.omega * out["t_centre"]
+    else:
+        tm = float(t.mean())
+        tc = t - tm  # centred: the phase at the window's middle and the frequency are nearly uncorrelated
+        w, curv = _free_omega(tc, y, model)
+        X = _design(tc, w)
+        coef, *_ = np.linalg.lstsq(X, y, rcond=None)
+        res = y - X @ coef
+        var = float(np.sum(res ** 2)) / (T - 4)
+        S = var * np.linalg.inv(X.T @ X)  # cov of (A0, B, C)
+        A0, B, C = (float(v) for v in coef)
+        R = math.hypot(B, C)
+        g = np.array([0.0, B / R, C / R]) if R > 0 else np.zeros(3)
+        # a = R / s, b = A0 - a / 2: their covariance from (A0, B, C)'s by the Jacobian
+        J = np.array([g / s, np.array([1.0, 0.0, 0.0]) - 0.5 * g / s])
+        cov = J @ S @ J.T
+        a, b = R / s, A0 - 0.5 * R / s
+        # alpha_hat = A0 + R cos(w tc - atan2(C, B)); alpha = 1/2 + s cos(w tc + phi_c) for a > 0
+        gp = np.array([0.0, C / (R * R), -B / (R * R)]) if R > 0 else np.zeros(3)
+        var_w = 2 * var / curv if curv > 0 else math.inf
+        if math.isfinite(var_w) and R > 0:  # (a, b) move with the fitted frequency too: add that spread
+            sw = math.sqrt(var_w)
+            ab = []
+            for ww in (w - sw, w + sw):
+                cf, *_ = np.linalg.lstsq(_design(tc, ww), y, rcond=None)
+                rr = math.hypot(cf[1], cf[2]) / s
+                ab.append((rr, cf[0] - 0.5 * rr))
+            dab = 0.5 * (np.array(ab[1]) - np.array(ab[0]))
+            cov = cov + np.outer(dab, dab)
+        phi_c = -math.atan2(C, B)
+        out.update(omega=w, rate_hz=w / (4 * math.pi), phase=phi_c - w * tm, phase_centre=phi_c, t_centre=tm,
+                   var_phase_centre=float(gp @ S @ gp), var_omega=var_w, swap_ambiguous=True)
+    rms = math.sqrt(float(np.mean(res ** 2)))
+    # few degrees of freedom: the residual variance is itself uncertain; scale the covariance so that 1.96 SE is
+    # the two-sided 95 % t interval of T - n_par degrees of freedom
+    from scipy.stats import t as student_t
+
+    infl = (float(student_t.ppf(0.975, T - n_par)) / 1.959964) ** 2
+    cov = cov * infl
+    for k in ("var_phase_centre", "var_omega"):
+        out[k] = out[k] * infl
+    out["t_inflation"] = infl
+    out.update(a=a, b=b, cov=cov.tolist(), residual_rms=rms, residual_rms_absolute=rms / abs(a) if a else math.inf)
+    sa = math.sqrt(max(cov[0][0], 0.0))
+    if not abs(a) > 0 or sa > 0.2 * abs(a):
+        out.update(status="stopped", reason=f"alpha's variation at the noise level (amplitude {a * s:.3g} of the "
+                                           f"data-term alpha, uncertainty {sa * s:.3g}): the polariser is stopped, "
+                                           "too slow for the window, or one channel is dark")
+        return out
+    out["status"] = "ok"
+    if alpha_noise is not None:
+        out["alpha_noise_absolute"] = alpha_noise / abs(a)
+        out["jitter_rms"] = math.sqrt(max(rms ** 2 - alpha_noise ** 2, 0.0)) / abs(a)
+        out["irregular"] = bool(rms > JITTER_FACTOR * alpha_noise * math.sqrt(T / max(T - n_par, 1)))
+    return out
+
+
+def gauged_alpha(alpha_hat: np.ndarray, fit: dict[str, Any], sign: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
+    """``alpha_t = (alpha_hat_t - b) / a`` for the fit's ``(a, b)`` (``sign`` -1: the other candidate of a
+    free-running fit, ``a -> -a``, ``b -> A0 + a / 2``), and each frame's standard error: the gauge's uncertainty
+    (delta method) and the per-frame scatter (the fit's residual, conservative: it also holds any jitter)."""
+    y = np.asarray(alpha_hat, dtype=np.float64)
+    a, b = fit["a"], fit["b"]
+    cov = np.asarray(fit["cov"])
+    if sign < 0:  # A0 = b + a / 2 stays; a -> -a: b' = A0 + a / 2 = b + a
+        b = b + a
+        a = -a
+        Jm = np.array([[-1.0, 0.0], [1.0, 1.0]])  # (a', b') from (a, b)
+        cov = Jm @ cov @ Jm.T
+    al = (y - b) / a
+    var_frame = fit["residual_rms"] ** 2 * fit.get("t_inflation", 1.0) * fit["frames"] / max(
+        fit["frames"] - (2 if fit["mode"] == "sync" else 4), 1)
+    var = (var_frame + cov[1, 1] + al ** 2 * cov[0, 0] + 2 * al * cov[0, 1]) / (a * a)
+    return al, np.sqrt(np.maximum(var, 0.0))
+
+
+def model_alpha(model: PolarizerModel, fit: dict[str, Any], sign: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
+    """The fitted rotation's alpha, ``1/2 + s cos(omega t + phi)`` (``sign`` -1: the other channel assignment, phase
+    + pi), and each frame's standard error from the phase and frequency (a synchronised polariser's are known: 0;
+    the model's mean and amplitude are taken as exact, so a wrong extinction or lag is not in it)."""
+    t = model.times_s
+    ph = fit["phase_centre"] + (math.pi if sign < 0 else 0.0)
+    u = fit["omega"] * (t - fit["t_centre"]) + ph
+    al = 0.5 + model.amplitude * np.cos(u)
+    var = (model.amplitude * np.sin(u)) ** 2 * (fit["var_phase_centre"] + (t - fit["t_centre"]) ** 2 * fit["var_omega"])
+    return al, np.sqrt(np.maximum(var, 0.0))
+
+
+__all__ = ["ALPHA_SE_MAX", "JITTER_FACTOR", "PolarizerModel", "gauged_alpha", "model_alpha", "polarizer_gauge"]
