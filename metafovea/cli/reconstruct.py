@@ -45,6 +45,12 @@ def register(subparsers: Any) -> argparse.ArgumentParser:
     p.add_argument("--no-strict", action="store_true", help="alternating: when the foveal constraint cannot fix "
                    "alpha's gauge, return the frame-mean-gauge result (flagged alpha_identified: false) instead of "
                    "an error")
+    p.add_argument("--polarizer", default="auto", choices=("auto", "none"),
+                   help="alternating: fix alpha's gauge with the file's polariser model (rate, mode, extinction; "
+                        "auto, default) or not (none: the foveal constraint alone)")
+    p.add_argument("--polarizer-alpha", default="model", choices=("model", "frames"),
+                   help="alternating with the polariser model: alpha of the fitted constant-rate rotation (model, "
+                        "default) or each frame's own (frames: follows a jittering polariser)")
     p.add_argument("--frame", type=int, default=0, help="frame index for --method snapshot (default 0)")
     p.add_argument("--steps", type=int, default=2000, help="DIP optimisation steps (default 2000)")
     p.add_argument("--channels", type=int, default=32, help="DIP network channels (default 32)")
@@ -73,6 +79,8 @@ def _solver_options(args: argparse.Namespace) -> dict[str, Any]:
         kw["regularize"] = reg
     if args.method == "alternating" and args.no_strict:
         kw["strict"] = False
+    if args.method == "alternating":
+        kw.update(polarizer=args.polarizer, polarizer_alpha=args.polarizer_alpha)
     if args.method == "dip":
         kw.update(steps=args.steps, channels=args.channels, rng=args.seed)
     return kw
@@ -99,8 +107,13 @@ def run(args: argparse.Namespace) -> int:
           f"({s['ms_per_output']:.3f} ms each)")
     if "condition" in s:
         print(f"  normal-matrix condition number: {s['condition']:.3g}")
-    if "gauge" in s:
-        print(f"  alpha gauge fixed by the foveal constraint: {s['gauge']['applied']} ({s['gauge']['reason']})")
+    if "alpha_gauge" in s:
+        se = s.get("alpha_se_max")
+        print(f"  alpha gauge: {s['alpha_gauge']}; identified: {s.get('alpha_identified')}"
+              + (f" (standard error <= {se:.2g}, threshold {s.get('alpha_se_threshold', 5e-3):.2g})" if se else ""))
+    pol = s.get("polarizer") or {}
+    if pol.get("warning"):
+        print(f"  warning: {pol['warning']}")
     if s.get("nonfinite_pixels"):
         print(f"  {s['nonfinite_pixels']} NaN value(s) in x1/x2: pixels without valid samples (e.g. dead pixels)")
     if isinstance(s.get("metrics"), dict):

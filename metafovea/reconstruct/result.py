@@ -122,6 +122,15 @@ class PipelineResult:
                 out[key] = float(np.nanmax(np.asarray(v, dtype=float))) if isinstance(v, list) else v
         if "gauge" in rec.info:
             out["gauge"] = {k: rec.info["gauge"].get(k) for k in ("applied", "reason")}
+        for key in ("alpha_gauge", "alpha_se_max", "alpha_se_threshold"):
+            if rec.info.get(key) is not None:
+                out[key] = rec.info[key]
+        pg = rec.info.get("polarizer_gauge")
+        if pg is not None:
+            fit = pg.get("fit", {})
+            out["polarizer"] = {"applied": pg["applied"], "reason": pg.get("reason"), "mode": fit.get("mode"),
+                                "rate_hz": fit.get("rate_hz"), "irregular": fit.get("irregular"),
+                                "warning": pg.get("warning"), "alpha_from": pg.get("alpha_from")}
         if "fpn" in rec.info:
             out["fpn"] = rec.info["fpn"].get("identified")
         if self.nonfinite_pixels:

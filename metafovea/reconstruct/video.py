@@ -118,7 +118,7 @@ def video(frames: Any, alpha: Any = None, *, window: int = 8, stride: int = 1, s
     else:
         x1 = np.empty((K, H, W), dtype=dt)
         x2 = np.empty((K, H, W), dtype=dt)
-        aw, identified = [], []
+        aw, identified, se_w, gauges = [], [], [], []
         with tm.measure("solve"):
             for k in it:
                 s = starts[k]
@@ -131,6 +131,8 @@ def video(frames: Any, alpha: Any = None, *, window: int = 8, stride: int = 1, s
                         raise InputError("frames", f"window {k} (frames {s}..{s + window - 1})", e.allowed,
                                          detail=str(e)) from None
                     identified.append(bool(r.info["alpha_identified"]))
+                    se_w.append(r.info.get("alpha_se_max"))
+                    gauges.append(r.info.get("alpha_gauge"))
                 else:
                     r = dip(Y[s:s + window], alpha=None if alpha is None else np.asarray(alpha)[s:s + window], **kw)
                 x1[k], x2[k] = r.x1, r.x2
@@ -138,6 +140,11 @@ def video(frames: Any, alpha: Any = None, *, window: int = 8, stride: int = 1, s
         info["alpha_windows"] = aw
         if method == "alternating":
             info["window_alpha_identified"] = identified
+            info["window_alpha_se_max"] = se_w
+            info["alpha_identified"] = bool(all(identified))
+            info["alpha_gauge"] = sorted({str(g) for g in gauges})
+            if all(v is not None for v in se_w):
+                info["alpha_se_max"] = float(max(se_w))
         alpha_out = np.asarray(alpha, dtype=np.float64) if alpha is not None else np.full(T, np.nan)
     if denoise:
         with tm.measure("denoise"):

@@ -362,3 +362,31 @@ def test_lsq_without_alpha_names_alpha_and_the_method(tmp_path, capsys):
     m = _save(tmp_path / "m.npz", alpha=None)
     rc, _, err = _run([m, "--no-figures"], capsys)
     assert rc == 2 and "alpha = 'absent'" in err and "--method lsq" in err
+
+
+def test_polarizer_model_from_the_file_fixes_alpha(tmp_path, capsys):
+    """A free-running polariser in a simulated file: --polarizer auto (default) takes rate, mode and extinction
+    from the metadata (not the realised phase) and gets alpha to the oracle's level; --polarizer none leaves it to
+    the foveal constraint, which does worse here."""
+    from metafovea.config import SystemDesign
+    from metafovea.imaging import simulate
+
+    s = SystemDesign.paper()
+    s = dataclasses.replace(s, sensor=dataclasses.replace(s.sensor, crop=(192, 192), pixels=(192, 192)))
+    m = simulate(s, "camera", frames=10, psf="airy", rng=4, polarizer_mode="free")
+    path = m.save(tmp_path / "free.npz")
+    maes = {}
+    for pol in ("auto", "none"):
+        rc, stdout, err = _run([path, "--method", "alternating", "--window", "10", "--polarizer", pol, "--out",
+                                tmp_path / f"r_{pol}.npz", "--json", "--no-figures", "--no-strict"], capsys)
+        assert rc == 0, err
+        out = json.loads(stdout)
+        rec = np.load(tmp_path / f"r_{pol}.npz")
+        maes[pol] = float(np.mean(np.abs(rec["alpha"] - m.alpha)))
+        if pol == "auto":
+            assert out["alpha_gauge"] == "absolute (polariser model)" and out["polarizer"]["mode"] == "free"
+            assert out["alpha_identified"] and out["alpha_se_max"] >= maes[pol]
+    assert maes["auto"] <= 2e-3 and maes["auto"] < maes["none"]
+    rc, stdout, err = _run([path, "--method", "alternating", "--window", "10", "--out", tmp_path / "r.npz",
+                            "--no-figures", "--force"], capsys)
+    assert "alpha gauge: absolute (polariser model); identified: True" in stdout
