@@ -19,6 +19,13 @@ Written with :func:`metafovea.io.atomic_save_npz` (uncompressed ``.npz`` + JSON 
     (``fpn_t = (fpn_u * fpn_weights[t]) @ fpn_v.T``).
 ``theta_rad`` (T,) (optional)
     Polariser angle per frame.
+``calibration`` (N, H, W) (optional)
+    Frames of a uniform source for the fixed-pattern calibration.
+``bad_pixels`` (H, W) bool (optional)
+    Pixels whose samples are left out (dead or hot pixels of the camera's map).
+
+Samples at or beyond the ADC's range (:attr:`Measurement.valid_range_dn`: ``meta['saturation_dn']`` /
+``meta['floor_dn']``, or the simulator's ``meta['sensor']`` ``adc_bits``) are left out by the reconstruction too.
 
 Metadata (``meta``): ``units``, ``foveal_constraint`` ``{scale, gain, offset_dn}`` (the relation
 ``D x1 = gain C x2 + offset`` between the two images, see :class:`FovealConstraint`), and whatever the writer
@@ -39,7 +46,7 @@ from metafovea.io import atomic_save_npz, load_npz, prepare_output
 
 KIND = "measurement"
 OPTIONAL = ("alpha", "truth_x1", "truth_x2", "fpn", "fpn_u", "fpn_v", "fpn_s", "fpn_weights", "theta_rad",
-            "calibration")
+            "calibration", "bad_pixels")
 
 
 def _real(a: np.ndarray) -> bool:
@@ -108,7 +115,7 @@ class Measurement:
     truth_x2: np.ndarray | None = None
     fpn: np.ndarray | None = None
     meta: dict[str, Any] = field(default_factory=dict)
-    extras: dict[str, np.ndarray] = field(default_factory=dict)  # fpn_u, fpn_v, fpn_s, fpn_weights, theta_rad
+    extras: dict[str, np.ndarray] = field(default_factory=dict)  # fpn_u, fpn_v, fpn_s, fpn_weights, theta_rad, ...
     source: str | None = field(default=None, compare=False)  #: the file this was loaded from
 
     def __post_init__(self) -> None:
@@ -182,6 +189,38 @@ class Measurement:
     @property
     def alpha_known(self) -> bool:
         return self.alpha is not None and bool(np.all(np.isfinite(self.alpha)))
+
+    @property
+    def valid_range_dn(self) -> tuple[float | None, float | None]:
+        """``(floor, full scale)``: samples at or beyond either are clipped by the ADC and carry no information.
+        From ``meta['saturation_dn']`` / ``meta['floor_dn']`` (a recording's), else the simulator's sensor
+        (``meta['sensor']``: ``adc_bits`` when ``quantize``: 0 and 2^bits - 1); ``None`` where unknown."""
+        hi = self.meta.get("saturation_dn")
+        lo = self.meta.get("floor_dn")
+        sen = self.meta.get("sensor")
+        if isinstance(sen, dict) and sen.get("quantize") and sen.get("adc_bits"):
+            bits = int(sen["adc_bits"])
+            hi = float(2 ** bits - 1) if hi is None else hi
+            lo = 0.0 if lo is None else lo
+        return (None if lo is None else float(lo)), (None if hi is None else float(hi))
+
+    def invalid_samples(self) -> np.ndarray | None:
+        """(T, H, W) bool: samples to leave out: non-finite, clipped at the ADC's floor or full scale
+        (:attr:`valid_range_dn`), or on a pixel of ``extras['bad_pixels']`` (H, W); None when all are valid."""
+        f = self.frames
+        bad = ~np.isfinite(f)
+        lo, hi = self.valid_range_dn
+        if hi is not None:
+            bad |= f >= hi
+        if lo is not None:
+            bad |= f <= lo
+        bp = self.extras.get("bad_pixels")
+        if bp is not None:
+            bp = np.asarray(bp)
+            if bp.shape != f.shape[1:]:
+                raise InputError("bad_pixels", f"array of shape {bp.shape}", f"(H, W) = {f.shape[1:]}", source=self.source)
+            bad |= bp.astype(bool)[None]
+        return bad if bad.any() else None
 
     @property
     def foveal_constraint(self) -> FovealConstraint:

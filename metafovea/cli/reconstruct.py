@@ -27,8 +27,8 @@ def register(subparsers: Any) -> argparse.ArgumentParser:
     p.add_argument("--method", default="lsq", choices=METHODS, help="solver (default lsq; lsq needs the file's alpha)")
     p.add_argument("--known-alpha", action="store_true",
                    help="use the file's alpha (implied by --method lsq; holds alpha fixed for dip)")
-    p.add_argument("--window", type=int, default=None, help="frames per window (default 8, or all frames of a "
-                   "shorter sequence); longer sequences are reconstructed window by window")
+    p.add_argument("--window", type=int, default=None, help="frames per window (default 8; a sequence of fewer "
+                   "than 16 frames is one window of all of them); longer sequences are reconstructed window by window")
     p.add_argument("--stride", type=int, default=1, help="window stride in frames (default 1)")
     p.add_argument("--denoise", default=None, choices=DENOISERS, help="denoise the outputs")
     p.add_argument("--fpn", default="none", choices=FPN_MODES,
@@ -111,6 +111,14 @@ def run(args: argparse.Namespace) -> int:
         se = s.get("alpha_se_max")
         print(f"  alpha gauge: {s['alpha_gauge']}; identified: {s.get('alpha_identified')}"
               + (f" (standard error <= {se:.2g}, threshold {s.get('alpha_se_threshold', 5e-3):.2g})" if se else ""))
+    ng = s.get("noise_gain")
+    if ng and max(ng) > 10:
+        print(f"  warning: noise amplified {ng[0]:.3g} x in x1, {ng[1]:.3g} x in x2 (alpha barely varies, or one "
+              "channel is barely passed, in this window)")
+    if s.get("invalid_samples"):
+        iv = s["invalid_samples"]
+        print(f"  {iv['count']:,} samples ({100 * iv['fraction']:.2g} %) {iv['how']}: outside the ADC range "
+              f"{iv['valid_range_dn']} DN, non-finite or on bad pixels")
     pol = s.get("polarizer") or {}
     if pol.get("warning"):
         print(f"  warning: {pol['warning']}")

@@ -26,8 +26,11 @@ from metafovea.reconstruct.video import video
 METHODS = ("lsq", "alternating", "dip", "snapshot")
 #: fixed-pattern noise handling of :func:`reconstruct_measurement` (``--fpn``)
 FPN_MODES = ("none", "prior", "calibration", "file")
-#: frames per window unless told (or all frames of a shorter sequence)
+#: frames per window unless told; a sequence shorter than SHORT_SEQUENCE frames is one window of all its frames
 DEFAULT_WINDOW = 8
+SHORT_SEQUENCE = 2 * DEFAULT_WINDOW
+#: noise gain (x_i's noise std per unit frame noise) above which the summary warns
+NOISE_GAIN_WARN = 10.0
 
 
 def reconstruct(frames: Any, alpha: Any = None, method: str = "lsq", *, fpn: Any = None,
@@ -109,7 +112,8 @@ def reconstruct_measurement(m: Measurement, method: str = "lsq", *, known_alpha:
         Use the file's alpha with ``dip`` (held fixed) or ``snapshot`` (implied by ``lsq``; refused with
         ``alternating``, which estimates it).
     window, stride, starts : int, int, sequence of int
-        Frames per window (default: 8, or all frames of a shorter sequence). A sequence longer than the window,
+        Frames per window (default: 8; a sequence of fewer than 16 frames is one window of all of them: more
+        frames per window lower the noise, and a short recording has little motion to follow). A sequence longer than the window,
         or explicit window ``starts``, is reconstructed window by window (:func:`~metafovea.reconstruct.video`),
         every ``stride``-th frame or at ``starts``; otherwise the whole sequence is one window.
     fpn : {'none', 'prior', 'calibration', 'file'} or ndarray, shape (H, W)
@@ -139,7 +143,7 @@ def reconstruct_measurement(m: Measurement, method: str = "lsq", *, known_alpha:
     if method != "snapshot" and T < 2:
         raise InputError("frames", f"{T} frame", "at least 2 frames (or --method snapshot for a single frame)",
                          source=m.source)
-    window = min(DEFAULT_WINDOW, T) if window is None else window
+    window = (T if T < SHORT_SEQUENCE else DEFAULT_WINDOW) if window is None else window
     if method != "snapshot" and not 2 <= window <= T:
         raise InputError("window", window, f"2 <= window <= number of frames ({T})")
     alpha = _file_alpha(m, method, known_alpha)
@@ -153,6 +157,7 @@ def reconstruct_measurement(m: Measurement, method: str = "lsq", *, known_alpha:
     if "regularize" in kw and method != "lsq":
         raise InputError("regularize", kw["regularize"], "only with method 'lsq' (--method lsq)")
     frames, fpn_kw = _fpn(m, fpn)
+    frames, mask_info = _masked(m, frames, method)
     video_out = method != "snapshot" and (T > window or starts is not None)
     if video_out and fpn_kw:
         raise InputError("fpn", fpn, "'none' or 'file' for multi-window sequences (estimate FPN on one window)")
@@ -161,6 +166,10 @@ def reconstruct_measurement(m: Measurement, method: str = "lsq", *, known_alpha:
         if not 0 <= frame < T:
             raise InputError("frame", frame, f"0 <= frame < {T}")
         a = None if alpha is None else alpha[frame:frame + 1]
+        if a is not None and not 0.0 < float(a[0]) < 1.0:
+            raise InputError("alpha", f"{float(a[0]):g} (the file's, frame {frame})", "0 < alpha < 1: a snapshot needs "
+                             "both channels in its frame (this one holds only one; choose another --frame)",
+                             source=m.source)
         rec = _denoised(reconstruct(frames[frame][None], a, method="snapshot", **kw, **fpn_kw), denoise)
         spans = ((frame, frame + 1),)
     elif video_out:
@@ -174,14 +183,51 @@ def reconstruct_measurement(m: Measurement, method: str = "lsq", *, known_alpha:
         rec = rec if method == "lsq" else _denoised(rec, denoise)
         spans = ((0, T),)
     seconds = time.perf_counter() - t0
+    if mask_info:
+        rec = replace(rec, info={**rec.info, "invalid_samples": mask_info})
     res = PipelineResult(reconstruction=rec, spans=spans, seconds=seconds, constraint=fc, frames=T, source=m.source)
     return replace(res, metrics=_metrics(m, res, level_free), alpha_mae=_alpha_mae(m, res, alpha is None))
 
 
+def _masked(m: Measurement, frames: np.ndarray, method: str) -> tuple[np.ndarray, dict[str, Any] | None]:
+    """The frames with the samples :meth:`Measurement.invalid_samples` names left out: NaN for the solvers that
+    mask (lsq, alternating and their video), filled for those that cannot (dip: each pixel's mean of its valid
+    samples; snapshot: the mean of the valid pixels around it, widening until found)."""
+    bad = m.invalid_samples()
+    if bad is None:
+        return frames, None
+    lo, hi = m.valid_range_dn
+    info = {"count": int(bad.sum()), "fraction": float(bad.mean()), "valid_range_dn": [lo, hi],
+            "how": "masked" if method in ("lsq", "alternating") else "filled"}
+    f = np.where(bad, np.nan, frames).astype(np.float32)
+    if method == "dip":
+        with np.errstate(invalid="ignore"):
+            mean = np.nanmean(f, axis=0)
+        mean = np.where(np.isfinite(mean), mean, np.nanmean(f))
+        f = np.where(bad, mean[None], f).astype(np.float32)
+    elif method == "snapshot":
+        from scipy.ndimage import uniform_filter
+
+        for t in range(f.shape[0]):
+            ok = np.isfinite(f[t])
+            size = 3
+            while not ok.all() and size < 4 * max(f.shape[1:]):
+                num = uniform_filter(np.where(ok, f[t], 0.0).astype(np.float64), size)
+                den = uniform_filter(ok.astype(np.float64), size)
+                fill = (den > 1e-9) & ~ok
+                f[t][fill] = (num[fill] / den[fill]).astype(np.float32)
+                ok = np.isfinite(f[t])
+                size = 2 * size + 1
+    return f, info
+
+
 def _file_alpha(m: Measurement, method: str, known_alpha: bool) -> np.ndarray | None:
-    """The file's alpha when the method uses it (lsq, or ``known_alpha``); None otherwise."""
+    """The file's alpha when the method uses it (lsq, or ``known_alpha``; snapshot whenever the file has it: one
+    frame cannot tell alpha, and the file knows it); None otherwise."""
     if method == "alternating" and known_alpha:
         raise InputError("known_alpha", True, "not with method 'alternating' (it estimates alpha; use lsq)")
+    if method == "snapshot" and m.alpha_known:
+        return m.alpha
     if not (known_alpha or method == "lsq"):
         return None
     if m.alpha is None:

@@ -122,6 +122,11 @@ class PipelineResult:
                 out[key] = float(np.nanmax(np.asarray(v, dtype=float))) if isinstance(v, list) else v
         if "gauge" in rec.info:
             out["gauge"] = {k: rec.info["gauge"].get(k) for k in ("applied", "reason")}
+        ng = rec.info.get("noise_gain")
+        if ng is not None and np.size(ng) == 2:
+            out["noise_gain"] = [float(v) for v in np.ravel(ng)]
+        if rec.info.get("invalid_samples"):
+            out["invalid_samples"] = rec.info["invalid_samples"]
         for key in ("alpha_gauge", "alpha_se_max", "alpha_se_threshold"):
             if rec.info.get(key) is not None:
                 out[key] = rec.info[key]

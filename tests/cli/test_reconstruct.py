@@ -68,9 +68,11 @@ def test_cli_lsq_single_window_json(meas, tmp_path, capsys):
 
 def test_cli_video_and_alternating(meas, tmp_path, capsys):
     out = tmp_path / "v.npz"
-    rc, stdout, _ = _run([meas, "--out", out, "--no-figures"], capsys)
+    rc, stdout, _ = _run([meas, "--window", "8", "--out", out, "--no-figures"], capsys)
     assert rc == 0 and Reconstruction.load(out).x1.shape == (3, 64, 64)
     assert "3 reconstruction(s)" in stdout and "psnr_x1" in stdout and "wrote" in stdout
+    rc, stdout, _ = _run([meas, "--out", tmp_path / "one.npz", "--no-figures"], capsys)  # 10 frames: one window
+    assert rc == 0 and Reconstruction.load(tmp_path / "one.npz").x1.shape == (64, 64)
     out2 = tmp_path / "alt.npz"
     rc, stdout, _ = _run([meas, "--method", "alternating", "--window", "10", "--out", out2, "--json",
                           "--no-figures"], capsys)

@@ -95,18 +95,28 @@ def test_fpn_prior_with_known_alpha_uses_the_given_foveal_constraint(monkeypatch
 
 
 def test_a_sequence_longer_than_the_window_is_a_video_of_windows():
-    """Default window: 8 frames, or all of a shorter sequence; the spans say which frames each output covers."""
-    m = _measurement(T=10)
+    """Default window: 8 frames from 16 frames on; a shorter sequence is one window of all its frames (more frames,
+    less noise); the spans say which frames each output covers."""
+    m = _measurement(T=20)
     res = reconstruct_measurement(m)
-    assert res.reconstruction.is_video and res.spans == ((0, 8), (1, 9), (2, 10))
+    assert res.reconstruction.is_video and res.spans == tuple((s, s + 8) for s in range(13))
     v = video(m.frames, m.alpha, window=8)
     assert np.array_equal(res.reconstruction.x1, v.x1)
-    short = reconstruct_measurement(_measurement(T=5))
-    assert not short.reconstruction.is_video and short.spans == ((0, 5),) and short.outputs == 1
+    for T in (5, 12, 15):
+        short = reconstruct_measurement(_measurement(T=T))
+        assert not short.reconstruction.is_video and short.spans == ((0, T),) and short.outputs == 1
+    m = _measurement(T=10)
     strided = reconstruct_measurement(m, window=4, stride=3)
     assert strided.spans == ((0, 4), (3, 7), (6, 10))
     given = reconstruct_measurement(m, window=4, starts=[1, 6])
     assert given.spans == ((1, 5), (6, 10)) and given.reconstruction.is_video
+
+
+def test_a_short_sequence_in_one_window_beats_8_frame_windows():
+    m = _measurement(T=12, sigma=0.03)
+    one = reconstruct_measurement(m)
+    eight = reconstruct_measurement(m, window=8)
+    assert one.metrics["psnr_x1"] > eight.metrics["psnr_x1"] and one.metrics["psnr_x2"] > eight.metrics["psnr_x2"]
 
 
 def test_video_truth_is_scored_against_each_windows_mean():
@@ -125,14 +135,71 @@ def test_video_truth_is_scored_against_each_windows_mean():
     assert snap.metrics == pytest.approx(score(snap.reconstruction, m.truth_x1[3], m.truth_x2[3]))
 
 
-def test_snapshot_uses_the_files_alpha_only_when_told():
+def test_snapshot_uses_the_files_alpha():
+    """A file that knows its alpha gives it to the snapshot (one frame cannot tell it); without one, 0.5 is assumed
+    and said; a frame that holds one channel only (alpha 0 or 1) is refused, naming the file's alpha."""
     m = _measurement(T=4)
-    assumed = reconstruct_measurement(m, "snapshot", frame=1, solver={"iterations": 5})
-    known = reconstruct_measurement(m, "snapshot", frame=1, known_alpha=True, solver={"iterations": 5})
-    assert assumed.reconstruction.alpha[0] == 0.5 and known.reconstruction.alpha[0] == pytest.approx(m.alpha[1])
+    known = reconstruct_measurement(m, "snapshot", frame=1, solver={"iterations": 5})
+    assert known.reconstruction.alpha[0] == pytest.approx(m.alpha[1]) and not known.reconstruction.info["alpha_assumed"]
     ref = snapshot(m.frames[1], alpha=float(m.alpha[1]), iterations=5, **m.foveal_constraint.as_kwargs())
     assert np.array_equal(known.reconstruction.x1, ref.x1)
-    assert assumed.alpha_mae is None and known.alpha_mae is None  # alpha not estimated
+    blind = reconstruct_measurement(dataclasses.replace(m, alpha=None), "snapshot", frame=1, solver={"iterations": 5})
+    assert blind.reconstruction.alpha[0] == 0.5 and blind.reconstruction.info["alpha_assumed"]
+    assert known.alpha_mae is None and blind.alpha_mae is None  # alpha not estimated
+    one = dataclasses.replace(m, alpha=np.array([0.3, 1.0, 0.5, 0.2]))
+    with pytest.raises(InputError, match="the file's, frame 1"):
+        reconstruct_measurement(one, "snapshot", frame=1)
+
+
+def _dn_measurement(T=12, n=64, clip_fraction=0.0, seed=3):
+    """A DN measurement from a 14-bit ADC (meta['sensor']), a share of its samples clipped at full scale."""
+    x1, x2 = scene(n)
+    x1, x2 = 3000 + 9000 * x1, 3000 + 9000 * x2
+    a = polariser_alpha(T)
+    rng = np.random.default_rng(seed)
+    Y = measure(x1, x2, a, sigma=20.0, rng=rng)
+    if clip_fraction:
+        hot = rng.random(Y.shape) < clip_fraction
+        Y = np.where(hot, 16383.0, Y)
+    Y = np.clip(Y, 0, 16383).astype(np.float32)
+    return Measurement(frames=Y, times_s=np.arange(T) / 12.0, alpha=a, truth_x1=x1, truth_x2=x2,
+                       meta={"scale": 6.0, "sensor": {"adc_bits": 14, "quantize": True}})
+
+
+def test_saturated_and_bad_samples_are_masked_from_the_adc_range_and_the_file():
+    m = _dn_measurement(clip_fraction=0.03)
+    assert m.valid_range_dn == (0.0, 16383.0)
+    masked = reconstruct_measurement(m)
+    plain = reconstruct_measurement(dataclasses.replace(m, meta={"scale": 6.0}))  # a file that does not say
+    clean = reconstruct_measurement(_dn_measurement())
+    for k in ("psnr_x1", "psnr_x2"):
+        assert masked.metrics[k] > plain.metrics[k] + 6, k
+        assert masked.metrics[k] > clean.metrics[k] - 1.0, k
+    info = masked.reconstruction.info["invalid_samples"]
+    assert info["how"] == "masked" and 0.02 < info["fraction"] < 0.04
+    assert masked.summary()["invalid_samples"]["count"] == info["count"]
+    # a bad-pixel map in the file: those pixels' samples are left out too (here every sample of a dead pixel)
+    m2 = _dn_measurement()
+    dead = np.zeros(m2.shape[1:], bool)
+    dead[10, 20] = True
+    frames = m2.frames.copy()
+    frames[:, 10, 20] = 5.0
+    m2 = dataclasses.replace(m2, frames=frames, extras={"bad_pixels": dead})
+    res = reconstruct_measurement(m2)
+    assert res.reconstruction.info["invalid_samples"]["count"] == m2.shape[0]
+    assert not np.isfinite(res.reconstruction.x1[10, 20])
+    for method in ("snapshot",):  # methods that cannot mask get the samples filled
+        r = reconstruct_measurement(m2, method, frame=2, solver={"iterations": 3})
+        assert r.reconstruction.info["invalid_samples"]["how"] == "filled" and np.all(np.isfinite(r.reconstruction.x1))
+
+
+def test_near_singular_window_reports_its_noise_gain():
+    x1, x2 = scene(48)
+    a = np.linspace(0.95, 0.99, 10)  # the perifoveal channel barely passed in every frame
+    m = Measurement(frames=measure(x1, x2, a, sigma=0.01, rng=0, dtype=np.float32), times_s=np.arange(10) / 12,
+                    alpha=a, truth_x1=x1, truth_x2=x2, meta={"scale": 6.0})
+    s = reconstruct_measurement(m).summary()
+    assert s["noise_gain"][1] > 10 > s["noise_gain"][0]
 
 
 def test_fpn_from_the_file_a_given_pattern_or_the_calibration_frames():
