@@ -58,6 +58,8 @@ class LibraryReport:
             "convergence_bound": self._bound_numbers(),
             "post_sets": {pol: {"lens": LENS_OF[pol], "focuses": pol, "levels": postset_table(ps),
                                 **{k: ps.info[k] for k in POST_SET_NUMBERS}, "edge_bias": self.edge_bias.get(pol),
+                                "bias_weight": ps.info.get("bias_weight", 0.0), "selection": ps.info.get("method"),
+                                "selection_tolerance": ps.info.get("tolerance"),
                                 "fabrication_rules": ps.info.get("fabrication_rules")}
                           for pol, ps in self.post_sets.items()}}
 
@@ -100,7 +102,7 @@ class LibraryReport:
                       for r in p["levels"]]
             eb = p.get("edge_bias")
             if eb:
-                lines += _bias_lines(eb)
+                lines += _bias_lines(eb, p["bias_weight"])
         return "\n".join(lines)
 
     def write(self, out_dir: Path) -> list[Path]:
@@ -219,12 +221,16 @@ def selected_posts_png(lib: Library, il: int, post_sets: dict[str, PostSet]) -> 
     return png
 
 
-def _bias_lines(eb: dict[str, Any]) -> list[str]:
-    """The +-delta edge-bias table of one post set, beside the nominal column (:func:`metafovea.library.bias_table`)."""
+def _bias_lines(eb: dict[str, Any], bias_weight: float = 0.0) -> list[str]:
+    """The +-delta edge-bias table of one post set, beside the nominal column (:func:`metafovea.library.bias_table`),
+    and how the posts were chosen (``bias_weight`` > 0: jointly over the three cases)."""
     d = eb["delta_um"]
     pb = eb["per_bias"]
     cols = (("-", f"-{1000 * d:.0f} nm"), ("0", "nominal"), ("+", f"+{1000 * d:.0f} nm"))
-    lines = [f"  edge bias +-{1000 * d:.0f} nm per side (widths +-{2000 * d:.0f} nm), common shift removed:",
+    chosen = (f"posts chosen jointly over the three cases (bias_weight {bias_weight:g}: each biased case weighted "
+              f"{bias_weight:g}, the nominal 1)" if bias_weight > 0 else "posts chosen for the nominal case (bias_weight 0)")
+    lines = [f"  edge bias +-{1000 * d:.0f} nm per side (widths +-{2000 * d:.0f} nm), RCWA, common shift removed;",
+             f"  {chosen}:",
              "    " + " " * 34 + "".join(f"{name:>10}" for _, name in cols)]
     for key, label in (("rms_phase_error_rad", "focusing phase error rms (rad)"),
                        ("max_abs_phase_error_rad", "focusing phase error max (rad)"),

@@ -2,7 +2,7 @@
 write the paper's Fig. 7b/7c maps and JSON numbers.
 
     metafovea library [designs/platform.toml] [--wavelengths-um 10] [--grid-step-um 0.1]
-                      [--levels 8] [--harmonics 10] [--out DIR] [--json] ...
+                      [--levels 8] [--harmonics 10] [--bias-weight 0] [--out DIR] [--json] ...
 
 Outputs in --out: library.npz (Library.save), postset_x.npz (foveal lens, focuses x) and
 postset_y.npz (perifoveal lens, focuses y) for `metafovea design --post-set`, fig7b_phase_maps.png,
@@ -16,7 +16,7 @@ import sys
 import warnings
 from typing import Any
 
-from metafovea.errors import NotConvergedWarning, check_int, check_positive
+from metafovea.errors import NotConvergedWarning, check_int, check_positive, check_range
 
 
 def register(subparsers: Any) -> None:
@@ -32,6 +32,9 @@ def register(subparsers: Any) -> None:
     p.add_argument("--factorization", default="li", choices=FACTORIZATIONS, help="Fourier factorisation rule")
     p.add_argument("--incidence", default="substrate", choices=SIDES,
                    help="side light enters from (default substrate: through the wafer, posts face the sensor)")
+    p.add_argument("--bias-weight", default="0",
+                   help="weight of the platform's +-edge_bias_um cases in the post selection (default 0: nominal; "
+                        "> 0: chosen jointly for -bias, nominal and +bias, the nominal case weighted 1)")
     p.add_argument("--tol", default="0.02", help="convergence tolerance on t for the warning (default 0.02)")
     p.add_argument("--workers", default=None, help="local worker processes (default: all cores)")
     p.add_argument("--scheduler", default=None, help="Dask scheduler address (tcp://host:8786) to run the sweep on")
@@ -63,7 +66,9 @@ def run(args: argparse.Namespace) -> int:
                              use_cache=not args.no_cache,
                              workers=None if args.workers is None else check_int("--workers", args.workers, 1, 1024),
                              scheduler=args.scheduler, progress=not args.no_progress)
-    sweep = PlatformSweep(plat, levels, step, wls, options, source=src)  # checks the platform and the grid
+    bias_weight = check_range("--bias-weight", args.bias_weight, 0.0, None, lo_inclusive=True)
+    sweep = PlatformSweep(plat, levels, step, wls, options, source=src,  # checks the platform and the grid
+                          bias_weight=bias_weight)
     out = prepare_output(args.out, args.force, is_dir=True) if args.out else None
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", NotConvergedWarning)

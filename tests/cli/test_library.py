@@ -86,3 +86,31 @@ def test_library_cli_convergence_warning_is_one_line(tmp_path, capfd):
     assert rc == 0
     lines = [x for x in err.splitlines() if x.strip()]
     assert lines and all(x.startswith("metafovea library: warning: ") for x in lines), err
+
+
+def test_library_cli_bias_weight_selects_jointly(tmp_path, capsys):
+    """--bias-weight reaches the selection: the posts are chosen jointly for -bias, nominal and +bias (a 0.25 um
+    bias per side moves the widths by one step of the 0.5 um grid), the JSON and the table say so; a negative
+    weight is one line naming the option."""
+    plat = tmp_path / "plat.toml"
+    plat.write_text("edge_bias_um = 0.25\n")
+    argv = ["library", str(plat), "--grid-step-um", "0.5", "--harmonics", "5", "--levels", "2",
+            "--cache-dir", str(tmp_path / "c"), "--no-progress", "--workers", "1"]
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        assert main(argv + ["--bias-weight", "1", "--json"]) == 0
+        data = json.loads(capsys.readouterr().out)
+        for pol in ("x", "y"):
+            p = data["post_sets"][pol]
+            assert p["bias_weight"] == 1.0 and p["selection"].startswith("joint search")
+            tol = p["selection_tolerance"]
+            # the 24 edge posts' biased widths leave the grid (and a few need a post that did not converge)
+            assert tol["posts_excluded"] >= 24 and tol["joint_cost"] <= tol["nominal_choice_joint_cost"] + 1e-12
+            assert set(tol["cases"]) == {"-", "0", "+"} and p["edge_bias"]["delta_um"] == 0.25
+        assert main(argv + ["--bias-weight", "1"]) == 0
+        assert "posts chosen jointly over the three cases (bias_weight 1" in capsys.readouterr().out
+        assert main(argv) == 0
+        assert "posts chosen for the nominal case (bias_weight 0)" in capsys.readouterr().out
+    assert main(argv + ["--bias-weight", "-1"]) == 2
+    err = _err(capsys)
+    assert "--bias-weight" in err and len(err.splitlines()) == 1
