@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import contextlib
 import hashlib
-import io as _io
 import json
 import math
 import os
@@ -103,14 +102,14 @@ def atomic_save_npz(path: str | os.PathLike, meta: dict[str, Any] | None = None,
     ``compress=False`` stores the arrays uncompressed (noisy float32 frames hardly compress, and zlib
     costs seconds per 30 MB).
     """
-    buf = _io.BytesIO()
     payload = dict(arrays)
     if meta is not None:
         m = dict(meta)
         m.setdefault("schema_version", SCHEMA_VERSION)
         payload["__meta__"] = np.frombuffer(to_json(m, indent=None).encode(), dtype=np.uint8)
-    (np.savez_compressed if compress else np.savez)(buf, **payload)
-    return atomic_write_bytes(path, buf.getvalue())
+    with atomic_open(path, "wb") as fh:  # written straight into the temporary file (no in-memory copy)
+        (np.savez_compressed if compress else np.savez)(fh, **payload)
+    return Path(path)
 
 
 def load_npz(path: str | os.PathLike, name: str = "path") -> tuple[dict[str, np.ndarray], dict[str, Any]]:

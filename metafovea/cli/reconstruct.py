@@ -57,6 +57,7 @@ def register(subparsers: Any) -> argparse.ArgumentParser:
     p.add_argument("--seed", type=int, default=0, help="random seed (DIP)")
     p.add_argument("--out", default=None, help="output .npz (default: <measurement>_rec.npz); figures next to it")
     p.add_argument("--no-figures", action="store_true", help="do not write PNG figures")
+    p.add_argument("--no-score", action="store_true", help="do not score against the file's truth (faster)")
     p.add_argument("--json", action="store_true", help="print the summary as JSON")
     p.add_argument("--force", action="store_true", help="overwrite existing output")
     p.set_defaults(func=run)
@@ -97,7 +98,8 @@ def run(args: argparse.Namespace) -> int:
     fc = FovealConstraint.from_meta(m.meta, scale=args.scale, gain=args.foveal_gain, offset=args.foveal_offset)
     res = reconstruct_measurement(m, args.method, known_alpha=args.known_alpha, window=args.window,
                                   stride=args.stride, fpn=args.fpn, denoise=args.denoise, frame=args.frame,
-                                  constraint=fc, solver=solver, progress=sys.stderr.isatty())
+                                  constraint=fc, solver=solver, progress=sys.stderr.isatty(),
+                                  score_truth=not args.no_score)
     files = write_outputs(res, out, figures, title=f"{res.reconstruction.method}: {Path(m.source).name}")
     s = res.summary(files)
     if args.json:
