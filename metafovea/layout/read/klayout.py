@@ -1,7 +1,18 @@
 """KLayout reader: KLayout's Python module (``klayout.db``), what fabs use; GDSII and OASIS.
 
-The file is loaded whole (KLayout's own data structures); the top cell's content is counted through the
-hierarchy, each intermediate cell once (memoised) and multiplied by its references.
+The file is loaded whole into a non-editable layout (KLayout's own data structures; an OASIS repetition stays one
+instance array, as in the file). Per instance *record* (one per GDSII SREF/AREF, one per OASIS placement with its
+repetition) the top cell's content is counted through the hierarchy, each intermediate cell once (memoised) and
+multiplied by its references: references per post cell, elements per structure, rotated or magnified references,
+intermediate references off the lattice period, non-rectangular posts.
+
+Per *post*, nothing is done in Python: the posts' absolute positions are flattened by KLayout's C++. A marker
+square centred on the origin of each post cell (on a layer of its own, in this private copy of the layout) is
+collected with a :class:`RecursiveShapeIterator` into a scratch layout, strip by strip, and the scratch layout is
+written to GDSII (KLayout's writer, to a file in memory), whose boundary records have one fixed size and are read
+as a numpy array. The centre of a transformed square centred on the origin is the transformed origin: exact in
+integer database units. Flat posts (posts-layer boxes outside the post cells) are flattened the same way and typed
+by their size.
 """
 
 from __future__ import annotations
@@ -10,7 +21,19 @@ from collections import Counter
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from metafovea.layout.read.base import Observed, sniff_format
+
+#: posts flattened per strip (bounds the scratch layout and the GDSII bytes: ~100 bytes a post)
+STRIP_POSTS = 4 << 20
+#: posts handed to the sink per call
+SINK_POSTS = 1 << 18
+#: one boundary record of KLayout's GDSII writer for a four-corner polygon on layer 0/0: BOUNDARY, LAYER, DATATYPE,
+#: XY (5 points), ENDEL
+_HEAD = np.frombuffer(bytes.fromhex("00040800" "00060d020000" "00060e020000" "002c1003"), np.uint8)
+_TAIL = np.frombuffer(bytes.fromhex("00041100"), np.uint8)
+_RECORD = np.dtype([("head", np.uint8, (20,)), ("xy", ">i4", (10,)), ("tail", np.uint8, (4,))])
 
 
 def read_klayout(path: Path, lattice: tuple[int, int, int] | None, posts_layer: tuple[int, int],
@@ -22,7 +45,7 @@ def read_klayout(path: Path, lattice: tuple[int, int, int] | None, posts_layer: 
     import klayout.db as db
 
     fmt = sniff_format(path)
-    ly = db.Layout()
+    ly = db.Layout(False)  # non-editable: instance arrays (OASIS repetitions) are kept as arrays
     ly.read(str(path))
     ob = Observed("klayout", fmt, dbu_um=ly.dbu)
     ob.top_cells = [c.name for c in ly.top_cells()]
@@ -38,79 +61,6 @@ def read_klayout(path: Path, lattice: tuple[int, int, int] | None, posts_layer: 
             ob.layers.add((info.layer, info.datatype))
         if (info.layer, info.datatype) == posts_layer:
             li_posts = li
-    pn = None if post_names is None else set(post_names)
-
-    def is_post(c) -> bool:
-        return (c.name in pn) if pn is not None else not c.child_cells()
-
-    if lattice is not None:
-        cx, oP, P = lattice
-    memo: dict[int, tuple[Counter, Counter, int]] = {}
-
-    def content(ci: int) -> tuple[Counter, Counter, int]:
-        """(references per post cell, posts-layer rectangles per size, posts off the lattice) of cell
-        ``ci`` with its intermediate (non-post) child cells expanded."""
-        if ci in memo:
-            return memo[ci]
-        cell = ly.cell(ci)
-        refs: Counter = Counter()
-        flatc: Counter = Counter()
-        off = 0
-        nrefs = 0
-        for inst in cell.each_inst():
-            arr = inst.cell_inst
-            n = arr.size()
-            nrefs += n
-            child = ly.cell(inst.cell_index)
-            nm = child.name
-            if arr.is_complex():
-                ob.anomalies.append(f"a reference to {nm} is rotated, mirrored or magnified")
-            disps = [inst.trans.disp] if n == 1 else [t.disp for t in arr.each_trans()]
-            if is_post(child):
-                refs[nm] += n
-                if nm not in ob.cell_rects:
-                    rects = []
-                    for li in ly.layer_indexes():
-                        info = ly.get_info(li)
-                        for sh in child.shapes(li).each():
-                            b = sh.bbox()
-                            if not (sh.is_box() or (sh.is_polygon() and sh.polygon.is_box())):
-                                ob.anomalies.append(f"cell {nm}: a non-rectangular shape on {info.layer}/{info.datatype}")
-                            rects.append((info.layer, info.datatype, b.width(), b.height(), b.center().x, b.center().y))
-                    if child.child_cells():
-                        ob.anomalies.append(f"cell {nm} has child cells")
-                    ob.cell_rects[nm] = rects
-                if lattice is not None:
-                    off += sum(((d.x - cx - oP) % P != 0) or ((d.y - cx - oP) % P != 0) for d in disps)
-            else:
-                sr, sf, so = content(inst.cell_index)
-                if lattice is not None and any(d.x % P or d.y % P for d in disps):
-                    ob.anomalies.append(f"references to structure {nm} off the lattice period")
-                for k, v in sr.items():
-                    refs[k] += n * v
-                for k, v in sf.items():
-                    flatc[k] += n * v
-                off += n * so
-        nrefs += sum(cell.shapes(li).size() for li in ly.layer_indexes())
-        ob.max_refs = max(ob.max_refs, nrefs)
-        if li_posts is not None:
-            for sh in cell.shapes(li_posts).each():
-                b = sh.bbox()
-                if not (sh.is_box() or (sh.is_polygon() and sh.polygon.is_box())):
-                    ob.anomalies.append(f"a non-rectangular post in cell {cell.name}")
-                flatc[(b.width(), b.height())] += 1
-                if lattice is not None:
-                    c = b.center()
-                    off += ((c.x - cx - oP) % P != 0) or ((c.y - cx - oP) % P != 0)
-        memo[ci] = (refs, flatc, int(off))
-        return memo[ci]
-
-    if sink is not None:
-        _walk_posts(ly, top.cell_index(), 0, 0, is_post, {nm: k for k, nm in enumerate(post_names or [])},
-                    sizes or {}, li_posts, sink)
-    refs, flatc, off = content(top.cell_index())
-    ob.ref_counts.update(refs)
-    ob.flat_counts.update(flatc)
     if li_posts is not None:
         pb = top.bbox_per_layer(li_posts)
         if not pb.empty():
@@ -118,29 +68,307 @@ def read_klayout(path: Path, lattice: tuple[int, int, int] | None, posts_layer: 
     b = top.bbox()
     if not b.empty():
         ob.bbox = (b.left, b.bottom, b.right, b.top)
+    pn = None if post_names is None else set(post_names)
+
+    def is_post(c) -> bool:
+        return (c.name in pn) if pn is not None else not c.child_cells()
+
+    layers = list(ly.layer_indexes())
+    refs, held, holders = _census(ly, top.cell_index(), is_post, li_posts, lattice, ob)
+    ob.ref_counts.update(refs)
+    with_refs = sink is not None or lattice is not None  # else only the flat shapes' sizes are needed
+    passes = _mark_posts(ly, top, is_post, li_posts, holders, refs, with_refs,
+                         {nm: k for k, nm in enumerate(post_names or [])})
+    ob.frame_layers = _frame_layers(ly, top, held, [li for li in layers if li != li_posts])
+    flatc, off, found = _flatten_posts(ly, top, passes, sizes or {}, lattice, sink)
+    ob.flat_counts.update(flatc)
     ob.off_lattice = int(off)
+    for li, kind, what, n, exact in passes:  # KLayout's flattening against its own count, record by record
+        if found[li] != n:
+            ob.anomalies.append(f"klayout flattened {found[li]:,} {what}, counted {n:,}")
     return ob
 
 
-def _walk_posts(ly: Any, ci: int, ox: int, oy: int, is_post: Any, index: dict, sizes: dict, li_posts: Any,
-                sink: Any) -> None:
-    """Hand every post under cell ``ci`` (placed at ``(ox, oy)``) to ``sink(x, y, type)``: references to post
-    cells by name (``index``), posts-layer shapes by size (``sizes``); type -1 for neither."""
-    import numpy as np
+def _census(ly: Any, top_ci: int, is_post: Any, li_posts: Any, lattice: tuple[int, int, int] | None,
+            ob: Observed) -> tuple[Counter, Counter, dict[int, tuple[int, int]]]:
+    """References per post cell in cell ``top_ci`` through the hierarchy, one Python step per instance record (an
+    array counts as its size); the placements of the cells that hold shapes (cell index -> placements in the top
+    cell); and of those, the ones with posts-layer shapes: cell index -> (boxes and polygons, other shapes) in the
+    top cell through the hierarchy. Fills ``ob``'s ``cell_rects``, ``max_refs``, ``max_references`` and anomalies
+    (complex references, intermediate references off the lattice period, non-rectangular posts, post cells with
+    child cells)."""
+    import klayout.db as db
 
-    cell = ly.cell(ci)
-    for inst in cell.each_inst():
-        arr = inst.cell_inst
-        child = ly.cell(inst.cell_index)
-        disps = [inst.trans.disp] if arr.size() == 1 else [t.disp for t in arr.each_trans()]
-        if is_post(child):
-            sink(np.array([d.x + ox for d in disps]), np.array([d.y + oy for d in disps]),
-                 np.full(len(disps), index.get(child.name, -1)))
-        else:
-            for d in disps:
-                _walk_posts(ly, inst.cell_index, d.x + ox, d.y + oy, is_post, index, sizes, li_posts, sink)
-    if li_posts is not None:
-        bs = [sh.bbox() for sh in cell.shapes(li_posts).each()]
-        if bs:
-            sink(np.array([b.center().x + ox for b in bs]), np.array([b.center().y + oy for b in bs]),
-                 np.array([sizes.get((b.width(), b.height()), -1) for b in bs]))
+    layers = list(ly.layer_indexes())
+    odd_flags = db.Shapes.SAll & ~db.Shapes.SBoxes
+    P = None if lattice is None else lattice[2]
+    memo: dict[int, tuple[Counter, Counter]] = {}  # cell -> (references per post cell, placements per holder)
+    own: dict[int, tuple[int, int]] = {}  # cell -> its own posts-layer (boxes and polygons, other shapes)
+
+    def post_cell(child) -> None:
+        nm = child.name
+        rects = []
+        for li in layers:
+            info = ly.get_info(li)
+            for sh in child.shapes(li).each():
+                bb = sh.bbox()
+                if not (sh.is_box() or (sh.is_polygon() and sh.polygon.is_box())):
+                    ob.anomalies.append(f"cell {nm}: a non-rectangular shape on {info.layer}/{info.datatype}")
+                rects.append((info.layer, info.datatype, bb.width(), bb.height(), bb.center().x, bb.center().y))
+        if child.child_cells():
+            ob.anomalies.append(f"cell {nm} has child cells")
+        ob.cell_rects[nm] = rects
+
+    def off_period(inst) -> bool:
+        """Whether a reference (array) to an intermediate cell has a displacement off the lattice period."""
+        d = inst.trans.disp
+        if inst.size() == 1 or inst.is_regular_array():
+            vs = [d] + ([inst.a] if inst.na > 1 else []) + ([inst.b] if inst.nb > 1 else [])
+        else:  # an irregular array of an intermediate cell (not written by the exporter): member by member
+            vs = [t.disp for t in inst.cell_inst.each_trans()]
+        return any(v.x % P or v.y % P for v in vs)
+
+    def content(ci: int) -> tuple[Counter, Counter]:
+        if ci in memo:
+            return memo[ci]
+        cell = ly.cell(ci)
+        refs: Counter = Counter()
+        held: Counter = Counter()
+        nrefs = 0
+        for inst in cell.each_inst():
+            n = inst.size()
+            nrefs += n
+            child = ly.cell(inst.cell_index)
+            if inst.is_complex():
+                ob.anomalies.append(f"a reference to {child.name} is rotated, mirrored or magnified")
+            if is_post(child):
+                refs[child.name] += n
+                if child.name not in ob.cell_rects:
+                    post_cell(child)
+            else:
+                sr, sh = content(inst.cell_index)
+                if P is not None and off_period(inst):
+                    ob.anomalies.append(f"references to structure {child.name} off the lattice period")
+                for k, v in sr.items():
+                    refs[k] += n * v
+                for k, v in sh.items():
+                    held[k] += n * v
+        nshapes = sum(cell.shapes(li).size() for li in layers)
+        ob.max_refs = max(ob.max_refs, nrefs + nshapes)
+        ob.max_references = max(ob.max_references, cell.child_instances())
+        if nshapes:
+            held[ci] += 1
+        if li_posts is not None and not cell.shapes(li_posts).is_empty():
+            other = 0
+            for sh in cell.shapes(li_posts).each(odd_flags):  # boxes are rectangles; only the others are looked at
+                poly = sh.is_polygon()
+                other += not poly
+                if not (poly and sh.polygon.is_box()):
+                    ob.anomalies.append(f"a non-rectangular post in cell {cell.name}")
+            own[ci] = (cell.shapes(li_posts).size() - other, other)
+        memo[ci] = (refs, held)
+        return memo[ci]
+
+    refs, held = content(top_ci)
+    return refs, held, {ci: (held[ci] * a, held[ci] * b) for ci, (a, b) in own.items()}
+
+
+def _frame_layers(ly: Any, top: Any, held: Counter, layers: list[int]) -> dict:
+    """(layer, datatype) -> [polygons (boxes included), bounding box of them] of each of the file's ``layers``
+    (all but the posts') in the top cell through the hierarchy, outside the post cells (as the other readers report the frame): polygons
+    counted per cell times its placements ``held``, their bounding box from copies of them on a layer of their
+    own (KLayout's hierarchical bounding box, no flattening)."""
+    import klayout.db as db
+
+    keep = db.Shapes.SBoxes | db.Shapes.SPolygons
+    rest = db.Shapes.SAll & ~keep
+    frame: dict = {}
+    for li in layers:
+        info = ly.get_info(li)
+        n, cells = 0, []
+        for ci, k in held.items():
+            shapes = ly.cell(ci).shapes(li)
+            m = 0 if shapes.is_empty() else shapes.size() - sum(1 for _ in shapes.each(rest))
+            if m:
+                n += k * m
+                cells.append(ci)
+        if n:
+            copy = ly.insert_layer(db.LayerInfo(f"metafovea frame {li}"))
+            for ci in cells:
+                ly.cell(ci).shapes(copy).insert(ly.cell(ci).shapes(li), keep)
+            ly.update()
+            b = top.bbox_per_layer(copy)
+            frame[(info.layer, info.datatype)] = [n, (b.left, b.bottom, b.right, b.top)]
+    return frame
+
+
+def _mark_posts(ly: Any, top: Any, is_post: Any, li_posts: Any, holders: dict, refs: Counter, with_refs: bool,
+                index: dict) -> list[tuple[int, int | None, str, int, bool]]:
+    """Prepare this private copy of the layout for flattening; returns the passes ``(layer, type (None: by size),
+    what, posts counted, boundaries only)``: a layer per post cell (``with_refs``) holding a marker square on the
+    cell's origin, and the posts-layer boxes and polygons, and other shapes, of the cells ``holders`` copied to two
+    layers of their own (the post cells' own rectangles are not posts of the top cell). The post cells' child instances are
+    removed (posts inside post cells are not posts of the top cell either; the census did not count them)."""
+    import klayout.db as db
+
+    passes = []
+    for ci in top.called_cells():
+        cell = ly.cell(ci)
+        if not is_post(cell):
+            continue
+        if cell.child_instances():
+            cell.clear_insts()
+        if with_refs:
+            li = ly.insert_layer(db.LayerInfo(f"metafovea marker {ci}"))
+            cell.shapes(li).insert(db.Box(-1, -1, 1, 1))
+            passes.append((li, index.get(cell.name, -1), f"references to {cell.name}", refs[cell.name], True))
+    if holders:
+        odd_flags = db.Shapes.SAll & ~(db.Shapes.SBoxes | db.Shapes.SPolygons)
+        li_box = ly.insert_layer(db.LayerInfo("metafovea flat boxes"))
+        li_odd = ly.insert_layer(db.LayerInfo("metafovea flat shapes"))
+        for ci in holders:
+            src = ly.cell(ci).shapes(li_posts)
+            ly.cell(ci).shapes(li_box).insert(src, db.Shapes.SBoxes | db.Shapes.SPolygons)
+            ly.cell(ci).shapes(li_odd).insert(src, odd_flags)
+        nbox, nodd = (sum(v[i] for v in holders.values()) for i in (0, 1))
+        passes.append((li_box, None, "posts-layer boxes and polygons", nbox, True))
+        if nodd:
+            passes.append((li_odd, None, "other posts-layer shapes", nodd, False))
+    ly.update()
+    return passes
+
+
+def _flatten_posts(ly: Any, top: Any, passes: list, sizes: dict, lattice: tuple[int, int, int] | None,
+                   sink: Any) -> tuple[Counter, int, Counter]:
+    """Flatten each pass's layer under ``top`` in KLayout (see :func:`_mark_posts`), in strips of about
+    :data:`STRIP_POSTS` posts, and hand the posts to ``sink`` in slices of :data:`SINK_POSTS`: a marker's centre
+    (the post cell's origin) with the pass's type, or a shape's bounding-box centre with the index of its size in
+    ``sizes``. Returns (flat shapes per size, posts off the lattice, posts flattened per pass layer)."""
+    import klayout.db as db
+
+    scratch = db.Layout(False)
+    scratch.dbu = ly.dbu
+    out = scratch.create_cell("FLAT")
+    lo = scratch.insert_layer(db.LayerInfo(0, 0))
+    dump = _GdsDump()
+    flatc: Counter = Counter()
+    found: Counter = Counter()
+    off = 0
+    for li, kind, _, n, exact in passes:
+        bb = top.bbox_per_layer(li)
+        if bb.empty():
+            continue
+        nstrip = max(1, -(-n // STRIP_POSTS))
+        edges = [bb.bottom + (bb.height() + 1) * i // nstrip for i in range(nstrip + 1)]
+        for y0, y1 in zip(edges[:-1], edges[1:]):
+            it = top.begin_shapes_rec(li) if nstrip == 1 else top.begin_shapes_rec_touching(
+                li, db.Box(bb.left, y0, bb.right, y1))
+            out.shapes(lo).insert(it)
+            xy = _corners(dump, out.shapes(lo), exact)
+            out.shapes(lo).clear()
+            for i in range(0, len(xy), SINK_POSTS):
+                k, o = _hand_over(xy[i:i + SINK_POSTS], kind, (y0, y1) if nstrip > 1 else None, sizes, lattice,
+                                  sink, flatc)
+                found[li] += k
+                off += o
+    return flatc, off, found
+
+
+def _hand_over(xy: np.ndarray, kind: int | None, strip: tuple[int, int] | None, sizes: dict,
+               lattice: tuple[int, int, int] | None, sink: Any, flatc: Counter) -> tuple[int, int]:
+    """Posts from the corners ``xy`` (rows of five points) of one slice of a strip: a marker's centre (the midpoint
+    of opposite corners) with type ``kind``, or (``kind`` None) a shape's bounding-box centre typed by its size
+    (counted into ``flatc``); only centres in ``strip`` (y0 <= y < y1; a post on a strip edge is touched by two
+    strips). Hands them to ``sink``; returns (posts, posts off the lattice)."""
+    if kind is not None:
+        x = (xy[:, 0].astype(np.int64) + xy[:, 4]) // 2
+        y = (xy[:, 1].astype(np.int64) + xy[:, 5]) // 2
+    else:
+        xs, ys = xy[:, 0:8:2], xy[:, 1:8:2]
+        x0, y0, x1, y1 = (v.astype(np.int64) for v in (xs.min(1), ys.min(1), xs.max(1), ys.max(1)))
+        x, y, w, h = (x0 + x1) // 2, (y0 + y1) // 2, x1 - x0, y1 - y0
+    if strip is not None:
+        keep = (y >= strip[0]) & (y < strip[1])
+        x, y = x[keep], y[keep]
+    if kind is not None:
+        types = np.full(x.size, kind, np.int64)
+    else:
+        if strip is not None:
+            w, h = w[keep], h[keep]
+        u, inv, cnt = np.unique((w << 32) | h, return_inverse=True, return_counts=True)
+        wh = [(int(k >> 32), int(k & 0xFFFFFFFF)) for k in u]
+        flatc.update(dict(zip(wh, cnt.tolist())))
+        types = np.array([sizes.get(k, -1) for k in wh], np.int64)[inv]
+    off = 0
+    if lattice is not None:
+        cx, oP, P = lattice
+        off = int(np.count_nonzero(((x - cx - oP) % P != 0) | ((y - cx - oP) % P != 0)))
+    if sink is not None and x.size:
+        sink(x, y, types)
+    return int(x.size), off
+
+
+def _corners(dump: _GdsDump, shapes: Any, exact: bool) -> np.ndarray:
+    """The corners of the shapes in ``shapes`` (the only ones in the scratch layout ``dump`` writes), an ``(n,
+    10)`` integer array of five points per row: read from the GDSII bytes KLayout writes when every shape is a
+    four-corner boundary (boxes and transformed boxes; ``exact``; a view on the dump's buffer, valid until its next
+    call), else each shape's bounding box, shape by shape."""
+    if shapes.is_empty():
+        return np.zeros((0, 10), np.int64)
+    if exact:
+        data = dump(shapes.layout())
+        start = _first_element(data)
+        n = shapes.size()
+        if start is not None and start + n * _RECORD.itemsize <= len(data):
+            rec = np.frombuffer(data, _RECORD, count=n, offset=start)
+            if (rec["head"] == _HEAD).all() and (rec["tail"] == _TAIL).all():
+                return rec["xy"]
+    b = np.array([(q.left, q.bottom, q.right, q.top) for q in (sh.bbox() for sh in shapes.each())],
+                 np.int64).reshape(-1, 4)
+    return b[:, [0, 1, 0, 3, 2, 3, 2, 1, 0, 1]]
+
+
+class _GdsDump:
+    """The GDSII bytes of a scratch layout, written by KLayout to a file in ``/dev/shm`` (memory; else the temporary
+    directory), read into a buffer kept for the next call, the file removed at once: half the time of
+    :meth:`Layout.write_bytes`, whose growing in-memory stream is copied into a new bytes object each time."""
+
+    def __init__(self):
+        import klayout.db as db
+
+        self.opts = db.SaveLayoutOptions()
+        self.opts.format = "GDS2"
+        self.opts.write_context_info = False
+        self.buf = np.empty(0, np.uint8)
+
+    def __call__(self, layout: Any) -> memoryview:
+        import os
+        import tempfile
+
+        shm = "/dev/shm"
+        where = shm if os.path.isdir(shm) and os.access(shm, os.W_OK) else None
+        fd, path = tempfile.mkstemp(suffix=".gds", prefix="metafovea_klayout_", dir=where)
+        try:
+            os.close(fd)
+            layout.write(path, self.opts)
+            n = os.path.getsize(path)
+            if self.buf.size < n:
+                self.buf = np.empty(n, np.uint8)
+            with open(path, "rb") as fh:
+                got = fh.readinto(memoryview(self.buf)[:n])
+        finally:
+            os.unlink(path)
+        return memoryview(self.buf)[:got]
+
+
+def _first_element(data: bytes | memoryview) -> int | None:
+    """Offset of the first element record after the first STRNAME in a GDSII byte string (None if none)."""
+    i = 0
+    while i + 4 <= len(data):
+        n = int.from_bytes(data[i:i + 2], "big")
+        if n < 4:
+            return None
+        if data[i + 2] == 0x06:  # STRNAME
+            return i + n
+        i += n
+    return None
