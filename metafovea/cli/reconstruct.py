@@ -20,7 +20,7 @@ HELP = "separate foveal and perifoveal images from a measurement (.npz)"
 
 
 def register(subparsers: Any) -> argparse.ArgumentParser:
-    from metafovea.reconstruct import DENOISERS, FPN_MODES, METHODS
+    from metafovea.reconstruct import DENOISERS, METHODS
 
     p = subparsers.add_parser("reconstruct", help=HELP, description=HELP)
     p.add_argument("measurement", help="Measurement .npz (frames, times_s, optional alpha / truth_x1 / truth_x2)")
@@ -31,9 +31,10 @@ def register(subparsers: Any) -> argparse.ArgumentParser:
                    "than 16 frames is one window of all of them); longer sequences are reconstructed window by window")
     p.add_argument("--stride", type=int, default=1, help="window stride in frames (default 1)")
     p.add_argument("--denoise", default=None, choices=DENOISERS, help="denoise the outputs")
-    p.add_argument("--fpn", default="none", choices=FPN_MODES,
-                   help="fixed-pattern noise handling (calibration uses the file's 'calibration' frames; file "
-                   "subtracts the file's 'fpn' pattern, e.g. a dark-frame calibration)")
+    p.add_argument("--fpn", default="none", metavar="none|prior|calibration|PATTERN",
+                   help="fixed-pattern noise: none, prior (low-rank, from the images), calibration (the file's "
+                   "'calibration' frames) or a pattern file of yours (.npy/.npz/.tif, subtracted); the file's own "
+                   "'fpn' is truth and only scores an estimate")
     p.add_argument("--scale", type=float, default=None, help="f1/f2 of the foveal constraint (default: file meta "
                    "'foveal_constraint.scale', else 'scale', else 6)")
     p.add_argument("--foveal-gain", type=float, default=None, help="radiometric gain of the foveal constraint "
@@ -87,6 +88,17 @@ def _solver_options(args: argparse.Namespace) -> dict[str, Any]:
     return kw
 
 
+def _fpn_arg(v: str) -> Any:
+    """A mode name as is; anything else is a pattern file, loaded."""
+    from metafovea.reconstruct import FPN_MODES
+
+    if v.strip().lower() in FPN_MODES or v.strip().lower() == "file":
+        return v.strip().lower()
+    from metafovea.reconstruct.files import load_pattern
+
+    return load_pattern(v)
+
+
 def run(args: argparse.Namespace) -> int:
     """Reconstruct, print the summary, write the outputs; 0 on success (an InputError is reported by main)."""
     from metafovea.measurement import FovealConstraint, Measurement
@@ -97,7 +109,7 @@ def run(args: argparse.Namespace) -> int:
     out, figures = prepare_outputs(m.source, args.out, figures=not args.no_figures, force=args.force)
     fc = FovealConstraint.from_meta(m.meta, scale=args.scale, gain=args.foveal_gain, offset=args.foveal_offset)
     res = reconstruct_measurement(m, args.method, known_alpha=args.known_alpha, window=args.window,
-                                  stride=args.stride, fpn=args.fpn, denoise=args.denoise, frame=args.frame,
+                                  stride=args.stride, fpn=_fpn_arg(args.fpn), denoise=args.denoise, frame=args.frame,
                                   constraint=fc, solver=solver, progress=sys.stderr.isatty(),
                                   score_truth=not args.no_score)
     files = write_outputs(res, out, figures, title=f"{res.reconstruction.method}: {Path(m.source).name}")

@@ -62,6 +62,9 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
     s.add_argument("--fpn-rank", help="rank of the fixed-pattern noise (default from the system)")
     s.add_argument("--fpn-amplitude", help="max |FPN| as a fraction of the dynamic range (default from the system)")
     s.add_argument("--drift", default="0", help="relative slow drift of the FPN weights (default 0)")
+    s.add_argument("--calibration-frames", default="0",
+                   help="closed-shutter frames (same FPN and noise) stored as 'calibration', for reconstruct "
+                        "--fpn calibration (default 0)")
     s.add_argument("--no-noise", action="store_true", help="no temporal noise")
     s.add_argument("--no-fpn", action="store_true", help="no fixed-pattern noise")
     s.add_argument("--no-quantize", action="store_true", help="no ADC rounding/clipping")
@@ -93,7 +96,8 @@ def _options(args: argparse.Namespace, frames: int) -> Any:
         fpn_rank=0 if args.no_fpn else (None if args.fpn_rank is None else check_int("--fpn-rank", args.fpn_rank, 0, 10000)),
         fpn_amplitude=_num("--fpn-amplitude", args.fpn_amplitude), fpn_drift=_num("--drift", args.drift),
         noise=not args.no_noise, quantize=not args.no_quantize, progress=sys.stderr.isatty(),
-        posts=args.posts, optical_train=not args.no_train)
+        posts=args.posts, optical_train=not args.no_train,
+        calibration_frames=check_int("--calibration-frames", args.calibration_frames, 0, 10000))
 
 
 def _print_scenes(as_json: bool) -> None:

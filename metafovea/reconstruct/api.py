@@ -26,7 +26,7 @@ from metafovea.reconstruct.video import video
 #: the solvers, in the CLI's words (``--method``)
 METHODS = ("lsq", "alternating", "dip", "snapshot")
 #: fixed-pattern noise handling of :func:`reconstruct_measurement` (``--fpn``)
-FPN_MODES = ("none", "prior", "calibration", "file")
+FPN_MODES = ("none", "prior", "calibration")
 #: frames per window unless told; a sequence shorter than SHORT_SEQUENCE frames is one window of all its frames
 DEFAULT_WINDOW = 8
 SHORT_SEQUENCE = 2 * DEFAULT_WINDOW
@@ -117,10 +117,11 @@ def reconstruct_measurement(m: Measurement, method: str = "lsq", *, known_alpha:
         frames per window lower the noise, and a short recording has little motion to follow). A sequence longer than the window,
         or explicit window ``starts``, is reconstructed window by window (:func:`~metafovea.reconstruct.video`),
         every ``stride``-th frame or at ``starts``; otherwise the whole sequence is one window.
-    fpn : {'none', 'prior', 'calibration', 'file'} or ndarray, shape (H, W)
-        Fixed-pattern noise: ``file`` subtracts the file's ``fpn`` (e.g. a dark-frame calibration), an array
-        subtracts that pattern; ``calibration`` estimates it from the file's ``calibration`` frames and
-        ``prior`` from the separated images (both on one window only).
+    fpn : {'none', 'prior', 'calibration'} or ndarray, shape (H, W)
+        Fixed-pattern noise: an array (the user's pattern, e.g. from a dark-frame calibration) is subtracted;
+        ``calibration`` estimates it from the file's ``calibration`` frames and ``prior`` from the separated images
+        (both on one window only). The file's own ``fpn`` array is the simulator's true pattern: it only scores
+        an estimate (``metrics['fpn_rms_error']``, mean removed), it is never subtracted.
     denoise : {'tv', 'bilateral', 'nlm'} or None
         Denoise the outputs: inside LSQ (noise level from its residual), after the other methods (noise level
         estimated from each image).
@@ -163,7 +164,7 @@ def reconstruct_measurement(m: Measurement, method: str = "lsq", *, known_alpha:
     frames, mask_info = _masked(m, frames, method)
     video_out = method != "snapshot" and (T > window or starts is not None)
     if video_out and fpn_kw:
-        raise InputError("fpn", fpn, "'none' or 'file' for multi-window sequences (estimate FPN on one window)")
+        raise InputError("fpn", fpn, "'none' or a pattern for multi-window sequences (estimate FPN on one window)")
     t0 = time.perf_counter()
     from metafovea.parallel import blas_threads
 
@@ -175,6 +176,8 @@ def reconstruct_measurement(m: Measurement, method: str = "lsq", *, known_alpha:
     seconds = time.perf_counter() - t0
     if mask_info:
         rec = replace(rec, info={**rec.info, "invalid_samples": mask_info})
+    if not isinstance(fpn, str) and rec.fpn is None and not rec.is_video:  # the user's pattern, as subtracted
+        rec = replace(rec, fpn=np.asarray(fpn, dtype=np.float32), info={**rec.info, "fpn": {"identified": "given"}})
     res = PipelineResult(reconstruction=rec, spans=spans, seconds=seconds, constraint=fc, frames=T, source=m.source)
     return replace(res, metrics=_metrics(m, res, level_free) if score_truth else None,
                    alpha_mae=_alpha_mae(m, res, alpha is None))
@@ -260,6 +263,10 @@ def _fpn(m: Measurement, fpn: str | np.ndarray) -> tuple[np.ndarray, dict[str, A
     """The frames with a given pattern subtracted, and the keywords of :func:`reconstruct` for an estimated one."""
     pattern = None
     if isinstance(fpn, str):
+        if fpn.strip().lower() == "file":
+            raise InputError("fpn", "file", "none, prior, calibration or a pattern of your own (fpn=ARRAY; CLI: "
+                             "--fpn PATTERN.npy): the file's 'fpn' is the simulator's true pattern, kept for scoring",
+                             source=m.source)
         mode = check_choice("fpn", fpn, FPN_MODES)
         if mode == "prior":
             return m.frames, {"fpn": "prior"}
@@ -268,10 +275,6 @@ def _fpn(m: Measurement, fpn: str | np.ndarray) -> tuple[np.ndarray, dict[str, A
                 raise InputError("fpn", "calibration", "a measurement with a 'calibration' frame array",
                                  source=m.source)
             return m.frames, {"fpn": "calibration", "calibration": m.extras["calibration"]}
-        if mode == "file":
-            if m.fpn is None:
-                raise InputError("fpn", "file", "a measurement with an 'fpn' (H, W) array", source=m.source)
-            pattern = m.fpn
     else:
         pattern = np.asarray(fpn)
         if pattern.shape != m.shape[1:] or not np.all(np.isfinite(pattern)):
@@ -297,7 +300,13 @@ def _metrics(m: Measurement, res: PipelineResult, level_free: bool) -> dict[str,
         return "not computed: NaN pixels in the reconstruction"
     # a video truth: the mean over each output's frames
     t1, t2 = (t if t is None or t.ndim == 2 or res.reconstruction.is_video else t[0] for t in m.truth_over(res.spans))
-    return score(res.reconstruction, t1, t2, level_free=level_free)
+    out = score(res.reconstruction, t1, t2, level_free=level_free)
+    f = res.reconstruction.fpn
+    if f is not None and m.fpn is not None and np.shape(f) == m.fpn.shape:
+        d = np.asarray(f, dtype=np.float64) - m.fpn
+        out["fpn_rms_error"] = float(np.sqrt(np.mean((d - d.mean()) ** 2)))
+        out["fpn_rms_true"] = float(np.std(m.fpn))
+    return out
 
 
 def _alpha_mae(m: Measurement, res: PipelineResult, estimated: bool) -> float | None:

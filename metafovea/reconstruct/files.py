@@ -16,6 +16,39 @@ from metafovea.report import array_png, fig_to_png
 from metafovea.reconstruct.result import PipelineResult
 
 
+def load_pattern(path: str | os.PathLike, name: str = "--fpn") -> np.ndarray:
+    """A fixed pattern (H, W) from a user's file: ``.npy``, ``.npz`` (its ``fpn`` array, or its only array) or a
+    one-page ``.tif``; an :class:`InputError` naming ``name`` for anything else."""
+    p = Path(path)
+    if not p.is_file():
+        raise InputError(name, str(p), "none, prior, calibration, or an existing pattern file (.npy, .npz, .tif)")
+    try:
+        suf = p.suffix.lower()
+        if suf == ".npy":
+            a = np.load(p, allow_pickle=False)
+        elif suf == ".npz":
+            with np.load(p, allow_pickle=False) as z:
+                keys = [k for k in z.files if k != "__meta__"]
+                key = "fpn" if "fpn" in keys else (keys[0] if len(keys) == 1 else None)
+                if key is None:
+                    raise InputError(name, str(p), "an .npz file with an 'fpn' array (or a single array)")
+                a = z[key]
+        elif suf in (".tif", ".tiff"):
+            import tifffile
+
+            a = tifffile.imread(p)
+        else:
+            raise InputError(name, str(p), "a pattern file ending in .npy, .npz, .tif or .tiff")
+    except InputError:
+        raise
+    except (OSError, ValueError, KeyError) as e:
+        raise InputError(name, str(p), "a readable pattern file (.npy, .npz, .tif)", detail=str(e)[:200]) from None
+    a = np.asarray(a)
+    if a.ndim != 2 or not np.issubdtype(a.dtype, np.number) or not np.all(np.isfinite(a)):
+        raise InputError(name, f"{p} (array of shape {a.shape}, dtype {a.dtype})", "a finite (H, W) pattern")
+    return a.astype(np.float64)
+
+
 def figure_paths(out: str | os.PathLike) -> list[Path]:
     """The PNG files written next to the reconstruction ``out``."""
     stem = Path(out).with_suffix("")

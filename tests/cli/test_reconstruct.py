@@ -129,7 +129,8 @@ def test_cli_on_a_simulated_measurement(tmp_path, capsys):
     s = dataclasses.replace(s, sensor=dataclasses.replace(s.sensor, crop=(192, 192), pixels=(192, 192)))
     m = simulate(s, "bars", frames=8, psf="airy", rng=0)
     path = m.save(tmp_path / "meas.npz")
-    rc, stdout, err = _run([path, "--method", "alternating", "--window", "8", "--fpn", "file", "--out",
+    np.save(tmp_path / "pattern.npy", m.fpn)  # a calibrated pattern of the user's
+    rc, stdout, err = _run([path, "--method", "alternating", "--window", "8", "--fpn", tmp_path / "pattern.npy", "--out",
                             tmp_path / "rec.npz", "--json", "--no-figures"], capsys)
     assert rc == 0, err
     out = json.loads(stdout)
@@ -246,9 +247,14 @@ def test_out_must_be_npz_and_never_the_measurement(tmp_path, capsys):
 def test_bad_fpn_and_calibration_arrays_are_named(tmp_path, capsys):
     f = np.zeros((48, 48), np.float32)
     f[0, 0] = np.nan
-    m = _save(tmp_path / "m.npz", fpn=f)
+    m = _save(tmp_path / "m.npz")
+    np.save(tmp_path / "bad.npy", f)
+    rc, _, err = _run([m, "--window", "10", "--fpn", tmp_path / "bad.npy", "--no-figures"], capsys)
+    assert rc == 2 and "--fpn" in err and "finite" in err
+    rc, _, err = _run([m, "--window", "10", "--fpn", tmp_path / "missing.npy", "--no-figures"], capsys)
+    assert rc == 2 and "--fpn" in err
     rc, _, err = _run([m, "--window", "10", "--fpn", "file", "--no-figures"], capsys)
-    assert rc == 2 and "fpn" in err
+    assert rc == 2 and "true pattern" in err
     m = _save(tmp_path / "c.npz", calibration=np.zeros((4, 3, 3), np.float32))
     rc, _, err = _run([m, "--window", "10", "--fpn", "calibration", "--no-figures"], capsys)
     assert rc == 2 and "calibration" in err

@@ -71,3 +71,24 @@ def test_simulate_never_overwrites_its_scene_file_even_with_force(tmp_path, monk
     tifffile.imwrite("k.tif", np.full((20, 20), 300.0, np.float32))  # the TIFF written next to k.npz
     assert main(["simulate", "--scene", "k.tif", "--out", "k.npz", "--force", "--frames", "1", "--psf", "airy"]) == 2
     assert "k.tif" in capsys.readouterr().err
+
+
+def test_cli_calibration_frames_feed_reconstruct_fpn_calibration(tmp_path, capsys):
+    """--calibration-frames N records closed-shutter frames, so `reconstruct --fpn calibration` works on a CLI-made
+    file; the estimate is scored against the file's true pattern."""
+    import json
+
+    import numpy as np
+
+    out = tmp_path / "c.npz"
+    assert main(["simulate", "--scene", "bars", "--frames", "8", "--psf", "airy", "--calibration-frames", "16",
+                 "--out", str(out), "--no-tiff", "--no-preview"]) == 0
+    with np.load(out) as z:
+        assert z["calibration"].shape[0] == 16
+    capsys.readouterr()
+    assert main(["reconstruct", str(out), "--fpn", "calibration", "--no-figures", "--json",
+                 "--out", str(tmp_path / "r.npz")]) == 0
+    s = json.loads(capsys.readouterr().out)
+    assert s["fpn"] == "calibration" and s["metrics"]["fpn_rms_error"] < 0.5 * s["metrics"]["fpn_rms_true"]
+    assert main(["simulate", "--calibration-frames", "-1", "--out", str(tmp_path / "d.npz")]) == 2
+    assert "--calibration-frames" in capsys.readouterr().err

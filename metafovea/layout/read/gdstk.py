@@ -67,14 +67,7 @@ def read_gdstk(path: Path, lattice: tuple[int, int, int] | None, posts_layer: tu
         pbb = None
         layers = set()
         nrefs = 0
-        frame: dict = {}
-        for p in cell.polygons:
-            layers.add((p.layer, p.datatype))
-            if (p.layer, p.datatype) != posts_layer:
-                pts = np.rint(p.points * s).astype(np.int64)
-                e = frame.setdefault((p.layer, p.datatype), [0, None])
-                e[0] += 1
-                e[1] = union_bbox(e[1], (*pts.min(0).tolist(), *pts.max(0).tolist()))
+        frame = _frame_polygons(cell, posts_layer, layers)
         for lb in cell.labels:
             layers.add((lb.layer, lb.texttype))
         for r in cell.references:
@@ -99,11 +92,7 @@ def read_gdstk(path: Path, lattice: tuple[int, int, int] | None, posts_layer: tu
                         pbb = union_bbox(pbb, bb)
                 continue
             sr, sf, so, sb, sl, sfr = content(child)
-            for lay, (fn, fb) in sfr.items():
-                e = frame.setdefault(lay, [0, None])
-                e[0] += len(pos) * fn
-                e[1] = union_bbox(e[1], (fb[0] + int(pos[:, 0].min()), fb[1] + int(pos[:, 1].min()),
-                                         fb[2] + int(pos[:, 0].max()), fb[3] + int(pos[:, 1].max())))
+            _add_placed(frame, sfr, pos)
             if lattice is not None and np.any(pos % lattice[2] != 0):
                 ob.anomalies.append(f"references to structure {nm} off the lattice period")
             n = len(pos)
@@ -143,6 +132,29 @@ def read_gdstk(path: Path, lattice: tuple[int, int, int] | None, posts_layer: tu
     ob.bbox = (int(round(a * s)), int(round(b * s)), int(round(c2 * s)), int(round(d * s)))
     ob.off_lattice = int(off)
     return ob
+
+
+def _frame_polygons(cell: Any, posts_layer: tuple[int, int], layers: set) -> dict:
+    """``(layer, datatype) -> [polygons, bbox nm]`` of ``cell``'s own polygons off the posts layer (and every
+    polygon's layer into ``layers``)."""
+    frame: dict = {}
+    for p in cell.polygons:
+        layers.add((p.layer, p.datatype))
+        if (p.layer, p.datatype) != posts_layer:
+            pts = np.rint(p.points * 1e3).astype(np.int64)
+            e = frame.setdefault((p.layer, p.datatype), [0, None])
+            e[0] += 1
+            e[1] = union_bbox(e[1], (*pts.min(0).tolist(), *pts.max(0).tolist()))
+    return frame
+
+
+def _add_placed(frame: dict, child: dict, pos: np.ndarray) -> None:
+    """A child's per-layer polygons placed at ``pos`` (n, 2) nm, added to ``frame``."""
+    for lay, (fn, fb) in child.items():
+        e = frame.setdefault(lay, [0, None])
+        e[0] += len(pos) * fn
+        e[1] = union_bbox(e[1], (fb[0] + int(pos[:, 0].min()), fb[1] + int(pos[:, 1].min()),
+                                 fb[2] + int(pos[:, 0].max()), fb[3] + int(pos[:, 1].max())))
 
 
 def _walk_posts(cell: Any, off: np.ndarray, is_post: Any, names: list[str], posts_layer: tuple[int, int],
