@@ -79,7 +79,12 @@ def read_klayout(path: Path, lattice: tuple[int, int, int] | None, posts_layer: 
     with_refs = sink is not None or lattice is not None  # else only the flat shapes' sizes are needed
     passes = _mark_posts(ly, top, is_post, li_posts, holders, refs, with_refs,
                          {nm: k for k, nm in enumerate(post_names or [])})
-    ob.frame_layers = _frame_layers(ly, top, held, [li for li in layers if li != li_posts])
+    frame = _copy_frame(ly, held, [li for li in layers if li != li_posts])
+    ly.update()  # once, after every change to this copy (each update sorts the instance trees again)
+    ob.frame_layers = {}
+    for key, n, li in frame:
+        fb = top.bbox_per_layer(li)
+        ob.frame_layers[key] = [n, (fb.left, fb.bottom, fb.right, fb.top)]
     flatc, off, found = _flatten_posts(ly, top, passes, sizes or {}, lattice, sink)
     ob.flat_counts.update(flatc)
     ob.off_lattice = int(off)
@@ -128,31 +133,49 @@ def _census(ly: Any, top_ci: int, is_post: Any, li_posts: Any, lattice: tuple[in
             vs = [t.disp for t in inst.cell_inst.each_trans()]
         return any(v.x % P or v.y % P for v in vs)
 
+    seen: dict[int, tuple[bool, str]] = {}
+
+    def kinds(ci: int) -> tuple[bool, str]:
+        """(whether cell ``ci`` is a post cell, its name), once per cell."""
+        if ci not in seen:
+            c = ly.cell(ci)
+            seen[ci] = (bool(is_post(c)), c.name)
+        return seen[ci]
+
     def content(ci: int) -> tuple[Counter, Counter]:
         if ci in memo:
             return memo[ci]
         cell = ly.cell(ci)
         refs: Counter = Counter()
         held: Counter = Counter()
-        nrefs = 0
+        counts: dict[int, int] = {}  # child cell -> instances (a GDSII SREF-per-post cell: one record a post)
         for inst in cell.each_inst():
+            cc = inst.cell_index
             n = inst.size()
-            nrefs += n
-            child = ly.cell(inst.cell_index)
             if inst.is_complex():
-                ob.anomalies.append(f"a reference to {child.name} is rotated, mirrored or magnified")
-            if is_post(child):
-                refs[child.name] += n
-                if child.name not in ob.cell_rects:
-                    post_cell(child)
+                ob.anomalies.append(f"a reference to {kinds(cc)[1]} is rotated, mirrored or magnified")
+            if cc in counts:
+                counts[cc] += n
             else:
-                sr, sh = content(inst.cell_index)
-                if P is not None and off_period(inst):
-                    ob.anomalies.append(f"references to structure {child.name} off the lattice period")
-                for k, v in sr.items():
-                    refs[k] += n * v
-                for k, v in sh.items():
-                    held[k] += n * v
+                counts[cc] = n
+                post, nm = kinds(cc)
+                if post and nm not in ob.cell_rects:
+                    post_cell(ly.cell(cc))
+                elif not post:
+                    content(cc)
+            if P is not None and not kinds(cc)[0] and off_period(inst):
+                ob.anomalies.append(f"references to structure {kinds(cc)[1]} off the lattice period")
+        for cc, n in counts.items():
+            post, nm = kinds(cc)
+            if post:
+                refs[nm] += n
+                continue
+            sr, sh = content(cc)
+            for k, v in sr.items():
+                refs[k] += n * v
+            for k, v in sh.items():
+                held[k] += n * v
+        nrefs = sum(counts.values())
         nshapes = sum(cell.shapes(li).size() for li in layers)
         ob.max_refs = max(ob.max_refs, nrefs + nshapes)
         ob.max_references = max(ob.max_references, cell.child_instances())
@@ -173,18 +196,17 @@ def _census(ly: Any, top_ci: int, is_post: Any, li_posts: Any, lattice: tuple[in
     return refs, held, {ci: (held[ci] * a, held[ci] * b) for ci, (a, b) in own.items()}
 
 
-def _frame_layers(ly: Any, top: Any, held: Counter, layers: list[int]) -> dict:
-    """(layer, datatype) -> [polygons (boxes included), bounding box of them] of each of the file's ``layers``
-    (all but the posts') in the top cell through the hierarchy, outside the post cells (as the other readers report the frame): polygons
-    counted per cell times its placements ``held``, their bounding box from copies of them on a layer of their
-    own (KLayout's hierarchical bounding box, no flattening)."""
+def _copy_frame(ly: Any, held: Counter, layers: list[int]) -> list[tuple[tuple[int, int], int, int]]:
+    """``((layer, datatype), polygons, copy layer)`` for each of the file's ``layers`` (all but the posts') with
+    polygons (boxes included) in the top cell through the hierarchy, outside the post cells (as the other readers
+    report the frame): polygons counted per cell times its placements ``held``, and copied to a layer of their own
+    whose hierarchical bounding box (KLayout's, no flattening) is theirs."""
     import klayout.db as db
 
     keep = db.Shapes.SBoxes | db.Shapes.SPolygons
     rest = db.Shapes.SAll & ~keep
-    frame: dict = {}
-    for li in layers:
-        info = ly.get_info(li)
+    found = []
+    for li in layers:  # counted first: a query after a change to the layout updates it (seconds, 30 M instances)
         n, cells = 0, []
         for ci, k in held.items():
             shapes = ly.cell(ci).shapes(li)
@@ -193,12 +215,14 @@ def _frame_layers(ly: Any, top: Any, held: Counter, layers: list[int]) -> dict:
                 n += k * m
                 cells.append(ci)
         if n:
-            copy = ly.insert_layer(db.LayerInfo(f"metafovea frame {li}"))
-            for ci in cells:
-                ly.cell(ci).shapes(copy).insert(ly.cell(ci).shapes(li), keep)
-            ly.update()
-            b = top.bbox_per_layer(copy)
-            frame[(info.layer, info.datatype)] = [n, (b.left, b.bottom, b.right, b.top)]
+            info = ly.get_info(li)
+            found.append(((info.layer, info.datatype), n, li, cells))
+    frame = []
+    for key, n, li, cells in found:
+        copy = ly.insert_layer(db.LayerInfo(f"metafovea frame {li}"))
+        for ci in cells:
+            ly.cell(ci).shapes(copy).insert(ly.cell(ci).shapes(li), keep)
+        frame.append((key, n, copy))
     return frame
 
 
@@ -207,16 +231,15 @@ def _mark_posts(ly: Any, top: Any, is_post: Any, li_posts: Any, holders: dict, r
     """Prepare this private copy of the layout for flattening; returns the passes ``(layer, type (None: by size),
     what, posts counted, boundaries only)``: a layer per post cell (``with_refs``) holding a marker square on the
     cell's origin, and the posts-layer boxes and polygons, and other shapes, of the cells ``holders`` copied to two
-    layers of their own (the post cells' own rectangles are not posts of the top cell). The post cells' child instances are
-    removed (posts inside post cells are not posts of the top cell either; the census did not count them)."""
+    layers of their own (the post cells' own rectangles are not posts of the top cell). The post cells' child
+    instances are removed (posts inside post cells are not posts of the top cell either; the census did not count
+    them). The caller updates the layout (:meth:`Layout.update`) before flattening."""
     import klayout.db as db
 
     passes = []
-    for ci in top.called_cells():
-        cell = ly.cell(ci)
-        if not is_post(cell):
-            continue
-        if cell.child_instances():
+    posts = [(ly.cell(ci), bool(ly.cell(ci).child_instances())) for ci in top.called_cells() if is_post(ly.cell(ci))]
+    for cell, parent in posts:  # queried first: a query after a change to the layout updates it
+        if parent:
             cell.clear_insts()
         if with_refs:
             li = ly.insert_layer(db.LayerInfo(f"metafovea marker {ci}"))
@@ -234,7 +257,6 @@ def _mark_posts(ly: Any, top: Any, is_post: Any, li_posts: Any, holders: dict, r
         passes.append((li_box, None, "posts-layer boxes and polygons", nbox, True))
         if nodd:
             passes.append((li_odd, None, "other posts-layer shapes", nodd, False))
-    ly.update()
     return passes
 
 
