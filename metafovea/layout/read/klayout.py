@@ -242,7 +242,7 @@ def _mark_posts(ly: Any, top: Any, is_post: Any, li_posts: Any, holders: dict, r
         if parent:
             cell.clear_insts()
         if with_refs:
-            li = ly.insert_layer(db.LayerInfo(f"metafovea marker {ci}"))
+            li = ly.insert_layer(db.LayerInfo(f"metafovea marker {cell.cell_index()}"))
             cell.shapes(li).insert(db.Box(-1, -1, 1, 1))
             passes.append((li, index.get(cell.name, -1), f"references to {cell.name}", refs[cell.name], True))
     if holders:
