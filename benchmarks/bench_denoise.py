@@ -27,9 +27,9 @@ def _image(name: str, n: int) -> np.ndarray:
         from scipy.ndimage import gaussian_filter
 
         return gaussian_filter(0.2 + 0.6 * star, 1.5)
-    from metafovea.reconstruct.synthetic import _gray
+    from metafovea.reconstruct.synthetic import gray_image
 
-    return resize(_gray(name), (n, n), anti_aliasing=True)
+    return resize(gray_image(name), (n, n), anti_aliasing=True)
 
 
 def _psnr(a: np.ndarray, b: np.ndarray) -> float:

@@ -16,7 +16,8 @@ from metafovea.reconstruct._common import as_alpha
 from metafovea.reconstruct.operators import FovealOperator
 
 
-def _gray(name: str) -> np.ndarray:
+def gray_image(name: str) -> np.ndarray:
+    """scikit-image's bundled picture ``name`` as a grey image in [0, 1] (float64)."""
     from skimage import color, data
 
     img = getattr(data, name)()
@@ -50,9 +51,9 @@ def scene(shape: tuple[int, int] | int = 96, scale: float = 6.0, *, offset: tupl
     g, b = float(foveal_gain), float(foveal_offset)
     if not g > 0:
         raise InputError("foveal_gain", foveal_gain, "a positive gain")
-    x1 = lo + (hi - lo) * _fit(_gray(foveal), (H, W))
+    x1 = lo + (hi - lo) * _fit(gray_image(foveal), (H, W))
     lo2, hi2 = (lo - b) / g, (hi - b) / g  # x2's range in its own units
-    x2 = lo2 + (hi2 - lo2) * _fit(_gray(perifoveal), (H, W))
+    x2 = lo2 + (hi2 - lo2) * _fit(gray_image(perifoveal), (H, W))
     op = FovealOperator((H, W), scale, offset, gain=foveal_gain, bias=foveal_offset)
     # replace C x2 by (D x1 - b) / g: x2 += C^+ ((D x1 - b) / g - C x2), C^+ the pseudo-inverse (exact for any offset)
     r = (op.D(x1) - op.bias) / op.gain - op.C(x2)

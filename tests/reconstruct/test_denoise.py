@@ -52,14 +52,14 @@ def test_tv_weight_by_sure_is_near_the_best_factor_on_unseen_images():
     from skimage.transform import resize
 
     from metafovea.reconstruct.denoise import TV_FACTORS, TV_ITERATIONS
-    from metafovea.reconstruct.synthetic import _gray
+    from metafovea.reconstruct.synthetic import gray_image
 
     def p(a, b):
         return 10 * np.log10(np.ptp(b) ** 2 / np.mean((a - b) ** 2))
 
     gains = []
     for name, sig in (("page", 0.03), ("brick", 0.05), ("grass", 0.02), ("horse", 0.05)):
-        x = resize(_gray(name), (128, 128), anti_aliasing=True)
+        x = resize(gray_image(name), (128, 128), anti_aliasing=True)
         y = x + np.random.default_rng(7).normal(0, sig, x.shape)
         best = max(p(denoise_tv_chambolle(y, weight=c * sig, max_num_iter=TV_ITERATIONS), x) for c in TV_FACTORS)
         got = p(denoise(y, "tv", sigma=sig), x)
