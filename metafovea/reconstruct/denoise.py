@@ -3,11 +3,14 @@
 Every method takes the noise std ``sigma`` of the image it cleans (the LSQ stage knows it: frame noise
 times the channel's noise gain), so weights follow a stated rule instead of a hand-tuned constant:
 
-* ``'tv'``: Chambolle total variation, weight ``c * sigma`` with ``c`` from :data:`TV_FACTORS` chosen per image
-  by Stein's unbiased risk estimate (Monte-Carlo divergence, :func:`sure_tv_factor`; a stack uses the factor of
-  its middle image), 20 iterations. Measured (``benchmarks/bench_denoise.py``, 5 images x sigma 0.01-0.05): the
-  fixed ``0.5 sigma`` rule was up to 5.4 dB below the best factor (a smooth image at sigma 0.05), the best single
-  factor (0.75) up to 1.0 dB, SURE 0.03 dB on average and 0.55 at worst, for ~45 ms per 160 x 160 image instead of 4.
+* ``'tv'``: Chambolle total variation, weight ``0.75 sigma``, 20 iterations. Measured (``benchmarks/bench_denoise.py``
+  and a grid of factors 0.5-2 x iterations 10-100 on 5 images x sigma 0.01-0.05, 160 x 160): the previous
+  ``0.5 sigma``, 10 iterations was 0.59 dB below the best factor on average and 5.4 dB at worst (a smooth image at
+  sigma 0.05); 0.75 sigma, 20 iterations is 0.32 dB on average and 1.0 dB at worst (~5 ms), but 0.8-1.5 dB below
+  the best factor on textured images it was not chosen on (text, brick, grass: they want 0.5). NLM is the better
+  choice for texture and thermal images. A per-image choice by
+  Stein's unbiased risk (Monte-Carlo divergence) was tried and dropped: with one or two probes its estimate was
+  erratic (up to 4 dB lost), with enough probes it costs 15x the denoising.
 * ``'bilateral'``: as in the paper; colour sigma ``2 sigma``, spatial sigma 1.5 px (~35 ms): 1-10 dB below TV and
   NLM on every image measured, kept for comparison with the paper.
 * ``'nlm'``: non-local means (fast mode, patch 5, distance 5, h = sigma: 0.19 dB below its best h on average,
@@ -25,27 +28,10 @@ from metafovea.reconstruct._common import estimate_noise
 #: the denoisers (``--denoise``)
 DENOISERS = ("tv", "bilateral", "nlm")
 METHODS = DENOISERS + ("none",)
-#: TV weight factors (x sigma) SURE chooses from, and the iterations
+#: TV weight = TV_FACTOR x sigma, TV_ITERATIONS iterations (measured, see the module docstring); TV_FACTORS: the grid
+TV_FACTOR = 0.75
 TV_FACTORS = (0.5, 0.75, 1.0, 1.5, 2.0)
 TV_ITERATIONS = 20
-
-
-def sure_tv_factor(y: np.ndarray, sigma: float, *, iterations: int = TV_ITERATIONS, seed: int = 0
-                   ) -> tuple[float, dict[float, float]]:
-    """The factor of :data:`TV_FACTORS` whose TV denoising of ``y`` has the smallest Stein unbiased risk
-    ``||f(y) - y||^2 - N sigma^2 + 2 sigma^2 div f`` (divergence by one Monte-Carlo probe), and every risk."""
-    from skimage.restoration import denoise_tv_chambolle
-
-    y = np.asarray(y, dtype=np.float64)
-    b = np.random.default_rng(seed).standard_normal(y.shape)
-    eps = 1e-3 * max(float(np.ptp(y)), 1e-12)
-    risks = {}
-    for c in TV_FACTORS:
-        f = denoise_tv_chambolle(y, weight=c * sigma, max_num_iter=iterations)
-        fp = denoise_tv_chambolle(y + eps * b, weight=c * sigma, max_num_iter=iterations)
-        div = float(np.sum(b * (fp - f))) / eps
-        risks[c] = float(np.sum((f - y) ** 2)) - y.size * sigma ** 2 + 2 * sigma ** 2 * div
-    return min(risks, key=risks.get), risks
 
 
 def denoise(x: np.ndarray, method: str = "tv", *, sigma: float | None = None, weight: float | None = None,
@@ -60,11 +46,6 @@ def denoise(x: np.ndarray, method: str = "tv", *, sigma: float | None = None, we
     if method == "none":
         return x
     if x.ndim == 3:
-        if method == "tv" and weight is None and len(x) and np.all(np.isfinite(x[len(x) // 2])):
-            mid = x[len(x) // 2]
-            sig = estimate_noise(mid) if sigma is None else as_float("sigma", sigma)
-            if sig > 0:
-                weight = sure_tv_factor(mid, sig)[0] * sig  # one factor for the stack (same noise, same scene)
         return np.stack([denoise(xi, method, sigma=sigma, weight=weight, iterations=iterations) for xi in x])
     if x.ndim != 2:
         raise InputError("x", f"array of shape {x.shape}", "a 2-D image or a (K, H, W) stack")
@@ -89,8 +70,7 @@ def denoise(x: np.ndarray, method: str = "tv", *, sigma: float | None = None, we
     if method == "tv":
         from skimage.restoration import denoise_tv_chambolle
 
-        w = sure_tv_factor(x, sigma, iterations=int(iterations))[0] * sigma if weight is None else \
-            as_float("weight", weight)
+        w = TV_FACTOR * sigma if weight is None else as_float("weight", weight)
         out = denoise_tv_chambolle(x, weight=w, max_num_iter=int(iterations))
     elif method == "bilateral":
         from skimage.restoration import denoise_bilateral
