@@ -77,10 +77,13 @@ def read_klayout(path: Path, lattice: tuple[int, int, int] | None, posts_layer: 
     refs, held, holders = _census(ly, top.cell_index(), is_post, li_posts, lattice, ob)
     ob.ref_counts.update(refs)
     with_refs = sink is not None or lattice is not None  # else only the flat shapes' sizes are needed
+    # queries first, then the changes, then one update: a query after a change updates the layout (sorts the
+    # instance trees again: ~10 s for 30 M GDSII references)
+    frame = _frame_census(ly, held, [li for li in layers if li != li_posts])
     passes = _mark_posts(ly, top, is_post, li_posts, holders, refs, with_refs,
                          {nm: k for k, nm in enumerate(post_names or [])})
-    frame = _copy_frame(ly, held, [li for li in layers if li != li_posts])
-    ly.update()  # once, after every change to this copy (each update sorts the instance trees again)
+    frame = _copy_frame(ly, frame)
+    ly.update()
     ob.frame_layers = {}
     for key, n, li in frame:
         fb = top.bbox_per_layer(li)
@@ -196,17 +199,15 @@ def _census(ly: Any, top_ci: int, is_post: Any, li_posts: Any, lattice: tuple[in
     return refs, held, {ci: (held[ci] * a, held[ci] * b) for ci, (a, b) in own.items()}
 
 
-def _copy_frame(ly: Any, held: Counter, layers: list[int]) -> list[tuple[tuple[int, int], int, int]]:
-    """``((layer, datatype), polygons, copy layer)`` for each of the file's ``layers`` (all but the posts') with
-    polygons (boxes included) in the top cell through the hierarchy, outside the post cells (as the other readers
-    report the frame): polygons counted per cell times its placements ``held``, and copied to a layer of their own
-    whose hierarchical bounding box (KLayout's, no flattening) is theirs."""
+def _frame_census(ly: Any, held: Counter, layers: list[int]) -> list[tuple[tuple[int, int], int, int, list[int]]]:
+    """``((layer, datatype), polygons, layer index, cells holding them)`` for each of the file's ``layers`` (all
+    but the posts') with polygons (boxes included) in the top cell through the hierarchy, outside the post cells (as
+    the other readers report the frame): polygons counted per cell times its placements ``held``."""
     import klayout.db as db
 
-    keep = db.Shapes.SBoxes | db.Shapes.SPolygons
-    rest = db.Shapes.SAll & ~keep
+    rest = db.Shapes.SAll & ~(db.Shapes.SBoxes | db.Shapes.SPolygons)
     found = []
-    for li in layers:  # counted first: a query after a change to the layout updates it (seconds, 30 M instances)
+    for li in layers:
         n, cells = 0, []
         for ci, k in held.items():
             shapes = ly.cell(ci).shapes(li)
@@ -217,6 +218,15 @@ def _copy_frame(ly: Any, held: Counter, layers: list[int]) -> list[tuple[tuple[i
         if n:
             info = ly.get_info(li)
             found.append(((info.layer, info.datatype), n, li, cells))
+    return found
+
+
+def _copy_frame(ly: Any, found: list) -> list[tuple[tuple[int, int], int, int]]:
+    """The frame polygons ``found`` (:func:`_frame_census`) copied to layers of their own, whose hierarchical
+    bounding boxes (KLayout's, no flattening) are theirs: ``((layer, datatype), polygons, copy layer)``."""
+    import klayout.db as db
+
+    keep = db.Shapes.SBoxes | db.Shapes.SPolygons
     frame = []
     for key, n, li, cells in found:
         copy = ly.insert_layer(db.LayerInfo(f"metafovea frame {li}"))
