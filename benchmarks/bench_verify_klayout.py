@@ -5,7 +5,7 @@ Exports ``designs/perifoveal.toml`` as OASIS (default RCWA post set, cached in ~
 prints its wall time, the reader's time (``seconds_read``), its peak memory (the largest max RSS among the verify
 process and its children) and the load average before and after. ``--file`` verifies an
 existing file instead (``--design`` then names its design); ``--format gds`` exports GDSII, ``--max-refs`` a
-hierarchical GDSII. The exported file is deleted afterwards (``--keep`` keeps it).
+hierarchical GDSII, ``--flat`` a flat one. The exported file is deleted afterwards (``--keep`` keeps it).
 
     python benchmarks/bench_verify_klayout.py
     python benchmarks/bench_verify_klayout.py --format gds --json /tmp/bench_kl_gds.json
@@ -54,6 +54,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--file", help="verify this file (no export)")
     ap.add_argument("--format", default="oas", choices=("oas", "gds"))
     ap.add_argument("--max-refs", type=int, help="GDSII: hierarchical export")
+    ap.add_argument("--flat", action="store_true", help="GDSII: one rectangle per post")
     ap.add_argument("--dir", default="/tmp")
     ap.add_argument("--keep", action="store_true", help="keep the exported file")
     ap.add_argument("--json", help="write the figures here")
@@ -69,6 +70,8 @@ def main(argv: list[str] | None = None) -> int:
         cmd = metafovea + ["export", a.design, "--format", a.format, "--out", str(path), "--quiet", "--force"]
         if a.max_refs:
             cmd += ["--max-refs", str(a.max_refs)]
+        if a.flat:
+            cmd += ["--flat"]
         r = _timed(cmd)
         if r["rc"]:
             print(r["stderr"], file=sys.stderr)
