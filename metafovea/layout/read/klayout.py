@@ -12,7 +12,8 @@ collected with a :class:`RecursiveShapeIterator` into a scratch layout, strip by
 written to GDSII (KLayout's writer, to a file in memory), whose boundary records have one fixed size and are read
 as a numpy array. The centre of a transformed square centred on the origin is the transformed origin: exact in
 integer database units. Flat posts (posts-layer boxes outside the post cells) are flattened the same way and typed
-by their size.
+by their size. The frame (polygons and bounding box per layer but the posts') is counted per cell and bounded by
+KLayout's hierarchical bounding boxes, without flattening.
 """
 
 from __future__ import annotations
