@@ -306,14 +306,15 @@ def frame_shapes(spec: LayoutSpec) -> list[Shape]:
 
 def expected_frame(spec: LayoutSpec) -> dict[tuple[int, int], tuple[int, tuple[int, int, int, int]]]:
     """Per frame layer: (polygons, bounding box in nm) as an independent reader should find them."""
+    from metafovea.layout.read.base import union_bbox
+
     out: dict[tuple[int, int], list[Any]] = {}
     for s in frame_shapes(spec):
         x0, y0 = s.points.min(0).tolist()
         x1, y1 = s.points.max(0).tolist()
         e = out.setdefault(s.layer, [0, None])
         e[0] += 1
-        b = e[1]
-        e[1] = (x0, y0, x1, y1) if b is None else (min(b[0], x0), min(b[1], y0), max(b[2], x1), max(b[3], y1))
+        e[1] = union_bbox(e[1], (x0, y0, x1, y1))
     return {k: (v[0], tuple(v[1])) for k, v in out.items()}
 
 

@@ -129,10 +129,8 @@ class LayoutSpec:
 
         R = self.wafer_diameter_mm * 500.0
         L = self.wafer_flat_mm
-        if L is None:
-            L = SEMI_FLAT_MM.get(min(SEMI_FLAT_MM, key=lambda d: abs(d - self.wafer_diameter_mm)), 0.0) \
-                if self.wafer_diameter_mm < 190 else 0.0
-            L = min(L, self.wafer_diameter_mm * 0.6)
+        if L is None:  # SEMI M1 for a standard diameter; none for 200/300 mm (notch) or a non-standard wafer
+            L = SEMI_FLAT_MM.get(self.wafer_diameter_mm, 0.0)
         half = min(L * 500.0, R)
         return math.sqrt(max(R * R - half * half, 0.0))
 

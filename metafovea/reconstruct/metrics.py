@@ -31,15 +31,8 @@ def psnr(est: np.ndarray, ref: np.ndarray, data_range: float | None = None) -> f
     Non-finite estimate pixels count as errors (the result is ``-inf`` dB... reported as 0 dB floor
     would hide them), so they are refused: mask them before calling.
     """
-    from skimage.metrics import peak_signal_noise_ratio
-
     est, ref = _pair(est, ref)
-    if not np.all(np.isfinite(est)):
-        raise InputError("estimate", "array with NaN/inf", "finite values (mask invalid pixels first)")
-    mse = float(np.mean((est - ref) ** 2))
-    if mse == 0.0:
-        return float("inf")
-    return float(peak_signal_noise_ratio(ref, est, data_range=_data_range(ref, data_range)))
+    return float(_psnr_stack(est[None], ref[None], data_range)[0])
 
 
 def ssim(est: np.ndarray, ref: np.ndarray, data_range: float | None = None) -> float:
@@ -71,17 +64,13 @@ def _psnr_stack(ests: np.ndarray, refs: np.ndarray, data_range: float | None) ->
         raise InputError("estimate", "array with NaN/inf", "finite values (mask invalid pixels first)")
     static = refs.ndim == 3 and refs.strides[0] == 0
     out = np.empty(len(ests))
-    dr_static = None
+    dr = None
     for k in range(len(ests)):
         r = refs[k]
         d = np.subtract(ests[k], r, dtype=np.float64)
         mse = float(np.mean(d * d))
-        if data_range is not None:
-            dr = float(data_range)
-        else:
-            if dr_static is None or not static:
-                dr_static = float(np.nanmax(r)) - float(np.nanmin(r))
-            dr = dr_static if dr_static > 0 else 1.0
+        if dr is None or not static:
+            dr = _data_range(r, data_range)
         out[k] = 10 * np.log10(dr * dr / mse) if mse > 0 else np.inf
     return out
 
