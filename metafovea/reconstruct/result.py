@@ -3,15 +3,41 @@
 from __future__ import annotations
 
 import os
+import zipfile
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
 from metafovea.errors import InputError
-from metafovea.io import atomic_save_npz, jsonable, load_npz
+from metafovea.io import SCHEMA_VERSION, atomic_open, jsonable, load_npz, to_json
 
 KIND = "metafovea.Reconstruction"
+
+
+def save_npz_stored(path: str | os.PathLike, meta: dict[str, Any], arrays: dict[str, np.ndarray]) -> None:
+    """Write ``arrays`` and ``meta`` (JSON under ``__meta__``, as :func:`metafovea.io.atomic_save_npz`) to an
+    uncompressed ``.npz`` atomically, in one pass: each contiguous array goes to the zip member as one memoryview
+    (one CRC pass, one write), where ``np.savez`` copies it in 16 MiB ``nditer`` chunks through ``tobytes``
+    (measured on the 2-core VM for 89 windows of 290 x 290, 60 MB: np.savez 80-130 ms, this ~50 ms, both
+    without the fsync). Readable by ``np.load`` and :func:`metafovea.io.load_npz`."""
+    m = {**meta}
+    m.setdefault("schema_version", SCHEMA_VERSION)
+    payload = {**arrays, "__meta__": np.frombuffer(to_json(m, indent=None).encode(), dtype=np.uint8)}
+    with atomic_open(path, "wb") as fh, zipfile.ZipFile(fh, "w", zipfile.ZIP_STORED, allowZip64=True) as zf:
+        for name, arr in payload.items():
+            a = np.asarray(arr)
+            if a.dtype.hasobject:
+                raise InputError(name, f"array of dtype {a.dtype}", "a numeric array (no pickled objects)")
+            a = np.ascontiguousarray(a) if not (a.flags.c_contiguous or a.flags.f_contiguous) else a
+            header = np.lib.format.header_data_from_array_1_0(a)  # fortran_order for an F-contiguous array
+            with zf.open(f"{name}.npy", "w", force_zip64=True) as member:
+                try:
+                    np.lib.format.write_array_header_1_0(member, header)
+                except ValueError:  # a header over 64 KiB (very many dimensions): format 2.0, as np.save
+                    np.lib.format.write_array_header_2_0(member, header)
+                if a.size:
+                    member.write((a.T if header["fortran_order"] else a).reshape(-1).view(np.uint8))
 
 
 @dataclass(frozen=True)
@@ -50,7 +76,7 @@ class Reconstruction:
         meta = {"kind": KIND, "method": self.method, "timings": jsonable(self.timings),
                 "info": jsonable(self.info)}
         # float32 images of noisy scenes hardly compress: zlib cost 3.6 s for 89 windows of 290 x 290 (60 MB)
-        atomic_save_npz(path, meta=meta, compress=False, **arrays)
+        save_npz_stored(path, meta, arrays)
 
     @classmethod
     def load(cls, path: str | os.PathLike) -> "Reconstruction":
