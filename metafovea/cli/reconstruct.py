@@ -32,7 +32,7 @@ def register(subparsers: Any) -> argparse.ArgumentParser:
     p.add_argument("--stride", type=int, default=1, help="window stride in frames (default 1)")
     p.add_argument("--denoise", default=None, choices=DENOISERS, help="denoise the outputs")
     p.add_argument("--fpn", default="none", metavar="none|prior|calibration|PATTERN",
-                   help="fixed-pattern noise: none, prior (low-rank, from the images), calibration (the file's "
+                   help="fixed-pattern noise: none, prior (blind, from the separated images and the foveal constraint; one window: --window = all frames), calibration (the file's "
                    "'calibration' frames) or a pattern file of yours (.npy/.npz/.tif, subtracted); the file's own "
                    "'fpn' is truth and only scores an estimate")
     p.add_argument("--scale", type=float, default=None, help="f1/f2 of the foveal constraint (default: file meta "
@@ -53,8 +53,14 @@ def register(subparsers: Any) -> argparse.ArgumentParser:
                    help="alternating with the polariser model: alpha of the fitted constant-rate rotation (model, "
                         "default) or each frame's own (frames: follows a jittering polariser)")
     p.add_argument("--frame", type=int, default=0, help="frame index for --method snapshot (default 0)")
-    p.add_argument("--steps", type=int, default=2000, help="DIP optimisation steps (default 2000)")
-    p.add_argument("--channels", type=int, default=32, help="DIP network channels (default 32)")
+    p.add_argument("--steps", type=int, default=2000, help="DIP step budget: at most this many steps "
+                   "(default 2000)")
+    p.add_argument("--channels", type=int, default=None, help="DIP network channels (default 16)")
+    p.add_argument("--init", default="random", choices=("random", "classical"), help="DIP start: random (the "
+                   "paper's fixed random inputs, default) or classical (a residual warm start from alternating, or "
+                   "from LSQ + TV with --known-alpha)")
+    p.add_argument("--max-seconds", type=float, default=None, help="DIP time budget per window (default: none; "
+                   "it also stops when the loss has converged)")
     p.add_argument("--seed", type=int, default=0, help="random seed (DIP)")
     p.add_argument("--out", default=None, help="output .npz (default: <measurement>_rec.npz); figures next to it")
     p.add_argument("--no-figures", action="store_true", help="do not write PNG figures")
@@ -84,7 +90,8 @@ def _solver_options(args: argparse.Namespace) -> dict[str, Any]:
     if args.method == "alternating":
         kw.update(polarizer=args.polarizer, polarizer_alpha=args.polarizer_alpha)
     if args.method == "dip":
-        kw.update(steps=args.steps, channels=args.channels, rng=args.seed)
+        kw.update(steps=args.steps, rng=args.seed, init=args.init, alpha_init="classical")
+        kw.update({k: v for k, v in (("channels", args.channels), ("max_seconds", args.max_seconds)) if v is not None})
     return kw
 
 

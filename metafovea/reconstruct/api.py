@@ -41,7 +41,8 @@ def reconstruct(frames: Any, alpha: Any = None, method: str = "lsq", *, fpn: Any
     method: ``'lsq'`` (known ``alpha``), ``'alternating'`` (unknown alpha, classical), ``'dip'``
     (double deep image prior, JAX), ``'snapshot'`` (one frame).
     fpn: ``None`` (no FPN handling), an ``(H, W)`` array to subtract, ``'calibration'`` (estimate from
-    ``calibration`` frames) or ``'prior'`` (low-rank prior on the separated images).
+    ``calibration`` frames) or ``'prior'`` (blind: :func:`~metafovea.reconstruct.fpn.estimate_fpn`'s foveal estimate
+    from the separated images, the TV low-rank prior where the foveal contrast gain is >= 0.98).
     Other keywords go to the method's function; the foveal constraint ``D x1 = foveal_gain C x2 +
     foveal_offset`` (keywords ``scale``, ``foveal_gain``, ``foveal_offset``; a Measurement's
     :class:`~metafovea.measurement.FovealConstraint`) is used by alternating, dip, snapshot and the FPN prior.
@@ -129,7 +130,8 @@ def reconstruct_measurement(m: Measurement, method: str = "lsq", *, known_alpha:
         Default: the file's (:attr:`Measurement.foveal_constraint`).
     solver : dict
         Keywords of the method's function (``regularize`` for lsq; ``strict`` for alternating; ``steps``,
-        ``channels``, ``rng``, ``init`` for dip; ``iterations`` for snapshot).
+        ``channels``, ``rng``, ``init``, ``max_seconds`` for dip (``progress`` shows its steps); ``iterations``
+        for snapshot).
     level_free : bool
         Add the level-free PSNRs to the metrics (see :func:`~metafovea.reconstruct.metrics.score`).
     score_truth : bool
@@ -205,6 +207,8 @@ def _solve(m: Measurement, method: str, frames: np.ndarray, alpha: np.ndarray | 
     else:
         if denoise and method == "lsq":
             kw["denoise"] = denoise
+        if method == "dip":  # step, loss and ETA on stderr (a 290 x 290 random start runs for minutes)
+            kw.setdefault("progress", progress)
         rec = reconstruct(frames, alpha, method=method, **kw, **fpn_kw)
         rec = rec if method == "lsq" else _denoised(rec, denoise)
         spans = ((0, T),)
