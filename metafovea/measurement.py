@@ -23,6 +23,12 @@ Written with :func:`metafovea.io.atomic_save_npz` (uncompressed ``.npz`` + JSON 
     Frames of a uniform source for the fixed-pattern calibration.
 ``bad_pixels`` (H, W) bool (optional)
     Pixels whose samples are left out (dead or hot pixels of the camera's map).
+``psf_x1``, ``psf_x2`` (n, n) (optional)
+    Each channel's PSF on the pixel grid (odd ``n``, centred, sum ~1: core, haze and glare), and
+``illumination_x1``, ``illumination_x2`` (H, W) (optional)
+    its relative illumination: what a PSF-aware reconstruction (:mod:`metafovea.reconstruct.deconvolve`) uses.
+``scene_x1``, ``scene_x2`` (H, W) (optional)
+    Truth for scoring only: the scene through a perfect lens (no PSF, haze or relative illumination), in DN.
 
 Samples at or beyond the ADC's range (:attr:`Measurement.valid_range_dn`: ``meta['saturation_dn']`` /
 ``meta['floor_dn']``, or the simulator's ``meta['sensor']`` ``adc_bits``) are left out by the reconstruction too.
@@ -46,7 +52,8 @@ from metafovea.io import atomic_save_npz, load_npz, prepare_output
 
 KIND = "measurement"
 OPTIONAL = ("alpha", "truth_x1", "truth_x2", "fpn", "fpn_u", "fpn_v", "fpn_s", "fpn_weights", "theta_rad",
-            "calibration", "bad_pixels")
+            "calibration", "bad_pixels", "psf_x1", "psf_x2", "illumination_x1", "illumination_x2", "scene_x1",
+            "scene_x2")
 
 
 def _real(a: np.ndarray) -> bool:

@@ -274,6 +274,14 @@ class BandRadiance:
                                  f"finite temperatures in [0, {T_MAX_K:g}] K")
         return np.interp(t, self._t, self._l)
 
+    def temperature(self, radiance: Any) -> np.ndarray:
+        """The brightness temperature (K) of in-band radiance ``radiance`` (W m^-2 sr^-1): the inverse of ``L(T)``
+        on the same table (a black body at that temperature gives that radiance; below 0 or above the table's
+        3000 K the result is NaN)."""
+        lv = np.asarray(radiance, dtype=np.float64)
+        out = np.interp(lv, self._l, self._t)
+        return np.where((lv < 0) | (lv > self._l[-1]) | ~np.isfinite(lv), np.nan, out)
+
     def derivative(self, temperature_k: float) -> float:
         """dL/dT (W m^-2 sr^-1 K^-1) at one temperature (central difference of the quadrature)."""
         t = check_range("temperature_k", temperature_k, 1.0, T_MAX_K - 1.0)

@@ -464,3 +464,57 @@ def _embed_add(a: np.ndarray, b: np.ndarray, wb: float) -> np.ndarray:
     return out
 
 
+
+
+def pixel_psf(optics: ChannelOptics, max_radius_px: int | None = None) -> tuple[np.ndarray, float]:
+    """The channel's PSF on the sensor's pixel grid and its pedestal: ``(K, pedestal)``, ``K`` ``(n, n)``, ``n``
+    odd, centred, ``sum(K) + pedestal`` = the power the channel keeps (kernel + haze + glare, ~1), what :class:`~metafovea.imaging.render.ChannelRenderer` does to a scene that is
+    uniform within each pixel (before relative illumination).
+
+    The kernel at the sample pitch (near haze folded in) becomes, for pixel offset ``d``,
+    ``(K * tri)[d s] / s^2`` with ``tri`` the ``(2s-1)^2`` self-correlation of the ``s x s`` pixel box; each far
+    component (haze, glare: a normalised kernel on a grid of ``q`` pixels) is the linear interpolation back to
+    pixels of its coarse kernel, blurred by the coarse sample's ``q``-pixel average. A channel computed in
+    field patches contributes the kernel of the patch nearest the axis (the shift-invariant approximation).
+    The coarse grid's interpolation is the model's, so this is the operator the simulator applies up to the
+    sub-pixel structure of the scene.
+
+    ``max_radius_px`` (default: the crop's larger side): the kernel is cut to ``|dx|, |dy| <= max_radius_px``; the
+    power beyond (glare disks of several crop widths) is the ``pedestal``, a uniform level over the crop (its
+    transfer function is the DC term only).
+    """
+    from scipy.signal import fftconvolve
+
+    s = optics.ss
+    H, W = optics.channel.shape
+    centre = ((H - 1) / 2, (W - 1) / 2)
+    i0 = int(np.argmin([math.hypot(r - centre[0], c - centre[1]) for r, c in optics.patch_centres]))
+    k = np.asarray(optics.kernels[i0], dtype=np.float64)
+    tri1 = np.convolve(np.ones(s), np.ones(s))
+    kt = fftconvolve(k, np.outer(tri1, tri1), mode="full")
+    c = (k.shape[0] - 1) // 2 + (s - 1)
+    n_half = c // s
+    core = kt[c - n_half * s:c + n_half * s + 1:s, c - n_half * s:c + n_half * s + 1:s] / s ** 2
+    out = core
+    for weight, kf, q in optics.far_parts():
+        far = np.asarray(kf, dtype=np.float64)
+        if q > 1:
+            from scipy.ndimage import map_coordinates
+
+            cc = (far.shape[0] - 1) / 2
+            d = np.arange(-(int(cc) + 1) * q, (int(cc) + 1) * q + 1) / q + cc
+            yy, xx = np.meshgrid(d, d, indexing="ij")
+            far = map_coordinates(far, [yy, xx], order=1, mode="constant", cval=0.0)
+            # the coarse sample's average over q pixels (symmetric taps: half weights at the ends for even q)
+            box = np.ones(q + 1 - q % 2)
+            if q % 2 == 0:
+                box[[0, -1]] = 0.5
+            far = fftconvolve(far, np.outer(box, box), mode="full")
+        far = np.clip(far, 0.0, None)
+        out = _embed_add(out, far / far.sum(), weight)
+    total = float(out.sum())
+    r = check_int("max_radius_px", max(H, W) if max_radius_px is None else max_radius_px, 1, 100_000)
+    h = out.shape[0] // 2
+    if h > r:
+        out = out[h - r:h + r + 1, h - r:h + r + 1]
+    return out, total - float(out.sum())

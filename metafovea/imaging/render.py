@@ -162,6 +162,17 @@ class ChannelRenderer:
         if ye > ys and xe > xs:
             out[y0 + ys:y0 + ye, x0 + xs:x0 + xe] += f[ys:ye, xs:xe]
 
+    def scene_image(self, t: float = 0.0) -> np.ndarray:
+        """What a perfect lens would image at time ``t``: the scene's in-band radiance (W m^-2 sr^-1) averaged over
+        each pixel's footprint (its ``s x s`` samples), without PSF, haze or relative illumination, ``(H, W)``
+        float64: the truth a PSF-aware reconstruction is scored against."""
+        H, W = self.optics.channel.shape
+        ss, m = self.optics.ss, self.optics.margin
+        ya = self.ya[m:self.ya.size - m]
+        xa = self.xa[m:self.xa.size - m]
+        L = self._radiance(ya, xa, t)
+        return L.reshape(H, ss, W, ss).mean(axis=(1, 3)) if ss > 1 else L
+
     # -- public ---------------------------------------------------------------------------------------
     def render(self, t: float = 0.0) -> np.ndarray:
         """The image at time ``t``: in-band radiance (W m^-2 sr^-1) after PSF, haze, pixel integration and

@@ -40,7 +40,7 @@ from metafovea.optics.train import system_trains
 from metafovea.radiometry import BandRadiance
 from metafovea.report import fig_to_png
 from metafovea.imaging.channel import Channel, channels_for
-from metafovea.imaging.kernels import ChannelOptics, build_channel_optics, resolve_provider
+from metafovea.imaging.kernels import ChannelOptics, build_channel_optics, pixel_psf, resolve_provider
 from metafovea.imaging.polarizer import Polarizer
 from metafovea.imaging.render import ChannelRenderer
 from metafovea.imaging.scene import Scene, SceneGeometry, make_scene
@@ -288,6 +288,28 @@ def _extras(theta: np.ndarray, calibration: np.ndarray | None, fpn: FixedPattern
     return extras
 
 
+def _psf_extras(renderers: list[ChannelRenderer], camera: Camera, times: np.ndarray, *,
+                static: bool) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
+    """What a PSF-aware reconstruction needs and is scored against: each channel's PSF on the pixel grid
+    (``psf_x1``/``psf_x2``: :func:`~metafovea.imaging.kernels.pixel_psf`) and relative illumination
+    (``illumination_x1``/``_x2``, (H, W)): known properties of the camera; for a static scene, the scene seen
+    through a perfect lens (``scene_x1``/``_x2``, DN: :meth:`ChannelRenderer.scene_image` on the frames' DN scale):
+    truth, for scoring only. Also the metadata ``{x1: {pedestal, size}, x2: ...}`` (the power beyond the kernels'
+    window, a uniform level over the crop)."""
+    out: dict[str, np.ndarray] = {}
+    info: dict[str, Any] = {}
+    sensor, dl_dt = camera.sensor, camera.radiance.derivative(300.0)
+    for i, (rd, gain) in enumerate(zip(renderers, camera.gains), start=1):
+        k, pedestal = pixel_psf(rd.optics)
+        out[f"psf_x{i}"] = k.astype(np.float32)
+        info[f"x{i}"] = {"size": int(k.shape[0]), "kernel_sum": float(k.sum()), "pedestal": pedestal}
+        ri = rd.ri if rd.ri is not None else np.ones(sensor.shape)
+        out[f"illumination_x{i}"] = np.asarray(ri, dtype=np.float32)
+        if static:
+            out[f"scene_x{i}"] = sensor.to_dn(rd.scene_image(float(times[0])), gain, dl_dt).astype(np.float32)
+    return out, info
+
+
 def _saturated_fraction(frames: np.ndarray, sensor: SensorModel) -> float:
     saturated = float(np.mean(frames >= sensor.full_scale_dn)) if sensor.quantize else 0.0
     if saturated > 0:
@@ -404,9 +426,10 @@ def simulate(system: SystemDesign, scene: str | Path | Scene, options: Simulatio
     timing = {"psf": t_psf, "render": t_render, "mix_noise": t_mix, "total": time.perf_counter() - t_start}
     meta = _measurement_meta(system, camera, sc, opt, rng=rng, ss=ss, provider_name=provider_name, optics=optics,
                              pol_info=pol_info, alpha_nominal=alpha_nominal, saturated=saturated, timing_s=timing)
+    psf_arrays, meta["psf"]["pixel"] = _psf_extras(renderers, camera, times, static=sc.static)
+    extras = {**_extras(theta, calibration, fpn, n_frames), **psf_arrays}
     return Measurement(frames=frames, times_s=times, alpha=alpha, truth_x1=x1, truth_x2=x2,
-                       fpn=fpn.frame(None) if fpn.rank else None, meta=meta,
-                       extras=_extras(theta, calibration, fpn, n_frames))
+                       fpn=fpn.frame(None) if fpn.rank else None, meta=meta, extras=extras)
 
 
 # ----------------------------------------------------------------------------------------------

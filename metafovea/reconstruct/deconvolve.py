@@ -1,0 +1,454 @@
+"""PSF-aware reconstruction: joint separation and deconvolution of the two channels, to scene radiance and kelvin.
+
+The frames of a static scene through the camera are, per pixel and frame (DN, after the fixed pattern)::
+
+    y_t = a_t u_1 + (1 - a_t) u_2 + n_t,    u_i = offset + r_i (K_i * s_i + p_i mean(s_i))
+
+with ``a_t`` the mixing ratios, ``K_i`` channel ``i``'s PSF on the pixel grid (core, chromatic haze and glare,
+:func:`metafovea.imaging.kernels.pixel_psf`), ``p_i`` its pedestal (the power of disks wider than the crop, a
+uniform level), ``r_i`` its relative illumination, ``offset`` the sensor's dark level and ``s_i`` the scene in DN
+above it as a perfect lens would image it. The per-pixel normal equations of the frames (``N = sum_t [a_t,
+1 - a_t]^T [a_t, 1 - a_t]``, the same 2 x 2 matrix at every pixel) are a sufficient statistic: the separated
+``u_hat = N^-1 sum_t [a_t, 1 - a_t]^T y_t`` carry every bit of the frames' information about ``s`` with noise
+covariance ``sigma^2 N^-1``, correlated between the channels. The joint problem is therefore solved exactly per
+spatial frequency, one 2 x 2 system for both channels, on a grid padded by the kernels' radius (mirror
+boundary), with
+
+* ``method='wiener'``: the linear minimum-mean-square-error estimate with a power-law scene spectrum
+  ``c_i / |f|^beta_i`` fitted to the data where its signal exceeds the noise (the mean is not shrunk);
+* ``method='tv'`` (default): total-variation regularised least squares, ``min_s 1/2 ||u_hat - A s||^2_{C^-1}
+  + sum_i lambda_i TV(s_i)`` by ADMM (every linear step is the per-frequency 2 x 2 solve), started from the Wiener
+  estimate, ``lambda_i = 1 / mean |grad s_i|`` of that estimate (the scale of a Laplace prior on the gradients);
+
+and the reference bound :func:`wiener_bound`: the same linear estimate with the true scene's (radially averaged)
+power spectrum, the true PSFs and the noise: the best a stationary linear reconstruction can do. ``sigma``, the
+frames' temporal noise, is estimated from the residuals of the per-pixel fit (``T > 2``).
+
+Temperatures: ``L = s dL/dT(300 K) / (counts_per_k g_i)`` (the radiometric calibration the simulator writes as
+``dn_per_k_300K``) is in-band radiance, and its brightness temperature the inverse of the band's ``L(T)``
+(:meth:`metafovea.radiometry.BandRadiance.temperature`).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from metafovea.errors import InputError, check_choice, check_int
+
+#: methods of :func:`separate_deconvolve`
+DECONVOLUTION_METHODS = ("tv", "wiener")
+#: spectral power-law exponents the Wiener prior's fit may take
+BETA_RANGE = (1.0, 4.0)
+
+
+@dataclass(frozen=True)
+class ChannelPSFs:
+    """Both channels' PSFs on the pixel grid: ``kernels`` ``(n_i, n_i)`` odd, centred; ``pedestals`` (power beyond
+    the kernels, uniform); ``illumination`` ``(H, W)`` each or None (1); ``source`` where they came from."""
+
+    kernels: tuple[np.ndarray, np.ndarray]
+    pedestals: tuple[float, float] = (0.0, 0.0)
+    illumination: tuple[np.ndarray | None, np.ndarray | None] = (None, None)
+    source: str = "given"
+
+    def __post_init__(self) -> None:
+        ks = []
+        for i, k in enumerate(self.kernels, start=1):
+            a = np.asarray(k, dtype=np.float64)
+            if a.ndim != 2 or a.shape[0] != a.shape[1] or a.shape[0] % 2 == 0:
+                raise InputError(f"psf_x{i}", f"array of shape {a.shape}", "a square kernel of odd size, centred")
+            if not np.all(np.isfinite(a)) or a.min() < 0 or a.sum() <= 0:
+                raise InputError(f"psf_x{i}", "kernel", "finite values >= 0 with a positive sum")
+            ks.append(a)
+        object.__setattr__(self, "kernels", tuple(ks))
+        for i, p in enumerate(self.pedestals, start=1):
+            if not (math.isfinite(p) and 0 <= p < 1):
+                raise InputError(f"pedestal_x{i}", p, "a power fraction in [0, 1)")
+
+    @classmethod
+    def from_measurement(cls, m: Any) -> "ChannelPSFs":
+        """The PSFs a Measurement carries (``extras`` ``psf_x1``/``psf_x2``, ``illumination_x*``, the pedestals in
+        ``meta['psf']['pixel']``), as :func:`metafovea.imaging.simulate.simulate` writes them."""
+        ex = m.extras
+        if "psf_x1" not in ex or "psf_x2" not in ex:
+            raise InputError("measurement", m.source or "in memory", "a file with the channel PSFs 'psf_x1' and "
+                             "'psf_x2' (metafovea simulate writes them), or a PSF file (--psf)", source=m.source)
+        pix = (m.meta.get("psf") or {}).get("pixel") or {}
+        ped = tuple(float((pix.get(f"x{i}") or {}).get("pedestal", 0.0)) for i in (1, 2))
+        ill = tuple(ex.get(f"illumination_x{i}") for i in (1, 2))
+        return cls((ex["psf_x1"], ex["psf_x2"]), ped, ill, source=m.source or "measurement")
+
+
+@dataclass
+class Deconvolution:
+    """Scene estimates of both channels: ``scene`` ``(s_1, s_2)`` in the frames' DN (a perfect lens' image, the
+    offset added back), ``temperature_k`` their brightness temperatures (or None without a radiometric
+    calibration), ``info`` what was chosen (sigma, priors, weights, iterations) and timings."""
+
+    scene: tuple[np.ndarray, np.ndarray]
+    temperature_k: tuple[np.ndarray, np.ndarray] | None
+    info: dict[str, Any] = field(default_factory=dict)
+
+
+# -- the per-frequency model -----------------------------------------------------------------------------------
+def _normal_equations(frames: np.ndarray, alpha: np.ndarray) -> tuple[np.ndarray, np.ndarray, float, int]:
+    """``(u_hat (2, H, W), N (2, 2), sigma, dof)``: the per-pixel least-squares separation, its normal matrix and
+    the residual noise estimate."""
+    a = np.asarray(alpha, dtype=np.float64)
+    A = np.stack([a, 1.0 - a], axis=1)  # (T, 2)
+    N = A.T @ A
+    if np.linalg.cond(N) > 1e8:
+        raise InputError("alpha", "nearly constant mixing ratios", "a sequence whose alpha varies (the 2 x 2 normal "
+                         "matrix is singular)")
+    T, H, W = frames.shape
+    y = frames.reshape(T, -1).astype(np.float64)
+    u = np.linalg.solve(N, A.T @ y)
+    dof = T - 2
+    sigma = float(np.sqrt(np.mean((y - A @ u) ** 2) * T / dof)) if dof > 0 else float("nan")
+    return u.reshape(2, H, W), N, sigma, dof
+
+
+class _Grid:
+    """The padded periodic grid of the solve: mirror padding by the larger kernel's radius, FFT-friendly size."""
+
+    def __init__(self, shape: tuple[int, int], kernels: tuple[np.ndarray, np.ndarray], pedestals: tuple[float, float]):
+        from scipy.fft import next_fast_len
+
+        H, W = shape
+        r = max(k.shape[0] // 2 for k in kernels)
+        self.pad = min(r, 3 * max(H, W))
+        self.shape = (next_fast_len(H + 2 * self.pad, real=True), next_fast_len(W + 2 * self.pad, real=True))
+        self.crop = (slice(self.pad, self.pad + H), slice(self.pad, self.pad + W))
+        P, Q = self.shape
+        self.D = np.stack([self._otf(k, p) for k, p in zip(kernels, pedestals)])  # (2, P, Q//2+1)
+        fy = np.fft.fftfreq(P)[:, None]
+        fx = np.fft.rfftfreq(Q)[None, :]
+        self.f = np.hypot(fy, fx)
+        # the forward-difference operator's transfer functions (periodic): TV's gradient
+        self.gy = np.exp(2j * np.pi * fy) - 1.0
+        self.gx = np.exp(2j * np.pi * fx) - 1.0
+        self.lap = np.abs(self.gy) ** 2 + np.abs(self.gx) ** 2
+
+    def _otf(self, k: np.ndarray, pedestal: float) -> np.ndarray:
+        from scipy.fft import rfft2
+
+        P, Q = self.shape
+        n = k.shape[0]
+        if n > min(P, Q):  # a kernel wider than the grid: fold it (periodic), its power kept
+            c = n // 2
+            kk = np.zeros((P, Q))
+            iy, ix = (np.arange(n) - c) % P, (np.arange(n) - c) % Q
+            np.add.at(kk, (iy[:, None], ix[None, :]), k)
+        else:
+            kk = np.zeros((P, Q))
+            kk[:n, :n] = k
+            kk = np.roll(kk, (-(n // 2), -(n // 2)), axis=(0, 1))
+        D = rfft2(kk)
+        D[0, 0] += pedestal
+        return D
+
+    def padded(self, img: np.ndarray, mode: str = "edge") -> np.ndarray:
+        H, W = img.shape
+        P, Q = self.shape
+        p = self.pad
+        if mode == "reflect" and max(p, P - H - p, Q - W - p) >= min(H, W):
+            mode = "symmetric"
+        return np.pad(img, ((p, P - H - p), (p, Q - W - p)), mode=mode)
+
+    def rfft(self, imgs: np.ndarray) -> np.ndarray:
+        from scipy.fft import rfft2
+
+        return rfft2(imgs, axes=(-2, -1), workers=-1)
+
+    def irfft(self, spec: np.ndarray) -> np.ndarray:
+        from scipy.fft import irfft2
+
+        return irfft2(spec, s=self.shape, axes=(-2, -1), workers=-1)
+
+
+def _solve2(M: tuple[np.ndarray, np.ndarray, np.ndarray], b: np.ndarray) -> np.ndarray:
+    """Per-frequency solve of the Hermitian 2 x 2 systems ``[[m11, m12], [conj(m12), m22]] x = b``."""
+    m11, m12, m22 = M
+    det = m11 * m22 - np.abs(m12) ** 2
+    det = np.where(np.abs(det) > 0, det, np.inf)
+    return np.stack([(m22 * b[0] - m12 * b[1]) / det, (m11 * b[1] - np.conj(m12) * b[0]) / det])
+
+
+def _radial_mean(g: _Grid, v: np.ndarray, nbins: int = 64) -> tuple[np.ndarray, np.ndarray]:
+    """Radially averaged ``v`` (P, Q//2+1) in ``nbins`` bins of |f| up to 0.5 sqrt 2: (bin centres, means)."""
+    edges = np.linspace(0.0, 0.5 * math.sqrt(2), nbins + 1)
+    idx = np.clip(np.digitize(g.f.ravel(), edges) - 1, 0, nbins - 1)
+    cnt = np.bincount(idx, minlength=nbins)
+    s = np.bincount(idx, weights=v.ravel(), minlength=nbins)
+    return 0.5 * (edges[1:] + edges[:-1]), np.where(cnt > 0, s / np.maximum(cnt, 1), np.nan)
+
+
+def _radial_field(g: _Grid, values: np.ndarray) -> np.ndarray:
+    """Bin values (nbins,) spread back onto the frequency grid."""
+    nb = values.size
+    edges = np.linspace(0.0, 0.5 * math.sqrt(2), nb + 1)
+    return np.nan_to_num(values, nan=0.0)[np.clip(np.digitize(g.f, edges) - 1, 0, nb - 1)]
+
+
+def _fitted_spectrum(g: _Grid, z: np.ndarray, noise_var: float, D: np.ndarray) -> tuple[np.ndarray, dict[str, Any]]:
+    """A power-law scene spectrum ``c / |f|^beta`` (per unnormalised-FFT bin) fitted to the mirrored image ``z``
+    where the blurred signal's power exceeds twice the noise's; ``beta`` in :data:`BETA_RANGE`."""
+    Z = g.rfft(g.padded(z - z.mean()))
+    noise_power = noise_var * g.shape[0] * g.shape[1]
+    fc, pz = _radial_mean(g, np.abs(Z) ** 2)
+    _, pd = _radial_mean(g, np.abs(D) ** 2)
+    sig = pz - noise_power
+    ok = np.isfinite(sig) & (sig > noise_power) & (fc > 0) & (pd > 0)
+    ok[0] = False
+    beta = 2.0
+    if ok.sum() >= 3:
+        beta = float(np.clip(-np.polyfit(np.log(fc[ok]), np.log(sig[ok] / pd[ok]), 1)[0], *BETA_RANGE))
+        logc = float(np.mean(np.log(sig[ok] / pd[ok]) + beta * np.log(fc[ok])))
+    else:
+        logc = math.log(max(noise_power, 1e-30))
+    f = np.maximum(g.f, 1.0 / max(g.shape))
+    return np.exp(logc) / f ** beta, {"beta": beta, "bins_used": int(ok.sum())}
+
+
+class _Problem:
+    """The joint problem on the grid: data ``z`` (2, H, W) with per-pixel noise covariance ``C`` (2, 2). With
+    ``boundary='mirror'`` the data are mirrored onto the padding and the problem is periodic (diagonal per
+    frequency); with ``'unknown'`` only the crop is data and the scene beyond it is solved for (seen through the
+    PSFs' tails; far less determined)."""
+
+    def __init__(self, g: _Grid, z: np.ndarray, C: np.ndarray, boundary: str = "mirror", pad_mode: str = "edge"):
+        self.g, self.Cinv, self.boundary = g, np.linalg.inv(C), boundary
+        self.crop, self.zc = g.crop, z
+        if boundary == "mirror":
+            self.z = np.stack([g.padded(zi, pad_mode) for zi in z])
+            self.region = (slice(None), slice(None))
+        else:
+            self.z = z
+            self.region = g.crop
+
+    def blur(self, s: np.ndarray) -> np.ndarray:
+        return self.g.irfft(self.g.D * self.g.rfft(s))
+
+    def blur_t(self, v: np.ndarray) -> np.ndarray:
+        return self.g.irfft(np.conj(self.g.D) * self.g.rfft(v))
+
+    def weighted(self, r: np.ndarray) -> np.ndarray:
+        """``M^T C^-1 M r`` for a residual on the grid (zero outside the data region)."""
+        out = np.zeros_like(r)
+        cy, cx = self.region
+        out[:, cy, cx] = np.einsum("ij,jhw->ihw", self.Cinv, r[:, cy, cx])
+        return out
+
+    def data_rhs(self) -> np.ndarray:
+        v = np.zeros((2,) + self.g.shape)
+        cy, cx = self.region
+        v[:, cy, cx] = self.z
+        return self.blur_t(self.weighted(v))
+
+
+def _linear_solve(pb: _Problem, prior_inv: np.ndarray, x0: np.ndarray | None, iterations: int = 200,
+                  tol: float = 1e-6) -> tuple[np.ndarray, int]:
+    """Conjugate gradients for ``(A^T M^T C^-1 M A + P^-1) s = A^T M^T C^-1 z`` (``prior_inv`` (2, P, Q//2+1): the
+    prior's inverse spectrum per unnormalised bin, 0 at DC), preconditioned by the same system without the mask
+    (per frequency, 2 x 2)."""
+    g = pb.g
+    n_bins = g.shape[0] * g.shape[1]
+    D1, D2 = g.D
+    Ci = pb.Cinv
+    cy, cx = pb.region
+    frac = float(np.ones(g.shape)[cy, cx].size) / n_bins  # the data region's share: the preconditioner's weight
+    Mpre = (Ci[0, 0] * frac * np.abs(D1) ** 2 + prior_inv[0] * n_bins, Ci[0, 1] * frac * np.conj(D1) * D2,
+            Ci[1, 1] * frac * np.abs(D2) ** 2 + prior_inv[1] * n_bins)
+    eps = 1e-12 * float(np.max(np.abs(Mpre[0])) + np.max(np.abs(Mpre[2])))
+    Mpre = (Mpre[0] + eps, Mpre[1], Mpre[2] + eps)
+
+    def op(s: np.ndarray) -> np.ndarray:
+        S = g.rfft(s)
+        return pb.blur_t(pb.weighted(g.irfft(g.D * S))) + g.irfft(prior_inv * n_bins * S)
+
+    def pre(r: np.ndarray) -> np.ndarray:
+        return g.irfft(_solve2(Mpre, g.rfft(r)))
+
+    b = pb.data_rhs()
+    x = np.zeros_like(b) if x0 is None else x0.copy()
+    r = b - op(x)
+    zz = pre(r)
+    p = zz.copy()
+    rz = float(np.vdot(r, zz))
+    bn = float(np.linalg.norm(b)) or 1.0
+    for it in range(1, iterations + 1):
+        Ap = op(p)
+        step = rz / float(np.vdot(p, Ap))
+        x += step * p
+        r -= step * Ap
+        if float(np.linalg.norm(r)) < tol * bn:
+            return x, it
+        zz = pre(r)
+        rz_new = float(np.vdot(r, zz))
+        p = zz + (rz_new / rz) * p
+        rz = rz_new
+    return x, iterations
+
+
+def _shrink(gy: np.ndarray, gx: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    mag = np.sqrt(gy ** 2 + gx ** 2)
+    f = np.maximum(1.0 - t / np.maximum(mag, 1e-30), 0.0)
+    return gy * f, gx * f
+
+
+def _tv_admm(pb: _Problem, s0: np.ndarray, lam: np.ndarray, iterations: int) -> tuple[np.ndarray, int]:
+    """ADMM for ``min 1/2 ||M A s - z||^2_{C^-1} + sum_i lam_i TV_iso(s_i)`` with unknown boundaries (the splits
+    ``v = A s``, ``w = grad s``: every step is per frequency or per pixel), from ``s0``."""
+    g = pb.g
+    cy, cx = pb.region
+    rho1 = float(np.max(np.abs(pb.Cinv)))
+    rho2 = rho1 * 0.1
+    den = rho1 * np.abs(g.D) ** 2 + rho2 * g.lap[None]
+    den[:, 0, 0] = np.maximum(den[:, 0, 0], 1e-12 * rho1)
+    # the data step inside the crop: (C^-1 + rho1 I) v = C^-1 z + rho1 q
+    Kd = np.linalg.inv(pb.Cinv + rho1 * np.eye(2))
+    Ciz = np.einsum("ij,jhw->ihw", pb.Cinv, pb.z)
+    s = s0.copy()
+    S = g.rfft(s)
+    v = g.irfft(g.D * S)
+    wy, wx = g.irfft(g.gy * S), g.irfft(g.gx * S)
+    d1 = np.zeros_like(v)
+    dy, dx = np.zeros_like(wy), np.zeros_like(wx)
+    t = (lam / rho2)[:, None, None]
+    for _ in range(iterations):
+        S = (rho1 * np.conj(g.D) * g.rfft(v - d1)
+             + rho2 * (np.conj(g.gy) * g.rfft(wy - dy) + np.conj(g.gx) * g.rfft(wx - dx))) / den
+        As = g.irfft(g.D * S)
+        gy_s, gx_s = g.irfft(g.gy * S), g.irfft(g.gx * S)
+        q = As + d1
+        v = q.copy()
+        v[:, cy, cx] = np.einsum("ij,jhw->ihw", Kd, Ciz + rho1 * q[:, cy, cx])
+        wy, wx = _shrink(gy_s + dy, gx_s + dx, t)
+        d1 += As - v
+        dy += gy_s - wy
+        dx += gx_s - wx
+    return g.irfft(S), iterations
+
+
+# -- public ----------------------------------------------------------------------------------------------------
+def _prepared(frames: Any, alpha: Any, psfs: ChannelPSFs, offset: float, sigma: float | None,
+              boundary: str = "mirror", pad_mode: str = "edge") -> tuple[_Problem, np.ndarray, dict[str, Any]]:
+    """The masked problem (separated, offset-removed, illumination-divided channels on the crop; their per-pixel
+    noise covariance ``C`` (2, 2)) and what was found (``info``)."""
+    fr = np.asarray(frames, dtype=np.float64)
+    if fr.ndim != 3 or fr.shape[0] < 3:
+        raise InputError("frames", f"array of shape {fr.shape}", "(T, H, W) frames with T >= 3")
+    T, H, W = fr.shape
+    a = np.asarray(alpha, dtype=np.float64).reshape(-1)
+    if a.shape != (T,) or not np.all(np.isfinite(a)):
+        raise InputError("alpha", f"array of shape {a.shape}", f"({T},) finite mixing ratios")
+    u, N, sig_fit, dof = _normal_equations(fr, a)
+    sig = sig_fit if sigma is None else float(sigma)
+    if not (math.isfinite(sig) and sig > 0):
+        raise InputError("sigma", sig, "a frame noise level > 0 (DN)")
+    z = np.empty_like(u)
+    r_rms = []
+    for i in range(2):
+        r = psfs.illumination[i]
+        r = np.ones((H, W)) if r is None else np.asarray(r, dtype=np.float64)
+        if r.shape != (H, W) or not np.all(r > 0):
+            raise InputError(f"illumination_x{i + 1}", f"array of shape {r.shape}", f"(H, W) = {(H, W)} values > 0")
+        z[i] = (u[i] - offset) / r
+        r_rms.append(float(np.sqrt(np.mean(r ** -2.0))))
+    g = _Grid((H, W), psfs.kernels, psfs.pedestals)
+    C = sig ** 2 * np.linalg.inv(N) * np.outer(r_rms, r_rms)  # the separated channels' noise covariance
+    info = {"sigma_dn": sig, "sigma_source": "residuals of the per-pixel fit" if sigma is None else "given",
+            "noise_std_dn": [float(math.sqrt(C[0, 0])), float(math.sqrt(C[1, 1]))],
+            "noise_correlation": float(C[0, 1] / math.sqrt(C[0, 0] * C[1, 1])),
+            "grid": list(g.shape), "pad_px": g.pad, "psf_source": psfs.source,
+            "boundary": boundary}
+    return _Problem(g, z, C, boundary, pad_mode), C, info
+
+
+def _inverse_prior(spectra: list[np.ndarray]) -> np.ndarray:
+    inv = np.stack([np.where(p > 0, 1.0 / np.maximum(p, 1e-300), 0.0) for p in spectra])
+    inv[:, 0, 0] = 0.0  # the mean is not shrunk
+    return inv
+
+
+def _calibration(meta: dict[str, Any] | None):
+    """``(dn_per_k (2,), dL/dT(300 K), BandRadiance)`` from a measurement's metadata, or None."""
+    if not meta or "dn_per_k_300K" not in meta or "radiometry" not in meta:
+        return None
+    from metafovea.radiometry import BandRadiance
+
+    rad = meta["radiometry"]
+    filt = rad.get("filter")
+    band = BandRadiance.from_band(tuple(rad["band_um"]), filter_um=tuple(filt) if filt else None)
+    d = meta["dn_per_k_300K"]
+    return (float(d["x1"]), float(d["x2"])), float(rad.get("dL_dT_300K") or band.derivative(300.0)), band
+
+
+def temperatures(scene_dn: tuple[np.ndarray, np.ndarray], offset: float,
+                 meta: dict[str, Any] | None) -> tuple[np.ndarray, np.ndarray] | None:
+    """Brightness temperatures (K) of both channels' scene images (DN) through the radiometric calibration in
+    ``meta`` (``dn_per_k_300K``, ``radiometry``); None when ``meta`` has none."""
+    cal = _calibration(meta)
+    if cal is None:
+        return None
+    dn_per_k, dl_dt, band = cal
+    return tuple(band.temperature((np.asarray(s, dtype=np.float64) - offset) * dl_dt / k)
+                 for s, k in zip(scene_dn, dn_per_k))  # type: ignore[return-value]
+
+
+def separate_deconvolve(frames: Any, alpha: Any, psfs: ChannelPSFs, *, method: str = "tv", offset: float = 0.0,
+                        sigma: float | None = None, iterations: int = 150, tv_weight: float | None = None,
+                        meta: dict[str, Any] | None = None, boundary: str = "mirror",
+                        pad_mode: str = "edge") -> Deconvolution:
+    """The scene radiance of both channels from ``frames (T, H, W)`` (DN, fixed pattern removed) with mixing ratios
+    ``alpha (T,)`` (known, or a solver's estimate) and the channels' PSFs (see the module docstring).
+
+    ``offset``: the frames' dark level (DN); ``sigma``: the frames' temporal noise (DN; default from the fit's
+    residuals); ``iterations``: ADMM iterations of ``'tv'``; ``tv_weight``: a multiplier of the automatic TV
+    weights; ``meta``: a Measurement's metadata for the temperatures (``dn_per_k_300K``, ``radiometry``).
+    """
+    method = check_choice("method", method, DECONVOLUTION_METHODS)
+    iterations = check_int("iterations", iterations, 1, 100_000)
+    t0 = time.perf_counter()
+    pb, C, info = _prepared(frames, alpha, psfs, offset, sigma, boundary, pad_mode)
+    g = pb.g
+    fits = [_fitted_spectrum(g, pb.zc[i], C[i, i], g.D[i]) for i in range(2)]
+    s, n_cg = _linear_solve(pb, _inverse_prior([f[0] for f in fits]), None)
+    info.update(method=method, prior="power law c / |f|^beta fitted to the data", prior_fit=[f[1] for f in fits],
+                cg_iterations=n_cg)
+    if method == "tv":
+        cy, cx = g.crop
+        grad = [float(np.mean(np.hypot(np.diff(s[i][cy, cx], axis=0)[:, :-1], np.diff(s[i][cy, cx], axis=1)[:-1])))
+                for i in range(2)]
+        mult = 1.0 if tv_weight is None else float(tv_weight)
+        if not (math.isfinite(mult) and mult > 0):
+            raise InputError("tv_weight", tv_weight, "a multiplier > 0 of the automatic weight")
+        lam = np.array([mult / max(gr, 1e-12) for gr in grad])
+        s, its = _tv_admm(pb, s, lam, iterations)
+        info.update(tv_weight=[float(v) for v in lam], tv_weight_rule="1 / mean |grad s| of the Wiener estimate "
+                    "(Laplace prior on the gradients)" + ("" if tv_weight is None else f" x {mult:g}"),
+                    admm_iterations=its)
+    scene = (s[0][g.crop] + offset, s[1][g.crop] + offset)
+    info["seconds"] = time.perf_counter() - t0
+    return Deconvolution(scene, temperatures(scene, offset, meta), info)
+
+
+def wiener_bound(frames: Any, alpha: Any, psfs: ChannelPSFs, truth: tuple[np.ndarray, np.ndarray], *,
+                 offset: float = 0.0, sigma: float, boundary: str = "mirror",
+                 pad_mode: str = "edge") -> tuple[np.ndarray, np.ndarray]:
+    """The reference: the best stationary linear reconstruction, the joint Wiener estimate of
+    :func:`separate_deconvolve` with the true scene's radially averaged power spectrum (``truth``: both channels'
+    scene images in DN) in place of the fitted one, the true PSFs and the true frame noise ``sigma`` (DN)."""
+    pb, _, _ = _prepared(frames, alpha, psfs, offset, sigma, boundary, pad_mode)
+    g = pb.g
+    spectra = []
+    for t in truth:
+        st = g.rfft(g.padded(np.asarray(t, dtype=np.float64) - offset))
+        spectra.append(_radial_field(g, _radial_mean(g, np.abs(st) ** 2, nbins=128)[1]))
+    s, _ = _linear_solve(pb, _inverse_prior(spectra), None)
+    return s[0][g.crop] + offset, s[1][g.crop] + offset
