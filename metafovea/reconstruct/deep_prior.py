@@ -53,7 +53,8 @@ log = logging.getLogger(__name__)
 def _init_params(rng: np.random.Generator, cin: int, ch: int, depth: int, skip: int) -> dict[str, Any]:
     def conv(k: int, ci: int, co: int) -> dict[str, np.ndarray]:
         std = np.sqrt(2.0 / (k * k * ci))
-        return {"w": (rng.normal(0, std, (co, ci, k, k))).astype(np.float32), "b": np.zeros(co, np.float32)}
+        return {"w": (rng.normal(0, std, (co, ci, k, k))).astype(np.float32), "b": np.zeros(co, np.float32),
+                "g": np.ones(co, np.float32)}
 
     p: dict[str, Any] = {"down": [], "skip": [], "up": []}
     c = cin
@@ -68,14 +69,25 @@ def _init_params(rng: np.random.Generator, cin: int, ch: int, depth: int, skip: 
     return p
 
 
-def _build(depth: int):
+#: traces of the jitted functions (incremented while JAX traces them, i.e. once per compilation); a call's
+#: ``info['traces']`` is how many it caused (0 when a call with the same shape and switches ran before)
+_TRACES = [0]
+
+
+def _build(depth: int, norm: bool = False):
+    """``net(p, z) -> (H, W)``; ``norm``: each conv's output normalised per channel over the image (the
+    original DIP's batch norm with a batch of one), then scaled by ``g`` and shifted by ``b``."""
     import jax
     import jax.numpy as jnp
 
-    def conv(x, c, stride=1):
+    def conv(x, c, stride=1, normed=norm):
         k = c["w"].shape[-1]
         y = jax.lax.conv_general_dilated(x, c["w"], (stride, stride), [(k // 2, k // 2)] * 2,
                                          dimension_numbers=("NCHW", "OIHW", "NCHW"))
+        if normed:
+            mu = y.mean(axis=(2, 3), keepdims=True)
+            y = (y - mu) * jax.lax.rsqrt(((y - mu) ** 2).mean(axis=(2, 3), keepdims=True) + 1e-5)
+            y = y * c["g"][None, :, None, None]
         return y + c["b"][None, :, None, None]
 
     def act(x):
@@ -94,7 +106,7 @@ def _build(depth: int):
             x = jnp.concatenate([x, s], axis=1)
             x = act(conv(x, p["up"][lev][0]))
             x = act(conv(x, p["up"][lev][1]))
-        return conv(x, p["out"])[0, 0]
+        return conv(x, p["out"], normed=False)[0, 0]
 
     return net
 
@@ -112,14 +124,42 @@ def _head(residual: bool):
     return head
 
 
-@functools.lru_cache(maxsize=16)
-def _make_step(depth: int, learn_alpha: bool, foveal: bool, residual: bool = False):
-    """Jitted Adam step ``(p, m, v, t, data) -> (p, m, v, loss)`` for one network depth and switches."""
+def _images_fn(depth: int, learn_alpha: bool, residual: bool, norm: bool):
+    """``images(p, data) -> (g1, g2, alpha)`` in the frames' normalised units (traced inside the jitted step)."""
     import jax
+
+    net, head = _build(depth, norm), _head(residual)
+
+    def images(p, data):
+        g1 = head(net(p["g1"], data["z1"]), data["b1"], data["ab"][0:2])
+        g2 = head(net(p["g2"], data["z2"]), data["b2"], data["ab"][2:4])
+        return g1, g2, (jax.nn.sigmoid(p["alpha"]) if learn_alpha else data["a"])
+
+    return images
+
+
+@functools.lru_cache(maxsize=32)
+def _make_render(depth: int, learn_alpha: bool, residual: bool, norm: bool):
+    """Jitted :func:`_images_fn` (checkpoints and the final images), compiled once per shape and switches."""
+    import jax
+
+    images = _images_fn(depth, learn_alpha, residual, norm)
+
+    def render(p, data):
+        _TRACES[0] += 1
+        return images(p, data)
+
+    return jax.jit(render)
+
+
+@functools.lru_cache(maxsize=32)
+def _make_step(depth: int, learn_alpha: bool, foveal: bool, residual: bool = False, norm: bool = False):
+    """Jitted Adam step ``(state, t, lr, alpha_lr, beta, data) -> (state, loss)`` for one network depth and
+    switches; ``state = (p, m, v, ema1, ema2)``, ``ema_k`` the running mean (decay ``beta``) of image ``k``.
+    Cached here and by ``jax.jit`` per input shape: one compilation per (shape, switches)."""
     import jax.numpy as jnp
 
-    net = _build(depth)
-    head = _head(residual)
+    images = _images_fn(depth, learn_alpha, residual, norm)
 
     def mean_abs_tv(x):
         """Anisotropic TV per pixel: the mean |vertical| plus the mean |horizontal| difference."""
@@ -142,55 +182,54 @@ def _make_step(depth: int, learn_alpha: bool, foveal: bool, residual: bool = Fal
 
     def loss_fn(p, data):
         tvw, exw, fw, gain_n, bias_n = (data["c"][i] for i in range(5))
-        g1 = head(net(p["g1"], data["z1"]), data["b1"], data["ab"][0:2])
-        g2 = head(net(p["g2"], data["z2"]), data["b2"], data["ab"][2:4])
-        a = jax.nn.sigmoid(p["alpha"]) if learn_alpha else data["a"]
+        g1, g2, a = images(p, data)
         model = a[:, None, None] * g1[None] + (1 - a)[:, None, None] * g2[None]
         loss = jnp.mean((data["y"] - model) ** 2) + tvw * (mean_abs_tv(g1) + mean_abs_tv(g2)) + exw * excl(g1, g2)
         if foveal:
             Dm = data["D"]
             r = Dm[0] @ g1 @ Dm[1].T - gain_n * (Dm[2] @ g2 @ Dm[3].T) - bias_n
             loss = loss + fw * jnp.mean(r ** 2)
-        return loss
+        return loss, (g1, g2)
 
     return _adam(loss_fn)
 
 
 def _adam(loss_fn):
-    """Jitted Adam step for ``loss_fn(p, data)``; learning rate ``data['c'][5]`` (``[6]`` for alpha)."""
+    """Jitted Adam step for ``loss_fn(p, data) -> (loss, (img1, img2))`` with running means of the images."""
     import jax
     import jax.numpy as jnp
 
     b1, b2, eps = 0.9, 0.999, 1e-8
 
-    @jax.jit
-    def step(p, m, v, t, data):
-        lr = data["c"][5]
-        loss, g = jax.value_and_grad(loss_fn)(p, data)
+    def step(state, t, lr, alpha_lr, beta, data):
+        _TRACES[0] += 1
+        p, m, v, e1, e2 = state
+        (loss, (i1, i2)), g = jax.value_and_grad(loss_fn, has_aux=True)(p, data)
         m = jax.tree_util.tree_map(lambda mi, gi: b1 * mi + (1 - b1) * gi, m, g)
         v = jax.tree_util.tree_map(lambda vi, gi: b2 * vi + (1 - b2) * gi * gi, v, g)
         mh = 1 - b1 ** t
         vh = 1 - b2 ** t
-        lrs = {k: (data["c"][6] if k == "alpha" else lr) for k in p}
+        lrs = {k: (alpha_lr if k == "alpha" else lr) for k in p}
         p = {k: jax.tree_util.tree_map(lambda pi, mi, vi, lk=lrs[k]: pi - lk * (mi / mh) / (jnp.sqrt(vi / vh) + eps),
                                        p[k], m[k], v[k]) for k in p}
-        return p, m, v, loss
+        e1, e2 = beta * e1 + (1 - beta) * i1, beta * e2 + (1 - beta) * i2
+        return (p, m, v, e1, e2), loss
 
-    return step
+    return jax.jit(step)
 
 
 @functools.lru_cache(maxsize=16)
-def _make_fit_step(depth: int):
+def _make_fit_step(depth: int, norm: bool = False):
     """Jitted Adam step of the supervised warm start: ``mean (u_k - target_k)^2`` in each image's units."""
     import jax
     import jax.numpy as jnp
 
-    net = _build(depth)
+    net = _build(depth, norm)
 
     def loss_fn(p, data):
         u1 = jax.nn.sigmoid(net(p["g1"], data["z1"]))
         u2 = jax.nn.sigmoid(net(p["g2"], data["z2"]))
-        return jnp.mean((u1 - data["t1"]) ** 2) + jnp.mean((u2 - data["t2"]) ** 2)
+        return jnp.mean((u1 - data["t1"]) ** 2) + jnp.mean((u2 - data["t2"]) ** 2), (u1, u2)
 
     return _adam(loss_fn)
 
@@ -200,12 +239,17 @@ INITS = ("random", "lsq", "classical")
 #: 290 x 290 paper measurement: the paper's 0.01 smooths the warm start's perifoveal structure away,
 #: -4 dB on x2 after 60 steps; 0.001 keeps both images within 0.05 dB of the warm start)
 PAPER_WEIGHT = 0.01
+RANDOM_WEIGHT = 0.0
 WARM_WEIGHT = 0.001
 #: Adam learning rates: random start, and warm start (0.01 made the residual of a 32-channel network
 #: diverge after ~30 steps on that measurement; 0.002 is stable for 8 and 32 channels over 200 steps)
 PAPER_LR = 0.01
 WARM_LR = 0.002
 WARMS = ("residual", "fit")
+SCHEDULES = ("cosine", "constant")
+ALPHA_INITS = ("means", "classical")
+#: why the steps stopped (``info['stopped']``)
+STOP_REASONS = ("steps", "converged", "time")
 
 
 def _initial_images(Y: np.ndarray, init: Any, alpha: Any, a_init: np.ndarray | None, scale: float,
@@ -256,23 +300,43 @@ class DipOptions:
 
     Attributes
     ----------
-    channels, depth, skip_channels, input_channels: the skip-U-Net (per network).
-    steps: Adam steps of the DIP loss; lr, alpha_lr: learning rates (``None``: see :func:`dip`).
-    tv_weight, exclusion_weight: loss weights (``None``: the paper's 0.01 for a random start, 0.001 after a warm
-        start); foveal_weight: of the foveal term ``||D x1 - foveal_gain C x2 - foveal_offset||^2`` (0: off).
-    scale, foveal_gain, foveal_offset: the foveal constraint (also used by the classical warm start).
-    alpha_init: ``'means'`` or ``(T,)`` initial mixing ratios (unknown alpha); init: ``'random'``, ``'lsq'``,
-        ``'classical'`` or an ``(x1, x2)`` pair; warm: ``'residual'`` or ``'fit'`` (``warm_steps`` supervised steps).
+    channels, depth, skip_channels, input_channels: the skip-U-Net (per network); norm: per-channel
+        normalisation of each conv (the original DIP's batch norm with a batch of one; ``None``: on for a
+        random start, off for a warm start); input_scale: the fixed
+        random inputs are ``input_scale * U(0, 1)`` (the paper's 0.1).
+    steps: the step budget (the most Adam steps of the DIP loss); tol, patience: stop earlier when the best loss
+        improved by less than ``tol`` (relative) over the last ``patience`` steps (``tol=0``: never);
+        max_seconds: stop when the steps took this long (``None``: no time limit).
+    lr, alpha_lr: learning rates (``None``: see :func:`dip`); schedule: ``'cosine'`` (decay to 0 over ``steps``
+        after ``warmup`` linear warm-up steps) or ``'constant'``; average: decay of the running mean of the
+        images returned (0: the last step's images).
+    tv_weight, exclusion_weight: loss weights (``None``: see :func:`dip`); foveal_weight: of the foveal term
+        ``||D x1 - foveal_gain C x2 - foveal_offset||^2`` (0: off).
+    scale, foveal_gain, foveal_offset: the foveal constraint (also used by the classical estimates).
+    alpha_init: ``'means'``, ``'classical'`` (:func:`alternating`'s estimate) or ``(T,)`` initial mixing ratios
+        (unknown alpha); init: ``'random'``, ``'lsq'``, ``'classical'`` or an ``(x1, x2)`` pair; warm:
+        ``'residual'`` or ``'fit'`` (``warm_steps`` supervised steps).
     checkpoints: step counts recorded in ``info['checkpoints']``; rng: seed of the weights and inputs;
-        log_every: log the loss every so many steps (0: never).
+        log_every: log the loss every so many steps (0: never); progress: ``True`` (a tqdm bar on stderr: step,
+        loss, ETA), a callable (called with a dict ``step, steps, loss, seconds, eta_s`` every
+        ``progress_every`` steps and at the end) or ``False``.
     """
 
-    channels: int = 32
+    channels: int = 16
     depth: int = 3
-    skip_channels: int = 4
-    input_channels: int = 8
+    skip_channels: int = 16
+    input_channels: int = 32
+    norm: bool | None = None
+    input_scale: float = 0.1
     steps: int = 2000
+    tol: float = 1e-3
+    patience: int = 100
+    max_seconds: float | None = None
     lr: float | None = None
+    alpha_lr: float | None = None
+    schedule: str = "cosine"
+    warmup: int = 0
+    average: float = 0.0
     tv_weight: float | None = None
     exclusion_weight: float | None = None
     foveal_weight: float = 0.0
@@ -283,10 +347,16 @@ class DipOptions:
     init: Any = "random"
     warm: str = "residual"
     warm_steps: int = 40
-    alpha_lr: float | None = None
     checkpoints: Any = ()
     rng: Any = None
     log_every: int = 0
+    progress: Any = False
+    progress_every: int = 10
+
+
+#: the memory bound: channels x H x W at most this (~8 GB of activations and gradients for both networks, from
+#: XLA's buffer sizes of the jitted step: ~100 bytes per channel-pixel at depth 3, see BENCHMARKS.md)
+MAX_CHANNEL_PIXELS = 2 ** 26
 
 
 def _checked(opt: DipOptions, H: int, W: int) -> tuple[DipOptions, list[int]]:
@@ -296,7 +366,32 @@ def _checked(opt: DipOptions, H: int, W: int) -> tuple[DipOptions, list[int]]:
     if min(H, W) < 2 ** depth:
         raise InputError("frames", f"{H} x {W} pixels", f"at least {2 ** depth} x {2 ** depth} pixels for a "
                          f"depth-{depth} network (or a smaller depth: 2**depth <= min(H, W) = {min(H, W)})")
+    cap = MAX_CHANNEL_PIXELS // (H * W)
+    if cap < 1:
+        raise InputError("frames", f"{H} x {W} pixels", f"H x W <= {MAX_CHANNEL_PIXELS} pixels for the DIP "
+                         "(memory bound; crop or bin the frames)")
+    if channels * H * W > MAX_CHANNEL_PIXELS:
+        raise InputError("channels", channels, f"1 <= channels <= {cap} at {H} x {W} pixels (memory bound: "
+                         f"channels x H x W <= {MAX_CHANNEL_PIXELS})")
+    for name in ("skip_channels", "input_channels"):
+        n = check_int(name, getattr(opt, name), 1, 4096)
+        if n * H * W > MAX_CHANNEL_PIXELS:
+            raise InputError(name, n, f"1 <= {name} <= {cap} at {H} x {W} pixels (memory bound)")
     steps = check_int("steps", opt.steps, 1, 10_000_000)
+    check_int("patience", opt.patience, 1, 10_000_000)
+    check_int("warmup", opt.warmup, 0, 10_000_000)
+    check_int("progress_every", opt.progress_every, 1, 10_000_000)
+    if not 0 <= as_float("tol", opt.tol) < 1:
+        raise InputError("tol", opt.tol, "0 <= tol < 1 (relative loss improvement over patience steps; 0: never)")
+    if opt.max_seconds is not None and not as_float("max_seconds", opt.max_seconds) > 0:
+        raise InputError("max_seconds", opt.max_seconds, "a positive time budget in seconds, or None")
+    if not 0 <= as_float("average", opt.average) < 1:
+        raise InputError("average", opt.average, "0 <= average < 1 (decay of the images' running mean)")
+    if not as_float("input_scale", opt.input_scale) > 0:
+        raise InputError("input_scale", opt.input_scale, "a positive scale of the random inputs")
+    if not (isinstance(opt.progress, bool) or callable(opt.progress)):
+        raise InputError("progress", opt.progress, "True, False or a callable taking a dict")
+    schedule = check_choice("schedule", opt.schedule, SCHEDULES)
     warm = check_choice("warm", opt.warm, WARMS)
     warm_steps = check_int("warm_steps", opt.warm_steps, 0, 10_000_000)
     try:
@@ -306,7 +401,8 @@ def _checked(opt: DipOptions, H: int, W: int) -> tuple[DipOptions, list[int]]:
             raise ValueError
     except (TypeError, ValueError):
         raise InputError("checkpoints", opt.checkpoints, f"step counts between 0 and steps = {steps}") from None
-    return replace(opt, channels=channels, depth=depth, steps=steps, warm=warm, warm_steps=warm_steps), cps
+    return replace(opt, channels=channels, depth=depth, steps=steps, warm=warm, warm_steps=warm_steps,
+                   schedule=schedule), cps
 
 
 @dataclass(frozen=True)
@@ -357,9 +453,11 @@ def _weights(opt: DipOptions, warm_start: bool, op: FovealOperator | None, u: _U
     if lr <= 0:
         raise InputError("lr", lr, "a positive learning rate")
     alpha_lr = as_float("alpha_lr", (lr / 10 if warm_start else lr) if opt.alpha_lr is None else opt.alpha_lr)
+    if alpha_lr < 0:
+        raise InputError("alpha_lr", alpha_lr, "a learning rate >= 0 (0 holds alpha at its initial value)")
     # the constraint in normalised units yn = A y + B: D x1n = gain C x2n + (1 - gain) B + A bias
     A_n, B_n = 0.9 / u.span, 0.05 - 0.9 * u.lo / u.span
-    w_def = WARM_WEIGHT if warm_start else PAPER_WEIGHT
+    w_def = WARM_WEIGHT if warm_start else RANDOM_WEIGHT
     w = {"tv": as_float("tv_weight", w_def if opt.tv_weight is None else opt.tv_weight),
          "exclusion": as_float("exclusion_weight", w_def if opt.exclusion_weight is None else opt.exclusion_weight),
          "foveal": as_float("foveal_weight", opt.foveal_weight),
@@ -374,7 +472,8 @@ def _weights(opt: DipOptions, warm_start: bool, op: FovealOperator | None, u: _U
 def _networks(gen: np.random.Generator, opt: DipOptions, shape: tuple[int, int], residual: bool,
               a0: np.ndarray | None) -> tuple[dict[str, Any], Any, Any]:
     """The two networks' weights (output layers zeroed for the residual warm start; the logit of ``a0`` when alpha
-    is learned) and their fixed random inputs, drawn from ``gen`` in that order."""
+    is learned) and their fixed random inputs ``input_scale * U(0, 1)``, drawn from ``gen`` in that order, on
+    JAX's default device (a GPU when there is one)."""
     import jax
     import jax.numpy as jnp
 
@@ -387,65 +486,145 @@ def _networks(gen: np.random.Generator, opt: DipOptions, shape: tuple[int, int],
         a_c = np.clip(a0, 0.02, 0.98)
         params["alpha"] = np.log(a_c / (1 - a_c)).astype(np.float32)
     params = jax.tree_util.tree_map(jnp.asarray, params)
-    z1 = jnp.asarray(gen.uniform(0, 0.1, (1, opt.input_channels, *shape)).astype(np.float32))
-    z2 = jnp.asarray(gen.uniform(0, 0.1, (1, opt.input_channels, *shape)).astype(np.float32))
+    sc = float(opt.input_scale)
+    z1 = jnp.asarray((sc * gen.uniform(0, 1, (1, opt.input_channels, *shape))).astype(np.float32))
+    z2 = jnp.asarray((sc * gen.uniform(0, 1, (1, opt.input_channels, *shape))).astype(np.float32))
     return params, z1, z2
+
+
+def _zeros_state(params: dict[str, Any], shape: tuple[int, int]) -> tuple:
+    """Adam's moments (zeros like ``params``) and the images' running means (zeros)."""
+    import jax
+    import jax.numpy as jnp
+
+    z = jax.tree_util.tree_map(jnp.zeros_like, params)
+    return (params, z, jax.tree_util.tree_map(jnp.zeros_like, params), jnp.zeros(shape, jnp.float32),
+            jnp.zeros(shape, jnp.float32))
 
 
 def _warm_fit(params: dict[str, Any], z1: Any, z2: Any, u: _Units, opt: DipOptions, lr: float,
               hist: list[float]) -> dict[str, Any]:
     """The supervised warm start (``warm='fit'``): ``warm_steps`` Adam steps fitting each network to its image."""
-    import jax
     import jax.numpy as jnp
 
-    fstep = _make_fit_step(opt.depth)
+    fstep = _make_fit_step(opt.depth, bool(opt.norm))
     fdata = {"z1": z1, "z2": z2, "t1": jnp.asarray(u.base1.astype(np.float32)),
-             "t2": jnp.asarray(u.base2.astype(np.float32)),
-             "c": jnp.asarray(np.array([0, 0, 0, 0, 0, lr, 0.0], np.float32))}
-    nets = {"g1": params["g1"], "g2": params["g2"]}
-    fm = jax.tree_util.tree_map(jnp.zeros_like, nets)
-    fv = jax.tree_util.tree_map(jnp.zeros_like, nets)
+             "t2": jnp.asarray(u.base2.astype(np.float32))}
+    state = _zeros_state({"g1": params["g1"], "g2": params["g2"]}, u.base1.shape)
     for k in range(1, opt.warm_steps + 1):
-        nets, fm, fv, fl = fstep(nets, fm, fv, float(k), fdata)
+        state, fl = fstep(state, float(k), lr, 0.0, 0.0, fdata)
         if k % max(1, opt.warm_steps // 50) == 0 or k == opt.warm_steps:
             hist.append(float(fl))
-    return {**params, **nets}
+    return {**params, **state[0]}
 
 
-def _optimise(step: Any, params: dict[str, Any], data: dict[str, Any], opt: DipOptions, cps: list[int],
-              images: Any, tm: Timings) -> tuple[dict[str, Any], list[float], list[dict[str, Any]]]:
-    """The Adam loop of the DIP loss: ``(params, loss history, checkpoints)``; the first step (which compiles)
-    is timed as ``compile``, the others as ``steps``."""
-    import jax
-    import jax.numpy as jnp
+def _lr_at(k: int, opt: DipOptions, lr: float) -> float:
+    """Learning-rate factor of step ``k`` (1-based): linear warm-up, then constant or cosine decay to 0 at
+    ``steps``."""
+    if opt.warmup and k <= opt.warmup:
+        return k / opt.warmup
+    if opt.schedule == "constant":
+        return 1.0
+    x = (k - opt.warmup) / max(opt.steps - opt.warmup, 1)
+    return 0.5 * (1.0 + float(np.cos(np.pi * min(x, 1.0))))
 
+
+class _Progress:
+    """Step, loss and ETA: a tqdm bar on stderr (``progress=True``), a callable's dict, or nothing."""
+
+    def __init__(self, opt: DipOptions):
+        self.fn = opt.progress if callable(opt.progress) else None
+        self.every, self.steps = opt.progress_every, opt.steps
+        self.bar = None
+        if opt.progress is True:
+            import sys
+
+            from tqdm import tqdm
+            self.bar = tqdm(total=opt.steps, desc="dip", unit="step", file=sys.stderr)
+        self.done = 0
+
+    def __call__(self, k: int, loss: float, seconds: float, last: bool = False) -> None:
+        if not (last or k % self.every == 0):
+            return
+        eta = seconds / max(k, 1) * (self.steps - k)
+        if self.bar is not None:
+            self.bar.update(k - self.done)
+            self.bar.set_postfix(loss=f"{loss:.4g}", refresh=False)
+        self.done = k
+        if self.fn is not None:
+            self.fn({"step": k, "steps": self.steps, "loss": loss, "seconds": seconds, "eta_s": 0.0 if last else eta})
+
+    def close(self) -> None:
+        if self.bar is not None:
+            self.bar.close()
+
+
+def _optimise(step: Any, params: dict[str, Any], data: dict[str, Any], opt: DipOptions, w: dict,
+              cps: list[int], images: Any, tm: Timings) -> tuple[tuple, list[float], list[dict[str, Any]], dict]:
+    """The Adam loop of the DIP loss: ``(state, loss history, checkpoints, stop info)``; the first step (which
+    compiles when this shape and these switches are new) is timed as ``compile``, the others as ``steps``.
+
+    Stops after ``steps`` steps, when the best loss improved by less than ``tol`` (relative) over the last
+    ``patience`` steps, or after ``max_seconds``."""
     recorded: list[dict[str, Any]] = []
     t_start = time.perf_counter()
+    beta = float(opt.average)
 
-    def record(k: int, p: dict[str, Any]) -> None:
+    def record(k: int, st: tuple) -> None:
         if k in cps:
-            x1_, x2_, a_ = images(p)
+            x1_, x2_, a_ = images(st[0])
             recorded.append({"step": k, "x1": x1_, "x2": x2_, "alpha": a_, "seconds": time.perf_counter() - t_start})
 
-    m = jax.tree_util.tree_map(jnp.zeros_like, params)
-    v = jax.tree_util.tree_map(jnp.zeros_like, params)
+    state = _zeros_state(params, data["y"].shape[1:])
     hist: list[float] = []
-    record(0, params)
-    with tm.measure("compile"):
-        params, m, v, loss = step(params, m, v, 1.0, data)
-        hist.append(float(loss))
-    record(1, params)
+    best: list[float] = []
+    record(0, state)
+    bar = _Progress(opt)
+    stop, k = "steps", 0
     t0 = time.perf_counter()
-    with tm.measure("steps"):
-        for k in range(2, opt.steps + 1):
-            params, m, v, loss = step(params, m, v, float(k), data)
-            if k % max(1, opt.steps // 200) == 0 or k == opt.steps:
-                hist.append(float(loss))
+    try:
+        for k in range(1, opt.steps + 1):
+            f = _lr_at(k, opt, 1.0)
+            with tm.measure("compile" if k == 1 else "steps"):
+                state, loss = step(state, float(k), w["lr"] * f, w["alpha_lr"] * f, beta, data)
+                loss = float(loss)
+            best.append(min(loss, best[-1]) if best else loss)
+            if k == 1 or k % max(1, opt.steps // 200) == 0 or k == opt.steps:
+                hist.append(loss)
+            el = time.perf_counter() - t0
             if opt.log_every and k % opt.log_every == 0:
-                log.info("dip step %d/%d loss %.4g (%.2f s/step)", k, opt.steps, float(loss),
-                         (time.perf_counter() - t0) / (k - 1))
-            record(k, params)
-    return params, hist, recorded
+                log.info("dip step %d/%d loss %.4g (%.3f s/step)", k, opt.steps, loss, el / k)
+            record(k, state)
+            bar(k, loss, el)
+            if opt.tol and k > opt.patience and best[k - 1 - opt.patience] - best[-1] <= opt.tol * abs(
+                    best[k - 1 - opt.patience]):
+                stop = "converged"
+            elif opt.max_seconds is not None and el >= opt.max_seconds and k < opt.steps:
+                stop = "time"
+            if stop != "steps":
+                break
+        bar(k, loss, time.perf_counter() - t0, last=True)
+    finally:
+        bar.close()
+    if hist[-1] != loss:
+        hist.append(loss)
+    return state, hist, recorded, {"steps_run": k, "stopped": stop, "best_loss": best[-1], "final_loss": loss}
+
+
+def _start_alpha(Y: np.ndarray, opt: DipOptions, alpha: Any) -> tuple[np.ndarray | None, np.ndarray | None]:
+    """``(alpha held fixed, initial alpha of a learned one)`` from ``alpha`` and ``alpha_init``."""
+    T = Y.shape[0]
+    if alpha is not None:
+        return as_alpha(alpha, T), None
+    ai = opt.alpha_init
+    if isinstance(ai, str):
+        ai = check_choice("alpha_init", ai, ALPHA_INITS)
+        if ai == "means" or opt.init == "classical":  # the classical warm start supplies its own alpha
+            return None, None
+        r = alternating(Y, scale=opt.scale, foveal_gain=opt.foveal_gain, foveal_offset=opt.foveal_offset,
+                        strict=False)
+        return None, np.asarray(r.alpha, np.float64)
+    return None, as_alpha(ai, T, name="alpha_init")
 
 
 def dip(frames: Any, alpha: Any = None, options: DipOptions | None = None, **overrides: Any) -> Reconstruction:
@@ -455,10 +634,12 @@ def dip(frames: Any, alpha: Any = None, options: DipOptions | None = None, **ove
 
     ``alpha_init`` (unknown alpha): ``'means'`` initialises alpha from the frame means as in the paper
     (which labels the brighter frames as more foveal: wrong when the foveal channel is the darker one, as
-    with the paper's F/2 vs F/1 lenses, where it converges to the swapped solution), or ``(T,)`` values,
-    e.g. the classical solver's estimate (``alternating(...).alpha``), which the DIP then refines.
+    with the paper's F/2 vs F/1 lenses, where it converges to the swapped solution), ``'classical'``
+    (:func:`alternating`'s estimate, whose gauge the foveal constraint or polariser fixes) or ``(T,)`` values.
+    The DIP loss does not fix alpha's gauge, so a learned alpha drifts along it: ``alpha_lr=0`` holds the
+    initial alpha fixed.
 
-    Warm start (``init``): ``'random'`` (paper: the networks start from random weights and the images
+    Start (``init``): ``'random'`` (the paper: the networks start from random weights and the images
     from the sigmoid of their output, ~0.5 in the frames' normalised range), ``'lsq'`` (least squares
     with ``alpha`` or the array ``alpha_init``), ``'classical'`` (:func:`alternating` with
     ``scale``/``foveal_gain``/``foveal_offset``, which also supplies alpha when neither ``alpha`` nor an
@@ -470,16 +651,20 @@ def dip(frames: Any, alpha: Any = None, options: DipOptions | None = None, **ove
     * ``'residual'`` (default): ``x_k = x_init_k + range_k * g_k(z_k)`` with the output layer of ``g_k``
       zeroed, so step 0 returns the initial estimate exactly and the DIP loss then corrects it;
     * ``'fit'``: ``warm_steps`` supervised Adam steps fitting ``g_k`` (sigmoid output) to ``x_init_k``,
-      then the DIP loss. Measured on the simulated 290 x 290 paper measurement, 40 such steps reach only
-      12 / 15 dB (a DIP network needs thousands of steps to fit an image), against the classical
-      estimate's 31 / 39 dB, so the residual form is the default.
+      then the DIP loss.
 
-    ``tv_weight``/``exclusion_weight`` default to the paper's 0.01 for a random start and 0.001 after a
-    warm start (the paper's weights smooth the warm start's perifoveal structure away).
+    Defaults: ``tv_weight``/``exclusion_weight`` 0 for a random start and 0.001 after a warm start (the paper's
+    0.01 is ~5x the data term at a noise of 1 % of the range and costs the random start ~10 dB);
+    ``lr`` 0.01 for ``init='random'``, 0.002 for a warm start, cosine-decayed over ``steps``; ``alpha_lr``
+    ``lr`` for a random start, ``lr / 10`` for a warm start (alpha good to ~1e-3, would otherwise drift by
+    ~lr/4 per step along the unfixed gauge).
 
-    ``lr`` (default: 0.01 for ``init='random'``, 0.002 for a warm start) and ``alpha_lr`` (default:
-    ``lr`` for ``init='random'``, ``lr / 10`` for a warm start, whose alpha is
-    already good to ~1e-3 and would otherwise drift by ~lr/4 per step along the unfixed gauge).
+    Step budget: at most ``steps`` steps, fewer when the loss converged (``tol``, ``patience``) or
+    ``max_seconds`` ran out: ``info['steps_run']`` and ``info['stopped']`` (one of :data:`STOP_REASONS`).
+    The jitted step is compiled once per frame shape and switches (``depth``, ``norm``, known/learned alpha,
+    foveal term, residual start) and reused by later calls (``info['traces']``: compilations this call caused).
+    Memory bound: ``channels x H x W <= MAX_CHANNEL_PIXELS`` (an :class:`InputError` otherwise). Runs on JAX's
+    default device (a GPU when JAX has one).
 
     The foveal term (``foveal_weight > 0``) uses ``D x1 = foveal_gain C x2 + foveal_offset`` in the
     frames' units (mapped to the network's normalised range internally). With known ``alpha`` the
@@ -490,11 +675,11 @@ def dip(frames: Any, alpha: Any = None, options: DipOptions | None = None, **ove
 
     ``rng`` seeds the network weights and inputs (same seed, same result on one machine).
     """
-    import jax
     import jax.numpy as jnp
 
     opt = with_overrides(DipOptions, options, overrides)
     tm = Timings()
+    traces0 = _TRACES[0]
     Y = as_frames(frames, min_frames=2)
     if not np.all(np.isfinite(Y)):
         raise InputError("frames", "frames with NaN/inf", "finite frames for the DIP (mask/fill them first)")
@@ -502,18 +687,13 @@ def dip(frames: Any, alpha: Any = None, options: DipOptions | None = None, **ove
     opt, cps = _checked(opt, H, W)
     gen = as_rng(opt.rng)
     dt = image_dtype(Y)
-    a_init = None
-    if alpha is None and not (isinstance(opt.alpha_init, str) and opt.alpha_init == "means"):
-        if isinstance(opt.alpha_init, str):
-            raise InputError("alpha_init", opt.alpha_init, "'means' or an array of T mixing ratios")
-        a_init = as_alpha(opt.alpha_init, T, name="alpha_init")
-    if alpha is not None:
-        alpha = as_alpha(alpha, T)
     with tm.measure("init"):
+        alpha, a_init = _start_alpha(Y, opt, alpha)
         xi1, xi2, a_cl = _initial_images(Y, opt.init, alpha, a_init, float(opt.scale), float(opt.foveal_gain),
                                          float(opt.foveal_offset))
     warm_start = xi1 is not None
     residual = warm_start and opt.warm == "residual"
+    opt = replace(opt, norm=(not warm_start) if opt.norm is None else bool(opt.norm))
     if a_cl is not None:
         a_init = a_cl
     u = _units(Y, xi1, xi2, alpha if alpha is not None else a_init, residual)
@@ -524,35 +704,38 @@ def dip(frames: Any, alpha: Any = None, options: DipOptions | None = None, **ove
     learn_alpha = alpha is None
     a0 = (frame_mean_alpha(Yn) if a_init is None else a_init) if learn_alpha else alpha
     params, z1, z2 = _networks(gen, opt, (H, W), residual, a0 if learn_alpha else None)
-    net, head = _build(opt.depth), _head(residual)
     # everything that varies between calls is an argument of the jitted step, so a second call with
     # the same shapes and switches (another window of a video, a test's rerun) reuses the compilation
     data = {"y": jnp.asarray(Yn), "z1": z1, "z2": z2, "a": jnp.asarray(a0.astype(np.float32)),
             "b1": jnp.asarray(u.base1.astype(np.float32)), "b2": jnp.asarray(u.base2.astype(np.float32)),
             "ab": jnp.asarray(np.array(u.ab, np.float32)),
             "D": [jnp.asarray(m_.astype(np.float32)) for m_ in (op.Dy, op.Dx, op.Cy, op.Cx)] if op else [],
-            "c": jnp.asarray(np.array([w["tv"], w["exclusion"], w["foveal"], w["gain_n"], w["bias_n"], w["lr"],
-                                       w["alpha_lr"]], np.float32))}
+            "c": jnp.asarray(np.array([w["tv"], w["exclusion"], w["foveal"], w["gain_n"], w["bias_n"]], np.float32))}
+    render = _make_render(opt.depth, learn_alpha, residual, bool(opt.norm))
 
     def images(p: dict[str, Any]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        g1 = np.asarray(head(net(p["g1"], z1), data["b1"], data["ab"][0:2]), dtype=np.float64)
-        g2 = np.asarray(head(net(p["g2"], z2), data["b2"], data["ab"][2:4]), dtype=np.float64)
-        a = np.asarray(jax.nn.sigmoid(p["alpha"]), dtype=np.float64) if learn_alpha else np.asarray(a0, np.float64)
+        g1, g2, a = (np.asarray(v, dtype=np.float64) for v in render(p, data))
         return u.to_frames(g1).astype(dt), u.to_frames(g2).astype(dt), a
 
     fit_hist: list[float] = []
     if warm_start and opt.warm == "fit" and opt.warm_steps:
         with tm.measure("warm_fit"):
             params = _warm_fit(params, z1, z2, u, opt, w["lr"], fit_hist)
-    step = _make_step(opt.depth, learn_alpha, op is not None, residual)
-    params, hist, recorded = _optimise(step, params, data, opt, cps, images, tm)
-    x1, x2, a = images(params)
-    info = {"steps": opt.steps, "channels": opt.channels, "depth": opt.depth, "loss_history": hist,
+    step = _make_step(opt.depth, learn_alpha, op is not None, residual, bool(opt.norm))
+    state, hist, recorded, stop = _optimise(step, params, data, opt, w, cps, images, tm)
+    x1, x2, a = images(state[0])
+    if opt.average:  # the running means, bias-corrected
+        c = 1.0 - opt.average ** stop["steps_run"]
+        x1, x2 = (u.to_frames(np.asarray(e, np.float64) / c).astype(dt) for e in state[3:5])
+    info = {"steps": opt.steps, **stop, "channels": opt.channels, "depth": opt.depth, "loss_history": hist,
             "alpha_learned": learn_alpha, "tv_weight": w["tv"], "exclusion_weight": w["exclusion"],
             "foveal_weight": w["foveal"], "foveal_gain": w["gain_n"], "foveal_offset": None if op is None else op.bias,
             "init": opt.init if isinstance(opt.init, str) else "images", "warm": opt.warm if warm_start else None,
-            "warm_fit_history": fit_hist, "lr": w["lr"], "alpha_lr": w["alpha_lr"], "checkpoints": recorded,
-            "initial_alpha": np.asarray(a0, np.float64), "seconds_per_step": tm["steps"] / max(opt.steps - 1, 1)}
+            "warm_fit_history": fit_hist, "lr": w["lr"], "alpha_lr": w["alpha_lr"], "schedule": opt.schedule,
+            "norm": opt.norm,
+            "checkpoints": recorded, "initial_alpha": np.asarray(a0, np.float64),
+            "seconds_per_step": tm.get("steps", 0.0) / max(stop["steps_run"] - 1, 1),
+            "traces": _TRACES[0] - traces0, "device": str(data["y"].devices().pop())}
     if warm_start:
         info["initial"] = (xi1.astype(dt), xi2.astype(dt))
     return Reconstruction(x1=x1, x2=x2, alpha=np.asarray(a, dtype=np.float64), fpn=None, method="dip",
