@@ -62,6 +62,10 @@ def register(subparsers: Any) -> argparse.ArgumentParser:
     p.add_argument("--max-seconds", type=float, default=None, help="DIP time budget per window (default: none; "
                    "it also stops when the loss has converged)")
     p.add_argument("--seed", type=int, default=0, help="random seed (DIP)")
+    p.add_argument("--deconvolve", default=None, choices=("wiener", "tv"), help="also recover the scene itself "
+                   "(PSF-aware joint separation and deconvolution, static scenes): <out>_scene.npz and .png in kelvin")
+    p.add_argument("--psf", default=None, help="for --deconvolve: a PSF file (.npz with psf_x1, psf_x2 on the pixel "
+                   "grid) instead of the measurement's")
     p.add_argument("--out", default=None, help="output .npz (default: <measurement>_rec.npz); figures next to it")
     p.add_argument("--no-figures", action="store_true", help="do not write PNG figures")
     p.add_argument("--no-score", action="store_true", help="do not score against the file's truth (faster)")
@@ -110,17 +114,26 @@ def run(args: argparse.Namespace) -> int:
     """Reconstruct, print the summary, write the outputs; 0 on success (an InputError is reported by main)."""
     from metafovea.measurement import FovealConstraint, Measurement
     from metafovea.reconstruct import prepare_outputs, reconstruct_measurement, write_outputs
+    from metafovea.reconstruct.deconvolve import deconvolve_result
+    from metafovea.reconstruct.files import scene_paths, write_scene
 
     m = Measurement.load(args.measurement)
     solver = _solver_options(args)
     out, figures = prepare_outputs(m.source, args.out, figures=not args.no_figures, force=args.force)
+    scene_out = scene_paths(out, not args.no_figures, args.force) if args.deconvolve else []
     fc = FovealConstraint.from_meta(m.meta, scale=args.scale, gain=args.foveal_gain, offset=args.foveal_offset)
     res = reconstruct_measurement(m, args.method, known_alpha=args.known_alpha, window=args.window,
                                   stride=args.stride, fpn=_fpn_arg(args.fpn), denoise=args.denoise, frame=args.frame,
                                   constraint=fc, solver=solver, progress=sys.stderr.isatty(),
                                   score_truth=not args.no_score)
     files = write_outputs(res, out, figures, title=f"{res.reconstruction.method}: {Path(m.source).name}")
+    dec = deconvolve_result(m, res, args.deconvolve, args.psf, score_truth=not args.no_score) if args.deconvolve else None
+    if dec is not None:
+        files += write_scene(dec, scene_out)
     s = res.summary(files)
+    if dec is not None:
+        s["scene"] = {k: v for k, v in dec.info.items() if k in ("method", "alpha_from", "sigma_dn", "scores",
+                                                                   "foveal_surround", "seconds", "psf_source")}
     if args.json:
         print(to_json(s))
         return 0
@@ -147,5 +160,10 @@ def run(args: argparse.Namespace) -> int:
         print(f"  {s['nonfinite_pixels']} NaN value(s) in x1/x2: pixels without valid samples (e.g. dead pixels)")
     if isinstance(s.get("metrics"), dict):
         print("  " + ", ".join(f"{k} {v:.4g}" for k, v in s["metrics"].items()))
+    if dec is not None:
+        sc = dec.info.get("scores") or {}
+        print(f"  scene ({dec.info['method']}, alpha from {dec.info['alpha_from']}, {dec.info['seconds']:.1f} s)"
+              + ("" if not sc else ": against the scene " + ", ".join(f"{k} {v:.4g}" for k, v in sc.items()
+                                                                       if isinstance(v, float) and "second" not in k)))
     print("  wrote " + ", ".join(s["files"]))
     return 0

@@ -9,6 +9,8 @@ Works on plain numpy arrays: frames ``(T, H, W)`` (float32 preserved), alpha ``(
 * ``lsq``: :func:`lsq_known_alpha`, :class:`SlidingLSQ`: known alpha, closed form, conditioning reported.
 * ``alternating``: :func:`alternating` (:class:`AlternatingOptions`): unknown alpha, classical (subspace init,
   foveal gauge fix, TV prior).
+* ``deconvolve``: :func:`deconvolve_measurement`, :func:`separate_deconvolve` (:class:`ChannelPSFs`): PSF-aware
+  joint separation and deconvolution to the scene's radiance and brightness temperature, :func:`wiener_bound`.
 * ``deep_prior``: :func:`dip` (:class:`DipOptions`): double deep image prior (JAX, imported on first use).
 * ``fpn``: :func:`estimate_fpn`: fixed-pattern noise (calibration frames or low-rank prior).
 * ``snapshot``: :func:`snapshot`, :func:`register`: single-frame registration and separation.
@@ -24,6 +26,8 @@ Works on plain numpy arrays: frames ``(T, H, W)`` (float32 preserved), alpha ``(
 
 from metafovea.reconstruct.alternating import AlternatingOptions, alternating, foveal_gauge
 from metafovea.reconstruct.api import FPN_MODES, METHODS, reconstruct, reconstruct_measurement
+from metafovea.reconstruct.deconvolve import (DECONVOLUTION_METHODS, ChannelPSFs, Deconvolution,
+                                              deconvolve_measurement, separate_deconvolve, wiener_bound)
 from metafovea.reconstruct.deep_prior import DipOptions, dip
 from metafovea.reconstruct.denoise import DENOISERS, denoise
 from metafovea.reconstruct.files import figure_paths, prepare_outputs, write_outputs
@@ -34,8 +38,8 @@ from metafovea.reconstruct.result import PipelineResult, Reconstruction
 from metafovea.reconstruct.snapshot import register, snapshot
 from metafovea.reconstruct.video import video
 
-__all__ = ["AlternatingOptions", "DENOISERS", "DipOptions", "FPN_MODES", "FovealOperator", "METHODS",
+__all__ = ["AlternatingOptions", "ChannelPSFs", "DECONVOLUTION_METHODS", "DENOISERS", "Deconvolution", "DipOptions", "FPN_MODES", "FovealOperator", "METHODS",
            "PipelineResult", "Reconstruction", "SlidingLSQ", "alternating", "centre_crop", "condition_number",
-           "denoise", "dip", "downsample", "downsample_adjoint", "estimate_fpn", "figure_paths", "foveal_gauge",
-           "lsq_known_alpha", "prepare_outputs", "reconstruct", "reconstruct_measurement", "register", "snapshot",
-           "video", "write_outputs"]
+           "deconvolve_measurement", "denoise", "dip", "downsample", "downsample_adjoint", "estimate_fpn", "figure_paths", "foveal_gauge",
+           "lsq_known_alpha", "prepare_outputs", "reconstruct", "reconstruct_measurement", "register",
+           "separate_deconvolve", "snapshot", "video", "wiener_bound", "write_outputs"]

@@ -6,6 +6,7 @@ side-by-side figure with colour bars (``<stem>.png``). Every path is checked bef
 from __future__ import annotations
 
 import os
+from typing import Any
 from pathlib import Path
 
 import numpy as np
@@ -103,6 +104,56 @@ def pair_figure(x1: np.ndarray, x2: np.ndarray, title: str) -> bytes:
         ax.set_axis_off()
         fig.colorbar(im, ax=ax, shrink=0.8)
     fig.suptitle(title)
+    png = fig_to_png(fig, dpi=110)
+    plt.close(fig)
+    return png
+
+
+def scene_paths(out: str | os.PathLike, figures: bool = True, force: bool = False) -> list[Path]:
+    """The PSF-aware outputs next to the reconstruction ``out`` (``<stem>_scene.npz`` and, with ``figures``,
+    ``<stem>_scene.png``), checked like :func:`prepare_outputs`."""
+    stem = Path(out).with_suffix("")
+    paths = [Path(f"{stem}_scene.npz")] + ([Path(f"{stem}_scene.png")] if figures else [])
+    return [prepare_output(p, force) for p in paths]
+
+
+def write_scene(d: Any, paths: list[Path], title: str = "") -> list[str]:
+    """Save a :class:`~metafovea.reconstruct.deconvolve.Deconvolution` (``scene_x1``/``_x2`` DN,
+    ``temperature_x1_k``/``_x2_k``, its info) and its figure: both channels' brightness temperatures in the iron
+    palette with kelvin colour bars (DN without a radiometric calibration)."""
+    from metafovea.io import atomic_save_npz
+
+    arrays = {"scene_x1": d.scene[0].astype(np.float32), "scene_x2": d.scene[1].astype(np.float32)}
+    if d.temperature_k is not None:
+        arrays.update(temperature_x1_k=d.temperature_k[0].astype(np.float32),
+                      temperature_x2_k=d.temperature_k[1].astype(np.float32))
+    atomic_save_npz(paths[0], {"kind": "scene", **d.info}, compress=False, **arrays)
+    files = [str(paths[0])]
+    if len(paths) > 1:
+        atomic_write_bytes(paths[1], scene_figure(d, title))
+        files.append(str(paths[1]))
+    return files
+
+
+def scene_figure(d: Any, title: str = "") -> bytes:
+    """Both channels' scene estimates (brightness temperature, K, iron palette) side by side with colour bars."""
+    import matplotlib
+
+    matplotlib.use("Agg", force=False)
+    import matplotlib.pyplot as plt
+
+    from metafovea.imaging.simulate import iron_colormap
+
+    imgs = d.temperature_k if d.temperature_k is not None else d.scene
+    unit = "K" if d.temperature_k is not None else "DN"
+    fig, axs = plt.subplots(1, 2, figsize=(9, 4.2), constrained_layout=True)
+    for ax, img, name in ((axs[0], imgs[0], "foveal scene"), (axs[1], imgs[1], "perifoveal scene")):
+        lo, hi = np.nanpercentile(img, [0.5, 99.5])
+        im = ax.imshow(img, cmap=iron_colormap(), vmin=lo, vmax=hi)
+        ax.set_title(name)
+        ax.set_axis_off()
+        fig.colorbar(im, ax=ax, shrink=0.8, label=f"brightness temperature ({unit})" if unit == "K" else unit)
+    fig.suptitle(title or f"PSF-aware reconstruction ({d.info.get('method')})")
     png = fig_to_png(fig, dpi=110)
     plt.close(fig)
     return png
