@@ -214,7 +214,7 @@ def reconstruction_table(meas: Measurement, opts: ValidateOptions, label: str, *
 
 
 def deconvolution_rows(meas: Measurement, fpn: np.ndarray, label: str,
-                       methods: tuple[str, ...] = ("wiener", "tv")) -> list[dict[str, Any]]:
+                       methods: tuple[str, ...] = ("wiener",)) -> list[dict[str, Any]]:
     """The PSF-aware rows of case ``label``: each method of :func:`metafovea.reconstruct.deconvolve_measurement`
     (known alpha, all frames, ``fpn`` subtracted) scored against the scene through a perfect lens, with the Wiener
     bound and the hazy images' own scores; [] for a scene without that truth (video)."""
