@@ -1,32 +1,43 @@
 """Double deep image prior (DIP) in JAX, as in the paper.
 
 Two skip-U-Nets ``g1``, ``g2`` map fixed random inputs to the foveal and perifoveal images; they and
-the mixing ratios (``alpha_t = sigmoid(z_t)``, initialised from frame means as in the paper, or held
-fixed when given) are fitted with Adam to
+the mixing ratios (``alpha_t = sigmoid(z_t)``, initialised from frame means as in the paper or from the
+classical solver's estimate, or held fixed when given) are fitted with Adam to
 
     mean_t ||y_t - alpha_t g1 - (1 - alpha_t) g2||^2 + tv_weight (TV g1 + TV g2)
         + exclusion_weight * exclusion(g1, g2) [+ foveal_weight ||D g1 - C g2||^2]
 
-with the paper's ``tv_weight = exclusion_weight = 0.01``. ``foveal_weight`` (default 0, not in the
-paper) adds the foveal constraint, which fixes the alpha gauge the same way as in
-:mod:`~metafovea.reconstruct.alternating`.
+(the paper's ``tv_weight = exclusion_weight = 0.01``; the default here is 0 for a random start, see
+:func:`dip`). ``foveal_weight`` (default 0, not in the paper) adds the foveal constraint, which fixes the
+alpha gauge the same way as in :mod:`~metafovea.reconstruct.alternating`.
 
-Network (configurable ``channels``, ``depth``, ``skip_channels``): per level a stride-2 3x3 conv and a
-3x3 conv (LeakyReLU 0.2), a 1x1 skip branch, bilinear upsampling, concatenation, 3x3 + 1x1 convs, and a
-sigmoid output; batch norm of the original DIP is left out (single image, full batch). Frames are
-rescaled to [0, 1] for the sigmoid and the result is mapped back.
+Network (``channels``, ``depth``, ``skip_channels``, ``input_channels``): per level a stride-2 3x3 conv and
+a 3x3 conv (LeakyReLU 0.2), a 1x1 skip branch, bilinear upsampling, concatenation, 3x3 + 1x1 convs, and a
+sigmoid output; ``norm`` normalises each conv's output per channel over the image (the original DIP's
+batch norm, batch of one). Frames are rescaled to [0.05, 0.95] for the sigmoid and the result is mapped back.
+
+What makes the random start converge (``benchmarks/bench_dip.py``, BENCHMARKS.md "Double deep image prior:
+random start"): the normalisation. On a 64 x 64 scene (sigma 0.01, known alpha, 600 steps) it took the
+random start from 29-32 dB (no normalisation, lr 0.003; lr 0.01 collapsed to a constant image) to 39.9 /
+39.4 dB, and with Adam lr 0.01 cosine-decayed over 1,500 steps to 44.0 / 44.2 dB (16 channels) and 44.7 /
+44.6 dB (32 channels) against the known-alpha LSQ's 44.5 / 44.7 dB. Larger random inputs (scale 1 instead of
+0.1, without normalisation) and a running mean of the outputs (with the cosine decay) did not help; 32
+channels converge in about half the steps of 16, 8 channels did not get within 1 dB (41.7 / 40.5 dB). With unknown alpha the random start holds alternating's alpha
+(``alpha_init='classical'``): learning it lets it drift along the gauge the DIP loss does not fix.
+From a random start the DIP now reaches the classical solver within 1 dB (table in BENCHMARKS.md) in
+1,000-1,500 steps: 20-40 ms per step at 64 x 64 on the 2-core machine, ~0.7 s (16 channels) / ~1.2 s
+(32 channels) at 290 x 290, so a 290 x 290 window takes ~20-30 minutes there: an offline method on a CPU.
 
 Warm start (``init='classical'``/``'lsq'``/``(x1, x2)``, see :func:`dip`): ``x_k = x_init_k +
 range_k (g_k(z_k) - mean)`` with the output layers zeroed, so the DIP starts from the classical estimate
 and cannot move its level (the alpha gauge, which the DIP loss does not fix). On the simulated 290 x 290
-paper measurement it keeps the classical result (31.4 / 38.8 dB) within 0.05 dB over 200 steps with 8
-channels (32 channels: 100 steps; -0.3 dB on x1 at 200); it does not improve it, because that estimate's error is the gauge (mean offsets of 3.1 / 13 DN against 1.2 /
-2.5 DN of everything else), and a random start reaches only ~-4 / 14 dB in 60 steps.
+paper measurement it kept the classical result (31.4 / 38.8 dB) within 0.05 dB over 200 steps with 8
+channels; it does not improve it, because that estimate's error is the gauge (mean offsets of 3.1 / 13 DN
+against 1.2 / 2.5 DN of everything else). Its loss barely moves, so the stopping rule ends it after
+``patience`` steps.
 
-Cost on the 2-core reference machine (anchors): 128 channels at 256^2 ~14-18 s per step, 32 channels
-~2.3 s per step; from a random start thousands of steps are needed, so that is an offline method.
-This network (no batch norm, depth 3) at 290^2: 8 channels 0.1-0.4 s per step, 32 channels ~0.26 s
-(shared machine), plus 3-8 s of compilation. JAX is imported only when :func:`dip` is called.
+Each jitted step is compiled once per frame shape and switch set (3-8 s on the 2-core machine) and reused;
+it runs on JAX's default device (a GPU when JAX has one). JAX is imported only when :func:`dip` is called.
 """
 
 from __future__ import annotations
@@ -354,9 +365,11 @@ class DipOptions:
     progress_every: int = 10
 
 
-#: the memory bound: channels x H x W at most this (~8 GB of activations and gradients for both networks, from
-#: XLA's buffer sizes of the jitted step: ~100 bytes per channel-pixel at depth 3, see BENCHMARKS.md)
-MAX_CHANNEL_PIXELS = 2 ** 26
+#: the memory bound: channels x H x W (and skip_channels, input_channels x H x W) at most this: 32 channels at
+#: 1024 x 1024. XLA's buffers of the jitted step (``memory_analysis()`` of the compiled step, depth 3, both
+#: networks, activations, gradients and Adam's moments) were 170-220 bytes per channel-pixel (64^2 and 128^2,
+#: 16 and 32 channels, skip 16, input 32), so ~6-7 GB at the bound
+MAX_CHANNEL_PIXELS = 2 ** 25
 
 
 def _checked(opt: DipOptions, H: int, W: int) -> tuple[DipOptions, list[int]]:
@@ -452,7 +465,13 @@ def _weights(opt: DipOptions, warm_start: bool, op: FovealOperator | None, u: _U
     lr = as_float("lr", (WARM_LR if warm_start else PAPER_LR) if opt.lr is None else opt.lr)
     if lr <= 0:
         raise InputError("lr", lr, "a positive learning rate")
-    alpha_lr = as_float("alpha_lr", (lr / 10 if warm_start else lr) if opt.alpha_lr is None else opt.alpha_lr)
+    # alternating's alpha (alpha_init='classical', or init='classical' with unknown alpha) is held: the DIP loss
+    # does not fix the gauge, and learning it took the alpha error from 0.002 to 0.015 (x2 -6 dB; at lr / 10 after
+    # a warm start: 0.007, x1 -1.9 dB) over 1,500 steps on a 64 x 64 scene
+    held = (isinstance(opt.alpha_init, str) and opt.alpha_init == "classical") or (
+        isinstance(opt.init, str) and opt.init == "classical")
+    a_def = 0.0 if held else (lr / 10 if warm_start else lr)
+    alpha_lr = as_float("alpha_lr", a_def if opt.alpha_lr is None else opt.alpha_lr)
     if alpha_lr < 0:
         raise InputError("alpha_lr", alpha_lr, "a learning rate >= 0 (0 holds alpha at its initial value)")
     # the constraint in normalised units yn = A y + B: D x1n = gain C x2n + (1 - gain) B + A bias
@@ -636,8 +655,8 @@ def dip(frames: Any, alpha: Any = None, options: DipOptions | None = None, **ove
     (which labels the brighter frames as more foveal: wrong when the foveal channel is the darker one, as
     with the paper's F/2 vs F/1 lenses, where it converges to the swapped solution), ``'classical'``
     (:func:`alternating`'s estimate, whose gauge the foveal constraint or polariser fixes) or ``(T,)`` values.
-    The DIP loss does not fix alpha's gauge, so a learned alpha drifts along it: ``alpha_lr=0`` holds the
-    initial alpha fixed.
+    The DIP loss does not fix alpha's gauge, so a learned alpha drifts along it: alternating's alpha (from
+    ``alpha_init='classical'`` or ``init='classical'``) is held fixed unless ``alpha_lr`` is given.
 
     Start (``init``): ``'random'`` (the paper: the networks start from random weights and the images
     from the sigmoid of their output, ~0.5 in the frames' normalised range), ``'lsq'`` (least squares
@@ -654,10 +673,10 @@ def dip(frames: Any, alpha: Any = None, options: DipOptions | None = None, **ove
       then the DIP loss.
 
     Defaults: ``tv_weight``/``exclusion_weight`` 0 for a random start and 0.001 after a warm start (the paper's
-    0.01 is ~5x the data term at a noise of 1 % of the range and costs the random start ~10 dB);
+    0.01 times the scenes' mean |gradient| (~0.05 per pixel) is ~10x the data term's noise floor (~8e-5 at a
+    noise of 1 % of the range), an estimate, not measured with the normalised network);
     ``lr`` 0.01 for ``init='random'``, 0.002 for a warm start, cosine-decayed over ``steps``; ``alpha_lr``
-    ``lr`` for a random start, ``lr / 10`` for a warm start (alpha good to ~1e-3, would otherwise drift by
-    ~lr/4 per step along the unfixed gauge).
+    0 (held) for alternating's alpha, else ``lr`` for a random start and ``lr / 10`` for a warm start.
 
     Step budget: at most ``steps`` steps, fewer when the loss converged (``tol``, ``patience``) or
     ``max_seconds`` ran out: ``info['steps_run']`` and ``info['stopped']`` (one of :data:`STOP_REASONS`).
