@@ -24,9 +24,11 @@ random start from 29-32 dB (no normalisation, lr 0.003; lr 0.01 collapsed to a c
 0.1, without normalisation) and a running mean of the outputs (with the cosine decay) did not help; 32
 channels converge in about half the steps of 16, 8 channels did not get within 1 dB (41.7 / 40.5 dB). With unknown alpha the random start holds alternating's alpha
 (``alpha_init='classical'``): learning it lets it drift along the gauge the DIP loss does not fix.
-From a random start the DIP now reaches the classical solver within 1 dB (table in BENCHMARKS.md) in
-1,000-1,500 steps: 20-40 ms per step at 64 x 64 on the 2-core machine, ~0.7 s (16 channels) / ~1.2 s
-(32 channels) at 290 x 290, so a 290 x 290 window takes ~20-30 minutes there: an offline method on a CPU.
+From a random start the DIP now reaches the classical solver without a prior within 1 dB on 2 scenes x 2
+noise levels (known alpha: LSQ, -0.52 to +0.30 dB; unknown: alternating with prior='none'), but not
+alternating's TV prior at sigma 0.05 (-0.45 to -3.2 dB; table in BENCHMARKS.md), in 900-1,400 steps: 20-40 ms per step at 64 x 64 on the 2-core machine, ~0.7 s (16 channels) / ~1.2 s
+(32 channels) at 290 x 290, so a 290 x 290 window would take ~15-30 minutes there if it needs as many steps (not measured at that
+size): an offline method on a CPU.
 
 Warm start (``init='classical'``/``'lsq'``/``(x1, x2)``, see :func:`dip`): ``x_k = x_init_k +
 range_k (g_k(z_k) - mean)`` with the output layers zeroed, so the DIP starts from the classical estimate
