@@ -14,10 +14,11 @@ covariance ``sigma^2 N^-1``, correlated between the channels. The joint problem 
 spatial frequency, one 2 x 2 system for both channels, on a grid padded by the kernels' radius (mirror
 boundary), with
 
-* ``method='wiener'`` (default): the linear minimum-mean-square-error estimate with a power-law scene spectrum
-  ``c / |f|^beta_i`` fitted to the crop's Hann-tapered periodogram where its signal exceeds twice the noise,
-  over the PSF's ``|D|^2`` (the mean is not shrunk; ``prior='empirical'``, the binned spectrum itself, measured
-  worse on every case; a Whittle-likelihood fit of the same law, worse on 5 of 12);
+* ``method='wiener'`` (default): the linear minimum-mean-square-error estimate with the scene spectrum estimated
+  from the crop's Hann-tapered periodogram over the PSF's ``|D|^2``: ``prior='hybrid'`` (default) takes the
+  measured spectrum where the signal exceeds 4x the noise and a power law ``c / |f|^beta`` fitted on the
+  detected bins beyond the spectrum's peak elsewhere; ``'power-law'`` fits all detected bins, ``'empirical'``
+  uses the measured spectrum alone (both measured worse, BENCHMARKS.md); the mean is not shrunk;
 * ``method='tv'``: total-variation regularised least squares, ``min_s 1/2 ||u_hat - A s||^2_{C^-1}
   + sum_i lambda_i TV(s_i)`` by ADMM (every linear step per frequency or per pixel), started from the Wiener
   estimate, ``lambda_i = 1 / mean |grad s_i|`` of that estimate (the scale of a Laplace prior on the gradients);
@@ -34,12 +35,10 @@ power spectrum, the true PSFs and the noise: the best a stationary linear recons
 frames' temporal noise, is estimated from the residuals of the per-pixel fit (``T > 2``). (The bound pads each
 channel with its own edge values; it is a reference, not a limit a non-linear or a joint-boundary method obeys.)
 
-Measured (``benchmarks/bench_deconvolve.py``, 290 x 290, known alpha, true FPN subtracted, PSNR against the scene
-in dB, Wiener / bound, x1 then x2): bars 8-14 um 23.3 / 22.0, 21.6 / 21.3; bars 10 um 26.6 / 25.7, 27.9 / 26.4;
-coins 8-14 um 27.2 / 22.7, 26.0 / 25.2; coins 10 um 37.5 / 35.7, 32.8 / 32.0; siemens star 8-14 um 13.1 / 14.8,
-15.1 / 17.1 and 10 um 16.8 / 20.2, 30.1 / 30.0: at or above the bound except on the siemens star, whose spokes'
-spectrum the power law fits poorly (beta at its lower limit 1). An earlier estimator (the regression on the
-edge-padded grid) had the opposite failure (star above, bars and coins' foveal channel 6-8 dB below).
+Measured (``benchmarks/bench_deconvolve.py``, BENCHMARKS.md; 290 x 290, known alpha, true FPN subtracted, PSNR
+against the scene): at or above the bound on bars and coins (both bands, both channels, +0.3 to +4.6 dB) and on the
+siemens star's filtered perifoveal channel; 0.4-1.8 dB below it on the star's foveal channel and its 8-14 um
+perifoveal one (the star's spectrum peaks at the spokes' frequency).
 
 Temperatures: ``L = s dL/dT(300 K) / (counts_per_k g_i)`` (the radiometric calibration the simulator writes as
 ``dn_per_k_300K``) is in-band radiance, and its brightness temperature the inverse of the band's ``L(T)``
@@ -60,7 +59,7 @@ from metafovea.errors import InputError, check_choice, check_int
 #: methods of :func:`separate_deconvolve`
 DECONVOLUTION_METHODS = ("tv", "wiener")
 #: scene spectrum models of the Wiener step (:func:`separate_deconvolve` ``prior``)
-PRIORS = ("empirical", "power-law")
+PRIORS = ("hybrid", "power-law", "empirical")
 #: spectral power-law exponents the Wiener prior's fit may take
 BETA_RANGE = (1.0, 4.0)
 
@@ -269,6 +268,14 @@ def _fitted_spectrum(g: _Grid, z: np.ndarray, noise_var: float, D: np.ndarray,
                                                 "bins": nb}
     ok = np.isfinite(sig) & (sig > noise_var) & (fc > 0) & (pd > 0)
     ok[0] = False
+    idx = np.flatnonzero(ok)
+    if prior == "hybrid" and idx.size >= 6:
+        # the tail beyond the spectrum's peak sets the extrapolation: fit the detected bins above the peak
+        ratio = np.where(ok, sig / np.maximum(pd, 1e-300), 0.0)
+        peak = int(idx[np.argmax(ratio[idx])])
+        tail = ok & (np.arange(ok.size) >= peak)
+        if tail.sum() >= 3:
+            ok = tail
     beta = 2.0
     if ok.sum() >= 3:
         beta = float(np.clip(-np.polyfit(np.log(fc[ok]), np.log(sig[ok] / pd[ok]), 1)[0], *BETA_RANGE))
@@ -276,8 +283,16 @@ def _fitted_spectrum(g: _Grid, z: np.ndarray, noise_var: float, D: np.ndarray,
     else:
         logc = math.log(max(noise_var, 1e-30))
     f = np.maximum(g.f, 1.0 / max(g.shape))
-    return n_grid * np.exp(logc) / f ** beta, {"prior": "power-law", "beta": beta,
-                                               "bins_used": int(ok.sum())}
+    law = np.exp(logc) / f ** beta
+    info = {"prior": prior, "beta": beta, "bins_used": int(ok.sum())}
+    if prior == "hybrid":
+        # below the fitted tail: the measured spectrum where the signal is strong (4x the noise)
+        strong = np.isfinite(sig) & (sig > 4 * noise_var) & (pd > 0) & (fc < fc[ok].min() if ok.any() else False)
+        meas = np.where(strong, sig / np.maximum(pd, 1e-300), 0.0)
+        field = _radial_field(g, meas)
+        law = np.where(field > 0, field, law)
+        info["measured_bins"] = int(strong.sum())
+    return n_grid * law, info
 
 
 class _Problem:
@@ -492,7 +507,7 @@ def _foveal_surround(pb: _Problem, s: np.ndarray, scale: float, ratio: float) ->
 def separate_deconvolve(frames: Any, alpha: Any, psfs: ChannelPSFs, *, method: str = "wiener", offset: float = 0.0,
                         sigma: float | None = None, iterations: int = 100, tv_weight: float | None = None,
                         meta: dict[str, Any] | None = None, boundary: str = "mirror",
-                        pad_mode: str = "edge", prior: str = "power-law", foveal_scale: float | None = None,
+                        pad_mode: str = "edge", prior: str = "hybrid", foveal_scale: float | None = None,
                         foveal_ratio: float = 1.0) -> Deconvolution:
     """The scene radiance of both channels from ``frames (T, H, W)`` (DN, fixed pattern removed) with mixing ratios
     ``alpha (T,)`` (known, or a solver's estimate) and the channels' PSFs (see the module docstring).
