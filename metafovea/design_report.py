@@ -81,8 +81,8 @@ def summary_dict(s: LensSummary) -> dict[str, Any]:
     return d
 
 
-def format_summary(s: LensSummary) -> str:
-    """Human-readable table."""
+def summary_rows(s: LensSummary) -> list[tuple[str, str]]:
+    """The design summary as ``(quantity, value with units)`` rows (the text table and the HTML reports)."""
     rows = [
         ("lens", f"{s.name}  (focuses {s.polarization}-polarised light)"),
         ("focal length f", f"{s.f_mm:g} mm"),
@@ -118,6 +118,12 @@ def format_summary(s: LensSummary) -> str:
             rows.append((f"post level {p['level']}",
                          f"wx {p['wx_um']:.3f} um, wy {p['wy_um']:.3f} um, |t| {p['t_focus_abs']:.3f}, "
                          f"phase {p['t_focus_phase_rad']:.3f} rad, pass-through phase {p['t_pass_phase_rad']:.3f} rad"))
+    return rows
+
+
+def format_summary(s: LensSummary) -> str:
+    """Human-readable table."""
+    rows = summary_rows(s)
     w = max(len(a) for a, _ in rows)
     lines = [f"  {a.ljust(w)}  {b}" for a, b in rows]
     for msg in s.warnings:

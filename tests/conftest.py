@@ -71,3 +71,53 @@ def lens_toml():
 def cli_error():
     """Factory fixture: ``cli_error(capsys)`` returns the command's stderr and asserts it holds no traceback."""
     return cli_error_line
+
+
+_BROWSER_JS = """<script>window.addEventListener('load', () => { const d = document.documentElement;
+const imgs = [...document.images]; const broken = imgs.filter(i => !(i.complete && i.naturalWidth > 0)).length;
+const unlabelled = imgs.filter(i => !i.alt).length;
+document.title = 'CHECK ' + JSON.stringify({scroll_width: d.scrollWidth, inner_width: window.innerWidth,
+  broken: broken, images: imgs.length, unlabelled: unlabelled, text: document.body.innerText}); });</script>"""
+#: what a raw Python repr looks like in a page's text
+_RAW_REPR = r"\bNone\b|\{'|\['|\bnan\b|\binf\b|np\.float|array\(|<function|object at 0x|\bTrue\b|\bFalse\b"
+
+
+def _render_in_chromium(page: Path, width: int, tmp: Path) -> dict:
+    import json
+    import re
+    import shutil
+    import subprocess
+
+    exe = shutil.which("chromium") or shutil.which("chromium-browser")
+    if exe is None:
+        pytest.skip("Debian's chromium is not installed (.ci/run installs it where apt-get can)")
+    probe = tmp / f"probe_{width}_{page.name}"
+    probe.write_text(page.read_text().replace("</body>", _BROWSER_JS + "</body>"))
+    cmd = [exe, "--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
+           "--disable-background-networking", "--disable-component-update", "--disable-sync", "--hide-scrollbars",
+           f"--user-data-dir={tmp / 'chromium-profile'}", f"--window-size={width},1000", "--virtual-time-budget=10000",
+           "--dump-dom", probe.as_uri()]
+    out = subprocess.run(cmd, capture_output=True, text=True, timeout=120).stdout
+    m = re.search(r"<title>CHECK (.*?)</title>", out, re.S)
+    assert m, f"chromium did not render {page.name}: {out[:300]}"
+    import html as _html
+
+    res = json.loads(_html.unescape(m.group(1)))
+    res["raw_reprs"] = sorted(set(re.findall(_RAW_REPR, res.pop("text"))))
+    return res
+
+
+@pytest.fixture
+def browser_check(tmp_path):
+    """``browser_check(page.html)``: renders the page in headless Chromium at 800 and 1400 px and asserts no
+    horizontal overflow, no broken or unlabelled images and no raw Python reprs in its text."""
+    def check(page: Path) -> list[dict]:
+        results = []
+        for width in (800, 1400):
+            r = _render_in_chromium(Path(page), width, tmp_path)
+            assert r["scroll_width"] <= r["inner_width"], f"{page.name} overflows at {width} px: {r}"
+            assert r["broken"] == 0 and r["unlabelled"] == 0, f"{page.name} at {width} px: {r}"
+            assert not r["raw_reprs"], f"{page.name} shows raw Python values {r['raw_reprs']}"
+            results.append(r)
+        return results
+    return check

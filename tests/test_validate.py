@@ -21,7 +21,7 @@ def small_system():
     return dataclasses.replace(s, sensor=dataclasses.replace(s.sensor, crop=(192, 192), pixels=(192, 192)))
 
 
-def test_validate_small_runs_every_stage(tmp_path, monkeypatch, small_system):
+def test_validate_small_runs_every_stage(tmp_path, monkeypatch, small_system, browser_check):
     monkeypatch.setenv("METAFOVEA_CACHE", str(tmp_path / "cache"))
     opts = ValidateOptions(scene="bars", frames=16, calibration_frames=8, filters=(True,), alternating_windows=2,
                            dip_steps=2, dip_channels=4, snapshot_iterations=20, library_grid_step_um=0.5,
@@ -54,6 +54,8 @@ def test_validate_small_runs_every_stage(tmp_path, monkeypatch, small_system):
                                                                             rel=0.05)
     html = (out / "validate.html").read_text()
     assert "speed against error" in html and "data:image/png;base64" in html
+    assert "Verdict:" in html and html.index("Verdict:") < html.index("Design")
+    browser_check(out / "validate.html")
     assert json.loads((out / "validate.json").read_text())["table"]
     text = format_report(rep, rep["_summaries"], "small", out)
     assert text.startswith("system: small, field expansion f1/f2 = 6x") and "== design: foveal ==" in text
@@ -89,7 +91,9 @@ def test_table_columns_and_format():
     row = {"case": "c", "method": "m", "ms_per_unit": 1.234, "unit": "window", "psnr_x1": 20.0,
            "psnr_x1_level_free": 21.0, "psnr_x2": 30.0, "ssim_x1": 0.5, "ssim_x2": 0.75}
     head, line = format_table([row]).splitlines()
-    assert head.split()[:3] == ["case", "method", "ms/unit"] and line.split() == ["c", "m", "1.23", "20.00", "21.00",
-                                                                                 "30.00", "0.500", "0.750"]
+    assert head.split()[:3] == ["case", "method", "time"] and "PSNR x1 (dB)" in head
+    assert line.split() == ["c", "m", "1.23", "ms/window", "20.00", "21.00", "30.00", "0.500", "0.750"]
+    # aligned: every value ends where its header ends
+    assert line.index("20.00") + len("20.00") == head.index("PSNR x1 (dB)") + len("PSNR x1 (dB)")
     assert format_table([{**row, "alpha_mae": 0.01234}]).splitlines()[1].endswith("0.0123")
     assert TABLE_COLUMNS[:2] == ("case", "method") and "psnr_x1_level_free" in TABLE_COLUMNS

@@ -416,13 +416,16 @@ def _page(res: dict[str, Any], figs: dict[str, bytes]) -> HtmlReport:
     """The HTML page of one lens' report."""
     sp, ee = res["spectral"], res["on_axis_ee_pixel_radius"]
     page = HtmlReport(f"PSF / MTF report: {res['lens']}")
+    fu = sp["filter_um"]
+    filt = "none" if not fu else f"{fu[0]:g} um (FWHM {fu[1]:g} um)"
     page.paragraph(
         f"f = {res['f_mm']:g} mm, D = {res['diameter_mm']:g} mm, NA = {res['na']:.4f}, design wavelength "
         f"{res['wavelength_um']:g} um, polarisation {res['polarization']}; MTF cutoff 2NA/lambda = "
         f"{res['mtf_cutoff_cyc_per_mm']:.2f} cycles/mm. Requested error {res['requested_error']:g} (max abs / peak). "
         "Scalar thin-element model: Hankel / direction-sine integral on axis, exact Rayleigh-Sommerfeld integral over "
         "the hard-edged aperture off axis; lattice sampling and N-level quantisation included in the PSFs; "
-        f"spectral weights: Planck at {sp['temperature_k']:g} K, band {sp['band_um']}, filter {sp['filter_um']}, "
+        f"spectral weights: Planck at {sp['temperature_k']:g} K, band {sp['band_um'][0]:g}-{sp['band_um'][1]:g} um, "
+        f"filter {filt}, "
         f"{sp['n_wavelengths']} wavelength bins (geometric around the design wavelength).")
     page.heading("Monochromatic PSFs (engine, sampling, error estimate)")
     page.table(["field (deg)", "engine", "grid", "error estimate (of peak)", "pitch (um)", "power in window",

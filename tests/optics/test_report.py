@@ -21,8 +21,9 @@ def tiny(tmp_path_factory, lens_toml):
     return path, out, res
 
 
-def test_writes_png_json_html(tiny):
+def test_writes_png_json_html(tiny, browser_check):
     _, out, res = tiny
+    browser_check(out / "tiny_psf_report.html")
     for name in ("psf_mono.png", "mtf.png", "ee_field.png", "through_focus.png", "wavefront.png"):
         data = (out / f"tiny_{name}").read_bytes()
         assert data[:8] == b"\x89PNG\r\n\x1a\n" and len(data) > 1000
