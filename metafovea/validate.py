@@ -107,6 +107,7 @@ def _psf_stage(system: SystemDesign, post_sets: dict[str, Any], lens_summaries: 
         cutoff = 2 * lens.na / lens.wavelength_um * 1000.0
         nu = np.linspace(0.0, cutoff, 41)
         curves[lens.name] = {"ideal": ideal, "real": real, "nu": nu, "mtf": pupil_mtf(lens, nu),
+                             "airy_um": 1.22 * lens.wavelength_um * fnum,
                              "mtf_real": pupil_mtf(lens, nu, post_set=post_sets.get(lens.polarization),
                                                    quantize=True, lattice=True)}
         peak_ratio = float(real.intensity.max() / ideal.intensity.max())
@@ -216,9 +217,22 @@ def reconstruction_table(meas: Measurement, opts: ValidateOptions, label: str, *
     truth = tuple(np.asarray(t if t.ndim == 2 else t[0]) for t in meas.truth_over([(0, w)]))
     say(f"{label}: PSF-aware separation and deconvolution (known alpha, all {T} frames)")
     return {"rows": rows, "images": images, "truth": truth, "scene_rows": deconvolution_rows(meas, fpn, label),
-            "alternating_alpha": np.asarray(alt.reconstruction.alpha, dtype=np.float64),
+            "alternating_alpha": _window_alpha(alt.reconstruction, T),
             "fpn": {"identified": finfo.get("identified"), "rank": finfo.get("rank"),
                     "relative_rms_error": fpn_err, "seconds": t_fpn}}
+
+
+def _window_alpha(rec: Any, T: int) -> np.ndarray:
+    """The unknown-alpha solver's estimate per frame (T,): its own, else each window's (NaN where none)."""
+    a = np.full(T, np.nan)
+    own = np.asarray(rec.alpha, dtype=np.float64).reshape(-1)
+    if own.shape == (T,):
+        a[:] = own
+    info = rec.info
+    for start, aw in zip(info.get("window_starts") or [], info.get("alpha_windows") or []):
+        aw = np.asarray(aw, dtype=np.float64).reshape(-1)
+        a[start:start + aw.size] = aw[:max(0, min(aw.size, T - start))]
+    return a
 
 
 def deconvolution_rows(meas: Measurement, fpn: np.ndarray, label: str,
@@ -354,12 +368,16 @@ def _psf_figure(curves: dict[str, Any]) -> bytes:
         p = curves[name]["real"]
         img = np.asarray(p.intensity)
         H, W = img.shape
+        r = curves[name]["airy_um"] * 3.0
+        n = max(4, min(W // 2, int(math.ceil(r / p.pitch_um))))
+        cy, cx = int(np.argmax(img.max(axis=1))), int(np.argmax(img.max(axis=0)))
+        img = img[max(0, cy - n):cy + n + 1, max(0, cx - n):cx + n + 1]
         peak = float(img.max()) or 1.0
-        half = 0.5 * W * p.pitch_um
+        half = 0.5 * img.shape[1] * p.pitch_um
         im = ax.imshow(img / peak, cmap="magma", extent=(-half, half, -half, half), origin="lower")
         ax.set_xlabel("x (um)")
         ax.set_ylabel("y (um)")
-        ax.set_title(f"{name}: PSF, fabricated posts", fontsize=9)
+        ax.set_title(f"{name}: PSF, fabricated posts (+-3 Airy radii)", fontsize=9)
         fig.colorbar(im, ax=ax, shrink=0.85, label="intensity / peak")
     ax = axes[-1]
     for i, name in enumerate(names):

@@ -651,9 +651,13 @@ def deconvolve_result(m: Any, res: Any, method: str = "wiener", psf: Any = None,
     file; ``info['alpha_from']`` says which alpha."""
     rec = res.reconstruction
     alpha = np.asarray(rec.alpha, dtype=np.float64).reshape(-1)
-    if alpha.shape != (m.shape[0],):
-        raise InputError("--deconvolve", rec.method, "a reconstruction whose alpha covers every frame "
-                         f"({m.shape[0]},), not {alpha.shape}", source=m.source)
+    if alpha.shape == (m.shape[0],) and not np.all(np.isfinite(alpha)):
+        for start, aw in zip(rec.info.get("window_starts") or [], rec.info.get("alpha_windows") or []):
+            aw = np.asarray(aw, dtype=np.float64).reshape(-1)
+            alpha[start:start + aw.size] = aw[:max(0, min(aw.size, alpha.size - start))]
+    if alpha.shape != (m.shape[0],) or not np.all(np.isfinite(alpha)):
+        raise InputError("--deconvolve", rec.method, f"a reconstruction whose alpha covers all {m.shape[0]} frames "
+                         "(use --window with all frames, or a stride that reaches every frame)", source=m.source)
     known = m.alpha is not None and bool(np.array_equal(alpha, np.asarray(m.alpha, dtype=np.float64)))
     psfs = ChannelPSFs.from_file(psf) if psf is not None else None
     d = deconvolve_measurement(m, alpha=alpha, fpn=rec.fpn, method=method, psfs=psfs, **kw)
