@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import math
 import numbers
+import re
 from typing import Any
 
 
@@ -36,8 +37,16 @@ class InputError(ValueError):
         super().__init__(msg)
 
     def renamed(self, parameter: str) -> "InputError":
-        """The same error, reported under another name (the CLI flag a user typed for a library parameter)."""
-        return InputError(parameter, self.value, self.allowed, source=self.source, detail=self.detail)
+        """The same error, reported under another name (the CLI flag a user typed for a library parameter); the
+        name is replaced in the allowed range too (``0 K <= netd_k <= 10 K`` -> ``0 K <= --netd <= 10 K``)."""
+        name = re.escape(self.parameter)  # where a range states it: "lo <= name", "name <= hi"
+        allowed = re.sub(rf"(?<=[<>=] ){name}(?![\w-])|(?<![\w-]){name}(?= [<>]=? )", lambda m: parameter,
+                         self.allowed)
+        return InputError(parameter, self.value, allowed, source=self.source, detail=self.detail)
+
+    def located(self, source: str) -> "InputError":
+        """The same error, placed in ``source`` (a file the user named: the parameter is its key)."""
+        return InputError(self.parameter, self.value, self.allowed, source=source, detail=self.detail)
 
 
 class NotConvergedWarning(UserWarning):
@@ -46,6 +55,15 @@ class NotConvergedWarning(UserWarning):
 
 class PhysicsWarning(UserWarning):
     """A design is valid but physically questionable (undersampled zones, substrate orders, ...)."""
+
+
+def human_bytes(n: float) -> str:
+    """``n`` bytes as ``1.8 TiB`` (binary prefixes), for messages about memory and disk."""
+    for unit in ("B", "KiB", "MiB", "GiB", "TiB", "PiB", "EiB"):
+        if abs(n) < 1024 or unit == "EiB":
+            return f"{n:.3g} {unit}" if unit != "B" else f"{int(n)} B"
+        n /= 1024
+    return f"{n:.3g} EiB"  # pragma: no cover
 
 
 def as_float(name: str, value: Any, source: str | None = None) -> float:

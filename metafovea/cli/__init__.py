@@ -29,16 +29,37 @@ COMMAND_MODULES = ("validate", "design", "library", "layout", "psf", "simulate",
 
 #: library parameter name -> the flag a user typed, per command (an InputError raised deep in a stage names the
 #: parameter; the CLI reports the flag). Only names that differ from their flag need an entry.
+_LAYOUT = {"band_rows": "--band-rows", "grid_nm": "--grid-nm", "ring_width_um": "--ring-width-um", "block": "--block",
+           "patch_mm": "--patch", "levels": "--levels", "post_set": "--post-set", "workers": "--workers",
+           "substrate_thickness_um": "--substrate-um", "max_refs": "--max-refs", "compress": "--compress"}
 PARAMETER_FLAGS: dict[str, dict[str, str]] = {
-    "design": {"post_set": "--post-set", "from_library": "--library"},
-    "library": {"grid_step_um": "--grid-step-um", "levels": "--levels"},
+    "design": {"post_set": "--post-set", "from_library": "--library", "samples": "--samples", "f_um": "--f",
+               "diameter_um": "--d", "period_um": "--period-um", "wavelength_um": "--wavelength-um"},
+    "library": {"grid_step_um": "--grid-step-um", "levels": "--levels", "harmonics": "--harmonics",
+                "wavelengths_um": "--wavelengths-um", "workers": "--workers", "tol": "--tol"},
+    "export": _LAYOUT, "verify": _LAYOUT,
     "psf": {"band_um": "--band-um", "filter_um": "--filter-um", "pixel_pitch_um": "--pixel-um",
-            "field_deg": "--field-deg", "error": "--error", "temperature_k": "--temperature-k",
-            "n_wavelengths": "--wavelengths", "wavelength_um": "--wavelength-um", "window_um": "--window-um",
-            "relay_magnification": "--relay"},
+            "field_deg": "--field-deg", "fields_deg": "--field-deg", "error": "--error",
+            "temperature_k": "--temperature-k", "n_wavelengths": "--wavelength-bins", "wavelength_um": "--wavelength-um",
+            "window_um": "--window-um", "relay_magnification": "--relay", "jobs": "--workers"},
     "reconstruct": {"window": "--window", "frame": "--frame", "fpn": "--fpn", "known_alpha": "--known-alpha",
-                    "regularize": "--regularize", "steps": "--steps", "channels": "--channels"},
-    "simulate": {"extinction": "--extinction", "tau_s": "--tau", "fpn_drift": "--drift", "netd_k": "--netd"},
+                    "regularize": "--regularize", "steps": "--steps", "channels": "--channels", "stride": "--stride",
+                    "max_seconds": "--max-seconds", "seed": "--seed", "rng": "--seed", "scale": "--scale",
+                    "gain": "--foveal-gain", "offset": "--foveal-offset", "denoise": "--denoise"},
+    "simulate": {"extinction": "--extinction", "tau_s": "--tau", "bolometer_tau_s": "--tau", "fpn_drift": "--drift",
+                 "netd_k": "--netd", "frames": "--frames", "calibration_frames": "--calibration-frames",
+                 "supersample": "--supersample", "psf_size_px": "--psf-size", "scene": "--scene",
+                 "pixel_pitch_um": "--pixel-um", "psf gaussian sigma_um": "--psf", "psf": "--psf",
+                 "relay_magnification": "--relay", "fpn_rank": "--fpn-rank", "fpn_amplitude": "--fpn-amplitude",
+                 "polarizer_phase_deg": "--phase-deg", "field_patches": "--field-patches", "rng": "--seed"},
+    "validate": {"frames": "--frames", "seed": "--seed", "rng": "--seed", "scene": "--scene",
+                 "dip_steps": "--dip-steps"},
+}
+
+#: library parameters that are a key of a file the user named, per command: parameter -> the option (or
+#: positional argument's dest) holding that file; the error then names the file (``--scene hot.npy: ...``)
+FILE_KEYS: dict[str, dict[str, str]] = {
+    "simulate": {"temperature_k": "scene", "emissivity": "scene", "image": "scene"},
 }
 
 
@@ -50,38 +71,63 @@ class Parser(argparse.ArgumentParser):
         raise SystemExit(2)
 
 
-def as_flag_error(command: str, err: InputError) -> InputError:
-    """``err`` renamed to the flag of ``command`` that sets its parameter (unchanged when there is none, or when
-    the error names a file's key)."""
+def as_flag_error(command: str, err: InputError, args: argparse.Namespace | None = None) -> InputError:
+    """``err`` renamed to the flag of ``command`` that sets its parameter, or (:data:`FILE_KEYS`) placed in the
+    file the user gave; unchanged when there is none, or when the error already names a file's key."""
+    if err.source is not None:
+        return err
+    dest = FILE_KEYS.get(command, {}).get(err.parameter)
+    if dest is not None and args is not None and getattr(args, dest, None) is not None:
+        return err.located(f"--{dest.replace('_', '-')} {getattr(args, dest)}")
     flag = PARAMETER_FLAGS.get(command, {}).get(err.parameter)
-    return err.renamed(flag) if flag and err.source is None else err
+    err = err.renamed(flag) if flag else err
+    typed = {new: old for old, new in getattr(args, "deprecated_options", [])}  # the spelling the user typed
+    return err.renamed(typed[err.parameter]) if err.parameter in typed else err
 
 
 def build_parser() -> argparse.ArgumentParser:
+    from metafovea.cli.options import add_common, iter_subparsers
+
     parser = Parser(prog="metafovea", description="Polarisation-multiplexed foveated meta-optics for LWIR cameras. "
-                                                  "Lengths in um (lens f and D in mm), angles in degrees at the CLI.")
+                                                  "Lengths in um (lens f and D in mm), angles in degrees at the CLI; "
+                                                  "README.md, 'Command-line options', has every option.")
     parser.add_argument("--version", action="version", version=f"metafovea {__version__}")
-    parser.add_argument("-v", "--verbose", action="count", default=0, help="more log output")
+    parser.add_argument("-v", "--verbose", dest="global_verbose", action="count", default=0, help="more log output")
+    parser.add_argument("-q", "--quiet", dest="global_quiet", action="store_true", help="no progress bars")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=Parser)
     for name in COMMAND_MODULES:
         importlib.import_module(f"metafovea.cli.{name}").register(sub)
+    for _, p in iter_subparsers(parser):
+        add_common(p)
     return parser
 
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Run ``metafovea`` with ``argv`` (default ``sys.argv[1:]``); returns the exit status."""
+    from metafovea.cli.options import warning_printer
+
     parser = build_parser()
     args = parser.parse_args(argv)
-    logging.basicConfig(level=logging.WARNING - 10 * min(args.verbose, 2), format="%(levelname)s %(name)s: %(message)s")
-    # warnings as one line each ("Category: message"), without Python's source line
-    warnings.formatwarning = lambda m, c, f, n, line=None: f"{c.__name__}: {m}\n"
     if not getattr(args, "command", None):
         parser.print_help()
         return 2
+    args.quiet = bool(getattr(args, "quiet", False) or args.global_quiet)
+    args.verbose = int(getattr(args, "verbose", 0) or 0) + args.global_verbose
+    logging.basicConfig(format="%(levelname)s %(name)s: %(message)s")  # a handler, once per process
+    log.setLevel(logging.WARNING - 10 * min(args.verbose, 2))  # each run its own level
+    with warnings.catch_warnings():
+        # every warning once, on one line, under the command's name (a warnings.showwarning hook)
+        warnings.showwarning = warning_printer(args.command)
+        for old, new in getattr(args, "deprecated_options", []):
+            log.info("%s is a deprecated spelling: use %s", old, new)
+        return _run(args)
+
+
+def _run(args: argparse.Namespace) -> int:
     try:
         rc = args.func(args)
     except InputError as e:
-        sys.stderr.write(f"metafovea {args.command}: error: {as_flag_error(args.command, e)}\n")
+        sys.stderr.write(f"metafovea {args.command}: error: {as_flag_error(args.command, e, args)}\n")
         return 2
     except KeyboardInterrupt:
         sys.stderr.write("interrupted\n")

@@ -10,9 +10,12 @@ from __future__ import annotations
 
 import argparse
 import sys
+import warnings
+from pathlib import Path
 from typing import Any
 
-from metafovea.errors import InputError
+from metafovea.cli.options import check_out_suffix, progress
+from metafovea.errors import InputError, check_choice
 
 
 def _patch(s: str | None):
@@ -45,7 +48,6 @@ def _common(p: argparse.ArgumentParser) -> None:
                         "the expected counts (default 1)")
     p.add_argument("--scheduler", default=None, help="Dask scheduler address (tcp://host:8786)")
     p.add_argument("--json", action="store_true", help="print the result as JSON")
-    p.add_argument("--quiet", action="store_true", help="no progress bar")
 
 
 def add_export_parser(subparsers) -> argparse.ArgumentParser:
@@ -54,9 +56,11 @@ def add_export_parser(subparsers) -> argparse.ArgumentParser:
                                           "centre at the positive offset written in the label; see "
                                           "gds_export/README.md).")
     p.add_argument("design", help="lens design TOML (designs/foveal.toml)")
-    p.add_argument("--format", default="gds", help="gds | oas | stl | glb (stl/glb need --patch)")
+    p.add_argument("--format", default=None, help="gds | oas | stl | glb (stl/glb need --patch; default: the --out "
+                                                  "file's suffix, else gds)")
     p.add_argument("--flat", action="store_true", help="GDSII with one rectangle per post (no references)")
-    p.add_argument("--out", default=None, help="output file (default gds_export/<name>.<format>)")
+    p.add_argument("--out", default=None, help="output file, ending in the format's suffix: .gds/.gdsii, .oas/.oasis, "
+                                               ".stl, .glb (default gds_export/<name>.<format>)")
     p.add_argument("--force", action="store_true", help="overwrite an existing output file")
     p.add_argument("--no-resume", action="store_true", help="start over even if a partial export exists")
     p.add_argument("--compress", type=int, default=1, help="OASIS CBLOCK deflate level 0-9 (default 1)")
@@ -113,13 +117,30 @@ def _inputs(args, design_path: str):
     return spec, (TestArraySpec(spec, block=args.block) if args.test_array else None)
 
 
+def _format(args) -> str:
+    """--format, or the --out file's suffix; an --out of another suffix is an error (it is never renamed)."""
+    from metafovea.layout.export import SUFFIXES
+
+    fmt = args.format
+    if fmt is None:
+        suffix = Path(args.out).suffix.lower() if args.out else ""
+        fmt = next((f for f, sx in SUFFIXES.items() if suffix in sx), "gds")
+    fmt = check_choice("--format", fmt, tuple(SUFFIXES))
+    if args.out and not Path(args.out).suffix:  # no suffix: added, and said (a wrong one is an error)
+        warnings.warn(f"--out {args.out} has no layout suffix: writing {args.out}.{fmt}", UserWarning, stacklevel=2)
+    else:
+        check_out_suffix(args.out, SUFFIXES[fmt], f"--format {fmt}")
+    return fmt
+
+
 def run_export(args) -> int:
     from metafovea.layout.export import export_file
 
+    fmt = _format(args)
     spec, ta = _inputs(args, args.design)
-    res = export_file(spec, args.out, args.format, test_array=ta, flat=args.flat, max_refs=args.max_refs, dwl=args.dwl,
+    res = export_file(spec, args.out, fmt, test_array=ta, flat=args.flat, max_refs=args.max_refs, dwl=args.dwl,
                       substrate_thickness_um=args.substrate_um, force=args.force, resume=not args.no_resume,
-                      workers=args.workers, scheduler=args.scheduler, progress=not (args.quiet or args.json),
+                      workers=args.workers, scheduler=args.scheduler, progress=progress(args),
                       compress=args.compress)
     if args.json:
         from metafovea.io import to_json
@@ -147,7 +168,7 @@ def run_verify(args) -> int:
     spec, ta = _inputs(args, args.design)
     rep = verify_layout(args.file, spec, reader=args.reader, test_array=ta,
                         workers=1 if args.workers is None else args.workers,
-                        progress=not (args.quiet or args.json), max_refs=args.max_refs, dwl=args.dwl)
+                        progress=progress(args), max_refs=args.max_refs, dwl=args.dwl)
     if args.json:
         from metafovea.io import to_json
         print(to_json(rep.as_dict()))

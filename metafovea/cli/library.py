@@ -12,11 +12,10 @@ fig7c_selected_posts.png and library.json (:mod:`metafovea.library_report`).
 from __future__ import annotations
 
 import argparse
-import sys
-import warnings
 from typing import Any
 
-from metafovea.errors import NotConvergedWarning, check_int, check_positive, check_range
+from metafovea.cli.options import alias, progress
+from metafovea.errors import check_int, check_positive, check_range
 
 
 def register(subparsers: Any) -> None:
@@ -44,7 +43,7 @@ def register(subparsers: Any) -> None:
     p.add_argument("--out", default=None, help="write library, post sets, figures and JSON into this directory")
     p.add_argument("--force", action="store_true", help="overwrite existing output")
     p.add_argument("--json", action="store_true", help="print JSON numbers instead of a table")
-    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    alias(p, "--no-progress", "--quiet", "quiet", const=True)
     p.set_defaults(func=run)
 
 
@@ -65,19 +64,12 @@ def run(args: argparse.Namespace) -> int:
                              tol=check_positive("--tol", args.tol), cache_dir=args.cache_dir,
                              use_cache=not args.no_cache,
                              workers=None if args.workers is None else check_int("--workers", args.workers, 1, 1024),
-                             scheduler=args.scheduler, progress=not args.no_progress)
+                             scheduler=args.scheduler, progress=progress(args))
     bias_weight = check_range("--bias-weight", args.bias_weight, 0.0, None, lo_inclusive=True)
     sweep = PlatformSweep(plat, levels, step, wls, options, source=src,  # checks the platform and the grid
                           bias_weight=bias_weight)
     out = prepare_output(args.out, args.force, is_dir=True) if args.out else None
-    with warnings.catch_warnings(record=True) as caught:
-        warnings.simplefilter("always", NotConvergedWarning)
-        rep = library_report(sweep)
-    for w in caught:  # one line each (the default format adds the source line of the call)
-        if issubclass(w.category, NotConvergedWarning):
-            sys.stderr.write(f"metafovea library: warning: {w.message}\n")
-        else:
-            warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
+    rep = library_report(sweep)  # warnings: one line each, by the printer of metafovea.cli.main
     if out is not None:
         rep.write(out)
     if args.json:

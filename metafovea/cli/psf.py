@@ -10,7 +10,8 @@ from __future__ import annotations
 import argparse
 from typing import Any
 
-from metafovea.errors import check_int, check_positive
+from metafovea.cli.options import alias, emit, progress
+from metafovea.errors import InputError, PhysicsWarning, check_int, check_positive
 from metafovea.io import to_json
 
 
@@ -26,9 +27,13 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
                    help="spectral band in um (default 8 14)")
     g.add_argument("--filter-um", type=float, nargs=2, metavar=("CENTER", "FWHM"), default=None,
                    help="narrow-band filter (Gaussian) centre and width in um")
+    p.add_argument("--filter", default=None, choices=("on", "off"),
+                   help="the system's narrow-band filter (10 um / 0.5 um in the paper's camera): on, or off (the "
+                        "band; default)")
     p.add_argument("--temperature-k", type=float, default=300.0, help="scene temperature for Planck weights")
-    p.add_argument("--wavelengths", type=int, default=61, help="wavelength bins across the band (geometric "
+    p.add_argument("--wavelength-bins", type=int, default=61, help="wavelength bins across the band (geometric "
                    "around the design wavelength; metafovea.radiometry.psf_wavelengths)")
+    alias(p, "--wavelengths", "--wavelength-bins", "wavelength_bins", type=int)
     p.add_argument("--pixel-um", type=float, default=None,
                    help="sensor pixel pitch in um (default: the system's, 17 um in the paper's camera)")
     p.add_argument("--relay", type=float, default=None,
@@ -49,18 +54,19 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
     p.add_argument("--out", default="psf_report", help="output directory (must be new or empty)")
     p.add_argument("--force", action="store_true", help="overwrite existing output")
     p.add_argument("--json", action="store_true", help="print the numbers as JSON")
-    p.add_argument("-q", "--quiet", action="store_true", help="no progress bars")
-    p.add_argument("--jobs", type=int, default=None,
+    p.add_argument("--workers", type=int, default=None,
                    help="processes, one lens each (default: min(2, lenses, CPUs))")
+    alias(p, "--jobs", "--workers", "workers", type=int)
     p.set_defaults(func=run)
     return p
 
 
-#: most wavelength bins --wavelengths may ask for
+#: most wavelength bins --wavelength-bins may ask for
 MAX_WAVELENGTHS = 2001
 
 
 def run(args: argparse.Namespace) -> int:
+    from metafovea.config import SystemDesign, load_system
     from metafovea.optics.report import psf_reports
     from metafovea.radiometry import check_band
 
@@ -70,27 +76,31 @@ def run(args: argparse.Namespace) -> int:
         c = check_positive("--filter-um center", args.filter_um[0], "um")
         w = check_positive("--filter-um width", args.filter_um[1], "um")
         filt = (c, w)
+    system = load_system(args.system) if args.system is not None else SystemDesign.paper()
+    if args.filter == "on":
+        if args.band_um is not None or args.filter_um is not None:
+            raise InputError("--filter", "on", "not together with --band-um or --filter-um (the system's filter)")
+        filt = (system.filter_center_um, system.filter_bandwidth_um)
     check_positive("--temperature-k", args.temperature_k, "K", hi=1e5)
     check_positive("--error", args.error, hi=0.5)
-    from metafovea.config import SystemDesign, load_system
-
-    system = load_system(args.system) if args.system is not None else SystemDesign.paper()
     pixel_um = system.sensor.pixel_pitch_um if args.pixel_um is None else check_positive("--pixel-um", args.pixel_um,
                                                                                          "um", hi=1e4)
     relay = system.relay_magnification if args.relay is None else check_positive("--relay", args.relay, hi=10.0)
     distances = ({system.foveal.name: system.lens_to_sensor_um[0], system.perifoveal.name: system.lens_to_sensor_um[1]}
                  if args.system is not None else None)
-    check_int("--wavelengths", args.wavelengths, 1, MAX_WAVELENGTHS)
+    check_int("--wavelength-bins", args.wavelength_bins, 1, MAX_WAVELENGTHS)
     if args.wavelength_um is not None:
         check_positive("--wavelength-um", args.wavelength_um, "um", hi=1e4)
     if args.window_um is not None:
         check_positive("--window-um", args.window_um, "um")
-    jobs = check_int("--jobs", args.jobs, 1, 64) if args.jobs is not None else None
+    jobs = check_int("--workers", args.workers, 1, 64) if args.workers is not None else None
     summary = psf_reports(args.designs, args.out, force=args.force, fields_deg=args.field_deg, band_um=band,
-                          filter_um=filt, temperature_k=args.temperature_k, n_wavelengths=args.wavelengths,
+                          filter_um=filt, temperature_k=args.temperature_k, n_wavelengths=args.wavelength_bins,
                           pixel_pitch_um=pixel_um, error=args.error, wavelength_um=args.wavelength_um,
                           window_um=args.window_um, jobs=jobs, relay_magnification=relay, distances_um=distances,
-                          progress=not args.quiet, system=system, posts=args.posts)
+                          progress=progress(args), system=system, posts=args.posts)
+    for name, s in summary.items():  # each distinct one once, on one line (also those from worker processes)
+        emit([f"{name}: {w}" for w in (s.get("warnings", ()) if name != "optical_train" else ())], PhysicsWarning)
     if args.json:
         print(to_json(summary))
     else:
@@ -103,7 +113,7 @@ def run(args: argparse.Namespace) -> int:
                   f"{len(s['sensor'])} fields, pixels {s['pixel_pitch_um']:.4g} um at the focal plane "
                   f"({pixel_um:g} um / {relay:g}x relay), sensor at {s['z_um'] / 1000:g} mm, "
                   f"{s['seconds']:.1f} s -> {s['html']}"
-                  + (f"  [{len(set(s['warnings']))} warnings]" if s["warnings"] else ""))
+                  + (f"  [{len(set(s['warnings']))} warnings, on stderr]" if s["warnings"] else ""))
         print("\n".join(throughput_lines(trains)))
     return 0
 

@@ -10,10 +10,10 @@ Exit status: 0 on success, 2 on bad input (one line naming the option).
 from __future__ import annotations
 
 import argparse
-import sys
 from typing import Any
 
-from metafovea.errors import as_float, check_int
+from metafovea.cli.options import alias, progress
+from metafovea.errors import InputError, as_float, check_int
 from metafovea.io import to_json
 
 
@@ -40,9 +40,10 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
     g.add_argument("--psf-cache", help="PSF cache directory (default $METAFOVEA_CACHE/psf, i.e. ~/.cache/metafovea/psf)")
     g.add_argument("--psf-size", help="PSF window in samples (odd, at most 1025; default 6 x supersample + 1)")
     g.add_argument("--field-patches", default="1", help="1 (shift-invariant), N (N x N patches) or auto")
-    filt = g.add_mutually_exclusive_group()
-    filt.add_argument("--filter", dest="filter", action="store_true", default=None, help="use the narrow-band filter")
-    filt.add_argument("--no-filter", dest="filter", action="store_false", help="no filter: the whole band (haze)")
+    g.add_argument("--filter", nargs="?", const="on", default=None, choices=("on", "off"),
+                   help="the system's narrow-band filter: on (also a bare --filter) or off (the whole band, with "
+                        "haze); default: the system file's spectral.filter_enabled")
+    alias(g, "--no-filter", "--filter off", "filter", const="off")
     g.add_argument("--no-haze", action="store_true", help="drop the chromatic haze (power outside the PSF window)")
     g.add_argument("--supersample", help="samples per pixel per axis (default 3 static, 2 video scenes)")
     g.add_argument("--relay", help="relay magnification (default from the system file, e.g. 0.5 or 0.3)")
@@ -57,7 +58,8 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
     s.add_argument("--phase-deg", help="polariser phase at t = 0 (degrees; sync default 17.19 = 0.3 rad)")
     s.add_argument("--extinction", help="leaked fraction of the blocked polarisation (default from the system)")
     s.add_argument("--tau", default="0", help="bolometer time constant in s (low-passes alpha; default 0)")
-    s.add_argument("--pitch", help="pixel pitch in um (17 or 24; default from the system)")
+    s.add_argument("--pixel-um", help="sensor pixel pitch in um (17 or 24; default from the system)")
+    alias(s, "--pitch", "--pixel-um", "pixel_um")
     s.add_argument("--netd", help="NETD in K at 300 K through the F/1 channel (default from the system)")
     s.add_argument("--fpn-rank", help="rank of the fixed-pattern noise (default from the system)")
     s.add_argument("--fpn-amplitude", help="max |FPN| as a fraction of the dynamic range (default from the system)")
@@ -76,6 +78,13 @@ def _num(name: str, v: Any) -> float | None:
     return None if v is None else as_float(name, v)
 
 
+def _odd(name: str, v: Any, hi: int) -> int:
+    n = check_int(name, v, 1, hi)
+    if n % 2 == 0:
+        raise InputError(name, v, f"an odd integer 1 <= {name} <= {hi} (the PSF's centre is a sample)")
+    return n
+
+
 def _options(args: argparse.Namespace, frames: int) -> Any:
     """The flags as :class:`~metafovea.imaging.simulate.SimulationOptions`, each checked under its flag."""
     from metafovea.imaging.kernels import MAX_PSF_SIZE
@@ -87,15 +96,15 @@ def _options(args: argparse.Namespace, frames: int) -> Any:
         frames=frames,
         supersample=None if args.supersample is None else check_int("--supersample", args.supersample, 1, 8),
         psf=args.psf, psf_cache_dir=args.psf_cache,
-        psf_size_px=None if args.psf_size is None else check_int("--psf-size", args.psf_size, 1, MAX_PSF_SIZE),
-        field_patches=fp, haze=not args.no_haze, filter_enabled=args.filter,
-        pixel_pitch_um=_num("--pitch", args.pitch), relay_magnification=_num("--relay", args.relay),
+        psf_size_px=None if args.psf_size is None else _odd("--psf-size", args.psf_size, MAX_PSF_SIZE),
+        field_patches=fp, haze=not args.no_haze, filter_enabled=None if args.filter is None else args.filter == "on",
+        pixel_pitch_um=_num("--pixel-um", args.pixel_um), relay_magnification=_num("--relay", args.relay),
         polarizer_mode=args.polarizer, polarizer_phase_deg=_num("--phase-deg", args.phase_deg),
         extinction=_num("--extinction", args.extinction), bolometer_tau_s=_num("--tau", args.tau),
         netd_k=_num("--netd", args.netd),
         fpn_rank=0 if args.no_fpn else (None if args.fpn_rank is None else check_int("--fpn-rank", args.fpn_rank, 0, 10000)),
         fpn_amplitude=_num("--fpn-amplitude", args.fpn_amplitude), fpn_drift=_num("--drift", args.drift),
-        noise=not args.no_noise, quantize=not args.no_quantize, progress=sys.stderr.isatty(),
+        noise=not args.no_noise, quantize=not args.no_quantize, progress=progress(args),
         posts=args.posts, optical_train=not args.no_train,
         calibration_frames=check_int("--calibration-frames", args.calibration_frames, 0, 10000))
 
