@@ -12,6 +12,7 @@ import sys
 import time
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 REPO = Path(__file__).resolve().parents[2]
@@ -121,3 +122,46 @@ def test_a_full_disk_reports_the_bytes_written(tmp_path):
     written = int(m.group(1).replace(",", ""))
     assert written == (tmp_path / ".lens.oas.part").stat().st_size
     assert limit // 2 < written <= limit
+
+
+def _measurement_file(path: Path) -> Path:
+    from metafovea.io import atomic_save_npz
+    from metafovea.reconstruct.synthetic import measure, polariser_alpha, scene
+
+    x1, x2 = scene(48)
+    a = polariser_alpha(12)
+    atomic_save_npz(path, meta={"scale": 6}, frames=measure(x1, x2, a, sigma=0.01, rng=0, dtype=np.float32),
+                    times_s=np.arange(12) / 12.0, alpha=a)
+    return path
+
+
+#: long commands, with the output each must not leave behind when stopped
+LONG_COMMANDS = {
+    "psf": (lambda d: ["psf", str(REPO / "designs" / "foveal.toml"), "--posts", "ideal", "--out", str(d / "psf")],
+            "psf"),
+    "simulate": (lambda d: ["simulate", "--scene", "siemens-star", "--frames", "96", "--out", str(d / "m.npz")],
+                 "m.npz"),
+    "reconstruct": (lambda d: ["reconstruct", str(_measurement_file(d / "in.npz")), "--method", "dip", "--steps",
+                               "100000", "--out", str(d / "r.npz")], "r.npz"),
+    "validate": (lambda d: ["validate", "--out", str(d / "v")], "v/validate.html"),
+}
+
+
+@pytest.mark.parametrize("name", sorted(LONG_COMMANDS))
+def test_long_commands_stop_on_sigint_with_one_line(tmp_path, name):
+    """Ctrl-C a few seconds into psf, simulate, reconstruct (DIP) and validate: exit 130 within seconds, one line,
+    no traceback, no output file, no process left."""
+    make, output = LONG_COMMANDS[name]
+    p = _command(make(tmp_path), tmp_path)
+    time.sleep(4.0)
+    assert p.poll() is None, f"{name} finished before the signal: {p.stderr.read()[-500:]}"
+    t0 = time.monotonic()
+    os.killpg(p.pid, signal.SIGINT)
+    rc = p.wait(timeout=60)
+    stopped = time.monotonic() - t0
+    err = p.stderr.read()
+    assert rc == 130, err[-800:]
+    assert "Traceback" not in err and "KeyboardInterrupt" not in err, err[-800:]
+    assert stopped < 20
+    assert not (tmp_path / output).is_file(), f"{name} left {output}"
+    assert _wait_for(lambda: not _group_alive(p.pid), 5), _group_alive(p.pid)
