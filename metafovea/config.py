@@ -180,6 +180,40 @@ def check_name(key: str, value: Any, source: str | None = None) -> str:
     return value
 
 
+#: the finest lattice period a design may have (10 nm: below any lithography's resolution)
+MIN_PERIOD_UM = 0.01
+#: the most lattice rows (D / period) a lens may span: the exact post count walks the rows in Python, measured
+#: 0.7 us per row on one core (the paper's foveal lens: 18,750 rows, 13 ms), so this takes ~6 s and 200 MiB
+MAX_LATTICE_ROWS = 1 << 23
+#: seconds and bytes per lattice row of the exact post count (measured, rounded up), for the refusal's estimate
+ROW_SECONDS, ROW_BYTES = 1e-6, 24
+
+
+def check_lattice_rows(d_um: float, period_um: float, d_name: str = "diameter_um", period_name: str = "period_um",
+                       source: str | None = None) -> int:
+    """Refuse, before any work, a lens of more than :data:`MAX_LATTICE_ROWS` lattice rows (``D / period``); the
+    error names the diameter, or the period when the lens would fit at the platform's 4 um period."""
+    rows = d_um / period_um
+    if rows <= MAX_LATTICE_ROWS:
+        return int(rows)
+    from metafovea.errors import human_bytes
+
+    blame_d = d_um / 4.0 > MAX_LATTICE_ROWS
+    name = d_name if blame_d else period_name
+    in_mm = not name.endswith("_um") and blame_d  # a CLI flag (--d) is in mm
+    value = d_um / UM_PER_MM if in_mm else (d_um if blame_d else period_um)
+    secs = rows * ROW_SECONDS
+    took = f"{secs / 3600:.3g} hours" if secs >= 3600 else f"{secs:.3g} s"
+    detail = (f"the lens would span {rows:.3g} lattice rows, ~{math.pi / 4 * rows * rows:.2g} posts: "
+              f"~{human_bytes(rows * ROW_BYTES)} of memory and {took} only to count them, and no layout or PSF of it "
+              "could be made; the paper's 75 mm lens spans 18,750 rows")
+    allowed = (f"at most {MAX_LATTICE_ROWS:,} lattice rows (D / period): D <= {MAX_LATTICE_ROWS * period_um / 1e6:.3g} "
+               f"m at period {period_um:g} um" if blame_d else
+               f"period >= {d_um / MAX_LATTICE_ROWS:.3g} um for D = {d_um / UM_PER_MM:g} mm (at most "
+               f"{MAX_LATTICE_ROWS:,} lattice rows)")
+    raise InputError(name, value, allowed, source, detail=detail)
+
+
 def validate_lens_numbers(f_um: Any, diameter_um: Any, wavelength_um: Any, period_um: Any, levels: Any,
                           polarization: Any, source: str | None = None,
                           names: tuple[str, ...] = ("f_um", "diameter_um", "wavelength_um", "period_um",
@@ -188,9 +222,14 @@ def validate_lens_numbers(f_um: Any, diameter_um: Any, wavelength_um: Any, perio
     f = check_positive(names[0], f_um, source=source)
     d = check_positive(names[1], diameter_um, source=source)
     check_positive(names[2], wavelength_um, "um", source=source, hi=1e4)
-    check_positive(names[3], period_um, "um", source=source, hi=1e4)
+    p = check_positive(names[3], period_um, "um", source=source, hi=1e4)
+    if p < MIN_PERIOD_UM:
+        raise InputError(names[3], period_um, f"{MIN_PERIOD_UM:g} um <= {names[3]} <= 10000 um", source,
+                         detail="a lattice of posts finer than 10 nm cannot be written: below e-beam resolution, "
+                                "the layout grid is 5 nm")
     check_int(names[4], levels, 2, 256, source=source)
     check_choice(names[5], polarization, POLARIZATIONS, source=source)
+    check_lattice_rows(d, p, names[1], names[3], source)
     na = (d / 2) / math.hypot(d / 2, f)
     if not na < 1.0:  # only reachable through rounding for absurd D/f ratios
         raise InputError("NA", na, "NA < 1 (D/2 / sqrt((D/2)^2 + f^2))", source)

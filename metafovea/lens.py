@@ -325,7 +325,8 @@ def design_warnings(design: LensDesign, n_superstrate: float = 1.0) -> list[str]
     rim = float(posts_per_2pi(design, design.radius_um))
     if rim < 4.0:
         out.append(f"only {rim:.2f} posts per 2 pi at the rim (< 4): the outer zones are undersampled; "
-                   f"expect lower efficiency and stray orders beyond r = {radius_below_posts(design, 4.0) / UM_PER_MM:.2f} mm")
+                   f"expect lower efficiency and stray orders beyond r = {radius_below_posts(design, 4.0) / UM_PER_MM:.3g} mm")
+    out += aperture_warnings(design)
     lam_sub = design.wavelength_um / design.n_substrate
     if design.period_um > lam_sub:
         out.append(f"lattice period {design.period_um:g} um > lambda / n_substrate = {lam_sub:.3f} um: "
@@ -334,6 +335,25 @@ def design_warnings(design: LensDesign, n_superstrate: float = 1.0) -> list[str]
     if design.period_um > design.wavelength_um / n_superstrate:
         out.append(f"lattice period {design.period_um:g} um > lambda = {design.wavelength_um:g} um: "
                    "diffraction orders propagate in air (not a metasurface regime)")
+    return out
+
+
+def aperture_warnings(design: LensDesign) -> list[str]:
+    """Warnings for extreme but legal apertures: f << D (f/D below 0.5), NA near 1, a focus in the near field."""
+    out = []
+    na, fd, wl = design.na, design.f_um / design.diameter_um, design.wavelength_um
+    bend = math.degrees(math.asin(min(na, 1.0)))
+    if fd < 0.5:
+        out.append(f"f/D = {fd:.3g} < 0.5 (f << D): rim rays bend by {bend:.1f} deg. The F-number printed is f/D; the "
+                   f"working F-number 1/(2 NA) = {0.5 / na:.3g} can never fall below 0.5 (NA <= 1), so a shorter f "
+                   "buys little resolution, and a flat lens focuses such steep rays poorly: the scalar efficiency "
+                   "and spot numbers are optimistic")
+    elif na > 0.8:
+        out.append(f"NA {na:.3g} is near 1 (rim rays bend by {bend:.1f} deg): a flat lens' posts deflect such angles "
+                   "with much lower efficiency than the scalar estimate below (vectorial and shadowing effects)")
+    if design.f_um < 10 * wl:
+        out.append(f"f = {design.f_um:.3g} um is {design.f_um / wl:.3g} wavelengths: the focus lies in the lens' near "
+                   "field, where the far-field numbers below (Airy zero, FWHM, MTF cutoff) do not apply")
     return out
 
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+from dataclasses import MISSING, fields
 from typing import Any
 
 from metafovea.errors import InputError
@@ -75,17 +76,20 @@ def design_from_args(args: argparse.Namespace) -> list:
         overrides["polarization"] = check_choice("--polarization", args.polarization, POLARIZATIONS)
     if args.lattice is not None:
         overrides["lattice"] = check_choice("--lattice", args.lattice, LATTICES)
-    if not lenses:
-        lenses = [LensDesign(args.name or "lens", overrides.pop("f_um"), overrides.pop("diameter_um"))]
-    elif args.name:
-        overrides["name"] = args.name
+    if lenses:
+        base = [dict(lens.__dict__) for lens in lenses]
+        if args.name:
+            overrides["name"] = args.name
+    else:  # checked under the flags' names (and --d in mm) before a LensDesign is made
+        base = [{**{f.name: f.default for f in fields(LensDesign) if f.default is not MISSING},
+                 "name": args.name or "lens", "f_um": overrides.pop("f_um"), "diameter_um": overrides.pop("diameter_um")}]
     out = []
-    for lens in lenses:
-        merged = {**lens.__dict__, **overrides}
+    for b in base:
+        merged = {**b, **overrides}
         validate_lens_numbers(merged["f_um"], merged["diameter_um"], merged["wavelength_um"], merged["period_um"],
                               merged["levels"], merged["polarization"],
                               names=("--f", "--d", "--wavelength-um", "--period-um", "--levels", "--polarization"))
-        out.append(lens.with_(**overrides))
+        out.append(LensDesign(**merged))
     return out
 
 
