@@ -1,10 +1,11 @@
 """One executor interface for sweeps and tiles: local processes by default, Dask when asked.
 
 ``get_executor(workers=None, scheduler=None)`` returns a ``concurrent.futures.Executor``-like object
-with ``submit`` and ``map``; with a scheduler address (``tcp://host:8786``) it is a
-``dask.distributed.Client`` (whose ``submit``/``map`` return futures with ``.result()``), otherwise a
+with ``submit`` and ``map``; with a scheduler (``tcp://host:8786``, or ``local``/``local:N`` for a Dask
+``LocalCluster`` of worker processes started for the run) it is a :class:`DaskExecutor` (futures with
+``.result()``; a task whose worker keeps dying raises :class:`WorkerLost`, never a partial result), otherwise a
 ``ProcessPoolExecutor`` (or a serial in-process executor when ``workers == 1``, which keeps tests and
-debugging simple). Use :func:`run_tasks` to map a function over items with a progress bar and ordered
+debugging simple). Dask is the optional extra ``metafovea[dask]``. Use :func:`run_tasks` to map a function over items with a progress bar and ordered
 results.
 """
 
@@ -48,16 +49,80 @@ def default_workers() -> int:
     return max(1, len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1))
 
 
-def get_executor(workers: int | None = None, scheduler: str | None = None):
-    """Executor for ``workers`` local processes, or a Dask client for ``scheduler``."""
-    if scheduler:
+class WorkerLost(OSError):
+    """A task's worker process died (again and again: Dask reschedules a task whose worker dies, up to its
+    ``allowed-failures``); no partial result is returned."""
+
+
+class _DaskFuture:
+    """A Dask future whose ``result()`` names a lost worker instead of Dask's ``KilledWorker``."""
+
+    def __init__(self, fut: Any):
+        self.fut = fut
+
+    def result(self, timeout: float | None = None) -> Any:
+        from distributed import KilledWorker  # type: ignore
+
         try:
-            from dask.distributed import Client  # type: ignore
+            return self.fut.result(timeout=timeout)
+        except KilledWorker as e:
+            raise WorkerLost(f"a Dask worker died running {self.fut.key} (every retry too: {e}); the job stopped "
+                             "without a partial result") from None
+
+
+class DaskExecutor:
+    """``submit``/``map``/``close`` on a Dask client: a scheduler at an address (``tcp://host:8786``), or a
+    ``LocalCluster`` of worker processes started for this run (``local`` = one per core, ``local:N``)."""
+
+    def __init__(self, scheduler: str):
+        try:
+            from distributed import Client, LocalCluster  # type: ignore
         except ImportError:
-            raise InputError("scheduler", scheduler,
-                             "a Dask scheduler address usable with dask.distributed installed "
-                             "(pip install 'dask[distributed]')") from None
-        return Client(scheduler)
+            raise InputError("--scheduler", scheduler, "a Dask scheduler with dask.distributed installed "
+                             "(pip install 'metafovea[dask]')") from None
+        s = scheduler.strip()
+        self.cluster = None
+        if s == "local" or s.startswith("local:"):
+            try:
+                n = int(s.split(":", 1)[1]) if ":" in s else default_workers()
+            except ValueError:
+                raise InputError("--scheduler", scheduler, "local, local:N (N >= 1 worker processes) or "
+                                 "tcp://host:port") from None
+            if n < 1:
+                raise InputError("--scheduler", scheduler, "local:N with N >= 1 worker processes")
+            self.cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=None)
+            self.client = Client(self.cluster)
+        else:
+            try:
+                self.client = Client(s, timeout="10s")
+            except (OSError, TimeoutError) as e:
+                raise InputError("--scheduler", scheduler, f"a reachable Dask scheduler address ({e})") from None
+        self.address = self.client.scheduler.address
+
+    def submit(self, fn: Callable, /, *args: Any, **kwargs: Any) -> _DaskFuture:
+        return _DaskFuture(self.client.submit(fn, *args, pure=False, **kwargs))
+
+    def map(self, fn: Callable, *iterables: Iterable[Any]) -> Iterator[Any]:
+        futs = [self.submit(fn, *a) for a in zip(*iterables)]
+        return (f.result() for f in futs)
+
+    def close(self) -> None:
+        self.client.close()
+        if self.cluster is not None:
+            self.cluster.close()
+
+    def __enter__(self) -> "DaskExecutor":
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        self.close()
+
+
+def get_executor(workers: int | None = None, scheduler: str | None = None):
+    """Executor for ``workers`` local processes, or a :class:`DaskExecutor` for ``scheduler`` (an address, or
+    ``local``/``local:N`` for a LocalCluster of worker processes)."""
+    if scheduler:
+        return DaskExecutor(scheduler)
     if workers is None:
         workers = default_workers()
     if not isinstance(workers, int) or workers < 1:
@@ -113,14 +178,16 @@ def run_tasks(fn: Callable, items: Iterable[Any], *, workers: int | None = None,
         from tqdm.auto import tqdm
         bar = tqdm(total=len(items), desc=desc, unit="task")
     try:
-        futs = {ex.submit(fn, it): i for i, it in enumerate(items)}
-        if hasattr(ex, "gather") and not isinstance(ex, cf.Executor):  # dask client
-            from dask.distributed import as_completed as das_completed  # type: ignore
-            it = das_completed(list(futs))
+        if isinstance(ex, DaskExecutor):
+            from distributed import as_completed as das_completed  # type: ignore
+
+            wrapped = [ex.submit(fn, it) for it in items]
+            futs = {w.fut: (i, w) for i, w in enumerate(wrapped)}
+            pairs = ((futs[f][0], futs[f][1]) for f in das_completed(list(futs)))
         else:
-            it = cf.as_completed(futs)
-        for fut in it:
-            i = futs[fut]
+            cfuts = {ex.submit(fn, it): i for i, it in enumerate(items)}
+            pairs = ((cfuts[f], f) for f in cf.as_completed(cfuts))
+        for i, fut in pairs:
             res = fut.result()
             if bar is not None:
                 bar.update(1)
