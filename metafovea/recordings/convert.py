@@ -1,0 +1,212 @@
+"""A recording into a :class:`~metafovea.measurement.Measurement`: :func:`to_measurement` (in memory) and
+:func:`import_recording` (file to file, what ``metafovea import`` calls).
+
+The steps, in order: read (:func:`metafovea.recordings.read.read_recording`); samples at the integer dtype's full
+scale (a 16-bit camera's 65535) become NaN, which the reconstruction leaves out; times from the file, else
+``frame_rate_hz``; the timing check, duplicated frames removed (:mod:`metafovea.recordings.timestamps`); the
+polariser state (``alpha`` as is, or angles into ``theta_rad`` and the rotation's rate and phase for the
+polariser model of ``reconstruct --method alternating``); the radiometric calibration
+(:mod:`metafovea.recordings.calibration`: a user's two-point blackbody frames first, then ``--planck``, then the
+file's Planck constants, else none: frames in camera counts).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from metafovea.errors import InputError, check_choice
+from metafovea.measurement import Measurement
+from metafovea.radiometry import BAND_UM, check_band, check_filter
+from metafovea.recordings.calibration import (GAIN_MODES, PlanckConstants, Radiometric, correct_frames, from_planck,
+                                              parse_two_point, two_point)
+from metafovea.recordings.read import Recording, read_recording
+from metafovea.recordings.timestamps import check_timing, frame_times
+
+#: ``--polarizer-unit`` choices: angles in radians or degrees, or the mixing ratio alpha itself
+POLARIZER_UNITS = ("rad", "deg", "alpha")
+
+
+@dataclass(frozen=True)
+class ImportOptions:
+    """What ``metafovea import`` sets (its flags, same names); see :func:`import_recording`."""
+
+    format: str = "auto"
+    frames_key: str | None = None
+    frame_axis: str = "first"
+    times: str | None = None
+    time_unit: str | None = None
+    frame_rate_hz: float | None = None
+    polarizer_key: str | None = None
+    polarizer_unit: str | None = None  # default: 'alpha' if the key's name has 'alpha', 'deg' if 'deg', else 'rad'
+    calibration: str | None = None  # 'two-point:T1=FILE1,T2=FILE2'
+    calibration_gain: str = "per-pixel"
+    planck: str | None = None  # 'R,B,F,O'
+    band_um: tuple[float, float] = BAND_UM
+    filter_um: tuple[float, float] | None = None
+    foveal_gain: float | None = None
+    scale: float | None = None
+
+
+def _polarizer(rec: Recording, kept: np.ndarray, times: np.ndarray, unit: str | None) -> tuple[dict[str, Any],
+                                                                                              dict[str, Any]]:
+    """``(Measurement keywords/extras, meta)`` of the recorded polariser state."""
+    if rec.polarizer is None:
+        return {}, {}
+    key = (rec.polarizer_key or "").lower()
+    unit = check_choice("--polarizer-unit", unit or ("alpha" if "alpha" in key else "deg" if "deg" in key else "rad"),
+                        POLARIZER_UNITS)
+    v = rec.polarizer[kept]
+    if not np.all(np.isfinite(v)):
+        raise InputError("--polarizer-key", rec.polarizer_key, "finite polariser values (NaN/inf found)")
+    if unit == "alpha":
+        if v.min() < -1e-9 or v.max() > 1 + 1e-9:
+            raise InputError("--polarizer-key", rec.polarizer_key, "mixing ratios alpha in [0, 1] (or set "
+                             "--polarizer-unit rad|deg for angles)", detail=f"range {v.min():.4g} to {v.max():.4g}")
+        return {"alpha": np.clip(v, 0.0, 1.0)}, {"polarizer": {"recorded": "alpha", "key": rec.polarizer_key}}
+    theta = np.deg2rad(v) if unit == "deg" else v
+    meta: dict[str, Any] = {"recorded": f"angle ({unit})", "key": rec.polarizer_key}
+    un = np.unwrap(2 * theta) / 2  # alpha has period pi in theta
+    if times.size >= 3 and np.ptp(times) > 0:
+        slope, phase = np.polyfit(times, un, 1)
+        resid = float(np.max(np.abs(un - (slope * times + phase))))
+        meta.update(rate_fit_residual_rad=resid)
+        if resid < 0.05 and abs(slope) > 0:
+            # a uniform rotation: the model reconstruct --method alternating uses (alpha = cos^2(2 pi f t + phase))
+            meta.update(mode="sync", rate_hz=float(slope / (2 * math.pi)), phase_rad=float(phase), extinction=0.0,
+                        tau_s=0.0)
+    return {"theta_rad": theta}, {"polarizer": meta, **({"polarizer_hz": meta["rate_hz"]} if "rate_hz" in meta else {})}
+
+
+def _calibration_frames(path: str, opt: ImportOptions, shape: tuple[int, int]) -> np.ndarray:
+    """The mean frame (H, W) of one blackbody file, read as the recording was."""
+    p = Path(path)
+    if not p.is_file():
+        raise InputError("--calibration", path, "an existing file of blackbody frames")
+    try:
+        r = read_recording(p, frames_key=opt.frames_key, frame_axis=opt.frame_axis)
+    except InputError as e:
+        raise InputError("--calibration", path, f"a readable blackbody file ({e})") from None
+    if r.frames.shape[1:] != shape:
+        raise InputError("--calibration", path, f"blackbody frames of the recording's size {shape}",
+                         detail=f"they are {r.frames.shape[1:]}")
+    return np.nanmean(_saturated_as_nan(r.frames)[0], axis=0)
+
+
+def _saturated_as_nan(frames: np.ndarray) -> tuple[np.ndarray, int]:
+    """float32 frames with an integer dtype's full-scale samples as NaN, and their count."""
+    f = np.asarray(frames)
+    out = f.astype(np.float32)
+    if f.dtype.kind in "iu":
+        sat = f == np.iinfo(f.dtype).max
+        n = int(sat.sum())
+        if n:
+            out[sat] = np.nan
+        return out, n
+    return out, 0
+
+
+def _radiometry(frames: np.ndarray, rec: Recording, opt: ImportOptions) -> tuple[np.ndarray, Radiometric | None,
+                                                                                 np.ndarray | None]:
+    """``(frames, model or None, bad pixels or None)`` after the calibration the options and the file give."""
+    band = check_band(opt.band_um, "--band-um")
+    filt = check_filter(opt.filter_um, "--filter-um")
+    if opt.calibration is not None:
+        (t1, f1), (t2, f2) = parse_two_point(opt.calibration)
+        mode = check_choice("--calibration-gain", opt.calibration_gain, GAIN_MODES)
+        cold, hot = (_calibration_frames(f, opt, frames.shape[1:]) for f in (f1, f2))
+        model, g, o, bad = two_point(cold, t1, hot, t2, mode=mode, band_um=band, filter_um=filt, spec=opt.calibration)
+        if g is not None:
+            frames = correct_frames(frames, model, g, o, bad)
+        return frames, model, bad if bad.any() else None
+    if opt.planck is not None:
+        pc, src = PlanckConstants.parse(opt.planck), "--planck"
+    elif rec.planck is not None:
+        try:
+            pc, src = PlanckConstants(**rec.planck), f"{Path(rec.source).name} (Planck constants)"
+        except InputError as e:
+            raise InputError(e.parameter, e.value, e.allowed, source=rec.source) from None
+    else:
+        return frames, None, None
+    return frames, from_planck(pc, frames, band_um=band, filter_um=filt, source=src), None
+
+
+def to_measurement(rec: Recording, options: ImportOptions | None = None) -> tuple[Measurement, dict[str, Any]]:
+    """``(Measurement, summary)`` of a read recording (module docstring); the summary lists what was found
+    (``warnings``: dropped/duplicated frames, non-uniform timing, saturated samples, a poor Planck fit)."""
+    opt = options or ImportOptions()
+    times, t_from = frame_times(rec.times_s, rec.frames.shape[0], opt.frame_rate_hz, rec.times_from)
+    kept, timing = check_timing(rec.frames, times, times_from=t_from,
+                                frame_rate_hz=opt.frame_rate_hz if rec.times_s is not None else None)
+    frames, n_sat = _saturated_as_nan(rec.frames[kept])
+    times = times[kept]
+    pol_kw, pol_meta = _polarizer(rec, kept, times, opt.polarizer_unit)
+    frames, model, bad = _radiometry(frames, rec, opt)
+    r = 1.0 if opt.foveal_gain is None else float(opt.foveal_gain)
+    if not (math.isfinite(r) and r > 0):
+        raise InputError("--foveal-gain", opt.foveal_gain, "a positive flat-field ratio of the channels")
+    meta: dict[str, Any] = {
+        "units": "DN" if model is not None else "counts",
+        "units_note": ("camera counts, linear in radiance: DN = dark_dn + G_i L(T) (see calibration)" if model
+                       else "camera counts as recorded (no radiometric calibration: no kelvin)"),
+        "source": {"file": str(rec.source), "format": rec.format, "frames_key": rec.frames_key,
+                   "dtype": str(rec.frames.dtype), "attrs": rec.attrs},
+        "timing": timing.meta(),
+        "saturated_samples": n_sat,
+        **pol_meta,
+    }
+    if timing.frame_rate_hz:
+        meta["frame_rate_hz"] = timing.frame_rate_hz
+    if model is not None:
+        meta.update(model.meta(r))
+    if opt.foveal_gain is not None or opt.scale is not None:
+        fc = {"gain": r, "offset_dn": (1.0 - r) * (model.dark_dn if model else 0.0)}
+        if opt.scale is not None:
+            fc["scale"] = float(opt.scale)
+            meta["scale"] = float(opt.scale)
+        meta["foveal_constraint"] = fc
+    extras = {k: v for k, v in pol_kw.items() if k != "alpha"}
+    if bad is not None:
+        extras["bad_pixels"] = bad
+    m = Measurement(frames=frames, times_s=times, alpha=pol_kw.get("alpha"), meta=meta, extras=extras)
+    warn = timing.warnings()
+    if n_sat:
+        warn.append(f"{n_sat} sample(s) at the {rec.frames.dtype} full scale: left out (NaN) as saturated")
+    if model is not None and model.info.get("fit_max_error_k", 0) > 0.25:
+        warn.append(f"the Planck curve departs from the {model.band_um[0]:g}-{model.band_um[1]:g} um band model by "
+                    f"up to {model.info['fit_max_error_k']:.2g} K: set --band-um to the camera's band")
+    summary = {"frames_in": timing.frames_in, "frames": m.shape[0], "shape": list(m.shape[1:]),
+               "times_from": t_from, "frame_rate_hz": timing.frame_rate_hz, "n_dropped": timing.n_dropped,
+               "duplicates_removed": len(timing.duplicates_removed), "uniform_timing": timing.uniform,
+               "alpha_known": m.alpha_known, "theta_rad": "theta_rad" in extras, "units": meta["units"],
+               "calibration": None if model is None else {"method": model.method, "dark_dn": model.dark_dn,
+                                                          **{k: v for k, v in model.info.items()
+                                                             if k in ("fit_max_error_k", "bad_pixels")}},
+               "warnings": warn}
+    return m, summary
+
+
+def import_recording(path: str | Path, out: str | Path | None = None, options: ImportOptions | None = None, *,
+                     force: bool = False) -> tuple[Path, dict[str, Any]]:
+    """Read ``path``, convert it (:func:`to_measurement`) and write the Measurement ``.npz`` to ``out`` (default:
+    the recording's name with ``.npz``); ``(path written, summary)``. Nothing is written on any error."""
+    from metafovea.io import prepare_output
+
+    opt = options or ImportOptions()
+    src = Path(path)
+    dest = Path(out) if out is not None else src.with_suffix(".npz")
+    if dest.suffix.lower() != ".npz":
+        raise InputError("--out", str(dest), "a file name ending in .npz")
+    if src.exists() and dest.exists() and dest.resolve() == src.resolve():
+        raise InputError("--out", str(dest), "a path other than the recording itself")
+    prepare_output(dest, force)  # refuse an existing file before reading anything
+    rec = read_recording(src, format=opt.format, frames_key=opt.frames_key, times=opt.times,
+                         time_unit=opt.time_unit, frame_axis=opt.frame_axis, polarizer_key=opt.polarizer_key)
+    m, summary = to_measurement(rec, opt)
+    written = m.save(dest, force=force)
+    summary["out"] = str(written)
+    return written, summary
