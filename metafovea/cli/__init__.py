@@ -25,7 +25,7 @@ from metafovea.errors import InputError
 log = logging.getLogger("metafovea")
 
 #: command modules under ``metafovea.cli``, in the order ``--help`` lists them
-COMMAND_MODULES = ("validate", "design", "library", "layout", "psf", "simulate", "reconstruct", "study")
+COMMAND_MODULES = ("validate", "design", "library", "layout", "psf", "simulate", "import_", "reconstruct", "study")
 
 #: library parameter name -> the flag a user typed, per command (an InputError raised deep in a stage names the
 #: parameter; the CLI reports the flag). Only names that differ from their flag need an entry.
