@@ -12,8 +12,8 @@ from metafovea.errors import InputError
 def test_every_command_is_registered():
     sub = next(a for a in build_parser()._actions if a.dest == "command")  # argparse keeps subparsers here
     names = set(sub.choices)
-    assert {"validate", "design", "library", "export", "verify", "psf", "simulate", "reconstruct"} <= names
-    assert len(COMMAND_MODULES) == 7
+    assert {"validate", "design", "library", "export", "verify", "psf", "simulate", "import", "reconstruct"} <= names
+    assert len(COMMAND_MODULES) == 9  # validate design library layout psf simulate import_ reconstruct study
 
 
 def test_no_command_prints_help_and_exits_2(capsys):
