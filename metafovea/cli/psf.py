@@ -63,6 +63,9 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
 
 #: most wavelength bins --wavelength-bins may ask for
 MAX_WAVELENGTHS = 2001
+#: most field angles --field-deg may list: each is an exact off-axis PSF and a sensor PSF over the band (seconds to
+#: a minute each for the paper's lenses), so 64 fields are already an hour's work
+MAX_FIELDS = 64
 
 
 def run(args: argparse.Namespace) -> int:
@@ -89,6 +92,9 @@ def run(args: argparse.Namespace) -> int:
     distances = ({system.foveal.name: system.lens_to_sensor_um[0], system.perifoveal.name: system.lens_to_sensor_um[1]}
                  if args.system is not None else None)
     check_int("--wavelength-bins", args.wavelength_bins, 1, MAX_WAVELENGTHS)
+    if args.field_deg is not None and len(args.field_deg) > MAX_FIELDS:
+        raise InputError("--field-deg", f"{len(args.field_deg)} angles", f"at most {MAX_FIELDS} angles (each is an "
+                         "exact off-axis PSF and a sensor PSF over the band: seconds to a minute each)")
     if args.wavelength_um is not None:
         check_positive("--wavelength-um", args.wavelength_um, "um", hi=1e4)
     if args.window_um is not None:
