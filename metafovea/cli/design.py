@@ -4,10 +4,10 @@ checks; ``--out DIR`` writes the design bundle."""
 from __future__ import annotations
 
 import argparse
-import sys
 from dataclasses import MISSING, fields
 from typing import Any
 
+from metafovea.cli.options import progress
 from metafovea.errors import InputError
 
 
@@ -108,7 +108,7 @@ def run(args: argparse.Namespace) -> int:
     if args.library and args.posts == "ideal":
         raise InputError("--library", True, "not together with --posts ideal")
     summaries = design_lenses(lenses, post_set=post_set, from_library=post_set is None and args.posts == "rcwa",
-                              samples=samples, progress=sys.stderr.isatty())
+                              samples=samples, progress=progress(args))
     if out_root is not None:
         write_design_bundles(lenses, summaries, out_root)
     if args.json:

@@ -9,10 +9,10 @@ and its figures. Exit status 0, or 2 on bad input (one line, from :func:`metafov
 from __future__ import annotations
 
 import argparse
-import sys
 from pathlib import Path
 from typing import Any
 
+from metafovea.cli.options import progress
 from metafovea.errors import InputError, as_float
 from metafovea.io import to_json
 
@@ -124,7 +124,7 @@ def run(args: argparse.Namespace) -> int:
     fc = FovealConstraint.from_meta(m.meta, scale=args.scale, gain=args.foveal_gain, offset=args.foveal_offset)
     res = reconstruct_measurement(m, args.method, known_alpha=args.known_alpha, window=args.window,
                                   stride=args.stride, fpn=_fpn_arg(args.fpn), denoise=args.denoise, frame=args.frame,
-                                  constraint=fc, solver=solver, progress=sys.stderr.isatty(),
+                                  constraint=fc, solver=solver, progress=progress(args),
                                   score_truth=not args.no_score)
     files = write_outputs(res, out, figures, title=f"{res.reconstruction.method}: {Path(m.source).name}")
     dec = deconvolve_result(m, res, args.deconvolve, args.psf, score_truth=not args.no_score) if args.deconvolve else None
