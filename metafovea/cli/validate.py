@@ -50,7 +50,8 @@ def run(args: argparse.Namespace) -> int:
     else:
         stamp = datetime.now().strftime("%Y%m%d-%H%M%S")
         out = prepare_output(Path("out") / f"validate-{stamp}", False, is_dir=True)
-    opts = ValidateOptions(seed=seed, frames=frames, scene=args.scene, progress=not getattr(args, "quiet", False) and not args.json, dip_steps=dip_steps,
+    opts = ValidateOptions(seed=seed, frames=frames, scene=args.scene, dip_steps=dip_steps,
+                           progress=not getattr(args, "quiet", False) and not args.json,
                            filters=(False, True) if args.filter == "both" else (args.filter == "on",))
     rep = validate_system(system, opts, out)
     summaries = rep.pop("_summaries")
