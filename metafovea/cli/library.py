@@ -68,6 +68,7 @@ def run(args: argparse.Namespace) -> int:
     bias_weight = check_range("--bias-weight", args.bias_weight, 0.0, None, lo_inclusive=True)
     sweep = PlatformSweep(plat, levels, step, wls, options, source=src,  # checks the platform and the grid
                           bias_weight=bias_weight)
+    check_sweep_cost(args, sweep, options)
     out = prepare_output(args.out, args.force, is_dir=True) if args.out else None
     rep = library_report(sweep)  # warnings: one line each, by the printer of metafovea.cli.main
     if out is not None:
@@ -82,3 +83,35 @@ def run(args: argparse.Namespace) -> int:
         if out is not None:
             print(f"\nwritten to {out}")
     return 0
+
+
+#: the longest sweep started on this machine without a --scheduler (an estimate from the sizes; cached rows are
+#: not counted, so a resumed sweep is judged as a fresh one)
+MAX_SWEEP_HOURS = 24.0
+
+
+def check_sweep_cost(args: argparse.Namespace, sweep: Any, options: Any) -> None:
+    """Refuse a sweep that cannot finish here (time or memory, from the number of posts and the harmonics), naming
+    --harmonics when it is above the default, else --grid-step-um; warn about one that takes over 15 minutes."""
+    import os
+    import warnings
+
+    from metafovea.errors import InputError, human_bytes
+    from metafovea.imaging.simulate import available_memory_bytes
+    from metafovea.rcwa.solve import solve_cost
+
+    n = len(sweep.widths_um) ** 2 * len(sweep.wavelengths)
+    workers = options.workers or os.cpu_count() or 1
+    core_s, per_worker = solve_cost(options.harmonics, n)
+    hours = core_s / workers / 3600
+    flag, value = ("--harmonics", args.harmonics) if int(options.harmonics) > 10 else ("--grid-step-um", args.grid_step_um)
+    avail = available_memory_bytes()
+    need = f"{n:,} post solves at {options.harmonics} harmonics: ~{hours:.3g} h on {workers} workers, " \
+           f"{human_bytes(per_worker)} each"
+    if avail is not None and per_worker * workers > 0.8 * avail:
+        raise InputError(flag, value, f"a sweep that fits in memory ({human_bytes(avail)} available)", detail=need)
+    if hours > MAX_SWEEP_HOURS and args.scheduler is None:
+        raise InputError(flag, value, f"a sweep of at most ~{MAX_SWEEP_HOURS:g} h here (fewer harmonics, a coarser "
+                         "grid, fewer wavelengths, or a --scheduler cluster)", detail=need)
+    if hours > 0.25 and args.scheduler is None:
+        warnings.warn(f"this sweep needs {need} (unless cached)", UserWarning, stacklevel=2)
