@@ -156,6 +156,27 @@ class LensDesign:
     def with_(self, **kw: Any) -> "LensDesign":
         return replace(self, **kw)
 
+    def plot(self, ax: Any = None) -> Any:
+        """Posts per 2 pi zone against radius (mm) and the phase levels of a patch of posts at the rim.
+
+        Parameters
+        ----------
+        ax : matplotlib Axes, sequence of 2 Axes, or None
+            None: a new figure with both panels; one Axes: the posts-per-zone curve only.
+
+        Returns
+        -------
+        matplotlib Figure
+        """
+        from metafovea.plotting import plot_lens
+
+        return plot_lens(self, ax)
+
+    def _repr_html_(self) -> str:
+        from metafovea.plotting import lens_html
+
+        return lens_html(self)
+
     @classmethod
     def foveal(cls, platform: PlatformDesign | None = None) -> "LensDesign":
         p = platform or PlatformDesign()

@@ -102,6 +102,28 @@ class PostSet:
         """(N,) zero-order field transmission of ``polarization`` light."""
         return self.t_x if check_choice("polarization", polarization, POLARIZATIONS) == "x" else self.t_y
 
+    def plot(self, ax: Any = None) -> Any:
+        """Phase (rad) and power transmission of each level's post for both polarisations, and the posts'
+        cross-sections (um).
+
+        Parameters
+        ----------
+        ax : matplotlib Axes, sequence of 3 Axes, or None
+            None: a new figure with the three panels; one Axes: the phase panel only.
+
+        Returns
+        -------
+        matplotlib Figure
+        """
+        from metafovea.plotting import plot_postset
+
+        return plot_postset(self, ax)
+
+    def _repr_html_(self) -> str:
+        from metafovea.plotting import postset_html
+
+        return postset_html(self)
+
     def reflectance(self, polarization: str) -> tuple[np.ndarray, str]:
         """(N,) specular power reflectance back into the wafer for ``polarization`` light and where it comes
         from: the RCWA value, or ``1 - |t|^2`` (every loss taken as specular reflection: an upper bound) when

@@ -297,6 +297,30 @@ class Measurement:
         return cls(frames=arrays["frames"], times_s=times, alpha=arrays.get("alpha"), truth_x1=arrays.get("truth_x1"),
                    truth_x2=arrays.get("truth_x2"), fpn=arrays.get("fpn"), meta=meta, extras=extras, source=str(p))
 
+    def plot(self, ax: Any = None, *, frame: int = 0) -> Any:
+        """Frame ``frame`` in the iron palette (colour bar in the frames' unit, DN for the simulator) and alpha (or
+        the mean frame level when alpha is unknown) against time (s).
+
+        Parameters
+        ----------
+        ax : matplotlib Axes, sequence of 2 Axes, or None
+            None: a new figure with both panels; one Axes: the frame only.
+        frame : int
+            Index of the frame shown.
+
+        Returns
+        -------
+        matplotlib Figure
+        """
+        from metafovea.plotting import plot_measurement
+
+        return plot_measurement(self, ax, frame=frame)
+
+    def _repr_html_(self) -> str:
+        from metafovea.plotting import measurement_html
+
+        return measurement_html(self)
+
     def summary(self) -> dict[str, Any]:
         T, H, W = self.shape
         out = {"frames": T, "shape": [H, W], "units": self.meta.get("units", "DN"),

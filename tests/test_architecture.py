@@ -14,7 +14,7 @@ import pytest
 PKG = Path(__file__).resolve().parents[1] / "metafovea"
 
 #: ground floor: conventions, checks, files, executors, shared data types and primitives; imports only itself
-SHARED = {"units", "errors", "io", "parallel", "config", "materials", "radiometry", "measurement", "report",
+SHARED = {"units", "errors", "io", "parallel", "config", "materials", "radiometry", "measurement", "report", "plotting",
           "__init__"}
 #: stage rank; a module may import from ranks <= its own. layout and optics are sibling branches.
 RANK = {

@@ -36,6 +36,7 @@ from metafovea.errors import InputError, as_rng, check_int
 from metafovea.io import atomic_write_bytes, prepare_output
 from metafovea.library import system_post_sets
 from metafovea.measurement import Measurement
+from metafovea.plotting import iron_colormap  # noqa: F401  (its home is the ground floor; imported from here too)
 from metafovea.optics.train import system_trains
 from metafovea.radiometry import BandRadiance
 from metafovea.report import fig_to_png
@@ -513,15 +514,6 @@ def simulate_to_files(system: SystemDesign | str | Path | None, scene: str | Pat
 # ----------------------------------------------------------------------------------------------
 # exports
 # ----------------------------------------------------------------------------------------------
-def iron_colormap():
-    """The "iron" (ironbow) palette of thermal cameras: black - indigo - magenta - orange - yellow - white."""
-    from matplotlib.colors import LinearSegmentedColormap
-
-    stops = [(0.0, "#000000"), (0.12, "#1b0c5a"), (0.28, "#6a0a8f"), (0.42, "#a51a8a"), (0.55, "#d8344e"),
-             (0.68, "#f0641c"), (0.8, "#fb9d07"), (0.9, "#fdd33c"), (1.0, "#ffffe6")]
-    return LinearSegmentedColormap.from_list("iron", stops, N=256)
-
-
 def write_tiff(m: Measurement, path: str | Path, force: bool = False) -> Path:
     """ImageJ-compatible TIFF stack (T, H, W): uint16 DN when the frames are integers in range, else
     float32. The JSON summary (times, alpha) goes into the ImageJ 'Info' property."""

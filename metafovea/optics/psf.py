@@ -95,6 +95,30 @@ class PSF:
         s = self.intensity.sum()
         return float((self.intensity.sum(0) * xs).sum() / s), float((self.intensity.sum(1) * ys).sum() / s)
 
+    def plot(self, ax: Any = None, *, log: bool = True) -> Any:
+        """The PSF on the focal plane (x, y in um; colour bar in fraction of the incident power per um^2) and its
+        cuts through the peak.
+
+        Parameters
+        ----------
+        ax : matplotlib Axes, sequence of 2 Axes, or None
+            None: a new figure with both panels; one Axes: the image only.
+        log : bool
+            Logarithmic colour scale over 4 decades below the peak (default); False: linear.
+
+        Returns
+        -------
+        matplotlib Figure
+        """
+        from metafovea.plotting import plot_psf
+
+        return plot_psf(self, ax, log=log)
+
+    def _repr_html_(self) -> str:
+        from metafovea.plotting import psf_html
+
+        return psf_html(self)
+
     def save(self, path: str | Path) -> Path:
         meta = {"type": "PSF", "pitch_um": self.pitch_um, "center_um": list(self.center_um),
                 "field_deg": list(self.field_deg), "polarization": self.polarization, "engine": self.engine,

@@ -68,6 +68,31 @@ class Reconstruction:
     def is_video(self) -> bool:
         return np.ndim(self.x1) == 3
 
+    def plot(self, ax: Any = None, *, window: int = 0, units: str = "DN") -> Any:
+        """The foveal (x1) and perifoveal (x2) images in the iron palette, colour bars in ``units``.
+
+        Parameters
+        ----------
+        ax : matplotlib Axes, sequence of 2 Axes, or None
+            None: a new figure with both images; one Axes: the foveal image only.
+        window : int
+            For a video, the output shown.
+        units : str
+            The images' unit: the frames' (DN for the simulator's).
+
+        Returns
+        -------
+        matplotlib Figure
+        """
+        from metafovea.plotting import plot_reconstruction
+
+        return plot_reconstruction(self, ax, window=window, units=units)
+
+    def _repr_html_(self) -> str:
+        from metafovea.plotting import reconstruction_html
+
+        return reconstruction_html(self)
+
     def save(self, path: str | os.PathLike) -> None:
         """Write atomically to ``path`` (``.npz``; info and timings as JSON metadata)."""
         arrays = {"x1": np.asarray(self.x1), "x2": np.asarray(self.x2), "alpha": np.asarray(self.alpha)}
@@ -117,6 +142,23 @@ class PipelineResult:
     @property
     def outputs(self) -> int:
         return len(self.spans)
+
+    def plot(self, ax: Any = None, *, window: int = 0, units: str = "DN") -> Any:
+        """The reconstruction's images: :meth:`Reconstruction.plot`."""
+        return self.reconstruction.plot(ax, window=window, units=units)
+
+    def _repr_html_(self) -> str:
+        from metafovea.plotting import fmt, reconstruction_html
+
+        rows = [("frames", f"{self.frames} in {self.outputs} output(s)"),
+                ("time", fmt(self.seconds, "s", 3))]
+        if isinstance(self.metrics, dict):
+            rows += [(k.replace("_", " "), fmt(v, "dB" if k.startswith("psnr") else "")) for k, v in self.metrics.items()]
+        elif isinstance(self.metrics, str):
+            rows.append(("metrics", self.metrics))
+        if self.alpha_mae is not None:
+            rows.append(("alpha mean abs. error", fmt(self.alpha_mae)))
+        return reconstruction_html(self.reconstruction, extra=rows)
 
     @property
     def x1s(self) -> np.ndarray:
