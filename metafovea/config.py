@@ -455,7 +455,20 @@ def load_lens(path: str | Path, platform: PlatformDesign | None = None) -> LensD
 
 
 def load_system(path: str | Path) -> SystemDesign:
-    """Load ``system.toml``; lens and platform files are resolved relative to it."""
+    """Load ``system.toml``; lens and platform files are resolved relative to it.
+
+    Parameters
+    ----------
+    path : str or Path
+        A system design file (``designs/system.toml``): ``[files]`` names the platform and both lenses' files,
+        ``[distances]`` (mm), ``[relay]``, ``[polarizer]``, ``[sensor]`` and ``[spectral]`` (um, K) the camera.
+
+    Returns
+    -------
+    SystemDesign
+        Lengths in um. Every value is checked; an :class:`InputError` names the file, the key, the value and the
+        allowed range (unknown keys are refused with the list of known ones).
+    """
     path = Path(path)
     t = _read_toml(path)
     src = str(path)

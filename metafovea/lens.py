@@ -368,7 +368,27 @@ def radius_below_posts(design: LensDesign, n_posts: float) -> float:
 
 def summarize(design: LensDesign, *, post_set: Any = None, samples: int = 1 << 20, rng: Any = 0,
               emit_warnings: bool = True) -> LensSummary:
-    """Compute the design summary (exact post count, sampled lattice efficiency)."""
+    """Compute the design summary (exact post count, sampled lattice efficiency).
+
+    Parameters
+    ----------
+    design : LensDesign
+    post_set : PostSet, optional
+        The posts of the lens' polarisation and levels: their widths, transmissions and expected efficiency are
+        added (``posts``, ``post_set``).
+    samples : int
+        Lattice sites sampled for the lattice efficiency (its standard error ~1/sqrt(samples)).
+    rng : int or numpy.random.Generator
+        Seed of the site sampling.
+    emit_warnings : bool
+        Also emit the physics warnings as :class:`PhysicsWarning` (they are in ``warnings`` either way).
+
+    Returns
+    -------
+    LensSummary
+        NA, F-number, zones, rim zone width (um, posts per 2 pi), exact post count, Airy radius and FWHM (um), MTF
+        cutoff (cycles/mm), efficiencies; :func:`metafovea.design_report.format_summary` prints it.
+    """
     R = design.radius_um
     wl = design.wavelength_um
     na = design.na

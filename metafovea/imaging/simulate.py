@@ -377,8 +377,25 @@ def simulate(system: SystemDesign, scene: str | Path | Scene, options: Simulatio
              rng: Any = 0, **overrides: Any) -> Measurement:
     """Simulate ``options.frames`` frames of ``scene`` through ``system``.
 
-    ``rng``: seed or Generator (same seed -> identical frames). ``overrides`` replace fields of
-    ``options`` (``simulate(sys, 'bars', frames=12, noise=False)``).
+    Parameters
+    ----------
+    system : SystemDesign
+        The camera (both lenses, distances, relay, polariser, sensor, band).
+    scene : str, Path or Scene
+        A bundled scene (:func:`~metafovea.imaging.list_scenes`), ``skimage:NAME``, an image file, or a Scene.
+    options : SimulationOptions, optional
+        Every knob (frames, PSF provider, posts, optical train, noise, FPN, polariser, ...).
+    rng : int or numpy.random.Generator
+        Seed (same seed -> identical frames).
+    **overrides
+        Fields of ``options`` to replace (``simulate(sys, 'bars', frames=12, noise=False)``).
+
+    Returns
+    -------
+    Measurement
+        ``frames`` ``(T, H, W)`` float32 in DN, ``times_s`` ``(T,)`` s, the true ``alpha`` ``(T,)``, the noise-free
+        ``truth_x1`` / ``truth_x2`` ``(H, W)`` (``(T, H, W)`` for a video scene), the fixed pattern, the channels'
+        pixel PSFs and the metadata (camera, scene, timings).
     """
     t_start = time.perf_counter()
     opt = _options(options, overrides)

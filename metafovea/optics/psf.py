@@ -326,6 +326,33 @@ def psf(lens: LensDesign, *, wavelengths_um: Any = None, weights: Any = None, fi
     Raises :class:`InputError` for bad input and :class:`metafovea.optics.propagate.SamplingError` when
     ``pitch_um`` undersamples the intensity or ``window_um`` truncates the PSF above ``error`` (unless
     ``allow_truncation``).
+
+    Parameters
+    ----------
+    lens : LensDesign
+    wavelengths_um, weights : array_like, shape (K,), um and relative weights, optional
+        Polychromatic PSF as the weighted sum (default: the design wavelength alone).
+    field_deg : float or (float, float), deg
+        Field angle of the source (one number: along x).
+    window_um, pitch_um : float, um, optional
+        Full width of the square window and the sample pitch (defaults: see above).
+    center_um : (float, float), um, optional
+        Centre of the window on the focal plane (default: the geometric spot).
+    post_set : PostSet, optional
+        The fabricated lens' posts: each level's transmission (amplitude and phase) sets the focusing order's
+        strength (the quantised lens, whatever ``quantize``); default: ideal posts when ``quantize``.
+    polarization : {'x', 'y'}, optional
+        Incident polarisation (default: the lens' own).
+    quantize, lattice, z_um : bool, bool, float (um, optional)
+        Quantise the phase to the lens' levels; sample it on the post lattice; plane distance (default f).
+    error, engine, allow_truncation, max_samples : float, {'auto', 'hankel', 'mft', 'rs'}, bool, int
+        Requested error (relative to the peak), engine, truncation accepted, most samples per side.
+
+    Returns
+    -------
+    PSF
+        ``intensity`` ``(n, n)``: fraction of the incident power per sample cell of ``pitch_um`` x ``pitch_um``;
+        the engine, the error estimate and the energy in the window (see the module docstring).
     """
     t0 = time.perf_counter()
     wl, w, error, engine, fpair, sets = checked_inputs(
