@@ -598,7 +598,30 @@ def deconvolve_measurement(m: Any, *, alpha: Any = None, fpn: Any = None, method
     solver's estimate otherwise), its PSFs (``psfs``, default :meth:`ChannelPSFs.from_measurement`), dark level and
     radiometric calibration. With ``score_truth`` and the file's scene truth (``scene_x1``/``_x2``), ``info['scores']``
     holds PSNR against the scene (data range: the truth's), the brightness-temperature error (K), the hazy images'
-    own PSNR against the scene and the Wiener bound's (:func:`wiener_bound`, with the file's true noise)."""
+    own PSNR against the scene and the Wiener bound's (:func:`wiener_bound`, with the file's true noise).
+
+    Parameters
+    ----------
+    m : Measurement
+        A static sequence, frames ``(T, H, W)`` in DN.
+    alpha : array_like, shape (T,), optional
+        Mixing ratios (default: the file's).
+    fpn : ndarray, shape (H, W), optional
+        Fixed pattern to subtract (DN).
+    method : {'wiener', 'tv'}
+    psfs : ChannelPSFs, optional
+        Each channel's PSF on the pixel grid and relative illumination (default: the file's).
+    score_truth : bool
+        Score against the file's scene truth when it has one.
+    **kw
+        Keywords of :func:`separate_deconvolve`.
+
+    Returns
+    -------
+    Deconvolution
+        ``scene`` ``(s_1, s_2)``, each ``(H, W)`` in DN; ``temperature_k`` their brightness temperatures (K) or
+        None without a radiometric calibration; ``info`` (choices, timings, ``scores``).
+    """
     a = m.alpha if alpha is None else alpha
     if a is None:
         raise InputError("alpha", None, "mixing ratios: the file's, or an unknown-alpha solver's estimate "
