@@ -74,6 +74,7 @@ BAD = [
     (["design", "--f", "150", "--d", "1e9", "--posts", "ideal"], "--d = 1000000000.0", "diameter_um"),
     (["design", "--f", "150", "--d", "1e5", "--posts", "ideal"], "--d = 100000.0", "diameter_um"),
     (["design", "--f", "150", "--d", "75", "--period-um", "0.001", "--posts", "ideal"], "--period-um", "period_um"),
+    (["library", "--harmonics", "40", "--workers", "1", "--cache-dir", "{tmp}/c"], "--harmonics", None),
     (["simulate", "--netd", "-1", "--out", "{tmp}/m.npz"], "--netd", "netd_k"),
     (["simulate", "--pixel-um", "-1", "--out", "{tmp}/m.npz"], "--pixel-um", "pixel_pitch_um"),
     (["simulate", "--pitch", "-1", "--out", "{tmp}/m.npz"], "--pitch", "pixel_pitch_um"),
