@@ -15,6 +15,7 @@ from __future__ import annotations
 import argparse
 import importlib
 import logging
+import os
 import sys
 import warnings
 from typing import Sequence
@@ -151,7 +152,14 @@ def console_main() -> int:
 
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, _interrupt)
-    return main()
+    rc = main()
+    if rc == 130 and "jax" in sys.modules:
+        # an interrupted JAX computation leaves XLA's threads mid-flight: interpreter finalisation then crashes
+        # (SIGSEGV); everything worth keeping is written and cleaned up by now, so leave without it
+        sys.stdout.flush()
+        sys.stderr.flush()
+        os._exit(130)
+    return rc
 
 
 if __name__ == "__main__":
