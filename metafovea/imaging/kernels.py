@@ -495,25 +495,34 @@ def pixel_psf(optics: ChannelOptics, max_radius_px: int | None = None) -> tuple[
     c = (k.shape[0] - 1) // 2 + (s - 1)
     n_half = c // s
     core = kt[c - n_half * s:c + n_half * s + 1:s, c - n_half * s:c + n_half * s + 1:s] / s ** 2
+    r = check_int("max_radius_px", max(H, W) if max_radius_px is None else max_radius_px, 1, 100_000)
     out = core
+    total = float(core.sum())
     for weight, kf, q in optics.far_parts():
         far = np.asarray(kf, dtype=np.float64)
+        total += weight
+        full = float(far.sum()) * q ** 4  # the interpolated (q^2 per sample) and box-averaged (q^2) kernel's sum
         if q > 1:
             from scipy.ndimage import map_coordinates
 
+            # only the pixels within the cut (plus the box's half width) are interpolated: glare disks are
+            # thousands of pixels wide
             cc = (far.shape[0] - 1) / 2
-            d = np.arange(-(int(cc) + 1) * q, (int(cc) + 1) * q + 1) / q + cc
+            n = min((int(cc) + 1) * q, r + q)
+            d = np.arange(-n, n + 1) / q + cc
             yy, xx = np.meshgrid(d, d, indexing="ij")
             far = map_coordinates(far, [yy, xx], order=1, mode="constant", cval=0.0)
             # the coarse sample's average over q pixels (symmetric taps: half weights at the ends for even q)
             box = np.ones(q + 1 - q % 2)
             if q % 2 == 0:
                 box[[0, -1]] = 0.5
-            far = fftconvolve(far, np.outer(box, box), mode="full")
-        far = np.clip(far, 0.0, None)
-        out = _embed_add(out, far / far.sum(), weight)
-    total = float(out.sum())
-    r = check_int("max_radius_px", max(H, W) if max_radius_px is None else max_radius_px, 1, 100_000)
+            far = fftconvolve(far, np.outer(box, box), mode="same")
+        else:
+            full = float(far.sum())
+        h = far.shape[0] // 2
+        if h > r:
+            far = far[h - r:h + r + 1, h - r:h + r + 1]
+        out = _embed_add(out, np.clip(far, 0.0, None) / full, weight)
     h = out.shape[0] // 2
     if h > r:
         out = out[h - r:h + r + 1, h - r:h + r + 1]
