@@ -98,9 +98,38 @@ class DaskExecutor:
             except (OSError, TimeoutError) as e:
                 raise InputError("--scheduler", scheduler, f"a reachable Dask scheduler address ({e})") from None
         self.address = self.client.scheduler.address
+        #: seconds without any worker, tasks waiting, before :meth:`completed` gives up
+        self.no_worker_timeout_s = 60.0
 
     def submit(self, fn: Callable, /, *args: Any, **kwargs: Any) -> _DaskFuture:
         return _DaskFuture(self.client.submit(fn, *args, pure=False, **kwargs))
+
+    def completed(self, wrapped: list[_DaskFuture]) -> Iterator[tuple[int, _DaskFuture]]:
+        """``(index, future)`` as they finish. When the cluster has had no worker for ``no_worker_timeout_s``
+        while tasks wait (every worker died and none came back), :class:`WorkerLost` instead of waiting forever."""
+        import time
+
+        from distributed import wait  # type: ignore
+
+        index = {w.fut.key: (i, w) for i, w in enumerate(wrapped)}
+        pending = [w.fut for w in wrapped]
+        idle_since: float | None = None
+        while pending:
+            try:
+                done, rest = wait(pending, timeout=2.0, return_when="FIRST_COMPLETED")
+            except TimeoutError:
+                if self.client.scheduler_info().get("workers"):
+                    idle_since = None
+                elif idle_since is None:
+                    idle_since = time.monotonic()
+                elif time.monotonic() - idle_since > self.no_worker_timeout_s:
+                    raise WorkerLost(f"the Dask cluster at {self.address} has had no worker for "
+                                     f"{self.no_worker_timeout_s:g} s with {len(pending)} task(s) waiting; the job "
+                                     "stopped without a partial result") from None
+                continue
+            pending = list(rest)
+            for f in done:
+                yield index[f.key]
 
     def map(self, fn: Callable, *iterables: Iterable[Any]) -> Iterator[Any]:
         futs = [self.submit(fn, *a) for a in zip(*iterables)]
@@ -179,11 +208,7 @@ def run_tasks(fn: Callable, items: Iterable[Any], *, workers: int | None = None,
         bar = tqdm(total=len(items), desc=desc, unit="task")
     try:
         if isinstance(ex, DaskExecutor):
-            from distributed import as_completed as das_completed  # type: ignore
-
-            wrapped = [ex.submit(fn, it) for it in items]
-            futs = {w.fut: (i, w) for i, w in enumerate(wrapped)}
-            pairs = ((futs[f][0], futs[f][1]) for f in das_completed(list(futs)))
+            pairs = ex.completed([ex.submit(fn, it) for it in items])
         else:
             cfuts = {ex.submit(fn, it): i for i, it in enumerate(items)}
             pairs = ((cfuts[f], f) for f in cf.as_completed(cfuts))
