@@ -528,9 +528,11 @@ def psf_reports(designs: Sequence[str | Path | LensDesign], out_dir: str | Path,
             "post_set": post_sets.get((lens.polarization, lens.levels)),
             "oblique": obliques.get((lens.polarization, lens.levels))} for i, lens in enumerate(lenses)]
     if jobs > 1 and len(lenses) > 1:
-        # one process per lens (the report of a lens is single-threaded)
-        from concurrent.futures import ProcessPoolExecutor
-        with ProcessPoolExecutor(max_workers=min(jobs, len(lenses))) as ex:
+        # one process per lens (the report of a lens is single-threaded), through the project's executor
+        # (forkserver workers: a process that has started JAX's threads must not fork)
+        from metafovea.parallel import get_executor
+
+        with get_executor(min(jobs, len(lenses))) as ex:
             outcomes = list(ex.map(_report_one, lenses, [str(out)] * len(lenses), kws))
     else:
         outcomes = [_report_one(lens, str(out), k) for lens, k in zip(lenses, kws)]
