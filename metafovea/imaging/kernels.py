@@ -526,4 +526,5 @@ def pixel_psf(optics: ChannelOptics, max_radius_px: int | None = None) -> tuple[
     h = out.shape[0] // 2
     if h > r:
         out = out[h - r:h + r + 1, h - r:h + r + 1]
-    return out, total - float(out.sum())
+    # the power beyond the cut (0 when every component fits: never a rounding residue below 0)
+    return out, max(0.0, total - float(out.sum()))

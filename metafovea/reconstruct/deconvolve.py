@@ -84,9 +84,12 @@ class ChannelPSFs:
                 raise InputError(f"psf_x{i}", "kernel", "finite values >= 0 with a positive sum")
             ks.append(a)
         object.__setattr__(self, "kernels", tuple(ks))
+        peds = []
         for i, p in enumerate(self.pedestals, start=1):
-            if not (math.isfinite(p) and 0 <= p < 1):
+            if not (math.isfinite(p) and -1e-9 <= p < 1):
                 raise InputError(f"pedestal_x{i}", p, "a power fraction in [0, 1)")
+            peds.append(max(0.0, float(p)))  # a rounding residue below 0 is 0
+        object.__setattr__(self, "pedestals", tuple(peds))
 
     @classmethod
     def from_measurement(cls, m: Any) -> "ChannelPSFs":

@@ -100,6 +100,10 @@ def test_bad_input_is_refused():
         separate_deconvolve(frames, np.full(6, 0.5), psfs)
     with pytest.raises(InputError, match="psf_x1"):
         ChannelPSFs((np.ones((4, 4)), np.ones((3, 3))))
+    with pytest.raises(InputError, match="pedestal_x2"):
+        ChannelPSFs((np.ones((3, 3)), np.ones((3, 3))), pedestals=(0.0, -0.1))
+    # a rounding residue below 0 (kernel sum minus its own sum) is a pedestal of 0
+    assert ChannelPSFs((np.ones((3, 3)), np.ones((3, 3))), pedestals=(0.0, -2.2e-16)).pedestals == (0.0, 0.0)
     with pytest.raises(InputError, match="method"):
         separate_deconvolve(frames, a, psfs, method="richardson")
 
