@@ -154,7 +154,7 @@ def reconstruct_measurement(m: Measurement, method: str = "lsq", *, known_alpha:
         raise InputError("window", window, f"2 <= window <= number of frames ({T})")
     alpha = _file_alpha(m, method, known_alpha)
     kw = {**fc.as_kwargs(), **(solver or {})}
-    if method == "alternating" and kw.get("polarizer", "auto") == "auto":
+    if method in ("alternating", "dip") and alpha is None and kw.get("polarizer", "auto") == "auto":
         # what the file says about its polariser (rate, mode, extinction; a free one's phase is not used)
         from metafovea.reconstruct.polarizer import PolarizerModel
         kw["polarizer"] = PolarizerModel.from_meta(m.meta, m.times_s)

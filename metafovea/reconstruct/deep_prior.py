@@ -266,7 +266,8 @@ STOP_REASONS = ("steps", "converged", "time")
 
 
 def _initial_images(Y: np.ndarray, init: Any, alpha: Any, a_init: np.ndarray | None, scale: float,
-                    gain: float, offset: float) -> tuple[np.ndarray | None, np.ndarray | None, np.ndarray | None]:
+                    gain: float, offset: float,
+                    polarizer: Any = None) -> tuple[np.ndarray | None, np.ndarray | None, np.ndarray | None]:
     """``(x1, x2, alpha)`` of the warm start (``None`` for ``init='random'``)."""
     T, H, W = Y.shape
     if not isinstance(init, str):
@@ -284,7 +285,7 @@ def _initial_images(Y: np.ndarray, init: Any, alpha: Any, a_init: np.ndarray | N
         return None, None, None
     if init == "classical":
         if alpha is None and a_init is None:
-            r = alternating(Y, scale=scale, foveal_gain=gain, foveal_offset=offset, strict=False)
+            r = alternating(Y, scale=scale, foveal_gain=gain, foveal_offset=offset, strict=False, polarizer=polarizer)
             return np.asarray(r.x1, np.float64), np.asarray(r.x2, np.float64), np.asarray(r.alpha, np.float64)
         if Y.shape[0] < 3:
             raise InputError("init", init, "'lsq' for fewer than 3 frames")
@@ -357,6 +358,9 @@ class DipOptions:
     foveal_gain: float = 1.0
     foveal_offset: float = 0.0
     alpha_init: Any = "means"
+    #: the classical solver's polariser model (:class:`~metafovea.reconstruct.polarizer.PolarizerModel`), for the
+    #: alpha it supplies (``alpha_init='classical'``, ``init='classical'``); None: its foveal gauge alone
+    polarizer: Any = None
     init: Any = "random"
     warm: str = "residual"
     warm_steps: int = 40
@@ -643,7 +647,7 @@ def _start_alpha(Y: np.ndarray, opt: DipOptions, alpha: Any) -> tuple[np.ndarray
         if ai == "means" or opt.init == "classical":  # the classical warm start supplies its own alpha
             return None, None
         r = alternating(Y, scale=opt.scale, foveal_gain=opt.foveal_gain, foveal_offset=opt.foveal_offset,
-                        strict=False)
+                        strict=False, polarizer=opt.polarizer)
         return None, np.asarray(r.alpha, np.float64)
     return None, as_alpha(ai, T, name="alpha_init")
 
@@ -711,7 +715,7 @@ def dip(frames: Any, alpha: Any = None, options: DipOptions | None = None, **ove
     with tm.measure("init"):
         alpha, a_init = _start_alpha(Y, opt, alpha)
         xi1, xi2, a_cl = _initial_images(Y, opt.init, alpha, a_init, float(opt.scale), float(opt.foveal_gain),
-                                         float(opt.foveal_offset))
+                                         float(opt.foveal_offset), opt.polarizer)
     warm_start = xi1 is not None
     residual = warm_start and opt.warm == "residual"
     opt = replace(opt, norm=(not warm_start) if opt.norm is None else bool(opt.norm))

@@ -146,7 +146,9 @@ def video(frames: Any, alpha: Any = None, *, window: int = 8, stride: int = 1, s
                     se_w.append(r.info.get("alpha_se_max"))
                     gauges.append(r.info.get("alpha_gauge"))
                 else:
-                    r = dip(Y[s:s + window], alpha=None if alpha is None else np.asarray(alpha)[s:s + window], **kw)
+                    pol = kw.get("polarizer")
+                    wkw = {**kw, "polarizer": pol.window(s, window)} if pol is not None else kw
+                    r = dip(Y[s:s + window], alpha=None if alpha is None else np.asarray(alpha)[s:s + window], **wkw)
                 x1[k], x2[k] = r.x1, r.x2
                 aw.append(np.asarray(r.alpha).tolist())
         info["alpha_windows"] = aw
