@@ -1,0 +1,102 @@
+"""Scale evidence for the one executor (issue 16): the same library sweep and the same layout export on 1 and 2
+workers, locally and on a Dask LocalCluster, side by side in one run, with the per-task costs docs/scale.md
+projects from.
+
+    python benchmarks/bench_scale.py [--library-posts 12] [--harmonics 8] [--export-mm 6]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import tempfile
+import time
+from pathlib import Path
+
+
+def _load() -> list[str]:
+    return open("/proc/loadavg").read().split()[:3]
+
+
+def library_runs(n: int, harmonics: int) -> list[dict]:
+    import numpy as np
+
+    from metafovea.library import compute_library
+    from metafovea.parallel import DaskExecutor
+
+    widths = list(np.linspace(0.5, 3.5, n))
+    rows = []
+    ref = None
+    with tempfile.TemporaryDirectory() as d:
+        for label, kw in (("serial (1 process)", dict(workers=1)), ("local processes, 2", dict(workers=2)),
+                          ("Dask LocalCluster, 1 worker", dict(scheduler="local:1")),
+                          ("Dask LocalCluster, 2 workers", dict(scheduler="local:2"))):
+            ex = None
+            if "scheduler" in kw:
+                ex = DaskExecutor(kw["scheduler"])
+                kw = dict(scheduler=ex.address)
+            t = time.perf_counter()
+            lib = compute_library(widths, None, (10.0,), harmonics=harmonics, use_cache=False, progress=False,
+                                  tol=None, cache_dir=Path(d) / label.replace(" ", "_"), **kw)
+            sec = time.perf_counter() - t
+            if ex is not None:
+                ex.close()
+            same = ref is None or bool(np.array_equal(np.asarray(lib.t_x), np.asarray(ref.t_x)))
+            ref = ref or lib
+            rows.append({"job": f"library {n} x {n} posts, M = {harmonics}", "run": label, "seconds": sec,
+                         "tasks": n, "seconds_per_task": sec / n, "identical_to_serial": same})
+    return rows
+
+
+def export_runs(mm: float) -> list[dict]:
+    from metafovea.config import LensDesign
+    from metafovea.layout import export_file, make_spec
+    from metafovea.parallel import DaskExecutor
+
+    spec = make_spec(LensDesign("scale", 2.0 * mm * 1000, mm * 1000, polarization="x"), band_rows=32)
+    rows = []
+    ref = None
+    with tempfile.TemporaryDirectory() as d:
+        for label, kw in (("1 thread", dict(workers=1)), ("2 threads (default)", dict(workers=2)),
+                          ("Dask LocalCluster, 1 worker", dict(scheduler="local:1")),
+                          ("Dask LocalCluster, 2 workers", dict(scheduler="local:2"))):
+            ex = None
+            if "scheduler" in kw:
+                ex = DaskExecutor(kw["scheduler"])
+                kw = dict(scheduler=ex.address)
+            out = Path(d) / f"{label.replace(' ', '_')}.oas"
+            t = time.perf_counter()
+            res = export_file(spec, out, "oas", **kw)
+            sec = time.perf_counter() - t
+            if ex is not None:
+                ex.close()
+            data = out.read_bytes()
+            same = ref is None or data == ref
+            ref = ref or data
+            rows.append({"job": f"OASIS export, {mm:g} mm lens ({res['posts']:,} posts)", "run": label,
+                         "seconds": sec, "posts_per_s": res["posts"] / sec, "bytes": len(data),
+                         "identical_to_serial": same})
+    return rows
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--library-posts", type=int, default=12)
+    ap.add_argument("--harmonics", type=int, default=8)
+    ap.add_argument("--export-mm", type=float, default=6.0)
+    ap.add_argument("--json", default=None)
+    args = ap.parse_args()
+    head = {"nproc": os.cpu_count(), "load_before": _load()}
+    rows = library_runs(args.library_posts, args.harmonics) + export_runs(args.export_mm)
+    head["load_after"] = _load()
+    print(f"nproc {head['nproc']}, load {head['load_before']} -> {head['load_after']}")
+    for r in rows:
+        rate = (f"{r['seconds_per_task']:.2f} s/task" if "seconds_per_task" in r else f"{r['posts_per_s'] / 1e6:.2f} M posts/s")
+        print(f"  {r['job']:<42} {r['run']:<30} {r['seconds']:7.2f} s  {rate:>16}  identical {r['identical_to_serial']}")
+    if args.json:
+        Path(args.json).write_text(json.dumps({**head, "rows": rows}, indent=1))
+
+
+if __name__ == "__main__":
+    main()
