@@ -18,15 +18,27 @@ from metafovea.library import LIBRARY_ARRAYS, compute_library  # noqa: E402
 from metafovea.parallel import DaskExecutor, WorkerLost, run_tasks  # noqa: E402
 
 
-@pytest.fixture(scope="module")
-def cluster():
+def _register() -> None:
     import cloudpickle
 
     # this module's task functions travel by value (the workers cannot import the tests)
+    cloudpickle.register_pickle_by_value(sys.modules[__name__])
+
+
+@pytest.fixture(scope="module")
+def cluster():
+    _register()
+    ex = DaskExecutor("local:2")
+    yield ex
+    ex.close()
+
+
+@pytest.fixture
+def fragile_cluster():
+    """A cluster of its own for the tests that kill workers: a task may kill one worker and be rerun once."""
     import dask
 
-    cloudpickle.register_pickle_by_value(sys.modules[__name__])
-    # a task may kill one worker and be rerun once: the job fails on its second lost worker
+    _register()
     with dask.config.set({"distributed.scheduler.allowed-failures": 1}):
         ex = DaskExecutor("local:2")
         ex.no_worker_timeout_s = 20.0
@@ -68,11 +80,11 @@ def _always_dying(x: int) -> int:
     os._exit(1)
 
 
-def test_a_killed_worker_is_recovered_and_a_task_that_kills_every_worker_stops_the_job(tmp_path, cluster):
-    got = dict(run_tasks(lambda x: _square_dying_once(str(tmp_path), x), range(6), executor=cluster))
+def test_a_killed_worker_is_recovered_and_a_task_that_kills_every_worker_stops_the_job(tmp_path, fragile_cluster):
+    got = dict(run_tasks(lambda x: _square_dying_once(str(tmp_path), x), range(6), executor=fragile_cluster))
     assert got == {i: i * i for i in range(6)} and (tmp_path / "3").exists()
     with pytest.raises(WorkerLost, match="died|no worker"):
-        list(run_tasks(_always_dying, [1], executor=cluster))
+        list(run_tasks(_always_dying, [1], executor=fragile_cluster))
 
 
 def test_bad_scheduler_is_one_line_naming_the_flag():
@@ -80,3 +92,14 @@ def test_bad_scheduler_is_one_line_naming_the_flag():
         DaskExecutor("local:x")
     with pytest.raises(InputError, match="--scheduler"):
         DaskExecutor("tcp://127.0.0.1:9")
+
+
+def test_a_study_on_a_cluster_gives_the_same_json(cluster):
+    import json
+
+    from metafovea.studies import StudyOptions, run_study
+
+    strip = lambda r: json.dumps({k: v for k, v in r.items() if k != "timing"}, sort_keys=True)  # noqa: E731
+    serial = run_study("frames", StudyOptions(fast=True, seed=1, workers=1)).to_json()
+    spread = run_study("frames", StudyOptions(fast=True, seed=1, scheduler=cluster.address)).to_json()
+    assert strip(json.loads(json.dumps(serial))) == strip(json.loads(json.dumps(spread)))
