@@ -162,9 +162,32 @@ def get_executor(workers: int | None = None, scheduler: str | None = None):
     # os.fork() may deadlock; the library sweep runs after JAX in validate and in the test suite)
     import multiprocessing
 
+    if _unguarded_script():
+        import warnings
+
+        warnings.warn("the running script has no `if __name__ == \"__main__\":` guard: worker processes would run it "
+                      "again (and wait on its locks); running the tasks in this process instead", stacklevel=2)
+        return SerialExecutor()
     method = "forkserver" if "forkserver" in multiprocessing.get_all_start_methods() else "spawn"
     return cf.ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context(method),
                                   initializer=_worker_init, initargs=(os.getpid(),))
+
+
+def _unguarded_script() -> bool:
+    """Whether ``__main__`` is a script file whose source has no ``__name__ == "__main__"`` test: forkserver and
+    spawn workers import the main script again, so such a script would rerun its work in every worker."""
+    import sys
+
+    main = sys.modules.get("__main__")
+    path = getattr(main, "__file__", None)
+    if not path or getattr(main, "__spec__", None) is not None or not str(path).endswith(".py"):
+        return False  # interactive, -c, -m or a notebook: nothing is rerun
+    try:
+        with open(path, encoding="utf-8", errors="replace") as f:
+            src = f.read()
+    except OSError:
+        return False
+    return not ("__name__" in src and "__main__" in src)
 
 
 def _worker_init(owner_pid: int) -> None:
