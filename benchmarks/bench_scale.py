@@ -19,29 +19,37 @@ def _load() -> list[str]:
     return open("/proc/loadavg").read().split()[:3]
 
 
+def _timed(kw: dict, job):
+    """``job(**kw)`` timed, on a LocalCluster started (and closed) outside the timing when ``kw`` names one."""
+    from metafovea.parallel import DaskExecutor
+
+    ex = DaskExecutor(kw["scheduler"]) if "scheduler" in kw else None
+    try:
+        t = time.perf_counter()
+        out = job(**(dict(scheduler=ex.address) if ex else kw))
+        return out, time.perf_counter() - t
+    finally:
+        if ex is not None:
+            ex.close()
+
+
+LOCAL_AND_DASK = (("scheduler", "local:1", "Dask LocalCluster, 1 worker"),
+                  ("scheduler", "local:2", "Dask LocalCluster, 2 workers"))
+
+
 def library_runs(n: int, harmonics: int) -> list[dict]:
     import numpy as np
 
     from metafovea.library import compute_library
-    from metafovea.parallel import DaskExecutor
 
     widths = list(np.linspace(0.5, 3.5, n))
-    rows = []
-    ref = None
+    rows, ref = [], None
+    runs = (("workers", 1, "serial (1 process)"), ("workers", 2, "local processes, 2")) + LOCAL_AND_DASK
     with tempfile.TemporaryDirectory() as d:
-        for label, kw in (("serial (1 process)", dict(workers=1)), ("local processes, 2", dict(workers=2)),
-                          ("Dask LocalCluster, 1 worker", dict(scheduler="local:1")),
-                          ("Dask LocalCluster, 2 workers", dict(scheduler="local:2"))):
-            ex = None
-            if "scheduler" in kw:
-                ex = DaskExecutor(kw["scheduler"])
-                kw = dict(scheduler=ex.address)
-            t = time.perf_counter()
-            lib = compute_library(widths, None, (10.0,), harmonics=harmonics, use_cache=False, progress=False,
-                                  tol=None, cache_dir=Path(d) / label.replace(" ", "_"), **kw)
-            sec = time.perf_counter() - t
-            if ex is not None:
-                ex.close()
+        for key, val, label in runs:
+            lib, sec = _timed({key: val}, lambda **kw: compute_library(
+                widths, None, (10.0,), harmonics=harmonics, use_cache=False, progress=False, tol=None,
+                cache_dir=Path(d) / label.replace(" ", "_"), **kw))
             same = ref is None or bool(np.array_equal(np.asarray(lib.t_x), np.asarray(ref.t_x)))
             ref = ref or lib
             rows.append({"job": f"library {n} x {n} posts, M = {harmonics}", "run": label, "seconds": sec,
@@ -52,25 +60,14 @@ def library_runs(n: int, harmonics: int) -> list[dict]:
 def export_runs(mm: float) -> list[dict]:
     from metafovea.config import LensDesign
     from metafovea.layout import export_file, make_spec
-    from metafovea.parallel import DaskExecutor
 
     spec = make_spec(LensDesign("scale", 2.0 * mm * 1000, mm * 1000, polarization="x"), band_rows=32)
-    rows = []
-    ref = None
+    rows, ref = [], None
+    runs = (("workers", 1, "1 thread"), ("workers", 2, "2 threads (default)")) + LOCAL_AND_DASK
     with tempfile.TemporaryDirectory() as d:
-        for label, kw in (("1 thread", dict(workers=1)), ("2 threads (default)", dict(workers=2)),
-                          ("Dask LocalCluster, 1 worker", dict(scheduler="local:1")),
-                          ("Dask LocalCluster, 2 workers", dict(scheduler="local:2"))):
-            ex = None
-            if "scheduler" in kw:
-                ex = DaskExecutor(kw["scheduler"])
-                kw = dict(scheduler=ex.address)
+        for key, val, label in runs:
             out = Path(d) / f"{label.replace(' ', '_')}.oas"
-            t = time.perf_counter()
-            res = export_file(spec, out, "oas", **kw)
-            sec = time.perf_counter() - t
-            if ex is not None:
-                ex.close()
+            res, sec = _timed({key: val}, lambda **kw: export_file(spec, out, "oas", **kw))
             data = out.read_bytes()
             same = ref is None or data == ref
             ref = ref or data

@@ -114,6 +114,18 @@ def shutter_fpn(meas: Any) -> np.ndarray:
     return f
 
 
+
+def simulated(options: "StudyOptions", p: dict[str, Any], sw: Any, filter_enabled: bool) -> tuple[Any, np.ndarray]:
+    """The study's measurement of ``p['scene']`` (``p['frames']`` frames on the ``p['crop']`` camera, a free-running
+    polariser, 16 shutter frames), timed under ``sw('simulate')``, and its fixed pattern from those frames."""
+    from metafovea.imaging.simulate import simulate
+
+    system = camera(options, p["crop"])
+    with sw("simulate"):
+        meas = simulate(system, p["scene"], frames=p["frames"], rng=options.seed, filter_enabled=filter_enabled,
+                        polarizer_mode="free", calibration_frames=16, psf=options.psf)
+    return meas, shutter_fpn(meas)
+
 def rounded(obj: Any, digits: int = 6) -> Any:
     """Floats rounded to ``digits`` significant digits (nested dicts/lists; NaN kept): what the JSON holds, so
     that the last bits of a sum taken in another order cannot tell two runs apart."""

@@ -14,8 +14,8 @@ from typing import Any
 
 import numpy as np
 
-from metafovea.studies.common import FILTER, StudyOptions, StudyResult, Stopwatch, camera, figure, machine, rounded, \
-    shutter_fpn, sweep
+from metafovea.studies.common import FILTER, StudyOptions, StudyResult, Stopwatch, figure, machine, rounded, \
+    simulated, sweep
 
 NAME = "frames"
 FULL = {"windows": [4, 8, 12, 16, 20, 24], "frames": 96, "crop": [290, 290], "scene": "hand", "centre_step": 4}
@@ -100,15 +100,10 @@ def _figure(rows: list[dict[str, Any]], meas: Any, cs: list[int]) -> bytes:
 
 
 def run(options: StudyOptions) -> StudyResult:
-    from metafovea.imaging.simulate import simulate
 
     sw = Stopwatch()
     p = FAST if options.fast else FULL
-    system = camera(options, p["crop"])
-    with sw("simulate"):
-        meas = simulate(system, p["scene"], frames=p["frames"], rng=options.seed, filter_enabled=FILTER,
-                        polarizer_mode="free", calibration_frames=16, psf=options.psf)
-    fpn = shutter_fpn(meas)
+    meas, fpn = simulated(options, p, sw, FILTER)
     cs = centres(p["frames"], max(p["windows"]), p["centre_step"])
     ranges = (float(np.ptp(meas.truth_x1)), float(np.ptp(meas.truth_x2)))
     items = [{"measurement": meas, "window": w, "centres": cs, "fpn": fpn, "ranges": ranges} for w in p["windows"]]

@@ -14,8 +14,8 @@ from typing import Any
 
 import numpy as np
 
-from metafovea.studies.common import FILTER, StudyOptions, StudyResult, Stopwatch, camera, figure, machine, rounded, \
-    shutter_fpn
+from metafovea.studies.common import FILTER, StudyOptions, StudyResult, Stopwatch, figure, machine, rounded, \
+    simulated
 
 NAME = "realtime"
 PAPER_FPS, PAPER_SHAPE = 40.0, (275, 280)
@@ -46,17 +46,12 @@ def _figure(speed: dict[str, Any], err: dict[str, Any]) -> bytes:
 
 
 def run(options: StudyOptions) -> StudyResult:
-    from metafovea.imaging.simulate import simulate
     from metafovea.reconstruct import reconstruct_measurement
     from metafovea.reconstruct.metrics import score
 
     sw = Stopwatch()
     p = FAST if options.fast else FULL
-    system = camera(options, p["crop"])
-    with sw("simulate"):
-        meas = simulate(system, p["scene"], frames=p["frames"], rng=options.seed, filter_enabled=FILTER,
-                        polarizer_mode="free", calibration_frames=16, psf=options.psf)
-    fpn = shutter_fpn(meas)
+    meas, fpn = simulated(options, p, sw, FILTER)
     H, W = meas.shape[1:]
     err: dict[str, Any] = {}
     speed: dict[str, Any] = {}

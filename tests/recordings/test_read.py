@@ -98,3 +98,11 @@ def test_written_measurement_round_trips(tmp_path, frames):
     m = Measurement.load(out)
     assert m.alpha_known and m.shape == (12, 10, 14) and m.meta["source"]["format"] == "hdf5"
     assert m.meta["frame_rate_hz"] == pytest.approx(12.0)
+
+
+def test_an_unreadable_mat_file_is_one_error_naming_it(tmp_path):
+    bad = tmp_path / "broken.mat"
+    bad.write_bytes(b"not a MAT file at all" * 20)
+    with pytest.raises(InputError, match="broken.mat") as e:
+        read_recording(bad)
+    assert "MAT file" in str(e.value)
