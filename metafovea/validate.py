@@ -219,22 +219,9 @@ def reconstruction_table(meas: Measurement, opts: ValidateOptions, label: str, *
     truth = tuple(np.asarray(t if t.ndim == 2 else t[0]) for t in meas.truth_over([(0, w)]))
     say(f"{label}: PSF-aware separation and deconvolution (known alpha, all {T} frames)")
     return {"rows": rows, "images": images, "truth": truth, "scene_rows": deconvolution_rows(meas, fpn, label),
-            "alternating_alpha": _window_alpha(alt.reconstruction, T),
+            "alternating_alpha": alt.reconstruction.alpha_per_frame(T),
             "fpn": {"identified": finfo.get("identified"), "rank": finfo.get("rank"),
                     "relative_rms_error": fpn_err, "seconds": t_fpn}}
-
-
-def _window_alpha(rec: Any, T: int) -> np.ndarray:
-    """The unknown-alpha solver's estimate per frame (T,): its own, else each window's (NaN where none)."""
-    a = np.full(T, np.nan)
-    own = np.asarray(rec.alpha, dtype=np.float64).reshape(-1)
-    if own.shape == (T,):
-        a[:] = own
-    info = rec.info
-    for start, aw in zip(info.get("window_starts") or [], info.get("alpha_windows") or []):
-        aw = np.asarray(aw, dtype=np.float64).reshape(-1)
-        a[start:start + aw.size] = aw[:max(0, min(aw.size, T - start))]
-    return a
 
 
 def deconvolution_rows(meas: Measurement, fpn: np.ndarray, label: str,

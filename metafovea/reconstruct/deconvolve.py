@@ -676,12 +676,8 @@ def deconvolve_result(m: Any, res: Any, method: str = "wiener", psf: Any = None,
     over the sequence) and fixed pattern, the PSFs of ``psf`` (a file, :meth:`ChannelPSFs.from_file`) or of the
     file; ``info['alpha_from']`` says which alpha."""
     rec = res.reconstruction
-    alpha = np.asarray(rec.alpha, dtype=np.float64).reshape(-1)
-    if alpha.shape == (m.shape[0],) and not np.all(np.isfinite(alpha)):
-        for start, aw in zip(rec.info.get("window_starts") or [], rec.info.get("alpha_windows") or []):
-            aw = np.asarray(aw, dtype=np.float64).reshape(-1)
-            alpha[start:start + aw.size] = aw[:max(0, min(aw.size, alpha.size - start))]
-    if alpha.shape != (m.shape[0],) or not np.all(np.isfinite(alpha)):
+    alpha = rec.alpha_per_frame(m.shape[0])
+    if not np.all(np.isfinite(alpha)):
         raise InputError("--deconvolve", rec.method, f"a reconstruction whose alpha covers all {m.shape[0]} frames "
                          "(use --window with all frames, or a stride that reaches every frame)", source=m.source)
     known = m.alpha is not None and bool(np.array_equal(alpha, np.asarray(m.alpha, dtype=np.float64)))

@@ -93,6 +93,19 @@ class Reconstruction:
 
         return reconstruction_html(self)
 
+    def alpha_per_frame(self, n_frames: int) -> np.ndarray:
+        """Mixing ratios ``(n_frames,)``: the sequence's own where finite, else each window's estimate
+        (``info['window_starts']``/``info['alpha_windows']`` of a windowed unknown-alpha run), NaN where none."""
+        a = np.full(n_frames, np.nan)
+        own = np.asarray(self.alpha, dtype=np.float64).reshape(-1)
+        if own.shape == (n_frames,):
+            a[:] = own
+        for start, aw in zip(self.info.get("window_starts") or [], self.info.get("alpha_windows") or []):
+            aw = np.asarray(aw, dtype=np.float64).reshape(-1)[:max(0, n_frames - start)]
+            seg = a[start:start + aw.size]
+            a[start:start + aw.size] = np.where(np.isfinite(seg), seg, aw)
+        return a
+
     def save(self, path: str | os.PathLike) -> None:
         """Write atomically to ``path`` (``.npz``; info and timings as JSON metadata)."""
         arrays = {"x1": np.asarray(self.x1), "x2": np.asarray(self.x2), "alpha": np.asarray(self.alpha)}

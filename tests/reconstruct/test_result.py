@@ -37,3 +37,14 @@ def test_pipeline_result_stacks_outputs_and_counts_nan():
     assert s["outputs"] == 1 and s["ms_per_output"] == pytest.approx(500.0) and s["nonfinite_pixels"] == 1
     assert s["foveal_constraint"] == {"scale": 6.0, "foveal_gain": 1.0, "foveal_offset": 0.0}
     assert s["iterations"] == 3 and s["files"] == ["a.npz"] and "metrics" not in s
+
+
+def test_alpha_per_frame_takes_each_windows_estimate_where_the_sequence_has_none():
+    rec = Reconstruction(x1=np.zeros((2, 4, 4)), x2=np.zeros((2, 4, 4)), alpha=np.full(10, np.nan),
+                         info={"window_starts": [0, 6], "alpha_windows": [[0.1, 0.2, 0.3], [0.7, 0.8, 0.9, 1.0]]})
+    a = rec.alpha_per_frame(10)
+    assert np.allclose(a[:3], [0.1, 0.2, 0.3]) and np.allclose(a[6:], [0.7, 0.8, 0.9, 1.0])
+    assert np.all(np.isnan(a[3:6]))
+    own = Reconstruction(x1=np.zeros((4, 4)), x2=np.zeros((4, 4)), alpha=np.linspace(0, 1, 10),
+                         info={"window_starts": [0], "alpha_windows": [[0.5] * 3]})
+    assert np.allclose(own.alpha_per_frame(10), np.linspace(0, 1, 10))  # the sequence's own wins
