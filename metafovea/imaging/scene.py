@@ -15,7 +15,8 @@ Every scene also returns an emissivity per region; the radiometry adds the refle
 
 Built-in scenes (``make_scene(name)``, ``list_scenes()``): natural images from scikit-image mapped to
 temperatures, ``siemens-star``, ``bars``, ``hand``, ``parking-lot``, ``heater-5s``/``-10s``/``-20s``,
-``uniform``. Any name that is an existing file loads it (``.npy``/``.npz`` temperatures in K,
+``uniform``, ``rooftop``, ``tall-buildings``, ``oven``.
+Any name that is an existing file loads it (``.npy``/``.npz`` temperatures in K,
 ``.tif``/``.png``/``.jpg`` pictures mapped to temperatures, see :func:`load_scene_file`).
 """
 
@@ -461,6 +462,111 @@ class CoilHeater(Scene):
         return temp, eps
 
 
+@dataclass(frozen=True)
+class Rooftop(Scene):
+    """A flat sunlit roof seen from above its edge: HVAC units with fan grilles, vent pipes, a warm chimney and a
+    strip of clear sky at the top (outdoor: the sky is reflected). An HVAC grille sits in the fovea."""
+
+    half_rad: float = 0.5 * PAPER_FOV_RAD
+    roof_k: float = 316.0
+    sky_k: float = 250.0
+    unit_k: float = 304.0
+    chimney_k: float = 335.0
+    reflected_k: float = 255.0  # clear sky
+    name: str = "rooftop"
+    description: str = "a sunlit roof with HVAC units, vents and a chimney under a clear sky"
+
+    def _sample(self, ax, ay, t):
+        h = self.half_rad
+        temp = np.full(ax.shape, self.roof_k)
+        eps = np.full(ax.shape, 0.93)
+        _paint(temp, eps, ay < -0.7 * h, self.sky_k, 1.0)  # the sky above the far roof edge
+        _paint(temp, eps, _box(ax, ay, -2 * h, -0.7 * h, 2 * h, -0.64 * h), 300.0, 0.9)  # parapet, in shade
+        # the HVAC unit in the fovea: a cool box with a grille of fan slats (the fan's motor warm)
+        _paint(temp, eps, _box(ax, ay, -0.3 * h, -0.22 * h, 0.3 * h, 0.22 * h), self.unit_k, 0.85)
+        for k in range(-4, 5):
+            y0 = k * 0.04 * h
+            _paint(temp, eps, _box(ax, ay, -0.22 * h, y0 - 0.008 * h, 0.22 * h, y0 + 0.008 * h), 310.0, 0.9)
+        _paint(temp, eps, np.hypot(ax, ay) <= 0.035 * h, 322.0, 0.95)
+        # a second unit and vent pipes (round tops, warm) in the periphery
+        _paint(temp, eps, _box(ax, ay, 0.5 * h, 0.3 * h, 0.9 * h, 0.65 * h), self.unit_k + 2.0, 0.85)
+        for cx, cy in ((-0.7 * h, 0.5 * h), (-0.45 * h, 0.7 * h), (0.6 * h, -0.4 * h)):
+            _paint(temp, eps, np.hypot(ax - cx, ay - cy) <= 0.05 * h, 309.0, 0.9)
+        _paint(temp, eps, _box(ax, ay, -0.85 * h, -0.55 * h, -0.65 * h, -0.2 * h), self.chimney_k, 0.92)
+        return temp, eps
+
+
+@dataclass(frozen=True)
+class TallBuildings(Scene):
+    """Tall buildings against a cold sky: façades with a grid of windows (glass reflects the sky: it looks cold),
+    a few warm lit rooms; the fovea holds one façade's window grid."""
+
+    half_rad: float = 0.5 * PAPER_FOV_RAD
+    sky_k: float = 240.0
+    facade_k: float = 299.0
+    glass_k: float = 288.0
+    reflected_k: float = 250.0
+    name: str = "tall-buildings"
+    description: str = "tall buildings with window grids against a clear sky"
+
+    def _sample(self, ax, ay, t):
+        h = self.half_rad
+        temp = np.full(ax.shape, self.sky_k)
+        eps = np.full(ax.shape, 1.0)
+        # (left, right, top, façade temperature, window pitch) of each building; the centre one fills the fovea
+        for x0, x1, top, tk, pitch in ((-1.2, -0.45, -0.55, self.facade_k - 3.0, 0.14),
+                                       (-0.4, 0.4, -0.85, self.facade_k, 0.06),
+                                       (0.45, 1.2, -0.3, self.facade_k + 2.0, 0.11)):
+            x0, x1, top, p = x0 * h, x1 * h, top * h, pitch * h
+            _paint(temp, eps, _box(ax, ay, x0, top, x1, 2 * h), tk, 0.9)
+            u = np.mod(ax - x0, p) / p
+            v = np.mod(ay - top, p) / p
+            win = _box(ax, ay, x0 + 0.5 * p, top + 0.5 * p, x1 - 0.5 * p, 2 * h) & (u > 0.3) & (u < 0.75) & \
+                (v > 0.25) & (v < 0.7)
+            _paint(temp, eps, win, self.glass_k, 0.84)
+        # lit (warm) rooms: a few windows of the centre building
+        for cx, cy in ((0.09, 0.03), (-0.15, -0.27), (0.21, 0.45)):
+            lit = _box(ax, ay, (cx - 0.02) * h, (cy - 0.02) * h, (cx + 0.02) * h, (cy + 0.01) * h)
+            _paint(temp, eps, lit, 303.0, 0.84)
+        return temp, eps
+
+
+@dataclass(frozen=True)
+class Oven(Scene):
+    """A kitchen oven, switched on: a warm body, a hot door window with the racks behind it and the glowing upper
+    heating element, control knobs; indoor wall around. The door window's racks lie in the fovea."""
+
+    half_rad: float = 0.5 * PAPER_FOV_RAD
+    wall_k: float = AMBIENT_K
+    body_k: float = 306.0
+    window_k: float = 345.0
+    element_k: float = 420.0
+    name: str = "oven"
+    description: str = "an oven switched on: hot door window, racks and heating element"
+
+    def _sample(self, ax, ay, t):
+        h = self.half_rad
+        temp = np.full(ax.shape, self.wall_k)
+        eps = np.full(ax.shape, 0.92)
+        _paint(temp, eps, _box(ax, ay, -0.75 * h, -0.8 * h, 0.75 * h, 0.85 * h), self.body_k, 0.9)
+        _paint(temp, eps, _box(ax, ay, -0.75 * h, -0.8 * h, 0.75 * h, -0.55 * h), 301.0, 0.9)  # control panel
+        for cx in (-0.5, -0.25, 0.25, 0.5):
+            _paint(temp, eps, np.hypot(ax - cx * h, ay + 0.675 * h) <= 0.07 * h, 311.0, 0.6)  # knobs (metal)
+        win = _box(ax, ay, -0.55 * h, -0.4 * h, 0.55 * h, 0.45 * h)
+        _paint(temp, eps, win, self.window_k, 0.88)
+        # the upper element (a zigzag of hot wire) and two racks (horizontal bars, cooler than the glass's glow)
+        for k in range(6):
+            x0 = (-0.45 + 0.15 * k) * h
+            _paint(temp, eps, _capsule(ax, ay, (x0, -0.32 * h), (x0 + 0.15 * h, -0.22 * h), 0.012 * h),
+                   self.element_k, 0.9)
+        for y0 in (-0.05, 0.0, 0.05, 0.25):
+            _paint(temp, eps, _box(ax, ay, -0.5 * h, (y0 - 0.006) * h, 0.5 * h, (y0 + 0.006) * h), 330.0, 0.7)
+        for k in range(-8, 9):
+            _paint(temp, eps, _box(ax, ay, (k * 0.06 - 0.004) * h, -0.05 * h, (k * 0.06 + 0.004) * h, 0.05 * h),
+                   330.0, 0.7)
+        return temp, eps
+
+
 # ----------------------------------------------------------------------------------------------
 # raster scenes
 # ----------------------------------------------------------------------------------------------
@@ -667,6 +773,12 @@ SCENES: dict[str, tuple[Callable[..., Scene], str]] = {
     "heater-20s": (lambda g, **kw: CoilHeater(on_duration_s=20.0, half_rad=g.half, name="heater-20s", **kw),
                    "coil heater on for 20 s from t = 1 s (video)"),
     "uniform": (lambda g, **kw: UniformScene(**kw), "uniform 300 K blackbody (static)"),
+    "rooftop": (lambda g, **kw: Rooftop(half_rad=g.half, **kw),
+                "a sunlit roof with HVAC units and a chimney under a clear sky (static, outdoor)"),
+    "tall-buildings": (lambda g, **kw: TallBuildings(half_rad=g.half, **kw),
+                       "tall buildings with window grids against a cold sky (static, outdoor)"),
+    "oven": (lambda g, **kw: Oven(half_rad=g.half, **kw), "an oven switched on: hot door window, racks and "
+                                                            "heating element (static, indoor)"),
 }
 for _n in ("astronaut", "camera", "coffee", "chelsea", "rocket", "coins", "moon", "brick"):
     SCENES[_n] = (lambda g, _n=_n, **kw: image_scene(_n, g, **kw), f"scikit-image '{_n}' picture, 288-312 K")
