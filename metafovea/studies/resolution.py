@@ -1,6 +1,6 @@
 """``metafovea study resolution``: the Siemens star at a foveal expansion of 9:1 (paper point 4).
 
-The paper's wooden Siemens star (36 spokes, heated paper behind) fills the foveal field; the perifoveal lens is at
+The paper's wooden Siemens star (36 spokes, heated paper behind) fills the foveal field (its rim just outside it); the perifoveal lens is at
 ``f2 = f1 / 9`` (the paper's 9:1 at an object distance of 300 mm). A free-running polariser (alpha unknown) gives
 the frames; the unknown-alpha solver separates them (FPN from shutter frames). Along circles about the star's
 centre (radius r in foveal pixels) the intensity of the foveal image and of the perifoveal image upsampled by 9 to
@@ -54,7 +54,8 @@ def run_case(item: dict[str, Any]) -> dict[str, Any]:
 
     system = item["system"]
     fovea_half = float(min(channels_for(system)[0].half_fov_rad))
-    scene = SiemensStar(radius_rad=0.99 * fovea_half, paper_half_rad=3.0 * fovea_half)
+    # the star's wooden rim (0.94..1 of its radius) lies just outside the foveal field: spokes out to its edge
+    scene = SiemensStar(radius_rad=1.1 * fovea_half, paper_half_rad=3.0 * fovea_half)
     meas = simulate(system, scene, frames=item["frames"], rng=item["seed"], filter_enabled=FILTER,
                     polarizer_mode="free", calibration_frames=16, psf=item["psf"])
     r = reconstruct_measurement(meas, "alternating", window=meas.shape[0], fpn=shutter_fpn(meas),
@@ -100,10 +101,10 @@ def _trend(case: dict[str, Any]) -> dict[str, Any]:
                         "upsampled perifoveal image, which loses contrast where the spokes get finer",
             "observed": f"modulation >= 0.5 up to {l1:.3g} lp/px (foveal) and {l2:.3g} lp/px (perifoveal "
                         f"upsampled); foveal above perifoveal at {np.mean(m1 > m2):.0%} of the radii; perifoveal "
-                        f"modulation {m2[-1]:.2f} at the rim, {m2[0]:.2f} at the finest radius",
+                        f"modulation {m2[-1]:.2f} at the largest radius, {m2[0]:.2f} at the finest radius",
             "holds": bool(better and peri_falls and finer), "foveal_limit_lp_per_px": l1,
             "perifoveal_limit_lp_per_px": l2,
-            "note": "modulation = the spoke-frequency Michelson contrast of the reconstruction over the truth's on "
+            "note": "modulation = the spoke-frequency Michelson contrast of the reconstruction over the foveal truth's on "
                     "the same circle; the limit is the finest line pairs per pixel where it is still >= 0.5 "
                     f"(NaN: nowhere). The perifoveal grid's Nyquist, 0.5 lp per perifoveal pixel, is 0.5/{EXPANSION} "
                     f"lp per foveal pixel: its image can carry the 36 spokes only outside r = 36 x {EXPANSION} / pi "
@@ -113,6 +114,8 @@ def _trend(case: dict[str, Any]) -> dict[str, Any]:
 
 
 def _figure(case: dict[str, Any], circles: list[float], k: int) -> bytes:
+    from matplotlib.ticker import NullFormatter
+
     from metafovea.imaging.simulate import iron_colormap
     from metafovea.report import fig_to_png
 
@@ -146,6 +149,7 @@ def _figure(case: dict[str, Any], circles: list[float], k: int) -> bytes:
     ax[1, 1].set_ylabel("modulation (contrast / truth's)")
     for a in (ax[1, 0], ax[1, 1]):
         a.set_xscale("log")
+        a.xaxis.set_minor_formatter(NullFormatter())
         a.set_xlabel("line pairs per foveal pixel")
         a.legend(fontsize=7)
     for i, rr in enumerate(circles):
@@ -183,7 +187,7 @@ def run(options: StudyOptions) -> StudyResult:
         name=NAME, title="Siemens star at 9:1",
         modelled=f"The paper's camera (RCWA posts, both wafers' optical train, 10 um filter, NETD, FPN corrected "
                  f"from shutter frames) with the perifoveal lens at f2 = f1/{EXPANSION}, D2 = f2; the built-in "
-                 f"Siemens star (36 wooden spokes on heated paper) filling the foveal field; {p['frames']} frames of "
+                 f"Siemens star (36 wooden spokes on heated paper, radius 1.1 x the foveal half-field so that its rim lies outside the foveal image); {p['frames']} frames of "
                  f"a free-running polariser, crop {p['crop'][0]} x {p['crop'][1]}, separated without alpha "
                  f"(alternating, foveal gauge). Contrast on circles about the centre at {n} radii (geometric) and "
                  f"on the circles of radius {p['circles_px']} foveal pixels: the Michelson contrast of the "
