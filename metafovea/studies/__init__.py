@@ -11,7 +11,6 @@ Files:
 - ``realtime``: known-alpha least squares against the unknown-alpha solver on one video: frames/s and error.
 - ``compare``: at equal sensor, against two lenses side by side, Risley-prism shifts, single-image SR.
 - ``resolution``: Siemens star at 9:1: contrast against line pairs per pixel, intensity along circles.
-- ``ablation``: the reconstruction with parts removed (initialisation, exclusion loss, priors, FPN; snapshot).
 - ``transients``: the heater on/off scene: time series at three points against the truth.
 - ``gallery``: the paper's scene types, with and without the 10 um filter.
 
@@ -35,7 +34,6 @@ STUDIES: dict[str, tuple[str, str]] = {
     "compare": ("compare", "at equal sensor: this system against two lenses side by side, Risley-prism shifts and "
                            "single-image super-resolution (paper point 3)"),
     "resolution": ("resolution", "Siemens star at 9:1, contrast against line pairs per pixel (paper point 4)"),
-    "ablation": ("ablation", "multi-frame and snapshot reconstruction with parts removed (paper point 5)"),
     "transients": ("transients", "heater on/off (5, 10, 20 s): time series at three points against the truth "
                                  "(paper point 6)"),
     "gallery": ("gallery", "the paper's scene types simulated and reconstructed, with and without the filter "
