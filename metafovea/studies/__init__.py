@@ -9,9 +9,7 @@ Files:
 - ``focal_ratio``: foveal expansion f1/f2 = 2..8 at a fixed foveal lens: PSNR of both reconstructions.
 - ``frames``: frames per window 4..24 on the waving-hand video: too few mix the channels, too many blur motion.
 - ``realtime``: known-alpha least squares against the unknown-alpha solver on one video: frames/s and error.
-- ``compare``: at equal sensor, against two lenses side by side, Risley-prism shifts, single-image SR.
 - ``resolution``: Siemens star at 9:1: contrast against line pairs per pixel, intensity along circles.
-- ``transients``: the heater on/off scene: time series at three points against the truth.
 - ``gallery``: the paper's scene types, with and without the 10 um filter.
 
 Use :func:`run_study` (``run_study('frames', StudyOptions(fast=True), out_dir)``); :data:`STUDIES` names them.
@@ -31,11 +29,7 @@ STUDIES: dict[str, tuple[str, str]] = {
     "frames": ("frames", "4 to 24 frames per window on the waving hand at 2 Hz / 12 fps (paper point 2)"),
     "realtime": ("realtime", "least squares with known alpha against the unknown-alpha solver: frames/s and error "
                              "(paper point 7)"),
-    "compare": ("compare", "at equal sensor: this system against two lenses side by side, Risley-prism shifts and "
-                           "single-image super-resolution (paper point 3)"),
     "resolution": ("resolution", "Siemens star at 9:1, contrast against line pairs per pixel (paper point 4)"),
-    "transients": ("transients", "heater on/off (5, 10, 20 s): time series at three points against the truth "
-                                 "(paper point 6)"),
     "gallery": ("gallery", "the paper's scene types simulated and reconstructed, with and without the filter "
                            "(paper point 8)"),
 }
