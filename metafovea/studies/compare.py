@@ -124,7 +124,7 @@ def alternatives(x1: np.ndarray, x2: np.ndarray, k: float, sigma: float, n_frame
     wide = [nd_shift(x2, s / k, order=3, mode="nearest") + rng.normal(0.0, sigma, x2.shape) for s in sh]
     back = np.mean([nd_shift(f, -s / k, order=3, mode="nearest") for f, s in zip(wide, sh)], axis=0)
     out["risley"] = (centre, back)
-    # (c) the wide frame (the mean of the frames): its centre (in foveal units) upsampled by k with bicubic interpolation
+    # (c) the wide frame (the mean of the frames): its centre (in foveal units) upsampled by k, bicubic
     y0 = (gain * (ay0 @ x1 @ ax0.T) + rng.normal(0.0, s_avg, (my, mx))) / gain
     up = np.full(x1.shape, float(y0.mean()))
     up[region] = resize(y0, (int(my * k), int(mx * k)), order=3)
@@ -158,8 +158,8 @@ def run_case(item: dict[str, Any]) -> dict[str, Any]:
              **score((f, wide), None, x2, float(np.ptp(x2)))}
         scores[m] = {"psnr_fovea": s["psnr_x1"], "ssim_fovea": s["ssim_x1"], "psnr_wide": s["psnr_x2"],
                      "ssim_wide": s["ssim_x2"], "frames_per_output": frames_per_output[m]}
-    return {"scene": item["scene"], "fill": p["fill"], "scores": scores, "expansion": float(meas.scale), "gain_wide_over_foveal":
-            alt["gain"], "noise_sigma_dn": sigma, "foveal_range_dn": float(np.ptp(x1[reg])),
+    return {"scene": item["scene"], "fill": p["fill"], "scores": scores, "expansion": float(meas.scale),
+            "gain_wide_over_foveal": alt["gain"], "noise_sigma_dn": sigma, "foveal_range_dn": float(np.ptp(x1[reg])),
             "wide_range_dn": float(np.ptp(x2)), "region": [reg[0].start, reg[0].stop, reg[1].start, reg[1].stop],
             "psf": meas.meta["psf"]["provider"], "alpha_mae": r.alpha_mae,
             "images": {"truth": x1[reg], **{m: outputs[m][0][reg] for m in METHODS}}}
@@ -181,7 +181,8 @@ def _trend(mean: dict[str, dict[str, float]], cases: list[dict[str, Any]],
     pc = {m: coarse[m]["psnr_fovea"] for m in METHODS}
     best_coarse = max(pc, key=pc.get)
     note = ("Judged on the picture spanning 1/3 of the wide field (twice the foveal field at k = 6: detail at "
-            "the foveal sampling, which is what the comparison is about). Foveal scores on the centre at the foveal sampling against the foveal lens' truth; wide scores over the "
+            "the foveal sampling, which is what the comparison is about). Foveal scores on the centre at the "
+            "foveal sampling against the foveal lens' truth; wide scores over the "
             "whole field. Every method integrates the same frames (the side-by-side and single-image designs average "
             "them on this static scene, which they alone could do with one frame on a moving one).")
     if not holds:
@@ -207,7 +208,8 @@ def _trend(mean: dict[str, dict[str, float]], cases: list[dict[str, Any]],
                         "sampling; Risley needs several frames per output; single-image SR adds no detail",
             "observed": "foveal PSNR (dB): " + ", ".join(f"{LABELS[m]} {pf[m]:.2f}" for m in METHODS)
                         + "; wide PSNR (dB): " + ", ".join(f"{LABELS[m]} {mean[m]['psnr_wide']:.2f}" for m in METHODS),
-            "holds": bool(holds), "best_foveal": best, "best_foveal_full_field_picture": best_coarse, "multiplexed_beats_single_frame_methods": bool(beats_single),
+            "holds": bool(holds), "best_foveal": best, "best_foveal_full_field_picture": best_coarse,
+            "multiplexed_beats_single_frame_methods": bool(beats_single),
             "foveal_snr_per_frame": snr1, "note": note}
 
 
@@ -235,8 +237,8 @@ def _figure(case: dict[str, Any], mean: dict[str, dict[str, float]]) -> bytes:
         a.legend(fontsize=8)
     for a in (ax[1, 1], ax[1, 3], ax[1, 4]):
         a.set_axis_off()
-    ax[1, 4].text(0, 0.5, "frames integrated per output:\n" + "\n".join(f"{LABELS[m]}: {mean[m]['frames_per_output']:.0f}"
-                                                           for m in METHODS), fontsize=9, va="center")
+    lines = [f"{LABELS[m]}: {mean[m]['frames_per_output']:.0f}" for m in METHODS]
+    ax[1, 4].text(0, 0.5, "frames integrated per output:\n" + "\n".join(lines), fontsize=9, va="center")
     return fig_to_png(fig)
 
 
@@ -261,9 +263,12 @@ def run(options: StudyOptions) -> StudyResult:
         name=NAME, title="at equal sensor: side by side, Risley shifts, single-image SR",
         modelled=f"The paper's camera (RCWA posts, both wafers' optical train, 10 um filter, FPN from shutter "
                  f"frames), {p['frames']} frames of a free-running polariser on {len(p['scenes'])} scikit-image "
-                 f"picture(s) ({', '.join(p['scenes'])}) each spanning {p['fills']} of the perifoveal field, crop {p['crop'][0]} x {p['crop'][1]}, separated without "
+                 f"picture(s) ({', '.join(p['scenes'])}) each spanning "
+                 f"{' and '.join(f'{f:.3g}' for f in p['fills'])} of the perifoveal field's width, crop "
+                 f"{p['crop'][0]} x {p['crop'][1]}, separated without "
                  f"alpha (alternating). The alternatives on the same sensor, from the same chain's noise-free channel "
-                 f"images with its temporal noise (NETD as DN) added, every method integrating the same {p['frames']} frames (the "
+                 f"images with its temporal noise (NETD as DN) added, every method integrating the same "
+                 f"{p['frames']} frames (the "
                  f"single-exposure designs average theirs): (a) side by side: each image on half the "
                  f"sensor, i.e. sampled by 1/sqrt(2) per axis (anti-aliased), bicubic back; (b) Risley: "
                  f"{p['frames']} wide frames with known sub-pixel shifts (R2 sequence over one wide pixel), the "
