@@ -30,6 +30,8 @@ STUDIES: dict[str, tuple[str, str]] = {
     "realtime": ("realtime", "least squares with known alpha against the unknown-alpha solver: frames/s and error "
                              "(paper point 7)"),
     "resolution": ("resolution", "Siemens star at 9:1, contrast against line pairs per pixel (paper point 4)"),
+    "transients": ("transients", "heater on/off (5, 10, 20 s): time series at three points against the truth "
+                                 "(paper point 6)"),
     "gallery": ("gallery", "the paper's scene types simulated and reconstructed, with and without the filter "
                            "(paper point 8)"),
 }
