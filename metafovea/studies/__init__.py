@@ -29,6 +29,8 @@ STUDIES: dict[str, tuple[str, str]] = {
     "frames": ("frames", "4 to 24 frames per window on the waving hand at 2 Hz / 12 fps (paper point 2)"),
     "realtime": ("realtime", "least squares with known alpha against the unknown-alpha solver: frames/s and error "
                              "(paper point 7)"),
+    "compare": ("compare", "at equal sensor: this system against two lenses side by side, Risley-prism shifts and "
+                           "single-image super-resolution (paper point 3)"),
     "resolution": ("resolution", "Siemens star at 9:1, contrast against line pairs per pixel (paper point 4)"),
     "transients": ("transients", "heater on/off (5, 10, 20 s): time series at three points against the truth "
                                  "(paper point 6)"),
