@@ -115,16 +115,24 @@ def shutter_fpn(meas: Any) -> np.ndarray:
 
 
 
-def simulated(options: "StudyOptions", p: dict[str, Any], sw: Any, filter_enabled: bool) -> tuple[Any, np.ndarray]:
-    """The study's measurement of ``p['scene']`` (``p['frames']`` frames on the ``p['crop']`` camera, a free-running
-    polariser, 16 shutter frames), timed under ``sw('simulate')``, and its fixed pattern from those frames."""
+def measure(system: SystemDesign, scene: Any, frames: int, seed: int, psf: str,
+            filter_enabled: bool = FILTER) -> tuple[Any, np.ndarray]:
+    """``frames`` frames of ``scene`` on ``system`` (a free-running polariser, 16 shutter frames) and the fixed
+    pattern from those frames: every study's measurement."""
     from metafovea.imaging.simulate import simulate
 
-    system = camera(options, p["crop"])
-    with sw("simulate"):
-        meas = simulate(system, p["scene"], frames=p["frames"], rng=options.seed, filter_enabled=filter_enabled,
-                        polarizer_mode="free", calibration_frames=16, psf=options.psf)
+    meas = simulate(system, scene, frames=frames, rng=seed, filter_enabled=filter_enabled, polarizer_mode="free",
+                    calibration_frames=16, psf=psf)
     return meas, shutter_fpn(meas)
+
+
+def simulated(options: "StudyOptions", p: dict[str, Any], sw: Any, filter_enabled: bool) -> tuple[Any, np.ndarray]:
+    """:func:`measure` of ``p['scene']`` (``p['frames']`` frames on the ``p['crop']`` camera), timed under
+    ``sw('simulate')``."""
+    with sw("simulate"):
+        return measure(camera(options, p["crop"]), p["scene"], p["frames"], options.seed, options.psf,
+                       filter_enabled)
+
 
 def rounded(obj: Any, digits: int = 6) -> Any:
     """Floats rounded to ``digits`` significant digits (nested dicts/lists; NaN kept): what the JSON holds, so

@@ -15,7 +15,7 @@ from typing import Any
 import numpy as np
 
 from metafovea.studies.common import FILTER, StudyOptions, StudyResult, Stopwatch, camera, figure, machine, rounded, \
-    shutter_fpn, sweep
+    measure, sweep
 
 NAME = "focal-ratio"
 FULL = {"expansions": [2, 3, 4, 5, 6, 7, 8], "scenes": ["astronaut", "camera", "coffee"], "crop": [290, 290],
@@ -34,16 +34,13 @@ def run_case(item: dict[str, Any]) -> dict[str, Any]:
     """One expansion and scene: simulate, separate both ways, score (a task of the sweep)."""
     from metafovea.imaging.channel import channels_for
     from metafovea.imaging.scene import SceneGeometry, image_scene
-    from metafovea.imaging.simulate import simulate
     from metafovea.reconstruct import reconstruct_measurement
 
     system = item["system"]
     fovea_half = channels_for(system)[0].half_fov_rad[1]
     # the picture spans the perifoveal field of the largest expansion: a fixed angular size for every k
     scene = image_scene(item["scene"], SceneGeometry(fov_rad=2 * fovea_half * item["k_max"], expansion=item["k"]))
-    meas = simulate(system, scene, frames=item["frames"], rng=item["seed"], filter_enabled=FILTER,
-                    polarizer_mode="free", calibration_frames=16, psf=item["psf"])
-    fpn = shutter_fpn(meas)
+    meas, fpn = measure(system, scene, item["frames"], item["seed"], item["psf"])
     out: dict[str, Any] = {"k": item["k"], "scene": item["scene"], "texture_x1": _texture(meas.truth_x1),
                            "texture_x2": _texture(meas.truth_x2), "psf": meas.meta["psf"]["provider"]}
     for method in METHODS:

@@ -17,7 +17,7 @@ from typing import Any
 import numpy as np
 
 from metafovea.studies.common import FILTER, StudyOptions, StudyResult, Stopwatch, camera, figure, machine, rounded, \
-    shutter_fpn, sweep
+    measure, sweep
 
 NAME = "resolution"
 EXPANSION = 9
@@ -49,16 +49,14 @@ def run_case(item: dict[str, Any]) -> dict[str, Any]:
     """Simulate the star, separate it without alpha, read contrast on circles (the sweep's one task)."""
     from metafovea.imaging.channel import channels_for
     from metafovea.imaging.scene import SiemensStar
-    from metafovea.imaging.simulate import simulate
     from metafovea.reconstruct import reconstruct_measurement
 
     system = item["system"]
     fovea_half = float(min(channels_for(system)[0].half_fov_rad))
     # the star's wooden rim (0.94..1 of its radius) lies just outside the foveal field: spokes out to its edge
     scene = SiemensStar(radius_rad=1.1 * fovea_half, paper_half_rad=3.0 * fovea_half)
-    meas = simulate(system, scene, frames=item["frames"], rng=item["seed"], filter_enabled=FILTER,
-                    polarizer_mode="free", calibration_frames=16, psf=item["psf"])
-    r = reconstruct_measurement(meas, "alternating", window=meas.shape[0], fpn=shutter_fpn(meas),
+    meas, fpn = measure(system, scene, item["frames"], item["seed"], item["psf"])
+    r = reconstruct_measurement(meas, "alternating", window=meas.shape[0], fpn=fpn,
                                 solver={"strict": False})
     rec = r.reconstruction
     h, w = rec.x1.shape
