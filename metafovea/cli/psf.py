@@ -57,6 +57,10 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
     p.add_argument("--workers", type=int, default=None,
                    help="processes, one lens each (default: min(2, lenses, CPUs))")
     alias(p, "--jobs", "--workers", "workers", type=int)
+    p.add_argument("--scheduler", default=None,
+                   help="Dask scheduler address (tcp://host:8786, or local:N for N local worker processes): the "
+                        "sensor PSFs across the field of each lens are spread over the cluster (pip install "
+                        "'metafovea[dask]')")
     p.set_defaults(func=run)
     return p
 
@@ -104,7 +108,7 @@ def run(args: argparse.Namespace) -> int:
                           filter_um=filt, temperature_k=args.temperature_k, n_wavelengths=args.wavelength_bins,
                           pixel_pitch_um=pixel_um, error=args.error, wavelength_um=args.wavelength_um,
                           window_um=args.window_um, jobs=jobs, relay_magnification=relay, distances_um=distances,
-                          progress=progress(args), system=system, posts=args.posts)
+                          progress=progress(args), system=system, posts=args.posts, scheduler=args.scheduler)
     for name, s in summary.items():  # each distinct one once, on one line (also those from worker processes)
         emit([f"{name}: {w}" for w in (s.get("warnings", ()) if name != "optical_train" else ())], PhysicsWarning)
     if args.json:

@@ -3,6 +3,7 @@ one lens; :func:`psf_reports` is the ``metafovea psf`` pipeline (checks, several
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import math
 import os
@@ -27,6 +28,7 @@ from .propagate import SamplingError
 from .psf import defocus_note, depth_of_focus_um, diffraction_radius_um, encircled_energy_on_axis, psf
 from .pupil import EVANESCENT_MARGIN, max_field_deg
 from .sensor import sensor_psf
+from .sweep import sensor_psf_sweep
 from .train import POSTS_NOTE_IDEAL, system_trains, throughput_lines
 
 log = logging.getLogger(__name__)
@@ -44,7 +46,8 @@ def psf_report(lens: LensDesign, out_dir: str | Path, *, fields_deg: list[float]
                error: float = 1e-4, post_set: Any = None, wavelength_um: float | None = None,
                window_um: float | None = None, relay_magnification: float = 1.0,
                z_um: float | None = None, progress: bool = False, position: int = 0,
-               trains: list[dict[str, Any]] | None = None, oblique: Any = None) -> dict[str, Any]:
+               trains: list[dict[str, Any]] | None = None, oblique: Any = None,
+               executor: Any = None) -> dict[str, Any]:
     """Compute the report numbers and write figures, ``psf_report.json`` and ``psf_report.html``.
 
     Geometry: ``pixel_pitch_um`` is the sensor's pixel pitch; behind a relay of ``relay_magnification`` a pixel
@@ -61,6 +64,8 @@ def psf_report(lens: LensDesign, out_dir: str | Path, *, fields_deg: list[float]
     (:meth:`metafovea.optics.train.ChannelTrain.summary`), shown and stored with the report. ``oblique``: the
     posts' :class:`~metafovea.library.ObliqueResponse`; an off-axis PSF uses the posts at its field when that
     changes its focusing order's power by more than ``error`` (the change is reported per field either way).
+    ``executor``: where the sensor PSFs across the field run (:func:`~metafovea.optics.sweep.sensor_psf_sweep`;
+    default two local threads), e.g. a :class:`metafovea.parallel.DaskExecutor`.
     """
     import matplotlib
 
@@ -110,7 +115,8 @@ def psf_report(lens: LensDesign, out_dir: str | Path, *, fields_deg: list[float]
                                 filter_um=filter_um, n=n_wavelengths)
         res["spectral"] = {"n_wavelengths": int(wl.size), "band_um": band_um, "filter_um": filter_um,
                            "temperature_k": temperature_k}
-        ee_png = _sensor(plt, lens, res, fields_deg, mono_wl, wl, w, posts_at, error, pixel_pitch_um, z, tick)
+        ee_png = _sensor(plt, lens, res, fields_deg, mono_wl, wl, w, posts_at, error, pixel_pitch_um, z, tick,
+                         executor)
         mtf_png = _mtf(plt, lens, res, fields_deg, cut, z, pixel_pitch_um)
         tick("MTF")
         focus_png = _through_focus(plt, lens, res, mono_wl, wl, w, post_set, pixel_pitch_um, z)
@@ -333,7 +339,7 @@ def _mtf(plt: Any, lens: LensDesign, res: dict[str, Any], fields_deg: list[float
 
 def _sensor(plt: Any, lens: LensDesign, res: dict[str, Any], fields_deg: list[float], mono_wl: list[float],
             wl: np.ndarray, w: np.ndarray, posts_at: Callable[[float], Any], error: float, pixel_pitch_um: float,
-            z: float, tick: Callable[[str], None]) -> bytes:
+            z: float, tick: Callable[[str], None], executor: Any = None) -> bytes:
     """Encircled energy and broadband sensor PSFs over the field: ``res['on_axis_ee_pixel_radius']`` (power within
     one pixel pitch of the axis, exact radial integral, no pixel grid), ``res['sensor']`` and the figure."""
     post_set = posts_at(0.0)
@@ -348,23 +354,16 @@ def _sensor(plt: Any, lens: LensDesign, res: dict[str, Any], fields_deg: list[fl
     nu_m = np.array([0.5 * nyq, nyq])
     sens = []
 
-    def both(fd: float) -> tuple[Any, Any]:
-        mono_s = sensor_psf(lens, pixel_pitch_um=pixel_pitch_um, field_deg=fd, post_set=posts_at(fd), error=error,
-                            wavelengths_um=mono_wl, z_um=z)
-        return mono_s, sensor_psf(lens, pixel_pitch_um=pixel_pitch_um, field_deg=fd, wavelengths_um=wl, weights=w,
-                                  post_set=posts_at(fd), error=error, z_um=z)
-
-    # two fields at a time (numpy releases the GIL in the engines); the warnings of all fields are recorded
-    # together (catch_warnings is process-wide) and each names its field
-    with warnings.catch_warnings(record=True) as ws, blas_threads(1), ThreadPoolExecutor(2) as ex:
-        warnings.simplefilter("always")
-        futures = [ex.submit(both, fd) for fd in fields_deg]
-        done = []
-        for fd, fu in zip(fields_deg, futures):
-            done.append(fu.result())
-            tick(f"sensor PSFs {fd:.2f} deg")
-    res["warnings"] += [str(x.message) for x in ws]
-    for fd, (mono_s, poly) in zip(fields_deg, done):
+    # every field at the design wavelength and over the band, one sweep through the project's executor: two
+    # local threads (numpy releases the GIL in the engines), or the Dask cluster ``executor``; each warning names
+    # its field
+    with contextlib.ExitStack() as stack:
+        ex = executor if executor is not None else stack.enter_context(ThreadPoolExecutor(2))
+        sweep = sensor_psf_sweep(lens, fields_deg, [(mono_wl, None), (wl, w)], pixel_pitch_um=pixel_pitch_um,
+                                 post_sets=[posts_at(fd) for fd in fields_deg], error=error, z_um=z, executor=ex,
+                                 on_field=lambda fd: tick(f"sensor PSFs {fd:.2f} deg"))
+    res["warnings"] += sweep.warnings
+    for fd, (mono_s, poly) in zip(fields_deg, sweep.psfs):
         c = tuple(s // 2 for s in poly.shape)
         cm = tuple(s // 2 for s in mono_s.shape)
         sens.append({"field_deg": fd, "mono_center_pixel": float(mono_s.intensity[cm]),
@@ -488,7 +487,8 @@ def psf_reports(designs: Sequence[str | Path | LensDesign], out_dir: str | Path,
                 wavelength_um: float | None = None, window_um: float | None = None,
                 jobs: int | None = None, relay_magnification: float = 1.0,
                 distances_um: dict[str, float] | None = None, progress: bool = False,
-                system: SystemDesign | None = None, posts: str = "rcwa") -> dict[str, dict[str, Any]]:
+                system: SystemDesign | None = None, posts: str = "rcwa",
+                scheduler: str | None = None) -> dict[str, dict[str, Any]]:
     """:func:`psf_report` of every lens (TOML paths or :class:`LensDesign`) into ``out_dir``, one process per lens.
 
     Everything that can be refused is refused before any work and before ``out_dir`` is made: a band, filter
@@ -502,7 +502,9 @@ def psf_reports(designs: Sequence[str | Path | LensDesign], out_dir: str | Path,
     (default: the paper's camera): the platform of the posts and the optical train whose per-channel throughput
     every report shows (the same numbers ``simulate`` and ``validate`` print). Returns, per lens name, its
     seconds, monochromatic and sensor rows, warnings and the path of its HTML page, and under ``"optical_train"``
-    the trains' summaries.
+    the trains' summaries. ``scheduler`` (a Dask scheduler address, or ``local:N``): the lenses are reported one
+    after the other and each one's sensor PSFs across the field (every field, at the design wavelength and over
+    the band) are spread over the cluster; the workers write nothing (the figures and pages are written here).
     """
     _check_light(band_um, filter_um, temperature_k)
     lenses = [d if isinstance(d, LensDesign) else load_lens(d) for d in designs]
@@ -527,7 +529,12 @@ def psf_reports(designs: Sequence[str | Path | LensDesign], out_dir: str | Path,
     kws = [{**kw, "z_um": dist.get(lens.name), "progress": progress, "position": i, "trains": trains,
             "post_set": post_sets.get((lens.polarization, lens.levels)),
             "oblique": obliques.get((lens.polarization, lens.levels))} for i, lens in enumerate(lenses)]
-    if jobs > 1 and len(lenses) > 1:
+    if scheduler:
+        from metafovea.parallel import get_executor
+
+        with get_executor(scheduler=scheduler) as ex:
+            outcomes = [_report_one(lens, str(out), {**k, "executor": ex}) for lens, k in zip(lenses, kws)]
+    elif jobs > 1 and len(lenses) > 1:
         # one process per lens (the report of a lens is single-threaded), through the project's executor
         # (forkserver workers: a process that has started JAX's threads must not fork)
         from metafovea.parallel import get_executor
