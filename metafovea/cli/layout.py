@@ -46,7 +46,8 @@ def _common(p: argparse.ArgumentParser) -> None:
     p.add_argument("--workers", type=int, default=None,
                    help="export: encoder threads (default 2, at most the CPU count); verify: processes for "
                         "the expected counts (default 1)")
-    p.add_argument("--scheduler", default=None, help="Dask scheduler address (tcp://host:8786)")
+    p.add_argument("--scheduler", default=None, help="Dask scheduler address (tcp://host:8786, or local:N); export: "
+                   "the workers write tiles that this process stitches (see --tiles-dir)")
     p.add_argument("--json", action="store_true", help="print the result as JSON")
 
 
@@ -56,6 +57,8 @@ def add_export_parser(subparsers) -> argparse.ArgumentParser:
                                           "centre at the positive offset written in the label; see "
                                           "gds_export/README.md).")
     p.add_argument("design", help="lens design TOML (designs/foveal.toml)")
+    p.add_argument("--tiles-dir", default=None, help="with --scheduler: where the workers write their tiles, on a "
+                   "file system the client and every worker share (default .<out>.tiles next to the output)")
     p.add_argument("--format", default=None, help="gds | oas | stl | glb (stl/glb need --patch; default: the --out "
                                                   "file's suffix, else gds)")
     p.add_argument("--flat", action="store_true", help="GDSII with one rectangle per post (no references)")
@@ -141,7 +144,7 @@ def run_export(args) -> int:
     res = export_file(spec, args.out, fmt, test_array=ta, flat=args.flat, max_refs=args.max_refs, dwl=args.dwl,
                       substrate_thickness_um=args.substrate_um, force=args.force, resume=not args.no_resume,
                       workers=args.workers, scheduler=args.scheduler, progress=progress(args),
-                      compress=args.compress)
+                      compress=args.compress, tiles_dir=args.tiles_dir)
     if args.json:
         from metafovea.io import to_json
         print(to_json(res))

@@ -2,8 +2,9 @@
 
 The file is written to ``.<name>.part`` next to the final path, task after task (a task is a
 mirror-row band, see :meth:`LayoutSpec.tasks`; tasks are encoded serially, in local threads or
-processes, or on a Dask client, at most a few in flight, and written in order by a writer thread
-through :class:`DirectFile`, ``O_DIRECT`` where possible). A small journal ``.<name>.part.json``
+processes, at most a few in flight, and written in order by a writer thread through :class:`DirectFile`,
+``O_DIRECT`` where possible). On a Dask cluster the workers write tile files that this process stitches in
+band order (:mod:`metafovea.layout.tilefiles`). A small journal ``.<name>.part.json``
 (updated at most every 0.5 s) records the tasks finished and the byte offset (and, for hierarchical
 GDSII, the leaf structures per task); a rerun with the same parameters truncates the part file to that
 offset and continues. When all tasks are written the footer is added (hierarchical GDSII: the
@@ -277,25 +278,8 @@ def _publish(part: Path, path: Path, jpath: Path) -> None:
         os.close(dfd)
 
 
-def export_layout(spec: LayoutSpec, path: str | os.PathLike, fmt: str = "gds", *, flat: bool = False,
-                  force: bool = False, resume: bool = True, workers: int | None = 1,
-                  scheduler: str | None = None, progress: bool = False, compress: int = 1,
-                  inflight: int | None = None, max_refs: int | None = None, threads: bool = True,
-                  direct: bool = True, dwl: bool = False, _stop_after: int | None = None) -> ExportResult:
-    """Write the lens (or patch) layout of ``spec`` to ``path`` as GDSII (``'gds'``) or OASIS (``'oas'``).
-
-    ``flat`` (GDSII only): one rectangle per post instead of one reference. ``max_refs`` (GDSII only):
-    hierarchical file with at most that many elements per structure (posts in leaf structures, a tree of
-    intermediate structures, the top cell holding the frame and its children), e.g. 8192 for the
-    Heidelberg DWL 66 if it counts every element. ``dwl`` (GDSII only): the Heidelberg DWL 66 mode: posts as
-    boundaries in one leaf structure per task side, the frame in one structure, a tree of references above them:
-    at most :data:`DWL_LIMIT` structure definitions and references per structure (shapes per structure are not
-    limited: no layout of a large lens meets both limits counting every shape). ``compress``: OASIS deflate level for the per-task CBLOCKs (0 = none).
-    ``workers``: local threads (``threads=False``: processes) encoding tasks while the writer thread
-    writes; the output bytes do not depend on it. ``direct``: write with ``O_DIRECT`` where the file
-    system allows it (see :class:`DirectFile`). ``_stop_after``: stop (as if interrupted) after that many
-    tasks; for tests of resumption.
-    """
+def _layout_options(fmt: str, flat: bool, max_refs: int | None, dwl: bool) -> tuple[str, bool, int | None]:
+    """:func:`export_layout`'s format options checked together: ``(fmt, flat, max_refs)`` (``dwl`` is flat)."""
     fmt = check_choice("--format", fmt, FORMATS)
     if flat and fmt != "gds":
         raise InputError("--flat", True, "only with --format gds (OASIS is always hierarchical)")
@@ -307,6 +291,33 @@ def export_layout(spec: LayoutSpec, path: str | os.PathLike, fmt: str = "gds", *
         if fmt != "gds" or max_refs is not None:
             raise InputError("--dwl", True, "only with --format gds and without --max-refs")
         flat = True
+    return fmt, flat, max_refs
+
+
+def export_layout(spec: LayoutSpec, path: str | os.PathLike, fmt: str = "gds", *, flat: bool = False,
+                  force: bool = False, resume: bool = True, workers: int | None = 1,
+                  scheduler: str | None = None, progress: bool = False, compress: int = 1,
+                  inflight: int | None = None, max_refs: int | None = None, threads: bool = True,
+                  direct: bool = True, dwl: bool = False, tiles_dir: str | os.PathLike | None = None,
+                  _stop_after: int | None = None) -> ExportResult:
+    """Write the lens (or patch) layout of ``spec`` to ``path`` as GDSII (``'gds'``) or OASIS (``'oas'``).
+
+    ``flat`` (GDSII only): one rectangle per post instead of one reference. ``max_refs`` (GDSII only):
+    hierarchical file with at most that many elements per structure (posts in leaf structures, a tree of
+    intermediate structures, the top cell holding the frame and its children), e.g. 8192 for the
+    Heidelberg DWL 66 if it counts every element. ``dwl`` (GDSII only): the Heidelberg DWL 66 mode: posts as
+    boundaries in one leaf structure per task side, the frame in one structure, a tree of references above them:
+    at most :data:`DWL_LIMIT` structure definitions and references per structure (shapes per structure are not
+    limited: no layout of a large lens meets both limits counting every shape). ``compress``: OASIS deflate level for the per-task CBLOCKs (0 = none).
+    ``workers``: local threads (``threads=False``: processes) encoding tasks while the writer thread
+    writes; the output bytes do not depend on it. ``direct``: write with ``O_DIRECT`` where the file
+    system allows it (see :class:`DirectFile`). ``scheduler`` (a Dask scheduler address, or ``local:N``): the
+    workers write the encoded bands as tile files into ``tiles_dir`` (default ``.<name>.tiles`` next to ``path``;
+    it must be on a file system the client and every worker share) and this process stitches them in band order
+    (:mod:`metafovea.layout.tilefiles`): the same bytes, resumable from the tiles written. ``_stop_after``: stop
+    (as if interrupted) after that many tasks; for tests of resumption.
+    """
+    fmt, flat, max_refs = _layout_options(fmt, flat, max_refs, dwl)
     path = Path(path)
     bands = spec.tasks()
     skey = spec.key()
@@ -314,6 +325,12 @@ def export_layout(spec: LayoutSpec, path: str | os.PathLike, fmt: str = "gds", *
     key = input_hash({"v": JOURNAL_VERSION, "spec": skey, "fmt": fmt, "flat": flat, "compress": compress,
                       "max_refs": max_refs, "dwl": dwl})
     prepare_output(path, force)
+    if tiles_dir is not None and not scheduler:
+        raise InputError("--tiles-dir", str(tiles_dir), "only with --scheduler (local exports write one file)")
+    if scheduler:
+        return _export_tiled(spec, path, fmt, key, flat=flat, compress=compress, max_refs=max_refs, dwl=dwl,
+                             resume=resume, scheduler=scheduler, progress=progress, direct=direct,
+                             tiles_dir=tiles_dir, stop_after=_stop_after)
     part, jpath = part_paths(path)
     j = _load_journal(jpath) if resume else None
     if j is not None and j.get("key") == key and isinstance(j.get("date"), str) and j["date"] != spec.date:
@@ -390,13 +407,72 @@ def export_layout(spec: LayoutSpec, path: str | os.PathLike, fmt: str = "gds", *
                 fh.close()
         raise
     dt = time.perf_counter() - t0
-    extra = {}
+    return ExportResult(path, fmt, flat, int(counts.sum()), counts.tolist(), offset, dt, len(bands), start,
+                        _extra(spec, hier, dwl, max_refs, leaves))
+
+
+def _extra(spec: LayoutSpec, hier: bool, dwl: bool, max_refs: int | None, leaves: list[int]) -> dict[str, Any]:
+    extra: dict[str, Any] = {}
     if hier:
         extra = {"max_refs": DWL_LIMIT if dwl else max_refs, "leaf_structures": int(sum(leaves)), "dwl": dwl}
     from metafovea.layout.frame import content_hash
     extra.update(date=spec.date, content_hash=content_hash(spec), printed_label=spec.printed_text(),
                  tone=spec.tone_text())
-    return ExportResult(path, fmt, flat, int(counts.sum()), counts.tolist(), offset, dt, len(bands), start, extra)
+    return extra
+
+
+def _export_tiled(spec: LayoutSpec, path: Path, fmt: str, key: str, *, flat: bool, compress: int,
+                  max_refs: int | None, dwl: bool, resume: bool, scheduler: str, progress: bool, direct: bool,
+                  tiles_dir: str | os.PathLike | None, stop_after: int | None) -> ExportResult:
+    """:func:`export_layout` on a Dask cluster: tiles written by the workers, stitched here in band order."""
+    from metafovea.layout.tilefiles import TileDir, default_tiles_dir
+
+    bands = spec.tasks()
+    hier = max_refs is not None or dwl
+    td = TileDir(Path(tiles_dir) if tiles_dir is not None else default_tiles_dir(path), key, len(bands))
+    t0 = time.perf_counter()
+    date, done = td.open(resume, spec.date)
+    if date != spec.date:  # a resumed export keeps the date its tiles were started with
+        spec = replace(spec, date=date)
+    header, footer, top_open, frame_el, enc = _encoder(spec, fmt, flat, compress, max_refs, dwl)
+    todo = [(i, b) for i, b in enumerate(bands) if i not in done]
+    if stop_after is not None:
+        todo = todo[:stop_after]
+    try:
+        td.run(enc, todo, scheduler, progress, f"export {path.name}")
+    except OSError as e:  # raised by a worker writing its tile
+        raise InputError("--tiles-dir", str(td.d), "a writable directory with free space, shared by the client and "
+                         "every worker", detail=f"a worker could not write its tile: {e.strerror or e}") from None
+    if len(done) + len(todo) < len(bands):
+        raise KeyboardInterrupt("stopped after %d bands (test)" % len(todo))
+    part, jpath = part_paths(path)
+    fh = None
+    try:
+        fh = DirectFile(part, direct=direct)
+        fh.write(header)
+        counts, metas = td.stitch(fh.write)
+        leaves = [int(m) for m in metas] if hier else []
+        if hier:
+            names = [gds.leaf_name(t, i) for t, n in enumerate(leaves) for i in range(n)]
+            footer = (gds.hierarchy_footer(spec, top_open, frame_el, names, DWL_LIMIT, frame_max=len(frame_el))
+                      if dwl else gds.hierarchy_footer(spec, top_open, frame_el, names, max_refs))
+        fh.write(footer)
+        fh.sync()
+        fh.close()
+        fh = None
+        _publish(part, path, jpath)
+    except OSError as e:
+        raise ExportError(path, "a writable location with free space", f"{e.strerror or e}") from None
+    finally:
+        if fh is not None:
+            with contextlib.suppress(OSError):
+                fh.close()
+    td.clean(remove_dir=tiles_dir is None)
+    if counts.size == 0:
+        counts = np.zeros(spec.levels, dtype=np.int64)
+    return ExportResult(path, fmt, flat, int(counts.sum()), counts.tolist(), path.stat().st_size,
+                        time.perf_counter() - t0, len(bands), len(done),
+                        {**_extra(spec, hier, dwl, max_refs, leaves), "tiles_dir": str(td.d)})
 
 
 # ----------------------------------------------------------------------------------------------
@@ -535,7 +611,7 @@ def export_file(spec: LayoutSpec, out: str | os.PathLike | None = None, fmt: str
                 dwl: bool = False,
                 substrate_thickness_um: float | None = None, force: bool = False, resume: bool = True,
                 workers: int | None = None, scheduler: str | None = None, progress: bool = False,
-                compress: int = 1) -> dict[str, Any]:
+                compress: int = 1, tiles_dir: str | os.PathLike | None = None) -> dict[str, Any]:
     """Write one file as ``metafovea export`` does: the lens (or patch) layout (:func:`export_layout`), the
     calibration array ``test_array`` (:func:`export_test_array`) or a patch mesh
     (:func:`~metafovea.layout.mesh.export_mesh`), chosen by ``fmt`` (one of :data:`SUFFIXES`, any case), at
@@ -562,7 +638,7 @@ def export_file(spec: LayoutSpec, out: str | os.PathLike | None = None, fmt: str
     workers = workers if workers is not None else max(1, min(2, os.cpu_count() or 1))
     return _with_posts(export_layout(spec, path, fmt, flat=flat, force=force, resume=resume, workers=workers,
                                      scheduler=scheduler, progress=progress, compress=compress,
-                                     max_refs=max_refs, dwl=dwl).as_dict(), spec)
+                                     max_refs=max_refs, dwl=dwl, tiles_dir=tiles_dir).as_dict(), spec)
 
 
 __all__ = ["DEFAULT_DIR", "ExportError", "ExportResult", "FORMATS", "SUFFIXES", "TestArraySpec", "export_file",
