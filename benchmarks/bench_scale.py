@@ -2,7 +2,10 @@
 workers, locally and on a Dask LocalCluster, side by side in one run, with the per-task costs docs/scale.md
 projects from.
 
-    python benchmarks/bench_scale.py [--library-posts 12] [--harmonics 8] [--export-mm 6]
+    python benchmarks/bench_scale.py [--library-posts 12] [--harmonics 8] [--export-mm 6] [--only export]
+
+On Dask the export's workers write tile files that the client stitches in band order (metafovea.layout.tilefiles);
+the stitch is timed with the run.
 """
 
 from __future__ import annotations
@@ -73,7 +76,7 @@ def export_runs(mm: float) -> list[dict]:
             ref = ref or data
             rows.append({"job": f"OASIS export, {mm:g} mm lens ({res['posts']:,} posts)", "run": label,
                          "seconds": sec, "posts_per_s": res["posts"] / sec, "bytes": len(data),
-                         "identical_to_serial": same})
+                         "bands": res["bands"], "identical_to_serial": same})
     return rows
 
 
@@ -82,10 +85,12 @@ def main() -> None:
     ap.add_argument("--library-posts", type=int, default=12)
     ap.add_argument("--harmonics", type=int, default=8)
     ap.add_argument("--export-mm", type=float, default=6.0)
+    ap.add_argument("--only", choices=("library", "export"), default=None, help="run one of the two jobs")
     ap.add_argument("--json", default=None)
     args = ap.parse_args()
     head = {"nproc": os.cpu_count(), "load_before": _load()}
-    rows = library_runs(args.library_posts, args.harmonics) + export_runs(args.export_mm)
+    rows = ((library_runs(args.library_posts, args.harmonics) if args.only != "export" else [])
+            + (export_runs(args.export_mm) if args.only != "library" else []))
     head["load_after"] = _load()
     print(f"nproc {head['nproc']}, load {head['load_before']} -> {head['load_after']}")
     for r in rows:

@@ -47,7 +47,11 @@ def tile_paths(d: Path, i: int) -> tuple[Path, Path]:
 
 def _atomic(path: Path, data: bytes | list) -> tuple[int, int]:
     """Write ``data`` (bytes or a list of buffers) to ``path`` through a temporary file of this process (a task
-    rerun elsewhere after a worker died writes its own), fsynced, renamed into place. Returns (bytes, CRC-32)."""
+    rerun elsewhere after a worker died writes its own), renamed into place. Returns (bytes, CRC-32).
+
+    Not fsynced: an fsync per tile and record cost more than the encoding (the 25 mm lens' 98 bands took 6.7 s
+    against 2.3 s without on this machine's disk); a tile torn by a crash is caught by its CRC-32 at the stitch
+    (and written again by the rerun), a torn record reads as none, and the stitched file is fsynced."""
     tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
     n, crc = 0, 0
     with open(tmp, "wb") as fh:
@@ -55,8 +59,6 @@ def _atomic(path: Path, data: bytes | list) -> tuple[int, int]:
             fh.write(piece)
             n += memoryview(piece).nbytes
             crc = zlib.crc32(piece, crc)
-        fh.flush()
-        os.fsync(fh.fileno())
     os.replace(tmp, path)
     return n, crc
 
