@@ -49,9 +49,10 @@ def _atomic(path: Path, data: bytes | list) -> tuple[int, int]:
     """Write ``data`` (bytes or a list of buffers) to ``path`` through a temporary file of this process (a task
     rerun elsewhere after a worker died writes its own), renamed into place. Returns (bytes, CRC-32).
 
-    Not fsynced: an fsync per tile and record cost more than the encoding (the 25 mm lens' 98 bands took 6.7 s
-    against 2.3 s without on this machine's disk); a tile torn by a crash is caught by its CRC-32 at the stitch
-    (and written again by the rerun), a torn record reads as none, and the stitched file is fsynced."""
+    Not fsynced: on a cluster file system an fsync is a round trip to the servers per tile and record (here, on
+    local ext4, 196 fsyncs of 78 kB files, a 25 mm lens' 98 bands, cost 0.51 s against 0.09 s without); a tile
+    torn by a crash is caught by its CRC-32 at the stitch (and written again by the rerun), a torn record reads as
+    none, and the stitched file is fsynced."""
     tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
     n, crc = 0, 0
     with open(tmp, "wb") as fh:
