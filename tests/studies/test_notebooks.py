@@ -14,7 +14,7 @@ NOTEBOOKS = sorted((Path(__file__).resolve().parents[2] / "notebooks").glob("[0-
 
 def test_there_are_notebooks():
     names = [p.name for p in NOTEBOOKS]
-    assert "01_whole_chain.py" in names and "02_study_frames.py" in names
+    assert {"01_whole_chain.py", "02_study_frames.py", "03_recording.py"} <= set(names)
 
 
 @pytest.mark.parametrize("path", NOTEBOOKS, ids=lambda p: p.stem)
