@@ -11,6 +11,7 @@ Files:
 - ``realtime``: known-alpha least squares against the unknown-alpha solver on one video: frames/s and error.
 - ``resolution``: Siemens star at 9:1: contrast against line pairs per pixel, intensity along circles.
 - ``gallery``: the paper's scene types, with and without the 10 um filter.
+- ``ablation``: each component of the multi-frame and snapshot reconstructions removed in turn (one measurement).
 
 Use :func:`run_study` (``run_study('frames', StudyOptions(fast=True), out_dir)``); :data:`STUDIES` names them.
 """
@@ -36,6 +37,9 @@ STUDIES: dict[str, tuple[str, str]] = {
                                  "(paper point 6)"),
     "gallery": ("gallery", "the paper's scene types simulated and reconstructed, with and without the filter "
                            "(paper point 8)"),
+    "ablation": ("ablation", "each reconstruction component removed in turn: multi-frame (alpha initialisation, "
+                             "exclusion loss, deep prior vs TV vs none, warm/random start, FPN) and snapshot "
+                             "(n1 = D^T y, exclusion loss, deep prior) (paper point 5)"),
 }
 
 __all__ = ["STUDIES", "StudyOptions", "StudyResult", "run_study", "write_study", "study_module"]
