@@ -81,13 +81,17 @@ class ExportError(InputError):
         super().__init__("--out", str(path), reason, detail=detail)
 
 
-def _ordered_map(fn: Callable, items: list, workers: int | None, scheduler: str | None,
+def _ordered_map(fn: Callable, items: list, workers: int | None, scheduler: None = None,
                  inflight: int | None = None, threads: bool = True) -> Iterator[Any]:
-    """``fn`` over ``items`` in order, at most ``inflight`` tasks pending (bounded memory).
+    """``fn`` over ``items`` in order, at most ``inflight`` tasks pending (bounded memory), locally.
 
     Local workers are threads by default (the encoders spend their time in numpy and zlib, which
-    release the GIL, and results need no pickling); ``threads=False`` uses processes."""
-    if (workers in (None, 1)) and not scheduler:
+    release the GIL, and results need no pickling); ``threads=False`` uses processes. (A Dask cluster does not
+    come here: its workers write tiles, :func:`_export_tiled`; ``scheduler`` is kept for old callers and must be
+    None.)"""
+    if scheduler:
+        raise ValueError("_ordered_map runs locally: a cluster export goes through _export_tiled")
+    if workers in (None, 1):
         for it in items:
             yield fn(it)
         return
@@ -96,7 +100,7 @@ def _ordered_map(fn: Callable, items: list, workers: int | None, scheduler: str 
     from metafovea.parallel import get_executor
 
     nw = workers or 2
-    ex = cf.ThreadPoolExecutor(max_workers=nw) if (threads and not scheduler) else get_executor(workers, scheduler)
+    ex = cf.ThreadPoolExecutor(max_workers=nw) if threads else get_executor(workers)
     window = inflight or nw + 1
     pending: collections.deque = collections.deque()
     src = iter(items)
@@ -366,7 +370,7 @@ def export_layout(spec: LayoutSpec, path: str | os.PathLike, fmt: str = "gds", *
         writer = _Writer(fh, ck)
         try:
             todo = bands[start:] if _stop_after is None else bands[start:start + _stop_after]
-            for pieces, c, meta in _ordered_map(enc, todo, workers, scheduler, inflight, threads):
+            for pieces, c, meta in _ordered_map(enc, todo, workers, None, inflight, threads):
                 writer.put(pieces, c, meta)
         finally:
             writer.close()
