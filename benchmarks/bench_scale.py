@@ -2,7 +2,8 @@
 workers, locally and on a Dask LocalCluster, side by side in one run, with the per-task costs docs/scale.md
 projects from.
 
-    python benchmarks/bench_scale.py [--library-posts 12] [--harmonics 8] [--export-mm 6] [--only export]
+    python benchmarks/bench_scale.py [--library-posts 12] [--harmonics 8] [--export-mm 6] [--psf-fields 4]
+                                     [--only library|export|psf ...]
 
 On Dask the export's workers write tile files that the client stitches in band order (metafovea.layout.tilefiles);
 the stitch is timed with the run.
@@ -80,22 +81,52 @@ def export_runs(mm: float) -> list[dict]:
     return rows
 
 
+def psf_runs(n_fields: int) -> list[dict]:
+    """The paper's perifoveal lens: sensor PSFs at ``n_fields`` fields (0 to 15 deg), at the design wavelength and
+    over 8-14 um in 9 bins, one task per (field, wavelength set): the sweep ``metafovea psf --scheduler`` spreads."""
+    import numpy as np
+
+    from metafovea.config import SystemDesign
+    from metafovea.optics.sweep import sensor_psf_sweep
+    from metafovea.radiometry import psf_wavelengths
+
+    lens = SystemDesign.paper().perifoveal
+    wl, w = psf_wavelengths((8.0, 14.0), design_um=lens.wavelength_um, n=9)
+    fields = list(np.linspace(0.0, 15.0, n_fields))
+    rows, ref = [], None
+    runs = (("workers", 1, "serial (1 process)"), ("workers", 2, "local processes, 2")) + LOCAL_AND_DASK
+    for key, val, label in runs:
+        sw, sec = _timed({key: val}, lambda **kw: sensor_psf_sweep(
+            lens, fields, [([lens.wavelength_um], None), (wl, w)], pixel_pitch_um=34.0, **kw))
+        arrays = [p.intensity for row in sw.psfs for p in row]
+        same = ref is None or all(np.array_equal(a, b) for a, b in zip(arrays, ref))
+        ref = ref or arrays
+        rows.append({"job": f"sensor PSFs, perifoveal lens, {n_fields} fields x 2 ({2 * n_fields} tasks)",
+                     "run": label, "seconds": sec, "tasks": 2 * n_fields, "seconds_per_task": sec / (2 * n_fields),
+                     "identical_to_serial": same})
+    return rows
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--library-posts", type=int, default=12)
     ap.add_argument("--harmonics", type=int, default=8)
     ap.add_argument("--export-mm", type=float, default=6.0)
-    ap.add_argument("--only", choices=("library", "export"), default=None, help="run one of the two jobs")
+    ap.add_argument("--psf-fields", type=int, default=4)
+    ap.add_argument("--only", choices=("library", "export", "psf"), action="append", default=None,
+                    help="run only this job (repeatable)")
     ap.add_argument("--json", default=None)
     args = ap.parse_args()
     head = {"nproc": os.cpu_count(), "load_before": _load()}
-    rows = ((library_runs(args.library_posts, args.harmonics) if args.only != "export" else [])
-            + (export_runs(args.export_mm) if args.only != "library" else []))
+    only = set(args.only or ("library", "export", "psf"))
+    rows = ((library_runs(args.library_posts, args.harmonics) if "library" in only else [])
+            + (export_runs(args.export_mm) if "export" in only else [])
+            + (psf_runs(args.psf_fields) if "psf" in only else []))
     head["load_after"] = _load()
     print(f"nproc {head['nproc']}, load {head['load_before']} -> {head['load_after']}")
     for r in rows:
         rate = (f"{r['seconds_per_task']:.2f} s/task" if "seconds_per_task" in r else f"{r['posts_per_s'] / 1e6:.2f} M posts/s")
-        print(f"  {r['job']:<42} {r['run']:<30} {r['seconds']:7.2f} s  {rate:>16}  identical {r['identical_to_serial']}")
+        print(f"  {r['job']:<50} {r['run']:<30} {r['seconds']:7.2f} s  {rate:>16}  identical {r['identical_to_serial']}")
     if args.json:
         Path(args.json).write_text(json.dumps({**head, "rows": rows}, indent=1))
 
