@@ -9,6 +9,8 @@ Files
 * :mod:`~metafovea.layout.export`: streamed, resumable, atomic writing (:func:`export_layout`), the calibration
   array (:class:`TestArraySpec`, :func:`export_test_array`) and :func:`export_file`, the one entry that picks
   the writer and the output name as ``metafovea export`` does.
+* :mod:`~metafovea.layout.tilefiles`: an export on a Dask cluster: each worker writes its bands as tile files
+  (with size and CRC-32 records) on a shared file system, the client stitches them in band order.
 * :mod:`~metafovea.layout.gds`: GDSII records (header through gdstk, posts as numpy-encoded SREFs or
   BOUNDARYs, hierarchical files for ``max_refs``).
 * :mod:`~metafovea.layout.oasis`: the OASIS writer (compact per-row repetitions, CBLOCKs).

@@ -620,6 +620,8 @@ def export_file(spec: LayoutSpec, out: str | os.PathLike | None = None, fmt: str
     calibration array ``test_array`` (:func:`export_test_array`) or a patch mesh
     (:func:`~metafovea.layout.mesh.export_mesh`), chosen by ``fmt`` (one of :data:`SUFFIXES`, any case), at
     :func:`output_path`. ``workers`` (lens layouts): encoder threads, default 2 (at most the CPU count).
+    ``scheduler`` / ``tiles_dir`` (lens layouts): a Dask cluster whose workers write tiles into ``tiles_dir``
+    (a shared file system), stitched here (:func:`export_layout`).
     Returns the writer's result as a dict (layouts: :meth:`ExportResult.as_dict`)."""
     fmt_given, fmt = fmt, str(fmt).lower()
     if fmt not in SUFFIXES:

@@ -290,7 +290,8 @@ def test_export_bad_input(tmp_path, design, spec, small_frame):
     assert not (tmp_path / "a.dxf").exists() and not (tmp_path / "a.oas").exists()
     for kw, flag in ((dict(fmt="dxf"), "--format = 'dxf'"), (dict(fmt="oas", max_refs=100), "--max-refs"),
                      (dict(fmt="stl", flat=True), "--format = 'stl' .*--flat/--test-array"),
-                     (dict(compress=10), "--compress"), (dict(workers=0), "--workers")):
+                     (dict(compress=10), "--compress"), (dict(workers=0), "--workers"),
+                     (dict(tiles_dir=tmp_path / "t"), "--tiles-dir = .* only with --scheduler")):
         with pytest.raises(InputError, match=flag):
             export_file(spec, tmp_path / "z", **kw)
-    assert not list(tmp_path.glob("z*"))
+    assert not list(tmp_path.glob("z*")) and not (tmp_path / "t").exists()
