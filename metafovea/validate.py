@@ -218,14 +218,17 @@ def reconstruction_table(meas: Measurement, opts: ValidateOptions, label: str, *
         score((y, y), t1, t2, level_free=True))
     truth = tuple(np.asarray(t if t.ndim == 2 else t[0]) for t in meas.truth_over([(0, w)]))
     say(f"{label}: PSF-aware separation and deconvolution (known alpha, all {T} frames)")
-    return {"rows": rows, "images": images, "truth": truth, "scene_rows": deconvolution_rows(meas, fpn, label),
+    # the FPN estimate's error (split-half estimate from the shutter frames) counts in the deconvolution's noise
+    scene_rows = deconvolution_rows(meas, fpn, label, fpn_error_dn=finfo.get("error_rms_dn") or 0.0)
+    return {"rows": rows, "images": images, "truth": truth, "scene_rows": scene_rows,
             "alternating_alpha": alt.reconstruction.alpha_per_frame(T),
             "fpn": {"identified": finfo.get("identified"), "rank": finfo.get("rank"),
-                    "relative_rms_error": fpn_err, "seconds": t_fpn}}
+                    "relative_rms_error": fpn_err, "seconds": t_fpn,
+                    "estimated_error_rms_dn": finfo.get("error_rms_dn")}}
 
 
 def deconvolution_rows(meas: Measurement, fpn: np.ndarray, label: str,
-                       methods: tuple[str, ...] = ("wiener",)) -> list[dict[str, Any]]:
+                       methods: tuple[str, ...] = ("wiener",), fpn_error_dn: float = 0.0) -> list[dict[str, Any]]:
     """The PSF-aware rows of case ``label``: each method of :func:`metafovea.reconstruct.deconvolve_measurement`
     (known alpha, all frames, ``fpn`` subtracted) scored against the scene through a perfect lens, with the Wiener
     bound and the hazy images' own scores; [] for a scene without that truth (video)."""
@@ -235,7 +238,7 @@ def deconvolution_rows(meas: Measurement, fpn: np.ndarray, label: str,
         return []
     rows = []
     for method in methods:
-        d = deconvolve_measurement(meas, fpn=fpn, method=method)
+        d = deconvolve_measurement(meas, fpn=fpn, method=method, fpn_error_dn=fpn_error_dn)
         sc = d.info["scores"]
         rows.append({"case": label, "method": f"psf-aware {method}", "seconds": d.info["seconds"],
                      **{k: v for k, v in sc.items() if isinstance(v, float)},

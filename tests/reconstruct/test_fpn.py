@@ -127,3 +127,18 @@ def test_blind_fpn_reduces_the_error_on_a_fresh_noisy_case():
     r = reconstruct(Y, a, fpn="prior")
     assert r.info["fpn"]["identified"] == "foveal" and psnr(r.x1 - (r.x1 - x1).mean(), x1) > \
         psnr(plain.x1 - (plain.x1 - x1).mean(), x1) + 6
+
+
+@pytest.mark.parametrize("seed, T, shape, rank", [(21, 16, (96, 80), 20), (22, 9, (64, 64), 4), (23, 32, (120, 72), 10)])
+def test_calibration_error_estimate_matches_the_true_error(seed, T, shape, rank):
+    """The split-half estimate of the calibration FPN's error (``info['error_rms_dn']``) against the true error of
+    the estimate, on rank-``rank`` patterns under white noise (odd frame counts too): within 20 %."""
+    rng = np.random.default_rng(seed)
+    H, W = shape
+    f_true = (rng.normal(0, 3.0, (H, rank)) * np.linspace(2, 0.2, rank)) @ rng.normal(0, 1.0, (rank, W)) / rank
+    cal = 50.0 + f_true[None] + rng.normal(0, 2.0, (T, H, W))
+    f, info = estimate_fpn(calibration=cal, rank=rank)
+    true_err = float(np.sqrt(np.mean(((f - f.mean()) - (f_true - f_true.mean())) ** 2)))
+    assert 0.8 < info["error_rms_dn"] / true_err < 1.2, (info["error_rms_dn"], true_err)
+    one, info1 = estimate_fpn(calibration=cal[:1], rank=rank)
+    assert "error_rms_dn" not in info1  # one frame: nothing to split
