@@ -188,8 +188,8 @@ def _trend(multi: list[dict[str, Any]], snap: list[dict[str, Any]], clip: dict[s
                     "it) and its alpha, except that the DIP clips alpha to [0.02, 0.98]: "
                     f"the classical alpha spans {clip['alpha_min']:.3f}-{clip['alpha_max']:.3f}, and least squares "
                     f"with that alpha scores {ls['psnr_x1']:.2f} / {ls['psnr_x2']:.2f} dB, with it clipped "
-                    f"{lc['psnr_x1']:.2f} / {lc['psnr_x2']:.2f} dB: the clipping, not the prior, is what the DIP rows "
-                    "lose against the TV prior alone on the perifoveal image. Measured against each other, the TV "
+                    f"{lc['psnr_x1']:.2f} / {lc['psnr_x2']:.2f} dB: the clipping, not the prior, is most of what the DIP "
+                    "rows lose against the TV prior alone. Measured against each other, the TV "
                     f"prior beats no prior by {tv['psnr_x1'] - none['psnr_x1']:+.2f} / "
                     f"{tv['psnr_x2'] - none['psnr_x2']:+.2f} dB." + (
                         " --fast: DIP step budgets of a few tens of steps; the random network start is far from "
@@ -289,7 +289,8 @@ def run(options: StudyOptions) -> StudyResult:
         parameters={**p, "seed": options.seed, "filter": FILTER, "snapshot_frame": frame,
                     "snapshot_alpha": float(meas.alpha[frame]), "psf": meas.meta["psf"]["provider"],
                     "not_ablated": "single deep prior (no switch in metafovea.reconstruct.dip)"},
-        results=rounded({"multi_frame": multi, "snapshot": snap, "alpha_clip_evidence": clip}), trend=rounded(trend), figure=fig,
+        results=rounded({"multi_frame": multi, "snapshot": snap, "alpha_clip_evidence": clip}),
+        trend=rounded(trend), figure=fig,
         caption="PSNR of both images per variant (left; top multi-frame, bottom snapshot), the foveal truth, the "
                 "full method's foveal image and the foveal image of the variant with the lowest foveal PSNR",
         tables=[{"caption": "Multi-frame: PSNR (dB) / SSIM against the noise-free images, change against the full "
