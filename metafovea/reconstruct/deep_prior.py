@@ -7,8 +7,8 @@ classical solver's estimate, or held fixed when given) are fitted with Adam to
     mean_t ||y_t - alpha_t g1 - (1 - alpha_t) g2||^2 + tv_weight (TV g1 + TV g2)
         + exclusion_weight * exclusion(g1, g2) [+ foveal_weight ||D g1 - C g2||^2]
 
-(the paper's ``tv_weight = exclusion_weight = 0.01``; the default here is 0 for a random start, see
-:func:`dip`). ``foveal_weight`` (default 0, not in the paper) adds the foveal constraint, which fixes the
+(the paper's ``tv_weight = exclusion_weight = 0.01``; the defaults here: a TV weight from the data's noise and
+gradient scale and no exclusion term for a random start, see :func:`dip`). ``foveal_weight`` (default 0, not in the paper) adds the foveal constraint, which fixes the
 alpha gauge the same way as in :mod:`~metafovea.reconstruct.alternating`.
 
 Network (``channels``, ``depth``, ``skip_channels``, ``input_channels``): per level a stride-2 3x3 conv and
@@ -254,6 +254,11 @@ INITS = ("random", "lsq", "classical")
 PAPER_WEIGHT = 0.01
 RANDOM_WEIGHT = 0.0
 WARM_WEIGHT = 0.001
+#: the random start's TV weight unless given: ``AUTO_TV sigma_x^2 / b`` (:func:`_auto_tv_weight`; the MAP weight of
+#: a Laplace gradient prior is 1 x). Measured (BENCHMARKS.md, bench_dip.py, 64 x 64, 2 scenes x sigma 0.01 / 0.05,
+#: unknown alpha): 0.5 came within 1 dB of alternating's TV prior in all four cases (-0.35 to +1.83 dB), 1.0 fell
+#: 1.1-1.2 dB below it at sigma 0.05 on one scene, and no TV (the previous default) 1.2-3.2 dB below at sigma 0.05
+AUTO_TV = 0.5
 #: Adam learning rates: random start, and warm start (0.01 made the residual of a 32-channel network
 #: diverge after ~30 steps on that measurement; 0.002 is stable for 8 and 32 channels over 200 steps)
 PAPER_LR = 0.01
@@ -466,8 +471,36 @@ def _units(Y: np.ndarray, xi1: np.ndarray | None, xi2: np.ndarray | None, known:
     return _Units(lo, span, base1, base2, ab)
 
 
-def _weights(opt: DipOptions, warm_start: bool, op: FovealOperator | None, u: _Units) -> dict[str, float]:
-    """Loss weights, learning rates and the foveal constraint in the frames' normalised units."""
+def _auto_tv_weight(Y: np.ndarray, a: np.ndarray, span: float) -> tuple[float, dict[str, float]]:
+    """The random start's TV weight from the data (normalised units), a MAP rule: the images' noise after the
+    per-pixel fit with ``a`` (``sigma_x^2 = sigma^2 mean diag N^-1``, ``sigma`` from the fit's residuals) and the
+    scale ``b`` of a Laplace prior on their gradients (mean |difference| per direction of the TV-denoised
+    least-squares images) give the ROF weight ``lambda = AUTO_TV * sigma_x^2 / b``, mapped onto the loss's
+    per-pixel means (``tv_weight = 2 lambda mean diag N / T``). 0 with fewer than 3 frames (no residual)."""
+    T = Y.shape[0]
+    A = np.stack([a, 1.0 - a], axis=1)
+    N = A.T @ A
+    if T < 3 or np.linalg.cond(N) > 1e8:
+        return 0.0, {}
+    y = Y.reshape(T, -1).astype(np.float64)
+    x = np.linalg.solve(N, A.T @ y)
+    sigma2 = float(np.mean((y - A @ x) ** 2) * T / (T - 2))
+    sx2 = sigma2 * float(np.mean(np.diag(np.linalg.inv(N))))
+    grads = []
+    for img in x.reshape(2, *Y.shape[1:]):
+        d = denoise(img, "tv")
+        grads.append(0.5 * (np.mean(np.abs(np.diff(d, axis=0))) + np.mean(np.abs(np.diff(d, axis=1)))))
+    b = max(float(np.mean(grads)), 1e-12 * span)
+    lam = AUTO_TV * sx2 / b
+    tvw = 2.0 * lam * float(np.mean(np.diag(N))) / T * 0.9 / span
+    return tvw, {"sigma": float(np.sqrt(sigma2)), "image_noise": float(np.sqrt(sx2)), "gradient_scale": b,
+                 "rof_lambda": lam}
+
+
+def _weights(opt: DipOptions, warm_start: bool, op: FovealOperator | None, u: _Units,
+             tv_default: float | None = None) -> dict[str, float]:
+    """Loss weights, learning rates and the foveal constraint in the frames' normalised units (``tv_default``:
+    the TV weight when ``opt.tv_weight`` is None; the module's default otherwise)."""
     lr = as_float("lr", (WARM_LR if warm_start else PAPER_LR) if opt.lr is None else opt.lr)
     if lr <= 0:
         raise InputError("lr", lr, "a positive learning rate")
@@ -483,7 +516,8 @@ def _weights(opt: DipOptions, warm_start: bool, op: FovealOperator | None, u: _U
     # the constraint in normalised units yn = A y + B: D x1n = gain C x2n + (1 - gain) B + A bias
     A_n, B_n = 0.9 / u.span, 0.05 - 0.9 * u.lo / u.span
     w_def = WARM_WEIGHT if warm_start else RANDOM_WEIGHT
-    w = {"tv": as_float("tv_weight", w_def if opt.tv_weight is None else opt.tv_weight),
+    tv_def = w_def if tv_default is None else tv_default
+    w = {"tv": as_float("tv_weight", tv_def if opt.tv_weight is None else opt.tv_weight),
          "exclusion": as_float("exclusion_weight", w_def if opt.exclusion_weight is None else opt.exclusion_weight),
          "foveal": as_float("foveal_weight", opt.foveal_weight),
          "gain_n": 1.0 if op is None else float(op.gain),
@@ -508,7 +542,7 @@ def _networks(gen: np.random.Generator, opt: DipOptions, shape: tuple[int, int],
         for g in ("g1", "g2"):
             params[g]["out"]["w"][:] = 0.0
     if a0 is not None:
-        a_c = np.clip(a0, 0.02, 0.98)
+        a_c = np.clip(a0, 1e-3, 1 - 1e-3)  # a finite logit
         params["alpha"] = np.log(a_c / (1 - a_c)).astype(np.float32)
     params = jax.tree_util.tree_map(jnp.asarray, params)
     sc = float(opt.input_scale)
@@ -648,7 +682,8 @@ def _start_alpha(Y: np.ndarray, opt: DipOptions, alpha: Any) -> tuple[np.ndarray
             return None, None
         r = alternating(Y, scale=opt.scale, foveal_gain=opt.foveal_gain, foveal_offset=opt.foveal_offset,
                         strict=False, polarizer=opt.polarizer)
-        return None, np.asarray(r.alpha, np.float64)
+        # alpha = cos^2 lies in [0, 1]; an estimate without an absolute gauge can stray past it by its error
+        return None, np.clip(np.asarray(r.alpha, np.float64), 0.0, 1.0)
     return None, as_alpha(ai, T, name="alpha_init")
 
 
@@ -678,7 +713,9 @@ def dip(frames: Any, alpha: Any = None, options: DipOptions | None = None, **ove
     * ``'fit'``: ``warm_steps`` supervised Adam steps fitting ``g_k`` (sigmoid output) to ``x_init_k``,
       then the DIP loss.
 
-    Defaults: ``tv_weight``/``exclusion_weight`` 0 for a random start and 0.001 after a warm start (the paper's
+    Defaults: ``tv_weight`` from the data for a random start (a MAP rule from the per-pixel fit's noise and the
+    images' gradient scale, :data:`AUTO_TV`; ``info['tv_weight_rule']`` says what it found), ``exclusion_weight`` 0
+    for a random start; both 0.001 after a warm start (the paper's
     0.01 times the scenes' mean |gradient| (~0.05 per pixel) is ~10x the data term's noise floor (~8e-5 at a
     noise of 1 % of the range), an estimate, not measured with the normalised network);
     ``lr`` 0.01 for ``init='random'``, 0.002 for a warm start, cosine-decayed over ``steps``; ``alpha_lr``
@@ -723,11 +760,19 @@ def dip(frames: Any, alpha: Any = None, options: DipOptions | None = None, **ove
         a_init = a_cl
     u = _units(Y, xi1, xi2, alpha if alpha is not None else a_init, residual)
     op = FovealOperator((H, W), opt.scale, gain=opt.foveal_gain, bias=opt.foveal_offset) if opt.foveal_weight else None
-    w = _weights(opt, warm_start, op, u)
     # frames in [0.05, 0.95] so that both images fit the sigmoid's range with some margin
     Yn = (0.05 + 0.9 * (Y.astype(np.float64) - u.lo) / u.span).astype(np.float32)
     learn_alpha = alpha is None
     a0 = (frame_mean_alpha(Yn) if a_init is None else a_init) if learn_alpha else alpha
+    tv_auto, tv_rule = (None, {})
+    if not warm_start and opt.tv_weight is None:
+        with tm.measure("init"):
+            tv_auto, tv_rule = _auto_tv_weight(Y, np.asarray(a0, np.float64), u.span)
+    w = _weights(opt, warm_start, op, u, tv_auto)
+    if learn_alpha and w["alpha_lr"] == 0.0:
+        # held (alternating's alpha): the exact values as data, not the sigmoid of a logit clipped to [0.02, 0.98],
+        # which cost least squares 14 dB on the perifoveal image of frames at alpha 0.01 (the ablation study)
+        learn_alpha = False
     params, z1, z2 = _networks(gen, opt, (H, W), residual, a0 if learn_alpha else None)
     # everything that varies between calls is an argument of the jitted step, so a second call with
     # the same shapes and switches (another window of a video, a test's rerun) reuses the compilation
@@ -754,6 +799,8 @@ def dip(frames: Any, alpha: Any = None, options: DipOptions | None = None, **ove
         x1, x2 = (u.to_frames(np.asarray(e, np.float64) / c).astype(dt) for e in state[3:5])
     info = {"steps": opt.steps, **stop, "channels": opt.channels, "depth": opt.depth, "loss_history": hist,
             "alpha_learned": learn_alpha, "tv_weight": w["tv"], "exclusion_weight": w["exclusion"],
+            "tv_weight_rule": ({"rule": f"MAP: {AUTO_TV:g} sigma_x^2 / b (random start)", **tv_rule}
+                               if tv_auto is not None else ("given" if opt.tv_weight is not None else "default")),
             "foveal_weight": w["foveal"], "foveal_gain": w["gain_n"], "foveal_offset": None if op is None else op.bias,
             "init": opt.init if isinstance(opt.init, str) else "images", "warm": opt.warm if warm_start else None,
             "warm_fit_history": fit_hist, "lr": w["lr"], "alpha_lr": w["alpha_lr"], "schedule": opt.schedule,
