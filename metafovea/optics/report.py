@@ -518,29 +518,40 @@ def psf_reports(designs: Sequence[str | Path | LensDesign], out_dir: str | Path,
         check_positive(f"distance of lens '{name}'", z, "um")
     check_choice("posts", posts, POST_SOURCES)
     system = system or SystemDesign.paper()
+    with contextlib.ExitStack() as stack:
+        # a bad --scheduler is refused before out_dir is made
+        from metafovea.parallel import get_executor
+
+        ex = stack.enter_context(get_executor(scheduler=scheduler)) if scheduler else None
+        return _run_reports(lenses, out_dir, force, system, posts, dist, jobs, progress, ex,
+                            dict(fields_deg=fields_deg, band_um=band_um, filter_um=filter_um,
+                                 temperature_k=temperature_k, n_wavelengths=n_wavelengths,
+                                 pixel_pitch_um=pixel_pitch_um, error=error, wavelength_um=wavelength_um,
+                                 window_um=window_um, relay_magnification=relay_magnification))
+
+
+def _run_reports(lenses: list[LensDesign], out_dir: str | Path, force: bool, system: SystemDesign, posts: str,
+                 dist: dict[str, float], jobs: int, progress: bool, ex: Any,
+                 kw: dict[str, Any]) -> dict[str, dict[str, Any]]:
+    """:func:`psf_reports` after its checks: the output folder, the posts, then each lens' report (in a process
+    per lens, or here with the sensor PSFs on the cluster ``ex``)."""
     out = prepare_output(out_dir, force, is_dir=True)
     post_sets = rcwa_post_sets(system.platform, lenses) if posts == "rcwa" else {}
     used = {(lens.polarization, lens.levels) for lens in lenses} & set(post_sets)
     obliques = {key: oblique_response(post_sets[key], system.platform) for key in used}
     trains = [t.summary() for t in system_trains(system, *system_post_sets(system, posts))]
-    kw = dict(fields_deg=fields_deg, band_um=band_um, filter_um=filter_um, temperature_k=temperature_k,
-              n_wavelengths=n_wavelengths, pixel_pitch_um=pixel_pitch_um, error=error,
-              wavelength_um=wavelength_um, window_um=window_um, relay_magnification=relay_magnification)
     kws = [{**kw, "z_um": dist.get(lens.name), "progress": progress, "position": i, "trains": trains,
             "post_set": post_sets.get((lens.polarization, lens.levels)),
             "oblique": obliques.get((lens.polarization, lens.levels))} for i, lens in enumerate(lenses)]
-    if scheduler:
-        from metafovea.parallel import get_executor
-
-        with get_executor(scheduler=scheduler) as ex:
-            outcomes = [_report_one(lens, str(out), {**k, "executor": ex}) for lens, k in zip(lenses, kws)]
+    if ex is not None:
+        outcomes = [_report_one(lens, str(out), {**k, "executor": ex}) for lens, k in zip(lenses, kws)]
     elif jobs > 1 and len(lenses) > 1:
         # one process per lens (the report of a lens is single-threaded), through the project's executor
         # (forkserver workers: a process that has started JAX's threads must not fork)
         from metafovea.parallel import get_executor
 
-        with get_executor(min(jobs, len(lenses))) as ex:
-            outcomes = list(ex.map(_report_one, lenses, [str(out)] * len(lenses), kws))
+        with get_executor(min(jobs, len(lenses))) as pool:
+            outcomes = list(pool.map(_report_one, lenses, [str(out)] * len(lenses), kws))
     else:
         outcomes = [_report_one(lens, str(out), k) for lens, k in zip(lenses, kws)]
     summary = {}

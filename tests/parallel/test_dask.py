@@ -200,3 +200,13 @@ def test_every_worker_gets_glibcs_dynamic_heap_back(cluster):
     worker runs parallel.numpy_malloc through a plugin (also a worker that joins later)."""
     got = cluster.client.run(lambda dask_worker: "metafovea-malloc" in dask_worker.plugins)
     assert len(got) == 2 and all(got.values())
+
+
+def test_a_bad_scheduler_for_psf_writes_nothing(tmp_path):
+    from metafovea.config import LensDesign
+    from metafovea.optics.report import psf_reports
+
+    with pytest.raises(InputError, match="--scheduler"):
+        psf_reports([LensDesign("t", 20000.0, 2000.0)], tmp_path / "o", fields_deg=[0.0], n_wavelengths=3,
+                    posts="ideal", scheduler="local:x")
+    assert not (tmp_path / "o").exists()
