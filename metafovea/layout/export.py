@@ -35,6 +35,7 @@ from metafovea.io import file_stem, input_hash, prepare_output
 from metafovea.layout import gds, oasis
 from metafovea.layout.directfile import DirectFile
 from metafovea.layout.mesh import MESH_FORMATS, export_mesh
+from metafovea.layout.tilefiles import TileDir, default_tiles_dir
 from metafovea.layout.tiling import Expected, LayoutSpec, drc_summary
 
 FORMATS = ("gds", "oas")  #: layout formats (:func:`export_layout`)
@@ -429,8 +430,17 @@ def _export_tiled(spec: LayoutSpec, path: Path, fmt: str, key: str, *, flat: boo
                   max_refs: int | None, dwl: bool, resume: bool, scheduler: str, progress: bool, direct: bool,
                   tiles_dir: str | os.PathLike | None, stop_after: int | None) -> ExportResult:
     """:func:`export_layout` on a Dask cluster: tiles written by the workers, stitched here in band order."""
-    from metafovea.layout.tilefiles import TileDir, default_tiles_dir
+    from metafovea.parallel import get_executor
 
+    with get_executor(scheduler=scheduler) as ex:  # a bad --scheduler is refused before anything is made
+        return _tiled(spec, path, fmt, key, flat=flat, compress=compress, max_refs=max_refs, dwl=dwl, resume=resume,
+                      executor=ex, progress=progress, direct=direct, tiles_dir=tiles_dir, stop_after=stop_after)
+
+
+def _tiled(spec: LayoutSpec, path: Path, fmt: str, key: str, *, flat: bool, compress: int, max_refs: int | None,
+           dwl: bool, resume: bool, executor: Any, progress: bool, direct: bool,
+           tiles_dir: str | os.PathLike | None, stop_after: int | None) -> ExportResult:
+    """:func:`_export_tiled` on the open cluster ``executor``."""
     bands = spec.tasks()
     hier = max_refs is not None or dwl
     td = TileDir(Path(tiles_dir) if tiles_dir is not None else default_tiles_dir(path), key, len(bands))
@@ -443,7 +453,7 @@ def _export_tiled(spec: LayoutSpec, path: Path, fmt: str, key: str, *, flat: boo
     if stop_after is not None:
         todo = todo[:stop_after]
     try:
-        td.run(enc, todo, scheduler, progress, f"export {path.name}")
+        td.run(enc, todo, executor, progress, f"export {path.name}")
     except OSError as e:  # raised by a worker writing its tile
         raise InputError("--tiles-dir", str(td.d), "a writable directory with free space, shared by the client and "
                          "every worker", detail=f"a worker could not write its tile: {e.strerror or e}") from None

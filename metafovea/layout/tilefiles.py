@@ -117,13 +117,13 @@ class TileDir:
             return None
         return rec
 
-    def run(self, enc: Callable, tasks: list[tuple[int, Any]], scheduler: str | None, progress: bool,
+    def run(self, enc: Callable, tasks: list[tuple[int, Any]], executor: Any, progress: bool,
             desc: str) -> dict[int, dict[str, Any]]:
-        """Encode and write the tiles of ``tasks`` (``(index, task)``) through the executor."""
+        """Encode and write the tiles of ``tasks`` (``(index, task)``) on ``executor`` (a Dask cluster)."""
         from metafovea.parallel import run_tasks
 
         out = {}
-        for _, rec in run_tasks(partial(write_tile, enc, str(self.d), self.key), tasks, scheduler=scheduler,
+        for _, rec in run_tasks(partial(write_tile, enc, str(self.d), self.key), tasks, executor=executor,
                                 progress=progress, desc=desc):
             out[int(rec["band"])] = rec
         return out

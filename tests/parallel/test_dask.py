@@ -106,6 +106,9 @@ def test_cluster_export_resumes_from_its_tiles_and_names_a_missing_or_corrupt_ti
     assert res.resumed_bands == ref.bands - 1 and q.read_bytes() == (tmp_path / "ref.oas").read_bytes()
     with pytest.raises(InputError, match="--tiles-dir.*only with --scheduler"):
         export_layout(spec, tmp_path / "x.oas", "oas", tiles_dir=tiles)
+    with pytest.raises(InputError, match="--scheduler"):  # refused before the tiles' folder is made
+        export_layout(spec, tmp_path / "y.oas", "oas", scheduler="local:x")
+    assert not list(tmp_path.glob("*y.oas*"))
 
 
 def _square_dying_once(marker: str, x: int) -> int:
