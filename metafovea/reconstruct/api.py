@@ -121,7 +121,8 @@ def reconstruct_measurement(m: Measurement, method: str = "lsq", *, known_alpha:
     fpn : {'none', 'prior', 'calibration'} or ndarray, shape (H, W)
         Fixed-pattern noise: an array (the user's pattern, e.g. from a dark-frame calibration) is subtracted;
         ``calibration`` estimates it from the file's ``calibration`` frames and ``prior`` from the separated images
-        (both on one window only). The file's own ``fpn`` array is the simulator's true pattern: it only scores
+        (for a sequence of several windows: once, from the windows' images averaged over the windows, then
+        subtracted from every frame before the windows are solved again). The file's own ``fpn`` array is the simulator's true pattern: it only scores
         an estimate (``metrics['fpn_rms_error']``, mean removed), it is never subtracted.
     denoise : {'tv', 'bilateral', 'nlm'} or None
         Denoise the outputs: inside LSQ (noise level from its residual), after the other methods (noise level
@@ -165,17 +166,21 @@ def reconstruct_measurement(m: Measurement, method: str = "lsq", *, known_alpha:
     frames, fpn_kw = _fpn(m, fpn)
     frames, mask_info = _masked(m, frames, method)
     video_out = method != "snapshot" and (T > window or starts is not None)
-    if video_out and fpn_kw:
-        raise InputError("fpn", fpn, "'none' or a pattern for multi-window sequences (estimate FPN on one window)")
     t0 = time.perf_counter()
     from metafovea.parallel import blas_threads
 
     # the classical solvers' products are small (2 x window, 2 x 2 per pixel): OpenBLAS threads only contend
     # (measured on the 2-core machine: 0.03 s for 89 windows single-threaded, 0.6-2 s with two threads under load)
+    video_fpn = None
     with blas_threads(1) if method != "dip" else contextlib.nullcontext():
+        if video_out and fpn_kw:
+            frames, video_fpn = _video_fpn(m, method, frames, alpha, kw, fpn_kw, window, stride, starts, progress)
+            fpn_kw = {}
         rec, spans = _solve(m, method, frames, alpha, kw, fpn_kw, window, stride, starts, denoise, frame, video_out,
                             progress)
     seconds = time.perf_counter() - t0
+    if video_fpn is not None:
+        rec = replace(rec, fpn=video_fpn[0].astype(np.float32), info={**rec.info, "fpn": video_fpn[1]})
     if mask_info:
         rec = replace(rec, info={**rec.info, "invalid_samples": mask_info})
     if not isinstance(fpn, str) and rec.fpn is None and not rec.is_video:  # the user's pattern, as subtracted
@@ -213,6 +218,31 @@ def _solve(m: Measurement, method: str, frames: np.ndarray, alpha: np.ndarray | 
         rec = rec if method == "lsq" else _denoised(rec, denoise)
         spans = ((0, T),)
     return rec, spans
+
+
+def _video_fpn(m: Measurement, method: str, frames: np.ndarray, alpha: np.ndarray | None, kw: dict[str, Any],
+               fpn_kw: dict[str, Any], window: int, stride: int, starts: Sequence[int] | None,
+               progress: bool) -> tuple[np.ndarray, tuple[np.ndarray, dict[str, Any]]]:
+    """The FPN of a sequence reconstructed window by window, estimated once for all windows, and the frames with it
+    subtracted: from the calibration frames, or blind (``'prior'``) from the windows' separated images averaged over
+    the windows. Every window's images carry the same pattern, while a moving scene's foveal detail (the foveal
+    estimate's error term, :mod:`~metafovea.reconstruct.fpn`) changes from window to window and averages down; a
+    static scene gains only the lower noise of the mean. Returns ``(frames - f, (f, info))``."""
+    if fpn_kw.get("fpn") == "calibration":
+        f, finfo = estimate_fpn(calibration=fpn_kw["calibration"])
+    else:
+        first = video(frames, alpha, window=window, stride=stride, starts=starts, method=method, progress=progress,
+                      **kw)
+        with np.errstate(invalid="ignore"):
+            x1m = np.nanmean(np.asarray(first.x1, dtype=np.float64), axis=0)
+            x2m = np.nanmean(np.asarray(first.x2, dtype=np.float64), axis=0)
+        geo = {k: kw[k] for k in ("scale", "foveal_gain", "foveal_offset") if k in kw}
+        f, finfo = estimate_fpn(x1=np.nan_to_num(x1m, nan=float(np.nanmean(x1m))),
+                                x2=np.nan_to_num(x2m, nan=float(np.nanmean(x2m))), **geo)
+        finfo = {**finfo, "windows_averaged": int(np.shape(first.x1)[0]),
+                 "video": "estimated once from the separated images averaged over the windows (a first pass without "
+                          "FPN), then subtracted from every frame before the windows were solved again"}
+    return (np.asarray(frames, dtype=np.float64) - f[None]).astype(np.float32), (f, finfo)
 
 
 def _masked(m: Measurement, frames: np.ndarray, method: str) -> tuple[np.ndarray, dict[str, Any] | None]:
