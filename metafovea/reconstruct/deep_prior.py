@@ -25,8 +25,10 @@ random start from 29-32 dB (no normalisation, lr 0.003; lr 0.01 collapsed to a c
 channels converge in about half the steps of 16, 8 channels did not get within 1 dB (41.7 / 40.5 dB). With unknown alpha the random start holds alternating's alpha
 (``alpha_init='classical'``): learning it lets it drift along the gauge the DIP loss does not fix.
 From a random start the DIP now reaches the classical solver without a prior within 1 dB on 2 scenes x 2
-noise levels (known alpha: LSQ, -0.52 to +0.30 dB; unknown: alternating with prior='none'), but not
-alternating's TV prior at sigma 0.05 (-0.45 to -3.2 dB; table in BENCHMARKS.md), in 900-1,400 steps: 20-40 ms per step at 64 x 64 on the 2-core machine, ~0.7 s (16 channels) / ~1.2 s
+noise levels (known alpha: LSQ, -0.52 to +0.30 dB; unknown: alternating with prior='none'); without a TV term it
+fell 0.45-3.2 dB below alternating's TV prior at sigma 0.05, and with the data-driven TV weight of a random start
+(:data:`AUTO_TV`) it is within 1 dB of or above the classical solver in all eight cases (known alpha: LSQ;
+unknown: alternating with its TV prior), and on two more scene pairs at sigma 0.03 / 0.05 (-0.41 to +2.68 dB; table in BENCHMARKS.md), in 800-1,400 steps: 20-40 ms per step at 64 x 64 on the 2-core machine, ~0.7 s (16 channels) / ~1.2 s
 (32 channels) at 290 x 290, so a 290 x 290 window would take ~15-30 minutes there if it needs as many steps (not measured at that
 size): an offline method on a CPU.
 
@@ -528,6 +530,23 @@ def _weights(opt: DipOptions, warm_start: bool, op: FovealOperator | None, u: _U
     return w
 
 
+def _alpha_and_weights(Y: np.ndarray, Yn: np.ndarray, alpha: np.ndarray | None, a_init: np.ndarray | None,
+                       opt: DipOptions, warm_start: bool, op: FovealOperator | None, u: _Units) -> tuple:
+    """``(a0, learn_alpha, weights, tv_auto, tv_rule)``: the starting alpha, whether it is learned, the loss weights
+    (:func:`_weights`) and the random start's data-driven TV weight with what it found (None, {} otherwise)."""
+    learn_alpha = alpha is None
+    a0 = (frame_mean_alpha(Yn) if a_init is None else a_init) if learn_alpha else alpha
+    tv_auto, tv_rule = (None, {})
+    if not warm_start and opt.tv_weight is None:
+        tv_auto, tv_rule = _auto_tv_weight(Y, np.asarray(a0, np.float64), u.span)
+    w = _weights(opt, warm_start, op, u, tv_auto)
+    if learn_alpha and w["alpha_lr"] == 0.0:
+        # held (alternating's alpha): the exact values as data, not the sigmoid of a logit clipped to [0.02, 0.98],
+        # which cost least squares 14 dB on the perifoveal image of frames at alpha 0.01 (the ablation study)
+        learn_alpha = False
+    return a0, learn_alpha, w, tv_auto, tv_rule
+
+
 def _networks(gen: np.random.Generator, opt: DipOptions, shape: tuple[int, int], residual: bool,
               a0: np.ndarray | None) -> tuple[dict[str, Any], Any, Any]:
     """The two networks' weights (output layers zeroed for the residual warm start; the logit of ``a0`` when alpha
@@ -762,17 +781,8 @@ def dip(frames: Any, alpha: Any = None, options: DipOptions | None = None, **ove
     op = FovealOperator((H, W), opt.scale, gain=opt.foveal_gain, bias=opt.foveal_offset) if opt.foveal_weight else None
     # frames in [0.05, 0.95] so that both images fit the sigmoid's range with some margin
     Yn = (0.05 + 0.9 * (Y.astype(np.float64) - u.lo) / u.span).astype(np.float32)
-    learn_alpha = alpha is None
-    a0 = (frame_mean_alpha(Yn) if a_init is None else a_init) if learn_alpha else alpha
-    tv_auto, tv_rule = (None, {})
-    if not warm_start and opt.tv_weight is None:
-        with tm.measure("init"):
-            tv_auto, tv_rule = _auto_tv_weight(Y, np.asarray(a0, np.float64), u.span)
-    w = _weights(opt, warm_start, op, u, tv_auto)
-    if learn_alpha and w["alpha_lr"] == 0.0:
-        # held (alternating's alpha): the exact values as data, not the sigmoid of a logit clipped to [0.02, 0.98],
-        # which cost least squares 14 dB on the perifoveal image of frames at alpha 0.01 (the ablation study)
-        learn_alpha = False
+    with tm.measure("init"):
+        a0, learn_alpha, w, tv_auto, tv_rule = _alpha_and_weights(Y, Yn, alpha, a_init, opt, warm_start, op, u)
     params, z1, z2 = _networks(gen, opt, (H, W), residual, a0 if learn_alpha else None)
     # everything that varies between calls is an argument of the jitted step, so a second call with
     # the same shapes and switches (another window of a video, a test's rerun) reuses the compilation
