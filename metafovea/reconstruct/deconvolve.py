@@ -18,7 +18,12 @@ boundary), with
   from the crop's Hann-tapered periodogram over the PSF's ``|D|^2``: ``prior='hybrid'`` (default) takes the
   measured spectrum where the signal exceeds 4x the noise and a power law ``c / |f|^beta`` fitted on the
   detected bins beyond the spectrum's peak elsewhere; ``'power-law'`` fits all detected bins, ``'empirical'``
-  uses the measured spectrum alone (both measured worse, BENCHMARKS.md); the mean is not shrunk;
+  uses the measured spectrum alone (both measured worse, BENCHMARKS.md); the mean is not shrunk. The fit is per
+  pixel of the crop, the solve per bin of the padded grid, whose padding (the crop's edge values) carries no texture
+  but stripes along the axes: ``prior_scale='geometric'`` (default) spreads it as ``sqrt(n_crop n_grid) x PSD``,
+  between ``'grid'`` (``n_grid x PSD``, the estimator before 2026-12-03: too much prior power at high frequencies,
+  10-400x the padded truth's on the siemens star) and ``'crop'`` (``n_crop x PSD``: too little where the padding
+  extends edges);
 * ``method='tv'``: total-variation regularised least squares, ``min_s 1/2 ||u_hat - A s||^2_{C^-1}
   + sum_i lambda_i TV(s_i)`` by ADMM (every linear step per frequency or per pixel), started from the Wiener
   estimate, ``lambda_i = 1 / mean |grad s_i|`` of that estimate (the scale of a Laplace prior on the gradients);
@@ -62,6 +67,11 @@ DECONVOLUTION_METHODS = ("tv", "wiener")
 PRIORS = ("hybrid", "power-law", "empirical")
 #: spectral power-law exponents the Wiener prior's fit may take
 BETA_RANGE = (1.0, 4.0)
+#: how the crop's fitted spectrum (per pixel) becomes the padded grid's (per FFT bin) in :func:`separate_deconvolve`
+#: (``prior_scale``): ``'grid'`` as if the whole grid carried the crop's texture (n_grid x PSD), ``'crop'`` as if only
+#: the crop did (n_crop x PSD; the edge padding adds stripes along the axes only), ``'geometric'`` their geometric
+#: mean (default; BENCHMARKS.md "PSF-aware": chosen on 8 cases, checked on 4 more)
+PRIOR_SCALES = ("geometric", "grid", "crop")
 
 
 @dataclass(frozen=True)
@@ -519,7 +529,8 @@ def separate_deconvolve(frames: Any, alpha: Any, psfs: ChannelPSFs, *, method: s
                         sigma: float | None = None, iterations: int = 100, tv_weight: float | None = None,
                         meta: dict[str, Any] | None = None, boundary: str = "mirror",
                         pad_mode: str = "edge", prior: str = "hybrid", foveal_scale: float | None = None,
-                        foveal_ratio: float = 1.0, fpn_error_dn: float = 0.0) -> Deconvolution:
+                        foveal_ratio: float = 1.0, fpn_error_dn: float = 0.0,
+                        prior_scale: str = "geometric") -> Deconvolution:
     """The scene radiance of both channels from ``frames (T, H, W)`` (DN, fixed pattern removed) with mixing ratios
     ``alpha (T,)`` (known, or a solver's estimate) and the channels' PSFs (see the module docstring).
 
@@ -533,12 +544,16 @@ def separate_deconvolve(frames: Any, alpha: Any, psfs: ChannelPSFs, *, method: s
     """
     method = check_choice("method", method, DECONVOLUTION_METHODS)
     prior = check_choice("prior", prior, PRIORS)
+    prior_scale = check_choice("prior_scale", prior_scale, PRIOR_SCALES)
     iterations = check_int("iterations", iterations, 1, 100_000)
     t0 = time.perf_counter()
     pb, C, info = _prepared(frames, alpha, psfs, offset, sigma, boundary, pad_mode, fpn_error_dn)
     g = pb.g
     fits = [_fitted_spectrum(g, pb.zc[i], C[i, i], g.D[i], prior) for i in range(2)]
-    prior_inv = _inverse_prior([f[0] for f in fits])
+    frac = pb.zc.shape[1] * pb.zc.shape[2] / float(g.shape[0] * g.shape[1])  # the crop's share of the grid
+    scale = {"grid": 1.0, "crop": frac, "geometric": math.sqrt(frac)}[prior_scale]
+    prior_inv = _inverse_prior([f[0] * scale for f in fits])
+    info.update(prior_scale=prior_scale, prior_scale_factor=scale)
     s, n_cg = _linear_solve(pb, prior_inv, None)
     if foveal_scale is not None and boundary == "mirror":
         _foveal_surround(pb, s, float(foveal_scale), float(foveal_ratio))
