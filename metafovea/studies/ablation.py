@@ -63,7 +63,8 @@ def _row(key: str, labels: dict[str, tuple[str, str]], metrics: dict[str, float]
     info = info or {}
     return {"variant": key, "label": labels[key][0], "removed": labels[key][1],
             **{q: float(metrics[q]) for q in QUANTITIES}, "alpha_mae": alpha_mae,
-            "dip_steps_run": info.get("steps_run"), "dip_stopped": info.get("stopped"), "seconds": seconds}
+            "dip_steps_run": info.get("steps_run"), "dip_stopped": info.get("stopped"),
+            "dip_tv_weight": info.get("tv_weight"), "seconds": seconds}
 
 
 def run_multi(item: dict[str, Any]) -> dict[str, Any]:
@@ -127,19 +128,16 @@ def run_snapshot(item: dict[str, Any]) -> dict[str, Any]:
         "images": (x1.astype(np.float32), x2.astype(np.float32))}
 
 
-def clip_evidence(meas: Any, fpn: np.ndarray) -> dict[str, Any]:
-    """Least squares with the classical solver's alpha, as estimated and clipped to the DIP's [0.02, 0.98]: how much
-    of a DIP row's loss against the TV prior is the DIP's alpha clipping, not its prior."""
-    from metafovea.reconstruct import lsq_known_alpha, reconstruct_measurement
-    from metafovea.reconstruct.metrics import score
-
-    T = meas.shape[0]
-    a = np.asarray(reconstruct_measurement(meas, "alternating", window=T, fpn=fpn,
-                                           solver={"strict": False}).reconstruction.alpha, np.float64)
-    Y = np.asarray(meas.frames, np.float64) - fpn
-    out: dict[str, Any] = {"alpha_min": float(a.min()), "alpha_max": float(a.max())}
-    for name, al in (("lsq_classical_alpha", a), ("lsq_alpha_clipped", np.clip(a, 0.02, 0.98))):
-        out[name] = score(lsq_known_alpha(Y, al), meas.truth_x1, meas.truth_x2)
+def start_evidence(multi: list[dict[str, Any]], meas: Any) -> dict[str, float]:
+    """How far the warm-started DIP (the full row) moves from the TV prior alone (the classical estimate it starts
+    from, alpha held), against that estimate's own error and the DIP's: RMS differences in DN per image."""
+    full, tv = (next(r for r in multi if r["variant"] == k) for k in ("full", "tv_only"))
+    out: dict[str, float] = {}
+    for i, (name, truth) in enumerate((("x1", meas.truth_x1), ("x2", meas.truth_x2))):
+        f, s, t = (np.asarray(v, np.float64) for v in (full["images"][i], tv["images"][i], truth))
+        out[f"rms_dip_minus_tv_{name}"] = float(np.sqrt(np.mean((f - s) ** 2)))
+        out[f"rms_error_tv_{name}"] = float(np.sqrt(np.mean((s - t) ** 2)))
+        out[f"rms_error_dip_{name}"] = float(np.sqrt(np.mean((f - t) ** 2)))
     return out
 
 
@@ -156,7 +154,7 @@ def _helps(row: dict[str, Any], tol_db: float) -> bool:
     return 0.5 * (row["delta_psnr_x1"] + row["delta_psnr_x2"]) < -tol_db
 
 
-def _trend(multi: list[dict[str, Any]], snap: list[dict[str, Any]], clip: dict[str, Any], fast: bool) -> dict[str, Any]:
+def _trend(multi: list[dict[str, Any]], snap: list[dict[str, Any]], ev: dict[str, float], fast: bool) -> dict[str, Any]:
     tol = 0.1
     verdict = {f"multi-frame {r['variant']}": _helps(r, tol) for r in multi[1:]}
     verdict.update({f"snapshot {r['variant']}": _helps(r, tol) for r in snap[1:]})
@@ -168,7 +166,8 @@ def _trend(multi: list[dict[str, Any]], snap: list[dict[str, Any]], clip: dict[s
         return f"{r['delta_psnr_x1']:+.2f} / {r['delta_psnr_x2']:+.2f} dB"
 
     tv, none = (next(x for x in multi if x["variant"] == k) for k in ("tv_only", "no_prior"))
-    ls, lc = clip["lsq_classical_alpha"], clip["lsq_alpha_clipped"]
+    full, rs = multi[0], next(x for x in multi if x["variant"] == "random_start")
+    full_tv = (tv["delta_psnr_x1"], tv["delta_psnr_x2"])
 
     return {"expected": "each component helps: removing any one lowers the reconstruction's quality (the paper's "
                         "ablation)",
@@ -185,11 +184,13 @@ def _trend(multi: list[dict[str, Any]], snap: list[dict[str, Any]], clip: dict[s
                     "darker one (foveal gain ~0.29 against the F/1 perifoveal channel), so the start is the swapped "
                     "mixture, which the DIP loss (blind to alpha's gauge) keeps. The deep prior warm-started from "
                     "the classical estimate keeps that estimate's level (its residual parameterisation cannot move "
-                    "it) and its alpha, except that the DIP clips alpha to [0.02, 0.98]: "
-                    f"the classical alpha spans {clip['alpha_min']:.3f}-{clip['alpha_max']:.3f}, and least squares "
-                    f"with that alpha scores {ls['psnr_x1']:.2f} / {ls['psnr_x2']:.2f} dB, with it clipped "
-                    f"{lc['psnr_x1']:.2f} / {lc['psnr_x2']:.2f} dB: the clipping, not the prior, is most of what the DIP "
-                    "rows lose against the TV prior alone. Measured against each other, the TV "
+                    f"it) and its alpha (alternating's, held: passed to the loss as data): in {full['dip_steps_run']} "
+                    f"steps its images moved {ev['rms_dip_minus_tv_x1']:.3g} / {ev['rms_dip_minus_tv_x2']:.3g} DN RMS "
+                    f"from the TV prior alone's, against that estimate's own error of {ev['rms_error_tv_x1']:.3g} / "
+                    f"{ev['rms_error_tv_x2']:.3g} DN RMS (the DIP's: {ev['rms_error_dip_x1']:.3g} / "
+                    f"{ev['rms_error_dip_x2']:.3g} DN), so what the deep prior adds to TV is "
+                    f"{-full_tv[0]:+.2f} / {-full_tv[1]:+.2f} dB. The random network start's TV weight is the DIP's "
+                    f"data-driven default ({rs['dip_tv_weight']:.3g}). Measured against each other, the TV "
                     f"prior beats no prior by {tv['psnr_x1'] - none['psnr_x1']:+.2f} / "
                     f"{tv['psnr_x2'] - none['psnr_x2']:+.2f} dB." + (
                         " --fast: DIP step budgets of a few tens of steps; the random network start is far from "
@@ -245,11 +246,10 @@ def run(options: StudyOptions) -> StudyResult:
     fig = _figure(multi, snap, meas)
     seconds = {f"{kind} {r['variant']}": r.pop("seconds") for kind, rows in (("multi", multi), ("snapshot", snap))
                for r in rows}
+    evidence = start_evidence(multi, meas)
     for r in multi + snap:
         r.pop("images")
-    with sw("evidence"):
-        clip = clip_evidence(meas, fpn)
-    trend = _trend(multi, snap, clip, options.fast)
+    trend = _trend(multi, snap, evidence, options.fast)
     header = ["variant", "foveal PSNR", "foveal SSIM", "perifoveal PSNR", "perifoveal SSIM", "d foveal PSNR",
               "d perifoveal PSNR"]
     return StudyResult(
@@ -263,7 +263,8 @@ def run(options: StudyOptions) -> StudyResult:
                  f"(the DIP's stopping rule may end it earlier); each other row removes or replaces one component: "
                  f"alpha from the frame means (the paper's initialisation) or random instead of the classical "
                  f"estimate (least-squares start, alpha learned), no exclusion loss, the TV prior alone (no deep "
-                 f"prior), no prior, the paper's random network start ({p['random_steps']} steps at most), FPN not "
+                 f"prior), no prior, the paper's random network start ({p['random_steps']} steps at most; its TV "
+                 f"weight the DIP's default for a random start, from the data by a MAP rule), FPN not "
                  f"removed. Snapshot (frame {frame}, alpha {float(meas.alpha[frame]):.3f}, given): full method = the "
                  f"snapshot separation (n1 = D^T y start, foveal term, TV, exclusion) refined by the double DIP on "
                  f"that frame (warm start, alpha held, foveal term weight 1, {p['warm_steps']} steps at most); rows: "
@@ -289,7 +290,7 @@ def run(options: StudyOptions) -> StudyResult:
         parameters={**p, "seed": options.seed, "filter": FILTER, "snapshot_frame": frame,
                     "snapshot_alpha": float(meas.alpha[frame]), "psf": meas.meta["psf"]["provider"],
                     "not_ablated": "single deep prior (no switch in metafovea.reconstruct.dip)"},
-        results=rounded({"multi_frame": multi, "snapshot": snap, "alpha_clip_evidence": clip}),
+        results=rounded({"multi_frame": multi, "snapshot": snap, "warm_start_evidence": evidence}),
         trend=rounded(trend), figure=fig,
         caption="PSNR of both images per variant (left; top multi-frame, bottom snapshot), the foveal truth, the "
                 "full method's foveal image and the foveal image of the variant with the lowest foveal PSNR",
