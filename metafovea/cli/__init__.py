@@ -86,7 +86,23 @@ def as_flag_error(command: str, err: InputError, args: argparse.Namespace | None
     return err.renamed(typed[err.parameter]) if err.parameter in typed else err
 
 
-def build_parser() -> argparse.ArgumentParser:
+#: each command's module (``layout`` holds two): :func:`build_parser` imports only the one a command line names
+COMMANDS = {"validate": "validate", "design": "design", "library": "library", "export": "layout", "verify": "layout",
+            "psf": "psf", "simulate": "simulate", "import": "import_", "reconstruct": "reconstruct", "study": "study"}
+
+
+def _command_in(argv: Sequence[str] | None) -> str | None:
+    """The command a command line names: its first word that is not an option (the global options take no value)."""
+    for tok in argv or ():
+        if not tok.startswith("-"):
+            return tok if tok in COMMANDS else None
+    return None
+
+
+def build_parser(argv: Sequence[str] | None = None) -> argparse.ArgumentParser:
+    """The ``metafovea`` parser: every command's, or with ``argv`` naming a command only that command's (its
+    module alone is imported: a command line's start-up without the other commands' imports, e.g. ~0.1 s of the
+    RCWA, recordings and study modules for ``reconstruct``)."""
     from metafovea.cli.options import add_common, iter_subparsers
 
     parser = Parser(prog="metafovea", description="Polarisation-multiplexed foveated meta-optics for LWIR cameras. "
@@ -96,7 +112,8 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("-v", "--verbose", dest="global_verbose", action="count", default=0, help="more log output")
     parser.add_argument("-q", "--quiet", dest="global_quiet", action="store_true", help="no progress bars")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=Parser)
-    for name in COMMAND_MODULES:
+    only = _command_in(argv)
+    for name in COMMAND_MODULES if only is None else (COMMANDS[only],):
         importlib.import_module(f"metafovea.cli.{name}").register(sub)
     for _, p in iter_subparsers(parser):
         add_common(p)
@@ -107,7 +124,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Run ``metafovea`` with ``argv`` (default ``sys.argv[1:]``); returns the exit status."""
     from metafovea.cli.options import warning_printer
 
-    parser = build_parser()
+    argv = sys.argv[1:] if argv is None else list(argv)
+    parser = build_parser(argv)
     args = parser.parse_args(argv)
     if not getattr(args, "command", None):
         parser.print_help()

@@ -24,19 +24,59 @@ Works on plain numpy arrays: frames ``(T, H, W)`` (float32 preserved), alpha ``(
 * ``synthetic``: test scenes with an exact foveal constraint.
 """
 
-from metafovea.reconstruct.alternating import AlternatingOptions, alternating, foveal_gauge
-from metafovea.reconstruct.api import FPN_MODES, METHODS, reconstruct, reconstruct_measurement
-from metafovea.reconstruct.deconvolve import (DECONVOLUTION_METHODS, ChannelPSFs, Deconvolution,
-                                              deconvolve_measurement, separate_deconvolve, wiener_bound)
-from metafovea.reconstruct.deep_prior import DipOptions, dip
-from metafovea.reconstruct.denoise import DENOISERS, denoise
-from metafovea.reconstruct.files import figure_paths, prepare_outputs, write_outputs
-from metafovea.reconstruct.fpn import estimate_fpn
-from metafovea.reconstruct.lsq import SlidingLSQ, condition_number, lsq_known_alpha
-from metafovea.reconstruct.operators import FovealOperator, centre_crop, downsample, downsample_adjoint
-from metafovea.reconstruct.result import PipelineResult, Reconstruction
-from metafovea.reconstruct.snapshot import register, snapshot
-from metafovea.reconstruct.video import video
+import importlib
+import sys
+import types
+from typing import Any
+
+#: public name -> the submodule that holds it; imported on first use (PEP 562), so that ``import
+#: metafovea.reconstruct`` (and a known-alpha CLI run) does not load the unknown-alpha, deep-prior and
+#: deconvolution solvers
+_HOMES = {
+    "AlternatingOptions": "alternating", "alternating": "alternating", "foveal_gauge": "alternating",
+    "FPN_MODES": "api", "METHODS": "api", "reconstruct": "api", "reconstruct_measurement": "api",
+    "DECONVOLUTION_METHODS": "deconvolve", "ChannelPSFs": "deconvolve", "Deconvolution": "deconvolve",
+    "deconvolve_measurement": "deconvolve", "separate_deconvolve": "deconvolve", "wiener_bound": "deconvolve",
+    "DipOptions": "deep_prior", "dip": "deep_prior",
+    "DENOISERS": "denoise", "denoise": "denoise",
+    "figure_paths": "files", "prepare_outputs": "files", "write_outputs": "files",
+    "estimate_fpn": "fpn",
+    "SlidingLSQ": "lsq", "condition_number": "lsq", "lsq_known_alpha": "lsq",
+    "FovealOperator": "operators", "centre_crop": "operators", "downsample": "operators",
+    "downsample_adjoint": "operators",
+    "PipelineResult": "result", "Reconstruction": "result",
+    "register": "snapshot", "snapshot": "snapshot",
+    "video": "video",
+}
+
+
+#: functions named as their module: the package attribute is the function (as with eager imports), not the
+#: submodule that the import system binds on the package when it loads it
+_SAME_NAME = frozenset(n for n, home in _HOMES.items() if n == home)
+
+
+class _Package(types.ModuleType):
+    def __setattr__(self, name: str, value: Any) -> None:
+        if name in _SAME_NAME and isinstance(value, types.ModuleType):
+            return
+        super().__setattr__(name, value)
+
+
+sys.modules[__name__].__class__ = _Package
+
+
+def __getattr__(name: str) -> Any:
+    home = _HOMES.get(name)
+    if home is None:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    value = getattr(importlib.import_module(f"{__name__}.{home}"), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(_HOMES))
+
 
 __all__ = ["AlternatingOptions", "ChannelPSFs", "DECONVOLUTION_METHODS", "DENOISERS", "Deconvolution", "DipOptions", "FPN_MODES", "FovealOperator", "METHODS",
            "PipelineResult", "Reconstruction", "SlidingLSQ", "alternating", "centre_crop", "condition_number",

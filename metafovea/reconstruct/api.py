@@ -13,14 +13,11 @@ import numpy as np
 
 from metafovea.errors import InputError, check_choice
 from metafovea.measurement import FovealConstraint, Measurement
-from metafovea.reconstruct.alternating import alternating
-from metafovea.reconstruct.deep_prior import dip
 from metafovea.reconstruct.denoise import denoise as denoise_image
 from metafovea.reconstruct.fpn import estimate_fpn
 from metafovea.reconstruct.lsq import lsq_known_alpha
 from metafovea.reconstruct.metrics import score
 from metafovea.reconstruct.result import PipelineResult, Reconstruction
-from metafovea.reconstruct.snapshot import snapshot
 from metafovea.reconstruct.video import video
 
 #: the solvers, in the CLI's words (``--method``)
@@ -76,8 +73,12 @@ def reconstruct(frames: Any, alpha: Any = None, method: str = "lsq", *, fpn: Any
     elif method == "alternating":
         if alpha is not None:
             raise InputError("alpha", "given", "alpha=None for method='alternating' (use method='lsq' with known alpha)")
+        from metafovea.reconstruct.alternating import alternating
+
         rec = alternating(frames, **kw)
     elif method == "dip":
+        from metafovea.reconstruct.deep_prior import dip
+
         rec = dip(frames, alpha=alpha, **kw)
     else:
         fr = np.asarray(frames)
@@ -86,6 +87,8 @@ def reconstruct(frames: Any, alpha: Any = None, method: str = "lsq", *, fpn: Any
                 raise InputError("frames", f"{fr.shape[0]} frames", "exactly one frame for method='snapshot'")
             fr = fr[0]
         a = None if alpha is None else float(np.ravel(alpha)[0])
+        from metafovea.reconstruct.snapshot import snapshot
+
         rec = snapshot(fr, alpha=a, **kw)
     if isinstance(fpn, str) and fpn.lower() == "prior":
         f, finfo = estimate_fpn(x1=rec.x1, x2=rec.x2, **{**geo, **fpn_kw})

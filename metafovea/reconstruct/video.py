@@ -16,8 +16,6 @@ import numpy as np
 
 from metafovea.errors import InputError, check_choice, check_int
 from metafovea.reconstruct._common import Timings, as_alpha, as_frames, image_dtype, valid_mask
-from metafovea.reconstruct.alternating import alternating
-from metafovea.reconstruct.deep_prior import dip
 from metafovea.reconstruct.denoise import denoise as denoise_image
 from metafovea.reconstruct.lsq import MAX_CONDITION, lsq_known_alpha, residual_sigma, solve_weights
 from metafovea.reconstruct.result import Reconstruction
@@ -128,6 +126,9 @@ def video(frames: Any, alpha: Any = None, *, window: int = 8, stride: int = 1, s
                         float(np.max(conds)))
         alpha_out = a
     else:
+        from metafovea.reconstruct.alternating import alternating  # imported here: an lsq run starts without them
+        from metafovea.reconstruct.deep_prior import dip
+
         x1 = np.empty((K, H, W), dtype=dt)
         x2 = np.empty((K, H, W), dtype=dt)
         aw, identified, se_w, gauges = [], [], [], []

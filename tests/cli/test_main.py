@@ -5,7 +5,7 @@ import sys
 
 import pytest
 
-from metafovea.cli import COMMAND_MODULES, PARAMETER_FLAGS, as_flag_error, build_parser, main
+from metafovea.cli import COMMAND_MODULES, COMMANDS, PARAMETER_FLAGS, as_flag_error, build_parser, main
 from metafovea.errors import InputError
 
 
@@ -14,6 +14,47 @@ def test_every_command_is_registered():
     names = set(sub.choices)
     assert {"validate", "design", "library", "export", "verify", "psf", "simulate", "import", "reconstruct"} <= names
     assert len(COMMAND_MODULES) == 9  # validate design library layout psf simulate import_ reconstruct study
+
+
+def test_a_command_line_builds_only_its_commands_parser():
+    import importlib
+
+    full = next(a for a in build_parser()._actions if a.dest == "command")
+    # the map names every command's module: each registers exactly the commands the map gives it
+    assert set(full.choices) == set(COMMANDS) and set(COMMANDS.values()) == set(COMMAND_MODULES)
+    for name in COMMAND_MODULES:
+        only = next(a for a in build_parser([next(c for c, m in COMMANDS.items() if m == name)])._actions
+                    if a.dest == "command")
+        assert set(only.choices) == {c for c, m in COMMANDS.items() if m == name}, name
+        assert importlib.import_module(f"metafovea.cli.{name}")
+    # options before the command, and the same options either way
+    p = build_parser(["-v", "-q", "reconstruct", "x.npz"])
+    assert p.parse_args(["-v", "-q", "reconstruct", "x.npz"]).command == "reconstruct"
+    full_opts = {a.dest for a in full.choices["reconstruct"]._actions}
+    only_opts = {a.dest for a in next(a for a in p._actions if a.dest == "command").choices["reconstruct"]._actions}
+    assert full_opts == only_opts
+    # an unknown first word builds the whole parser (argparse names the choices)
+    assert set(next(a for a in build_parser(["nosuch"])._actions if a.dest == "command").choices) == set(COMMANDS)
+
+
+def test_known_alpha_reconstruct_starts_without_the_other_solvers():
+    """A known-alpha run imports neither the unknown-alpha, deep-prior or deconvolution solvers nor the other
+    commands' packages (start-up counts in the file-to-file throughput, BENCHMARKS.md)."""
+    code = ("import sys; from metafovea.cli import build_parser; "
+            "build_parser(['reconstruct', 'x.npz']); import metafovea.reconstruct.api; "
+            "heavy = [m for m in ('metafovea.reconstruct.alternating', 'metafovea.reconstruct.deep_prior', "
+            "'metafovea.reconstruct.deconvolve', 'metafovea.rcwa', 'metafovea.recordings', 'jax') if m in sys.modules]; "
+            "print(heavy)")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
+    assert out.strip() == "[]", out
+    # the package's functions named as their modules stay functions once those modules are loaded
+    code = ("import metafovea.reconstruct.video, metafovea.reconstruct.alternating, metafovea.reconstruct.snapshot, "
+            "metafovea.reconstruct.denoise; import types; import metafovea.reconstruct as r; "
+            "from metafovea.reconstruct import alternating, video, snapshot, denoise; "
+            "print(all(callable(f) and not isinstance(f, types.ModuleType) for f in (alternating, video, snapshot, "
+            "denoise, r.video, r.alternating)), sorted(r.__all__) == sorted(r._HOMES))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
+    assert out.strip() == "True True", out
 
 
 def test_no_command_prints_help_and_exits_2(capsys):
