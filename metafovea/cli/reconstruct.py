@@ -114,7 +114,6 @@ def run(args: argparse.Namespace) -> int:
     """Reconstruct, print the summary, write the outputs; 0 on success (an InputError is reported by main)."""
     from metafovea.measurement import FovealConstraint, Measurement
     from metafovea.reconstruct import prepare_outputs, reconstruct_measurement, write_outputs
-    from metafovea.reconstruct.deconvolve import deconvolve_result
     from metafovea.reconstruct.files import scene_paths, write_scene
 
     m = Measurement.load(args.measurement)
@@ -127,7 +126,11 @@ def run(args: argparse.Namespace) -> int:
                                   constraint=fc, solver=solver, progress=progress(args),
                                   score_truth=not args.no_score)
     files = write_outputs(res, out, figures, title=f"{res.reconstruction.method}: {Path(m.source).name}")
-    dec = deconvolve_result(m, res, args.deconvolve, args.psf, score_truth=not args.no_score) if args.deconvolve else None
+    dec = None
+    if args.deconvolve:
+        from metafovea.reconstruct.deconvolve import deconvolve_result  # only here: a plain run starts faster
+
+        dec = deconvolve_result(m, res, args.deconvolve, args.psf, score_truth=not args.no_score)
     if dec is not None:
         files += write_scene(dec, scene_out)
     s = res.summary(files)

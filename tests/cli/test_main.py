@@ -41,7 +41,7 @@ def test_known_alpha_reconstruct_starts_without_the_other_solvers():
     """A known-alpha run imports neither the unknown-alpha, deep-prior or deconvolution solvers nor the other
     commands' packages (start-up counts in the file-to-file throughput, BENCHMARKS.md)."""
     code = ("import sys; from metafovea.cli import build_parser; "
-            "build_parser(['reconstruct', 'x.npz']); import metafovea.reconstruct.api; "
+            "build_parser(['reconstruct', 'x.npz']); import metafovea.reconstruct.api, metafovea.cli.reconstruct; "
             "heavy = [m for m in ('metafovea.reconstruct.alternating', 'metafovea.reconstruct.deep_prior', "
             "'metafovea.reconstruct.deconvolve', 'metafovea.rcwa', 'metafovea.recordings', 'jax') if m in sys.modules]; "
             "print(heavy)")
