@@ -17,6 +17,7 @@ from __future__ import annotations
 import argparse
 import os
 import site
+import statistics
 import subprocess
 import sys
 import time
@@ -44,16 +45,18 @@ def _compare(tree: Path, meas: Path, d: Path, reps: int, n_out: int) -> None:
     """This tree against ``tree``, rep by rep, on the first case (lsq, no scoring, no figures)."""
     sp = os.pathsep.join(site.getsitepackages())
     flags = ["reconstruct", str(meas), "--window", "8", "--out", str(d / "rec.npz"), "--force", *CASES[0][1]]
-    best = {}
-    for _ in range(reps):
-        for name, root in (("this tree", HERE), (f"{tree}", tree)):
+    times: dict[str, list[float]] = {}
+    trees = [("this tree", HERE), (f"{tree}", tree)]
+    for rep in range(reps):
+        for name, root in trees if rep % 2 == 0 else trees[::-1]:  # alternate who goes first
             env = {**os.environ, "PYTHONPATH": f"{root}{os.pathsep}{sp}"}
-            best[name] = min(best.get(name, float("inf")), _time([sys.executable, "-S", "-m", "metafovea", *flags], env))
-    print(f"\nside by side ({CASES[0][0]}, python -S, best of {reps}, load {_load()}):")
-    print("| tree | seconds | windows/s |")
-    print("|---|---|---|")
-    for name, b in best.items():
-        print(f"| {name} | {b:.3f} | {n_out / b:.0f} |")
+            times.setdefault(name, []).append(_time([sys.executable, "-S", "-m", "metafovea", *flags], env))
+    print(f"\nside by side ({CASES[0][0]}, python -S, {reps} reps each, load {_load()}):")
+    print("| tree | best s | windows/s | median s | windows/s |")
+    print("|---|---|---|---|---|")
+    for name, t in times.items():
+        b, med = min(t), statistics.median(t)
+        print(f"| {name} | {b:.3f} | {n_out / b:.0f} | {med:.3f} | {n_out / med:.0f} |")
 
 
 def main(argv=None) -> int:
@@ -73,12 +76,14 @@ def main(argv=None) -> int:
                         "--no-tiff", "--no-preview"], check=True, capture_output=True)
     n_out = a.frames - 8 + 1
     print(f"{n_out} windows of 8 frames; {os.cpu_count()} CPUs; load {_load()}")
-    print("| command | seconds (best of %d) | windows/s | s/window |" % a.reps)
-    print("|---|---|---|---|")
+    print("| command | seconds (best of %d) | windows/s | median s | windows/s | s/window (best) |" % a.reps)
+    print("|---|---|---|---|---|---|")
     for name, flags in CASES[:a.cases]:
         cmd = [*exe, "reconstruct", str(meas), "--window", "8", "--out", str(d / "rec.npz"), "--force", *flags]
-        best = min(_time(cmd) for _ in range(a.reps))
-        print(f"| {name} | {best:.2f} | {n_out / best:.0f} | {best / n_out:.4f} |", flush=True)
+        t = [_time(cmd) for _ in range(a.reps)]
+        best, med = min(t), statistics.median(t)
+        print(f"| {name} | {best:.2f} | {n_out / best:.0f} | {med:.2f} | {n_out / med:.0f} | {best / n_out:.4f} |",
+              flush=True)
     if a.compare:
         _compare(Path(a.compare).resolve(), meas, d, a.reps, n_out)
     print(f"load after: {_load()}")
