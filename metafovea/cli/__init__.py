@@ -18,7 +18,7 @@ import logging
 import os
 import sys
 import warnings
-from typing import Sequence
+from typing import Any, Sequence
 
 from metafovea import __version__
 from metafovea.errors import InputError
@@ -163,13 +163,37 @@ def _interrupt(signum: int, frame: object) -> None:
     raise KeyboardInterrupt(f"signal {signum}")
 
 
-def console_main() -> int:
-    """The ``metafovea`` command: :func:`main` with SIGINT and SIGTERM both stopping the run (exit 130, the
-    resumable state kept), also when the shell started it with SIGINT ignored (a background job)."""
+def _unraisable(u: Any) -> None:
+    """``sys.unraisablehook``: a stop signal that lands in a garbage-collector callback or a ``__del__`` (JAX's
+    ``_xla_gc_callback``, seen in CI) raises where Python can only print and drop it; deliver it again, a moment
+    later, instead of printing a traceback and running on."""
+    if isinstance(u.exc_value, KeyboardInterrupt):
+        import signal
+        import threading
+
+        # to the main thread: a signal raised in the timer's thread would only wake the main thread when its
+        # current blocking call returns
+        t = threading.Timer(0.05, signal.pthread_kill, (threading.main_thread().ident, signal.SIGINT))
+        t.daemon = True  # never holds the exit
+        t.start()
+        return
+    sys.__unraisablehook__(u)
+
+
+def install_stop_handlers() -> None:
+    """SIGINT and SIGTERM both stop the run as a KeyboardInterrupt (also when the shell started the command with
+    SIGINT ignored, as a background job), and one dropped by an unraisable context is delivered again."""
     import signal
 
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, _interrupt)
+    sys.unraisablehook = _unraisable
+
+
+def console_main() -> int:
+    """The ``metafovea`` command: :func:`main` with SIGINT and SIGTERM both stopping the run (exit 130, the
+    resumable state kept, :func:`install_stop_handlers`)."""
+    install_stop_handlers()
     rc = main()
     if rc == 130 and "jax" in sys.modules:
         # an interrupted JAX computation leaves XLA's threads mid-flight: interpreter finalisation then crashes

@@ -548,10 +548,20 @@ def _run_reports(lenses: list[LensDesign], out_dir: str | Path, force: bool, sys
     elif jobs > 1 and len(lenses) > 1:
         # one process per lens (the report of a lens is single-threaded), through the project's executor
         # (forkserver workers: a process that has started JAX's threads must not fork)
-        from metafovea.parallel import get_executor
+        import concurrent.futures as cf
 
-        with get_executor(min(jobs, len(lenses))) as pool:
+        from metafovea.parallel import get_executor, stop_workers
+
+        pool = get_executor(min(jobs, len(lenses)))
+        try:
             outcomes = list(pool.map(_report_one, lenses, [str(out)] * len(lenses), kws))
+        except BaseException:  # Ctrl-C, SIGTERM: end the running reports rather than wait for them
+            if isinstance(pool, cf.ProcessPoolExecutor):
+                stop_workers(pool)
+            else:
+                pool.shutdown(wait=False, cancel_futures=True)
+            raise
+        pool.shutdown(wait=True)
     else:
         outcomes = [_report_one(lens, str(out), k) for lens, k in zip(lenses, kws)]
     summary = {}

@@ -165,3 +165,26 @@ def test_long_commands_stop_on_sigint_with_one_line(tmp_path, name):
     assert stopped < 45, f"{name} took {stopped:.1f} s to stop"  # 21 s seen for psf on a loaded 2-core CI run
     assert not (tmp_path / output).is_file(), f"{name} left {output}"
     assert _wait_for(lambda: not _group_alive(p.pid), 5), _group_alive(p.pid)
+
+
+def test_a_stop_signal_dropped_in_a_finaliser_is_delivered_again(tmp_path):
+    """A Ctrl-C whose KeyboardInterrupt is raised inside a garbage-collector callback or ``__del__`` (where Python
+    prints and drops it: JAX's gc callback, seen in CI) still stops the command, without a traceback."""
+    script = tmp_path / "s.py"
+    script.write_text(
+        "import time\n"
+        "from metafovea.cli import install_stop_handlers\n"
+        "install_stop_handlers()\n"
+        "class Finaliser:\n"
+        "    def __del__(self):\n"
+        "        raise KeyboardInterrupt('signal 2')  # as the handler does when the signal lands here\n"
+        "Finaliser()\n"
+        "try:\n"
+        "    time.sleep(20)\n"
+        "    print('ran on')\n"
+        "except KeyboardInterrupt:\n"
+        "    print('stopped')\n")
+    t0 = time.monotonic()
+    r = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, timeout=60, cwd=tmp_path)
+    assert r.stdout.strip() == "stopped" and time.monotonic() - t0 < 15, (r.stdout, r.stderr[-500:])
+    assert "Traceback" not in r.stderr and "Exception ignored" not in r.stderr, r.stderr[-500:]

@@ -36,3 +36,49 @@ def test_an_unguarded_script_runs_its_tasks_in_process_with_a_warning(tmp_path):
 
 def test_a_guarded_script_gets_the_process_pool(tmp_path):
     assert _run(tmp_path, guarded=True).split() == ["ProcessPoolExecutor", "[1,", "2,", "3]", "False"]
+
+
+STOP = """
+import os, sys, time
+from pathlib import Path
+from metafovea.io import atomic_open
+from metafovea.parallel import get_executor, run_tasks
+
+
+def slow(item):
+    path, seconds = item
+    if path is None:
+        return os.getpid()
+    with atomic_open(path, "wb") as fh:  # a temporary file next to path until the block ends
+        fh.write(b"partial")
+        time.sleep(seconds)
+    return os.getpid()
+
+
+if __name__ == "__main__":
+    d = Path(sys.argv[1])
+    ex = get_executor(2)
+    gen = run_tasks(slow, [(None, 0), (str(d / "a.bin"), 120), (str(d / "b.bin"), 120)], executor=None, workers=2)
+    next(gen)  # one result, then the caller stops (as after a Ctrl-C)
+    time.sleep(1.0)  # the two slow tasks are running, their temporary files written
+    t0 = time.monotonic()
+    gen.close()
+    print(round(time.monotonic() - t0, 2), sorted(p.name for p in d.iterdir()))
+    ex.shutdown()
+"""
+
+
+def test_stopping_a_sweep_ends_its_running_tasks_and_their_temporary_files(tmp_path):
+    """A caller that stops reading (Ctrl-C) does not wait for the running tasks (two-minute ones here); each worker
+    unwinds on SIGTERM, so its atomic write removes its temporary file."""
+    script = tmp_path / "stop.py"
+    script.write_text(STOP)
+    out_dir = tmp_path / "out"
+    out_dir.mkdir()
+    env = {**os.environ, "METAFOVEA_CACHE": str(tmp_path / "cache")}
+    r = subprocess.run([sys.executable, str(script), str(out_dir)], capture_output=True, text=True, timeout=100,
+                       env=env, cwd=tmp_path)
+    assert r.returncode == 0, r.stderr[-2000:]
+    seconds, files = r.stdout.split(maxsplit=1)
+    assert float(seconds) < 15.0, r.stdout
+    assert files.strip() == "[]", r.stdout  # neither the outputs nor their temporary files
