@@ -18,9 +18,10 @@ import logging
 import os
 import sys
 import warnings
-from typing import Any, Sequence
+from typing import Sequence
 
 from metafovea import __version__
+from metafovea.cli.stop import install_stop_handlers
 from metafovea.errors import InputError
 
 log = logging.getLogger("metafovea")
@@ -157,37 +158,6 @@ def _run(args: argparse.Namespace) -> int:
         sys.stderr.write(f"metafovea {args.command}: error: {e.strerror or e}: {getattr(e, 'filename', '') or ''}\n")
         return 2
     return int(rc or 0)
-
-
-def _interrupt(signum: int, frame: object) -> None:
-    raise KeyboardInterrupt(f"signal {signum}")
-
-
-def _unraisable(u: Any) -> None:
-    """``sys.unraisablehook``: a stop signal that lands in a garbage-collector callback or a ``__del__`` (JAX's
-    ``_xla_gc_callback``, seen in CI) raises where Python can only print and drop it; deliver it again, a moment
-    later, instead of printing a traceback and running on."""
-    if isinstance(u.exc_value, KeyboardInterrupt):
-        import signal
-        import threading
-
-        # to the main thread: a signal raised in the timer's thread would only wake the main thread when its
-        # current blocking call returns
-        t = threading.Timer(0.05, signal.pthread_kill, (threading.main_thread().ident, signal.SIGINT))
-        t.daemon = True  # never holds the exit
-        t.start()
-        return
-    sys.__unraisablehook__(u)
-
-
-def install_stop_handlers() -> None:
-    """SIGINT and SIGTERM both stop the run as a KeyboardInterrupt (also when the shell started the command with
-    SIGINT ignored, as a background job), and one dropped by an unraisable context is delivered again."""
-    import signal
-
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(sig, _interrupt)
-    sys.unraisablehook = _unraisable
 
 
 def console_main() -> int:
