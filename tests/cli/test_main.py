@@ -37,24 +37,26 @@ def test_a_command_line_builds_only_its_commands_parser():
     assert set(next(a for a in build_parser(["nosuch"])._actions if a.dest == "command").choices) == set(COMMANDS)
 
 
+def _fresh_python(code: str) -> str:
+    """``code``'s output in a new interpreter (what it imports is then its own doing)."""
+    return subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.strip()
+
+
 def test_known_alpha_reconstruct_starts_without_the_other_solvers():
     """A known-alpha run imports neither the unknown-alpha, deep-prior or deconvolution solvers nor the other
     commands' packages (start-up counts in the file-to-file throughput, BENCHMARKS.md)."""
-    code = ("import sys; from metafovea.cli import build_parser; "
-            "build_parser(['reconstruct', 'x.npz']); import metafovea.reconstruct.api, metafovea.cli.reconstruct; "
-            "heavy = [m for m in ('metafovea.reconstruct.alternating', 'metafovea.reconstruct.deep_prior', "
-            "'metafovea.reconstruct.deconvolve', 'metafovea.rcwa', 'metafovea.recordings', 'jax') if m in sys.modules]; "
-            "print(heavy)")
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
-    assert out.strip() == "[]", out
+    heavy = ("metafovea.reconstruct.alternating", "metafovea.reconstruct.deep_prior", "metafovea.reconstruct.deconvolve",
+             "metafovea.rcwa", "metafovea.recordings", "jax")
+    assert _fresh_python("import sys; from metafovea.cli import build_parser; build_parser(['reconstruct', 'x.npz']); "
+                         "import metafovea.reconstruct.api, metafovea.cli.reconstruct; "
+                         f"print([m for m in {heavy!r} if m in sys.modules])") == "[]"
     # the package's functions named as their modules stay functions once those modules are loaded
-    code = ("import metafovea.reconstruct.video, metafovea.reconstruct.alternating, metafovea.reconstruct.snapshot, "
-            "metafovea.reconstruct.denoise; import types; import metafovea.reconstruct as r; "
-            "from metafovea.reconstruct import alternating, video, snapshot, denoise; "
-            "print(all(callable(f) and not isinstance(f, types.ModuleType) for f in (alternating, video, snapshot, "
-            "denoise, r.video, r.alternating)), sorted(r.__all__) == sorted(r._HOMES))")
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
-    assert out.strip() == "True True", out
+    assert _fresh_python("import types; import metafovea.reconstruct.video, metafovea.reconstruct.alternating, "
+                         "metafovea.reconstruct.snapshot, metafovea.reconstruct.denoise; import metafovea.reconstruct "
+                         "as r; from metafovea.reconstruct import alternating, video, snapshot, denoise; "
+                         "print(all(callable(f) and not isinstance(f, types.ModuleType) for f in (alternating, video, "
+                         "snapshot, denoise, r.video, r.alternating)), sorted(r.__all__) == sorted(r._HOMES))"
+                         ) == "True True"
 
 
 def test_no_command_prints_help_and_exits_2(capsys):
