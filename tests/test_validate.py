@@ -48,8 +48,8 @@ def test_validate_small_runs_every_stage(tmp_path, monkeypatch, small_system, br
     assert rows["lsq"]["psnr_x2"] > 30
     assert rows["lsq"]["psnr_x1"] > rows["lsq, no FPN correction"]["psnr_x1"]
     assert rows["alternating"]["alpha_mae"] < 0.05
-    # the FPN estimate's error (split halves of the shutter frames, used as noise by the PSF-aware step) against the
-    # true error of the estimate
+    # the FPN estimate's error (SURE of the shutter frames' shrinkage estimate, used as noise by the PSF-aware
+    # step) against the true error of the estimate
     from metafovea.validate import verdict
 
     fpn_checks = [i for i in verdict(rep) if "FPN estimate's error" in i["check"]]
