@@ -109,13 +109,10 @@ def estimate_fpn(*, calibration: Any = None, x1: np.ndarray | None = None, x2: n
     """
     shape = np.shape(calibration)[-2:] if calibration is not None else np.shape(x1)[-2:]
     tv_rank = rank if rank is not None else max(1, min(20, min(shape) // 16)) if len(shape) == 2 else 20
-    if calibration is not None:
-        pass  # None: optimal shrinkage (two frames or more), else the paper's rank 20
-    elif method == "foveal":
-        rank = FOVEAL_RANK if rank is None else rank
-    elif rank is None:
-        rank = tv_rank
-    rank = None if rank is None and calibration is not None else check_int("rank", rank, 1, 100000)
+    if calibration is None and rank is None:
+        rank = FOVEAL_RANK if method == "foveal" else tv_rank
+    if rank is not None:  # (None with calibration frames: optimal shrinkage)
+        rank = check_int("rank", rank, 1, 100000)
     if bound is None:
         if calibration is not None:
             bound = float("inf")
@@ -201,10 +198,9 @@ def shrink_lowrank(f: np.ndarray, noise: float) -> tuple[np.ndarray, int, float]
     g = g - g.mean()
     H, W = g.shape
     sig = float(noise)
-    if not (math.isfinite(sig) and sig > 0):
-        U, s, Vt = np.linalg.svd(g, full_matrices=False)
-        return g, int(np.sum(s > 0)), 0.0
     U, s, Vt = np.linalg.svd(g, full_matrices=False)
+    if not (math.isfinite(sig) and sig > 0):  # noise-free frames: nothing to shrink
+        return g, int(np.sum(s > 0)), 0.0
     n, beta = max(H, W), min(H, W) / max(H, W)
     c = math.sqrt(n) * sig
     y = s / c
