@@ -548,20 +548,12 @@ def _run_reports(lenses: list[LensDesign], out_dir: str | Path, force: bool, sys
     elif jobs > 1 and len(lenses) > 1:
         # one process per lens (the report of a lens is single-threaded), through the project's executor
         # (forkserver workers: a process that has started JAX's threads must not fork)
-        import concurrent.futures as cf
+        # (run_tasks ends the running reports on Ctrl-C rather than waiting for them)
+        from metafovea.parallel import run_tasks
 
-        from metafovea.parallel import get_executor, stop_workers
-
-        pool = get_executor(min(jobs, len(lenses)))
-        try:
-            outcomes = list(pool.map(_report_one, lenses, [str(out)] * len(lenses), kws))
-        except BaseException:  # Ctrl-C, SIGTERM: end the running reports rather than wait for them
-            if isinstance(pool, cf.ProcessPoolExecutor):
-                stop_workers(pool)
-            else:
-                pool.shutdown(wait=False, cancel_futures=True)
-            raise
-        pool.shutdown(wait=True)
+        done = dict(run_tasks(_report_item, [(lens, str(out), k) for lens, k in zip(lenses, kws)],
+                              workers=min(jobs, len(lenses))))
+        outcomes = [done[i] for i in range(len(lenses))]
     else:
         outcomes = [_report_one(lens, str(out), k) for lens, k in zip(lenses, kws)]
     summary = {}
@@ -572,6 +564,11 @@ def _run_reports(lenses: list[LensDesign], out_dir: str | Path, force: bool, sys
         summary[lens.name] = {**val, "html": str(Path(out) / f"{file_stem(lens.name)}_psf_report.html")}
     summary["optical_train"] = trains
     return summary
+
+
+def _report_item(item: tuple[LensDesign, str, dict[str, Any]]) -> tuple[str, Any]:
+    """:func:`_report_one` of one ``(lens, out, kw)`` task."""
+    return _report_one(*item)
 
 
 def _report_one(lens: LensDesign, out: str, kw: dict[str, Any]) -> tuple[str, Any]:
