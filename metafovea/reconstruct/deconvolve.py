@@ -315,6 +315,7 @@ def _fitted_spectrum(g: _Grid, z: np.ndarray, noise_var: float, D: np.ndarray,
         field = _radial_field(g, meas)
         law = np.where(field > 0, field, law)
         info["measured_bins"] = int(strong.sum())
+        info["measured_below_cycles_per_px"] = float(fc[strong].max() + 0.5 * (fc[1] - fc[0])) if strong.any() else 0.0
         info["measured_from"] = "the padded grid's periodogram"
     return law, info
 
