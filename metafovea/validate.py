@@ -65,6 +65,9 @@ class ValidateOptions:
     dip_cases: str = "last"  #: run the (slow) deep image prior in 'last' case only, or 'all'/'none' 
     snapshot_iterations: int = 200
     seed: int = 0
+    #: the paper's polariser turns freely (phase and rate unknown to the reconstruction: the unknown-alpha rows
+    #: estimate them); 'sync' locks it to the frames with a known phase, which makes alpha known
+    polarizer_mode: str = "free"
     library_grid_step_um: float = 0.1
     library_harmonics: int = 10
     cache_dir: str | None = None
@@ -445,7 +448,7 @@ def validate_system(system: SystemDesign, opts: ValidateOptions | None = None,
             warnings.simplefilter("ignore")
             meas = simulate(system, opts.scene, rng=opts.seed, frames=opts.frames, filter_enabled=filt,
                             psf_cache_dir=opts.cache_dir, calibration_frames=opts.calibration_frames,
-                            psf=opts.psf, posts=post_sets)
+                            psf=opts.psf, posts=post_sets, polarizer_mode=opts.polarizer_mode)
         t_sim = time.perf_counter() - t
         t = time.perf_counter()
         run_dip = opts.dip_cases == "all" or (opts.dip_cases == "last" and i_case == len(opts.filters) - 1)

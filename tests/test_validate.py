@@ -47,7 +47,9 @@ def test_validate_small_runs_every_stage(tmp_path, monkeypatch, small_system, br
     # known alpha is the noise-limited reference; FPN correction from the shutter frames must help
     assert rows["lsq"]["psnr_x2"] > 30
     assert rows["lsq"]["psnr_x1"] > rows["lsq, no FPN correction"]["psnr_x1"]
-    assert rows["alternating"]["alpha_mae"] < 0.05
+    # the default polariser turns freely (the paper's): the unknown-alpha row estimates alpha, it is not handed the
+    # phase of a synchronised one (which made its error 1e-15 before 2026-12-03)
+    assert 1e-9 < rows["alternating"]["alpha_mae"] < 0.05
     # the FPN estimate's error (SURE of the shutter frames' shrinkage estimate, used as noise by the PSF-aware
     # step) against the true error of the estimate
     from metafovea.validate import verdict

@@ -30,6 +30,9 @@ def register(sub: Any) -> None:
     p.add_argument("--frames", default="96", help="frames to simulate (default 96: 8 s at 12 frames/s)")
     p.add_argument("--filter", default="both", choices=("off", "on", "both"),
                    help="spectral cases: 8-14 um as designed (off), the 10 um / 0.5 um filter (on), or both")
+    p.add_argument("--polarizer", default="free", choices=("free", "sync"),
+                   help="free (default, the paper's): turning with a phase and rate the unknown-alpha solvers estimate; "
+                        "sync: locked to the frames with a known phase (alpha then known)")
     p.add_argument("--dip-steps", default="20", help="deep-image-prior steps, warm-started from the classical "
                                                       "solution (default 20; more change nothing measurable here)")
     p.set_defaults(func=run)
@@ -51,6 +54,7 @@ def run(args: argparse.Namespace) -> int:
         stamp = datetime.now().strftime("%Y%m%d-%H%M%S")
         out = prepare_output(Path("out") / f"validate-{stamp}", False, is_dir=True)
     opts = ValidateOptions(seed=seed, frames=frames, scene=args.scene, dip_steps=dip_steps,
+                           polarizer_mode=args.polarizer,
                            progress=not getattr(args, "quiet", False) and not args.json,
                            filters=(False, True) if args.filter == "both" else (args.filter == "on",))
     rep = validate_system(system, opts, out)

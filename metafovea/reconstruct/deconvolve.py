@@ -15,15 +15,15 @@ spatial frequency, one 2 x 2 system for both channels, on a grid padded by the k
 boundary), with
 
 * ``method='wiener'`` (default): the linear minimum-mean-square-error estimate with the scene spectrum estimated
-  from the crop's Hann-tapered periodogram over the PSF's ``|D|^2``: ``prior='hybrid'`` (default) takes the
-  measured spectrum where the signal exceeds 4x the noise and a power law ``c / |f|^beta`` fitted on the
-  detected bins beyond the spectrum's peak elsewhere; ``'power-law'`` fits all detected bins, ``'empirical'``
-  uses the measured spectrum alone (both measured worse, BENCHMARKS.md); the mean is not shrunk. The fit is per
-  pixel of the crop, the solve per bin of the padded grid, whose padding (the crop's edge values) carries no texture
-  but stripes along the axes: ``prior_scale='geometric'`` (default) spreads it as ``sqrt(n_crop n_grid) x PSD``,
-  between ``'grid'`` (``n_grid x PSD``, the estimator before 2026-12-03: too much prior power at high frequencies,
-  10-400x the padded truth's on the siemens star) and ``'crop'`` (``n_crop x PSD``: too little where the padding
-  extends edges);
+  from the crop's Hann-tapered periodogram over the PSF's ``|D|^2``: ``prior='hybrid'`` (default) fits a power law
+  ``c / |f|^beta`` on the detected bins beyond the spectrum's peak, and below that tail, where the signal exceeds
+  4x the noise, takes the padded grid's own measured spectrum (radially averaged periodogram less the noise, over
+  ``|D|^2``); ``'power-law'`` fits all detected bins, ``'empirical'`` uses the crop's measured spectrum alone (both
+  measured worse, BENCHMARKS.md); the mean is not shrunk. The fitted law is per pixel of the crop, the solve per
+  bin of the padded grid, whose padding (the crop's edge values) carries no texture but stripes along the axes:
+  ``prior_scale='geometric'`` (default) spreads the law as ``sqrt(n_crop n_grid) x PSD``, between ``'grid'``
+  (``n_grid x PSD``, the estimator before 2026-12-03: too much prior power at high frequencies, 10-400x the padded
+  truth's on the siemens star) and ``'crop'`` (``n_crop x PSD``: too little where the padding extends edges);
 * ``method='tv'``: total-variation regularised least squares, ``min_s 1/2 ||u_hat - A s||^2_{C^-1}
   + sum_i lambda_i TV(s_i)`` by ADMM (every linear step per frequency or per pixel), started from the Wiener
   estimate, ``lambda_i = 1 / mean |grad s_i|`` of that estimate (the scale of a Laplace prior on the gradients);
@@ -31,8 +31,9 @@ boundary), with
 
 the boundary: the crop is padded by the kernels' radius with its edge values (``pad_mode='edge'``, measured best
 of edge / reflect / mean / ramp), and the foveal channel's padding is then replaced by what the perifoveal estimate
-predicts there (the foveal haze gathers light from several crop widths around the fovea, which the perifoveal
-channel images: ``foveal_scale``, the channels' 6x relation); ``boundary='unknown'`` solves for the scene beyond
+predicts there below the perifoveal channel's Nyquist frequency (the foveal haze gathers light from several crop
+widths around the fovea, which the perifoveal channel images: ``foveal_scale``, the channels' 6x relation);
+``boundary='unknown'`` solves for the scene beyond
 the crop instead (far less determined: not used by default);
 
 and the reference bound :func:`wiener_bound`: the same linear estimate with the true scene's (radially averaged)

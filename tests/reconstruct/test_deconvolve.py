@@ -148,3 +148,61 @@ def test_the_fixed_patterns_error_counts_as_noise(seed):
         assert p1 > psnr(bound[i], truth[i]) - 1.0
     with pytest.raises(InputError, match="fpn_error_dn"):
         separate_deconvolve(fr, a, psfs, fpn_error_dn=-1.0)
+
+
+def _star(n: int, spokes: int) -> np.ndarray:
+    u = np.arange(n) - (n - 1) / 2
+    return 200.0 + 60.0 * np.sign(np.sin(spokes * np.arctan2(u[:, None], u[None, :])))
+
+
+@pytest.mark.parametrize("n, spokes", [(96, 16), (128, 24)])
+def test_the_measured_prior_is_the_padded_scenes_spectrum(n, spokes):
+    """Where the hybrid prior is measured (strong signal below the fitted tail), it is the power spectrum of the
+    scene the solve is posed on: the crop with its edge-extended padding, whose stripes hold most of the low
+    frequencies' power (the quantity the Wiener bound takes from the truth). A haze-dominated PSF (5 % core) and a
+    spoked scene, as the siemens star's foveal channel; the crop's own periodogram scaled by its share was 30-300x
+    too low there."""
+    from metafovea.reconstruct import deconvolve as dc
+
+    rng = np.random.default_rng(n)
+    k = 0.05 * np.pad(_gauss(1.2, 15), 10) + 0.95 * _disk(12, 35)
+    s = _star(n, spokes) + rng.normal(0, 5, (n, n))
+    g = dc._Grid((n, n), (k, k), (0.0, 0.0))
+    S = g.rfft(g.padded(s - s.mean()))
+    z = g.irfft(g.D[0] * S)[g.crop] + rng.normal(0, 0.5, (n, n))
+    scale = np.sqrt(n * n / float(g.shape[0] * g.shape[1]))
+    est, info = dc._fitted_spectrum(g, z, 0.25, g.D[0], "hybrid", scale)
+    fc, truth = dc._radial_mean(g, np.abs(S) ** 2, nbins=64)
+    _, prior = dc._radial_mean(g, est, nbins=64)
+    sel = (fc > 0) & (fc < info["measured_below_cycles_per_px"])
+    assert sel.sum() >= 5, info
+    ratio = prior[sel] / truth[sel]
+    assert 1 / 3 < np.exp(np.mean(np.log(ratio))) < 3, ratio
+    assert np.all((ratio > 0.1) & (ratio < 10)), ratio
+
+
+def test_the_foveal_surround_keeps_only_what_the_perifoveal_channel_resolves():
+    """The predicted surround enters the foveal padding only below the perifoveal Nyquist frequency (0.5 / scale
+    cycles per foveal pixel): a perifoveal estimate full of pixel-scale detail, magnified 6x, leaves < 1 % of the
+    padding's added power above 1 / scale, and the padding meets the data's edge at the crop."""
+    from metafovea.reconstruct import deconvolve as dc
+
+    n, scale = 64, 6.0
+    rng = np.random.default_rng(2)
+    k = np.pad(_gauss(0.8, 9), 6)  # a sharp foveal PSF: the prediction's detail is not blurred away
+    g = dc._Grid((n, n), (k, k), (0.0, 0.0))
+    zc = np.stack([np.full((n, n), 100.0), np.full((n, n), 100.0)])
+    pb = dc._Problem(g, zc, np.eye(2))
+    s = np.zeros((2,) + g.shape)
+    s[1][g.crop] = 100.0 + 20.0 * rng.standard_normal((n, n))
+    before = pb.z[0].copy()
+    dc._foveal_surround(pb, s, scale, 1.0)
+    added = pb.z[0] - before
+    assert np.array_equal(pb.z[0][g.crop], zc[0])
+    P = np.abs(g.rfft(added)) ** 2
+    P[0, 0] = 0.0
+    assert np.sum(P[g.f > 1.0 / scale]) < 0.01 * np.sum(P), np.sum(P[g.f > 1.0 / scale]) / np.sum(P)
+    assert np.std(added) > 1.0  # the surround did change the padding
+    cy, cx = g.crop
+    ring = np.abs(added[cy.start - 1, cx]).mean()
+    assert ring < 0.5 * np.abs(added).max(), ring
