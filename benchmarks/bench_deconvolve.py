@@ -41,7 +41,8 @@ def main() -> None:
     margins: dict[tuple[str, str], list[float]] = {}
     system = load_system(Path(__file__).resolve().parents[1] / "designs" / "system.toml")
     print(f"nproc {os.cpu_count()}, load {open('/proc/loadavg').read().split()[:3]}")
-    print(f"{'scene':<14} {'seed':>3} {'band':<8} {'method':<7} {'scale':<9} {'s':>6}  x1: {'est':>6} {'bound':>6} {'hazy':>6}   "
+    print(f"{'scene':<14} {'seed':>3} {'band':<8} {'method':<7} {'scale':<9} {'s':>6}  "
+          f"x1: {'est':>6} {'bound':>6} {'hazy':>6}   "
           f"x2: {'est':>6} {'bound':>6} {'hazy':>6}   T rms x1, x2 (K)")
     for scene, seed in ((sc, se) for sc in args.scenes for se in args.seeds):
         for filt in (False, True):

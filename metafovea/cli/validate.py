@@ -31,7 +31,8 @@ def register(sub: Any) -> None:
     p.add_argument("--filter", default="both", choices=("off", "on", "both"),
                    help="spectral cases: 8-14 um as designed (off), the 10 um / 0.5 um filter (on), or both")
     p.add_argument("--polarizer", default="free", choices=("free", "sync"),
-                   help="free (default, the paper's): turning with a phase and rate the unknown-alpha solvers estimate; "
+                   help="free (default, the paper's): turning with a phase and rate the unknown-alpha solvers "
+                        "estimate; "
                         "sync: locked to the frames with a known phase (alpha then known)")
     p.add_argument("--dip-steps", default="20", help="deep-image-prior steps, warm-started from the classical "
                                                       "solution (default 20; more change nothing measurable here)")
