@@ -5,7 +5,7 @@ case (known alpha; the simulator's true FPN subtracted, so that only the deconvo
 does).
 
     python benchmarks/bench_deconvolve.py [--scenes siemens-star bars coins] [--frames 48] [--seeds 5] [--tv]
-        [--prior-scales geometric grid] [--calibration-frames 16]
+        [--prior-scales geometric grid] [--calibration-frames 16] [--polarizer free]
 
 Each prior scale (``separate_deconvolve``'s ``prior_scale``) runs on the same simulated measurement, side by side.
 The last line counts the channel cases below the bound, the worst and the mean margin (dB) per method and scale.
@@ -37,6 +37,7 @@ def main() -> None:
     ap.add_argument("--prior-scales", nargs="+", default=["geometric"], help="prior_scale values, side by side")
     ap.add_argument("--calibration-frames", type=int, default=0,
                     help="estimate the FPN from this many shutter frames (its error counted) instead of the true one")
+    ap.add_argument("--polarizer", default="sync", choices=("sync", "free"), help="the simulated polariser's mode")
     args = ap.parse_args()
     margins: dict[tuple[str, str], list[float]] = {}
     system = load_system(Path(__file__).resolve().parents[1] / "designs" / "system.toml")
@@ -49,7 +50,7 @@ def main() -> None:
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore")
                 m = simulate(system, scene, rng=seed, frames=args.frames, filter_enabled=filt,
-                             calibration_frames=args.calibration_frames)
+                             calibration_frames=args.calibration_frames, polarizer_mode=args.polarizer)
             fpn, fe = m.fpn, 0.0
             if args.calibration_frames:
                 fpn, info = estimate_fpn(calibration=m.extras["calibration"])
