@@ -73,5 +73,6 @@ def main() -> None:
         print(f"{method} {scale}: below the bound in {int(np.sum(r < 0))} of {r.size} channel cases, worst "
               f"{r.min():+.2f} dB, mean {r.mean():+.2f} dB")
 
+
 if __name__ == "__main__":
     main()

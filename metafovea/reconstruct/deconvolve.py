@@ -33,8 +33,7 @@ the boundary: the crop is padded by the kernels' radius with its edge values (``
 of edge / reflect / mean / ramp), and the foveal channel's padding is then replaced by what the perifoveal estimate
 predicts there below the perifoveal channel's Nyquist frequency (the foveal haze gathers light from several crop
 widths around the fovea, which the perifoveal channel images: ``foveal_scale``, the channels' 6x relation);
-``boundary='unknown'`` solves for the scene beyond
-the crop instead (far less determined: not used by default);
+``boundary='unknown'`` solves for the scene beyond the crop instead (far less determined: not used by default);
 
 and the reference bound :func:`wiener_bound`: the same linear estimate with the true scene's (radially averaged)
 power spectrum, the true PSFs and the noise: the best a stationary linear reconstruction can do. ``sigma``, the
@@ -289,8 +288,8 @@ def _fitted_spectrum(g: _Grid, z: np.ndarray, noise_var: float, D: np.ndarray,
     n_grid = g.shape[0] * g.shape[1]
     if prior == "empirical":
         est = np.where(np.isfinite(sig) & (sig > 0) & (pd > 0), sig / np.maximum(pd, 1e-300), 0.0)
-        return _radial_field(g, est) * n_grid * scale, {"prior": "empirical", "bins_with_signal": int(np.sum(est > 0)),
-                                                "bins": nb}
+        return _radial_field(g, est) * n_grid * scale, {"prior": "empirical", "bins": nb,
+                                                        "bins_with_signal": int(np.sum(est > 0))}
     ok = np.isfinite(sig) & (sig > noise_var) & (fc > 0) & (pd > 0)
     ok[0] = False
     idx = np.flatnonzero(ok)
@@ -318,7 +317,8 @@ def _fitted_spectrum(g: _Grid, z: np.ndarray, noise_var: float, D: np.ndarray,
         field = _radial_field(g, meas)
         law = np.where(field > 0, field, law)
         info["measured_bins"] = int(strong.sum())
-        info["measured_below_cycles_per_px"] = float(fc[strong].max() + 0.5 * (fc[1] - fc[0])) if strong.any() else 0.0
+        half_bin = 0.5 * float(fc[1] - fc[0])
+        info["measured_below_cycles_per_px"] = float(fc[strong].max()) + half_bin if strong.any() else 0.0
         info["measured_from"] = "the padded grid's periodogram"
     return law, info
 

@@ -160,7 +160,7 @@ def test_the_measured_prior_is_the_padded_scenes_spectrum(n, spokes):
     """Where the hybrid prior is measured (strong signal below the fitted tail), it is the power spectrum of the
     scene the solve is posed on: the crop with its edge-extended padding, whose stripes hold most of the low
     frequencies' power (the quantity the Wiener bound takes from the truth). A haze-dominated PSF (5 % core) and a
-    spoked scene, as the siemens star's foveal channel; the crop's own periodogram scaled by its share was 30-300x
+    spoked scene, as the siemens star's foveal channel; the crop's own periodogram scaled by its share was 10-300x
     too low there."""
     from metafovea.reconstruct import deconvolve as dc
 
