@@ -206,3 +206,33 @@ def test_the_foveal_surround_keeps_only_what_the_perifoveal_channel_resolves():
     cy, cx = g.crop
     ring = np.abs(added[cy.start - 1, cx]).mean()
     assert ring < 0.5 * np.abs(added).max(), ring
+
+
+def test_the_foveal_surround_continues_a_smooth_field_the_prediction_lacks():
+    """Light from beyond the predicted surround (the PSF's widest disks) adds a smooth field over the crop: the
+    padding continues the data's level and slope (a quadratic surface fitted to data less prediction) instead of
+    stepping to the bare prediction."""
+    from metafovea.reconstruct import deconvolve as dc
+
+    n, scale = 64, 6.0
+    k = np.zeros((61, 61))
+    k[30, 30] = 1.0  # an identity PSF wide enough for 30 px of padding
+    g = dc._Grid((n, n), (k, k), (0.0, 0.0))
+    P, Q = g.shape
+    v, u = np.meshgrid((np.arange(P) - g.pad - (n - 1) / 2) / n, (np.arange(Q) - g.pad - (n - 1) / 2) / n,
+                       indexing="ij")
+    field = 0.8 + 0.5 * v - 0.3 * u + 0.4 * u * u
+    zc = np.stack([100.0 + field[g.crop], np.full((n, n), 100.0)])
+    pb = dc._Problem(g, zc, np.eye(2))
+    s = np.zeros((2,) + g.shape)
+    s[1][g.crop] = 100.0  # the perifoveal scene predicts a uniform 100 DN surround
+    rms = dc._foveal_surround(pb, s, scale, 1.0)
+    assert rms == pytest.approx(np.sqrt(np.mean(field[g.crop] ** 2)), rel=1e-6)
+    far = np.ones(g.shape, dtype=bool)
+    cy, cx = g.crop
+    far[cy.start - 12:cy.stop + 12, cx.start - 12:cx.stop + 12] = False
+    far[:12] = far[P - 12:] = False  # the periodic grid's seam: the low-pass wraps around
+    far[:, :12] = far[:, Q - 12:] = False
+    assert far.sum() > 500
+    err = np.abs(pb.z[0] - (100.0 + field))[far]
+    assert err.max() < 0.05 * np.abs(field[far]).max(), (err.max(), np.abs(field[far]).max())
