@@ -31,8 +31,10 @@ boundary), with
 
 the boundary: the crop is padded by the kernels' radius with its edge values (``pad_mode='edge'``, measured best
 of edge / reflect / mean / ramp), and the foveal channel's padding is then replaced by what the perifoveal estimate
-predicts there below the perifoveal channel's Nyquist frequency (the foveal haze gathers light from several crop
-widths around the fovea, which the perifoveal channel images: ``foveal_scale``, the channels' 6x relation);
+predicts there (the foveal haze gathers light from several crop widths around the fovea, which the perifoveal
+channel images: ``foveal_scale``, the channels' 6x relation), level-matched to the data by a quadratic surface and
+either alone or joined to the data's edge values below the perifoveal Nyquist frequency, whichever solution explains
+the foveal data better (:func:`_foveal_surround`);
 ``boundary='unknown'`` solves for the scene beyond the crop instead (far less determined: not used by default);
 
 and the reference bound :func:`wiener_bound`: the same linear estimate with the true scene's (radially averaged)
@@ -518,23 +520,26 @@ def temperatures(scene_dn: tuple[np.ndarray, np.ndarray], offset: float,
                  for s, k in zip(scene_dn, dn_per_k))  # type: ignore[return-value]
 
 
-def _foveal_surround(pb: _Problem, s: np.ndarray, scale: float, ratio: float) -> float:
+def _foveal_surround(pb: _Problem, s: np.ndarray, scale: float, ratio: float, join: bool = True) -> float:
     """Replace the foveal channel's padding by what the perifoveal estimate predicts there: the foveal field at
     focal-plane position ``p`` is the perifoveal one at ``p / scale`` (both channels share the focal-plane pitch),
     ``s_1 = ratio s_2`` (the channels' radiometric gains), blurred by the foveal PSF. The foveal haze gathers light
-    from several crop widths around the fovea: the perifoveal channel sees that surround directly, but only below
-    its Nyquist frequency, ``0.5 / scale`` cycles per foveal pixel. So the prediction enters as its difference from
-    the edge-extended data, zero on the crop and low-passed there (a Gaussian of ``SURROUND_SIGMA_PER_SCALE x
-    scale`` px, half power at that frequency): far out the padding is the prediction's low-pass, at the crop's edge
-    it joins the data's edge values (the interpolated prediction's detail above that frequency is not the scene's;
-    with it the siemens star's foveal estimate at 10 um lost 0.2 dB along the crop's edges).
+    from several crop widths around the fovea: the perifoveal channel sees that surround directly.
 
     Light the prediction cannot hold (the PSF's disks wider than the grid, its pedestal, gather the scene far
-    beyond it) adds a smooth field over the crop: the prediction is first corrected by the quadratic surface
-    fitted to the data less the prediction on the crop, so that the padding continues the data's level and slope
-    (tall-buildings at 8-14 um: the residual rose by 0.8 DN across the crop even predicted from the true scene, a
-    third of the data's contrast; with the surface the foveal estimate gains 1.4 dB). Returns that surface's rms
-    on the crop (DN)."""
+    beyond it) adds a smooth field over the crop: the prediction is corrected by the quadratic surface fitted to the
+    data less the prediction on the crop, so that the padding continues the data's level and slope (tall-buildings
+    at 8-14 um: the residual rose by 0.8 DN across the crop even predicted from the true scene, a third of the
+    data's contrast; with the surface the foveal estimate gains 1.4 dB).
+
+    ``join=False``: the padding is that corrected prediction. ``join=True``: the prediction enters only below the
+    perifoveal channel's Nyquist frequency, ``0.5 / scale`` cycles per foveal pixel, as its difference from the
+    edge-extended data, zero on the crop and low-passed (a Gaussian of ``SURROUND_SIGMA_PER_SCALE x scale`` px, half
+    power at that frequency): far out the padding is the prediction's low-pass, at the crop's edge it joins the
+    data's edge values, which carry detail finer than the perifoveal channel resolves (the siemens star's spokes
+    crossing the crop's edge: +0.2 dB at 10 um), but wrong detail where the scene has none finer than that.
+    :func:`separate_deconvolve` solves with both and keeps the one whose solution explains the foveal data better.
+    Returns the surface's rms on the crop (DN)."""
     from scipy.ndimage import gaussian_filter, map_coordinates
 
     g = pb.g
@@ -553,10 +558,13 @@ def _foveal_surround(pb: _Problem, s: np.ndarray, scale: float, ratio: float) ->
     A = np.stack([b[g.crop].ravel() for b in basis], axis=1)
     coef = np.linalg.lstsq(A, (pb.zc[0] - pred[g.crop]).ravel(), rcond=None)[0]
     field = sum(c * b for c, b in zip(coef, basis))
-    edge = g.padded(pb.zc[0], pb.pad_mode)
-    diff = pred + field - edge
-    diff[g.crop] = 0.0
-    z1 = edge + gaussian_filter(diff, SURROUND_SIGMA_PER_SCALE * scale, mode="wrap")
+    if join:
+        edge = g.padded(pb.zc[0], pb.pad_mode)
+        diff = pred + field - edge
+        diff[g.crop] = 0.0
+        z1 = edge + gaussian_filter(diff, SURROUND_SIGMA_PER_SCALE * scale, mode="wrap")
+    else:
+        z1 = pred + field
     z1[g.crop] = pb.zc[0]
     pb.z[0] = z1
     return float(np.sqrt(np.mean(field[g.crop] ** 2)))
@@ -578,6 +586,11 @@ def separate_deconvolve(frames: Any, alpha: Any, psfs: ChannelPSFs, *, method: s
     frames, :func:`metafovea.reconstruct.fpn.estimate_fpn`'s ``info['error_rms_dn']``): a static error that the
     frames do not average, counted in the noise model (measured: +1.4 to +1.8 dB on the siemens star's foveal channel
     with the FPN from 16 shutter frames).
+
+    ``info`` holds what was chosen: the noise (``sigma_dn``, ``noise_std_dn``), the grid (``grid``, ``pad_px``),
+    each channel's prior fit (``prior_fit``) and the prior itself radially averaged (``prior_radial``: per
+    unnormalised bin of the padded grid, 64 bins of ``cycles_per_px``), the foveal surround's form
+    (``foveal_surround``, ``foveal_surround_join``, ``foveal_surround_surface_rms_dn``), iterations and seconds.
     """
     method = check_choice("method", method, DECONVOLUTION_METHODS)
     prior = check_choice("prior", prior, PRIORS)
@@ -590,16 +603,30 @@ def separate_deconvolve(frames: Any, alpha: Any, psfs: ChannelPSFs, *, method: s
     scale = {"grid": 1.0, "crop": frac, "geometric": math.sqrt(frac)}[prior_scale]
     fits = [_fitted_spectrum(g, pb.zc[i], C[i, i], g.D[i], prior, scale) for i in range(2)]
     prior_inv = _inverse_prior([f[0] for f in fits])
-    info.update(prior_scale=prior_scale, prior_scale_factor=scale)
+    fr_c, _ = _radial_mean(g, prior_inv[0])
+    info.update(prior_scale=prior_scale, prior_scale_factor=scale,
+                prior_radial={"cycles_per_px": [float(v) for v in fr_c],
+                              **{f"x{i + 1}": [float(v) for v in _radial_mean(g, fits[i][0])[1]] for i in range(2)}})
     s, n_cg = _linear_solve(pb, prior_inv, None)
     if foveal_scale is not None and boundary == "mirror":
-        smooth = _foveal_surround(pb, s, float(foveal_scale), float(foveal_ratio))
-        s, n2 = _linear_solve(pb, prior_inv, s)
-        n_cg += n2
-        info["foveal_surround"] = (f"the foveal channel's surround (its padding) predicted from the perifoveal estimate "
-                                   f"at 1/{float(foveal_scale):g} scale, gain ratio {float(foveal_ratio):.4g}, "
-                                   f"below the perifoveal Nyquist ({0.5 / float(foveal_scale):.3g} cycles/px), "
-                                   f"joined to the data by a quadratic surface of {smooth:.3g} DN rms on the crop")
+        # both forms of the surround; the one whose solution explains the foveal data on the crop better is kept
+        cands = []
+        for join in (True, False):
+            smooth = _foveal_surround(pb, s, float(foveal_scale), float(foveal_ratio), join=join)
+            s_j, n_j = _linear_solve(pb, prior_inv, s)
+            n_cg += n_j
+            r = pb.zc[0] - g.irfft(g.D[0] * g.rfft(s_j[0]))[g.crop]
+            cands.append((float(np.mean(r ** 2)), join, s_j, pb.z[0].copy(), smooth))
+        res2, join, s, pb.z[0], smooth = min(cands, key=lambda c: c[0])
+        form = (f"joined to the data's edge values below the perifoveal Nyquist ({0.5 / float(foveal_scale):.3g} "
+                f"cycles/px)" if join else "the prediction itself")
+        info["foveal_surround"] = (
+            f"the foveal channel's surround (its padding) predicted from the perifoveal estimate at "
+            f"1/{float(foveal_scale):g} scale, gain ratio {float(foveal_ratio):.4g}, with a quadratic surface of "
+            f"{smooth:.3g} DN rms on the crop; {form}: its foveal residual {res2:.4g} DN^2 against "
+            f"{max(c[0] for c in cands):.4g} for the other form")
+        info["foveal_surround_join"] = bool(join)
+        info["foveal_surround_surface_rms_dn"] = smooth
     info.update(method=method, prior=prior, prior_fit=[f[1] for f in fits],
                 cg_iterations=n_cg)
     if method == "tv":
