@@ -44,10 +44,9 @@ channel with its own edge values; it is a reference, not a limit a non-linear or
 
 Measured (``benchmarks/bench_deconvolve.py --calibration-frames 16``, BENCHMARKS.md; 290 x 290, known alpha, the
 FPN from 16 shutter frames with its error counted, PSNR against the scene; eight scenes x two bands, 48 frames,
-seed 7): at or above the bound in 23 of 32 channel cases (mean margin +0.80 dB); the siemens star's foveal channel
-+0.17 / +0.23 dB (8-14 / 10 um; -0.78 / -0.04 before the padded-grid prior and the band-limited surround);
-below it by up to 1.91 dB on tall-buildings' foveal channel at 8-14 um (there the foveal surround costs 1.3 dB on
-seed 5, 0.6 dB even when predicted from the true perifoveal scene) and by 0.01-0.74 dB in eight other channel cases.
+seed 7): at or above the bound in 23 of 32 channel cases (mean margin +0.91 dB); the siemens star's foveal channel
++0.18 / +0.23 dB (8-14 / 10 um; -0.78 / -0.04 before the padded-grid prior and the level-matched surround),
+tall-buildings' -0.31 dB at 8-14 um (was -1.98); below it by 0.01-0.74 dB in nine channel cases.
 
 Temperatures: ``L = s dL/dT(300 K) / (counts_per_k g_i)`` (the radiometric calibration the simulator writes as
 ``dn_per_k_300K``) is in-band radiance, and its brightness temperature the inverse of the band's ``L(T)``
