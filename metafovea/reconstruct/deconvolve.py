@@ -602,10 +602,10 @@ def separate_deconvolve(frames: Any, alpha: Any, psfs: ChannelPSFs, *, method: s
     scale = {"grid": 1.0, "crop": frac, "geometric": math.sqrt(frac)}[prior_scale]
     fits = [_fitted_spectrum(g, pb.zc[i], C[i, i], g.D[i], prior, scale) for i in range(2)]
     prior_inv = _inverse_prior([f[0] for f in fits])
-    fr_c, _ = _radial_mean(g, prior_inv[0])
+    radial = [_radial_mean(g, f[0]) for f in fits]  # (bin centres, mean) per channel
     info.update(prior_scale=prior_scale, prior_scale_factor=scale,
-                prior_radial={"cycles_per_px": [float(v) for v in fr_c],
-                              **{f"x{i + 1}": [float(v) for v in _radial_mean(g, fits[i][0])[1]] for i in range(2)}})
+                prior_radial={"cycles_per_px": radial[0][0].tolist(),
+                              "x1": radial[0][1].tolist(), "x2": radial[1][1].tolist()})
     s, n_cg = _linear_solve(pb, prior_inv, None)
     if foveal_scale is not None and boundary == "mirror":
         # both forms of the surround; the one whose solution explains the foveal data on the crop better is kept
