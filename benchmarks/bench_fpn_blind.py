@@ -8,12 +8,17 @@ x1/x2, seconds. Make the files with
 
     python benchmarks/bench_fpn_blind.py /tmp/bars.npz [more.npz ...] [tv]
 """
-import numpy as np, time, sys
+import sys
+import time
+
+import numpy as np
+
 from metafovea.measurement import Measurement
 from metafovea.parallel import blas_threads
 from metafovea.reconstruct import lsq_known_alpha
 from metafovea.reconstruct.fpn import estimate_fpn
 from metafovea.reconstruct.metrics import psnr
+
 tv = "tv" in sys.argv
 for path in [a for a in sys.argv[1:] if a.endswith(".npz")]:
     m = Measurement.load(path)

@@ -30,8 +30,8 @@ from metafovea.optics import (
     mft_field,
     sensor_psf,
 )
-from metafovea.radiometry import psf_wavelengths
 from metafovea.optics import propagate as prop
+from metafovea.radiometry import psf_wavelengths
 
 warnings.simplefilter("ignore")
 

@@ -81,8 +81,8 @@ def fmmax_t00(M: int, formulation: str, *, width=W, grid: int = 400, truncation:
     """
     import jax
     jax.config.update("jax_enable_x64", True)
-    import jax.numpy as jnp
     import fmmax
+    import jax.numpy as jnp
 
     plv = fmmax.LatticeVectors(u=fmmax.basis.X * P, v=fmmax.basis.Y * P)
     exp = fmmax.generate_expansion(primitive_lattice_vectors=plv, approximate_num_terms=(2 * M + 1) ** 2,
@@ -176,6 +176,7 @@ def main() -> None:
     lib_time = lib_cpu = None
     if a.library:
         import tempfile
+
         from metafovea.library import compute_library, width_grid
         w = width_grid(P, 0.1, 0.5)
         aff0 = os.sched_getaffinity(0) if hasattr(os, "sched_getaffinity") else None

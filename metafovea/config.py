@@ -15,9 +15,10 @@ from __future__ import annotations
 
 import math
 import tomllib
+from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 
@@ -153,7 +154,7 @@ class LensDesign:
         r = self.radius_um
         return r / math.hypot(r, self.f_um)
 
-    def with_(self, **kw: Any) -> "LensDesign":
+    def with_(self, **kw: Any) -> LensDesign:
         return replace(self, **kw)
 
     def plot(self, ax: Any = None) -> Any:
@@ -178,13 +179,13 @@ class LensDesign:
         return lens_html(self)
 
     @classmethod
-    def foveal(cls, platform: PlatformDesign | None = None) -> "LensDesign":
+    def foveal(cls, platform: PlatformDesign | None = None) -> LensDesign:
         p = platform or PlatformDesign()
         return cls("foveal", 150.0 * UM_PER_MM, 75.0 * UM_PER_MM, p.wavelength_um, "x", p.period_um,
                    p.post_height_um, 8, n_substrate=p.n_substrate)
 
     @classmethod
-    def perifoveal(cls, platform: PlatformDesign | None = None) -> "LensDesign":
+    def perifoveal(cls, platform: PlatformDesign | None = None) -> LensDesign:
         p = platform or PlatformDesign()
         return cls("perifoveal", 25.0 * UM_PER_MM, 25.0 * UM_PER_MM, p.wavelength_um, "y", p.period_um,
                    p.post_height_um, 8, n_substrate=p.n_substrate)
@@ -299,7 +300,7 @@ class SystemDesign:
         return self.lens_to_sensor_um[0] / self.lens_to_sensor_um[1]
 
     @classmethod
-    def paper(cls) -> "SystemDesign":
+    def paper(cls) -> SystemDesign:
         return cls()
 
 
@@ -371,7 +372,7 @@ class _Reader:
             return tuple(check_range(k, x, lo, hi, source=self.src) for x in v)
         return self.get(key, default, chk)
 
-    def table(self, key: str) -> "_Reader":
+    def table(self, key: str) -> _Reader:
         self.used.add(key)
         v = self.t.get(key, {})
         if not isinstance(v, dict):

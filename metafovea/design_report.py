@@ -7,17 +7,28 @@ library (``metafovea design`` and notebooks); :func:`write_design_bundles` write
 from __future__ import annotations
 
 import io as _io
+from collections.abc import Sequence
 from dataclasses import asdict
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any
 
 import numpy as np
 
 from metafovea.config import LensDesign, PlatformDesign
 from metafovea.errors import InputError
 from metafovea.io import atomic_write_bytes, atomic_write_json, atomic_write_text
-from metafovea.lens import (LensSummary, evaluate_tile, hyperbolic_phase, paraxial_phase, posts_per_2pi,
-                            quantize_phase, site_index_range, summarize, wrap_phase, zone_width_um)
+from metafovea.lens import (
+    LensSummary,
+    evaluate_tile,
+    hyperbolic_phase,
+    paraxial_phase,
+    posts_per_2pi,
+    quantize_phase,
+    site_index_range,
+    summarize,
+    wrap_phase,
+    zone_width_um,
+)
 from metafovea.library import PostSet, platform_post_sets
 from metafovea.report import fig_to_png
 from metafovea.units import TWO_PI, UM_PER_MM

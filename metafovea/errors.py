@@ -36,7 +36,7 @@ class InputError(ValueError):
             msg += f" ({detail})"
         super().__init__(msg)
 
-    def renamed(self, parameter: str) -> "InputError":
+    def renamed(self, parameter: str) -> InputError:
         """The same error, reported under another name (the CLI flag a user typed for a library parameter); the
         name is replaced in the allowed range too (``0 K <= netd_k <= 10 K`` -> ``0 K <= --netd <= 10 K``)."""
         name = re.escape(self.parameter)  # where a range states it: "lo <= name", "name <= hi"
@@ -44,7 +44,7 @@ class InputError(ValueError):
                          self.allowed)
         return InputError(parameter, self.value, allowed, source=self.source, detail=self.detail)
 
-    def located(self, source: str) -> "InputError":
+    def located(self, source: str) -> InputError:
         """The same error, placed in ``source`` (a file the user named: the parameter is its key)."""
         return InputError(self.parameter, self.value, self.allowed, source=source, detail=self.detail)
 

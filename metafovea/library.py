@@ -19,9 +19,10 @@ import logging
 import math
 import time
 import warnings
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any, Iterable, Sequence
+from typing import Any
 
 import numpy as np
 
@@ -135,7 +136,7 @@ class PostSet:
 
     @classmethod
     def ideal(cls, levels: int, *, period_um: float = 4.0, height_um: float = 10.0,
-              wavelength_um: float = 10.0, polarization: str = "x") -> "PostSet":
+              wavelength_um: float = 10.0, polarization: str = "x") -> PostSet:
         """Exact phases 2 pi k / N, unit transmission, pass-through phase 0; widths a ramp.
 
         The widths (0.2 p .. 0.85 p along the focusing axis, 0.5 p along the other) are not physical
@@ -163,7 +164,7 @@ class PostSet:
         return atomic_save_npz(path, meta, widths_um=self.widths_um, t_x=self.t_x, t_y=self.t_y, **extra)
 
     @classmethod
-    def load(cls, path: str | Path, name: str = "path") -> "PostSet":
+    def load(cls, path: str | Path, name: str = "path") -> PostSet:
         """Read a file written by :meth:`save`; errors name the file as ``name`` (a CLI passes its flag)."""
         arrays, meta = _load_checked(path, "PostSet", name)
         try:
@@ -254,7 +255,7 @@ class Library:
                                wavelengths_um=self.wavelengths_um, **self.arrays)
 
     @classmethod
-    def load(cls, path: str | Path) -> "Library":
+    def load(cls, path: str | Path) -> Library:
         arrays, meta = _load_checked(path, "Library")
         try:
             return cls(arrays.pop("wx_um"), arrays.pop("wy_um"), arrays.pop("wavelengths_um"), arrays, meta)
@@ -299,8 +300,8 @@ def _material_key(v: Any, wl: np.ndarray) -> Any:
 
 def _row_task(job: dict) -> dict:
     """One sweep task: x-polarised (and y if needed) responses for one wx at all wy, one wavelength."""
-    from metafovea.rcwa.posts import post_response
     from metafovea.parallel import blas_threads
+    from metafovea.rcwa.posts import post_response
     with warnings.catch_warnings(), blas_threads(1):
         warnings.simplefilter("ignore", NotConvergedWarning)
         kw = job["kw"]
@@ -345,7 +346,7 @@ class LibraryOptions:
     scheduler: str | None = None
     progress: bool = True
 
-    def with_platform(self, platform: PlatformDesign) -> "LibraryOptions":
+    def with_platform(self, platform: PlatformDesign) -> LibraryOptions:
         """These options with the stack (period, post height, indices) of ``platform``."""
         return replace(self, period_um=platform.period_um, height_um=platform.post_height_um,
                        n_post=platform.n_post, n_substrate=platform.n_substrate,
@@ -1221,10 +1222,10 @@ class ObliqueResponse:
 def _oblique_ratios(widths_um: np.ndarray, platform: PlatformDesign, angles_deg: Sequence[float], wavelength_um: float,
                     harmonics: int) -> np.ndarray:
     """(n_angles, 2 planes, 2 pols, N) ratios t(theta) / t(0) of posts ``widths_um`` (N, 2)."""
+    from tqdm.auto import tqdm
+
     from metafovea.rcwa.geometry import Layer, Rectangle, Stack
     from metafovea.rcwa.solve import solve
-
-    from tqdm.auto import tqdm
 
     n_sub = platform.n_substrate
     out = np.ones((len(angles_deg), 2, 2, widths_um.shape[0]), complex)

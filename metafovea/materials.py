@@ -7,8 +7,9 @@ it is finite with ``Re(n) > 0`` and ``Im(n) >= 0`` (no gain). Lengths in microme
 from __future__ import annotations
 
 import numbers
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Callable, Union
+from typing import Union
 
 import numpy as np
 
@@ -27,7 +28,7 @@ class Material:
     """
 
     name: str
-    index: Union[complex, float, Callable[[np.ndarray], np.ndarray]]
+    index: complex | float | Callable[[np.ndarray], np.ndarray]
 
     def n(self, wavelength_um) -> np.ndarray:
         wl = np.asarray(wavelength_um, dtype=float)
@@ -38,7 +39,7 @@ class Material:
         return check_index(self.name, val)
 
     @classmethod
-    def table(cls, name: str, wavelengths_um, n_values) -> "Material":
+    def table(cls, name: str, wavelengths_um, n_values) -> Material:
         """Linearly interpolated table (real and imaginary parts separately); no extrapolation."""
         wl = np.asarray(wavelengths_um, dtype=float)
         nv = np.asarray(n_values, dtype=complex)

@@ -41,9 +41,10 @@ records. :class:`FovealConstraint.from_meta` is the one reader of the foveal-con
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any
 
 import numpy as np
 
@@ -73,7 +74,7 @@ class FovealConstraint:
 
     @classmethod
     def from_meta(cls, meta: dict[str, Any], *, scale: float | None = None, gain: float | None = None,
-                  offset: float | None = None) -> "FovealConstraint":
+                  offset: float | None = None) -> FovealConstraint:
         """Explicit values first, then ``meta['foveal_constraint']`` (``scale``, ``gain``, ``offset_dn``), then
         ``meta['scale']`` with gain 1 and offset 0 (older files, real recordings), then scale 6.
 
@@ -278,7 +279,7 @@ class Measurement:
         return atomic_save_npz(p, meta, compress=False, **arrays)
 
     @classmethod
-    def load(cls, path: str | Path) -> "Measurement":
+    def load(cls, path: str | Path) -> Measurement:
         """Read a file written by :meth:`save` (or converted from a real camera, see the docs).
 
         Every way a file can fail to be a Measurement (unreadable, no frames, arrays that do not fit the frames)

@@ -14,7 +14,8 @@ import base64
 import html
 import io as _io
 import math
-from typing import Any, Sequence
+from collections.abc import Sequence
+from typing import Any
 
 import numpy as np
 

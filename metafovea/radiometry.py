@@ -27,8 +27,9 @@ surroundings at ``T_refl`` has apparent radiance ``eps L(T) + (1 - eps) L(T_refl
 from __future__ import annotations
 
 import logging
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 
@@ -243,13 +244,13 @@ class BandRadiance:
 
     @classmethod
     def from_band(cls, band_um: tuple[float, float] = BAND_UM, *, filter_um: tuple[float, float] | None = None,
-                  response: Response | None = None) -> "BandRadiance":
+                  response: Response | None = None) -> BandRadiance:
         lam, w = spectral_weights(band_um, filter_um=filter_um, response=response)
         return cls(lam, w, tuple(band_um), filter_um, response)
 
     @classmethod
     def for_system(cls, system: Any, *, filter_enabled: bool | None = None,
-                   response: Response | None = None) -> "BandRadiance":
+                   response: Response | None = None) -> BandRadiance:
         """The weighting of a :class:`~metafovea.config.SystemDesign` (its band and, if enabled, filter)."""
         return cls.from_band(system.band_um, filter_um=system_filter_um(system, filter_enabled), response=response)
 

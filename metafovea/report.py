@@ -14,8 +14,9 @@ import base64
 import html
 import io as _io
 import math
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any
 
 from metafovea.io import atomic_write_text
 

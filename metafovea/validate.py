@@ -32,10 +32,11 @@ import sys
 import textwrap
 import time
 import warnings
+from collections.abc import Callable
 from dataclasses import dataclass
-from datetime import datetime, timezone
+from datetime import UTC, datetime
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 
@@ -62,7 +63,7 @@ class ValidateOptions:
     alternating_windows: int = 4  #: windows (spread over the sequence) for the unknown-alpha solver
     dip_steps: int = 20  #: warm-started from the classical solver: more steps change PSNR by < 0.05 dB (BENCHMARKS.md)
     dip_channels: int = 8
-    dip_cases: str = "last"  #: run the (slow) deep image prior in 'last' case only, or 'all'/'none' 
+    dip_cases: str = "last"  #: run the (slow) deep image prior in 'last' case only, or 'all'/'none'
     snapshot_iterations: int = 200
     seed: int = 0
     #: the paper's polariser turns freely (phase and rate unknown to the reconstruction: the unknown-alpha rows
@@ -97,7 +98,8 @@ def _airy_ee(r_um: float, wavelength_um: float, f_number: float) -> float:
 def _psf_stage(system: SystemDesign, post_sets: dict[str, Any], lens_summaries: dict[str, Any],
                curves: dict[str, Any]) -> dict[str, Any]:
     """Both lenses' on-axis PSF numbers; ``curves`` receives each lens' PSFs and MTF curves (for the figure)."""
-    from metafovea.optics import encircled_energy, psf as optics_psf, pupil_mtf
+    from metafovea.optics import encircled_energy, pupil_mtf
+    from metafovea.optics import psf as optics_psf
 
     out: dict[str, Any] = {}
     for lens in (system.foveal, system.perifoveal):
@@ -399,7 +401,7 @@ def validate_system(system: SystemDesign, opts: ValidateOptions | None = None,
 
     opts = opts or ValidateOptions()
     say = _progress(opts.progress)
-    report: dict[str, Any] = {"created_utc": datetime.now(timezone.utc).isoformat(timespec="seconds"),
+    report: dict[str, Any] = {"created_utc": datetime.now(UTC).isoformat(timespec="seconds"),
                               "options": dataclasses.asdict(opts), "system": {"expansion": system.expansion},
                               "stages": {}}
     t_all = time.perf_counter()

@@ -6,8 +6,15 @@ from pathlib import Path
 import pytest
 
 from metafovea.cli import main
-from metafovea.config import (LensDesign, PlatformDesign, SystemDesign, load_design, load_lens, load_platform,
-                              load_system)
+from metafovea.config import (
+    LensDesign,
+    PlatformDesign,
+    SystemDesign,
+    load_design,
+    load_lens,
+    load_platform,
+    load_system,
+)
 from metafovea.errors import InputError
 
 

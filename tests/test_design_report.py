@@ -8,8 +8,7 @@ import json
 import pytest
 
 from metafovea.config import LensDesign, PlatformDesign
-from metafovea.design_report import (design_lenses, format_summary, shared_platform, summary_dict,
-                                     write_design_bundles)
+from metafovea.design_report import design_lenses, format_summary, shared_platform, summary_dict, write_design_bundles
 from metafovea.errors import InputError
 from metafovea.lens import summarize
 from metafovea.library import PostSet

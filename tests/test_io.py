@@ -69,6 +69,7 @@ def test_jsonable_is_the_one_json_policy():
     """numpy values become JSON types and every non-finite float becomes null (valid JSON, 'not available')."""
     import json
     import math
+
     from metafovea.io import jsonable, to_json
 
     obj = {1: np.float32(0.5), "a": np.arange(3), "nan": float("nan"), "inf": np.float64(np.inf),

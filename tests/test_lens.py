@@ -4,13 +4,29 @@ import math
 
 import numpy as np
 import pytest
-from hypothesis import given, strategies as st
+from hypothesis import given
+from hypothesis import strategies as st
 
 from metafovea.config import LensDesign
 from metafovea.errors import InputError
-from metafovea.lens import (EMPTY, count_posts, design_warnings, hyperbolic_phase, iter_tiles, lattice_efficiency,
-                            level_phase, paraxial_phase, posts_per_2pi, quantize_phase, radius_below_posts,
-                            scalar_efficiency, site_positions_um, summarize, wrap_phase, zone_width_um)
+from metafovea.lens import (
+    EMPTY,
+    count_posts,
+    design_warnings,
+    hyperbolic_phase,
+    iter_tiles,
+    lattice_efficiency,
+    level_phase,
+    paraxial_phase,
+    posts_per_2pi,
+    quantize_phase,
+    radius_below_posts,
+    scalar_efficiency,
+    site_positions_um,
+    summarize,
+    wrap_phase,
+    zone_width_um,
+)
 
 TWO_PI = 2 * math.pi
 

@@ -12,8 +12,18 @@ from metafovea.config import LensDesign, PlatformDesign
 from metafovea.errors import InputError, NotConvergedWarning
 from metafovea.io import atomic_save_npz
 from metafovea.lens import summarize
-from metafovea.library import (Library, LibraryOptions, PlatformSweep, PostSet, compute_library,
-                               platform_post_sets, postset_table, select_posts, usable_posts, width_grid)
+from metafovea.library import (
+    Library,
+    LibraryOptions,
+    PlatformSweep,
+    PostSet,
+    compute_library,
+    platform_post_sets,
+    postset_table,
+    select_posts,
+    usable_posts,
+    width_grid,
+)
 from metafovea.rcwa.posts import post_response
 
 W3 = [1.0, 2.0, 3.0]

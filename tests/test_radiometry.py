@@ -9,8 +9,14 @@ import pytest
 
 from metafovea.config import SystemDesign
 from metafovea.errors import InputError
-from metafovea.radiometry import (BandRadiance, check_band, planck_radiance, psf_wavelengths,
-                                  spectral_transmission, spectral_weights)
+from metafovea.radiometry import (
+    BandRadiance,
+    check_band,
+    planck_radiance,
+    psf_wavelengths,
+    spectral_transmission,
+    spectral_weights,
+)
 
 
 # ---------------------------------------------------------------------------------------------

@@ -11,8 +11,14 @@ from metafovea.config import SystemDesign
 from metafovea.measurement import Measurement
 from metafovea.reconstruct.metrics import score
 from metafovea.reconstruct.synthetic import polariser_alpha, scene
-from metafovea.validate import (TABLE_COLUMNS, ValidateOptions, format_report, format_table, reconstruction_table,
-                                validate_system)
+from metafovea.validate import (
+    TABLE_COLUMNS,
+    ValidateOptions,
+    format_report,
+    format_table,
+    reconstruction_table,
+    validate_system,
+)
 
 
 @pytest.fixture

@@ -18,7 +18,7 @@ import logging
 import os
 import sys
 import warnings
-from typing import Sequence
+from collections.abc import Sequence
 
 from metafovea import __version__
 from metafovea.cli.stop import install_stop_handlers

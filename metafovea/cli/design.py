@@ -39,8 +39,7 @@ def register(sub: Any) -> None:
 
 def design_from_args(args: argparse.Namespace) -> list:
     """Build the LensDesign(s) the design command acts on (file, overridden by flags)."""
-    from metafovea.config import (LATTICES, POLARIZATIONS, LensDesign, SystemDesign, load_design,
-                                  validate_lens_numbers)
+    from metafovea.config import LATTICES, POLARIZATIONS, LensDesign, SystemDesign, load_design, validate_lens_numbers
     from metafovea.errors import check_choice, check_int, check_positive
     from metafovea.units import UM_PER_MM
 

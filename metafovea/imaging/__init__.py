@@ -21,8 +21,7 @@ from metafovea.imaging.kernels import ExplicitPSF, Kernel
 from metafovea.imaging.polarizer import Polarizer
 from metafovea.imaging.scene import Scene, SceneGeometry, list_scenes, make_scene
 from metafovea.imaging.sensor import FixedPattern, SensorModel
-from metafovea.imaging.simulate import (SimulationOptions, simulate, simulate_to_files, write_preview,
-                                        write_tiff)
+from metafovea.imaging.simulate import SimulationOptions, simulate, simulate_to_files, write_preview, write_tiff
 
 __all__ = ["Scene", "SceneGeometry",
            "list_scenes", "make_scene", "FixedPattern", "SensorModel", "SimulationOptions", "simulate",

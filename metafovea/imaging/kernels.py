@@ -38,9 +38,9 @@ from typing import Any, Protocol
 import numpy as np
 
 from metafovea.errors import InputError, check_int, check_positive
+from metafovea.imaging.channel import Channel
 from metafovea.io import cache_dir as io_cache_dir
 from metafovea.radiometry import BandRadiance
-from metafovea.imaging.channel import Channel
 
 log = logging.getLogger(__name__)
 

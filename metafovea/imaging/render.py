@@ -13,10 +13,10 @@ from typing import Any
 
 import numpy as np
 
-from metafovea.radiometry import BandRadiance
 from metafovea.imaging.channel import relative_illumination_map
 from metafovea.imaging.kernels import ChannelOptics
 from metafovea.imaging.scene import Scene
+from metafovea.radiometry import BandRadiance
 
 
 def _conv_valid(img: np.ndarray, k: np.ndarray) -> np.ndarray:

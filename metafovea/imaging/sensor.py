@@ -102,7 +102,7 @@ class SensorModel:
         check_positive("drift_period_s", self.drift_period_s, "s")
 
     @classmethod
-    def from_design(cls, s: SensorDesign, **overrides: Any) -> "SensorModel":
+    def from_design(cls, s: SensorDesign, **overrides: Any) -> SensorModel:
         kw = dict(pixel_pitch_um=s.pixel_pitch_um, shape=tuple(s.crop), frame_rate_hz=s.frame_rate_hz,
                   netd_k=s.netd_k, adc_bits=s.adc_bits, fpn_rank=s.fpn_rank, fpn_amplitude=s.fpn_amplitude)
         kw.update({k: v for k, v in overrides.items() if v is not None})

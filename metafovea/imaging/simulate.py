@@ -25,27 +25,28 @@ import logging
 import math
 import os
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 
 from metafovea.config import SystemDesign, load_system
 from metafovea.errors import InputError, as_rng, check_int
-from metafovea.io import atomic_write_bytes, prepare_output
-from metafovea.library import system_post_sets
-from metafovea.measurement import Measurement
-from metafovea.plotting import iron_colormap  # noqa: F401  (its home is the ground floor; imported from here too)
-from metafovea.optics.train import system_trains
-from metafovea.radiometry import BandRadiance
-from metafovea.report import fig_to_png
 from metafovea.imaging.channel import Channel, channels_for
 from metafovea.imaging.kernels import ChannelOptics, build_channel_optics, pixel_psf, resolve_provider
 from metafovea.imaging.polarizer import Polarizer
 from metafovea.imaging.render import ChannelRenderer
 from metafovea.imaging.scene import Scene, SceneGeometry, make_scene
 from metafovea.imaging.sensor import FixedPattern, SensorModel
+from metafovea.io import atomic_write_bytes, prepare_output
+from metafovea.library import system_post_sets
+from metafovea.measurement import Measurement
+from metafovea.optics.train import system_trains
+from metafovea.plotting import iron_colormap  # noqa: F401  (its home is the ground floor; imported from here too)
+from metafovea.radiometry import BandRadiance
+from metafovea.report import fig_to_png
 
 log = logging.getLogger(__name__)
 

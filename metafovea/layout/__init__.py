@@ -20,10 +20,15 @@ Files
 * :mod:`~metafovea.layout.verify`: :func:`verify_layout`, a file read back and compared with the design.
 """
 
-from metafovea.layout.export import (ExportError, ExportResult, TestArraySpec, export_file, export_layout,
-                                     export_test_array)
-from metafovea.layout.tiling import (Expected, Layers, LayoutSpec, band_levels, expected_content, load_spec,
-                                     make_spec)
+from metafovea.layout.export import (
+                                     ExportError,
+                                     ExportResult,
+                                     TestArraySpec,
+                                     export_file,
+                                     export_layout,
+                                     export_test_array,
+)
+from metafovea.layout.tiling import Expected, Layers, LayoutSpec, band_levels, expected_content, load_spec, make_spec
 from metafovea.layout.verify import VerifyReport, verify_layout
 
 __all__ = ["ExportError", "ExportResult", "Expected", "Layers", "LayoutSpec", "TestArraySpec", "VerifyReport",

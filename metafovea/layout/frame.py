@@ -74,10 +74,10 @@ def layout_date(date: str | None = None) -> str:
     epoch = os.environ.get("SOURCE_DATE_EPOCH")
     if epoch:
         try:
-            return datetime.datetime.fromtimestamp(int(epoch), datetime.timezone.utc).date().isoformat()
+            return datetime.datetime.fromtimestamp(int(epoch), datetime.UTC).date().isoformat()
         except (ValueError, OverflowError, OSError):
             raise InputError("SOURCE_DATE_EPOCH", epoch, "seconds since 1970 (an integer)") from None
-    return datetime.datetime.now(datetime.timezone.utc).date().isoformat()
+    return datetime.datetime.now(datetime.UTC).date().isoformat()
 
 
 def parse_label(text: str | None) -> dict[str, Any]:

@@ -18,8 +18,8 @@ import zlib
 
 import numpy as np
 
-from metafovea.layout.gds import band_index, task_index
 from metafovea.layout.frame import frame_shapes
+from metafovea.layout.gds import band_index, task_index
 from metafovea.layout.tiling import LayoutSpec, used_levels
 
 MAGIC = b"%SEMI-OASIS\r\n"

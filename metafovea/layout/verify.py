@@ -23,9 +23,9 @@ from typing import Any
 import numpy as np
 
 from metafovea.errors import InputError, check_choice
-from metafovea.layout.read import Observed, lattice_of, read_gdstk, read_klayout, read_stream, sniff_format
 from metafovea.layout.frame import expected_frame, frame_bbox_nm
-from metafovea.layout.tiling import (DBU_UM, Expected, LayoutSpec, drc_line, drc_summary, expected_content, has_frame)
+from metafovea.layout.read import Observed, lattice_of, read_gdstk, read_klayout, read_stream, sniff_format
+from metafovea.layout.tiling import DBU_UM, Expected, LayoutSpec, drc_line, drc_summary, expected_content, has_frame
 
 READERS = ("auto", "klayout", "gdstk", "stream")
 STREAM_THRESHOLD_BYTES = 256 << 20

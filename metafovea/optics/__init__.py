@@ -24,10 +24,26 @@ Files, in the order light meets them::
                ``metafovea psf`` pipeline)
 """
 
-from .mtf import (diffraction_mtf, encircled_energy, fwhm_um, mtf_2d, mtf_radial, mtf_slices, pixel_mtf, pupil_mtf,
-                  strehl)
-from .propagate import (AliasingWarning, SamplingError, asm_propagate, hankel_field, hankel_profiles, mft_field,
-                        mft_intensity_multi)
+from .mtf import (
+                  diffraction_mtf,
+                  encircled_energy,
+                  fwhm_um,
+                  mtf_2d,
+                  mtf_radial,
+                  mtf_slices,
+                  pixel_mtf,
+                  pupil_mtf,
+                  strehl,
+)
+from .propagate import (
+                  AliasingWarning,
+                  SamplingError,
+                  asm_propagate,
+                  hankel_field,
+                  hankel_profiles,
+                  mft_field,
+                  mft_intensity_multi,
+)
 from .psf import PSF, diffraction_radius_um, encircled_energy_on_axis, nyquist_pitch_um, psf
 from .pupil import Pupil, build_pupils, field_direction, max_field_deg
 from .rayleigh import rs_field, rs_reference

@@ -9,17 +9,18 @@ import math
 import os
 import time
 import warnings
+from collections.abc import Callable, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
-from typing import Any, Callable, Sequence
+from typing import Any
 
 import numpy as np
 
 from metafovea.config import LensDesign, SystemDesign, load_lens
 from metafovea.errors import InputError, check_choice, check_int, check_positive
+from metafovea.io import atomic_write_bytes, atomic_write_json, file_stem, prepare_output
 from metafovea.library import POST_SOURCES, oblique_response, rcwa_post_sets, system_post_sets
 from metafovea.parallel import blas_threads
-from metafovea.io import atomic_write_bytes, atomic_write_json, file_stem, prepare_output
 from metafovea.radiometry import psf_wavelengths
 from metafovea.report import HtmlReport, fig_to_png
 

@@ -13,9 +13,10 @@ from __future__ import annotations
 import concurrent.futures as cf
 import contextlib
 import warnings
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from functools import partial
-from typing import Any, Callable, Sequence
+from typing import Any
 
 import numpy as np
 

@@ -33,7 +33,7 @@ import numpy as np
 from metafovea.errors import InputError, NotConvergedWarning, check_choice, check_int, check_positive
 from metafovea.materials import AIR, SILICON, IndexLike, index_of
 from metafovea.rcwa.basis import Basis
-from metafovea.rcwa.solve import FACTORIZATIONS, SIDES, MAX_HARMONICS, _LayerData
+from metafovea.rcwa.solve import FACTORIZATIONS, MAX_HARMONICS, SIDES, _LayerData
 
 log = logging.getLogger(__name__)
 

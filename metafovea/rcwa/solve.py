@@ -30,7 +30,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from metafovea.errors import InputError, NotConvergedWarning, check_choice, check_int, check_range, check_positive
+from metafovea.errors import InputError, NotConvergedWarning, check_choice, check_int, check_positive, check_range
 from metafovea.materials import index_of
 from metafovea.rcwa.basis import Basis
 from metafovea.rcwa.fourier import indicator_toeplitz, orders, rebuild

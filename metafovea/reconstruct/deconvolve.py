@@ -109,7 +109,7 @@ class ChannelPSFs:
         object.__setattr__(self, "pedestals", tuple(peds))
 
     @classmethod
-    def from_measurement(cls, m: Any) -> "ChannelPSFs":
+    def from_measurement(cls, m: Any) -> ChannelPSFs:
         """The PSFs a Measurement carries (``extras`` ``psf_x1``/``psf_x2``, ``illumination_x*``, the pedestals in
         ``meta['psf']['pixel']``), as :func:`metafovea.imaging.simulate.simulate` writes them."""
         ex = m.extras
@@ -122,7 +122,7 @@ class ChannelPSFs:
         return cls((ex["psf_x1"], ex["psf_x2"]), ped, ill, source=m.source or "measurement")
 
     @classmethod
-    def from_file(cls, path: Any, name: str = "--psf") -> "ChannelPSFs":
+    def from_file(cls, path: Any, name: str = "--psf") -> ChannelPSFs:
         """PSFs from a user's ``.npz``: ``psf_x1``, ``psf_x2`` (pixel grid, odd, centred) and optionally
         ``pedestal_x1``/``_x2`` (scalars) and ``illumination_x1``/``_x2`` (H, W); an InputError naming ``name``
         otherwise."""

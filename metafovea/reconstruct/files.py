@@ -6,15 +6,15 @@ side-by-side figure with colour bars (``<stem>.png``). Every path is checked bef
 from __future__ import annotations
 
 import os
-from typing import Any
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
 from metafovea.errors import InputError
 from metafovea.io import atomic_write_bytes, prepare_output
-from metafovea.report import array_png, fig_to_png
 from metafovea.reconstruct.result import PipelineResult
+from metafovea.report import array_png, fig_to_png
 
 
 def load_pattern(path: str | os.PathLike, name: str = "--fpn") -> np.ndarray:

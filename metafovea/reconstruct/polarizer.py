@@ -65,7 +65,7 @@ class PolarizerModel:
         check_range("rate_tolerance", self.rate_tolerance, 0.0, 0.5, lo_inclusive=True)
 
     @classmethod
-    def from_meta(cls, meta: dict[str, Any], times_s: Any) -> "PolarizerModel | None":
+    def from_meta(cls, meta: dict[str, Any], times_s: Any) -> PolarizerModel | None:
         """The model a measurement's metadata gives (``polarizer_hz``, ``polarizer``: mode, extinction, tau_s and,
         in sync mode, phase_rad); None when the file says nothing about its polariser. A free-running polariser's
         realised phase and rate (the simulator records them as truth) are not used."""
@@ -80,7 +80,7 @@ class PolarizerModel:
         return cls(times_s, rate_hz=rate, mode=mode, phase_rad=phase, extinction=float(p.get("extinction", 0.0)),
                    tau_s=float(p.get("tau_s", 0.0)))
 
-    def window(self, start: int, n: int) -> "PolarizerModel":
+    def window(self, start: int, n: int) -> PolarizerModel:
         return replace(self, times_s=self.times_s[start:start + n])
 
     @property

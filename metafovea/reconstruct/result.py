@@ -117,7 +117,7 @@ class Reconstruction:
         save_npz_stored(path, meta, arrays)
 
     @classmethod
-    def load(cls, path: str | os.PathLike) -> "Reconstruction":
+    def load(cls, path: str | os.PathLike) -> Reconstruction:
         arrays, meta = load_npz(path)
         if meta.get("kind") != KIND or not {"x1", "x2", "alpha"} <= set(arrays):
             raise InputError("path", str(path), "a Reconstruction file written by Reconstruction.save")

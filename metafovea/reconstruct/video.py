@@ -10,7 +10,8 @@ scalars), which is the throughput path (see BENCHMARKS). For a live camera use
 from __future__ import annotations
 
 import logging
-from typing import Any, Sequence
+from collections.abc import Sequence
+from typing import Any
 
 import numpy as np
 

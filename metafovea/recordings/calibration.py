@@ -65,7 +65,7 @@ class PlanckConstants:
                 raise InputError(f"Planck {k}", getattr(self, k), "a finite number")
 
     @classmethod
-    def parse(cls, text: str, name: str = "--planck") -> "PlanckConstants":
+    def parse(cls, text: str, name: str = "--planck") -> PlanckConstants:
         """``'R,B,F,O'`` (``R = R1 / R2``)."""
         parts = [p for p in re.split(r"[,\s]+", str(text).strip()) if p]
         if len(parts) != 4:

@@ -22,8 +22,15 @@ import numpy as np
 from metafovea.errors import InputError, check_choice
 from metafovea.measurement import Measurement
 from metafovea.radiometry import BAND_UM, check_band, check_filter
-from metafovea.recordings.calibration import (GAIN_MODES, PlanckConstants, Radiometric, correct_frames, from_planck,
-                                              parse_two_point, two_point)
+from metafovea.recordings.calibration import (
+    GAIN_MODES,
+    PlanckConstants,
+    Radiometric,
+    correct_frames,
+    from_planck,
+    parse_two_point,
+    two_point,
+)
 from metafovea.recordings.read import Recording, read_recording
 from metafovea.recordings.timestamps import check_timing, frame_times
 

@@ -16,9 +16,10 @@ there is an :class:`~metafovea.errors.InputError` naming its flag and the keys t
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 

@@ -27,8 +27,17 @@ from typing import Any
 
 import numpy as np
 
-from metafovea.studies.common import FILTER, StudyOptions, StudyResult, Stopwatch, figure, machine, rounded, \
-    simulated, sweep
+from metafovea.studies.common import (
+    FILTER,
+    Stopwatch,
+    StudyOptions,
+    StudyResult,
+    figure,
+    machine,
+    rounded,
+    simulated,
+    sweep,
+)
 
 NAME = "ablation"
 #: DIP step budgets: ``warm_steps`` after a warm start (the default stopping rule may end it earlier),

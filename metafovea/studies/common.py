@@ -15,9 +15,10 @@ from __future__ import annotations
 import os
 import platform
 import time
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any, Callable, Sequence
+from typing import Any
 
 import numpy as np
 
@@ -133,7 +134,7 @@ def measure(system: SystemDesign, scene: Any, frames: int, seed: int, psf: str,
     return meas, shutter_fpn(meas)
 
 
-def simulated(options: "StudyOptions", p: dict[str, Any], sw: Any, filter_enabled: bool) -> tuple[Any, np.ndarray]:
+def simulated(options: StudyOptions, p: dict[str, Any], sw: Any, filter_enabled: bool) -> tuple[Any, np.ndarray]:
     """:func:`measure` of ``p['scene']`` (``p['frames']`` frames on the ``p['crop']`` camera), timed under
     ``sw('simulate')``."""
     with sw("simulate"):
@@ -165,11 +166,11 @@ class Stopwatch:
         self.seconds: dict[str, float] = {}
         self._t0 = time.perf_counter()
 
-    def __call__(self, name: str) -> "Stopwatch":
+    def __call__(self, name: str) -> Stopwatch:
         self._name = name
         return self
 
-    def __enter__(self) -> "Stopwatch":
+    def __enter__(self) -> Stopwatch:
         self._t = time.perf_counter()
         return self
 

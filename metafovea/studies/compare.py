@@ -27,8 +27,17 @@ from typing import Any
 
 import numpy as np
 
-from metafovea.studies.common import FILTER, StudyOptions, StudyResult, Stopwatch, figure, machine, rounded, \
-    simulated, sweep
+from metafovea.studies.common import (
+    FILTER,
+    Stopwatch,
+    StudyOptions,
+    StudyResult,
+    figure,
+    machine,
+    rounded,
+    simulated,
+    sweep,
+)
 
 NAME = "compare"
 FULL = {"scenes": ["camera", "astronaut", "coffee"], "crop": [128, 128], "frames": 10, "fills": [1.0, 1 / 3]}

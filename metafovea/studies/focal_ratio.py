@@ -14,8 +14,18 @@ from typing import Any
 
 import numpy as np
 
-from metafovea.studies.common import FILTER, StudyOptions, StudyResult, Stopwatch, camera, figure, machine, rounded, \
-    measure, sweep
+from metafovea.studies.common import (
+    FILTER,
+    Stopwatch,
+    StudyOptions,
+    StudyResult,
+    camera,
+    figure,
+    machine,
+    measure,
+    rounded,
+    sweep,
+)
 
 NAME = "focal-ratio"
 FULL = {"expansions": [2, 3, 4, 5, 6, 7, 8], "scenes": ["astronaut", "camera", "coffee"], "crop": [290, 290],

@@ -14,8 +14,17 @@ from typing import Any
 
 import numpy as np
 
-from metafovea.studies.common import FILTER, StudyOptions, StudyResult, Stopwatch, figure, machine, rounded, \
-    simulated, sweep
+from metafovea.studies.common import (
+    FILTER,
+    Stopwatch,
+    StudyOptions,
+    StudyResult,
+    figure,
+    machine,
+    rounded,
+    simulated,
+    sweep,
+)
 
 NAME = "frames"
 FULL = {"windows": [4, 8, 12, 16, 20, 24], "frames": 96, "crop": [290, 290], "scene": "hand", "centre_step": 4}

@@ -17,8 +17,7 @@ from typing import Any
 
 import numpy as np
 
-from metafovea.studies.common import StudyOptions, StudyResult, Stopwatch, figure, machine, rounded, simulated, \
-    sweep
+from metafovea.studies.common import Stopwatch, StudyOptions, StudyResult, figure, machine, rounded, simulated, sweep
 
 NAME = "gallery"
 #: scene type -> (scene name, kind, frames simulated)

@@ -14,8 +14,7 @@ from typing import Any
 
 import numpy as np
 
-from metafovea.studies.common import FILTER, StudyOptions, StudyResult, Stopwatch, figure, machine, rounded, \
-    simulated
+from metafovea.studies.common import FILTER, Stopwatch, StudyOptions, StudyResult, figure, machine, rounded, simulated
 
 NAME = "realtime"
 PAPER_FPS, PAPER_SHAPE = 40.0, (275, 280)

@@ -16,8 +16,18 @@ from typing import Any
 
 import numpy as np
 
-from metafovea.studies.common import FILTER, StudyOptions, StudyResult, Stopwatch, camera, figure, machine, rounded, \
-    measure, sweep
+from metafovea.studies.common import (
+    FILTER,
+    Stopwatch,
+    StudyOptions,
+    StudyResult,
+    camera,
+    figure,
+    machine,
+    measure,
+    rounded,
+    sweep,
+)
 
 NAME = "resolution"
 EXPANSION = 9

@@ -19,8 +19,18 @@ from typing import Any
 
 import numpy as np
 
-from metafovea.studies.common import FILTER, StudyOptions, StudyResult, Stopwatch, camera, figure, machine, \
-    rounded, simulated, sweep
+from metafovea.studies.common import (
+    FILTER,
+    Stopwatch,
+    StudyOptions,
+    StudyResult,
+    camera,
+    figure,
+    machine,
+    rounded,
+    simulated,
+    sweep,
+)
 
 NAME = "transients"
 WINDOW = 8  #: frames per window: the frames study's optimum (8-12 at 2 Hz / 12 frames/s)

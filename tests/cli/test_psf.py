@@ -12,6 +12,7 @@ from metafovea.cli import main
 from metafovea.config import load_lens
 from metafovea.optics import max_field_deg
 
+
 @pytest.fixture(scope="module")
 def tiny(tmp_path_factory, lens_toml):
     d = tmp_path_factory.mktemp("tiny")

@@ -3,7 +3,6 @@ line naming FILE for a damaged, truncated or foreign file."""
 
 from __future__ import annotations
 
-
 import pytest
 
 from metafovea.cli import main

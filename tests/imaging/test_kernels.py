@@ -11,9 +11,17 @@ from metafovea.config import SystemDesign
 from metafovea.errors import InputError
 from metafovea.imaging import simulate
 from metafovea.imaging.channel import channels_for
-from metafovea.imaging.kernels import (ExplicitPSF, Kernel, OpticsPSFProvider, airy_kernel, airy_provider,
-                                       build_channel_optics, disk_mixture_kernel, gaussian_kernel,
-                                       resolve_provider)
+from metafovea.imaging.kernels import (
+    ExplicitPSF,
+    Kernel,
+    OpticsPSFProvider,
+    airy_kernel,
+    airy_provider,
+    build_channel_optics,
+    disk_mixture_kernel,
+    gaussian_kernel,
+    resolve_provider,
+)
 from metafovea.radiometry import BandRadiance
 
 

@@ -10,8 +10,17 @@ import numpy as np
 import pytest
 
 from metafovea.errors import InputError
-from metafovea.imaging.scene import (SKIMAGE_IMAGES, CoilHeater, RasterScene, Scene, SceneGeometry, image_scene,
-                                     list_scenes, load_scene_file, make_scene)
+from metafovea.imaging.scene import (
+    SKIMAGE_IMAGES,
+    CoilHeater,
+    RasterScene,
+    Scene,
+    SceneGeometry,
+    image_scene,
+    list_scenes,
+    load_scene_file,
+    make_scene,
+)
 
 
 # ---------------------------------------------------------------------------------------------

@@ -12,6 +12,7 @@ from metafovea.optics import SamplingError, psf, sensor_psf
 from metafovea.optics.report import psf_report, psf_reports
 from metafovea.radiometry import psf_wavelengths
 
+
 @pytest.fixture(scope="module")
 def tiny(tmp_path_factory, lens_toml):
     d = tmp_path_factory.mktemp("tiny")

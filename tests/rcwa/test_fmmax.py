@@ -33,7 +33,7 @@ from metafovea.rcwa import Layer, Rectangle, Stack, post_response, solve  # noqa
 P, H, WL, NSI = 4.0, 10.0, 10.0, 3.42
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def _jitted(M, formulation, patterned):
     """One jit-compiled 3-layer stack per (M, formulation, kind): eager fmmax costs seconds per call."""
     plv = fmmax.LatticeVectors(u=fmmax.basis.X * P, v=fmmax.basis.Y * P)

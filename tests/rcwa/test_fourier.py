@@ -6,8 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from metafovea.rcwa.fourier import (DiagOp, interval_coefficients, k_op_1d, orders, rebuild, reduce_op,
-                                    toeplitz_full)
+from metafovea.rcwa.fourier import DiagOp, interval_coefficients, k_op_1d, orders, rebuild, reduce_op, toeplitz_full
 
 P, NSI = 4.0, 3.42
 

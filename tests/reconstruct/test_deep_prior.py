@@ -12,7 +12,6 @@ from metafovea.reconstruct.deep_prior import MAX_CHANNEL_PIXELS
 from metafovea.reconstruct.metrics import psnr
 from metafovea.reconstruct.synthetic import measure, polariser_alpha, scene
 
-
 #: the small network of these tests (one compilation per switch set and shape for the whole file)
 KW = {"channels": 8, "depth": 2, "skip_channels": 8, "input_channels": 16}
 

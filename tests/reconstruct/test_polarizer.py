@@ -13,8 +13,7 @@ from metafovea.errors import InputError
 from metafovea.imaging.polarizer import Polarizer
 from metafovea.reconstruct import reconstruct
 from metafovea.reconstruct.metrics import psnr
-from metafovea.reconstruct.polarizer import (ALPHA_SE_MAX, PolarizerModel, gauged_alpha, model_alpha,
-                                             polarizer_gauge)
+from metafovea.reconstruct.polarizer import ALPHA_SE_MAX, PolarizerModel, gauged_alpha, model_alpha, polarizer_gauge
 from metafovea.reconstruct.synthetic import measure, scene
 
 

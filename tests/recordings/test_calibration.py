@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 
 from metafovea.radiometry import BandRadiance
-from metafovea.recordings.calibration import PlanckConstants, correct_frames, from_planck, two_point
 from metafovea.reconstruct.deconvolve import temperatures
+from metafovea.recordings.calibration import PlanckConstants, correct_frames, from_planck, two_point
 
 FLIR = PlanckConstants(R1=21106.77, R2=0.012545258, B=1501.0, F=1.0, O=-7340.0)
 

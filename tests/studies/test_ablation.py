@@ -8,7 +8,7 @@ import json
 import math
 
 from metafovea.studies import StudyOptions, run_study
-from metafovea.studies.ablation import MULTI, SNAP, QUANTITIES, run
+from metafovea.studies.ablation import MULTI, QUANTITIES, SNAP, run
 
 
 def _finite(rows: list[dict]) -> bool:

@@ -8,8 +8,7 @@ from __future__ import annotations
 
 import json
 
-from metafovea.studies import StudyOptions
-from metafovea.studies import compare
+from metafovea.studies import StudyOptions, compare
 from metafovea.studies.common import write_study
 
 
