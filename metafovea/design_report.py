@@ -33,8 +33,6 @@ from metafovea.library import PostSet, platform_post_sets
 from metafovea.report import fig_to_png
 from metafovea.units import TWO_PI, UM_PER_MM
 
-DPI = 110
-
 
 def shared_platform(lenses: Sequence[LensDesign]) -> PlatformDesign:
     """The platform the lenses share (one RCWA library for all): the same period, post height, wavelength and
@@ -192,7 +190,7 @@ def write_design_bundle(design: LensDesign, summary: LensSummary, out_dir: Path,
         ax.set_xlabel("x (mm)")
     axes[0].set_ylabel("y (mm)")
     fig.colorbar(im, ax=axes, label="phase (rad)")
-    written.append(atomic_write_bytes(out_dir / "phase_patch.png", fig_to_png(fig, dpi=DPI)))
+    written.append(atomic_write_bytes(out_dir / "phase_patch.png", fig_to_png(fig)))
     plt.close(fig)
 
     r_mm = prof["r_um"] / UM_PER_MM
@@ -204,7 +202,7 @@ def write_design_bundle(design: LensDesign, summary: LensSummary, out_dir: Path,
     ax.set_title(f"{design.name}: f = {design.f_mm:g} mm, D = {design.diameter_mm:g} mm, NA {design.na:.3f}")
     ax.legend()
     ax.grid(alpha=0.3)
-    written.append(atomic_write_bytes(out_dir / "radial_profile.png", fig_to_png(fig, dpi=DPI)))
+    written.append(atomic_write_bytes(out_dir / "radial_profile.png", fig_to_png(fig)))
     plt.close(fig)
 
     fig, ax = plt.subplots(figsize=(6.5, 4))
@@ -216,6 +214,6 @@ def write_design_bundle(design: LensDesign, summary: LensSummary, out_dir: Path,
     ax.set_title(f"{design.name}: rim {summary.rim_posts_per_2pi:.2f} posts per 2 pi ({design.period_um:g} um lattice)")
     ax.legend()
     ax.grid(alpha=0.3, which="both")
-    written.append(atomic_write_bytes(out_dir / "posts_per_2pi.png", fig_to_png(fig, dpi=DPI)))
+    written.append(atomic_write_bytes(out_dir / "posts_per_2pi.png", fig_to_png(fig)))
     plt.close(fig)
     return written

@@ -26,7 +26,6 @@ LENS_OF = {"x": "foveal", "y": "perifoveal"}
 POST_SET_NUMBERS = ("expected_focusing_efficiency", "pass_coherent_transmission", "max_abs_phase_error_rad",
                     "rms_phase_error_rad", "pass_phase_spread_rad", "pass_phase_rms_rad", "mean_T_focus",
                     "mean_T_pass", "phase_offset_focus_rad", "phase_offset_pass_rad")
-DPI = 110
 
 
 @dataclass(frozen=True)
@@ -182,7 +181,7 @@ def phase_maps_png(lib: Library, il: int) -> bytes:
         ax.set_xlabel("duty cycle wy / p")
         ax.set_ylabel("duty cycle wx / p")
     fig.suptitle(f"Fig. 7b: zero-order response, lambda = {lib.wavelengths_um[il]:g} um")
-    png = fig_to_png(fig, dpi=DPI)
+    png = fig_to_png(fig)
     plt.close(fig)
     return png
 
@@ -216,7 +215,7 @@ def selected_posts_png(lib: Library, il: int, post_sets: dict[str, PostSet]) -> 
         axs[1, j].set_title(f"eff. {ps.info['expected_focusing_efficiency']:.2f}, pass spread "
                             f"{ps.info['pass_phase_spread_rad']:.2f} rad")
     fig.suptitle("Fig. 7c: selected birefringent posts")
-    png = fig_to_png(fig, dpi=DPI)
+    png = fig_to_png(fig)
     plt.close(fig)
     return png
 

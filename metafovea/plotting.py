@@ -121,9 +121,12 @@ def thumbnail_png(img: Any, *, cmap: Any = None, vmin: float | None = None, vmax
     return buf.getvalue()
 
 
-def figure_png(fig: Any, dpi: int = 60) -> bytes:
-    """A figure as PNG bytes (through :func:`metafovea.report.fig_to_png`)."""
-    from metafovea.report import fig_to_png
+def figure_png(fig: Any, dpi: int | None = None) -> bytes:
+    """A figure as PNG bytes (through :func:`metafovea.report.fig_to_png`), by default at the thumbnail
+    resolution :data:`metafovea.report.THUMBNAIL_DPI`."""
+    from metafovea.report import THUMBNAIL_DPI, fig_to_png
+
+    dpi = THUMBNAIL_DPI if dpi is None else dpi
 
     return fig_to_png(fig, dpi=dpi)
 

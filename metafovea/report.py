@@ -20,8 +20,15 @@ from typing import Any
 
 from metafovea.io import atomic_write_text
 
+#: the resolution of every figure a report or a command writes (one for all: figures of two stages side by side
+#: in a page then share one scale)
+FIGURE_DPI = 100
+#: the thumbnails of a result's notebook display (a glance, not a figure)
+THUMBNAIL_DPI = 60
 
-def fig_to_png(fig: Any, dpi: int = 100) -> bytes:
+
+def fig_to_png(fig: Any, dpi: int = FIGURE_DPI) -> bytes:
+    """A matplotlib figure as PNG bytes at ``dpi`` (default :data:`FIGURE_DPI`), trimmed to its content."""
     buf = _io.BytesIO()
     fig.savefig(buf, format="png", dpi=dpi, bbox_inches="tight")
     return buf.getvalue()

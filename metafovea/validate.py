@@ -306,7 +306,7 @@ def _figure(label: str, res: dict[str, Any]) -> bytes:
         axes[i, 0].set_ylabel("foveal x1" if i == 0 else "perifoveal x2")
         fig.colorbar(im, ax=axes[i, :].tolist(), shrink=0.85, label="DN")
     fig.suptitle(f"{label}: first window, colour range from the truth")
-    png = fig_to_png(fig, dpi=80)
+    png = fig_to_png(fig)
     plt.close(fig)
     return png
 
@@ -329,7 +329,7 @@ def _frames_figure(meas: Measurement, n: int = 6) -> bytes:
         a = "" if meas.alpha is None else f", alpha {meas.alpha[k]:.2f}"
         ax.set_title(f"frame {k}{a}", fontsize=8)
     fig.colorbar(im, ax=axes[0, :].tolist(), shrink=0.9, label="DN")
-    png = fig_to_png(fig, dpi=80)
+    png = fig_to_png(fig)
     plt.close(fig)
     return png
 
@@ -351,7 +351,7 @@ def _alpha_figure(meas: Measurement, estimated: np.ndarray | None) -> bytes:
     ax.set_ylabel("alpha (mixing ratio)")
     ax.set_ylim(-0.02, 1.02)
     ax.legend(fontsize=7, loc="upper right")
-    png = fig_to_png(fig, dpi=80)
+    png = fig_to_png(fig)
     plt.close(fig)
     return png
 
@@ -388,7 +388,7 @@ def _psf_figure(curves: dict[str, Any]) -> bytes:
     ax.set_ylabel("MTF")
     ax.set_ylim(0, 1.02)
     ax.legend(fontsize=7)
-    png = fig_to_png(fig, dpi=80)
+    png = fig_to_png(fig)
     plt.close(fig)
     return png
 

@@ -46,7 +46,7 @@ from metafovea.measurement import Measurement
 from metafovea.optics.train import system_trains
 from metafovea.plotting import iron_colormap  # noqa: F401  (its home is the ground floor; imported from here too)
 from metafovea.radiometry import BandRadiance
-from metafovea.report import fig_to_png
+from metafovea.report import FIGURE_DPI, fig_to_png
 
 log = logging.getLogger(__name__)
 
@@ -551,7 +551,7 @@ def write_tiff(m: Measurement, path: str | Path, force: bool = False) -> Path:
     return atomic_write_bytes(p, buf.getvalue())
 
 
-def write_preview(m: Measurement, path: str | Path, force: bool = False, dpi: int = 90) -> Path:
+def write_preview(m: Measurement, path: str | Path, force: bool = False, dpi: int = FIGURE_DPI) -> Path:
     """PNG: four frames (highest, middle and lowest alpha) and the two truth images in the iron palette,
     and alpha(t)."""
     from matplotlib.figure import Figure

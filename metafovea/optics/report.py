@@ -35,7 +35,6 @@ from .train import POSTS_NOTE_IDEAL, system_trains, throughput_lines
 log = logging.getLogger(__name__)
 
 #: resolution of the report figures
-DPI = 90
 
 
 # ----------------------------------------------------------------------------------------------
@@ -209,7 +208,7 @@ def _monochromatic(plt: Any, lens: LensDesign, res: dict[str, Any], fields_deg: 
     axs[0].set_ylabel("y at the focal plane (um)")
     fig.tight_layout()
     res["monochromatic"] = mono
-    png = fig_to_png(fig, dpi=DPI)
+    png = fig_to_png(fig)
     plt.close(fig)
     return png
 
@@ -255,7 +254,7 @@ def _wavefront(plt: Any, lens: LensDesign, res: dict[str, Any], post_set: Any) -
                  "phase", fontsize=9)
     fig.tight_layout()
     res["wavefront"] = out
-    png = fig_to_png(fig, dpi=DPI)
+    png = fig_to_png(fig)
     plt.close(fig)
     return png
 
@@ -291,7 +290,7 @@ def _through_focus(plt: Any, lens: LensDesign, res: dict[str, Any], mono_wl: lis
     res["through_focus"] = {"defocus_um": zs - lens.f_um, "mono": mono, "mono_core": core, "core_radius_um": r_d,
                             "band_defocus_um": zb - lens.f_um,
                             "band": band, "radius_um": pixel_pitch_um, "depth_of_focus_um": dof}
-    png = fig_to_png(fig, dpi=DPI)
+    png = fig_to_png(fig)
     plt.close(fig)
     return png
 
@@ -333,7 +332,7 @@ def _mtf(plt: Any, lens: LensDesign, res: dict[str, Any], fields_deg: list[float
     ax.set_xlabel("spatial frequency at the focal plane (cycles/mm)"); ax.set_ylabel("MTF (focusing order)")
     ax.legend(fontsize=6.5); fig.tight_layout()
     res["mtf"] = mt
-    png = fig_to_png(fig, dpi=DPI)
+    png = fig_to_png(fig)
     plt.close(fig)
     return png
 
@@ -407,7 +406,7 @@ def _sensor(plt: Any, lens: LensDesign, res: dict[str, Any], fields_deg: list[fl
     ax[2].set_ylim(0, 1.02); ax[2].legend(fontsize=6)
     fig.tight_layout()
     res["sensor"] = sens
-    png = fig_to_png(fig, dpi=DPI)
+    png = fig_to_png(fig)
     plt.close(fig)
     return png
 

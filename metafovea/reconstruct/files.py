@@ -104,7 +104,7 @@ def pair_figure(x1: np.ndarray, x2: np.ndarray, title: str) -> bytes:
         ax.set_axis_off()
         fig.colorbar(im, ax=ax, shrink=0.8)
     fig.suptitle(title)
-    png = fig_to_png(fig, dpi=110)
+    png = fig_to_png(fig)
     plt.close(fig)
     return png
 
@@ -154,6 +154,6 @@ def scene_figure(d: Any, title: str = "") -> bytes:
         ax.set_axis_off()
         fig.colorbar(im, ax=ax, shrink=0.8, label=f"brightness temperature ({unit})" if unit == "K" else unit)
     fig.suptitle(title or f"PSF-aware reconstruction ({d.info.get('method')})")
-    png = fig_to_png(fig, dpi=110)
+    png = fig_to_png(fig)
     plt.close(fig)
     return png

@@ -25,6 +25,7 @@ import numpy as np
 from metafovea.config import SystemDesign
 from metafovea.errors import InputError
 from metafovea.io import atomic_write_bytes, atomic_write_json, prepare_output
+from metafovea.report import FIGURE_DPI
 
 #: the 10 um / 0.5 um filter is in place in every study unless it says otherwise: without it the foveal channel
 #: (designed at 10 um, F/2) is mostly chromatic haze (validate's report: haze fraction ~0.8 over 8-14 um), and the
@@ -221,5 +222,5 @@ def figure(rows: int, cols: int, size: tuple[float, float]) -> tuple[Any, Any]:
     """A matplotlib Figure (no pyplot state) and its axes, for :func:`metafovea.report.fig_to_png`."""
     from matplotlib.figure import Figure
 
-    fig = Figure(figsize=size, dpi=100)
+    fig = Figure(figsize=size, dpi=FIGURE_DPI)
     return fig, fig.subplots(rows, cols, squeeze=False)
