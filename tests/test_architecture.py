@@ -18,7 +18,7 @@ SHARED = {"units", "errors", "io", "parallel", "config", "materials", "radiometr
           "__init__"}
 #: stage rank; a module may import from ranks <= its own. layout and optics are sibling branches.
 RANK = {
-    "rcwa": 1, "library": 2, "library_report": 2, "lens": 3, "design_report": 3,
+    "rcwa": 1, "library": 2, "lens": 3, "design_report": 3,
     "layout": 4, "optics": 4,
     "imaging": 5, "recordings": 5, "reconstruct": 6, "validate": 7, "studies": 7, "cli": 8,
 }

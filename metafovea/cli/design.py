@@ -81,7 +81,8 @@ def design_from_args(args: argparse.Namespace) -> list:
             overrides["name"] = args.name
     else:  # checked under the flags' names (and --d in mm) before a LensDesign is made
         base = [{**{f.name: f.default for f in fields(LensDesign) if f.default is not MISSING},
-                 "name": args.name or "lens", "f_um": overrides.pop("f_um"), "diameter_um": overrides.pop("diameter_um")}]
+                 "name": args.name or "lens", "f_um": overrides.pop("f_um"),
+                 "diameter_um": overrides.pop("diameter_um")}]
     out = []
     for b in base:
         merged = {**b, **overrides}
@@ -96,7 +97,7 @@ def run(args: argparse.Namespace) -> int:
     from metafovea.design_report import design_lenses, format_summary, summary_dict, write_design_bundles
     from metafovea.errors import check_int
     from metafovea.io import prepare_output, to_json
-    from metafovea.library import PostSet
+    from metafovea.library.postset import PostSet
 
     lenses = design_from_args(args)
     samples = check_int("--samples", args.samples, 1000, 1 << 26)

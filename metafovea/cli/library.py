@@ -6,7 +6,7 @@ write the paper's Fig. 7b/7c maps and JSON numbers.
 
 Outputs in --out: library.npz (Library.save), postset_x.npz (foveal lens, focuses x) and
 postset_y.npz (perifoveal lens, focuses y) for `metafovea design --post-set`, fig7b_phase_maps.png,
-fig7c_selected_posts.png and library.json (:mod:`metafovea.library_report`).
+fig7c_selected_posts.png and library.json (:mod:`metafovea.library.report`).
 """
 
 from __future__ import annotations
@@ -51,7 +51,7 @@ def run(args: argparse.Namespace) -> int:
     from metafovea.config import PlatformDesign, load_platform
     from metafovea.io import prepare_output, to_json
     from metafovea.library import LibraryOptions, PlatformSweep
-    from metafovea.library_report import library_report
+    from metafovea.library.report import library_report
 
     src = args.platform_file
     plat = load_platform(src) if src else PlatformDesign()
@@ -104,7 +104,8 @@ def check_sweep_cost(args: argparse.Namespace, sweep: Any, options: Any) -> None
     workers = options.workers or os.cpu_count() or 1
     core_s, per_worker = solve_cost(options.harmonics, n)
     hours = core_s / workers / 3600
-    flag, value = ("--harmonics", args.harmonics) if int(options.harmonics) > 10 else ("--grid-step-um", args.grid_step_um)
+    flag, value = (("--harmonics", args.harmonics) if int(options.harmonics) > 10
+                   else ("--grid-step-um", args.grid_step_um))
     avail = available_memory_bytes()
     need = f"{n:,} post solves at {options.harmonics} harmonics: ~{hours:.3g} h on {workers} workers, " \
            f"{human_bytes(per_worker)} each"

@@ -36,7 +36,7 @@ import numpy as np
 from metafovea.config import LensDesign, PlatformDesign, load_design
 from metafovea.errors import InputError, check_choice, check_int, check_range
 from metafovea.lens import EMPTY, row_half_counts, site_index_range
-from metafovea.library import PostSet
+from metafovea.library.postset import PostSet
 from metafovea.units import NM_PER_UM, TWO_PI
 
 DBU_UM = 1e-3  #: database unit in um (1 nm)
@@ -328,7 +328,8 @@ def drc_summary(spec: LayoutSpec, platform: PlatformDesign | None = None) -> dic
 def drc_line(d: dict[str, Any]) -> str:
     """One line of :func:`drc_summary` for the export and verify summaries."""
     r = d["rules"]
-    return (f"DRC {'OK' if d['ok'] else 'VIOLATED'}: smallest side {d['min_side_um']:.3f} um (>= {r['min_feature_um']:g}), "
+    return (f"DRC {'OK' if d['ok'] else 'VIOLATED'}: smallest side {d['min_side_um']:.3f} um "
+            f"(>= {r['min_feature_um']:g}), "
             f"smallest gap {d['min_gap_um']:.3f} um (>= {r['min_gap_um']:g}), aspect ratio {d['max_aspect_ratio']:.1f} "
             f"(<= {r['max_aspect_ratio']:g}), on a {d['grid_nm']} nm grid")
 

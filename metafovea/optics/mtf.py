@@ -11,7 +11,7 @@ import numpy as np
 
 from metafovea.config import LensDesign
 from metafovea.errors import InputError, check_positive
-from metafovea.library import PostSet
+from metafovea.library.postset import PostSet
 
 from . import propagate as prop
 from .psf import PSF

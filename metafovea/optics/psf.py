@@ -37,7 +37,7 @@ import numpy as np
 from metafovea.config import LensDesign
 from metafovea.errors import InputError, check_choice, check_int, check_positive, check_range
 from metafovea.io import atomic_save_npz, jsonable, load_npz
-from metafovea.library import PostSet
+from metafovea.library.postset import PostSet
 
 from . import propagate as prop
 from . import rayleigh

@@ -46,7 +46,7 @@ import numpy as np
 
 from metafovea.config import LensDesign
 from metafovea.errors import InputError, check_choice, check_int, check_positive
-from metafovea.library import PostSet
+from metafovea.library.postset import PostSet
 
 #: Smallest distance of the pupil disk from the evanescent circle |s| = 1 that is accepted.
 EVANESCENT_MARGIN = 1e-3

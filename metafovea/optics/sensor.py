@@ -37,7 +37,7 @@ import numpy as np
 
 from metafovea.config import LensDesign
 from metafovea.errors import NotConvergedWarning, check_int, check_positive
-from metafovea.library import PostSet
+from metafovea.library.postset import PostSet
 
 from . import propagate as prop
 from .psf import (
@@ -428,8 +428,8 @@ def _add_wave(t: _Tally, sets: list[PupilSet], wave_k: list[int], w: np.ndarray,
             batches.append([k])
     for bk in batches:
         ub = _union([boxes[k] for k in bk])
-        i0 = int(np.searchsorted(xs, ub[0] - mg)); i1 = int(np.searchsorted(xs, ub[1] + mg))
-        j0 = int(np.searchsorted(ys, ub[2] - mg)); j1 = int(np.searchsorted(ys, ub[3] + mg))
+        i0, i1 = int(np.searchsorted(xs, ub[0] - mg)), int(np.searchsorted(xs, ub[1] + mg))
+        j0, j1 = int(np.searchsorted(ys, ub[2] - mg)), int(np.searchsorted(ys, ub[3] + mg))
         if engine == "hankel":
             for k in bk:
                 I, _, e = focus_intensity(sets[k].focus, xs[i0:i1], ys[j0:j1], error=error, engine="hankel")

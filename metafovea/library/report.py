@@ -17,8 +17,12 @@ from typing import Any
 import numpy as np
 
 from metafovea.io import atomic_write_bytes, atomic_write_json
-from metafovea.library import Library, PlatformSweep, PostSet, bias_table, postset_table
 from metafovea.report import fig_to_png
+
+from .platform import PlatformSweep
+from .postset import PostSet, postset_table
+from .select import bias_table
+from .sweep import Library
 
 #: the lens each post set is for (each lens focuses its own polarisation and passes the other)
 LENS_OF = {"x": "foveal", "y": "perifoveal"}
@@ -136,8 +140,9 @@ def convergence_bounds(lib: Library, sweep: PlatformSweep) -> dict[str, Any]:
     median, the posts above the warning tolerance, and the bound of each chosen post."""
     from dataclasses import replace
 
-    from metafovea.library import compute_library
     from metafovea.rcwa.posts import BOUND_FACTOR, MIN_POST_HARMONICS
+
+    from .sweep import compute_library
 
     M = int(lib.meta["harmonics"])
     if M - 4 < MIN_POST_HARMONICS or not np.all(np.isfinite(lib.err_x)):
@@ -227,7 +232,8 @@ def _bias_lines(eb: dict[str, Any], bias_weight: float = 0.0) -> list[str]:
     pb = eb["per_bias"]
     cols = (("-", f"-{1000 * d:.0f} nm"), ("0", "nominal"), ("+", f"+{1000 * d:.0f} nm"))
     chosen = (f"posts chosen jointly over the three cases (bias_weight {bias_weight:g}: each biased case weighted "
-              f"{bias_weight:g}, the nominal 1)" if bias_weight > 0 else "posts chosen for the nominal case (bias_weight 0)")
+              f"{bias_weight:g}, the nominal 1)" if bias_weight > 0
+              else "posts chosen for the nominal case (bias_weight 0)")
     lines = [f"  edge bias +-{1000 * d:.0f} nm per side (widths +-{2000 * d:.0f} nm), RCWA, common shift removed;",
              f"  {chosen}:",
              "    " + " " * 34 + "".join(f"{name:>10}" for _, name in cols)]
