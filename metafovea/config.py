@@ -2,7 +2,11 @@
 
 The paper's prototype is the built-in default: ``LensDesign.foveal()``, ``LensDesign.perifoveal()``,
 ``PlatformDesign()`` and ``SystemDesign.paper()`` equal what ``designs/*.toml`` spell out (a test keeps
-them in step), so the default runs from any directory after ``pip install``.
+them in step), so the default runs from any directory after ``pip install``. This module is the one home of the
+paper's platform and camera numbers (the ``PAPER_*`` constants below; refractive indices in
+:mod:`metafovea.materials`): other modules take them from here or require them as arguments, and a file that lacks
+a physical parameter is an error, not a paper default (``tests/test_architecture.py`` rejects these literals
+elsewhere).
 
 Every value is checked on load; an error names the file, the key, the value and the allowed range
 (:class:`metafovea.errors.InputError` with ``source`` = file path).
@@ -23,12 +27,33 @@ from typing import Any
 import numpy as np
 
 from metafovea.errors import InputError, check_choice, check_int, check_positive, check_range
-from metafovea.units import LAMBDA0_UM, PHASE_SIGN, UM_PER_MM
+from metafovea.materials import N_AIR, N_SI_10UM
+from metafovea.units import PHASE_SIGN, UM_PER_MM
 
 #: the polarisation a lens focuses: E along the lattice x or y axis
 POLARIZATIONS = ("x", "y")
 #: lattice sites at integer multiples of the period (a post at the centre) or half-integer ones
 LATTICES = ("integer", "half")
+
+# the paper's platform and camera (the defaults of the dataclasses below)
+#: lattice period of the posts (um)
+PAPER_PERIOD_UM = 4.0
+#: height of the silicon posts (um)
+PAPER_POST_HEIGHT_UM = 10.0
+#: free-space wavelength the lenses are designed for (um)
+PAPER_WAVELENGTH_UM = 10.0
+#: the microbolometer's pixel pitch (um)
+PAPER_PIXEL_PITCH_UM = 17.0
+#: side of the working crop of the sensor (pixels; the crop is square)
+PAPER_CROP_PX = 290
+#: the sensor's frame rate (Hz)
+PAPER_FRAME_RATE_HZ = 12.0
+#: the spectral band without a filter (um)
+PAPER_BAND_UM = (8.0, 14.0)
+#: magnification of the selected relay
+PAPER_RELAY_MAGNIFICATION = 0.5
+#: lens-to-sensor distances of the (foveal, perifoveal) channels (um): their focal lengths
+PAPER_LENS_TO_SENSOR_UM = (150.0 * UM_PER_MM, 25.0 * UM_PER_MM)
 
 
 # ----------------------------------------------------------------------------------------------
@@ -41,15 +66,15 @@ class PlatformDesign:
     n_post / n_substrate / n_superstrate are refractive indices at the design wavelength.
     """
 
-    period_um: float = 4.0
-    post_height_um: float = 10.0
+    period_um: float = PAPER_PERIOD_UM
+    post_height_um: float = PAPER_POST_HEIGHT_UM
     post_material: str = "Si"
-    n_post: float = 3.42
-    n_substrate: float = 3.42
-    n_superstrate: float = 1.0
+    n_post: float = N_SI_10UM
+    n_substrate: float = N_SI_10UM
+    n_superstrate: float = N_AIR
     substrate_thickness_um: float = 500.0
     min_feature_um: float = 0.5
-    wavelength_um: float = LAMBDA0_UM
+    wavelength_um: float = PAPER_WAVELENGTH_UM
     min_gap_um: float | None = None  # smallest gap between neighbouring posts (default: min_feature_um)
     max_aspect_ratio: float = 20.0  # post height / smallest side: a typical limit of Bosch deep silicon etching
     edge_bias_um: float = 0.05  # +- edge bias per side the posts are chosen to tolerate (lithography + DRIE)
@@ -117,14 +142,14 @@ class LensDesign:
     name: str
     f_um: float
     diameter_um: float
-    wavelength_um: float = LAMBDA0_UM
+    wavelength_um: float = PAPER_WAVELENGTH_UM
     polarization: str = "x"
-    period_um: float = 4.0
-    post_height_um: float = 10.0
+    period_um: float = PAPER_PERIOD_UM
+    post_height_um: float = PAPER_POST_HEIGHT_UM
     levels: int = 8
     phase_sign: int = PHASE_SIGN
     lattice: str = "integer"  # sites at integer multiples of the period ('integer') or half-integer ('half')
-    n_substrate: float = 3.42
+    n_substrate: float = N_SI_10UM
 
     def __post_init__(self) -> None:
         check_name("name", self.name)
@@ -220,7 +245,7 @@ def check_lattice_rows(d_um: float, period_um: float, d_name: str = "diameter_um
         return int(rows)
     from metafovea.errors import human_bytes
 
-    blame_d = d_um / 4.0 > MAX_LATTICE_ROWS
+    blame_d = d_um / PAPER_PERIOD_UM > MAX_LATTICE_ROWS
     name = d_name if blame_d else period_name
     in_mm = not name.endswith("_um") and blame_d  # a CLI flag (--d) is in mm
     value = d_um / UM_PER_MM if in_mm else (d_um if blame_d else period_um)
@@ -259,11 +284,11 @@ def validate_lens_numbers(f_um: Any, diameter_um: Any, wavelength_um: Any, perio
 
 @dataclass(frozen=True)
 class SensorDesign:
-    pixel_pitch_um: float = 17.0
-    pitch_variants_um: tuple[float, ...] = (17.0, 24.0)
+    pixel_pitch_um: float = PAPER_PIXEL_PITCH_UM
+    pitch_variants_um: tuple[float, ...] = (PAPER_PIXEL_PITCH_UM, 24.0)
     pixels: tuple[int, int] = (480, 640)  # (H, W)
-    crop: tuple[int, int] = (290, 290)  # working crop (H, W)
-    frame_rate_hz: float = 12.0
+    crop: tuple[int, int] = (PAPER_CROP_PX, PAPER_CROP_PX)  # working crop (H, W)
+    frame_rate_hz: float = PAPER_FRAME_RATE_HZ
     netd_k: float = 0.05
     fpn_rank: int = 20
     fpn_amplitude: float = 0.1  # bound on the FPN term, fraction of the scene's dynamic range
@@ -282,15 +307,15 @@ class SystemDesign:
     foveal: LensDesign = field(default_factory=LensDesign.foveal)
     perifoveal: LensDesign = field(default_factory=LensDesign.perifoveal)
     platform: PlatformDesign = field(default_factory=PlatformDesign)
-    lens_to_sensor_um: tuple[float, float] = (150.0 * UM_PER_MM, 25.0 * UM_PER_MM)
-    relay_magnification: float = 0.5
-    relay_variants: tuple[float, ...] = (0.5, 0.3)
+    lens_to_sensor_um: tuple[float, float] = PAPER_LENS_TO_SENSOR_UM
+    relay_magnification: float = PAPER_RELAY_MAGNIFICATION
+    relay_variants: tuple[float, ...] = (PAPER_RELAY_MAGNIFICATION, 0.3)
     polarizer_hz: float = 2.0
     polarizer_extinction: float = 0.0  # leaked fraction of the blocked polarisation (0 = ideal)
     sensor: SensorDesign = field(default_factory=SensorDesign)
-    band_um: tuple[float, float] = (8.0, 14.0)
+    band_um: tuple[float, float] = PAPER_BAND_UM
     filter_enabled: bool = False
-    filter_center_um: float = 10.0
+    filter_center_um: float = PAPER_WAVELENGTH_UM
     filter_bandwidth_um: float = 0.5
     scene_temperature_k: float = 300.0
 

@@ -226,7 +226,8 @@ class Measurement:
         if bp is not None:
             bp = np.asarray(bp)
             if bp.shape != f.shape[1:]:
-                raise InputError("bad_pixels", f"array of shape {bp.shape}", f"(H, W) = {f.shape[1:]}", source=self.source)
+                raise InputError("bad_pixels", f"array of shape {bp.shape}", f"(H, W) = {f.shape[1:]}",
+                                 source=self.source)
             bad |= bp.astype(bool)[None]
         return bad if bad.any() else None
 
@@ -291,9 +292,11 @@ class Measurement:
         if "frames" not in arrays:
             raise InputError("measurement", str(p), "a Measurement .npz holding a 'frames' (T, H, W) array")
         times = arrays.get("times_s")
-        if times is None:
-            fps = float(meta.get("frame_rate_hz", 12.0))
-            times = np.arange(arrays["frames"].shape[0]) / fps
+        if times is None:  # the frame rate gives the times; none is assumed
+            if meta.get("frame_rate_hz") is None:
+                raise InputError("times_s", None, "a (T,) array of frame times, or frame_rate_hz in the metadata",
+                                 source=str(p))
+            times = np.arange(arrays["frames"].shape[0]) / float(meta["frame_rate_hz"])
         extras = {k: arrays[k] for k in OPTIONAL[4:] if k in arrays}
         return cls(frames=arrays["frames"], times_s=times, alpha=arrays.get("alpha"), truth_x1=arrays.get("truth_x1"),
                    truth_x2=arrays.get("truth_x2"), fpn=arrays.get("fpn"), meta=meta, extras=extras, source=str(p))

@@ -33,12 +33,13 @@ from typing import Any
 
 import numpy as np
 
+from metafovea.config import PAPER_BAND_UM
 from metafovea.errors import InputError, check_int, check_positive, check_range
 
 log = logging.getLogger(__name__)
 
-#: default LWIR band (um)
-BAND_UM = (8.0, 14.0)
+#: default LWIR band (um): the paper's
+BAND_UM = PAPER_BAND_UM
 #: highest temperature the radiance tables cover (K)
 T_MAX_K = 3000.0
 #: innermost PSF wavelength bin, as a relative distance from the design wavelength: 1e-4 is below a quarter of the
@@ -254,7 +255,8 @@ class BandRadiance:
         """The weighting of a :class:`~metafovea.config.SystemDesign` (its band and, if enabled, filter)."""
         return cls.from_band(system.band_um, filter_um=system_filter_um(system, filter_enabled), response=response)
 
-    def psf_wavelengths(self, design_um: float, temperature_k: float = 300.0, n: int = 31) -> tuple[np.ndarray, np.ndarray]:
+    def psf_wavelengths(self, design_um: float, temperature_k: float = 300.0,
+                        n: int = 31) -> tuple[np.ndarray, np.ndarray]:
         """:func:`psf_wavelengths` of this weighting."""
         return psf_wavelengths(self.band_um, design_um=design_um, temperature_k=temperature_k,
                                filter_um=self.filter_um, response=self.response, n=n)
@@ -293,7 +295,8 @@ class BandRadiance:
         """``eps L(T) + (1 - eps) L(T_refl)`` (grey opaque surfaces)."""
         eps = np.asarray(emissivity, dtype=np.float64)
         if eps.size and (np.min(eps) < 0 or np.max(eps) > 1):
-            raise InputError("emissivity", float(np.min(eps) if np.min(eps) < 0 else np.max(eps)), "0 <= emissivity <= 1")
+            raise InputError("emissivity", float(np.min(eps) if np.min(eps) < 0 else np.max(eps)),
+                             "0 <= emissivity <= 1")
         l_t = self(temperature_k)
         if np.all(eps == 1.0):
             return l_t

@@ -40,7 +40,3 @@ TWO_PI = 2.0 * math.pi
 
 #: Sign of the focusing phase profile under the exp(-i omega t) convention (see module docstring).
 PHASE_SIGN = -1
-
-#: Free-space wavelength the paper designs for (um).
-LAMBDA0_UM = 10.0
-

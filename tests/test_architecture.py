@@ -191,3 +191,122 @@ def test_tests_use_public_names_only():
                     and isinstance(node.value, ast.Name) and node.value.id in aliases:
                 problems.append(f"{path.name}:{node.lineno} uses {node.value.id}.{node.attr}")
     assert not problems, "\n".join(problems)
+
+
+# ------------------------------------------------------------------------------------------------
+# One home for the paper's platform and camera numbers
+# ------------------------------------------------------------------------------------------------
+#: the paper's platform and camera numbers and the pattern of the names they are values of (None: any name): outside
+#: their home (config.py, refractive indices materials.py) a module takes them from there or requires them
+PLATFORM_LITERALS: dict[float, str | None] = {
+    3.42: None,                                # n_Si at 10 um: no other number of the package is 3.42
+    4.0: r"period",                            # lattice period (um)
+    10.0: r"height|wavelength|lambda|\bwl\b",  # post height, design wavelength (um)
+    290: r"crop|shape",                        # the sensor's working crop (px)
+    17.0: r"pitch",                            # pixel pitch (um)
+    12.0: r"frame_rate|fps",                   # frame rate (Hz)
+    8.0: r"band", 14.0: r"band",               # the LWIR band (um)
+}
+PLATFORM_HOMES = {"metafovea.config", "metafovea.materials"}
+#: ``module:name`` that may keep a platform literal, with the reason
+PLATFORM_LITERALS_ALLOWED: dict[str, str] = {
+    **dict.fromkeys((f"metafovea.studies.{m}:crop" for m in ("focal_ratio", "frames", "gallery", "resolution",
+                                                            "transients")),
+                    "a study's full-size run, stated beside its fast one (FULL / FAST), not a default of the camera"),
+    "metafovea.studies.transients:frame_rate_hz": "the study's report of the paper's camera, in step with its text "
+                                                  "('12 frames/s'); the run takes the camera's own rate",
+}
+
+
+def _numbers(node: ast.AST):
+    """The numeric constants a value is made of: a number, or a tuple / list of them."""
+    if isinstance(node, ast.Constant) and type(node.value) in (int, float):
+        yield node
+    elif isinstance(node, (ast.Tuple, ast.List)):
+        for elt in node.elts:
+            yield from _numbers(elt)
+
+
+def _named_values(tree: ast.AST):
+    """``(name, value)`` for every value given a name: parameter defaults, fields and assignments, keyword arguments,
+    ``mapping.get('name', default)`` fallbacks and dict entries."""
+    for node in ast.walk(tree):
+        if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef, ast.Lambda)):
+            a = node.args
+            pos = a.posonlyargs + a.args
+            yield from ((arg.arg, d) for arg, d in zip(pos[len(pos) - len(a.defaults):], a.defaults))
+            yield from ((arg.arg, d) for arg, d in zip(a.kwonlyargs, a.kw_defaults) if d is not None)
+        elif isinstance(node, ast.AnnAssign) and node.value is not None and isinstance(node.target, ast.Name):
+            yield node.target.id, node.value
+        elif isinstance(node, ast.Assign):
+            for t in node.targets:
+                if isinstance(t, (ast.Name, ast.Attribute)):
+                    yield (t.id if isinstance(t, ast.Name) else t.attr), node.value
+        elif isinstance(node, ast.Call):
+            yield from ((k.arg, k.value) for k in node.keywords if k.arg is not None)
+            key = node.args[0] if len(node.args) == 2 else None
+            if isinstance(node.func, ast.Attribute) and node.func.attr in ("get", "pop", "setdefault") and \
+                    isinstance(key, ast.Constant) and isinstance(key.value, str):
+                yield key.value, node.args[1]
+        elif isinstance(node, ast.Dict):
+            yield from ((k.value, v) for k, v in zip(node.keys, node.values)
+                        if isinstance(k, ast.Constant) and isinstance(k.value, str))
+
+
+def platform_literals(tree: ast.AST) -> list[tuple[int, str, float]]:
+    """``(line, name, value)`` of every platform literal (:data:`PLATFORM_LITERALS`) in ``tree``: a value given a name
+    of its pattern, or a number that is one under any name (name '' when it has none)."""
+    import re
+
+    found: dict[tuple[int, int], tuple[int, str, float]] = {}
+    for name, value in _named_values(tree):
+        for c in _numbers(value):
+            for number, pattern in PLATFORM_LITERALS.items():
+                if c.value == number and (pattern is None or re.search(pattern, name.lower())):
+                    found.setdefault((c.lineno, c.col_offset), (c.lineno, name, c.value))
+    for c in ast.walk(tree):
+        if isinstance(c, ast.Constant) and type(c.value) in (int, float):
+            for number, pattern in PLATFORM_LITERALS.items():
+                if pattern is None and c.value == number:
+                    found.setdefault((c.lineno, c.col_offset), (c.lineno, "", c.value))
+    return sorted(found.values())
+
+
+def test_platform_numbers_have_one_home():
+    """The paper's platform and camera numbers (n_Si 3.42, period 4 um, post height and design wavelength 10 um, crop
+    290 px, pitch 17 um, 12 frames/s, the 8-14 um band) are written in config.py / materials.py only: elsewhere a
+    default, field, keyword or file fallback of that name takes them from there (or the value is required)."""
+    problems, used = [], set()
+    for _, modname, tree in modules():
+        if modname in PLATFORM_HOMES:
+            continue
+        for line, name, value in platform_literals(tree):
+            key = f"{modname}:{name}"
+            if key in PLATFORM_LITERALS_ALLOWED:
+                used.add(key)
+            else:
+                problems.append(f"{modname}:{line}: {name or 'a constant'} = {value!r} (take it from metafovea.config "
+                                "or metafovea.materials)")
+    problems += [f"{key}: allowed but no longer there (remove it from PLATFORM_LITERALS_ALLOWED)"
+                 for key in sorted(set(PLATFORM_LITERALS_ALLOWED) - used)]
+    assert not problems, "\n".join(problems)
+
+
+@pytest.mark.parametrize("bad, name", [
+    ("def width_grid(period_um: float = 4.0, step_um: float = 0.1): ...", "period_um"),
+    ("@dataclass\nclass SensorModel:\n    shape: tuple[int, int] = (290, 290)\n", "shape"),
+    ("r = post_response(w, w, harmonics=8, wavelength_um=10.0)", "wavelength_um"),
+    ("h = float(lib.meta.get('height_um', 10.0))", "height_um"),
+    ("kw = {'n_post': 1.0, 'n_substrate': complex(3.42)}", ""),
+])
+def test_the_platform_literal_check_can_fail(bad, name):
+    """A planted platform literal is found (a default, a field, a keyword, a file fallback, a bare index)."""
+    assert {n for _, n, _ in platform_literals(ast.parse(bad))} == {name}
+
+
+def test_the_platform_literal_check_spares_ordinary_numbers():
+    """The same numbers as a tolerance, a factor, a range or under another name are not platform literals."""
+    good = ("def f(x, tol: float = 10.0, factor=4.0, n=290, delta_k=10.0):\n"
+            "    check_range('n_post', x, 1.0, 10.0, hi=10.0)\n"
+            "    return {'scale': 4.0, 'frames': 12.0} if x > 17.0 else (8.0, 14.0)\n")
+    assert platform_literals(ast.parse(good)) == []

@@ -105,6 +105,14 @@ def test_arrays_that_do_not_fit_the_frames_name_the_file_and_the_key(tmp_path, k
     assert e.value.parameter == key and e.value.source == str(p)
 
 
+def test_times_without_a_frame_rate_are_an_error_naming_the_file(tmp_path):
+    """A file without times_s took 12 frames/s (the paper's camera) when its metadata stated no frame rate."""
+    p = _file(tmp_path / "m.npz", meta={"scale": 6.0}, times_s=None)
+    with pytest.raises(InputError) as e:
+        Measurement.load(p)
+    assert e.value.parameter == "times_s" and e.value.source == str(p) and "frame_rate_hz" in e.value.allowed
+
+
 def test_optional_arrays_and_defaults(tmp_path):
     """Without times_s the frame rate gives the times; NaN alpha means unknown; a video truth is accepted."""
     p = _file(tmp_path / "m.npz", meta={"frame_rate_hz": 10.0}, times_s=None,

@@ -34,12 +34,20 @@ from typing import Any
 
 import numpy as np
 
+from metafovea.config import (
+    PAPER_CROP_PX,
+    PAPER_FRAME_RATE_HZ,
+    PAPER_LENS_TO_SENSOR_UM,
+    PAPER_PIXEL_PITCH_UM,
+    PAPER_RELAY_MAGNIFICATION,
+)
 from metafovea.errors import InputError, check_positive, check_range
 
 log = logging.getLogger(__name__)
 
 #: Perifoveal full field of view of the paper's camera (rad): 290 px x 17 um / 0.5 relay / 25 mm.
-PAPER_FOV_RAD = 2 * math.atan(145 * 34.0 / 25_000.0)
+PAPER_FOV_RAD = 2 * math.atan(PAPER_CROP_PX / 2 * PAPER_PIXEL_PITCH_UM / PAPER_RELAY_MAGNIFICATION
+                              / PAPER_LENS_TO_SENSOR_UM[1])
 AMBIENT_K = 294.0
 
 
@@ -48,7 +56,7 @@ class SceneGeometry:
     """Field of view hints a scene uses to lay itself out (radians, full widths)."""
 
     fov_rad: float = PAPER_FOV_RAD  # perifoveal (wide) channel
-    expansion: float = 6.0  # f1 / f2: the foveal field is fov_rad / expansion
+    expansion: float = PAPER_LENS_TO_SENSOR_UM[0] / PAPER_LENS_TO_SENSOR_UM[1]  # f1 / f2: foveal field fov_rad / this
     duration_s: float = 8.0  # length of the recording (for videos that should fit in it)
 
     @property
@@ -301,8 +309,7 @@ class WavingHand(Scene):
         # palm: a capsule plus fingers fanning out
         _paint(temp, eps, _capsule(ax, ay, rot(0, L + 0.06 * h), rot(0, L + 0.16 * h), 0.13 * h), self.skin_k, 0.98)
         fw = 0.028 * h
-        for k, (dx, ln, tilt) in enumerate(((-0.09, 0.20, -0.12), (-0.03, 0.25, -0.04), (0.03, 0.27, 0.0),
-                                           (0.09, 0.24, 0.05))):
+        for dx, ln, tilt in ((-0.09, 0.20, -0.12), (-0.03, 0.25, -0.04), (0.03, 0.27, 0.0), (0.09, 0.24, 0.05)):
             base = (dx * h, L + 0.22 * h)
             tip = (base[0] + np.sin(tilt) * ln * h, base[1] + np.cos(tilt) * ln * h)
             _paint(temp, eps, _capsule(ax, ay, rot(*base), rot(*tip), fw), self.finger_k, 0.98)
@@ -584,7 +591,7 @@ class RasterScene(Scene):
     emissivity: Any = 0.95
     half_width_rad: float = 0.5 * PAPER_FOV_RAD
     background_k: float = AMBIENT_K
-    frame_rate_hz: float = 12.0
+    frame_rate_hz: float = PAPER_FRAME_RATE_HZ
     name: str = "raster"
     description: str = "temperature raster"
     static: bool = True
@@ -594,7 +601,8 @@ class RasterScene(Scene):
         if t.ndim not in (2, 3) or min(t.shape[-2:]) < 2:
             raise InputError("temperature_k", f"array of shape {t.shape}", "a (h, w) or (T, h, w) array, h, w >= 2")
         if not np.all(np.isfinite(t)) or float(t.min()) < 0:
-            raise InputError("temperature_k", _worst(t, 0.0, math.inf), "finite temperatures >= 0 K (kelvin, not Celsius)")
+            raise InputError("temperature_k", _worst(t, 0.0, math.inf),
+                             "finite temperatures >= 0 K (kelvin, not Celsius)")
         check_positive("half_width_rad", self.half_width_rad, "rad", hi=math.pi / 2)
         e = np.asarray(self.emissivity, dtype=np.float64)
         if e.ndim and e.shape != t.shape[-2:]:
@@ -693,7 +701,8 @@ def image_scene(name: str, geometry: SceneGeometry | None = None, *,
 
 
 def load_scene_file(path: str | Path, geometry: SceneGeometry | None = None, *,
-                    t_range_k: tuple[float, float] = (288.0, 312.0), frame_rate_hz: float = 12.0) -> RasterScene:
+                    t_range_k: tuple[float, float] = (288.0, 312.0),
+                    frame_rate_hz: float = PAPER_FRAME_RATE_HZ) -> RasterScene:
     """A scene from a file.
 
     * ``.npy``: (h, w) or (T, h, w) temperatures in kelvin.
@@ -753,7 +762,7 @@ def load_scene_file(path: str | Path, geometry: SceneGeometry | None = None, *,
 # ----------------------------------------------------------------------------------------------
 def _bars(g: SceneGeometry, **kw: Any) -> BarTargets:
     # Nyquist of each channel for the paper's 290-pixel field: 290 / (2 fov) cycles/rad
-    nyq_p = 290 / (2 * g.fov_rad)
+    nyq_p = PAPER_CROP_PX / (2 * g.fov_rad)
     nyq_f = nyq_p * g.expansion
     central = tuple(nyq_f * np.array([0.25, 0.4, 0.6, 0.85]))
     ring = tuple(nyq_p * np.array([0.1, 0.15, 0.2, 0.3, 0.4, 0.55, 0.7, 0.85]))

@@ -417,7 +417,8 @@ def simulate(system: SystemDesign, scene: str | Path | Scene, options: Simulatio
     optics = [build_channel_optics(ch, provider, camera.radiance, ss=ss, psf_size_px=opt.psf_size_px,
                                    field_patches=opt.field_patches, patch_threshold=opt.patch_threshold,
                                    scene_temperature_k=system.scene_temperature_k, haze=opt.haze,
-                                   transmitted=1.0 if tr is None or provider_name != "optics" else tr.metasurface_transmission,
+                                   transmitted=(1.0 if tr is None or provider_name != "optics"
+                                                else tr.metasurface_transmission),
                                    leaks=() if tr is None else [(lk.power_fraction / tr.throughput, lk.radius_um)
                                                                 for lk in tr.leaks])
               for ch, tr in zip(camera.channels, trains)]
@@ -544,10 +545,11 @@ def write_tiff(m: Measurement, path: str | Path, force: bool = False) -> Path:
         data = f.astype(np.uint16)
     info = {"units": m.meta.get("units", "DN"), "scene": m.meta.get("scene"), "times_s": m.times_s.tolist(),
             "alpha": None if m.alpha is None else np.round(m.alpha, 6).tolist()}
+    fps = m.meta.get("frame_rate_hz")  # else the frame times give the interval (a recording may state no rate)
+    dt = 1.0 / float(fps) if fps else float(np.median(np.diff(m.times_s))) if m.times_s.size > 1 else 0.0
     buf = _io.BytesIO()
     tifffile.imwrite(buf, data, imagej=True,
-                     metadata={"axes": "TYX", "finterval": 1.0 / float(m.meta.get("frame_rate_hz", 12.0)),
-                               "Info": json.dumps(info)})
+                     metadata={"axes": "TYX", **({"finterval": dt} if dt > 0 else {}), "Info": json.dumps(info)})
     return atomic_write_bytes(p, buf.getvalue())
 
 

@@ -14,7 +14,7 @@ from typing import Any
 
 import numpy as np
 
-from metafovea.config import POLARIZATIONS
+from metafovea.config import PAPER_PERIOD_UM, PAPER_POST_HEIGHT_UM, PAPER_WAVELENGTH_UM, POLARIZATIONS
 from metafovea.errors import InputError, check_choice, check_int, check_positive
 from metafovea.io import atomic_save_npz, load_npz
 
@@ -119,8 +119,8 @@ class PostSet:
         return np.clip(1.0 - np.abs(self.transmission(polarization)) ** 2, 0.0, 1.0), "1 - |t|^2 (upper bound)"
 
     @classmethod
-    def ideal(cls, levels: int, *, period_um: float = 4.0, height_um: float = 10.0,
-              wavelength_um: float = 10.0, polarization: str = "x") -> PostSet:
+    def ideal(cls, levels: int, *, period_um: float = PAPER_PERIOD_UM, height_um: float = PAPER_POST_HEIGHT_UM,
+              wavelength_um: float = PAPER_WAVELENGTH_UM, polarization: str = "x") -> PostSet:
         """Exact phases 2 pi k / N, unit transmission, pass-through phase 0; widths a ramp.
 
         The widths (0.2 p .. 0.85 p along the focusing axis, 0.5 p along the other) are not physical

@@ -22,7 +22,7 @@ from metafovea.report import fig_to_png
 from .platform import PlatformSweep
 from .postset import PostSet, postset_table
 from .select import bias_table
-from .sweep import Library
+from .sweep import Library, _stack
 
 #: the lens each post set is for (each lens focuses its own polarisation and passes the other)
 LENS_OF = {"x": "foveal", "y": "perifoveal"}
@@ -160,7 +160,7 @@ def convergence_bounds(lib: Library, sweep: PlatformSweep) -> dict[str, Any]:
 
 
 def _duty_cycle_extent(lib: Library) -> tuple[float, list[float]]:
-    p = float(lib.meta.get("period_um", 4.0))
+    p = float(_stack(lib, "period_um"))
     return p, [lib.wy_um[0] / p, lib.wy_um[-1] / p, lib.wx_um[0] / p, lib.wx_um[-1] / p]
 
 

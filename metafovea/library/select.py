@@ -18,7 +18,7 @@ from metafovea.config import POLARIZATIONS, PlatformDesign
 from metafovea.errors import InputError, check_choice, check_int, check_range
 
 from .postset import PostSet
-from .sweep import DEFAULT_HARMONICS, Library
+from .sweep import DEFAULT_HARMONICS, Library, _stack
 
 
 def _wrap(a: np.ndarray) -> np.ndarray:
@@ -27,11 +27,16 @@ def _wrap(a: np.ndarray) -> np.ndarray:
 
 
 def _wavelength_index(lib: Library, wavelength_um: float | None) -> int:
-    """Index of ``wavelength_um`` in the library (None: its only wavelength, else its design wavelength)."""
+    """Index of ``wavelength_um`` in the library (None: its only wavelength, else the design wavelength its meta
+    states; a library of several wavelengths that states none is an :class:`InputError` on ``wavelength_um``)."""
     if wavelength_um is None and lib.wavelengths_um.size == 1:
         return 0
-    return lib.index_of_wavelength(float(lib.meta.get("design_wavelength_um", 10.0) if wavelength_um is None
-                                         else wavelength_um))
+    if wavelength_um is None:
+        wavelength_um = lib.meta.get("design_wavelength_um")
+        if wavelength_um is None:
+            raise InputError("wavelength_um", None, f"one of the library wavelengths {lib.wavelengths_um.tolist()} "
+                             "(the library has several and states no design wavelength)")
+    return lib.index_of_wavelength(float(wavelength_um))
 
 
 def usable_posts(lib: Library, wavelength_um: float | None = None, *, max_error: float | None = 0.05) -> np.ndarray:
@@ -46,7 +51,7 @@ def usable_posts(lib: Library, wavelength_um: float | None = None, *, max_error:
 
 def _fabricable(lib: Library, platform: PlatformDesign, WX: np.ndarray, WY: np.ndarray) -> np.ndarray:
     """(n_wx, n_wy) bool: posts that meet the platform's fabrication rules."""
-    h = float(lib.meta.get("height_um", platform.post_height_um))
+    h = float(_stack(lib, "height_um"))
     fab = np.array([not platform.fabrication_violations([[a, b]], h) for a, b in zip(WX.ravel(), WY.ravel())])
     return fab.reshape(WX.shape)
 
@@ -362,7 +367,7 @@ def select_posts(lib: Library, polarization: str, levels: int = 8, *, wavelength
         "library_key": lib.meta.get("key"), "harmonics": lib.meta.get("harmonics"),
         "incidence": lib.meta.get("incidence"),
     }
-    return PostSet(pol, float(lib.meta.get("period_um", 4.0)), float(lib.meta.get("height_um", 10.0)),
+    return PostSet(pol, float(_stack(lib, "period_um")), float(_stack(lib, "height_um")),
                    float(lib.wavelengths_um[il]), widths, t_x, t_y, source="rcwa", info=info,
                    R_x=None if specular["x"] is None else specular["x"][choice],
                    R_y=None if specular["y"] is None else specular["y"][choice])
@@ -425,16 +430,16 @@ def _solve_like(lib: Library, wx: np.ndarray, wy: np.ndarray, wavelength_um: flo
 
     m = lib.meta
 
-    def idx(name: str, default: float) -> complex:
-        v = m.get(name)
-        return complex(v[0], v[1]) if isinstance(v, (list, tuple)) else complex(default if v is None else v)
+    def idx(name: str) -> complex:
+        v = _stack(lib, name)
+        return complex(v[0], v[1]) if isinstance(v, (list, tuple)) else complex(v)
 
     kw = {}
-    for name, default in (("n_post", 3.42), ("n_surround", 1.0), ("n_substrate", 3.42), ("n_superstrate", 1.0)):
-        v = idx(name, default)
+    for name in ("n_post", "n_surround", "n_substrate", "n_superstrate"):
+        v = idx(name)
         kw[name] = v.real if v.imag == 0 else v
-    r = post_response(np.asarray(wx), np.asarray(wy), wavelength_um, period_um=float(m.get("period_um", 4.0)),
-                      height_um=float(m.get("height_um", 10.0)), harmonics=int(m.get("harmonics", DEFAULT_HARMONICS)),
+    r = post_response(np.asarray(wx), np.asarray(wy), wavelength_um, period_um=float(_stack(lib, "period_um")),
+                      height_um=float(_stack(lib, "height_um")), harmonics=int(m.get("harmonics", DEFAULT_HARMONICS)),
                       factorization=m.get("factorization", "li"), incidence=m.get("incidence", "substrate"), **kw)
     return r.t_x, r.t_y
 

@@ -24,10 +24,11 @@ from typing import Any
 
 import numpy as np
 
-from metafovea.config import PlatformDesign
+from metafovea.config import PAPER_PERIOD_UM, PAPER_POST_HEIGHT_UM, PAPER_WAVELENGTH_UM, PlatformDesign
 from metafovea.errors import InputError, NotConvergedWarning, check_choice, check_int, check_positive, check_range
 from metafovea.io import atomic_save_npz, cache_lock, input_hash, load_npz
 from metafovea.io import cache_dir as io_cache_dir
+from metafovea.materials import N_AIR, N_SI_10UM
 from metafovea.parallel import run_tasks
 
 from .postset import _load_checked
@@ -36,6 +37,9 @@ log = logging.getLogger(__name__)
 
 LIBRARY_ARRAYS = ("t_x", "t_y", "T_x", "T_y", "R_x", "R_y", "other_x", "other_y", "err_x", "err_y")
 DEFAULT_HARMONICS = 10
+#: the physical parameters of a library's stack (keys of its meta): a library file without one is an error naming
+#: it, never the paper's value
+LIBRARY_STACK_KEYS = ("period_um", "height_um", "n_post", "n_surround", "n_substrate", "n_superstrate")
 
 
 @dataclass
@@ -75,16 +79,32 @@ class Library:
                                wavelengths_um=self.wavelengths_um, **self.arrays)
 
     @classmethod
-    def load(cls, path: str | Path) -> Library:
-        arrays, meta = _load_checked(path, "Library")
+    def load(cls, path: str | Path, name: str = "path") -> Library:
+        """Read a file written by :meth:`save`; errors name the file as ``name`` (a CLI passes its flag), and a file
+        without a key of :data:`LIBRARY_STACK_KEYS` is one of them."""
+        arrays, meta = _load_checked(path, "Library", name)
+        missing = [k for k in LIBRARY_STACK_KEYS if meta.get(k) is None]
+        if missing:
+            raise InputError(name, str(path), "a Library file written by Library.save",
+                             detail=f"missing {missing[0]!r}: a physical parameter is never assumed")
         try:
             return cls(arrays.pop("wx_um"), arrays.pop("wy_um"), arrays.pop("wavelengths_um"), arrays, meta)
         except KeyError as e:
-            raise InputError("path", str(path), "a Library file written by Library.save",
+            raise InputError(name, str(path), "a Library file written by Library.save",
                              detail=f"missing {e.args[0]!r}") from None
 
 
-def width_grid(period_um: float = 4.0, step_um: float = 0.1, min_feature_um: float = 0.5, *,
+def _stack(lib: Library, key: str) -> Any:
+    """``lib.meta[key]``, a physical parameter of the library's stack (:data:`LIBRARY_STACK_KEYS`); a library without
+    it (one made by hand) is an :class:`InputError` naming the key, never the paper's value."""
+    value = lib.meta.get(key)
+    if value is None:
+        raise InputError(key, None, "stated in the library's meta (compute_library and Library.load give it; no "
+                         "paper value is assumed)")
+    return value
+
+
+def width_grid(period_um: float = PAPER_PERIOD_UM, step_um: float = 0.1, min_feature_um: float = 0.5, *,
                name: str = "grid_step_um") -> np.ndarray:
     """Post widths from ``min_feature`` to ``period - min_feature`` (both posts and gaps >= min feature).
 
@@ -149,12 +169,12 @@ class LibraryOptions:
     ``workers`` (local processes; default all cores), ``scheduler`` (a Dask scheduler address), ``progress``.
     """
 
-    period_um: float = 4.0
-    height_um: float = 10.0
-    n_post: Any = 3.42
-    n_surround: Any = 1.0
-    n_substrate: Any = 3.42
-    n_superstrate: Any = 1.0
+    period_um: float = PAPER_PERIOD_UM
+    height_um: float = PAPER_POST_HEIGHT_UM
+    n_post: Any = N_SI_10UM
+    n_surround: Any = N_AIR
+    n_substrate: Any = N_SI_10UM
+    n_superstrate: Any = N_AIR
     harmonics: int = DEFAULT_HARMONICS
     factorization: str = "li"
     incidence: str = "substrate"
@@ -221,7 +241,7 @@ def _checked_sweep(wx_um: Any, wy_um: Any, wavelengths_um: Any, opts: LibraryOpt
 
 
 def compute_library(wx_um: Sequence[float], wy_um: Sequence[float] | None = None,
-                    wavelengths_um: Iterable[float] = (10.0,), *, options: LibraryOptions | None = None,
+                    wavelengths_um: Iterable[float] = (PAPER_WAVELENGTH_UM,), *, options: LibraryOptions | None = None,
                     **overrides: Any) -> Library:
     """Sweep the post widths (wx, wy) for each wavelength with :func:`metafovea.rcwa.posts.post_response`.
 

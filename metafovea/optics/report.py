@@ -16,7 +16,7 @@ from typing import Any
 
 import numpy as np
 
-from metafovea.config import LensDesign, SystemDesign, load_lens
+from metafovea.config import PAPER_BAND_UM, PAPER_PIXEL_PITCH_UM, LensDesign, SystemDesign, load_lens
 from metafovea.errors import InputError, check_choice, check_int, check_positive
 from metafovea.io import atomic_write_bytes, atomic_write_json, file_stem, prepare_output
 from metafovea.library import POST_SOURCES, oblique_response, rcwa_post_sets, system_post_sets
@@ -41,8 +41,8 @@ log = logging.getLogger(__name__)
 # one lens
 # ----------------------------------------------------------------------------------------------
 def psf_report(lens: LensDesign, out_dir: str | Path, *, fields_deg: list[float] | None = None,
-               band_um: tuple[float, float] = (8.0, 14.0), filter_um: tuple[float, float] | None = None,
-               temperature_k: float = 300.0, n_wavelengths: int = 61, pixel_pitch_um: float = 17.0,
+               band_um: tuple[float, float] = PAPER_BAND_UM, filter_um: tuple[float, float] | None = None,
+               temperature_k: float = 300.0, n_wavelengths: int = 61, pixel_pitch_um: float = PAPER_PIXEL_PITCH_UM,
                error: float = 1e-4, post_set: Any = None, wavelength_um: float | None = None,
                window_um: float | None = None, relay_magnification: float = 1.0,
                z_um: float | None = None, progress: bool = False, position: int = 0,
@@ -167,7 +167,8 @@ def _field_posts(lens: LensDesign, post_set: Any, oblique: Any, error: float,
 
 
 def _monochromatic(plt: Any, lens: LensDesign, res: dict[str, Any], fields_deg: list[float], mono_wl: list[float],
-                   posts_at: Callable[[float], Any], error: float, window_um: float | None, pixel_pitch_um: float, z: float,
+                   posts_at: Callable[[float], Any], error: float, window_um: float | None, pixel_pitch_um: float,
+                   z: float,
                    tick: Callable[[str], None]) -> bytes:
     """Monochromatic PSFs (fabricated lens) on axis, at mid-field and at the last field: ``res['monochromatic']``
     and the figure. A PSF too aberrated for the fine grid is shown on a pixel grid of a quarter pitch instead."""
@@ -286,7 +287,8 @@ def _through_focus(plt: Any, lens: LensDesign, res: dict[str, Any], mono_wl: lis
     ax.set_xlabel("focal-plane distance - f (um)")
     ax.set_ylabel("power within r of the axis (of incident)")
     ax.set_title(f"through focus, on axis, {lens.levels}-level + lattice (optical PSF, exact)", fontsize=9)
-    ax.legend(fontsize=7); fig.tight_layout()
+    ax.legend(fontsize=7)
+    fig.tight_layout()
     res["through_focus"] = {"defocus_um": zs - lens.f_um, "mono": mono, "mono_core": core, "core_radius_um": r_d,
                             "band_defocus_um": zb - lens.f_um,
                             "band": band, "radius_um": pixel_pitch_um, "depth_of_focus_um": dof}
@@ -314,7 +316,8 @@ def _mtf(plt: Any, lens: LensDesign, res: dict[str, Any], fields_deg: list[float
     ax.plot(nu, cont, label="on axis, continuous phase (optical)")
     ax.plot(nu, fab, label=f"on axis, {lens.levels}-level + lattice (optical)")
     ax.plot(nu, fab * pix, label=f"on axis, {lens.levels}-level x {pixel_pitch_um:.3g} um pixel")
-    mt = {"nu_cyc_per_mm": nu, "nu_field_cyc_per_mm": nu_f, "on_axis": cont, "on_axis_fabricated": fab, "on_axis_fabricated_pixel": fab * pix,
+    mt = {"nu_cyc_per_mm": nu, "nu_field_cyc_per_mm": nu_f, "on_axis": cont, "on_axis_fabricated": fab,
+          "on_axis_fabricated_pixel": fab * pix,
           "paraxial_cutoff_cyc_per_mm": paraxial_cut, "z_um": z}
     fields = [fd for fd in dict.fromkeys((fields_deg[len(fields_deg) // 2], fields_deg[-1])) if fd != 0]
     with blas_threads(1), ThreadPoolExecutor(2) as ex:  # four independent autocorrelations, two at a time
@@ -329,8 +332,10 @@ def _mtf(plt: Any, lens: LensDesign, res: dict[str, Any], fields_deg: list[float
             ax.plot(nu_f, t, label=f"{fd:.2f} deg tangential (continuous)")
             ax.plot(nu_f, s, ":", label=f"{fd:.2f} deg sagittal (continuous)")
             mt[f"{fd:.3f}_tangential"], mt[f"{fd:.3f}_sagittal"] = t, s
-    ax.set_xlabel("spatial frequency at the focal plane (cycles/mm)"); ax.set_ylabel("MTF (focusing order)")
-    ax.legend(fontsize=6.5); fig.tight_layout()
+    ax.set_xlabel("spatial frequency at the focal plane (cycles/mm)")
+    ax.set_ylabel("MTF (focusing order)")
+    ax.legend(fontsize=6.5)
+    fig.tight_layout()
     res["mtf"] = mt
     png = fig_to_png(fig)
     plt.close(fig)
@@ -387,12 +392,14 @@ def _sensor(plt: Any, lens: LensDesign, res: dict[str, Any], fields_deg: list[fl
             ax[0].plot(radii, ee, label=f"{fd:.2f} deg, {mono_wl[0]:g} um (pixel-integrated)")
             eep = encircled_energy(poly, radii, center_um=poly.center_um)
             ax[0].plot(radii, eep, "--", label=f"{fd:.2f} deg, band (pixel-integrated)")
-    ax[0].set_xlabel("radius at the focal plane (um)"); ax[0].set_ylabel("encircled energy (of incident)")
+    ax[0].set_xlabel("radius at the focal plane (um)")
+    ax[0].set_ylabel("encircled energy (of incident)")
     ax[0].legend(fontsize=7)
     ax[1].semilogy([s["field_deg"] for s in sens], [s["mono_center_pixel"] for s in sens], "o-",
                    label=f"{mono_wl[0]:g} um")
     ax[1].semilogy([s["field_deg"] for s in sens], [s["poly_center_pixel"] for s in sens], "s-", label="band")
-    ax[1].set_xlabel("field (deg)"); ax[1].set_ylabel(f"power in the chief-ray pixel ({pixel_pitch_um:.3g} um)")
+    ax[1].set_xlabel("field (deg)")
+    ax[1].set_ylabel(f"power in the chief-ray pixel ({pixel_pitch_um:.3g} um)")
     ax[1].legend()
     fd_all = [s["field_deg"] for s in sens]
     for j, (ls, what) in enumerate(((":", "Nyquist/2"), ("-", "Nyquist"))):
@@ -402,8 +409,10 @@ def _sensor(plt: Any, lens: LensDesign, res: dict[str, Any], fields_deg: list[fl
                    label=f"{mono_wl[0]:g} um sagittal, {nu_m[j]:.1f}/mm")
         ax[2].plot(fd_all, [s["poly_mtf"]["tangential"][j] for s in sens], ls, marker="s", color="C2",
                    label=f"band tangential, {nu_m[j]:.1f}/mm")
-    ax[2].set_xlabel("field (deg)"); ax[2].set_ylabel("MTF (pixel-integrated PSF, pixel aperture included)")
-    ax[2].set_ylim(0, 1.02); ax[2].legend(fontsize=6)
+    ax[2].set_xlabel("field (deg)")
+    ax[2].set_ylabel("MTF (pixel-integrated PSF, pixel aperture included)")
+    ax[2].set_ylim(0, 1.02)
+    ax[2].legend(fontsize=6)
     fig.tight_layout()
     res["sensor"] = sens
     png = fig_to_png(fig)
@@ -442,7 +451,8 @@ def _page(res: dict[str, Any], figs: dict[str, bytes]) -> HtmlReport:
     page.paragraph(f"On axis, power within r = {ee['radius_um']:g} um (exact radial integral): "
                    f"{res['mono_wavelength_um']:g} um {ee['mono']:.4f}, band {ee['band']:.4g} "
                    "(fractions of the incident power).")
-    page.paragraph(f"Geometry: lens to focal plane {res['z_um'] / 1000:g} mm (defocus {res['defocus_um']:+.1f} um from f); "
+    page.paragraph(f"Geometry: lens to focal plane {res['z_um'] / 1000:g} mm (defocus {res['defocus_um']:+.1f} um "
+                   "from f); "
                    f"sensor pixels of {res['sensor_pixel_um']:g} um behind a {res['relay_magnification']:g}x relay: "
                    f"{res['pixel_pitch_um']:.4g} um at the focal plane (the pixel the sensor PSFs integrate over).")
     page.heading(f"Sensor PSFs ({res['sensor_pixel_um']:g} um sensor pixels = {res['pixel_pitch_um']:.4g} um at the "
@@ -481,9 +491,9 @@ def _page(res: dict[str, Any], figs: dict[str, bytes]) -> HtmlReport:
 # several lenses: the ``metafovea psf`` pipeline
 # ----------------------------------------------------------------------------------------------
 def psf_reports(designs: Sequence[str | Path | LensDesign], out_dir: str | Path, *, force: bool = False,
-                fields_deg: list[float] | None = None, band_um: tuple[float, float] = (8.0, 14.0),
+                fields_deg: list[float] | None = None, band_um: tuple[float, float] = PAPER_BAND_UM,
                 filter_um: tuple[float, float] | None = None, temperature_k: float = 300.0,
-                n_wavelengths: int = 61, pixel_pitch_um: float = 17.0, error: float = 1e-4,
+                n_wavelengths: int = 61, pixel_pitch_um: float = PAPER_PIXEL_PITCH_UM, error: float = 1e-4,
                 wavelength_um: float | None = None, window_um: float | None = None,
                 jobs: int | None = None, relay_magnification: float = 1.0,
                 distances_um: dict[str, float] | None = None, progress: bool = False,

@@ -30,6 +30,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from metafovea.config import PAPER_PERIOD_UM, PAPER_POST_HEIGHT_UM, PAPER_WAVELENGTH_UM
 from metafovea.errors import InputError, NotConvergedWarning, check_choice, check_int, check_positive
 from metafovea.materials import AIR, SILICON, IndexLike, index_of
 from metafovea.rcwa.basis import Basis
@@ -163,11 +164,12 @@ def convergence_bound(t_m: np.ndarray, t_m2: np.ndarray, t_m4: np.ndarray) -> np
     return BOUND_FACTOR * np.maximum(a, b)
 
 
-def post_response(wx_um, wy_um, wavelength_um=10.0, *, period_um: float = 4.0, height_um: float = 10.0,
-                  n_post: IndexLike = SILICON, n_surround: IndexLike = AIR, n_substrate: IndexLike = SILICON,
-                  n_superstrate: IndexLike = AIR, harmonics: int = 8, factorization: str = "li",
-                  incidence: str = "substrate", estimate: bool = False, tol: float | None = None,
-                  polarizations: tuple[str, ...] = ("x", "y"), chunk: int = 32) -> PostResponse:
+def post_response(wx_um, wy_um, wavelength_um=PAPER_WAVELENGTH_UM, *, period_um: float = PAPER_PERIOD_UM,
+                  height_um: float = PAPER_POST_HEIGHT_UM, n_post: IndexLike = SILICON, n_surround: IndexLike = AIR,
+                  n_substrate: IndexLike = SILICON, n_superstrate: IndexLike = AIR, harmonics: int = 8,
+                  factorization: str = "li", incidence: str = "substrate", estimate: bool = False,
+                  tol: float | None = None, polarizations: tuple[str, ...] = ("x", "y"),
+                  chunk: int = 32) -> PostResponse:
     """Zero-order transmission of centred rectangular posts at normal incidence (batched).
 
     wx_um, wy_um, wavelength_um broadcast together. ``harmonics`` is M (orders |m|, |n| <= M,

@@ -11,6 +11,7 @@ from typing import Any
 
 import numpy as np
 
+from metafovea.config import PAPER_FRAME_RATE_HZ
 from metafovea.errors import InputError, as_rng, check_int
 from metafovea.reconstruct._common import as_alpha
 from metafovea.reconstruct.operators import FovealOperator
@@ -62,7 +63,7 @@ def scene(shape: tuple[int, int] | int = 96, scale: float = 6.0, *, offset: tupl
     return x1.astype(dtype), x2.astype(dtype)
 
 
-def polariser_alpha(n: int, *, rate_hz: float = 2.0, fps: float = 12.0, phase: float = 0.3,
+def polariser_alpha(n: int, *, rate_hz: float = 2.0, fps: float = PAPER_FRAME_RATE_HZ, phase: float = 0.3,
                     start: int = 0) -> np.ndarray:
     """``alpha_t = cos^2(2 pi rate t / fps + phase)`` (the reference anchors' polariser)."""
     t = np.arange(start, start + n, dtype=np.float64)

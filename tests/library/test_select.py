@@ -218,3 +218,20 @@ def test_bias_weight_chooses_posts_that_keep_their_phase_under_edge_bias():
 def test_bias_weight_needs_a_bias():
     with pytest.raises(InputError, match="bias_weight"):
         PlatformSweep(PlatformDesign(edge_bias_um=0.0), bias_weight=1.0)
+
+
+def test_a_library_without_its_stack_or_design_wavelength_is_an_error_not_the_paper_value():
+    """select_posts put ``period_um`` 4 um and ``height_um`` 10 um into the post set of a library that states none,
+    and chose the posts of a multi-wavelength library at 10 um when asked for none; both are errors naming the key."""
+    lib = synthetic_library()
+    del lib.meta["period_um"]
+    with pytest.raises(InputError) as e:
+        select_posts(lib, "x", 4)
+    assert e.value.parameter == "period_um"
+    two = synthetic_library()
+    two = Library(two.wx_um, two.wy_um, np.array([9.0, 10.0]),
+                  {k: np.concatenate([v, v]) for k, v in two.arrays.items()}, two.meta)
+    with pytest.raises(InputError) as e:
+        select_posts(two, "x", 4)
+    assert e.value.parameter == "wavelength_um" and "[9.0, 10.0]" in e.value.allowed
+    assert select_posts(two, "x", 4, wavelength_um=10.0).wavelength_um == 10.0
