@@ -505,7 +505,7 @@ def verdict(report: dict[str, Any]) -> list[dict[str, Any]]:
         fp = (report["stages"]["simulate_reconstruct"][label] or {}).get("fpn") or {}
         est, true = fp.get("estimated_error_rms_dn"), fp.get("true_error_rms_dn")
         if isinstance(est, float) and isinstance(true, float) and true > 0:
-            how = "SURE" if "Stein" in str(fp.get("error_rms_from")) else "split halves"
+            how = "SURE" if fp.get("error_rms_from") == "sure" else "split halves"
             items.append({"stage": "reconstruct", "check": f"{label}: the FPN estimate's error, estimated ({how}) "
                           "against the true", "value": f"{est:.3f} DN", "reference": f"{true:.3f} DN +- 25 %",
                           "passed": bool(abs(est / true - 1) <= 0.25)})

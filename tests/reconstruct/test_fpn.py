@@ -161,7 +161,7 @@ def test_calibration_shrinkage_beats_a_fixed_rank_and_knows_its_error(seed, T, s
     f20, _ = estimate_fpn(calibration=cal, rank=20)
     err = lambda e: float(np.sqrt(np.mean(((e - e.mean()) - (f_true - f_true.mean())) ** 2)))  # noqa: E731
     assert err(f) < 0.85 * err(f20), (err(f), err(f20))
-    assert 0 < info["rank"] < 20 and "shrinkage" in info["rank_rule"]
+    assert 0 < info["rank"] < 20 and info["rank_rule"] == "shrinkage" and info["error_rms_from"] == "sure"
     assert 0.8 < info["error_rms_dn"] / err(f) < 1.2, (info["error_rms_dn"], err(f))
     # one frame: no noise to shrink with: the paper's rank, no error estimate
     one, info1 = estimate_fpn(calibration=cal[:1])
