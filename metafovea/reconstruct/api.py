@@ -276,9 +276,9 @@ def _video_fpn(m: Measurement, method: str, frames: np.ndarray, alpha: np.ndarra
         geo = {k: kw[k] for k in ("scale", "foveal_gain", "foveal_offset") if k in kw}
         f, finfo = estimate_fpn(x1=np.nan_to_num(x1m, nan=float(np.nanmean(x1m))),
                                 x2=np.nan_to_num(x2m, nan=float(np.nanmean(x2m))), **geo)
-        finfo = {**finfo, "windows_averaged": int(np.shape(first.x1)[0]),
-                 "video": "estimated once from the separated images averaged over the windows (a first pass without "
-                          "FPN), then subtracted from every frame before the windows were solved again"}
+        # estimated once from the separated images averaged over the windows (a first pass without FPN), then
+        # subtracted from every frame before the windows are solved again
+        finfo = {**finfo, "windows_averaged": int(np.shape(first.x1)[0]), "video": "windows-mean"}
     return (np.asarray(frames, dtype=np.float64) - f[None]).astype(np.float32), (f, finfo)
 
 

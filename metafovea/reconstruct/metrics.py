@@ -40,17 +40,39 @@ def _data_range(ref: np.ndarray, data_range: float | None) -> float:
 
 
 def psnr(est: np.ndarray, ref: np.ndarray, data_range: float | None = None) -> float:
-    """Peak signal-to-noise ratio in dB (``data_range`` defaults to the reference's range).
+    """Peak signal-to-noise ratio (module docstring).
 
-    Non-finite estimate pixels count as errors (the result is ``-inf`` dB... reported as 0 dB floor
-    would hide them), so they are refused: mask them before calling.
+    Parameters
+    ----------
+    est, ref : array_like, same shape
+        The estimate must be finite: a non-finite pixel is refused (:class:`InputError`; mask it first), since any
+        floor reported for it would hide it.
+    data_range : float, optional
+        ``R``; default the reference's range (1 when it is flat).
+
+    Returns
+    -------
+    float
+        dB; ``inf`` for an exact estimate.
     """
     est, ref = _pair(est, ref)
     return float(_psnr_stack(est[None], ref[None], data_range)[0])
 
 
 def ssim(est: np.ndarray, ref: np.ndarray, data_range: float | None = None) -> float:
-    """Structural similarity (scikit-image, Gaussian-free default 7x7 window)."""
+    """Structural similarity (scikit-image, uniform 7 x 7 window, smaller for a smaller image).
+
+    Parameters
+    ----------
+    est, ref : array_like, shape (H, W)
+        The estimate must be finite.
+    data_range : float, optional
+        Default the reference's range.
+
+    Returns
+    -------
+    float
+    """
     from skimage.metrics import structural_similarity
 
     est, ref = _pair(est, ref)
@@ -61,8 +83,18 @@ def ssim(est: np.ndarray, ref: np.ndarray, data_range: float | None = None) -> f
 
 
 def level_free_image(est: np.ndarray, ref: np.ndarray) -> np.ndarray:
-    """``est`` with its mean error against ``ref`` removed (float64): what is left when the alpha gauge or an offset
-    is off."""
+    """An estimate with its mean error against the reference removed: what is left when the alpha gauge or an
+    offset is off.
+
+    Parameters
+    ----------
+    est, ref : array_like, same shape
+
+    Returns
+    -------
+    ndarray
+        float64, ``est - mean(est - ref)``.
+    """
     est, ref = _pair(est, ref)
     return est - float(np.mean(est - ref))
 
@@ -91,13 +123,30 @@ def _psnr_stack(ests: np.ndarray, refs: np.ndarray, data_range: float | None) ->
 
 def score(rec: Any, truth_x1: np.ndarray | None = None, truth_x2: np.ndarray | None = None,
           data_range: float | None = None, *, level_free: bool = False) -> dict[str, float]:
-    """PSNR/SSIM of a :class:`~metafovea.reconstruct.Reconstruction` (or ``(x1, x2)`` tuple) against
-    truth; a video (``(K, H, W)``) is scored window by window and averaged (PSNR over every output, SSIM over
-    :data:`SSIM_MAX_OUTPUTS` evenly spaced ones: SSIM costs ~10 ms per 290 x 290 image, the solve ~0.2 ms).
+    """PSNR and SSIM of a reconstruction against the noise-free images: the one scorer.
 
-    ``truth_x*``: one ``(H, W)`` image, or one per output ``(K, H, W)``; ``None`` skips that image.
-    ``data_range`` defaults to each reference's own range. ``level_free`` adds ``psnr_x1_level_free`` /
-    ``psnr_x2_level_free``: the PSNR after removing the mean error (see :func:`level_free_image`)."""
+    Parameters
+    ----------
+    rec : Reconstruction or tuple of 2 array_like
+        ``x1``, ``x2``: ``(H, W)`` or, for a video, ``(K, H, W)`` (scored output by output and averaged).
+    truth_x1, truth_x2 : array_like, shape (H, W) or (K, H, W), optional
+        One image, or one per output; None skips that image.
+    data_range : float, optional
+        Default: each reference's own range.
+    level_free : bool
+        Add ``psnr_x1_level_free`` / ``psnr_x2_level_free``: the PSNR after removing the mean error
+        (:func:`level_free_image`).
+
+    Returns
+    -------
+    dict
+        ``psnr_x1``, ``ssim_x1``, ``psnr_x2``, ``ssim_x2`` for the images scored.
+
+    Notes
+    -----
+    A video's PSNR is the mean over every output, its SSIM over :data:`SSIM_MAX_OUTPUTS` evenly spaced ones
+    (SSIM costs ~10 ms per 290 x 290 image, the LSQ solve ~0.2 ms).
+    """
     x1, x2 = (rec.x1, rec.x2) if hasattr(rec, "x1") else rec
     out: dict[str, float] = {}
     for name, est, ref in (("x1", x1, truth_x1), ("x2", x2, truth_x2)):
