@@ -10,13 +10,13 @@ with ``K_i`` channel ``i``'s PSF on the pixel grid, ``p_i`` its pedestal, ``r_i`
 
     u_hat = N^-1 A^T y,    cov(u_hat) = sigma^2 N^-1                                                  (2)
 
-so the problem is ``z = M A s + e`` on the grid (:class:`Grid`: the crop padded by the kernels' radius, FFT size),
-``z_i = (u_hat_i - offset) / r_i``, ``A = diag(D_1, D_2)`` the OTFs, ``M`` the data region and ``e`` of per-pixel
-covariance ``C = (sigma^2 N^-1 + e_fpn^2 [[1, 1], [1, 1]]) o (r r^T)`` (``e_fpn``: the rms error of the subtracted
-fixed pattern, the same in every frame; :func:`prepare_problem`). With a prior ``P`` (per FFT bin) the Wiener
-estimate solves
+so the problem is ``z = M D s + e`` on the grid (:class:`Grid`: the crop padded by the kernels' radius, FFT size),
+``z_i = (u_hat_i - offset) / r_i``, ``D = diag(D_1, D_2)`` the OTFs, ``M`` the data region and ``e`` of per-pixel
+covariance ``C = (sigma^2 N^-1 + e_fpn^2 [[1, 1], [1, 1]]) o (rho rho^T)`` (``e_fpn``: the rms error of the
+subtracted fixed pattern, the same in every frame; ``rho_i = rms(1 / r_i)`` over the crop; :func:`prepare_problem`).
+With a prior ``P`` (per FFT bin) the Wiener estimate solves
 
-    (A^T M^T C^-1 M A + P^-1) s = A^T M^T C^-1 z                                                        (3)
+    (D^H M^T C^-1 M D + P^-1) s = D^H M^T C^-1 z                                                        (3)
 
 by preconditioned conjugate gradients (:func:`linear_solve`); with ``boundary='padded'`` the data are extended over
 the whole grid (``M = I``) and (3) is one 2 x 2 system per frequency, with ``'unknown'`` only the crop is data.
@@ -283,11 +283,11 @@ class Problem:
             self.region = g.crop
 
     def blur(self, s: np.ndarray) -> np.ndarray:
-        """``A s``: both channels through their OTFs."""
+        """``D s``: both channels through their OTFs."""
         return self.g.irfft(self.g.D * self.g.rfft(s))
 
     def blur_t(self, v: np.ndarray) -> np.ndarray:
-        """``A^T v``."""
+        """``D^H v``."""
         return self.g.irfft(np.conj(self.g.D) * self.g.rfft(v))
 
     def weighted(self, r: np.ndarray) -> np.ndarray:
@@ -298,7 +298,7 @@ class Problem:
         return out
 
     def data_rhs(self) -> np.ndarray:
-        """``A^T M^T C^-1 z``: the right-hand side of eq. (3)."""
+        """``D^H M^T C^-1 z``: the right-hand side of eq. (3)."""
         v = np.zeros((2,) + self.g.shape)
         cy, cx = self.region
         v[:, cy, cx] = self.z
@@ -398,7 +398,7 @@ def tv_admm(pb: Problem, s0: np.ndarray, lam: np.ndarray, iterations: int) -> tu
 
     Notes
     -----
-    Minimises ``1/2 ||M A s - z||^2_{C^-1} + sum_i lam_i TV_iso(s_i)`` with the splits ``v = A s`` and
+    Minimises ``1/2 ||M D s - z||^2_{C^-1} + sum_i lam_i TV_iso(s_i)`` with the splits ``v = D s`` and
     ``w = grad s`` (S. Boyd et al., Found. Trends Mach. Learn. 3, 1 (2011)): the ``s`` step is diagonal per
     frequency, the ``v`` step a 2 x 2 solve per pixel, the ``w`` step isotropic shrinkage.
     """
