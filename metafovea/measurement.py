@@ -35,7 +35,12 @@ Samples at or beyond the ADC's range (:attr:`Measurement.valid_range_dn`: ``meta
 
 Metadata (``meta``): ``units``, ``foveal_constraint`` ``{scale, gain, offset_dn}`` (the relation
 ``D x1 = gain C x2 + offset`` between the two images, see :class:`FovealConstraint`), and whatever the writer
-records. :class:`FovealConstraint.from_meta` is the one reader of the foveal-constraint metadata.
+records. This module is the one reader of the metadata the reconstruction uses:
+:class:`FovealConstraint.from_meta` (the foveal constraint), :class:`RadiometricCalibration.from_meta` (DN to
+kelvin: ``dark_dn``, ``dn_per_k_300K``, ``radiometry``) and the :class:`Measurement` properties
+:attr:`~Measurement.valid_range_dn`, :attr:`~Measurement.dark_dn`, :attr:`~Measurement.channel_gains`,
+:attr:`~Measurement.recorded_scale`, :attr:`~Measurement.psf_pedestals`, :attr:`~Measurement.true_noise_dn` and
+:attr:`~Measurement.scene_truth`.
 """
 
 from __future__ import annotations
@@ -107,6 +112,79 @@ class FovealConstraint:
     def as_kwargs(self) -> dict[str, float]:
         """``{scale, foveal_gain, foveal_offset}``: the keyword names of the reconstruction solvers."""
         return {"scale": self.scale, "foveal_gain": self.gain, "foveal_offset": self.offset}
+
+
+@dataclass(frozen=True)
+class RadiometricCalibration:
+    """The sensor's radiometric model, ``DN_i = dark_dn + g_i L(T) / (dL/dT)(300 K)``, inverted to brightness
+    temperature.
+
+    Attributes
+    ----------
+    dn_per_k_300k : tuple of 2 float
+        ``g_i``: DN per kelvin at 300 K through each channel (``meta['dn_per_k_300K']``).
+    dl_dt_300k : float
+        ``dL/dT`` of the band's in-band radiance at 300 K, W m^-2 sr^-1 K^-1 (``meta['radiometry']
+        ['dL_dT_300K']``, else computed from the band).
+    band_um : tuple of 2 float
+        The spectral band, um.
+    filter_um : tuple of 2 float or None
+        ``(centre, bandwidth)`` of a band-pass filter, um.
+    """
+
+    dn_per_k_300k: tuple[float, float]
+    dl_dt_300k: float
+    band_um: tuple[float, float]
+    filter_um: tuple[float, float] | None = None
+
+    @classmethod
+    def from_meta(cls, meta: dict[str, Any] | None) -> RadiometricCalibration | None:
+        """The calibration a Measurement's metadata records (``dn_per_k_300K`` ``{x1, x2}`` and ``radiometry``
+        ``{band_um, filter, dL_dT_300K}``), or None when it records none.
+
+        Parameters
+        ----------
+        meta : dict or None
+
+        Returns
+        -------
+        RadiometricCalibration or None
+        """
+        if not meta or "dn_per_k_300K" not in meta or "radiometry" not in meta:
+            return None
+        rad = meta["radiometry"]
+        filt = rad.get("filter")
+        band_um = tuple(rad["band_um"])
+        filter_um = tuple(filt) if filt else None
+        d = meta["dn_per_k_300K"]
+        dl_dt = rad.get("dL_dT_300K") or cls._band(band_um, filter_um).derivative(300.0)
+        return cls((float(d["x1"]), float(d["x2"])), float(dl_dt), band_um, filter_um)  # type: ignore[arg-type]
+
+    @staticmethod
+    def _band(band_um: tuple[float, float], filter_um: tuple[float, float] | None) -> Any:
+        from metafovea.radiometry import BandRadiance
+
+        return BandRadiance.from_band(band_um, filter_um=filter_um)
+
+    def temperatures(self, scene_dn: Sequence[Any], offset: float) -> tuple[np.ndarray, np.ndarray]:
+        """Brightness temperatures of both channels' images.
+
+        Parameters
+        ----------
+        scene_dn : sequence of 2 array_like
+            Channel 1's and 2's images, DN (any shape).
+        offset : float
+            The dark level, DN.
+
+        Returns
+        -------
+        tuple of 2 ndarray, K
+            ``T = L^-1((s - offset) (dL/dT)(300 K) / g_i)``, ``L^-1`` the band's inverse
+            (:meth:`metafovea.radiometry.BandRadiance.temperature`); NaN where the radiance is not positive.
+        """
+        band = self._band(self.band_um, self.filter_um)
+        return tuple(band.temperature((np.asarray(s, dtype=np.float64) - offset) * self.dl_dt_300k / k)
+                     for s, k in zip(scene_dn, self.dn_per_k_300k))  # type: ignore[return-value]
 
 
 @dataclass(frozen=True)
@@ -211,6 +289,55 @@ class Measurement:
             hi = float(2 ** bits - 1) if hi is None else hi
             lo = 0.0 if lo is None else lo
         return (None if lo is None else float(lo)), (None if hi is None else float(hi))
+
+    @property
+    def dark_dn(self) -> float:
+        """The frames' dark level, DN (``meta['dark_dn']``; 0 when the file records none)."""
+        return float(self.meta.get("dark_dn", 0.0))
+
+    @property
+    def channel_gains(self) -> tuple[float, float]:
+        """Both channels' relative radiometric gains ``(g_1, g_2)`` (``meta['channel_gain']`` ``{x1, x2}``; 1 for
+        a channel the file does not state)."""
+        cg = self.meta.get("channel_gain") or {}
+        return float(cg.get("x1", 1.0)), float(cg.get("x2", 1.0))
+
+    @property
+    def recorded_scale(self) -> float | None:
+        """The foveal expansion f1 / f2 the file states (``meta['scale']``), or None when it states none
+        (:attr:`scale` then falls back to the foveal constraint's default)."""
+        v = self.meta.get("scale")
+        return float(v) if v else None
+
+    @property
+    def psf_pedestals(self) -> tuple[float, float]:
+        """The power of each channel's PSF beyond its kernel ``psf_x*`` (``meta['psf']['pixel']['x*']
+        ['pedestal']``, as the simulator writes it; 0 where not recorded)."""
+        pix = (self.meta.get("psf") or {}).get("pixel") or {}
+        return tuple(float((pix.get(f"x{i}") or {}).get("pedestal", 0.0)) for i in (1, 2))  # type: ignore[return-value]
+
+    @property
+    def radiometric_calibration(self) -> RadiometricCalibration | None:
+        """The file's DN-to-kelvin calibration (:meth:`RadiometricCalibration.from_meta`), or None."""
+        return RadiometricCalibration.from_meta(self.meta)
+
+    @property
+    def true_noise_dn(self) -> float | None:
+        """The frames' true temporal noise, DN, as the simulator records it (``meta['sensor']``): the sensor's
+        ``noise_sigma_dn`` and, when quantised, the ADC's ``1/12`` DN^2 in quadrature; None when not recorded
+        (a real recording)."""
+        sen = self.meta.get("sensor") or {}
+        if "noise_sigma_dn" not in sen:
+            return None
+        return math.sqrt(float(sen["noise_sigma_dn"]) ** 2 + (1.0 / 12.0 if sen.get("quantize", True) else 0.0))
+
+    @property
+    def scene_truth(self) -> tuple[np.ndarray, np.ndarray] | None:
+        """The scene through a perfect lens, ``(scene_x1, scene_x2)`` (H, W) in DN, for scoring only; None unless
+        the file holds both."""
+        if "scene_x1" not in self.extras or "scene_x2" not in self.extras:
+            return None
+        return self.extras["scene_x1"], self.extras["scene_x2"]
 
     def invalid_samples(self) -> np.ndarray | None:
         """(T, H, W) bool: samples to leave out: non-finite, clipped at the ADC's floor or full scale

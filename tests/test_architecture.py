@@ -120,7 +120,7 @@ def test_commands_are_thin():
         n = len(path.read_text().splitlines())
         if n > MAX_CLI_LINES:
             problems.append(f"{modname}: {n} lines (> {MAX_CLI_LINES})")
-        for mod, name in imports(tree, path, modname):
+        for mod, _name in imports(tree, path, modname):
             if mod.split(".")[0] in ("matplotlib", "scipy", "jax", "skimage"):
                 problems.append(f"{modname} imports {mod} (figures and numerics belong to the library)")
         for node in ast.walk(tree):
@@ -140,7 +140,8 @@ def test_each_idea_has_one_home():
 
 
 def test_only_report_saves_figures():
-    users = [modname for path, modname, _ in modules() if "savefig" in path.read_text() and modname != "metafovea.report"]
+    users = [modname for path, modname, _ in modules()
+             if "savefig" in path.read_text() and modname != "metafovea.report"]
     assert not users, f"savefig outside metafovea.report: {users}"
 
 
@@ -310,3 +311,36 @@ def test_the_platform_literal_check_spares_ordinary_numbers():
             "    check_range('n_post', x, 1.0, 10.0, hi=10.0)\n"
             "    return {'scale': 4.0, 'frames': 12.0} if x > 17.0 else (8.0, 14.0)\n")
     assert platform_literals(ast.parse(good)) == []
+
+
+#: reconstruct modules that may read a metadata dict themselves, with the reason
+META_READERS = {
+    "metafovea.reconstruct.result": "reads the metadata of its own Reconstruction file, not a Measurement's",
+    "metafovea.reconstruct.polarizer": "PolarizerModel.from_meta: the polariser's one reader of 'polarizer'",
+}
+
+
+def _meta_reads(tree: ast.AST) -> list[int]:
+    """Lines that index a metadata dict (``meta[...]``, ``x.meta[...]``, ``meta.get(...)``, ``x.meta.get(...)``)."""
+    def is_meta(node: ast.AST) -> bool:
+        return (isinstance(node, ast.Name) and node.id == "meta") or (isinstance(node, ast.Attribute)
+                                                                       and node.attr == "meta")
+    lines = []
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Subscript) and is_meta(node.value):
+            lines.append(node.lineno)
+        elif (isinstance(node, ast.Call) and isinstance(node.func, ast.Attribute) and node.func.attr == "get"
+              and is_meta(node.func.value)):
+            lines.append(node.lineno)
+    return lines
+
+
+def test_the_reconstruction_reads_a_measurements_metadata_through_measurement_py():
+    """``metafovea/measurement.py`` is the one reader of the Measurement format's metadata: the reconstruction
+    asks the Measurement (``m.dark_dn``, ``m.radiometric_calibration``, ...) instead of indexing ``meta`` itself."""
+    problems = [f"{modname}:{line}" for path, modname, tree in modules()
+                if modname.startswith("metafovea.reconstruct.") and modname not in META_READERS
+                for line in _meta_reads(tree)]
+    assert not problems, "index a Measurement's metadata in metafovea/measurement.py: " + ", ".join(problems)
+    planted = ast.parse("offset = float(m.meta.get('dark_dn', 0.0))\nsen = meta['sensor']")
+    assert sorted(_meta_reads(planted)) == [1, 2]

@@ -150,3 +150,31 @@ def test_foveal_constraint_fallbacks_and_explicit_values():
     with pytest.raises(InputError) as e:
         FovealConstraint.from_meta({}, scale=1e9)
     assert e.value.parameter == "--scale"
+
+
+def test_the_reconstructions_metadata_is_read_here(tmp_path):
+    """What the PSF-aware reconstruction reads from a file's metadata comes through the Measurement's accessors: the
+    simulator's values when it wrote them, the documented defaults when a file (a real recording) has none."""
+    m = simulate(small_system(24), "bars", frames=3, psf=delta_psf(), supersample=1, rng=2)
+    m = Measurement.load(m.save(tmp_path / "m.npz"))
+    meta = m.meta
+    assert m.dark_dn == meta["dark_dn"] and m.recorded_scale == meta["scale"] == 6.0
+    assert m.channel_gains == (meta["channel_gain"]["x1"], meta["channel_gain"]["x2"])
+    assert m.psf_pedestals == tuple(meta["psf"]["pixel"][f"x{i}"]["pedestal"] for i in (1, 2))
+    sen = meta["sensor"]
+    assert m.true_noise_dn == pytest.approx(np.sqrt(sen["noise_sigma_dn"] ** 2 + 1 / 12))  # quantised: ADC's 1/12
+    cal = m.radiometric_calibration
+    assert cal.dn_per_k_300k == (meta["dn_per_k_300K"]["x1"], meta["dn_per_k_300K"]["x2"])
+    assert cal.dl_dt_300k == meta["radiometry"]["dL_dT_300K"]
+    # 300 K in, 300 K out: a uniform 300 K scene is dark_dn + L(300 K) / (dL/dT) x DN per kelvin
+    from metafovea.radiometry import BandRadiance
+
+    L300 = BandRadiance.from_band(cal.band_um, filter_um=cal.filter_um)(300.0)
+    dn = [m.dark_dn + L300 / cal.dl_dt_300k * g for g in cal.dn_per_k_300k]
+    np.testing.assert_allclose(cal.temperatures(dn, m.dark_dn), [300.0, 300.0], atol=1e-6)
+    assert m.scene_truth is not None and m.scene_truth[0].shape == m.shape[1:]
+    bare = Measurement(frames=m.frames, times_s=m.times_s)
+    assert (bare.dark_dn, bare.channel_gains, bare.recorded_scale, bare.psf_pedestals) == (0.0, (1.0, 1.0), None,
+                                                                                           (0.0, 0.0))
+    assert bare.true_noise_dn is None and bare.radiometric_calibration is None and bare.scene_truth is None
+    assert bare.scale == 6.0  # the foveal constraint's default, not a stated scale

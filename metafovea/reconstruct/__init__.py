@@ -1,27 +1,39 @@
-"""Reconstruction of the foveal (``x1``) and perifoveal (``x2``) images from polarisation-multiplexed
-frames ``y_t = alpha_t x1 + (1 - alpha_t) x2 (+ fpn + noise)``.
+"""Reconstruction of the foveal (``x1``) and perifoveal (``x2``) images from polarisation-multiplexed frames
 
-Works on plain numpy arrays: frames ``(T, H, W)`` (float32 preserved), alpha ``(T,)``; or on a
+    y_t = alpha_t x1 + (1 - alpha_t) x2 (+ fpn + noise),
+
+on plain numpy arrays (frames ``(T, H, W)``, float32 preserved; alpha ``(T,)``) or on a
 :class:`~metafovea.measurement.Measurement` through :func:`reconstruct_measurement`.
 
-* ``api``: :func:`reconstruct_measurement` (the pipeline: which windows, FPN, denoising, scoring against the
-  file's truth; a :class:`PipelineResult`) and :func:`reconstruct` (arrays in, one solver).
-* ``lsq``: :func:`lsq_known_alpha`, :class:`SlidingLSQ`: known alpha, closed form, conditioning reported.
-* ``alternating``: :func:`alternating` (:class:`AlternatingOptions`): unknown alpha, classical (subspace init,
-  foveal gauge fix, TV prior).
-* ``deconvolve``: :func:`deconvolve_measurement`, :func:`separate_deconvolve` (:class:`ChannelPSFs`): PSF-aware
-  joint separation and deconvolution to the scene's radiance and brightness temperature, :func:`wiener_bound`.
-* ``deep_prior``: :func:`dip` (:class:`DipOptions`): double deep image prior (JAX, imported on first use).
-* ``fpn``: :func:`estimate_fpn`: fixed-pattern noise (calibration frames or low-rank prior).
-* ``snapshot``: :func:`snapshot`, :func:`register`: single-frame registration and separation.
-* ``video``: :func:`video`: sliding windows over a sequence.
-* ``denoise``: :func:`denoise`; ``metrics``: PSNR, SSIM and :func:`~metafovea.reconstruct.metrics.score`.
-* ``operators``: :class:`FovealOperator`, :func:`downsample`, :func:`downsample_adjoint`, :func:`centre_crop`:
-  the foveal constraint ``D x1 == gain * C x2 + offset`` (``foveal_gain``/``foveal_offset`` wherever
-  ``scale`` is accepted; a Measurement's :class:`~metafovea.measurement.FovealConstraint`).
-* ``result``: :class:`Reconstruction` (saved as ``.npz``), :class:`PipelineResult`; ``files``: writing a
-  pipeline result (the ``.npz`` and its PNG figures).
-* ``synthetic``: test scenes with an exact foveal constraint.
+Files:
+
+=================  ==========================================================================================
+``api``            :func:`reconstruct_measurement` (the pipeline: windows, FPN, denoising, scores; a
+                   :class:`PipelineResult`) and :func:`reconstruct` (arrays in, one solver)
+``lsq``            known alpha: :func:`lsq_known_alpha`, :class:`SlidingLSQ` (closed form, conditioning reported)
+``alternating``    unknown alpha: :func:`alternating` (:class:`AlternatingOptions`; subspace start, foveal gauge
+                   fix, TV prior)
+``deep_prior``     :func:`dip` (:class:`DipOptions`): double deep image prior (JAX, imported on first use)
+``snapshot``       :func:`snapshot`, :func:`register`: one frame, registration then separation
+``video``          :func:`video`: sliding windows over a sequence
+``fpn``            :func:`estimate_fpn`: fixed-pattern noise (calibration frames, foveal constraint, TV prior)
+``polarizer``      the polariser's rotation model of alpha (fixes the unknown-alpha gauge)
+``denoise``        :func:`denoise`: TV, bilateral, non-local means, with weights from the noise level
+``operators``      :class:`FovealOperator`, :func:`downsample`, :func:`downsample_adjoint`, :func:`centre_crop`:
+                   the foveal constraint ``D x1 = gain C x2 + offset``
+``deconvolve``     PSF-aware: :func:`deconvolve_measurement`, :func:`separate_deconvolve`: joint separation and
+                   deconvolution to the scene's radiance and brightness temperature
+``joint``          its model and linear solves: :class:`ChannelPSFs`, the padded grid, CG, TV-ADMM
+``spectra``        its scene prior: radially averaged spectra, the fitted power law
+``metrics``        PSNR, SSIM, :func:`~metafovea.reconstruct.metrics.score`; :func:`wiener_bound` and the
+                   PSF-aware scores against the scene
+``result``         :class:`Reconstruction` (saved as ``.npz``), :class:`PipelineResult`
+``files``          writing a pipeline result (the ``.npz`` and its PNG figures) and a PSF-aware scene
+``synthetic``      test scenes with an exact foveal constraint
+``_common``        input checks, options with keyword overrides, the noise estimator, timers
+=================  ==========================================================================================
+
+Measured figures: BENCHMARKS.md, section "Reconstruction".
 """
 
 import importlib
@@ -35,8 +47,8 @@ from typing import Any
 _HOMES = {
     "AlternatingOptions": "alternating", "alternating": "alternating", "foveal_gauge": "alternating",
     "FPN_MODES": "api", "METHODS": "api", "reconstruct": "api", "reconstruct_measurement": "api",
-    "DECONVOLUTION_METHODS": "deconvolve", "ChannelPSFs": "deconvolve", "Deconvolution": "deconvolve",
-    "deconvolve_measurement": "deconvolve", "separate_deconvolve": "deconvolve", "wiener_bound": "deconvolve",
+    "DECONVOLUTION_METHODS": "deconvolve", "ChannelPSFs": "joint", "Deconvolution": "deconvolve",
+    "deconvolve_measurement": "deconvolve", "separate_deconvolve": "deconvolve", "wiener_bound": "metrics",
     "DipOptions": "deep_prior", "dip": "deep_prior",
     "DENOISERS": "denoise", "denoise": "denoise",
     "figure_paths": "files", "prepare_outputs": "files", "write_outputs": "files",
@@ -78,8 +90,9 @@ def __dir__() -> list[str]:
     return sorted(set(globals()) | set(_HOMES))
 
 
-__all__ = ["AlternatingOptions", "ChannelPSFs", "DECONVOLUTION_METHODS", "DENOISERS", "Deconvolution", "DipOptions", "FPN_MODES", "FovealOperator", "METHODS",
-           "PipelineResult", "Reconstruction", "SlidingLSQ", "alternating", "centre_crop", "condition_number",
-           "deconvolve_measurement", "denoise", "dip", "downsample", "downsample_adjoint", "estimate_fpn", "figure_paths", "foveal_gauge",
-           "lsq_known_alpha", "prepare_outputs", "reconstruct", "reconstruct_measurement", "register",
-           "separate_deconvolve", "snapshot", "video", "wiener_bound", "write_outputs"]
+__all__ = ["AlternatingOptions", "ChannelPSFs", "DECONVOLUTION_METHODS", "DENOISERS", "Deconvolution", "DipOptions",
+           "FPN_MODES", "FovealOperator", "METHODS", "PipelineResult", "Reconstruction", "SlidingLSQ", "alternating",
+           "centre_crop", "condition_number", "deconvolve_measurement", "denoise", "dip", "downsample",
+           "downsample_adjoint", "estimate_fpn", "figure_paths", "foveal_gauge", "lsq_known_alpha", "prepare_outputs",
+           "reconstruct", "reconstruct_measurement", "register", "separate_deconvolve", "snapshot", "video",
+           "wiener_bound", "write_outputs"]

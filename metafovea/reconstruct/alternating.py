@@ -1,62 +1,62 @@
-"""Unknown mixing ratios: a fast classical solver (subspace initialisation, foveal gauge fix,
-alternating minimisation with a TV prior).
+"""Unknown mixing ratios: a fast classical solver (subspace initialisation, gauge fix, alternating minimisation
+with a TV prior).
 
 Gauge
 -----
 The mixture ``y_t = x2 + alpha_t (x1 - x2)`` is unchanged by the two-parameter family
 
-    x1' = x2 + p d,   x2' = x2 + c d,   alpha_t' = (alpha_t - c) / (p - c),   d = x1 - x2,
+    x1' = x2 + p d,   x2' = x2 + c d,   alpha_t' = (alpha_t - c) / (p - c),   d = x1 - x2,          (1)
 
-so no data term, however it is minimised, fixes ``(p, c)``: alternating minimisation started from the
-paper's frame-mean initialisation converges to a mixed pair (~29 dB in the reference anchors). The
-foveal constraint ``D x1 = g C x2 + b`` (radiometric gain ``g = foveal_gain``, offset
-``b = foveal_offset``; 1 and 0 for images in common units) does fix it: it is linear in ``(p, c)``,
+so no data term, however it is minimised, fixes ``(p, c)``: alternating minimisation started from the paper's
+frame-mean initialisation converges to a mixed pair. Two things fix it: the polariser's model (alpha's known mean
+and amplitude, :mod:`metafovea.reconstruct.polarizer`, :func:`polarizer_gauge_step`) and the foveal constraint
+``D x1 = g C x2 + b`` (radiometric gain ``g = foveal_gain``, offset ``b = foveal_offset``; 1 and 0 for images in
+common units), which is linear in ``(p, c)``:
 
-    p D d - c g C d = g C x2 + b - D x2,
+    p D d - c g C d = g C x2 + b - D x2,                                                             (2)
 
-a two-column least-squares problem over the ``(H/scale) x (W/scale)`` constraint pixels, solved in
-closed form. On real data the relation holds only up to the channels' PSF difference, so the
-foveal side is blurred by the perifoveal crop's extra blur (fitted over a small grid,
-``foveal_psf='fit'``), a border margin is left out, both sides can be low-passed further
-(``foveal_blur``, default 0: on the simulated 290 x 290 paper measurement any extra low-pass raised
-the alpha error, 0.0026 -> 0.0075 at sigma 1), and the mean level is one extra equation: see
-:func:`foveal_gauge`.
+a two-column least-squares problem over the ``(H/scale) x (W/scale)`` constraint pixels, solved in closed form
+(:func:`foveal_gauge`). On real data the relation holds only up to the channels' PSF difference, so the foveal
+side is blurred by the perifoveal crop's extra blur (fitted over :data:`PSF_GRID`, ``foveal_psf='fit'``), a border
+margin is left out, both sides can be low-passed further (``foveal_blur``, default 0) and the mean level is one
+extra equation.
 
 Guard
 -----
-The fix uses noisy estimates as regressors; when one channel is barely observed (``alpha`` near 0 or 1
-in every frame) ``d`` is dominated by amplified noise and the fix can make things worse. With
-``gauge='auto'`` it is applied only if all of these hold (the reasons are in ``info['gauge']``):
+The fix uses noisy estimates as regressors; when one channel is barely observed (``alpha`` near 0 or 1 in every
+frame) ``d`` is dominated by amplified noise and the fix can make things worse. With ``gauge='auto'`` it is applied
+only if all of these hold (the reasons are in ``info['gauge']``):
 
-1. the 2x2 gauge problem is well conditioned (``cond <= 1e3``) and ``p - c`` is not tiny;
-2. the fixed ``alpha`` is physical: within ``[-0.1, 1.1]`` (``cos^2`` lies in [0, 1]);
-3. it improves the fit: the foveal misfit drops by more than noise alone explains
-   (``Delta chi^2 > 6 var``), the constraint then explains the images (misfit rms halved, or
-   within 2x the expected noise rms: a wrong ``scale``/``offset`` leaves a large misfit and is
-   rejected), **and** the objective ``foveal misfit + TV`` (misfit in units of its noise variance,
-   TV relative to its current value) decreases.
+1. the 2 x 2 gauge problem is well conditioned (``cond <= GAUGE_MAX_COND``) and ``p - c`` is not tiny;
+2. the fixed ``alpha`` is physical: within ``[-ALPHA_TOL, 1 + ALPHA_TOL]`` (``cos^2`` lies in [0, 1]);
+3. it improves the fit: the foveal misfit drops by more than noise alone explains (``Delta chi^2 > 6 var``: the
+   mean of a 2-parameter ``chi^2`` is ``2 var``), the constraint then explains the images (misfit rms halved, or
+   within 2x the expected noise rms: a wrong ``scale``/``offset`` leaves a large misfit and is rejected), **and**
+   the objective ``foveal misfit + TV`` (misfit in units of its noise variance, TV relative to its current value)
+   decreases;
+4. no scale 5-10 % off (:data:`SCALE_PROBES`) halves the misfit (the geometry is right).
 
 ``gauge='foveal'`` applies the fix whenever it is computable, ``'none'`` never.
 
 Algorithm
 ---------
-1. ``alpha`` initial guess from frame means, rescaled to [0, 1] (paper), or (``init='svd'``, default)
-   the exact data-term optimum: the leading left singular vector of the temporally centred frames
-   spans ``alpha - mean(alpha)``; it is put into the frame-mean gauge by a 2-parameter regression.
-   This is the global minimiser of the data term, so the alternating stage cannot stall in a poor
-   local solution of the data fit; only the gauge is left, which step 2 fixes.
-2. Foveal gauge fix (guarded).
-3. Alternating minimisation: x-step = per-pixel LSQ, alpha-step = closed-form per-frame least
-   squares (clipped to [0, 1] once the gauge is absolute); stops when alpha moves less than ``tol``.
-   The prior (``prior='tv'``) is the proximal step applied to the x-step's images with the weight
-   set by the estimated noise level. By default (``alpha_from='data'``) the alpha-step uses the
-   un-regularised LSQ images: measured on the reference scene, taking alpha from the TV-smoothed
-   images (``alpha_from='prior'``, the textbook alternating scheme) biases alpha by ~1e-2 (TV
-   shrinks contrast) and costs ~1 dB on x2, while the data-term alpha is good to ~4e-4.
-4. If the gauge could not be fixed (guard rejected it) and ``strict`` is true, :class:`InputError`
-   is raised: alpha is then only known up to an affine map and the images are mixtures of each
-   other (the ~29 dB "stall"); ``strict=False`` returns that result flagged
-   ``info['alpha_identified'] = False`` instead.
+1. ``alpha``'s initial guess from frame means, rescaled to [0, 1] (paper), or (``init='svd'``, default) the exact
+   data-term optimum: the leading left singular vector of the temporally centred frames spans
+   ``alpha - mean(alpha)``; it is put into the frame-mean gauge by a 2-parameter regression. This is the global
+   minimiser of the data term, so the alternating stage cannot stall in a poor local solution of the data fit;
+   only the gauge is left, which step 2 fixes.
+2. Gauge fix: the polariser model when given (and its fit holds), else the guarded foveal fix.
+3. Alternating minimisation: x-step = per-pixel LSQ, alpha-step = closed-form per-frame least squares (clipped to
+   [0, 1] once the gauge is absolute); stops when alpha moves less than ``tol``. The prior (``prior='tv'``) is the
+   proximal step applied to the x-step's images with the weight set by the estimated noise level. By default
+   (``alpha_from='data'``) the alpha-step uses the un-regularised LSQ images: TV shrinks contrast, so alpha taken
+   from the TV-smoothed images (``alpha_from='prior'``, the textbook alternating scheme) is biased.
+4. If the gauge could not be fixed and ``strict`` is true, :class:`InputError` is raised: alpha is then only known
+   up to the affine map (1) and the images are mixtures of each other; ``strict=False`` returns that result
+   flagged ``info['alpha_identified'] = False`` instead.
+
+Measured figures: BENCHMARKS.md, section "Reconstruction" ("Simulated paper measurement" for the gauge's PSF
+allowance and low-pass).
 """
 
 from __future__ import annotations
@@ -78,7 +78,9 @@ from metafovea.reconstruct.result import Reconstruction
 
 log = logging.getLogger(__name__)
 
+#: the gauge fit's 2 x 2 problem must be better conditioned than this (guard, condition 1)
 GAUGE_MAX_COND = 1e3
+#: how far outside [0, 1] the fixed alpha may reach before the guard rejects the fix (guard, condition 2)
 ALPHA_TOL = 0.1
 #: default extra low-pass (Gaussian sigma, constraint pixels) of both sides of the gauge fit; see foveal_gauge
 FOVEAL_BLUR = 0.0
@@ -89,7 +91,16 @@ SCALE_PROBES = (0.9, 0.95, 1.05, 1.1)
 
 
 def frame_mean_alpha(Y: np.ndarray) -> np.ndarray:
-    """The paper's initialisation: frame means rescaled to span [0, 1]."""
+    """The paper's initial alpha: the frame means rescaled to span [0, 1].
+
+    Parameters
+    ----------
+    Y : ndarray, shape (T, H, W)
+
+    Returns
+    -------
+    ndarray, shape (T,)
+    """
     m = np.nanmean(Y.reshape(Y.shape[0], -1), axis=1).astype(np.float64)
     span = m.max() - m.min()
     if not span > 1e-12 * max(1.0, np.abs(m).max()):
@@ -100,7 +111,23 @@ def frame_mean_alpha(Y: np.ndarray) -> np.ndarray:
 
 
 def subspace_alpha(Y: np.ndarray, a0: np.ndarray) -> tuple[np.ndarray, dict[str, Any]]:
-    """Data-optimal ``alpha`` (leading singular vector of the centred frames) in ``a0``'s gauge."""
+    """The data-optimal alpha in ``a0``'s gauge (Algorithm, step 1).
+
+    Parameters
+    ----------
+    Y : ndarray, shape (T, H, W)
+    a0 : ndarray, shape (T,)
+        Alpha in the gauge wanted (:func:`frame_mean_alpha`).
+
+    Returns
+    -------
+    alpha : ndarray, shape (T,)
+        ``c0 + c1 u``, ``u`` the leading left singular vector of the temporally centred frames, ``(c0, c1)``
+        regressed on ``a0``.
+    info : dict
+        ``singular_values`` and ``subspace_snr`` (the leading eigenvalue of the frames' Gram matrix over the
+        next one).
+    """
     T = Y.shape[0]
     Yc = Y.reshape(T, -1).astype(np.float64)
     Yc = Yc - Yc.mean(axis=0, keepdims=True)
@@ -141,8 +168,17 @@ def _alpha_step(Y: np.ndarray, x1: np.ndarray, x2: np.ndarray, M: np.ndarray | N
 
 
 def anisotropic_tv(x: np.ndarray) -> float:
-    """Anisotropic total variation ``sum |x[i+1, j] - x[i, j]| + |x[i, j+1] - x[i, j]|`` of one image (the guard's
-    smoothness term; not smoothed, no gradient)."""
+    """Anisotropic total variation of one image: the guard's smoothness term (not smoothed, no gradient).
+
+    Parameters
+    ----------
+    x : ndarray, shape (H, W)
+
+    Returns
+    -------
+    float
+        ``sum |x[i+1, j] - x[i, j]| + |x[i, j+1] - x[i, j]|``.
+    """
     return float(np.abs(np.diff(x, axis=0)).sum() + np.abs(np.diff(x, axis=1)).sum())
 
 
@@ -207,28 +243,43 @@ def foveal_gauge(x1: np.ndarray, x2: np.ndarray, alpha: np.ndarray, op: FovealOp
                  noise: tuple[float, float] | None = None, mode: str = "auto", blur: float = FOVEAL_BLUR,
                  mean_weight: float = 1.0, contrast_gain: float | None = None, margin: int | None = None,
                  psf_blur: float | str = "fit") -> tuple[np.ndarray, np.ndarray, np.ndarray, dict[str, Any]]:
-    """Fix the ``(p, c)`` gauge with the foveal constraint ``D x1 = gain C x2 + bias`` (see module
-    docstring; ``op`` carries scale, registration offset, gain and bias).
+    """Fix the ``(p, c)`` gauge of eq. (1) with the foveal constraint, eq. (2).
 
-    The fit compares both sides in a low-pass band: a Gaussian of ``blur`` constraint pixels removes
-    the fine detail the perifoveal channel's PSF does not resolve (the crop of x2 is ``scale`` times
-    blurrier, relative to the scene, than the downsampled x1). The band's spatial structure (mean
-    removed) is compared with gain ``contrast_gain`` (``None``: ``op.gain``; stray light / haze can
-    scale the two channels' contrasts differently from their mean levels -- measured on the current
-    simulated paper measurements: contrast ratio 0.52-0.59 against the radiometric 0.294 -- and a
-    free contrast gain is not identifiable together with the gauge: it admits the trivial fit
-    ``D x1' -> 0``). The mean level is compared with ``op.gain`` and ``op.bias`` as one extra equation
-    of weight ``mean_weight`` (relative to all constraint pixels; 0 ignores it). ``margin`` border
-    pixels of the constraint region are left out (default ``min(ceil(2 blur) + 2, min(h, w) // 8)``): at the edge of the
-    foveal field the perifoveal PSF mixes in scene content the foveal image does not see.
-    ``psf_blur``: the perifoveal crop's extra blur relative to the downsampled foveal image (Gaussian
-    sigma, constraint pixels), applied to the foveal side; ``'fit'`` picks the value of
-    ``PSF_GRID`` with the smallest misfit (reported as ``psf_blur``). Measured on 192 x 192 synthetic
-    DN scenes (gain 0.3) whose perifoveal image is blurred by 0.7 / 1.0 / 1.5 px: alpha error
-    0.0035 / 0.0009 / 0.0075 (defaults: ``blur=0``, PSF fit) and 0.0023 / 0.0007 / 0.0023 with
-    ``blur=1``, against 0.031 / 0.048 / 0.078 with neither (``blur=0, psf_blur=0``, the previous
-    behaviour). ``noise`` is the noise std of ``(x1, x2)``
-    (used by the guard). Returns ``(x1, x2, alpha, report)``.
+    Parameters
+    ----------
+    x1, x2 : ndarray, shape (H, W)
+        The images in the current gauge.
+    alpha : ndarray, shape (T,)
+    op : FovealOperator
+        Scale, registration offset, gain ``g`` and bias ``b`` of the constraint.
+    noise : tuple of 2 float, optional
+        The noise std of ``(x1, x2)`` (the guard's expected misfit).
+    mode : {'auto', 'foveal', 'none'}
+        ``'auto'``: apply the fix when the guard (module docstring) accepts it; ``'foveal'``: whenever computable.
+    blur : float
+        A Gaussian low-pass (sigma, constraint pixels) of both sides: removes the fine detail the perifoveal
+        channel's PSF does not resolve.
+    mean_weight : float
+        The weight of the mean-level equation relative to all constraint pixels (0 ignores it).
+    contrast_gain : float, optional
+        The gain with which the band's spatial structure (mean removed) is compared (default ``op.gain``). Stray
+        light and haze can scale the channels' contrasts differently from their mean levels, but a free contrast
+        gain is not identifiable together with the gauge: it admits the trivial fit ``D x1' -> 0``.
+    margin : int, optional
+        Border pixels of the constraint region left out (default ``min(ceil(2 blur) + 2, min(h, w) // 8)``): at
+        the edge of the foveal field the perifoveal PSF mixes in scene content the foveal image does not see.
+    psf_blur : float or 'fit'
+        The perifoveal crop's extra blur relative to the downsampled foveal image (Gaussian sigma, constraint
+        pixels), applied to the foveal side; ``'fit'`` picks the value of :data:`PSF_GRID` with the smallest misfit.
+
+    Returns
+    -------
+    x1, x2 : ndarray, shape (H, W)
+        The images in the fixed gauge (unchanged when the fix is not applied).
+    alpha : ndarray, shape (T,)
+    report : dict
+        ``applied``, ``reason``, ``p``, ``c``, ``condition``, ``psf_blur``, the misfits before and after, the
+        guard's figures.
     """
     rep: dict[str, Any] = {"mode": mode, "applied": False, "blur": float(blur), "mean_weight": float(mean_weight)}
     if mode == "none":
@@ -301,8 +352,9 @@ def _guard(rep: dict[str, Any], band: _GaugeBand, op: FovealOperator, old: tuple
         reasons.append("foveal misfit reduction within noise")
     consistent = chi_new / n_eff <= 4.0 * var_r
     if not (chi_new <= 0.25 * chi_old or consistent):
-        reasons.append(f"the constraint does not explain the images after the fix (rms {math.sqrt(chi_new / n_eff):.3g} "
-                       f"vs {math.sqrt(chi_old / n_eff):.3g} before, noise {math.sqrt(var_r):.3g}): wrong "
+        reasons.append(f"the constraint does not explain the images after the fix "
+                       f"(rms {math.sqrt(chi_new / n_eff):.3g} vs {math.sqrt(chi_old / n_eff):.3g} before, "
+                       f"noise {math.sqrt(var_r):.3g}): wrong "
                        f"scale/offset/gain?")
     # objective: foveal misfit (chi^2 / n in units of var_r) + TV (relative to the current value)
     tv_old = anisotropic_tv(old[0]) + anisotropic_tv(old[1])
@@ -338,25 +390,46 @@ class AlternatingOptions:
 
     Attributes
     ----------
-    scale, offset: foveal constraint geometry (``f1/f2``; registration offset of the crop in x2 px).
-    foveal_gain, foveal_offset: radiometry of the constraint ``D x1 = foveal_gain C x2 + foveal_offset``
-        (a Measurement's :class:`~metafovea.measurement.FovealConstraint`).
-    foveal_blur, foveal_mean, foveal_contrast: the gauge fit's low-pass sigma (constraint pixels),
-        weight of the mean-level equation, and contrast gain (``None``: ``foveal_gain``);
-        foveal_psf: extra blur of the perifoveal crop (``'fit'``: estimated); see :func:`foveal_gauge`.
-    gauge: ``'auto'`` (the polariser model when given and its fit holds, else the guarded foveal fix),
-        ``'polarizer'`` (the polariser model only), ``'foveal'`` (always the foveal fix), ``'none'``.
-    polarizer: a :class:`~metafovea.reconstruct.polarizer.PolarizerModel` (frame times, rate, mode, extinction):
-        fixes the gauge from alpha's known mean and amplitude (see :func:`polarizer_gauge_step`).
-    polarizer_alpha: ``'model'`` (alpha of the fitted constant-rate rotation; the images are then the least-squares
-        images for it, no alternation) or ``'frames'`` (each frame's own alpha in the fixed gauge, then alternation).
-    prior: ``'tv'``, ``'nlm'``, ``'bilateral'`` or ``None`` (plain alternating LSQ).
-    init: ``'svd'`` (data-optimal subspace, default) or ``'means'`` (paper: frame means).
-    iterations, tol: alternating iterations and stopping tolerance on ``max |delta alpha|``.
-    saturation: samples ``>=`` this are invalid (like NaN/inf); noise_sigma: the frames' noise std (``None``:
-        from the rank-2 fit's residual); max_condition: of the x-step's normal matrix.
-    alpha_from: ``'data'`` (alpha-step on the un-regularised images) or ``'prior'`` (on the prior's).
-    strict: refuse (``InputError``) when the gauge cannot be fixed, instead of a flagged result.
+    scale : float
+        The foveal constraint's scale f1 / f2.
+    offset : tuple of 2 float
+        Registration offset of the crop in x2 pixels.
+    foveal_gain, foveal_offset : float
+        The constraint's radiometry ``D x1 = foveal_gain C x2 + foveal_offset`` (a Measurement's
+        :class:`~metafovea.measurement.FovealConstraint`).
+    foveal_blur, foveal_mean : float
+        The gauge fit's low-pass sigma (constraint pixels) and the weight of its mean-level equation.
+    foveal_contrast : float or None
+        The gauge fit's contrast gain (None: ``foveal_gain``).
+    foveal_psf : float or 'fit'
+        Extra blur of the perifoveal crop (``'fit'``: estimated); see :func:`foveal_gauge`.
+    gauge : {'auto', 'polarizer', 'foveal', 'none'}
+        ``'auto'``: the polariser model when given and its fit holds, else the guarded foveal fix;
+        ``'polarizer'``: the polariser model only; ``'foveal'``: always the foveal fix.
+    polarizer : PolarizerModel or None
+        Frame times, rate, mode, extinction (:class:`~metafovea.reconstruct.polarizer.PolarizerModel`): fixes the
+        gauge from alpha's known mean and amplitude (:func:`polarizer_gauge_step`).
+    polarizer_alpha : {'model', 'frames'}
+        ``'model'``: alpha of the fitted constant-rate rotation (the images are then its least-squares images, no
+        alternation); ``'frames'``: each frame's own alpha in the fixed gauge, then alternation.
+    prior : {'tv', 'nlm', 'bilateral'} or None
+        The x-step's denoiser (None: plain alternating least squares).
+    init : {'svd', 'means'}
+        The data-optimal subspace (default) or the paper's frame means.
+    iterations : int
+        Alternating iterations.
+    tol : float
+        Stop when ``max |delta alpha| < tol``.
+    saturation : float or None
+        Samples ``>=`` this are invalid (as NaN/inf).
+    noise_sigma : float or None
+        The frames' noise std (None: from the rank-2 fit's residual).
+    max_condition : float
+        Of the x-step's normal matrix.
+    alpha_from : {'data', 'prior'}
+        The alpha-step on the un-regularised images or on the prior's.
+    strict : bool
+        Refuse (:class:`InputError`) when the gauge cannot be fixed, instead of a flagged result.
     """
 
     scale: float = 6.0
@@ -447,7 +520,8 @@ def _alternate(win: _Window, x1: np.ndarray, x2: np.ndarray, a: np.ndarray, cond
             gain = _channel_noise_gain(a)
             x1p = denoise(x1, prior, sigma=sig * gain[0])
             x2p = denoise(x2, prior, sigma=sig * gain[1])
-            a = _alpha_step(win.Yf, x1p, x2p, win.M) if opt.alpha_from == "prior" else _alpha_step(win.Yf, x1, x2, win.M)
+            a = (_alpha_step(win.Yf, x1p, x2p, win.M) if opt.alpha_from == "prior"
+                 else _alpha_step(win.Yf, x1, x2, win.M))
             x1, x2 = x1p, x2p
         else:
             a = _alpha_step(win.Yf, x1, x2, win.M)
@@ -470,12 +544,34 @@ def _alternate(win: _Window, x1: np.ndarray, x2: np.ndarray, a: np.ndarray, cond
 def polarizer_gauge_step(win: _Window, x1: np.ndarray, x2: np.ndarray, alpha: np.ndarray, op: FovealOperator,
                          model: Any, sig: float, use: str = "model"
                          ) -> tuple[np.ndarray, np.ndarray, np.ndarray, dict[str, Any]]:
-    """Fix the gauge with the polariser model (:func:`~metafovea.reconstruct.polarizer.polarizer_gauge`): the fit
-    gives ``(a, b)``; a free-running polariser's two candidates (the sign of ``a`` swaps the channels) are told
-    apart by the foveal constraint's misfit (reported with their ratio). ``use``: ``'model'`` returns the fitted
-    rotation's alpha (:func:`~metafovea.reconstruct.polarizer.model_alpha`), ``'frames'`` each frame's own
-    (:func:`~metafovea.reconstruct.polarizer.gauged_alpha`). Returns ``(x1, x2, alpha, report)`` (the images in the
-    fixed gauge); the report's ``alpha_se`` is each frame's standard error."""
+    """Fix the gauge with the polariser model (:func:`~metafovea.reconstruct.polarizer.polarizer_gauge`).
+
+    Parameters
+    ----------
+    win : _Window
+        The frames (valid-sample mask).
+    x1, x2 : ndarray, shape (H, W)
+        The images in the current gauge.
+    alpha : ndarray, shape (T,)
+    op : FovealOperator
+        Tells a free-running polariser's two candidates apart (the sign of ``a`` swaps the channels) by the foveal
+        constraint's misfit.
+    model : PolarizerModel
+    sig : float
+        The frames' noise std (alpha's data-term noise: ``sig / ||d||``).
+    use : {'model', 'frames'}
+        Return the fitted rotation's alpha (:func:`~metafovea.reconstruct.polarizer.model_alpha`) or each frame's
+        own (:func:`~metafovea.reconstruct.polarizer.gauged_alpha`).
+
+    Returns
+    -------
+    x1, x2 : ndarray, shape (H, W)
+        The images in the fixed gauge.
+    alpha : ndarray, shape (T,)
+    report : dict
+        ``applied``, ``reason``, the fit, ``sign``, ``alpha_se`` (each frame's standard error), ``alpha_se_max``,
+        ``foveal_rms``; ``channel_assignment`` (the misfit ratio) when the sign was open.
+    """
     from metafovea.reconstruct.polarizer import gauged_alpha, model_alpha, polarizer_gauge
 
     x1d, x2d = x1.astype(np.float64), x2.astype(np.float64)
@@ -513,15 +609,23 @@ def polarizer_gauge_step(win: _Window, x1: np.ndarray, x2: np.ndarray, alpha: np
 
 
 def alternating(frames: Any, options: AlternatingOptions | None = None, **overrides: Any) -> Reconstruction:
-    """Unknown-alpha separation of ``frames (T, H, W)`` (see module docstring).
+    """Unknown-alpha separation of the frames (Algorithm, module docstring).
 
-    ``options`` (:class:`AlternatingOptions`; its fields can also be given as keywords,
-    ``alternating(Y, scale=6, strict=False)``) holds the foveal constraint, the gauge fit and guard, the prior,
-    the initialisation and the stopping rule.
+    Parameters
+    ----------
+    frames : array_like, shape (T, H, W)
+        ``T >= 3``; float32 preserved.
+    options : AlternatingOptions, optional
+        The foveal constraint, the gauge fit and guard, the prior, the initialisation and the stopping rule.
+    **overrides
+        Fields of ``options`` (``alternating(Y, scale=6, strict=False)``).
 
-    ``info`` reports ``alpha_identified`` (True when the gauge fix was applied, i.e. alpha is absolute;
-    False when it is only known up to the frame-mean gauge), the gauge report, the loss history and
-    the final data RMS residual.
+    Returns
+    -------
+    Reconstruction
+        ``info``: ``alpha_identified`` (True when the gauge was fixed, i.e. alpha is absolute, and, by the
+        polariser, its standard error is below ``ALPHA_SE_MAX``), ``alpha_gauge``, the gauge reports (``gauge``,
+        ``polarizer_gauge``), ``noise_sigma``, ``noise_gain``, ``loss_history``, ``iterations``, ``foveal_rms``.
     """
     opt = with_overrides(AlternatingOptions, options, overrides)
     tm = Timings()
@@ -532,7 +636,8 @@ def alternating(frames: Any, options: AlternatingOptions | None = None, **overri
         prior = check_choice("prior", prior, ("tv", "nlm", "bilateral", "none"))
         prior = None if prior == "none" else prior
     opt = replace(opt, iterations=check_int("iterations", opt.iterations, 0, 10000),
-                  alpha_from=check_choice("alpha_from", opt.alpha_from, ("data", "prior")), tol=as_float("tol", opt.tol))
+                  alpha_from=check_choice("alpha_from", opt.alpha_from, ("data", "prior")),
+                  tol=as_float("tol", opt.tol))
     with tm.measure("init"):
         win = _window(frames, opt.saturation)
         T, H, W = win.Y.shape
@@ -566,7 +671,8 @@ def alternating(frames: Any, options: AlternatingOptions | None = None, **overri
                                       psf_blur=opt.foveal_psf if isinstance(opt.foveal_psf, str) else
                                       as_float("foveal_psf", opt.foveal_psf))
         if prep is not None and prep["applied"]:
-            grep["reason"] = "not needed: the polariser model fixed the gauge (the foveal constraint chose the channels)"
+            grep["reason"] = ("not needed: the polariser model fixed the gauge (the foveal constraint chose the "
+                              "channels)")
     info["gauge"] = grep
     fixed = bool(grep["applied"] or (prep is not None and prep["applied"]))
     if opt.strict and gauge != "none" and not fixed:

@@ -1,6 +1,15 @@
 """The reconstruction stage's two entry points: :func:`reconstruct` (arrays in, one solver) and
 :func:`reconstruct_measurement` (a Measurement in: the pipeline's rules, used by ``metafovea reconstruct``,
-``metafovea validate`` and notebooks alike)."""
+``metafovea validate`` and notebooks alike).
+
+The pipeline of :func:`reconstruct_measurement`, in order: the foveal constraint and (unknown alpha) the polariser
+model from the file; the fixed pattern (a given array subtracted, or estimated from calibration frames or from the
+separated images, once for all windows); the file's invalid samples left out; the solver, over one window or window
+by window (:func:`~metafovea.reconstruct.video.video`), with denoising; scores against the truth each output shows
+and, when alpha was estimated, its error.
+
+Measured figures: BENCHMARKS.md, section "Reconstruction".
+"""
 
 from __future__ import annotations
 
@@ -34,16 +43,36 @@ NOISE_GAIN_WARN = 10.0
 
 def reconstruct(frames: Any, alpha: Any = None, method: str = "lsq", *, fpn: Any = None,
                 calibration: Any = None, **kw: Any) -> Reconstruction:
-    """Separate the foveal and perifoveal images from ``frames (T, H, W)``.
+    """Separate the foveal and perifoveal images from the frames with one solver.
 
-    method: ``'lsq'`` (known ``alpha``), ``'alternating'`` (unknown alpha, classical), ``'dip'``
-    (double deep image prior, JAX), ``'snapshot'`` (one frame).
-    fpn: ``None`` (no FPN handling), an ``(H, W)`` array to subtract, ``'calibration'`` (estimate from
-    ``calibration`` frames) or ``'prior'`` (blind: :func:`~metafovea.reconstruct.fpn.estimate_fpn`'s foveal estimate
-    from the separated images, the TV low-rank prior where the foveal contrast gain is >= 0.98).
-    Other keywords go to the method's function; the foveal constraint ``D x1 = foveal_gain C x2 +
-    foveal_offset`` (keywords ``scale``, ``foveal_gain``, ``foveal_offset``; a Measurement's
-    :class:`~metafovea.measurement.FovealConstraint`) is used by alternating, dip, snapshot and the FPN prior.
+    Parameters
+    ----------
+    frames : array_like, shape (T, H, W)
+        (One frame, ``(H, W)`` or ``(1, H, W)``, for ``'snapshot'``.)
+    alpha : array_like, shape (T,), optional
+        Mixing ratios: required by ``'lsq'``, refused by ``'alternating'``, optional for ``'dip'`` (held fixed)
+        and ``'snapshot'``.
+    method : {'lsq', 'alternating', 'dip', 'snapshot'}
+        Known alpha (:func:`~metafovea.reconstruct.lsq.lsq_known_alpha`), unknown alpha, classical
+        (:func:`~metafovea.reconstruct.alternating.alternating`), double deep image prior
+        (:func:`~metafovea.reconstruct.deep_prior.dip`, JAX), one frame
+        (:func:`~metafovea.reconstruct.snapshot.snapshot`).
+    fpn : {'calibration', 'prior'} or array_like, shape (H, W), optional
+        An array is subtracted; ``'calibration'`` estimates it from ``calibration``; ``'prior'`` blindly, from the
+        separated images (:func:`~metafovea.reconstruct.fpn.estimate_fpn`: the foveal estimate, the TV low-rank
+        prior where the foveal contrast gain is >= 0.98). None: no FPN handling.
+    calibration : array_like, shape (Tc, H, W), optional
+        Frames of a uniform source (``fpn='calibration'``).
+    **kw
+        Keywords of the method's function; ``fpn_kw``: keywords of :func:`~metafovea.reconstruct.fpn.estimate_fpn`.
+        The foveal constraint ``D x1 = foveal_gain C x2 + foveal_offset`` (``scale``, ``foveal_gain``,
+        ``foveal_offset``; a Measurement's :class:`~metafovea.measurement.FovealConstraint`) is used by
+        alternating, dip, snapshot and the FPN prior.
+
+    Returns
+    -------
+    Reconstruction
+        With ``fpn`` and ``info['fpn']`` when a pattern was subtracted.
     """
     method = check_choice("method", method, METHODS)
     # the foveal constraint, kept for the FPN prior (lsq below drops these keywords)
@@ -73,7 +102,8 @@ def reconstruct(frames: Any, alpha: Any = None, method: str = "lsq", *, fpn: Any
         rec = lsq_known_alpha(frames, alpha, **kw)
     elif method == "alternating":
         if alpha is not None:
-            raise InputError("alpha", "given", "alpha=None for method='alternating' (use method='lsq' with known alpha)")
+            raise InputError("alpha", "given",
+                             "alpha=None for method='alternating' (use method='lsq' with known alpha)")
         from metafovea.reconstruct.alternating import alternating
 
         rec = alternating(frames, **kw)
@@ -106,7 +136,8 @@ def reconstruct_measurement(m: Measurement, method: str = "lsq", *, known_alpha:
                             window: int | None = None, stride: int = 1, starts: Sequence[int] | None = None,
                             fpn: str | np.ndarray = "none", denoise: str | None = None, frame: int = 0,
                             constraint: FovealConstraint | None = None, solver: dict[str, Any] | None = None,
-                            level_free: bool = False, progress: bool = False, score_truth: bool = True) -> PipelineResult:
+                            level_free: bool = False, progress: bool = False,
+                            score_truth: bool = True) -> PipelineResult:
     """Reconstruct a Measurement by the pipeline's rules and score it against its truth.
 
     Parameters
@@ -118,16 +149,18 @@ def reconstruct_measurement(m: Measurement, method: str = "lsq", *, known_alpha:
         Use the file's alpha with ``dip`` (held fixed) or ``snapshot`` (implied by ``lsq``; refused with
         ``alternating``, which estimates it).
     window, stride, starts : int, int, sequence of int
-        Frames per window (default: 8; a sequence of fewer than 16 frames is one window of all of them: more
-        frames per window lower the noise, and a short recording has little motion to follow). A sequence longer than the window,
-        or explicit window ``starts``, is reconstructed window by window (:func:`~metafovea.reconstruct.video`),
-        every ``stride``-th frame or at ``starts``; otherwise the whole sequence is one window.
+        Frames per window (default: :data:`DEFAULT_WINDOW`; a sequence of fewer than :data:`SHORT_SEQUENCE`
+        frames is one window of all of them: more frames per window lower the noise, and a short recording has
+        little motion to follow). A sequence longer than the window, or explicit window ``starts``, is
+        reconstructed window by window (:func:`~metafovea.reconstruct.video`), every ``stride``-th frame or at
+        ``starts``; otherwise the whole sequence is one window.
     fpn : {'none', 'prior', 'calibration'} or ndarray, shape (H, W)
         Fixed-pattern noise: an array (the user's pattern, e.g. from a dark-frame calibration) is subtracted;
         ``calibration`` estimates it from the file's ``calibration`` frames and ``prior`` from the separated images
         (for a sequence of several windows: once, from the windows' images averaged over the windows, then
-        subtracted from every frame before the windows are solved again). The file's own ``fpn`` array is the simulator's true pattern: it only scores
-        an estimate (``metrics['fpn_rms_error']``, mean removed), it is never subtracted.
+        subtracted from every frame before the windows are solved again). The file's own ``fpn`` array is the
+        simulator's true pattern: it only scores an estimate (``metrics['fpn_rms_error']``, mean removed), it is
+        never subtracted.
     denoise : {'tv', 'bilateral', 'nlm'} or None
         Denoise the outputs: inside LSQ (noise level from its residual), after the other methods (noise level
         estimated from each image).
@@ -243,9 +276,9 @@ def _video_fpn(m: Measurement, method: str, frames: np.ndarray, alpha: np.ndarra
         geo = {k: kw[k] for k in ("scale", "foveal_gain", "foveal_offset") if k in kw}
         f, finfo = estimate_fpn(x1=np.nan_to_num(x1m, nan=float(np.nanmean(x1m))),
                                 x2=np.nan_to_num(x2m, nan=float(np.nanmean(x2m))), **geo)
-        finfo = {**finfo, "windows_averaged": int(np.shape(first.x1)[0]),
-                 "video": "estimated once from the separated images averaged over the windows (a first pass without "
-                          "FPN), then subtracted from every frame before the windows were solved again"}
+        # estimated once from the separated images averaged over the windows (a first pass without FPN), then
+        # subtracted from every frame before the windows are solved again
+        finfo = {**finfo, "windows_averaged": int(np.shape(first.x1)[0]), "video": "windows-mean"}
     return (np.asarray(frames, dtype=np.float64) - f[None]).astype(np.float32), (f, finfo)
 
 

@@ -1,47 +1,46 @@
 """Double deep image prior (DIP) in JAX, as in the paper.
 
-Two skip-U-Nets ``g1``, ``g2`` map fixed random inputs to the foveal and perifoveal images; they and
-the mixing ratios (``alpha_t = sigmoid(z_t)``, initialised from frame means as in the paper or from the
-classical solver's estimate, or held fixed when given) are fitted with Adam to
+Two skip-U-Nets ``g1``, ``g2`` map fixed random inputs ``z1``, ``z2`` to the foveal and perifoveal images; they and
+the mixing ratios (``alpha_t = sigmoid(w_t)``, initialised from frame means as in the paper or from the classical
+solver's estimate, or held fixed when given) are fitted with Adam [1]_ to
 
-    mean_t ||y_t - alpha_t g1 - (1 - alpha_t) g2||^2 + tv_weight (TV g1 + TV g2)
-        + exclusion_weight * exclusion(g1, g2) [+ foveal_weight ||D g1 - C g2||^2]
+    L = mean_t ||y_t - alpha_t g1 - (1 - alpha_t) g2||^2 + tv_weight (TV g1 + TV g2)
+        + exclusion_weight exclusion(g1, g2) [+ foveal_weight ||D g1 - gain C g2 - offset||^2]          (1)
 
 (the paper's ``tv_weight = exclusion_weight = 0.01``; the defaults here: a TV weight from the data's noise and
-gradient scale and no exclusion term for a random start, see :func:`dip`). ``foveal_weight`` (default 0, not in the paper) adds the foveal constraint, which fixes the
-alpha gauge the same way as in :mod:`~metafovea.reconstruct.alternating`.
+gradient scale and no exclusion term for a random start, :func:`dip`). ``foveal_weight`` (default 0, not in the
+paper) adds the foveal constraint, which fixes the alpha gauge as in :mod:`~metafovea.reconstruct.alternating`.
 
-Network (``channels``, ``depth``, ``skip_channels``, ``input_channels``): per level a stride-2 3x3 conv and
-a 3x3 conv (LeakyReLU 0.2), a 1x1 skip branch, bilinear upsampling, concatenation, 3x3 + 1x1 convs, and a
-sigmoid output; ``norm`` normalises each conv's output per channel over the image (the original DIP's
-batch norm, batch of one). Frames are rescaled to [0.05, 0.95] for the sigmoid and the result is mapped back.
+Network (``channels``, ``depth``, ``skip_channels``, ``input_channels``): per level a stride-2 3 x 3 conv and a
+3 x 3 conv (LeakyReLU 0.2), a 1 x 1 skip branch, bilinear upsampling, concatenation, 3 x 3 + 1 x 1 convs and a
+sigmoid output [2]_; ``norm`` normalises each conv's output per channel over the image (the original DIP's batch
+norm with a batch of one), which is what lets a random start converge. Frames are rescaled to [0.05, 0.95] for
+the sigmoid and the result is mapped back.
 
-What makes the random start converge (``benchmarks/bench_dip.py``, BENCHMARKS.md "Double deep image prior:
-random start"): the normalisation. On a 64 x 64 scene (sigma 0.01, known alpha, 600 steps) it took the
-random start from 29-32 dB (no normalisation, lr 0.003; lr 0.01 collapsed to a constant image) to 39.9 /
-39.4 dB, and with Adam lr 0.01 cosine-decayed over 1,500 steps to 44.0 / 44.2 dB (16 channels) and 44.7 /
-44.6 dB (32 channels) against the known-alpha LSQ's 44.5 / 44.7 dB. Larger random inputs (scale 1 instead of
-0.1, without normalisation) and a running mean of the outputs (with the cosine decay) did not help; 32
-channels converge in about half the steps of 16, 8 channels did not get within 1 dB (41.7 / 40.5 dB). With unknown alpha the random start holds alternating's alpha
-(``alpha_init='classical'``): learning it lets it drift along the gauge the DIP loss does not fix.
-From a random start the DIP now reaches the classical solver without a prior within 1 dB on 2 scenes x 2
-noise levels (known alpha: LSQ, -0.52 to +0.30 dB; unknown: alternating with prior='none'); without a TV term it
-fell 0.45-3.2 dB below alternating's TV prior at sigma 0.05, and with the data-driven TV weight of a random start
-(:data:`AUTO_TV`) it is within 1 dB of or above the classical solver in all eight cases (known alpha: LSQ;
-unknown: alternating with its TV prior), and on two more scene pairs at sigma 0.03 / 0.05 (-0.41 to +2.68 dB; table in BENCHMARKS.md), in 800-1,400 steps: 20-40 ms per step at 64 x 64 on the 2-core machine, ~0.7 s (16 channels) / ~1.2 s
-(32 channels) at 290 x 290, so a 290 x 290 window would take ~15-30 minutes there if it needs as many steps (not measured at that
-size): an offline method on a CPU.
+Random start's TV weight (MAP rule, :data:`AUTO_TV`): with ``sigma_x`` the images' noise after the per-pixel fit
+and ``b`` the mean |difference| of the TV-denoised least-squares images (a Laplace gradient prior of scale ``b``),
+the ROF weight [3]_
 
-Warm start (``init='classical'``/``'lsq'``/``(x1, x2)``, see :func:`dip`): ``x_k = x_init_k +
-range_k (g_k(z_k) - mean)`` with the output layers zeroed, so the DIP starts from the classical estimate
-and cannot move its level (the alpha gauge, which the DIP loss does not fix). On the simulated 290 x 290
-paper measurement it kept the classical result (31.4 / 38.8 dB) within 0.05 dB over 200 steps with 8
-channels; it does not improve it, because that estimate's error is the gauge (mean offsets of 3.1 / 13 DN
-against 1.2 / 2.5 DN of everything else). Its loss barely moves, so the stopping rule ends it after
-``patience`` steps.
+    lambda = AUTO_TV sigma_x^2 / b,    tv_weight = 2 lambda mean(diag N) / T                             (2)
 
-Each jitted step is compiled once per frame shape and switch set (3-8 s on the 2-core machine) and reused;
-it runs on JAX's default device (a GPU when JAX has one). JAX is imported only when :func:`dip` is called.
+(``N`` the per-pixel normal matrix; ``tv_weight`` in the loss's per-pixel means and the frames' normalised units).
+
+Warm start (``init='classical'``/``'lsq'``/``(x1, x2)``): ``x_k = x_init_k + range_k (g_k(z_k) - mean)`` with the
+output layers zeroed, so the DIP starts from the classical estimate and cannot move its level (the alpha gauge,
+which the loss (1) does not fix).
+
+Each jitted step is compiled once per frame shape and switch set and reused; it runs on JAX's default device (a GPU
+when JAX has one). JAX is imported only when :func:`dip` is called.
+
+Measured figures: BENCHMARKS.md, section "Reconstruction" ("Double deep image prior: warm start" and "... random
+start").
+
+References
+----------
+.. [1] D. P. Kingma and J. Ba, "Adam: a method for stochastic optimization", ICLR (2015), arXiv:1412.6980.
+.. [2] D. Ulyanov, A. Vedaldi and V. Lempitsky, "Deep image prior", CVPR (2018) 9446.
+.. [3] L. I. Rudin, S. Osher and E. Fatemi, "Nonlinear total variation based noise removal algorithms",
+   Physica D 60, 259 (1992).
 """
 
 from __future__ import annotations
@@ -77,7 +76,7 @@ def _init_params(rng: np.random.Generator, cin: int, ch: int, depth: int, skip: 
         p["down"].append([conv(3, c, ch), conv(3, ch, ch)])
         p["skip"].append(conv(1, c, skip))
         c = ch
-    for lev in range(depth):
+    for _ in range(depth):
         cin_up = ch + skip
         p["up"].append([conv(3, cin_up, ch), conv(1, ch, ch)])
     p["out"] = conv(1, ch, 1)
@@ -252,14 +251,16 @@ def _make_fit_step(depth: int, norm: bool = False):
 INITS = ("random", "lsq", "classical")
 #: TV and exclusion weights: the paper's, and the default after a warm start (measured on the simulated
 #: 290 x 290 paper measurement: the paper's 0.01 smooths the warm start's perifoveal structure away,
-#: -4 dB on x2 after 60 steps; 0.001 keeps both images within 0.05 dB of the warm start)
+#: -4 dB on x2 after 60 steps; 0.001 keeps both images within 0.05 dB of the warm start). The paper's 0.01 times the
+#: scenes' mean |gradient| (~0.05 per pixel) is ~10x the data term's noise floor (~8e-5 at a noise of 1 % of the
+#: range): an estimate, not measured with the normalised network
 PAPER_WEIGHT = 0.01
 RANDOM_WEIGHT = 0.0
 WARM_WEIGHT = 0.001
-#: the random start's TV weight unless given: ``AUTO_TV sigma_x^2 / b`` (:func:`_auto_tv_weight`; the MAP weight of
-#: a Laplace gradient prior is 1 x). Measured (BENCHMARKS.md, bench_dip.py, 64 x 64, 2 scenes x sigma 0.01 / 0.05,
-#: unknown alpha): 0.5 came within 1 dB of alternating's TV prior in all four cases (-0.35 to +1.83 dB), 1.0 fell
-#: 1.1-1.2 dB below it at sigma 0.05 on one scene, and no TV (the previous default) 1.2-3.2 dB below at sigma 0.05
+#: the random start's TV weight unless given: ``AUTO_TV sigma_x^2 / b``, eq. (2) (:func:`_auto_tv_weight`; the MAP
+#: weight of a Laplace gradient prior is 1 x). Measured (BENCHMARKS.md, bench_dip.py, 64 x 64, 2 scenes x sigma
+#: 0.01 / 0.05, unknown alpha): 0.5 came within 1 dB of alternating's TV prior in all four cases, 1.0 fell 1.1-1.2 dB
+#: below it at sigma 0.05 on one scene, and no TV 1.2-3.2 dB below at sigma 0.05
 AUTO_TV = 0.5
 #: Adam learning rates: random start, and warm start (0.01 made the residual of a 32-channel network
 #: diverge after ~30 steps on that measurement; 0.002 is stable for 8 and 32 channels over 200 steps)
@@ -281,7 +282,8 @@ def _initial_images(Y: np.ndarray, init: Any, alpha: Any, a_init: np.ndarray | N
         try:
             x1, x2 = (np.asarray(v, dtype=np.float64) for v in init)
         except (TypeError, ValueError):
-            raise InputError("init", type(init).__name__, f"one of {INITS} or a pair (x1, x2) of (H, W) images") from None
+            raise InputError("init", type(init).__name__,
+                             f"one of {INITS} or a pair (x1, x2) of (H, W) images") from None
         if x1.shape != (H, W) or x2.shape != (H, W):
             raise InputError("init", f"images {x1.shape}, {x2.shape}", f"a pair of ({H}, {W}) images")
         if not (np.all(np.isfinite(x1)) and np.all(np.isfinite(x2))):
@@ -321,26 +323,53 @@ class DipOptions:
 
     Attributes
     ----------
-    channels, depth, skip_channels, input_channels: the skip-U-Net (per network); norm: per-channel
-        normalisation of each conv (the original DIP's batch norm with a batch of one; ``None``: on for a
-        random start, off for a warm start); input_scale: the fixed
-        random inputs are ``input_scale * U(0, 1)`` (the paper's 0.1).
-    steps: the step budget (the most Adam steps of the DIP loss); tol, patience: stop earlier when the best loss
-        improved by less than ``tol`` (relative) over the last ``patience`` steps (``tol=0``: never);
-        max_seconds: stop when the steps took this long (``None``: no time limit).
-    lr, alpha_lr: learning rates (``None``: see :func:`dip`); schedule: ``'cosine'`` (decay to 0 over ``steps``
-        after ``warmup`` linear warm-up steps) or ``'constant'``; average: decay of the running mean of the
-        images returned (0: the last step's images).
-    tv_weight, exclusion_weight: loss weights (``None``: see :func:`dip`); foveal_weight: of the foveal term
-        ``||D x1 - foveal_gain C x2 - foveal_offset||^2`` (0: off).
-    scale, foveal_gain, foveal_offset: the foveal constraint (also used by the classical estimates).
-    alpha_init: ``'means'``, ``'classical'`` (:func:`alternating`'s estimate) or ``(T,)`` initial mixing ratios
-        (unknown alpha); init: ``'random'``, ``'lsq'``, ``'classical'`` or an ``(x1, x2)`` pair; warm:
-        ``'residual'`` or ``'fit'`` (``warm_steps`` supervised steps).
-    checkpoints: step counts recorded in ``info['checkpoints']``; rng: seed of the weights and inputs;
-        log_every: log the loss every so many steps (0: never); progress: ``True`` (a tqdm bar on stderr: step,
-        loss, ETA), a callable (called with a dict ``step, steps, loss, seconds, eta_s`` every
-        ``progress_every`` steps and at the end) or ``False``.
+    channels, depth, skip_channels, input_channels : int
+        The skip-U-Net (per network).
+    norm : bool or None
+        Per-channel normalisation of each conv (the original DIP's batch norm with a batch of one; None: on for a
+        random start, off for a warm start).
+    input_scale : float
+        The fixed random inputs are ``input_scale U(0, 1)`` (the paper's 0.1).
+    steps : int
+        The step budget (the most Adam steps of the loss).
+    tol, patience : float, int
+        Stop earlier when the best loss improved by less than ``tol`` (relative) over the last ``patience`` steps
+        (``tol=0``: never).
+    max_seconds : float or None
+        Stop when the steps took this long (None: no time limit).
+    lr, alpha_lr : float or None
+        Learning rates (None: see :func:`dip`).
+    schedule : {'cosine', 'constant'}
+        ``'cosine'``: decay to 0 over ``steps`` after ``warmup`` linear warm-up steps.
+    warmup : int
+    average : float
+        Decay of the running mean of the images returned (0: the last step's images).
+    tv_weight, exclusion_weight : float or None
+        Loss weights of eq. (1) (None: see :func:`dip`).
+    foveal_weight : float
+        Weight of the foveal term ``||D x1 - foveal_gain C x2 - foveal_offset||^2`` (0: off).
+    scale, foveal_gain, foveal_offset : float
+        The foveal constraint (also used by the classical estimates).
+    alpha_init : {'means', 'classical'} or array_like, shape (T,)
+        Unknown alpha's start: the frame means (the paper), :func:`alternating`'s estimate, or values.
+    polarizer : PolarizerModel or None
+        The classical solver's polariser model, for the alpha it supplies (``alpha_init='classical'``,
+        ``init='classical'``); None: its foveal gauge alone.
+    init : {'random', 'lsq', 'classical'} or tuple of 2 ndarray
+        The start: random weights (the paper), least squares, :func:`alternating`, or an ``(x1, x2)`` pair.
+    warm : {'residual', 'fit'}
+        How a warm start enters: the residual parameterisation, or ``warm_steps`` supervised steps first.
+    warm_steps : int
+    checkpoints : sequence of int
+        Step counts recorded in ``info['checkpoints']`` (0: the start, after the warm-start fit).
+    rng : int or numpy.random.Generator
+        Seed of the weights and inputs (same seed, same result on one machine).
+    log_every : int
+        Log the loss every so many steps (0: never).
+    progress : bool or callable
+        True: a tqdm bar on stderr (step, loss, ETA); a callable: called with a dict ``step, steps, loss,
+        seconds, eta_s`` every ``progress_every`` steps and at the end.
+    progress_every : int
     """
 
     channels: int = 16
@@ -365,8 +394,6 @@ class DipOptions:
     foveal_gain: float = 1.0
     foveal_offset: float = 0.0
     alpha_init: Any = "means"
-    #: the classical solver's polariser model (:class:`~metafovea.reconstruct.polarizer.PolarizerModel`), for the
-    #: alpha it supplies (``alpha_init='classical'``, ``init='classical'``); None: its foveal gauge alone
     polarizer: Any = None
     init: Any = "random"
     warm: str = "residual"
@@ -707,54 +734,44 @@ def _start_alpha(Y: np.ndarray, opt: DipOptions, alpha: Any) -> tuple[np.ndarray
 
 
 def dip(frames: Any, alpha: Any = None, options: DipOptions | None = None, **overrides: Any) -> Reconstruction:
-    """Fit the double DIP to ``frames (T, H, W)``; ``alpha`` given = held fixed, else learned.
+    """Fit the double DIP, eq. (1), to the frames.
 
-    ``options`` (:class:`DipOptions`; its fields can also be given as keywords, ``dip(Y, steps=20, rng=0)``).
+    Parameters
+    ----------
+    frames : array_like, shape (T, H, W)
+        Finite; ``T >= 2``.
+    alpha : array_like, shape (T,), optional
+        Mixing ratios, held fixed; None: learned from ``alpha_init``.
+    options : DipOptions, optional
+    **overrides
+        Fields of ``options`` (``dip(Y, steps=20, rng=0)``).
 
-    ``alpha_init`` (unknown alpha): ``'means'`` initialises alpha from the frame means as in the paper
-    (which labels the brighter frames as more foveal: wrong when the foveal channel is the darker one, as
-    with the paper's F/2 vs F/1 lenses, where it converges to the swapped solution), ``'classical'``
-    (:func:`alternating`'s estimate, whose gauge the foveal constraint or polariser fixes) or ``(T,)`` values.
-    The DIP loss does not fix alpha's gauge, so a learned alpha drifts along it: alternating's alpha (from
-    ``alpha_init='classical'`` or ``init='classical'``) is held fixed unless ``alpha_lr`` is given.
+    Returns
+    -------
+    Reconstruction
+        ``info``: ``steps_run`` and ``stopped`` (one of :data:`STOP_REASONS`), ``loss_history``, the weights and
+        learning rates used (``tv_weight_rule``: what eq. (2) found), ``checkpoints``, ``seconds_per_step``,
+        ``traces`` (compilations this call caused), ``device``; ``initial`` (the warm start's images).
 
-    Start (``init``): ``'random'`` (the paper: the networks start from random weights and the images
-    from the sigmoid of their output, ~0.5 in the frames' normalised range), ``'lsq'`` (least squares
-    with ``alpha`` or the array ``alpha_init``), ``'classical'`` (:func:`alternating` with
-    ``scale``/``foveal_gain``/``foveal_offset``, which also supplies alpha when neither ``alpha`` nor an
-    array ``alpha_init`` is given; with a known alpha: LSQ + TV denoising) or a pair ``(x1, x2)``.
-    With a warm start each image gets its own normalisation (its initial estimate's robust range), so a
-    low-contrast foveal image is not squashed by the frames' range, and ``warm`` chooses how the
-    networks start from it:
+    Notes
+    -----
+    ``alpha_init='means'`` labels the brighter frames as more foveal: wrong when the foveal channel is the darker
+    one (the paper's F/2 against F/1), where it converges to the swapped solution. The loss does not fix alpha's
+    gauge, so a learned alpha drifts along it: alternating's alpha (``alpha_init='classical'`` or
+    ``init='classical'``) is held fixed unless ``alpha_lr`` is given.
 
-    * ``'residual'`` (default): ``x_k = x_init_k + range_k * g_k(z_k)`` with the output layer of ``g_k``
-      zeroed, so step 0 returns the initial estimate exactly and the DIP loss then corrects it;
-    * ``'fit'``: ``warm_steps`` supervised Adam steps fitting ``g_k`` (sigmoid output) to ``x_init_k``,
-      then the DIP loss.
-
-    Defaults: ``tv_weight`` from the data for a random start (a MAP rule from the per-pixel fit's noise and the
-    images' gradient scale, :data:`AUTO_TV`; ``info['tv_weight_rule']`` says what it found), ``exclusion_weight`` 0
-    for a random start; both 0.001 after a warm start (the paper's
-    0.01 times the scenes' mean |gradient| (~0.05 per pixel) is ~10x the data term's noise floor (~8e-5 at a
-    noise of 1 % of the range), an estimate, not measured with the normalised network);
-    ``lr`` 0.01 for ``init='random'``, 0.002 for a warm start, cosine-decayed over ``steps``; ``alpha_lr``
-    0 (held) for alternating's alpha, else ``lr`` for a random start and ``lr / 10`` for a warm start.
-
-    Step budget: at most ``steps`` steps, fewer when the loss converged (``tol``, ``patience``) or
-    ``max_seconds`` ran out: ``info['steps_run']`` and ``info['stopped']`` (one of :data:`STOP_REASONS`).
-    The jitted step is compiled once per frame shape and switches (``depth``, ``norm``, known/learned alpha,
-    foveal term, residual start) and reused by later calls (``info['traces']``: compilations this call caused).
-    Memory bound: ``channels x H x W <= MAX_CHANNEL_PIXELS`` (an :class:`InputError` otherwise). Runs on JAX's
-    default device (a GPU when JAX has one).
-
-    The foveal term (``foveal_weight > 0``) uses ``D x1 = foveal_gain C x2 + foveal_offset`` in the
-    frames' units (mapped to the network's normalised range internally). With known ``alpha`` the
+    A warm start gives each image its own normalisation (its initial estimate's robust range), so a low-contrast
+    foveal image is not squashed by the frames' range. ``warm='residual'``: ``x_k = x_init_k + range_k g_k(z_k)``
+    with ``g_k``'s output layer zeroed, so step 0 returns the initial estimate exactly; ``'fit'``: ``warm_steps``
+    supervised steps fitting ``g_k`` (sigmoid output) to ``x_init_k``, then the loss. With known alpha the
     normalisation range includes the LSQ images (the true images extend beyond the frames' range).
 
-    ``checkpoints``: step counts at which ``(step, x1, x2, alpha)`` are recorded in
-    ``info['checkpoints']`` (0 = the start, after the warm-start fit).
-
-    ``rng`` seeds the network weights and inputs (same seed, same result on one machine).
+    Defaults: ``tv_weight`` from eq. (2) for a random start, ``exclusion_weight`` 0 for it; both
+    :data:`WARM_WEIGHT` after a warm start; ``lr`` :data:`PAPER_LR` for a random start, :data:`WARM_LR` for a warm
+    start, cosine-decayed over ``steps``; ``alpha_lr`` 0 (held) for alternating's alpha, else ``lr`` for a random
+    start and ``lr / 10`` for a warm start. The foveal term works in the frames' units (mapped to the network's
+    normalised range internally). Memory bound: ``channels x H x W <= MAX_CHANNEL_PIXELS`` (an
+    :class:`InputError` otherwise).
     """
     import jax.numpy as jnp
 

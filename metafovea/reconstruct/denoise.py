@@ -1,21 +1,23 @@
 """Denoisers for reconstructed images (scikit-image based).
 
-Every method takes the noise std ``sigma`` of the image it cleans (the LSQ stage knows it: frame noise
-times the channel's noise gain), so weights follow a stated rule instead of a hand-tuned constant:
+Every method takes the noise std ``sigma`` of the image it cleans (the LSQ stage knows it: frame noise times the
+channel's noise gain; otherwise estimated from the image, :func:`~metafovea.reconstruct._common.estimate_noise`),
+so its strength follows a stated rule instead of a hand-tuned constant:
 
-* ``'tv'``: Chambolle total variation, weight ``0.75 sigma``, 20 iterations. Measured (``benchmarks/bench_denoise.py``
-  and a grid of factors 0.5-2 x iterations 10-100 on 5 images x sigma 0.01-0.05, 160 x 160): the previous
-  ``0.5 sigma``, 10 iterations was 0.59 dB below the best factor on average and 5.4 dB at worst (a smooth image at
-  sigma 0.05); 0.75 sigma, 20 iterations is 0.32 dB on average and 1.0 dB at worst (~5 ms), but 0.8-1.5 dB below
-  the best factor on textured images it was not chosen on (text, brick, grass: they want 0.5). NLM is the better
-  choice for texture and thermal images. A per-image choice by
-  Stein's unbiased risk (Monte-Carlo divergence) was tried and dropped: with one or two probes its estimate was
-  erratic (up to 4 dB lost), with enough probes it costs 15x the denoising.
-* ``'bilateral'``: as in the paper; colour sigma ``2 sigma``, spatial sigma 1.5 px (~35 ms): 1-10 dB below TV and
-  NLM on every image measured, kept for comparison with the paper.
-* ``'nlm'``: non-local means (fast mode, patch 5, distance 5, h = sigma: 0.19 dB below its best h on average,
-  0.6 at worst; 0.8 sigma was 1.5 at worst): the best PSNR of these on textured and thermal images (up to +4 dB
-  over TV on the blurred thermal star) at ~8x the cost of TV.
+* ``'tv'``: Chambolle's total variation [1]_, weight ``TV_FACTOR sigma``, ``TV_ITERATIONS`` iterations; the
+  factor was chosen on a grid (:data:`TV_FACTORS`) over test images and noise levels;
+* ``'bilateral'``: as in the paper; colour sigma ``2 sigma``, spatial sigma 1.5 px (kept for comparison with the
+  paper);
+* ``'nlm'``: non-local means [2]_ (fast mode, patch 5, distance 5, ``h = sigma``): the better choice for texture
+  and thermal images, at several times TV's cost.
+
+Measured figures: BENCHMARKS.md, section "Denoising".
+
+References
+----------
+.. [1] A. Chambolle, "An algorithm for total variation minimization and applications", J. Math. Imaging Vis. 20,
+   89 (2004).
+.. [2] A. Buades, B. Coll and J.-M. Morel, "A non-local algorithm for image denoising", CVPR (2005) 60.
 """
 
 from __future__ import annotations
@@ -28,7 +30,7 @@ from metafovea.reconstruct._common import estimate_noise
 #: the denoisers (``--denoise``)
 DENOISERS = ("tv", "bilateral", "nlm")
 METHODS = DENOISERS + ("none",)
-#: TV weight = TV_FACTOR x sigma, TV_ITERATIONS iterations (measured, see the module docstring); TV_FACTORS: the grid
+#: TV weight = TV_FACTOR x sigma, TV_ITERATIONS iterations (chosen on the grid TV_FACTORS: BENCHMARKS.md, "Denoising")
 TV_FACTOR = 0.75
 TV_FACTORS = (0.5, 0.75, 1.0, 1.5, 2.0)
 TV_ITERATIONS = 20
@@ -36,10 +38,24 @@ TV_ITERATIONS = 20
 
 def denoise(x: np.ndarray, method: str = "tv", *, sigma: float | None = None, weight: float | None = None,
             iterations: int = TV_ITERATIONS) -> np.ndarray:
-    """Denoise a 2-D image (or each image of a ``(K, H, W)`` stack); dtype preserved.
+    """Denoise a 2-D image, or each image of a stack.
 
-    ``sigma`` is the noise std (estimated from the image when ``None``); ``weight`` overrides the
-    method's strength rule.
+    Parameters
+    ----------
+    x : ndarray, shape (H, W) or (K, H, W)
+        Non-finite pixels are filled from their nearest finite neighbour for the denoiser and left NaN.
+    method : {'tv', 'bilateral', 'nlm', 'none'}
+    sigma : float, optional
+        The image's noise std (default: estimated from the image); ``<= 0`` returns ``x``.
+    weight : float, optional
+        Overrides the method's strength rule (TV weight, bilateral colour sigma, NLM ``h``).
+    iterations : int
+        TV iterations.
+
+    Returns
+    -------
+    ndarray
+        Same shape and dtype as ``x``.
     """
     method = check_choice("denoise", method, METHODS)
     x = np.asarray(x)

@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import os
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -16,10 +16,25 @@ from metafovea.io import atomic_write_bytes, prepare_output
 from metafovea.reconstruct.result import PipelineResult
 from metafovea.report import array_png, fig_to_png
 
+if TYPE_CHECKING:
+    from metafovea.reconstruct.deconvolve import Deconvolution
+
 
 def load_pattern(path: str | os.PathLike, name: str = "--fpn") -> np.ndarray:
-    """A fixed pattern (H, W) from a user's file: ``.npy``, ``.npz`` (its ``fpn`` array, or its only array) or a
-    one-page ``.tif``; an :class:`InputError` naming ``name`` for anything else."""
+    """A fixed pattern from a user's file.
+
+    Parameters
+    ----------
+    path : str or PathLike
+        ``.npy``, ``.npz`` (its ``fpn`` array, or its only array) or a one-page ``.tif``.
+    name : str
+        The parameter an :class:`InputError` names for anything else.
+
+    Returns
+    -------
+    ndarray, shape (H, W)
+        float64, finite.
+    """
     p = Path(path)
     if not p.is_file():
         raise InputError(name, str(p), "none, prior, calibration, or an existing pattern file (.npy, .npz, .tif)")
@@ -51,17 +66,40 @@ def load_pattern(path: str | os.PathLike, name: str = "--fpn") -> np.ndarray:
 
 
 def figure_paths(out: str | os.PathLike) -> list[Path]:
-    """The PNG files written next to the reconstruction ``out``."""
+    """The PNG files written next to the reconstruction ``out``.
+
+    Parameters
+    ----------
+    out : str or PathLike
+
+    Returns
+    -------
+    list of Path
+        ``<stem>_x1.png``, ``<stem>_x2.png`` (one PNG pixel per image pixel) and ``<stem>.png`` (side by side).
+    """
     stem = Path(out).with_suffix("")
     return [Path(f"{stem}_x1.png"), Path(f"{stem}_x2.png"), Path(f"{stem}.png")]
 
 
 def prepare_outputs(measurement: str | os.PathLike, out: str | os.PathLike | None = None, *, figures: bool = True,
                     force: bool = False) -> tuple[Path, list[Path]]:
-    """``(reconstruction path, figure paths)`` for a reconstruction of the file ``measurement``, all checked.
+    """The output paths of a reconstruction of the file ``measurement``, all checked before anything is computed.
 
-    ``out`` defaults to ``<measurement>_rec.npz``; it must end in ``.npz``, must not be the measurement itself,
-    and neither it nor a figure may exist unless ``force``."""
+    Parameters
+    ----------
+    measurement : str or PathLike
+    out : str or PathLike, optional
+        Default ``<measurement>_rec.npz``; it must end in ``.npz`` and must not be the measurement itself.
+    figures : bool
+        Also the figures (:func:`figure_paths`).
+    force : bool
+        Allow overwriting; otherwise neither the output nor a figure may exist.
+
+    Returns
+    -------
+    path : Path
+    figures : list of Path
+    """
     src = Path(measurement)
     path = Path(out) if out else src.with_name(src.stem + "_rec.npz")
     if path.suffix.lower() != ".npz":
@@ -77,8 +115,23 @@ def prepare_outputs(measurement: str | os.PathLike, out: str | os.PathLike | Non
 
 def write_outputs(result: PipelineResult, out: str | os.PathLike, figures: list[Path] | None = None, *,
                   title: str = "") -> list[str]:
-    """Save ``result.reconstruction`` to ``out`` and the figures (see module docstring) of its last output;
-    returns the files written."""
+    """Save a pipeline result and the figures of its last output.
+
+    Parameters
+    ----------
+    result : PipelineResult
+    out : str or PathLike
+        The reconstruction's ``.npz``.
+    figures : list of Path, optional
+        :func:`figure_paths` (from :func:`prepare_outputs`); None or empty: no figures.
+    title : str
+        The side-by-side figure's title (default: the method).
+
+    Returns
+    -------
+    list of str
+        The files written.
+    """
     rec = result.reconstruction
     rec.save(out)
     files = [str(out)]
@@ -91,7 +144,18 @@ def write_outputs(result: PipelineResult, out: str | os.PathLike, figures: list[
 
 
 def pair_figure(x1: np.ndarray, x2: np.ndarray, title: str) -> bytes:
-    """The foveal and perifoveal images side by side with colour bars (PNG)."""
+    """The foveal and perifoveal images side by side with colour bars.
+
+    Parameters
+    ----------
+    x1, x2 : ndarray, shape (H, W)
+    title : str
+
+    Returns
+    -------
+    bytes
+        PNG.
+    """
     import matplotlib
 
     matplotlib.use("Agg", force=False)
@@ -110,17 +174,40 @@ def pair_figure(x1: np.ndarray, x2: np.ndarray, title: str) -> bytes:
 
 
 def scene_paths(out: str | os.PathLike, figures: bool = True, force: bool = False) -> list[Path]:
-    """The PSF-aware outputs next to the reconstruction ``out`` (``<stem>_scene.npz`` and, with ``figures``,
-    ``<stem>_scene.png``), checked like :func:`prepare_outputs`."""
+    """The PSF-aware outputs next to the reconstruction ``out``, checked like :func:`prepare_outputs`.
+
+    Parameters
+    ----------
+    out : str or PathLike
+    figures : bool
+    force : bool
+
+    Returns
+    -------
+    list of Path
+        ``<stem>_scene.npz`` and, with ``figures``, ``<stem>_scene.png``.
+    """
     stem = Path(out).with_suffix("")
     paths = [Path(f"{stem}_scene.npz")] + ([Path(f"{stem}_scene.png")] if figures else [])
     return [prepare_output(p, force) for p in paths]
 
 
-def write_scene(d: Any, paths: list[Path], title: str = "") -> list[str]:
-    """Save a :class:`~metafovea.reconstruct.deconvolve.Deconvolution` (``scene_x1``/``_x2`` DN,
-    ``temperature_x1_k``/``_x2_k``, its info) and its figure: both channels' brightness temperatures in the iron
-    palette with kelvin colour bars (DN without a radiometric calibration)."""
+def write_scene(d: Deconvolution, paths: list[Path], title: str = "") -> list[str]:
+    """Save a PSF-aware reconstruction and its figure.
+
+    Parameters
+    ----------
+    d : Deconvolution
+    paths : list of Path
+        :func:`scene_paths`: the ``.npz`` (``scene_x1``, ``scene_x2`` DN, ``temperature_x1_k``,
+        ``temperature_x2_k``, ``info`` as metadata) and optionally the figure (:func:`scene_figure`).
+    title : str
+
+    Returns
+    -------
+    list of str
+        The files written.
+    """
     from metafovea.io import atomic_save_npz
 
     arrays = {"scene_x1": d.scene[0].astype(np.float32), "scene_x2": d.scene[1].astype(np.float32)}
@@ -135,8 +222,20 @@ def write_scene(d: Any, paths: list[Path], title: str = "") -> list[str]:
     return files
 
 
-def scene_figure(d: Any, title: str = "") -> bytes:
-    """Both channels' scene estimates (brightness temperature, K, iron palette) side by side with colour bars."""
+def scene_figure(d: Deconvolution, title: str = "") -> bytes:
+    """Both channels' scene estimates side by side with colour bars.
+
+    Parameters
+    ----------
+    d : Deconvolution
+        Shown in brightness temperature (K, iron palette), or in DN without a radiometric calibration.
+    title : str
+
+    Returns
+    -------
+    bytes
+        PNG.
+    """
     import matplotlib
 
     matplotlib.use("Agg", force=False)

@@ -13,9 +13,7 @@ Identifiability
    frames' scatter) or projected on rank ``rank`` when one is given (the paper's 20), and clipped to ``+-bound``;
    identified up to that constant and the calibration noise. ``info['error_rms_dn']`` estimates the estimate's
    rms error: Stein's unbiased risk estimate of the shrinkage (E. J. Candes, C. A. Sing-Long and J. D. Trzasko,
-   IEEE Trans. Signal Process. 61, 4643 (2013)), or split halves for a fixed rank. Measured on the simulated
-   sensor (16 shutter frames, 290 x 290, a rank-20 pattern whose weak components lie under the noise): error
-   0.140 DN against 0.228 for the rank-20 projection (BENCHMARKS.md, PSF-aware).
+   IEEE Trans. Signal Process. 61, 4643 (2013)), or split halves for a fixed rank.
 2. **blind, from the foveal constraint** (``method='foveal'``, the default without calibration frames;
    ``--fpn prior`` at the CLI). The separated images carry the pattern, ``x1' = x1 + f``, ``x2' = x2 + f``,
    and the constraint ``D x1 = g C x2 + o`` then reads ``D x1' - g C x2' - o = (D - g C) f``: the data
@@ -28,15 +26,14 @@ Identifiability
    sub-box detail) plus the constraint's own mismatch (PSF differences) spread over its boxes; the low-rank
    projection removes the part of that error which is not low rank. The contrast gain ``g`` and offset ``o``
    are fitted by least squares of ``D x1'`` on ``C x2'`` (the pattern is uncorrelated with the scene, so the
-   fit is consistent; the stored radiometric gain holds for the mean level, not the contrast: 0.29 stored
-   against 0.81 fitted on the simulated 10 um siemens star), unless ``fit_gain=False`` or the fitted gain is
+   fit is consistent; the stored radiometric gain holds for the mean level, not the contrast), unless
+   ``fit_gain=False`` or the fitted gain is
    not significant (:data:`GAIN_SIGNIFICANCE` standard errors; a crop without contrast), when the stored
    ``foveal_gain`` / ``foveal_offset`` are used.
    It needs ``0 < g < 0.98`` (:data:`MAX_FOVEAL_GAIN`): at ``g >= 1`` the magnification-invariant part of
    ``f`` in the crop is not identified, and the estimate falls back to the TV prior (``info['fallback']``).
    ``info['identified']`` is ``'foveal'``; ``info['observed']``, ``info['assumed']`` and
-   ``info['unidentified']`` say the above in words. Measured (BENCHMARKS.md, FPN): 0.1-0.3 s per 290 x 290
-   pair against 26 s for the TV prior below, and a smaller error.
+   ``info['unidentified']`` say the above in words.
 3. **the TV low-rank prior** (``method='tv'``; paper: rank 20, bounded to +-0.1) applied to the separated
    images: ``f`` minimises the (Charbonnier-smoothed) total variation of ``x1' - f`` and ``x2' - f`` plus the
    foveal misfit ``||D(x1' - f) - C(x2' - f)||^2``, subject to ``rank f <= rank``, ``|f| <= bound`` and
@@ -48,6 +45,9 @@ Neither motion nor the polariser's alpha diversity adds to this without a motion
 separated images carry the same ``f`` but each ``(x1_k + f, x2_k + f)`` fits its frames as well as
 ``(x1_k, x2_k)``; averaging the per-window images (a static scene) only lowers the noise of ``x1'``, ``x2'``,
 and where the scene moves it averages the foveal detail that the assumption above neglects.
+
+Measured figures: BENCHMARKS.md, sections "Blind fixed-pattern noise" and "PSF-aware reconstruction against the
+scene" (the shutter-frame estimate).
 """
 
 from __future__ import annotations
@@ -66,7 +66,20 @@ log = logging.getLogger(__name__)
 
 
 def project_lowrank(f: np.ndarray, rank: int, bound: float) -> np.ndarray:
-    """Zero mean, best rank-``rank`` approximation, clipped to ``[-bound, bound]``."""
+    """A pattern's zero-mean, best rank-``rank`` approximation, clipped.
+
+    Parameters
+    ----------
+    f : ndarray, shape (H, W)
+    rank : int
+    bound : float
+        Clip to ``[-bound, bound]``.
+
+    Returns
+    -------
+    ndarray, shape (H, W)
+        Mean 0 (after the clip).
+    """
     f = f - f.mean()
     if rank < min(f.shape):
         U, s, Vt = np.linalg.svd(f, full_matrices=False)
@@ -89,23 +102,44 @@ def estimate_fpn(*, calibration: Any = None, x1: np.ndarray | None = None, x2: n
                  offset: tuple[float, float] = (0.0, 0.0), iterations: int = 150, eps: float | None = None,
                  foveal_weight: float = 1.0, foveal_gain: float = 1.0, foveal_offset: float = 0.0,
                  method: str = "foveal", fit_gain: bool = True) -> tuple[np.ndarray, dict[str, Any]]:
-    """Estimate the additive FPN ``(H, W)``; returns ``(fpn, info)`` (see the module docstring).
+    """Estimate the additive fixed pattern (module docstring: what each way identifies).
 
-    Give ``calibration`` frames ``(T, H, W)`` (shutter / uniform scene) when you have them; otherwise the
-    separated images ``x1``, ``x2`` (which both contain ``+ f``) for a blind estimate by ``method``:
+    Parameters
+    ----------
+    calibration : array_like, shape (T, H, W) or (H, W), optional
+        Frames of a closed shutter or a uniform scene: used when given (item 1).
+    x1, x2 : ndarray, shape (H, W), optional
+        Otherwise the separated images (both contain ``+ f``), for a blind estimate by ``method``.
+    rank : int, optional
+        With calibration frames: None is optimal singular-value shrinkage (one frame: the paper's 20), an integer
+        a projection. ``'foveal'``: default :data:`FOVEAL_RANK`. ``'tv'``: default ``min(20, min(H, W) // 16)``
+        (with more freedom the prior starts to absorb scene content).
+    bound : float, optional
+        The pattern's amplitude limit; default: the paper's 0.1 of the images' dynamic range for the blind
+        estimates (scale-invariant: frames in DN or in [0, 1]), no clipping for calibration frames.
+    scale, offset : float, tuple of 2 float
+        The foveal constraint's geometry.
+    iterations, eps, foveal_weight : int, float, float
+        ``'tv'``: projected-gradient steps, the Charbonnier smoothing (default 2 % of the images' range), the
+        weight of the foveal misfit.
+    foveal_gain, foveal_offset : float
+        The stored radiometric gain and offset of the constraint.
+    method : {'foveal', 'tv'}
+        ``'foveal'`` (item 2): exact solve under ``x1 = U D x1`` with ``D x1 = g C x2 + o`` (``g``, ``o`` fitted
+        unless ``fit_gain=False``; a gain >= :data:`MAX_FOVEAL_GAIN` falls back to ``'tv'``); ``'tv'``: the TV
+        low-rank prior (item 3).
+    fit_gain : bool
+        Fit the constraint's contrast gain and offset (:func:`foveal_contrast`).
 
-    * ``'foveal'`` (default): exact solve under the assumption ``x1 = U D x1`` with the foveal constraint
-      ``D x1 = g C x2 + o`` (``g``, ``o`` fitted unless ``fit_gain=False``: then ``foveal_gain``,
-      ``foveal_offset``), projected on rank ``rank`` (default :data:`FOVEAL_RANK`).
-    * ``'tv'``: the TV low-rank prior, ``iterations`` projected-gradient steps; ``rank=None`` uses
-      ``min(20, min(H, W) // 16)`` (with more freedom the prior starts to absorb scene content: measured on
-      96 x 96 scenes, rank 20 removed nothing useful while rank 6 gained ~5 dB).
-
-    ``info['identified']`` says which was used (``calibration``, ``foveal``, ``prior``) and what is not
-    identified. ``rank=None`` with calibration frames: optimal singular-value shrinkage (one frame: the paper's 20).
-
-    ``bound=None``: the paper's 0.1 of the images' dynamic range for the blind estimates
-    (scale-invariant: frames in DN or in [0, 1]), no clipping for calibration frames.
+    Returns
+    -------
+    fpn : ndarray, shape (H, W)
+        Mean 0.
+    info : dict
+        ``identified`` (``'calibration'``, ``'foveal'`` or ``'prior'``), ``rank``, ``bound``, ``rms``; the
+        calibration's ``error_rms_dn`` with ``error_rms_from`` (``'sure'`` or ``'split-halves'``) and
+        ``rank_rule`` (``'shrinkage'``, ``'given'`` or ``'paper'``); the blind estimates' ``observed``,
+        ``assumed`` and ``unidentified`` in words.
     """
     shape = np.shape(calibration)[-2:] if calibration is not None else np.shape(x1)[-2:]
     tv_rank = rank if rank is not None else max(1, min(20, min(shape) // 16)) if len(shape) == 2 else 20
@@ -127,7 +161,8 @@ def estimate_fpn(*, calibration: Any = None, x1: np.ndarray | None = None, x2: n
         return _from_calibration(calibration, rank, bound)
     if x1 is None or x2 is None:
         raise InputError("calibration", None, "calibration frames, or both separated images x1 and x2",
-                         detail="FPN is not identifiable from the mixture alone (columns [alpha, 1-alpha, 1] have rank 2)")
+                         detail="FPN is not identifiable from the mixture alone (columns [alpha, 1-alpha, 1] have "
+                                "rank 2)")
     method = check_choice("method", method, BLIND_METHODS)
     a1 = np.asarray(x1, dtype=np.float64)
     a2 = np.asarray(x2, dtype=np.float64)
@@ -144,8 +179,8 @@ def estimate_fpn(*, calibration: Any = None, x1: np.ndarray | None = None, x2: n
             return _foveal(a1, a2, op, rank, bound, g, o, fit_gain)
         # at gain >= 1 the pattern's magnification-invariant part (e.g. any function of the angle about the centre)
         # solves (I - g U C) f = 0: not identified, and the fixed point diverges; the TV prior makes no such claim
-        f, info = _tv_prior(a1, a2, check_int("rank", tv_rank, 1, 100000), bound, scale, offset, iterations, eps, foveal_weight, foveal_gain,
-                            foveal_offset)
+        f, info = _tv_prior(a1, a2, check_int("rank", tv_rank, 1, 100000), bound, scale, offset, iterations, eps,
+                            foveal_weight, foveal_gain, foveal_offset)
         return f, {**info, "fallback": f"TV prior: foveal contrast gain {g:.3g} outside (0, {MAX_FOVEAL_GAIN})"}
     return _tv_prior(a1, a2, rank, bound, scale, offset, iterations, eps, foveal_weight, foveal_gain, foveal_offset)
 
@@ -166,33 +201,55 @@ def _from_calibration(calibration: Any, rank: int | None, bound: float) -> tuple
         f, kept, err = shrink_lowrank(raw, noise)
         f = np.clip(f, -bound, bound)
         f = f - f.mean()
-        info.update(rank=kept, rank_rule="optimal singular-value shrinkage (Gavish and Donoho 2017, Frobenius loss)",
-                    noise_of_mean_dn=noise, error_rms_dn=err,
-                    error_rms_from="Stein's unbiased risk estimate of the shrinkage (Candes, Sing-Long and "
-                                   "Trzasko 2013), the noise from the frames' scatter")
+        info.update(rank=kept, rank_rule="shrinkage", noise_of_mean_dn=noise, error_rms_dn=err, error_rms_from="sure")
     else:
         rank = 20 if rank is None else rank  # one frame: no noise estimate to shrink with; the paper's rank
         f = project_lowrank(raw, rank, bound)
-        info.update(rank=rank, rank_rule="given" if T >= 2 else "the paper's 20 (one frame: no noise estimate)")
+        info.update(rank=rank, rank_rule="given" if T >= 2 else "paper")
         err = calibration_error_rms(C, rank, bound)
         if err is not None:
             info["error_rms_dn"] = err
-            info["error_rms_from"] = ("split halves: the rms difference of the estimates from the even and the odd "
-                                      "calibration frames, / 2 (each half has twice the full estimate's noise "
-                                      "variance)")
+            info["error_rms_from"] = "split-halves"
     info["rms"] = float(np.sqrt(np.mean(f ** 2)))
     return f, info
 
 
 def shrink_lowrank(f: np.ndarray, noise: float) -> tuple[np.ndarray, int, float]:
-    """Optimal shrinkage of the singular values of ``f`` (H, W) = low rank + white noise of std ``noise`` per
-    entry, for the Frobenius loss (Gavish and Donoho 2017): ``y = s / (sqrt(n) noise)``, ``n = max(H, W)``,
-    ``beta = min / max``; ``eta(y) = sqrt((y^2 - beta - 1)^2 - 4 beta) / y`` above the bulk edge ``1 + sqrt
-    beta``, 0 below. Returns ``(estimate with zero mean, components kept, rms error estimate)``, the error by
-    Stein's unbiased risk estimate of the spectral estimator (Candes, Sing-Long and Trzasko 2013)::
+    """Optimal shrinkage of the singular values of a low-rank matrix in white noise, with its risk estimate.
+
+    Parameters
+    ----------
+    f : ndarray, shape (H, W)
+        Low rank plus white noise (its mean is removed first).
+    noise : float
+        The noise std per entry (<= 0 or non-finite: nothing is shrunk).
+
+    Returns
+    -------
+    estimate : ndarray, shape (H, W)
+        Zero mean.
+    kept : int
+        Components kept.
+    error_rms : float
+        The estimate's rms error, from SURE (eq. 2).
+
+    Notes
+    -----
+    With ``y = s / (sqrt(n) noise)``, ``n = max(H, W)``, ``beta = min / max``, the Frobenius-loss shrinker [1]_ is
+
+        eta(y) = sqrt((y^2 - beta - 1)^2 - 4 beta) / y   above the bulk edge 1 + sqrt(beta), 0 below   (1)
+
+    and Stein's unbiased risk estimate of that spectral estimator [2]_
 
         SURE = -H W noise^2 + sum (eta_i - s_i)^2 + 2 noise^2 div,
-        div = sum_i (eta'(s_i) + |H - W| eta_i / s_i) + 2 sum_{i != j} s_i eta_i / (s_i^2 - s_j^2)
+        div = sum_i (eta'(s_i) + |H - W| eta_i / s_i) + 2 sum_{i != j} s_i eta_i / (s_i^2 - s_j^2)        (2)
+
+    References
+    ----------
+    .. [1] M. Gavish and D. L. Donoho, "Optimal shrinkage of singular values", IEEE Trans. Inf. Theory 63, 2137
+       (2017).
+    .. [2] E. J. Candes, C. A. Sing-Long and J. D. Trzasko, "Unbiased risk estimates for singular value
+       thresholding and spectral estimators", IEEE Trans. Signal Process. 61, 4643 (2013).
     """
     g = np.asarray(f, dtype=np.float64)
     g = g - g.mean()
@@ -208,7 +265,8 @@ def shrink_lowrank(f: np.ndarray, noise: float) -> tuple[np.ndarray, int, float]
     q = np.where(keep, (y ** 2 - beta - 1.0) ** 2 - 4.0 * beta, 1.0)
     eta = np.where(keep, np.sqrt(np.maximum(q, 0.0)) / np.maximum(y, 1e-300), 0.0) * c
     # d eta / d s = d eta_n / d y (the scale c cancels)
-    d_eta = np.where(keep, (2.0 * y ** 2 * (y ** 2 - beta - 1.0) / np.sqrt(q) - np.sqrt(q)) / np.maximum(y, 1e-300) ** 2,
+    d_eta = np.where(keep,
+                     (2.0 * y ** 2 * (y ** 2 - beta - 1.0) / np.sqrt(q) - np.sqrt(q)) / np.maximum(y, 1e-300) ** 2,
                      0.0)
     s2 = s ** 2
     with np.errstate(divide="ignore", invalid="ignore"):
@@ -222,12 +280,27 @@ def shrink_lowrank(f: np.ndarray, noise: float) -> tuple[np.ndarray, int, float]
 
 
 def calibration_error_rms(calibration: np.ndarray, rank: int, bound: float = math.inf) -> float | None:
-    """The rms error (frame units) of the calibration estimate that the calibration noise leaves, from the frames
-    themselves: the estimates of the even and the odd frames differ by twice-the-variance noise each, so
-    ``rms(f_even - f_odd) / 2`` estimates the full estimate's error, the rank projection's choice of the noisiest
-    directions included (a per-frame formula ``sigma / sqrt(T) * sqrt(r (H + W - r) / (H W))`` misses it and came
-    out ~20 % low on the simulated sensor). None with fewer than 2 frames. Not included: drift of the pattern
-    between the shutter frames and the scene frames."""
+    """The rms error that the calibration noise leaves in a rank-``rank`` calibration estimate, from split halves.
+
+    Parameters
+    ----------
+    calibration : ndarray, shape (T, H, W)
+    rank : int
+    bound : float
+
+    Returns
+    -------
+    float or None
+        Frame units; None with fewer than 2 frames.
+
+    Notes
+    -----
+    The estimates from the even and the odd frames each carry about twice the full estimate's noise variance, so
+    ``rms(f_even - f_odd) / 2`` (weighted by the halves' frame counts) estimates the full estimate's error, the
+    rank projection's choice of the noisiest directions included (which a per-frame formula
+    ``sigma / sqrt(T) sqrt(r (H + W - r) / (H W))`` misses). Not included: drift of the pattern between the
+    shutter frames and the scene frames.
+    """
     C = np.asarray(calibration, dtype=np.float64)
     if C.shape[0] < 2:
         return None
@@ -245,8 +318,18 @@ GAIN_SIGNIFICANCE = 20.0
 
 
 def foveal_contrast(x1: np.ndarray, x2: np.ndarray, op: FovealOperator) -> tuple[float, float, float]:
-    """``(g, o, se_g)`` of the least-squares fit ``D x1 ~ g C x2 + o`` (the constraint's contrast gain, offset and
-    the gain's standard error)."""
+    """The foveal constraint's contrast gain and offset, fitted.
+
+    Parameters
+    ----------
+    x1, x2 : ndarray, shape (H, W)
+    op : FovealOperator
+
+    Returns
+    -------
+    g, o, se_g : float
+        The least-squares fit ``D x1 ~ g C x2 + o`` and the gain's standard error.
+    """
     c = op.C(x2).ravel()
     d = op.D(x1).ravel()
     A = np.stack([c, np.ones_like(c)], axis=1)
@@ -266,7 +349,7 @@ def _foveal(a1: np.ndarray, a2: np.ndarray, op: FovealOperator, rank: int, bound
     z = a1 - op.upsample(g * op.C(a2) + o)
     cz = op.C(z)
     c = cz.copy()
-    for it in range(1, 2001):
+    for it in range(1, 2001):  # noqa: B007 (the count is reported after the loop)
         c_new = cz + g * op.C(op.upsample(c))
         done = np.max(np.abs(c_new - c)) <= 1e-10 * max(float(np.max(np.abs(cz))), 1e-300)
         c = c_new
@@ -303,7 +386,7 @@ def _tv_prior(a1: np.ndarray, a2: np.ndarray, rank: int, bound: float, scale: fl
     step = 1.0 / (2 * 8.0 / eps + 2 * mu * 2.0)
     f = np.zeros_like(a1)
     hist = []
-    for it in range(iterations):
+    for _ in range(iterations):
         v1, g1 = tv_charbonnier(a1 - f, eps)
         v2, g2 = tv_charbonnier(a2 - f, eps)
         r = op.residual(a1 - f, a2 - f)

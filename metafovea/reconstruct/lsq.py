@@ -1,8 +1,13 @@
 """Known mixing ratios: closed-form per-pixel least squares over a window of frames.
 
-Model per pixel ``p`` and frame ``t``: ``y_tp = alpha_t x1_p + (1 - alpha_t) x2_p + noise``. With
-``A = [alpha, 1 - alpha]`` (``T x 2``) the normal matrix ``N = A^T A`` is the same for every pixel,
-so the solution is two weighted sums of the frames, ``[x1; x2] = N^-1 A^T Y`` (one small BLAS call).
+Model per pixel ``p`` and frame ``t``::
+
+    y_tp = alpha_t x1_p + (1 - alpha_t) x2_p + noise                                                    (1)
+
+With ``A = [alpha, 1 - alpha]`` (``T x 2``) the normal matrix ``N = A^T A`` is the same for every pixel, so the
+solution is two weighted sums of the frames (one small BLAS call)::
+
+    [x1; x2] = N^-1 A^T Y                                                                                (2)
 
 Conditioning
 ------------
@@ -11,8 +16,9 @@ Conditioning
 nearly equal alphas, a stopped polariser) the solve is refused with :class:`InputError` unless
 ``regularize`` is given:
 
-* ``regularize='difference'``: ridge penalty ``lam * ||x1 - x2||^2`` with the smallest ``lam`` that
-  brings ``cond(N + lam L)`` down to ``max_condition`` (``L = [[1, -1], [-1, 1]]``). The data
+* ``regularize='difference'``: ridge penalty ``lam ||x1 - x2||^2``, i.e. ``[x1; x2] = (N + lam L)^-1 A^T Y``
+  (3), with the smallest ``lam`` that brings ``cond(N + lam L)`` down to ``max_condition``
+  (``L = [[1, -1], [-1, 1]]``, :func:`difference_ridge`). The data
   determine ``alpha x1 + (1 - alpha) x2``; the penalty fills the undetermined difference with zero,
   i.e. both channels fall back to the unseparated mixture rather than amplified noise.
 * a float: that ``lam`` (same penalty).
@@ -20,6 +26,10 @@ nearly equal alphas, a stopped polariser) the solve is refused with :class:`Inpu
 Invalid samples (NaN/inf, or ``>= saturation``) are masked per pixel; each pixel then has its own
 normal matrix and pixels whose valid samples cannot separate the channels come back as NaN and are
 counted in ``info['unresolved_pixels']``.
+
+:class:`SlidingLSQ` keeps the sums of (2) running over a sliding window for a live camera.
+
+Measured figures: BENCHMARKS.md, section "Reconstruction".
 """
 
 from __future__ import annotations
@@ -46,14 +56,34 @@ _L = np.array([[1.0, -1.0], [-1.0, 1.0]])
 
 
 def normal_matrix(alpha: np.ndarray) -> np.ndarray:
-    """``N = A^T A`` for ``A = [alpha, 1 - alpha]``."""
+    """The normal matrix of eq. (2).
+
+    Parameters
+    ----------
+    alpha : array_like, shape (T,)
+
+    Returns
+    -------
+    ndarray, shape (2, 2)
+        ``N = A^T A`` for ``A = [alpha, 1 - alpha]``.
+    """
     a = np.asarray(alpha, dtype=np.float64)
     A = np.stack([a, 1 - a], axis=1)
     return A.T @ A
 
 
 def condition_number(alpha: np.ndarray) -> float:
-    """2-norm condition number of the normal matrix (``inf`` when singular)."""
+    """The 2-norm condition number of the normal matrix of eq. (2).
+
+    Parameters
+    ----------
+    alpha : array_like, shape (T,)
+
+    Returns
+    -------
+    float
+        ``inf`` when singular.
+    """
     ev = np.linalg.eigvalsh(normal_matrix(alpha))
     return float(ev[1] / ev[0]) if ev[0] > ev[1] * 1e-15 else math.inf
 
@@ -64,10 +94,22 @@ def _cond(M: np.ndarray) -> float:
 
 
 def difference_ridge(N: np.ndarray, max_condition: float) -> float:
-    """Smallest ``lam >= 0`` with ``cond(N + lam L) <= max_condition`` (``L`` penalises x1 - x2).
+    """The ridge weight of ``regularize='difference'``, eq. (3).
 
-    ``cond(N + lam L)`` first falls and then rises with ``lam``; the search stays on the falling
-    branch, and if even its minimum exceeds ``max_condition`` the minimiser is returned.
+    Parameters
+    ----------
+    N : ndarray, shape (2, 2)
+    max_condition : float
+
+    Returns
+    -------
+    float
+        The smallest ``lam >= 0`` with ``cond(N + lam L) <= max_condition`` (``L`` penalises ``x1 - x2``).
+
+    Notes
+    -----
+    ``cond(N + lam L)`` first falls and then rises with ``lam``; the search (a log-spaced scan, then bisection)
+    stays on the falling branch, and if even its minimum exceeds ``max_condition`` the minimiser is returned.
     """
     if _cond(N) <= max_condition:
         return 0.0
@@ -93,7 +135,27 @@ def difference_ridge(N: np.ndarray, max_condition: float) -> float:
 
 def solve_weights(alpha: np.ndarray, *, max_condition: float = MAX_CONDITION,
                   regularize: str | float | None = None, quiet: bool = False) -> tuple[np.ndarray, dict[str, Any]]:
-    """``(2, T)`` weights ``Wt`` with ``[x1; x2] = Wt @ Y`` and a conditioning report."""
+    """The weights of eq. (2) (or (3)) and a conditioning report.
+
+    Parameters
+    ----------
+    alpha : array_like, shape (T,)
+    max_condition : float
+        Refuse (or regularise) above this ``cond(N)``.
+    regularize : {'difference'} or float or None
+        None: refuse an ill-conditioned ``N`` (:class:`InputError`); ``'difference'``: :func:`difference_ridge`;
+        a float: that ridge ``lam``.
+    quiet : bool
+        Do not log a warning above :data:`WARN_CONDITION`.
+
+    Returns
+    -------
+    Wt : ndarray, shape (2, T)
+        ``[x1; x2] = Wt @ Y``.
+    report : dict
+        ``condition``, ``condition_regularized``, ``regularization_lambda``, ``noise_gain`` (each channel's noise
+        std per unit frame noise, ``sqrt(diag(Wt Wt^T))``).
+    """
     a = np.asarray(alpha, dtype=np.float64)
     N = normal_matrix(a)
     cond = _cond(N)
@@ -161,20 +223,35 @@ def lsq_known_alpha(frames: Any, alpha: Any, *, max_condition: float = MAX_CONDI
                     regularize: str | float | None = None, saturation: float | None = None,
                     denoise: str | None = None, denoise_kw: dict[str, Any] | None = None,
                     noise_sigma: float | None = None) -> Reconstruction:
-    """Per-pixel least-squares separation of ``frames (T, H, W)`` with known ``alpha (T,)``.
+    """Per-pixel least-squares separation with known mixing ratios, eq. (2).
 
     Parameters
     ----------
-    max_condition: refuse (or regularise) when ``cond(A^T A)`` exceeds this.
-    regularize: ``None`` (refuse), ``'difference'`` (ridge on ``x1 - x2`` by the stated rule) or a
-        ridge ``lam`` (see module docstring).
-    saturation: samples ``>=`` this value are treated as invalid (like NaN/inf).
-    denoise: optional denoiser name for both outputs (see :func:`metafovea.reconstruct.denoise`),
-        with its noise level set from ``noise_sigma`` times the channel's noise gain (``noise_sigma``
-        is estimated from the LSQ residual when ``T > 2``, else from the images).
+    frames : array_like, shape (T, H, W)
+        ``T >= 2``; float32 preserved.
+    alpha : array_like, shape (T,)
+    max_condition : float
+        Refuse (or regularise) when ``cond(A^T A)`` exceeds this.
+    regularize : {'difference'} or float or None
+        None: refuse; ``'difference'``: the ridge on ``x1 - x2`` by the stated rule; a float: that ridge ``lam``
+        (module docstring, eq. 3).
+    saturation : float, optional
+        Samples ``>=`` this value are invalid (as NaN/inf) and masked per pixel.
+    denoise : {'tv', 'bilateral', 'nlm'}, optional
+        A denoiser for both outputs (:func:`metafovea.reconstruct.denoise.denoise`), its noise level
+        ``noise_sigma`` times the channel's noise gain.
+    denoise_kw : dict, optional
+        Keywords of the denoiser.
+    noise_sigma : float, optional
+        The frames' noise std (default: from the LSQ residual when ``T > 2`` and nothing is masked, else from the
+        images).
 
-    Returns a :class:`Reconstruction`; ``info`` holds ``condition``, ``noise_gain`` and, when
-    estimated, ``noise_sigma``.
+    Returns
+    -------
+    Reconstruction
+        ``info``: ``condition``, ``condition_regularized``, ``regularization_lambda``, ``noise_gain``, ``frames``;
+        with masking ``masked_samples``, ``unresolved_pixels``, ``pixel_condition_max``; with denoising
+        ``noise_sigma``, ``denoise``.
     """
     tm = Timings()
     with tm.measure("solve"):
@@ -211,7 +288,20 @@ def lsq_known_alpha(frames: Any, alpha: Any, *, max_condition: float = MAX_CONDI
 
 
 def residual_sigma(Y: np.ndarray, a: np.ndarray, x1: np.ndarray, x2: np.ndarray) -> float:
-    """Noise std from the LSQ residual (``T - 2`` degrees of freedom per pixel)."""
+    """The frames' noise std from the residual of eq. (1).
+
+    Parameters
+    ----------
+    Y : ndarray, shape (T, H, W)
+        ``T > 2``.
+    a : ndarray, shape (T,)
+    x1, x2 : ndarray, shape (H, W)
+
+    Returns
+    -------
+    float
+        ``sqrt(mean r^2 T / (T - 2))`` (``T - 2`` degrees of freedom per pixel).
+    """
     T = Y.shape[0]
     if T <= 2:
         raise InputError("frames", f"{T} frames", "more than 2 frames to estimate the noise from the residual")
@@ -222,13 +312,24 @@ def residual_sigma(Y: np.ndarray, a: np.ndarray, x1: np.ndarray, x2: np.ndarray)
 class SlidingLSQ:
     """Real-time known-alpha reconstruction over a sliding window (incremental sums).
 
-    ``push(frame, alpha)`` adds a frame, drops the oldest once ``window`` frames are held, and
-    updates four running sums (``sum alpha y``, ``sum y``, and the scalars of the normal matrix) in
-    O(H W) per frame, independent of the window length. ``solve()`` returns ``(x1, x2, cond)`` from
-    the sums (a 2x2 solve plus two scaled adds). Sums are accumulated in float64 and rebuilt from
-    the held frames every ``refresh`` pushes to bound round-off drift.
+    Parameters
+    ----------
+    window : int
+        Frames held (>= 2).
+    max_condition : float
+    regularize : {'difference'} or float or None
+        As :func:`solve_weights`.
+    refresh : int
+        Rebuild the sums from the held frames every so many pushes (bounds round-off drift).
+    out_dtype : dtype, optional
+        Of the images (default: float32 for float32 frames, else float64).
 
-    Frames with NaN/inf are refused here (use :func:`lsq_known_alpha` with masking for those).
+    Notes
+    -----
+    ``push(frame, alpha)`` adds a frame, drops the oldest once ``window`` frames are held, and updates the running
+    sums ``sum alpha y`` and ``sum y`` (float64) in O(H W) per frame, independent of the window length. The rows
+    of ``Wt`` in eq. (2) are affine in alpha, ``u alpha + v``, so ``solve()`` is a 2 x 2 solve plus two scaled
+    adds. Frames with NaN/inf are refused here (use :func:`lsq_known_alpha` with masking for those).
     """
 
     def __init__(self, window: int = 8, *, max_condition: float = MAX_CONDITION,
@@ -251,6 +352,7 @@ class SlidingLSQ:
 
     @property
     def ready(self) -> bool:
+        """True once ``window`` frames are held."""
         return len(self._frames) == self.window
 
     def _rebuild(self) -> None:
@@ -260,6 +362,7 @@ class SlidingLSQ:
         self._sy = F.sum(axis=0)
 
     def push(self, frame: Any, alpha: float) -> None:
+        """Add ``frame`` (H, W), finite, with its mixing ratio; drop the oldest beyond ``window``."""
         f = np.asarray(frame)
         if f.ndim != 2:
             raise InputError("frame", f"array of shape {f.shape}", "one 2-D (H, W) frame")
@@ -288,7 +391,14 @@ class SlidingLSQ:
             self._rebuild()
 
     def solve(self) -> tuple[np.ndarray, np.ndarray, float]:
-        """``(x1, x2, condition)`` for the frames currently held (at least 2)."""
+        """The images for the frames currently held (at least 2).
+
+        Returns
+        -------
+        x1, x2 : ndarray, shape (H, W)
+        condition : float
+            ``cond(N)`` of the held alphas.
+        """
         if len(self._frames) < 2:
             raise InputError("window", len(self._frames), "at least 2 frames pushed before solve()")
         a = np.asarray(self._alpha)
@@ -304,6 +414,12 @@ class SlidingLSQ:
         return x1, x2, rep["condition"]
 
     def update(self, frame: Any, alpha: float) -> tuple[np.ndarray, np.ndarray, float] | None:
-        """``push`` then ``solve`` once the window is full (``None`` before)."""
+        """:meth:`push`, then :meth:`solve` once the window is full.
+
+        Returns
+        -------
+        tuple or None
+            ``(x1, x2, condition)``; None before the window is full.
+        """
         self.push(frame, alpha)
         return self.solve() if self.ready else None

@@ -1,13 +1,27 @@
-"""Image-quality metrics (PSNR, SSIM) on top of scikit-image, and :func:`score`, the one scorer of a
-reconstruction against truth (the CLI, ``validate`` and the benchmarks use it)."""
+"""Scores against truth: image-quality metrics (PSNR, SSIM) on top of scikit-image, :func:`score` (the one scorer
+of a reconstruction against the noise-free images: the CLI, ``validate`` and the benchmarks use it), and the
+PSF-aware reconstruction against the scene with its reference, :func:`wiener_bound` (:func:`score_deconvolution`).
+
+    PSNR = 10 log10(R^2 / mean((est - ref)^2)),    R = max(ref) - min(ref) unless given
+
+SSIM: Z. Wang, A. C. Bovik, H. R. Sheikh and E. P. Simoncelli, IEEE Trans. Image Process. 13, 600 (2004), through
+``skimage.metrics.structural_similarity``.
+"""
 
 from __future__ import annotations
 
-from typing import Any
+import math
+import time
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from metafovea.errors import InputError
+
+if TYPE_CHECKING:
+    from metafovea.measurement import Measurement
+    from metafovea.reconstruct.joint import ChannelPSFs
 
 
 def _pair(est: np.ndarray, ref: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -26,17 +40,39 @@ def _data_range(ref: np.ndarray, data_range: float | None) -> float:
 
 
 def psnr(est: np.ndarray, ref: np.ndarray, data_range: float | None = None) -> float:
-    """Peak signal-to-noise ratio in dB (``data_range`` defaults to the reference's range).
+    """Peak signal-to-noise ratio (module docstring).
 
-    Non-finite estimate pixels count as errors (the result is ``-inf`` dB... reported as 0 dB floor
-    would hide them), so they are refused: mask them before calling.
+    Parameters
+    ----------
+    est, ref : array_like, same shape
+        The estimate must be finite: a non-finite pixel is refused (:class:`InputError`; mask it first), since any
+        floor reported for it would hide it.
+    data_range : float, optional
+        ``R``; default the reference's range (1 when it is flat).
+
+    Returns
+    -------
+    float
+        dB; ``inf`` for an exact estimate.
     """
     est, ref = _pair(est, ref)
     return float(_psnr_stack(est[None], ref[None], data_range)[0])
 
 
 def ssim(est: np.ndarray, ref: np.ndarray, data_range: float | None = None) -> float:
-    """Structural similarity (scikit-image, Gaussian-free default 7x7 window)."""
+    """Structural similarity (scikit-image, uniform 7 x 7 window, smaller for a smaller image).
+
+    Parameters
+    ----------
+    est, ref : array_like, shape (H, W)
+        The estimate must be finite.
+    data_range : float, optional
+        Default the reference's range.
+
+    Returns
+    -------
+    float
+    """
     from skimage.metrics import structural_similarity
 
     est, ref = _pair(est, ref)
@@ -47,8 +83,18 @@ def ssim(est: np.ndarray, ref: np.ndarray, data_range: float | None = None) -> f
 
 
 def level_free_image(est: np.ndarray, ref: np.ndarray) -> np.ndarray:
-    """``est`` with its mean error against ``ref`` removed (float64): what is left when the alpha gauge or an offset
-    is off."""
+    """An estimate with its mean error against the reference removed: what is left when the alpha gauge or an
+    offset is off.
+
+    Parameters
+    ----------
+    est, ref : array_like, same shape
+
+    Returns
+    -------
+    ndarray
+        float64, ``est - mean(est - ref)``.
+    """
     est, ref = _pair(est, ref)
     return est - float(np.mean(est - ref))
 
@@ -77,13 +123,30 @@ def _psnr_stack(ests: np.ndarray, refs: np.ndarray, data_range: float | None) ->
 
 def score(rec: Any, truth_x1: np.ndarray | None = None, truth_x2: np.ndarray | None = None,
           data_range: float | None = None, *, level_free: bool = False) -> dict[str, float]:
-    """PSNR/SSIM of a :class:`~metafovea.reconstruct.Reconstruction` (or ``(x1, x2)`` tuple) against
-    truth; a video (``(K, H, W)``) is scored window by window and averaged (PSNR over every output, SSIM over
-    :data:`SSIM_MAX_OUTPUTS` evenly spaced ones: SSIM costs ~10 ms per 290 x 290 image, the solve ~0.2 ms).
+    """PSNR and SSIM of a reconstruction against the noise-free images: the one scorer.
 
-    ``truth_x*``: one ``(H, W)`` image, or one per output ``(K, H, W)``; ``None`` skips that image.
-    ``data_range`` defaults to each reference's own range. ``level_free`` adds ``psnr_x1_level_free`` /
-    ``psnr_x2_level_free``: the PSNR after removing the mean error (see :func:`level_free_image`)."""
+    Parameters
+    ----------
+    rec : Reconstruction or tuple of 2 array_like
+        ``x1``, ``x2``: ``(H, W)`` or, for a video, ``(K, H, W)`` (scored output by output and averaged).
+    truth_x1, truth_x2 : array_like, shape (H, W) or (K, H, W), optional
+        One image, or one per output; None skips that image.
+    data_range : float, optional
+        Default: each reference's own range.
+    level_free : bool
+        Add ``psnr_x1_level_free`` / ``psnr_x2_level_free``: the PSNR after removing the mean error
+        (:func:`level_free_image`).
+
+    Returns
+    -------
+    dict
+        ``psnr_x1``, ``ssim_x1``, ``psnr_x2``, ``ssim_x2`` for the images scored.
+
+    Notes
+    -----
+    A video's PSNR is the mean over every output, its SSIM over :data:`SSIM_MAX_OUTPUTS` evenly spaced ones
+    (SSIM costs ~10 ms per 290 x 290 image, the LSQ solve ~0.2 ms).
+    """
     x1, x2 = (rec.x1, rec.x2) if hasattr(rec, "x1") else rec
     out: dict[str, float] = {}
     for name, est, ref in (("x1", x1, truth_x1), ("x2", x2, truth_x2)):
@@ -110,4 +173,147 @@ def score(rec: Any, truth_x1: np.ndarray | None = None, truth_x2: np.ndarray | N
             e64 = ests.astype(np.float64)
             lf = e64 - np.mean(e64 - refs, axis=(-2, -1), keepdims=True)
             out[f"psnr_{name}_level_free"] = float(np.mean(_psnr_stack(lf, refs, data_range)))
+    return out
+
+
+# -- the PSF-aware reconstruction against the scene -------------------------------------------------------------
+def wiener_bound(frames: ArrayLike, alpha: ArrayLike, psfs: ChannelPSFs, truth: tuple[ArrayLike, ArrayLike], *,
+                 offset: float = 0.0, sigma: float, boundary: str = "padded", pad_mode: str = "edge",
+                 fpn_error_dn: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+    """The best stationary linear reconstruction: the reference of
+    :func:`~metafovea.reconstruct.deconvolve.separate_deconvolve`.
+
+    Parameters
+    ----------
+    frames : array_like, shape (T, H, W)
+        DN, fixed pattern removed.
+    alpha : array_like, shape (T,)
+        Mixing ratios.
+    psfs : ChannelPSFs
+        The true PSFs.
+    truth : tuple of 2 array_like, shape (H, W)
+        Both channels' scene images, DN (a perfect lens' images).
+    offset : float
+        The dark level, DN.
+    sigma : float
+        The frames' true temporal noise, DN.
+    boundary : {'padded', 'unknown'}
+        As :func:`~metafovea.reconstruct.deconvolve.separate_deconvolve` (``'mirror'``: deprecated ``'padded'``).
+    pad_mode : str
+        ``numpy.pad`` mode of the padding.
+    fpn_error_dn : float
+        The true rms error (DN) of the subtracted fixed pattern, counted as noise.
+
+    Returns
+    -------
+    tuple of 2 ndarray, shape (H, W)
+        Both channels' estimates, DN.
+
+    Notes
+    -----
+    The joint Wiener estimate, eq. (2) of :mod:`metafovea.reconstruct.deconvolve`, with the true scene's power
+    spectrum in place of the fitted one: each channel's truth padded with its own edge values, its periodogram on the
+    grid averaged over :data:`~metafovea.reconstruct.spectra.TRUTH_RADIAL_BINS` rings. It is a reference, not a limit
+    that a non-linear or a joint-boundary method (the foveal surround) obeys.
+    """
+    from metafovea.reconstruct.joint import check_boundary, linear_solve, prepare_problem
+    from metafovea.reconstruct.spectra import TRUTH_RADIAL_BINS, inverse_prior, radial_field, radial_mean
+
+    boundary = check_boundary(boundary)
+    pb, _, _ = prepare_problem(frames, alpha, psfs, offset, sigma, boundary, pad_mode, fpn_error_dn)
+    g = pb.g
+    spectra = []
+    for t in truth:
+        st = g.rfft(g.padded(np.asarray(t, dtype=np.float64) - offset))
+        spectra.append(radial_field(g.f, radial_mean(g.f, np.abs(st) ** 2, TRUTH_RADIAL_BINS)[1]))
+    s, _ = linear_solve(pb, inverse_prior(spectra), None)
+    return s[0][g.crop] + offset, s[1][g.crop] + offset
+
+
+def true_fpn_error_dn(m: Measurement, fpn: ArrayLike | None) -> float:
+    """The rms error of a fixed pattern against the file's true one, means removed.
+
+    Parameters
+    ----------
+    m : Measurement
+        With the true pattern ``fpn`` (else the error is 0).
+    fpn : array_like, shape (H, W), or None
+        The pattern subtracted (None: nothing subtracted).
+
+    Returns
+    -------
+    float
+        DN rms; the patterns' means are removed (the mean of a pattern is the dark level's, not identifiable).
+    """
+    if m.fpn is None:
+        return 0.0
+    t = np.asarray(m.fpn, dtype=np.float64)
+    e = -(t - t.mean()) if fpn is None else (np.asarray(fpn, np.float64) - np.mean(fpn)) - (t - t.mean())
+    return float(np.sqrt(np.mean(e ** 2)))
+
+
+def score_deconvolution(m: Measurement, scene: tuple[np.ndarray, np.ndarray],
+                        temperature_k: tuple[np.ndarray, np.ndarray] | None, *, frames: np.ndarray,
+                        alpha: np.ndarray, psfs: ChannelPSFs, offset: float, boundary: str = "padded",
+                        pad_mode: str = "edge", fpn: ArrayLike | None = None) -> dict[str, Any]:
+    """A PSF-aware reconstruction of ``m`` against its scene truth, beside the hazy images and the Wiener bound.
+
+    Parameters
+    ----------
+    m : Measurement
+        With :attr:`~metafovea.measurement.Measurement.scene_truth`.
+    scene : tuple of 2 ndarray, shape (H, W)
+        The estimates, DN.
+    temperature_k : tuple of 2 ndarray, or None
+        Their brightness temperatures, K.
+    frames : ndarray, shape (T, H, W)
+        The frames the estimate was made from (``fpn`` subtracted), DN.
+    alpha : ndarray, shape (T,)
+    psfs : ChannelPSFs
+    offset : float
+        The dark level, DN.
+    boundary, pad_mode : str
+        As the estimate's.
+    fpn : array_like, shape (H, W), optional
+        The subtracted pattern (its true error: :func:`true_fpn_error_dn`).
+
+    Returns
+    -------
+    dict
+        ``against`` (``'scene'``); ``psnr_x1``, ``psnr_x2`` (dB, the truth's range as data range);
+        ``psnr_x*_hazy_image``: the file's noise-free sensor images against the same scene; with a radiometric
+        calibration ``temperature_rmse_x*_k``; with the file's true noise (:attr:`~metafovea.measurement.
+        Measurement.true_noise_dn`) ``wiener_bound_psnr_x*``, ``wiener_bound_seconds`` and
+        ``wiener_bound_fpn_error_dn``.
+
+    Notes
+    -----
+    The bound (:func:`wiener_bound`) is computed with and without the subtracted pattern's true error counted as
+    noise, and the better of the two is reported per channel: the error is low-rank stripes, not the white noise
+    the linear model assumes, so counting it can lose.
+    """
+    truth = tuple(np.asarray(t, np.float64) for t in m.scene_truth)
+    out: dict[str, Any] = {"against": "scene"}
+    for i, t in enumerate(truth, start=1):
+        out[f"psnr_x{i}"] = psnr(scene[i - 1], t)
+        hz = getattr(m, f"truth_x{i}")
+        if hz is not None and np.ndim(hz) == 2:
+            out[f"psnr_x{i}_hazy_image"] = psnr(np.asarray(hz, np.float64), t)
+    cal = m.radiometric_calibration
+    if cal is not None and temperature_k is not None:
+        tt = cal.temperatures(truth, offset)
+        for i in (1, 2):
+            e = temperature_k[i - 1] - tt[i - 1]
+            out[f"temperature_rmse_x{i}_k"] = float(np.sqrt(np.nanmean(e ** 2)))
+    sig = m.true_noise_dn
+    if sig is not None and sig > 0:
+        t0 = time.perf_counter()
+        fe = true_fpn_error_dn(m, fpn)
+        best = [-math.inf, -math.inf]
+        for e in ((0.0, fe) if fe > 0 else (0.0,)):
+            wb = wiener_bound(frames, alpha, psfs, truth, offset=offset, sigma=sig, boundary=boundary,
+                              pad_mode=pad_mode, fpn_error_dn=e)
+            best = [max(best[i], psnr(wb[i], truth[i])) for i in range(2)]
+        out.update(wiener_bound_psnr_x1=best[0], wiener_bound_psnr_x2=best[1],
+                   wiener_bound_seconds=time.perf_counter() - t0, wiener_bound_fpn_error_dn=fe)
     return out

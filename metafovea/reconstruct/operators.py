@@ -4,7 +4,7 @@ The foveal image ``x1`` is a ``scale``-times magnified view of the centre of the
 (``scale = f1 / f2 = 150 / 25 = 6`` for the paper's lenses). With both images on the same ``(H, W)``
 sensor grid, the relation is
 
-    D x1 == gain * C x2 + bias
+    D x1 == gain * C x2 + bias                                                                           (1)
 
 (``gain = 1``, ``bias = 0`` for images in common radiometric units; a real two-lens camera has
 ``gain = NA1^2 / NA2^2`` -- 0.294 for the paper's F/2 foveal and F/1 perifoveal lenses -- and, for
@@ -22,7 +22,8 @@ difference on real data: :func:`lowpass` compares both sides at a common, coarse
   overlap weights).
 
 Both operators are separable, ``D x = Dy @ x @ Dx.T``, so their adjoints are exact and cheap. They act
-on any leading batch axes ``(..., H, W)``.
+on any leading batch axes ``(..., H, W)``. The TV helpers at the end (:func:`grad2d`, :func:`tv_charbonnier`) are
+shared by the solvers that regularise with total variation.
 """
 
 from __future__ import annotations
@@ -53,7 +54,23 @@ def _check_scale(scale: float) -> float:
 
 @dataclass(frozen=True)
 class FovealOperator:
-    """``D`` (downsample x1) and ``C`` (centred crop of x2) for one sensor shape, scale and offset."""
+    """``D`` (downsample x1) and ``C`` (centred crop of x2) of eq. (1) for one sensor shape, scale and offset.
+
+    Attributes
+    ----------
+    shape : tuple of 2 int
+        ``(H, W)``.
+    scale : float
+        f1 / f2, in [1, 1000].
+    offset : tuple of 2 float
+        The crop's registration offset in x2 pixels.
+    low : tuple of 2 int, optional
+        Fix the constraint's size ``(h, w)`` (registration refines the scale at fixed size).
+    gain, bias : float
+        The constraint's radiometric gain and offset.
+    Dy, Dx, Cy, Cx : ndarray
+        The separable factors, ``(h, H)``, ``(w, W)``.
+    """
 
     shape: tuple[int, int]
     scale: float = 6.0
@@ -100,6 +117,7 @@ class FovealOperator:
 
     @property
     def low_shape(self) -> tuple[int, int]:
+        """``(h, w)``: the constraint's size."""
         return self.Dy.shape[0], self.Dx.shape[0]
 
     def _mats(self, x: np.ndarray, a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -127,9 +145,12 @@ class FovealOperator:
         return my.T @ u @ mx
 
     def upsample(self, u: np.ndarray) -> np.ndarray:
-        """Each low-res pixel spread over its box (area-weighted), pixels outside the covered region
-        take the nearest box value. ``D(upsample(u)) == u`` exactly when boxes align with pixels
-        (integer scale); otherwise it is the normalised adjoint (a mild blur)."""
+        """Each constraint pixel spread over its box (``U``): ``(..., h, w) -> (..., H, W)``.
+
+        The normalised adjoint of :meth:`D` (area-weighted); pixels outside the covered region take the nearest
+        box value. ``D(upsample(u)) == u`` exactly when boxes align with pixels (integer scale), otherwise it is a
+        mild blur.
+        """
         my, mx = self._mats(u, self.Dy, self.Dx)
         ny = my.T / np.maximum(my.T.sum(1, keepdims=True), 1e-300)
         nx = mx.T / np.maximum(mx.T.sum(1, keepdims=True), 1e-300)
@@ -144,14 +165,24 @@ class FovealOperator:
         return out
 
     def residual(self, x1: np.ndarray, x2: np.ndarray) -> np.ndarray:
-        """``D x1 - gain * C x2 - bias`` (zero when the foveal constraint holds)."""
+        """``D x1 - gain C x2 - bias``: zero when eq. (1) holds."""
         r = self.D(x1) - self.gain * self.C(x2)
         return r - self.bias if self.bias else r
 
 
 def lowpass(u: np.ndarray, sigma: float) -> np.ndarray:
-    """Gaussian low-pass of ``u (..., h, w)`` over the last two axes (``sigma`` in pixels of ``u``;
-    ``0`` returns ``u``); edges reflected. Linear, so the foveal gauge stays a linear problem."""
+    """A Gaussian low-pass over the last two axes (linear, so the foveal gauge stays a linear problem).
+
+    Parameters
+    ----------
+    u : ndarray, shape (..., h, w)
+    sigma : float
+        Pixels of ``u``; 0 returns ``u``. Edges reflected, kernel truncated at 3 sigma.
+
+    Returns
+    -------
+    ndarray, shape (..., h, w)
+    """
     if not sigma:
         return u
     from scipy.ndimage import gaussian_filter
@@ -161,7 +192,18 @@ def lowpass(u: np.ndarray, sigma: float) -> np.ndarray:
 
 
 def lowpass_noise_factor(sigma: float, shape: tuple[int, int]) -> float:
-    """Variance factor of white noise after :func:`lowpass` (``sum k^2`` of the kernel, centre pixel)."""
+    """The variance factor of white noise after :func:`lowpass`.
+
+    Parameters
+    ----------
+    sigma : float
+    shape : tuple of 2 int
+
+    Returns
+    -------
+    float
+        ``sum k^2`` of the kernel at the centre pixel of ``shape`` (1 for ``sigma = 0``).
+    """
     if not sigma:
         return 1.0
     d = np.zeros(shape)
@@ -170,22 +212,66 @@ def lowpass_noise_factor(sigma: float, shape: tuple[int, int]) -> float:
 
 
 def downsample(x1: np.ndarray, scale: float = 6.0) -> np.ndarray:
-    """Block-mean (area) downsampling ``D`` of ``x1 (..., H, W)`` by ``scale``."""
+    """Area-mean downsampling ``D`` of eq. (1).
+
+    Parameters
+    ----------
+    x1 : ndarray, shape (..., H, W)
+    scale : float
+
+    Returns
+    -------
+    ndarray, shape (..., floor(H / scale), floor(W / scale))
+    """
     return FovealOperator(x1.shape[-2:], scale).D(np.asarray(x1))
 
 
 def downsample_adjoint(u: np.ndarray, shape: tuple[int, int], scale: float = 6.0) -> np.ndarray:
-    """Adjoint ``D^T`` of :func:`downsample` onto a full ``shape`` grid."""
+    """The adjoint ``D^T`` of :func:`downsample`.
+
+    Parameters
+    ----------
+    u : ndarray, shape (..., h, w)
+    shape : tuple of 2 int
+        ``(H, W)`` of the full grid.
+    scale : float
+
+    Returns
+    -------
+    ndarray, shape (..., H, W)
+    """
     return FovealOperator(shape, scale).DT(np.asarray(u))
 
 
 def centre_crop(x2: np.ndarray, scale: float = 6.0, offset: tuple[float, float] = (0.0, 0.0)) -> np.ndarray:
-    """Centred crop ``C`` of ``x2`` matching :func:`downsample` (size ``floor(H/scale) x floor(W/scale)``)."""
+    """The centred crop ``C`` of eq. (1), matching :func:`downsample`.
+
+    Parameters
+    ----------
+    x2 : ndarray, shape (..., H, W)
+    scale : float
+    offset : tuple of 2 float
+        Registration offset in x2 pixels (fractional: box-overlap interpolation).
+
+    Returns
+    -------
+    ndarray, shape (..., floor(H / scale), floor(W / scale))
+    """
     return FovealOperator(x2.shape[-2:], scale, offset).C(np.asarray(x2))
 
 
 def grad2d(z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Forward differences ``(d/dy, d/dx)`` of ``z (H, W)``, zero in the last row / column."""
+    """Forward differences of an image.
+
+    Parameters
+    ----------
+    z : ndarray, shape (H, W)
+
+    Returns
+    -------
+    gy, gx : ndarray, shape (H, W)
+        ``d/dy`` and ``d/dx``, zero in the last row / column.
+    """
     gy = np.zeros_like(z)
     gx = np.zeros_like(z)
     gy[:-1] = z[1:] - z[:-1]
@@ -194,7 +280,16 @@ def grad2d(z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def grad2d_adjoint(py: np.ndarray, px: np.ndarray) -> np.ndarray:
-    """Adjoint of :func:`grad2d` (the negative divergence)."""
+    """The adjoint of :func:`grad2d` (the negative divergence).
+
+    Parameters
+    ----------
+    py, px : ndarray, shape (H, W)
+
+    Returns
+    -------
+    ndarray, shape (H, W)
+    """
     out = np.zeros_like(py)
     out[1:] += py[:-1]
     out[:-1] -= py[:-1]
@@ -204,7 +299,20 @@ def grad2d_adjoint(py: np.ndarray, px: np.ndarray) -> np.ndarray:
 
 
 def tv_charbonnier(z: np.ndarray, eps: float) -> tuple[float, np.ndarray]:
-    """Value and gradient of the anisotropic smoothed TV ``sum sqrt(|d z|^2 + eps^2)``."""
+    """Value and gradient of the anisotropic Charbonnier-smoothed total variation.
+
+    Parameters
+    ----------
+    z : ndarray, shape (H, W)
+    eps : float
+        The smoothing.
+
+    Returns
+    -------
+    value : float
+        ``sum sqrt(gy^2 + eps^2) + sqrt(gx^2 + eps^2)`` (:func:`grad2d`).
+    gradient : ndarray, shape (H, W)
+    """
     gy, gx = grad2d(z)
     ry, rx = np.sqrt(gy ** 2 + eps ** 2), np.sqrt(gx ** 2 + eps ** 2)
     return float(ry.sum() + rx.sum()), grad2d_adjoint(gy / ry, gx / rx)

@@ -1,4 +1,6 @@
-"""The :class:`Reconstruction` result type (saved as ``.npz`` + JSON metadata)."""
+"""The reconstruction stage's result types: :class:`Reconstruction` (the images, alpha and what the solver found;
+saved as an uncompressed ``.npz`` with JSON metadata, :func:`save_npz_stored`) and :class:`PipelineResult` (a
+Reconstruction of a Measurement with the frames each output covers and its scores)."""
 
 from __future__ import annotations
 
@@ -16,11 +18,23 @@ KIND = "metafovea.Reconstruction"
 
 
 def save_npz_stored(path: str | os.PathLike, meta: dict[str, Any], arrays: dict[str, np.ndarray]) -> None:
-    """Write ``arrays`` and ``meta`` (JSON under ``__meta__``, as :func:`metafovea.io.atomic_save_npz`) to an
-    uncompressed ``.npz`` atomically, in one pass: each contiguous array goes to the zip member as one memoryview
-    (one CRC pass, one write), where ``np.savez`` copies it in 16 MiB ``nditer`` chunks through ``tobytes``
-    (measured on the 2-core VM for 89 windows of 290 x 290, 60 MB: np.savez 80-130 ms, this ~50 ms, both
-    without the fsync). Readable by ``np.load`` and :func:`metafovea.io.load_npz`."""
+    """Write arrays and metadata to an uncompressed ``.npz`` atomically, in one pass.
+
+    Parameters
+    ----------
+    path : str or PathLike
+    meta : dict
+        JSON metadata, stored under ``__meta__`` as :func:`metafovea.io.atomic_save_npz` does.
+    arrays : dict of str to ndarray
+        Numeric arrays (no pickled objects).
+
+    Notes
+    -----
+    Each contiguous array goes to its zip member as one memoryview (one CRC pass, one write), where ``np.savez``
+    copies it in 16 MiB ``nditer`` chunks through ``tobytes``. Readable by ``np.load`` and
+    :func:`metafovea.io.load_npz`.
+    """
+    # 89 windows of 290 x 290 (60 MB) on the 2-core VM: np.savez 80-130 ms, this ~50 ms, both without the fsync
     m = {**meta}
     m.setdefault("schema_version", SCHEMA_VERSION)
     payload = {**arrays, "__meta__": np.frombuffer(to_json(m, indent=None).encode(), dtype=np.uint8)}
@@ -46,14 +60,19 @@ class Reconstruction:
 
     Attributes
     ----------
-    x1, x2: foveal / perifoveal images, ``(H, W)`` for one window or ``(K, H, W)`` for a video
-        (one image per window).
-    alpha: mixing ratios used or estimated, ``(T,)`` (for a video: the whole sequence's values; for an
-        unknown-alpha video, each window's estimate is in ``info['alpha_windows']``).
-    fpn: estimated additive fixed-pattern noise ``(H, W)`` (zero mean) or ``None``.
-    method: solver name (``lsq``, ``alternating``, ``dip``, ``snapshot``, ``video/<method>``).
-    timings: wall-clock seconds per named stage.
-    info: condition numbers, what was identified, iterations, loss history, warnings.
+    x1, x2 : ndarray, shape (H, W) or (K, H, W)
+        Foveal and perifoveal images: one window, or one image per window of a video.
+    alpha : ndarray, shape (T,)
+        Mixing ratios used or estimated (a video: the whole sequence's values; an unknown-alpha video's
+        per-window estimates are in ``info['alpha_windows']``).
+    fpn : ndarray, shape (H, W), or None
+        The additive fixed pattern subtracted (zero mean).
+    method : str
+        ``lsq``, ``alternating``, ``dip``, ``snapshot`` or ``video/<method>``.
+    timings : dict
+        Wall-clock seconds per named stage.
+    info : dict
+        Condition numbers, what was identified, iterations, loss history, warnings.
     """
 
     x1: np.ndarray
@@ -66,6 +85,7 @@ class Reconstruction:
 
     @property
     def is_video(self) -> bool:
+        """True for one image per window, ``(K, H, W)``."""
         return np.ndim(self.x1) == 3
 
     def plot(self, ax: Any = None, *, window: int = 0, units: str = "DN") -> Any:
@@ -94,8 +114,18 @@ class Reconstruction:
         return reconstruction_html(self)
 
     def alpha_per_frame(self, n_frames: int) -> np.ndarray:
-        """Mixing ratios ``(n_frames,)``: the sequence's own where finite, else each window's estimate
-        (``info['window_starts']``/``info['alpha_windows']`` of a windowed unknown-alpha run), NaN where none."""
+        """Mixing ratios for every frame of the sequence.
+
+        Parameters
+        ----------
+        n_frames : int
+
+        Returns
+        -------
+        ndarray, shape (n_frames,)
+            The sequence's own where finite, else each window's estimate (``info['window_starts']`` /
+            ``info['alpha_windows']`` of a windowed unknown-alpha run), NaN where none.
+        """
         a = np.full(n_frames, np.nan)
         own = np.asarray(self.alpha, dtype=np.float64).reshape(-1)
         if own.shape == (n_frames,):
@@ -107,7 +137,7 @@ class Reconstruction:
         return a
 
     def save(self, path: str | os.PathLike) -> None:
-        """Write atomically to ``path`` (``.npz``; info and timings as JSON metadata)."""
+        """Write atomically to ``path`` (``.npz``; info and timings as JSON metadata, :func:`save_npz_stored`)."""
         arrays = {"x1": np.asarray(self.x1), "x2": np.asarray(self.x2), "alpha": np.asarray(self.alpha)}
         if self.fpn is not None:
             arrays["fpn"] = np.asarray(self.fpn)
@@ -118,6 +148,7 @@ class Reconstruction:
 
     @classmethod
     def load(cls, path: str | os.PathLike) -> Reconstruction:
+        """Read a file written by :meth:`save` (an :class:`InputError` for any other)."""
         arrays, meta = load_npz(path)
         if meta.get("kind") != KIND or not {"x1", "x2", "alpha"} <= set(arrays):
             raise InputError("path", str(path), "a Reconstruction file written by Reconstruction.save")
@@ -132,15 +163,24 @@ class PipelineResult:
 
     Attributes
     ----------
-    reconstruction: the :class:`Reconstruction` (one window, or a video of ``(K, H, W)`` images).
-    spans: ``(start, stop)`` frames each output covers (``stop`` exclusive; one frame for a snapshot).
-    seconds: wall-clock of the reconstruction (FPN estimation and denoising included, file reading not).
-    constraint: the foveal constraint the solvers used (a :class:`~metafovea.measurement.FovealConstraint`).
-    frames: number of frames of the measurement; source: its file, if it was read from one.
-    metrics: :func:`~metafovea.reconstruct.metrics.score` against the truth each output shows (``None`` without
-        truth; a sentence saying why when it could not be computed).
-    alpha_mae: mean absolute error of the estimated mixing ratios against the file's (window mean; ``None`` when
-        alpha was given or the file does not know it).
+    reconstruction : Reconstruction
+        One window, or a video of ``(K, H, W)`` images.
+    spans : tuple of (int, int)
+        ``(start, stop)`` frames each output covers (``stop`` exclusive; one frame for a snapshot).
+    seconds : float
+        Wall-clock of the reconstruction (FPN estimation and denoising included, file reading not).
+    constraint : FovealConstraint
+        The foveal constraint the solvers used.
+    frames : int
+        Frames of the measurement.
+    source : str or None
+        Its file, if it was read from one.
+    metrics : dict, str or None
+        :func:`~metafovea.reconstruct.metrics.score` against the truth each output shows (None without truth; a
+        sentence saying why when it could not be computed).
+    alpha_mae : float or None
+        Mean absolute error of the estimated mixing ratios against the file's (window mean; None when alpha was
+        given or the file does not know it).
     """
 
     reconstruction: Reconstruction
@@ -154,6 +194,7 @@ class PipelineResult:
 
     @property
     def outputs(self) -> int:
+        """The number of outputs (windows)."""
         return len(self.spans)
 
     def plot(self, ax: Any = None, *, window: int = 0, units: str = "DN") -> Any:
@@ -166,7 +207,8 @@ class PipelineResult:
         rows = [("frames", f"{self.frames} in {self.outputs} output(s)"),
                 ("time", fmt(self.seconds, "s", 3))]
         if isinstance(self.metrics, dict):
-            rows += [(k.replace("_", " "), fmt(v, "dB" if k.startswith("psnr") else "")) for k, v in self.metrics.items()]
+            rows += [(k.replace("_", " "), fmt(v, "dB" if k.startswith("psnr") else ""))
+                     for k, v in self.metrics.items()]
         elif isinstance(self.metrics, str):
             rows.append(("metrics", self.metrics))
         if self.alpha_mae is not None:

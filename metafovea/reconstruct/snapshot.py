@@ -15,20 +15,25 @@ Separation (:func:`snapshot`): ``x2`` is eliminated through the data term
 
     mu ||D x1 - C x2||^2 + lam_tv (TV(x1) + TV(x2)) + lam_ex * exclusion(x1, x2)
 
-(L-BFGS), where the exclusion loss (Zhang et al. 2018, used by the paper) is the squared Frobenius
+(L-BFGS), where the exclusion loss ([1]_, used by the paper) is the squared Frobenius
 norm of ``tanh(|grad x1| / g0) * tanh(|grad x2| / g0)`` at two scales, penalising edges present in
 both images. Initialisation as in the paper: ``n1`` = the registered centre crop of ``y`` spread back
 onto the full grid (``D^T``, normalised), ``n2 = (y - a n1) / (1 - a)``; ``init='frame'`` starts from the
 unseparated frame instead (``n1 = n2 = y``), the ablation of that initialisation (``metafovea study ablation``).
 
-Weights: the defaults (foveal 1, TV 0.01, exclusion 0.001, with TV normalised by the frame's mean
-gradient) were the best of a small grid on the 96 x 96 test scene at sigma 0.01: ~16 dB against
-~14 dB for the unseparated frame; a larger exclusion weight (0.01-0.1) made it worse there.
+Weights: foveal 1, TV 0.01, exclusion 0.001, with TV normalised by the frame's mean gradient (the best of a small
+grid on the 96 x 96 test scene at sigma 0.01).
 
 One frame holds half the information of two images: the constraint only fixes ``x1``'s low
 frequencies (``1/scale`` of its band), so the result keeps residual overlap (the paper says so too);
 ``info`` reports the foveal misfit and the loss history, and tests measure the gain over the
 initialisation rather than claim a clean separation.
+
+Measured figures: BENCHMARKS.md, section "Reconstruction".
+
+References
+----------
+.. [1] X. Zhang, R. Ng and Q. Chen, "Single image reflection separation with perceptual losses", CVPR (2018) 4786.
 """
 
 from __future__ import annotations
@@ -70,14 +75,30 @@ def _as_frame(frame: Any) -> np.ndarray:
 
 def register(frame: Any, *, scale: float = 6.0, search: int | None = None, refine: bool = True,
              refine_scale: bool = True, max_scale_change: float = 0.03, min_gain: float = 0.02) -> dict[str, Any]:
-    """Locate the foveal content in the frame's centre: ``{'offset': (dy, dx), 'scale': s, 'ncc': ...}``.
+    """Locate the foveal content in the frame's centre (Registration, module docstring).
 
-    ``search``: max integer shift (x2 pixels) searched by NCC; default half the constraint size.
-    The refinement is bounded to +-1 px around the NCC shift and ``+-max_scale_change`` (relative)
-    around the nominal scale, and accepted only when it raises the NCC by more than ``min_gain``:
-    in a single mixed frame the two views share only part of their content, which biases the
-    intensity optimum (measured: an unbounded refinement moved the scale of an exact 6x scene to
-    5.6-5.8).
+    Parameters
+    ----------
+    frame : array_like, shape (H, W)
+        One finite frame.
+    scale : float
+        The nominal scale f1 / f2.
+    search : int, optional
+        The largest integer shift (x2 pixels) searched by NCC; default half the constraint size.
+    refine, refine_scale : bool
+        Refine the offset (and the scale) by maximising the NCC (Powell).
+    max_scale_change : float
+        The refinement's bound on the scale, relative, around the nominal one (the offset's: +-1 px around the
+        NCC shift).
+    min_gain : float
+        The refinement is accepted only when it raises the NCC by more than this: in a single mixed frame the
+        two views share only part of their content, which biases the intensity optimum.
+
+    Returns
+    -------
+    dict
+        ``offset`` ``(dy, dx)``, ``scale``, ``ncc``, ``low_shape``; ``offset_ncc`` and ``ncc_coarse`` of the
+        integer search, ``refine_evaluations``.
     """
     from scipy.optimize import minimize
     from skimage.feature import match_template
@@ -138,15 +159,30 @@ def _poolT(u: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
     return out
 
 
-def exclusion_loss(x1: np.ndarray, x2: np.ndarray, g0: float, levels: int = 2) -> tuple[float, np.ndarray, np.ndarray]:
-    """Zhang et al.'s exclusion loss (squared, mean over pixels, summed over directions and
-    ``levels`` dyadic scales) and its gradients wrt ``x1`` and ``x2``."""
+def exclusion_loss(x1: np.ndarray, x2: np.ndarray, g0: float,
+                   levels: int = 2) -> tuple[float, np.ndarray, np.ndarray]:
+    """The exclusion loss [1]_ and its gradients.
+
+    Parameters
+    ----------
+    x1, x2 : ndarray, shape (H, W)
+    g0 : float
+        The gradient scale of ``tanh(|grad x| / g0)``.
+    levels : int
+        Dyadic scales (2 x 2 mean pooling between them).
+
+    Returns
+    -------
+    value : float
+        ``sum_levels sum_directions mean(tanh(|grad x1| / g0)^2 tanh(|grad x2| / g0)^2)``.
+    grad_x1, grad_x2 : ndarray, shape (H, W)
+    """
     val = 0.0
     g1_tot = np.zeros_like(x1)
     g2_tot = np.zeros_like(x2)
     a, b = x1, x2
     chain = []
-    for lev in range(levels):
+    for _ in range(levels):
         if min(a.shape) < 4:
             break
         ga, gb = grad2d(a), grad2d(b)
@@ -172,8 +208,19 @@ def exclusion_loss(x1: np.ndarray, x2: np.ndarray, g0: float, levels: int = 2) -
 
 
 def mean_charbonnier_tv(z: np.ndarray, eps: float) -> tuple[float, np.ndarray]:
-    """Value and gradient of the Charbonnier-smoothed TV (:func:`~metafovea.reconstruct.operators.tv_charbonnier`)
-    per pixel (divided by ``z.size``): the snapshot loss's TV term, independent of the image size."""
+    """The snapshot loss's TV term: :func:`~metafovea.reconstruct.operators.tv_charbonnier` per pixel.
+
+    Parameters
+    ----------
+    z : ndarray, shape (H, W)
+    eps : float
+
+    Returns
+    -------
+    value : float
+    gradient : ndarray, shape (H, W)
+        Both divided by ``z.size`` (independent of the image size).
+    """
     val, g = tv_charbonnier(z, eps)
     return val / z.size, g / z.size
 
@@ -183,16 +230,29 @@ def snapshot(frame: Any, *, alpha: float | None = None, scale: float = 6.0,
              foveal_gain: float = 1.0, foveal_offset: float = 0.0,
              foveal_weight: float = 1.0, tv_weight: float = 0.01, exclusion_weight: float = 0.001,
              iterations: int = 200, init: str = "crop") -> Reconstruction:
-    """Separate one frame ``y = alpha x1 + (1 - alpha) x2`` (see module docstring).
+    """Separate one frame ``y = alpha x1 + (1 - alpha) x2`` (Separation, module docstring).
 
-    ``alpha`` defaults to 0.5 (polariser at 45 degrees): with one frame it cannot be estimated
-    separately from the image contrasts. ``offset``/``scale`` of the crop come from
-    :func:`register` unless ``offset`` is given or ``register_frame`` is false (then offset 0).
-    ``foveal_gain``, ``foveal_offset``: radiometry of the constraint ``D x1 = gain C x2 + offset``.
-    All weights are relative to the frame's own contrast (mean gradient), so frames in DN and in
-    [0, 1] give the same separation.
-    ``init``: ``'crop'`` (the paper's ``n1 = D^T`` of the registered crop) or ``'frame'`` (``n1 = y``, the
-    unseparated frame: no initialisation, for ablations).
+    Parameters
+    ----------
+    frame : array_like, shape (H, W)
+    alpha : float, optional
+        Default 0.5 (polariser at 45 degrees): one frame cannot tell it from the image contrasts.
+    scale, offset : float, tuple of 2 float, optional
+        The crop's geometry: from :func:`register` unless ``offset`` is given or ``register_frame`` is false.
+    foveal_gain, foveal_offset : float
+        The constraint's radiometry ``D x1 = gain C x2 + offset``.
+    foveal_weight, tv_weight, exclusion_weight : float
+        ``mu``, ``lam_tv``, ``lam_ex``, relative to the frame's own contrast (frames in DN and in [0, 1] give the
+        same separation).
+    iterations : int
+        L-BFGS iterations.
+    init : {'crop', 'frame'}
+        The paper's ``n1 = D^T`` of the registered crop, or the unseparated frame (an ablation).
+
+    Returns
+    -------
+    Reconstruction
+        ``info``: ``registration``, ``alpha_assumed``, ``iterations``, ``loss_history``, ``foveal_rms``.
     """
     from scipy.optimize import minimize
 
@@ -278,7 +338,6 @@ def snapshot(frame: Any, *, alpha: float | None = None, scale: float = 6.0,
         op = op_raw
     info.update(foveal_gain=op.gain, foveal_offset=op.bias, iterations=int(r.nit),
                 loss_history=hist[:: max(1, len(hist) // 100)],
-                foveal_rms=float(np.sqrt(np.mean(op.residual(x1, x2) ** 2))),
-                note="single-frame separation keeps residual overlap of the two images (see docs)")
+                foveal_rms=float(np.sqrt(np.mean(op.residual(x1, x2) ** 2))))
     return Reconstruction(x1=x1.astype(dt), x2=x2.astype(dt), alpha=np.array([a]), fpn=None, method="snapshot",
                           timings=dict(tm), info=info)

@@ -18,7 +18,18 @@ from metafovea.reconstruct.operators import FovealOperator
 
 
 def gray_image(name: str) -> np.ndarray:
-    """scikit-image's bundled picture ``name`` as a grey image in [0, 1] (float64)."""
+    """A scikit-image bundled picture as a grey image.
+
+    Parameters
+    ----------
+    name : str
+        A function of ``skimage.data`` (``'camera'``, ``'astronaut'``, ...).
+
+    Returns
+    -------
+    ndarray
+        float64 in [0, 1].
+    """
     from skimage import color, data
 
     img = getattr(data, name)()
@@ -43,9 +54,27 @@ def scene(shape: tuple[int, int] | int = 96, scale: float = 6.0, *, offset: tupl
           foveal: str = "camera", perifoveal: str = "astronaut", lo: float = 0.0, hi: float = 1.0,
           foveal_gain: float = 1.0, foveal_offset: float = 0.0,
           dtype: Any = np.float64) -> tuple[np.ndarray, np.ndarray]:
-    """``(x1, x2)`` of ``shape`` with ``D x1 == foveal_gain * C x2 + foveal_offset`` exactly (``C`` offset
-    by ``offset``). ``x1`` spans ``[lo, hi]``, ``x2`` ``[(lo - b) / g, (hi - b) / g]`` (outside its centre
-    crop, which is set by the constraint)."""
+    """A foveal/perifoveal pair for which the foveal constraint holds exactly.
+
+    Parameters
+    ----------
+    shape : int or tuple of 2 int
+    scale : float
+    offset : tuple of 2 float
+        The crop's offset in x2 pixels.
+    foveal, perifoveal : str
+        scikit-image pictures (:func:`gray_image`).
+    lo, hi : float
+        ``x1``'s range; ``x2`` spans ``[(lo - b) / g, (hi - b) / g]`` outside its centre crop.
+    foveal_gain, foveal_offset : float
+        ``g`` and ``b``.
+    dtype : dtype
+
+    Returns
+    -------
+    x1, x2 : ndarray, shape (H, W)
+        ``D x1 == g C x2 + b`` exactly: ``x2``'s centre crop is replaced through ``C``'s pseudo-inverse.
+    """
     if isinstance(shape, (int, np.integer)):
         shape = (int(shape), int(shape))
     H, W = (check_int("shape", v, 8, 8192) for v in shape)
@@ -65,14 +94,45 @@ def scene(shape: tuple[int, int] | int = 96, scale: float = 6.0, *, offset: tupl
 
 def polariser_alpha(n: int, *, rate_hz: float = 2.0, fps: float = PAPER_FRAME_RATE_HZ, phase: float = 0.3,
                     start: int = 0) -> np.ndarray:
-    """``alpha_t = cos^2(2 pi rate t / fps + phase)`` (the reference anchors' polariser)."""
+    """The reference anchors' polariser.
+
+    Parameters
+    ----------
+    n : int
+        Frames.
+    rate_hz, fps, phase : float
+    start : int
+        The first frame's index.
+
+    Returns
+    -------
+    ndarray, shape (n,)
+        ``alpha_t = cos^2(2 pi rate t / fps + phase)``.
+    """
     t = np.arange(start, start + n, dtype=np.float64)
     return np.cos(2 * np.pi * rate_hz * t / fps + phase) ** 2
 
 
 def measure(x1: np.ndarray, x2: np.ndarray, alpha: Any, *, sigma: float = 0.01, fpn: np.ndarray | None = None,
             rng: Any = None, dtype: Any = None) -> np.ndarray:
-    """Frames ``alpha_t x1 + (1 - alpha_t) x2 + fpn + N(0, sigma^2)``, shape ``(T, H, W)``."""
+    """Mix two images as the sensor does.
+
+    Parameters
+    ----------
+    x1, x2 : ndarray, shape (H, W)
+    alpha : array_like, shape (T,)
+    sigma : float
+        White noise std.
+    fpn : ndarray, shape (H, W), optional
+    rng : int or numpy.random.Generator
+    dtype : dtype, optional
+        Default ``x1``'s.
+
+    Returns
+    -------
+    ndarray, shape (T, H, W)
+        ``alpha_t x1 + (1 - alpha_t) x2 + fpn + N(0, sigma^2)``.
+    """
     rng = as_rng(rng)
     a = as_alpha(alpha, np.size(alpha))
     if x1.shape != x2.shape:
@@ -86,7 +146,20 @@ def measure(x1: np.ndarray, x2: np.ndarray, alpha: Any, *, sigma: float = 0.01, 
 
 
 def lowrank_fpn(shape: tuple[int, int], *, rank: int = 3, amplitude: float = 0.05, rng: Any = None) -> np.ndarray:
-    """A zero-mean, low-rank (column/row stripe-like) fixed pattern with ``max |fpn| == amplitude``."""
+    """A zero-mean, low-rank fixed pattern: column offsets (readout stripes) plus ``rank - 1`` outer products.
+
+    Parameters
+    ----------
+    shape : tuple of 2 int
+    rank : int
+    amplitude : float
+        ``max |fpn|``.
+    rng : int or numpy.random.Generator
+
+    Returns
+    -------
+    ndarray, shape (H, W)
+    """
     rng = as_rng(rng)
     H, W = shape
     f = np.zeros(shape)

@@ -3,8 +3,10 @@
 :func:`video` reconstructs every window ``frames[k*stride : k*stride + window]``. With known alpha
 and ``method='lsq'`` each window is two ``(window,) @ (window, H*W)`` BLAS calls into preallocated,
 contiguous ``x1`` and ``x2`` stacks (the per-window weights ``N^-1 A^T`` are computed once per window from the
-scalars), which is the throughput path (see BENCHMARKS). For a live camera use
-:class:`~metafovea.reconstruct.lsq.SlidingLSQ`, which updates running sums frame by frame.
+scalars), which is the throughput path. For a live camera use :class:`~metafovea.reconstruct.lsq.SlidingLSQ`, which
+updates running sums frame by frame.
+
+Measured figures: BENCHMARKS.md, sections "Reconstruction" and "`metafovea reconstruct` file to file".
 """
 
 from __future__ import annotations
@@ -25,7 +27,18 @@ log = logging.getLogger(__name__)
 
 
 def window_starts(n_frames: int, window: int, stride: int, starts: Sequence[int] | None = None) -> np.ndarray:
-    """First frame of each window: every ``stride``-th, or the given ``starts`` (checked to fit the sequence)."""
+    """The first frame of each window.
+
+    Parameters
+    ----------
+    n_frames, window, stride : int
+    starts : sequence of int, optional
+        Given starts (checked to fit the sequence); default every ``stride``-th frame.
+
+    Returns
+    -------
+    ndarray of int, shape (K,)
+    """
     window = check_int("window", window, 2, 1_000_000)
     stride = check_int("stride", stride, 1, 1_000_000)
     if window > n_frames:
@@ -45,11 +58,8 @@ def _lsq_windows(Y: np.ndarray, a: np.ndarray, starts: np.ndarray, window: int, 
 
     Each image is one ``(window,) @ (window, H*W)`` product of the window's weights (float32 for float32
     frames) written straight into its row of a C-contiguous stack, which :meth:`Reconstruction.save` then writes
-    without a copy. Measured on the 2-core VM, 89 windows of 8 x 290 x 290 float32 frames, one BLAS thread:
-    30 ms, against 37-42 ms for the former ``einsum`` into an interleaved ``(K, 2, H*W)`` stack (whose x1/x2
-    views needed a 30 MB copy each to be saved) and 55 ms for running sums (``sum alpha y`` and ``sum y``
-    updated by one frame in and one out, float64, then two scaled adds per image): the product reads 8 frames
-    that stay in cache, so the O(T) update saves no memory traffic here and costs more numpy calls.
+    without a copy. Running sums (one frame in and one out per window) were slower here: the product reads a few
+    frames that stay in cache (BENCHMARKS.md, "`metafovea reconstruct` file to file").
     """
     T, H, W = Y.shape
     dt = image_dtype(Y)
@@ -80,15 +90,29 @@ def video(frames: Any, alpha: Any = None, *, window: int = 8, stride: int = 1, s
           method: str = "lsq", denoise: str | None = None, max_condition: float = MAX_CONDITION,
           regularize: str | float | None = None, saturation: float | None = None,
           progress: bool = False, **kw: Any) -> Reconstruction:
-    """Reconstruct every sliding window of ``frames (T, H, W)`` (or the windows that begin at ``starts``).
+    """Reconstruct every sliding window of the frames.
 
-    ``method``: ``'lsq'`` (needs ``alpha``), ``'alternating'`` (alpha estimated per window; extra
-    keywords go to :func:`~metafovea.reconstruct.alternating.alternating`) or ``'dip'``.
-    Returns a :class:`Reconstruction` whose ``x1``, ``x2`` are ``(K, H, W)``; ``info`` holds
-    ``window_starts``, per-window ``condition`` (and, for unknown alpha, ``alpha_windows``; for alternating,
-    ``window_alpha_identified``).
-    A window whose normal matrix is too ill-conditioned raises :class:`InputError` naming the window
-    unless ``regularize`` is given.
+    Parameters
+    ----------
+    frames : array_like, shape (T, H, W)
+    alpha : array_like, shape (T,), optional
+        Needed by ``'lsq'``.
+    window, stride, starts : int, int, sequence of int
+        ``frames[k stride : k stride + window]``, or the windows that begin at ``starts``.
+    method : {'lsq', 'alternating', 'dip'}
+        Alpha known, or estimated per window (extra keywords go to the method's function).
+    denoise : {'tv', 'bilateral', 'nlm'}, optional
+    max_condition, regularize, saturation
+        As :func:`~metafovea.reconstruct.lsq.lsq_known_alpha`: a window whose normal matrix is too
+        ill-conditioned raises :class:`InputError` naming the window unless ``regularize`` is given.
+    progress : bool
+        A progress bar over the windows.
+
+    Returns
+    -------
+    Reconstruction
+        ``x1``, ``x2`` ``(K, H, W)``; ``info``: ``window_starts``, per-window ``condition``; for unknown alpha
+        ``alpha_windows``, for alternating ``window_alpha_identified``.
     """
     method = check_choice("method", method, ("lsq", "alternating", "dip"))
     tm = Timings()

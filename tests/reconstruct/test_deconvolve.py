@@ -254,3 +254,17 @@ def test_the_foveal_surround_carries_a_smooth_field_the_prediction_lacks():
     true_rms = float(np.sqrt(np.mean(field ** 2)))
     assert w.info["foveal_surround_surface_rms_dn"] == pytest.approx(true_rms, rel=0.1)
     assert psnr(w.scene[0], truth[0]) > psnr(w0.scene[0], truth[0]) + 3.0
+
+
+def test_boundary_names_say_what_they_do():
+    """``boundary='padded'`` (the crop extended by its edge values) is the default; the former name ``'mirror'``
+    still gives the same result, with a DeprecationWarning; an unknown name is refused."""
+    frames, a, psfs, _, _ = _case(6, n=32, T=6)
+    padded = separate_deconvolve(frames, a, psfs)
+    assert padded.info["boundary"] == "padded"
+    with pytest.warns(DeprecationWarning, match="padded"):
+        old = separate_deconvolve(frames, a, psfs, boundary="mirror")
+    assert old.info["boundary"] == "padded"
+    assert all(np.array_equal(x, y) for x, y in zip(old.scene, padded.scene))
+    with pytest.raises(InputError, match="boundary"):
+        separate_deconvolve(frames, a, psfs, boundary="periodic")

@@ -1,0 +1,505 @@
+"""The joint separation-deconvolution problem of both channels on a padded periodic grid, and its linear solves.
+
+Per pixel and frame the frames are (DN, after the fixed pattern)::
+
+    y_t = a_t u_1 + (1 - a_t) u_2 + n_t,    u_i = offset + r_i (K_i * s_i + p_i mean(s_i))            (1)
+
+with ``K_i`` channel ``i``'s PSF on the pixel grid, ``p_i`` its pedestal, ``r_i`` its relative illumination
+(:class:`ChannelPSFs`) and ``s_i`` the scene in DN above the dark level. The per-pixel normal equations
+(:func:`normal_equations`) are a sufficient statistic: with ``A = [a, 1 - a]`` (``T x 2``) and ``N = A^T A``,
+
+    u_hat = N^-1 A^T y,    cov(u_hat) = sigma^2 N^-1                                                  (2)
+
+so the problem is ``z = M D s + e`` on the grid (:class:`Grid`: the crop padded by the kernels' radius, FFT size),
+``z_i = (u_hat_i - offset) / r_i``, ``D = diag(D_1, D_2)`` the OTFs, ``M`` the data region and ``e`` of per-pixel
+covariance ``C = (sigma^2 N^-1 + e_fpn^2 [[1, 1], [1, 1]]) o (rho rho^T)`` (``e_fpn``: the rms error of the
+subtracted fixed pattern, the same in every frame; ``rho_i = rms(1 / r_i)`` over the crop; :func:`prepare_problem`).
+With a prior ``P`` (per FFT bin) the Wiener estimate solves
+
+    (D^H M^T C^-1 M D + P^-1) s = D^H M^T C^-1 z                                                        (3)
+
+by preconditioned conjugate gradients (:func:`linear_solve`); with ``boundary='padded'`` the data are extended over
+the whole grid (``M = I``) and (3) is one 2 x 2 system per frequency, with ``'unknown'`` only the crop is data.
+Total variation replaces ``P^-1`` by ``sum_i lambda_i TV(s_i)``, solved by ADMM (:func:`tv_admm`).
+
+Measured figures: BENCHMARKS.md, section "PSF-aware reconstruction against the scene".
+"""
+
+from __future__ import annotations
+
+import math
+import warnings
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+from numpy.typing import ArrayLike
+
+from metafovea.errors import InputError
+from metafovea.reconstruct.spectra import rfft_frequencies
+
+if TYPE_CHECKING:
+    from metafovea.measurement import Measurement
+
+#: how the data are extended beyond the crop (:func:`prepare_problem` ``boundary``): ``'padded'`` pads each channel
+#: with its edge values (or ``pad_mode``'s) and solves a periodic problem, ``'unknown'`` solves for the scene
+#: beyond the crop (seen only through the PSFs' tails: far less determined)
+BOUNDARIES = ("padded", "unknown")
+#: old spellings of :data:`BOUNDARIES` still accepted: ``'mirror'`` padded with edge values, not a mirror image
+DEPRECATED_BOUNDARIES = {"mirror": "padded"}
+#: ``alpha`` whose 2 x 2 normal matrix is worse conditioned than this cannot separate the channels
+MAX_CONDITION = 1e8
+
+
+def check_boundary(boundary: str) -> str:
+    """``boundary`` as one of :data:`BOUNDARIES` (a deprecated spelling mapped, with a DeprecationWarning).
+
+    Parameters
+    ----------
+    boundary : {'padded', 'unknown'}
+        ``'mirror'`` is accepted for ``'padded'``.
+
+    Returns
+    -------
+    str
+    """
+    if boundary in DEPRECATED_BOUNDARIES:
+        new = DEPRECATED_BOUNDARIES[boundary]
+        warnings.warn(f"boundary={boundary!r} is deprecated (it pads with the crop's edge values): use "
+                      f"boundary={new!r}", DeprecationWarning, stacklevel=3)
+        return new
+    if boundary not in BOUNDARIES:
+        raise InputError("boundary", boundary, "one of " + ", ".join(BOUNDARIES))
+    return boundary
+
+
+@dataclass(frozen=True)
+class ChannelPSFs:
+    """Both channels' PSFs on the pixel grid, the ``K_i``, ``p_i`` and ``r_i`` of eq. (1).
+
+    Attributes
+    ----------
+    kernels : tuple of 2 ndarray, shape (n_i, n_i)
+        Odd size, centred, values >= 0 with a positive sum.
+    pedestals : tuple of 2 float
+        Power beyond the kernels (disks wider than the crop), spread uniformly; in [0, 1).
+    illumination : tuple of 2 (ndarray, shape (H, W), or None)
+        Relative illumination per channel (None: 1).
+    source : str
+        Where they came from.
+    """
+
+    kernels: tuple[np.ndarray, np.ndarray]
+    pedestals: tuple[float, float] = (0.0, 0.0)
+    illumination: tuple[np.ndarray | None, np.ndarray | None] = (None, None)
+    source: str = "given"
+
+    def __post_init__(self) -> None:
+        ks = []
+        for i, k in enumerate(self.kernels, start=1):
+            a = np.asarray(k, dtype=np.float64)
+            if a.ndim != 2 or a.shape[0] != a.shape[1] or a.shape[0] % 2 == 0:
+                raise InputError(f"psf_x{i}", f"array of shape {a.shape}", "a square kernel of odd size, centred")
+            if not np.all(np.isfinite(a)) or a.min() < 0 or a.sum() <= 0:
+                raise InputError(f"psf_x{i}", "kernel", "finite values >= 0 with a positive sum")
+            ks.append(a)
+        object.__setattr__(self, "kernels", tuple(ks))
+        peds = []
+        for i, p in enumerate(self.pedestals, start=1):
+            if not (math.isfinite(p) and -1e-9 <= p < 1):
+                raise InputError(f"pedestal_x{i}", p, "a power fraction in [0, 1)")
+            peds.append(max(0.0, float(p)))  # a rounding residue below 0 is 0
+        object.__setattr__(self, "pedestals", tuple(peds))
+
+    @classmethod
+    def from_measurement(cls, m: Measurement) -> ChannelPSFs:
+        """The PSFs a Measurement carries, as :func:`metafovea.imaging.simulate.simulate` writes them.
+
+        Parameters
+        ----------
+        m : Measurement
+            With the arrays ``psf_x1``, ``psf_x2`` (and optionally ``illumination_x1``, ``illumination_x2``);
+            the pedestals are :attr:`Measurement.psf_pedestals`.
+
+        Returns
+        -------
+        ChannelPSFs
+        """
+        ex = m.extras
+        if "psf_x1" not in ex or "psf_x2" not in ex:
+            raise InputError("measurement", m.source or "in memory", "a file with the channel PSFs 'psf_x1' and "
+                             "'psf_x2' (metafovea simulate writes them), or a PSF file (--psf)", source=m.source)
+        ill = tuple(ex.get(f"illumination_x{i}") for i in (1, 2))
+        return cls((ex["psf_x1"], ex["psf_x2"]), m.psf_pedestals, ill, source=m.source or "measurement")
+
+    @classmethod
+    def from_file(cls, path: str | Path, name: str = "psf") -> ChannelPSFs:
+        """PSFs from a user's ``.npz``.
+
+        Parameters
+        ----------
+        path : str or Path
+            An ``.npz`` with ``psf_x1``, ``psf_x2`` (pixel grid, odd, centred) and optionally ``pedestal_x1`` /
+            ``_x2`` (scalars) and ``illumination_x1`` / ``_x2`` (H, W).
+        name : str
+            The parameter an error names.
+
+        Returns
+        -------
+        ChannelPSFs
+        """
+        p = Path(path)
+        if not p.is_file() or p.suffix.lower() != ".npz":
+            raise InputError(name, str(p), "an existing .npz file with arrays psf_x1 and psf_x2")
+        try:
+            with np.load(p, allow_pickle=False) as z:
+                if "psf_x1" not in z.files or "psf_x2" not in z.files:
+                    raise InputError(name, str(p), "an .npz file with arrays psf_x1 and psf_x2")
+                ks = (z["psf_x1"], z["psf_x2"])
+                ped = tuple(float(z[f"pedestal_x{i}"]) if f"pedestal_x{i}" in z.files else 0.0 for i in (1, 2))
+                ill = tuple(z[f"illumination_x{i}"] if f"illumination_x{i}" in z.files else None for i in (1, 2))
+        except (OSError, ValueError) as e:
+            raise InputError(name, str(p), f"a readable .npz file ({e})") from None
+        return cls(ks, ped, ill, source=str(p))  # type: ignore[arg-type]
+
+
+def normal_equations(frames: np.ndarray, alpha: ArrayLike) -> tuple[np.ndarray, np.ndarray, float, int]:
+    """The per-pixel least-squares separation of the frames, eq. (2).
+
+    Parameters
+    ----------
+    frames : ndarray, shape (T, H, W)
+    alpha : array_like, shape (T,)
+
+    Returns
+    -------
+    u_hat : ndarray, shape (2, H, W)
+        Both channels' separated images.
+    N : ndarray, shape (2, 2)
+        The normal matrix ``A^T A``.
+    sigma : float
+        The residuals' noise estimate, ``sqrt(sum r^2 / (T - 2) / (H W))`` (NaN for ``T = 2``).
+    dof : int
+        ``T - 2``.
+    """
+    a = np.asarray(alpha, dtype=np.float64)
+    A = np.stack([a, 1.0 - a], axis=1)  # (T, 2)
+    N = A.T @ A
+    if np.linalg.cond(N) > MAX_CONDITION:
+        raise InputError("alpha", "nearly constant mixing ratios", "a sequence whose alpha varies (the 2 x 2 normal "
+                         "matrix is singular)")
+    T, H, W = frames.shape
+    y = frames.reshape(T, -1).astype(np.float64)
+    u = np.linalg.solve(N, A.T @ y)
+    dof = T - 2
+    sigma = float(np.sqrt(np.mean((y - A @ u) ** 2) * T / dof)) if dof > 0 else float("nan")
+    return u.reshape(2, H, W), N, sigma, dof
+
+
+class Grid:
+    """The padded periodic grid of the solve: the crop padded by the larger kernel's radius to an FFT-friendly
+    size, both channels' OTFs ``D`` ``(2, P, Q // 2 + 1)`` (pedestal at DC), ``|f|`` and the forward differences'
+    transfer functions (``gy``, ``gx``, ``lap = |gy|^2 + |gx|^2``) for total variation."""
+
+    def __init__(self, shape: tuple[int, int], kernels: tuple[np.ndarray, np.ndarray], pedestals: tuple[float, float]):
+        from scipy.fft import next_fast_len
+
+        H, W = shape
+        r = max(k.shape[0] // 2 for k in kernels)
+        self.pad = min(r, 3 * max(H, W))
+        self.shape = (next_fast_len(H + 2 * self.pad, real=True), next_fast_len(W + 2 * self.pad, real=True))
+        self.crop = (slice(self.pad, self.pad + H), slice(self.pad, self.pad + W))
+        P, Q = self.shape
+        self.D = np.stack([self._otf(k, p) for k, p in zip(kernels, pedestals)])  # (2, P, Q//2+1)
+        fy = np.fft.fftfreq(P)[:, None]
+        fx = np.fft.rfftfreq(Q)[None, :]
+        self.f = rfft_frequencies(self.shape)
+        # the forward-difference operator's transfer functions (periodic): TV's gradient
+        self.gy = np.exp(2j * np.pi * fy) - 1.0
+        self.gx = np.exp(2j * np.pi * fx) - 1.0
+        self.lap = np.abs(self.gy) ** 2 + np.abs(self.gx) ** 2
+
+    def _otf(self, k: np.ndarray, pedestal: float) -> np.ndarray:
+        from scipy.fft import rfft2
+
+        P, Q = self.shape
+        n = k.shape[0]
+        if n > min(P, Q):  # a kernel wider than the grid: fold it (periodic), its power kept
+            c = n // 2
+            kk = np.zeros((P, Q))
+            iy, ix = (np.arange(n) - c) % P, (np.arange(n) - c) % Q
+            np.add.at(kk, (iy[:, None], ix[None, :]), k)
+        else:
+            kk = np.zeros((P, Q))
+            kk[:n, :n] = k
+            kk = np.roll(kk, (-(n // 2), -(n // 2)), axis=(0, 1))
+        D = rfft2(kk)
+        D[0, 0] += pedestal
+        return D
+
+    def padded(self, img: np.ndarray, mode: str = "edge") -> np.ndarray:
+        """``img`` (H, W) on the grid (P, Q), padded by ``numpy.pad``'s ``mode`` (``'reflect'`` becomes
+        ``'symmetric'`` where the padding is wider than the image)."""
+        H, W = img.shape
+        P, Q = self.shape
+        p = self.pad
+        if mode == "reflect" and max(p, P - H - p, Q - W - p) >= min(H, W):
+            mode = "symmetric"
+        return np.pad(img, ((p, P - H - p), (p, Q - W - p)), mode=mode)
+
+    def rfft(self, imgs: np.ndarray) -> np.ndarray:
+        from scipy.fft import rfft2
+
+        return rfft2(imgs, axes=(-2, -1), workers=-1)
+
+    def irfft(self, spec: np.ndarray) -> np.ndarray:
+        from scipy.fft import irfft2
+
+        return irfft2(spec, s=self.shape, axes=(-2, -1), workers=-1)
+
+
+def _solve2(M: tuple[np.ndarray, np.ndarray, np.ndarray], b: np.ndarray) -> np.ndarray:
+    """Per-frequency solve of the Hermitian 2 x 2 systems ``[[m11, m12], [conj(m12), m22]] x = b``."""
+    m11, m12, m22 = M
+    det = m11 * m22 - np.abs(m12) ** 2
+    det = np.where(np.abs(det) > 0, det, np.inf)
+    return np.stack([(m22 * b[0] - m12 * b[1]) / det, (m11 * b[1] - np.conj(m12) * b[0]) / det])
+
+
+class Problem:
+    """The joint problem on the grid: data ``zc`` (2, H, W) on the crop with per-pixel noise covariance ``C``
+    (2, 2). With ``boundary='padded'`` the data are extended onto the padding (``pad_mode``) and the problem is
+    periodic (``region``: the whole grid); with ``'unknown'`` only the crop is data (``region``: the crop)."""
+
+    def __init__(self, g: Grid, z: np.ndarray, C: np.ndarray, boundary: str = "padded", pad_mode: str = "edge"):
+        self.g, self.Cinv, self.boundary, self.pad_mode = g, np.linalg.inv(C), boundary, pad_mode
+        self.crop, self.zc = g.crop, z
+        if boundary == "padded":
+            self.z = np.stack([g.padded(zi, pad_mode) for zi in z])
+            self.region = (slice(None), slice(None))
+        else:
+            self.z = z
+            self.region = g.crop
+
+    def blur(self, s: np.ndarray) -> np.ndarray:
+        """``D s``: both channels through their OTFs."""
+        return self.g.irfft(self.g.D * self.g.rfft(s))
+
+    def blur_t(self, v: np.ndarray) -> np.ndarray:
+        """``D^H v``."""
+        return self.g.irfft(np.conj(self.g.D) * self.g.rfft(v))
+
+    def weighted(self, r: np.ndarray) -> np.ndarray:
+        """``M^T C^-1 M r`` for a residual on the grid (zero outside the data region)."""
+        out = np.zeros_like(r)
+        cy, cx = self.region
+        out[:, cy, cx] = np.einsum("ij,jhw->ihw", self.Cinv, r[:, cy, cx])
+        return out
+
+    def data_rhs(self) -> np.ndarray:
+        """``D^H M^T C^-1 z``: the right-hand side of eq. (3)."""
+        v = np.zeros((2,) + self.g.shape)
+        cy, cx = self.region
+        v[:, cy, cx] = self.z
+        return self.blur_t(self.weighted(v))
+
+
+def linear_solve(pb: Problem, prior_inv: np.ndarray, x0: np.ndarray | None, iterations: int = 200,
+                 tol: float = 1e-6) -> tuple[np.ndarray, int]:
+    """The Wiener estimate, eq. (3), by preconditioned conjugate gradients.
+
+    Parameters
+    ----------
+    pb : Problem
+    prior_inv : ndarray, shape (2, P, Q // 2 + 1)
+        The prior's inverse spectrum per unnormalised FFT bin, 0 at DC
+        (:func:`metafovea.reconstruct.spectra.inverse_prior`).
+    x0 : ndarray, shape (2, P, Q), or None
+        The start (None: 0).
+    iterations : int
+        At most this many iterations.
+    tol : float
+        Stop when the residual's norm is below ``tol`` times the right-hand side's.
+
+    Returns
+    -------
+    s : ndarray, shape (2, P, Q)
+        Both channels' scene on the grid (DN above the dark level).
+    iterations : int
+        Iterations run.
+
+    Notes
+    -----
+    The preconditioner is the same system without the mask ``M`` (the data region's share of the grid in its
+    place): one 2 x 2 solve per frequency, exact for ``boundary='padded'``, where CG then stops after one step.
+    """
+    g = pb.g
+    n_bins = g.shape[0] * g.shape[1]
+    D1, D2 = g.D
+    Ci = pb.Cinv
+    cy, cx = pb.region
+    frac = float(np.ones(g.shape)[cy, cx].size) / n_bins  # the data region's share: the preconditioner's weight
+    Mpre = (Ci[0, 0] * frac * np.abs(D1) ** 2 + prior_inv[0] * n_bins, Ci[0, 1] * frac * np.conj(D1) * D2,
+            Ci[1, 1] * frac * np.abs(D2) ** 2 + prior_inv[1] * n_bins)
+    eps = 1e-12 * float(np.max(np.abs(Mpre[0])) + np.max(np.abs(Mpre[2])))
+    Mpre = (Mpre[0] + eps, Mpre[1], Mpre[2] + eps)
+
+    def op(s: np.ndarray) -> np.ndarray:
+        S = g.rfft(s)
+        return pb.blur_t(pb.weighted(g.irfft(g.D * S))) + g.irfft(prior_inv * n_bins * S)
+
+    def pre(r: np.ndarray) -> np.ndarray:
+        return g.irfft(_solve2(Mpre, g.rfft(r)))
+
+    b = pb.data_rhs()
+    x = np.zeros_like(b) if x0 is None else x0.copy()
+    r = b - op(x)
+    zz = pre(r)
+    p = zz.copy()
+    rz = float(np.vdot(r, zz))
+    bn = float(np.linalg.norm(b)) or 1.0
+    for it in range(1, iterations + 1):
+        Ap = op(p)
+        step = rz / float(np.vdot(p, Ap))
+        x += step * p
+        r -= step * Ap
+        if float(np.linalg.norm(r)) < tol * bn:
+            return x, it
+        zz = pre(r)
+        rz_new = float(np.vdot(r, zz))
+        p = zz + (rz_new / rz) * p
+        rz = rz_new
+    return x, iterations
+
+
+def _shrink(gy: np.ndarray, gx: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    mag = np.sqrt(gy ** 2 + gx ** 2)
+    f = np.maximum(1.0 - t / np.maximum(mag, 1e-30), 0.0)
+    return gy * f, gx * f
+
+
+def tv_admm(pb: Problem, s0: np.ndarray, lam: np.ndarray, iterations: int) -> tuple[np.ndarray, int]:
+    """Total-variation regularised least squares by ADMM.
+
+    Parameters
+    ----------
+    pb : Problem
+    s0 : ndarray, shape (2, P, Q)
+        The start (the Wiener estimate).
+    lam : ndarray, shape (2,)
+        Each channel's TV weight.
+    iterations : int
+
+    Returns
+    -------
+    s : ndarray, shape (2, P, Q)
+    iterations : int
+
+    Notes
+    -----
+    Minimises ``1/2 ||M D s - z||^2_{C^-1} + sum_i lam_i TV_iso(s_i)`` with the splits ``v = D s`` and
+    ``w = grad s`` (S. Boyd et al., Found. Trends Mach. Learn. 3, 1 (2011)): the ``s`` step is diagonal per
+    frequency, the ``v`` step a 2 x 2 solve per pixel, the ``w`` step isotropic shrinkage.
+    """
+    g = pb.g
+    cy, cx = pb.region
+    rho1 = float(np.max(np.abs(pb.Cinv)))
+    rho2 = rho1 * 0.1
+    den = rho1 * np.abs(g.D) ** 2 + rho2 * g.lap[None]
+    den[:, 0, 0] = np.maximum(den[:, 0, 0], 1e-12 * rho1)
+    # the data step inside the crop: (C^-1 + rho1 I) v = C^-1 z + rho1 q
+    Kd = np.linalg.inv(pb.Cinv + rho1 * np.eye(2))
+    Ciz = np.einsum("ij,jhw->ihw", pb.Cinv, pb.z)
+    s = s0.copy()
+    S = g.rfft(s)
+    v = g.irfft(g.D * S)
+    wy, wx = g.irfft(g.gy * S), g.irfft(g.gx * S)
+    d1 = np.zeros_like(v)
+    dy, dx = np.zeros_like(wy), np.zeros_like(wx)
+    t = (lam / rho2)[:, None, None]
+    for _ in range(iterations):
+        S = (rho1 * np.conj(g.D) * g.rfft(v - d1)
+             + rho2 * (np.conj(g.gy) * g.rfft(wy - dy) + np.conj(g.gx) * g.rfft(wx - dx))) / den
+        As = g.irfft(g.D * S)
+        gy_s, gx_s = g.irfft(g.gy * S), g.irfft(g.gx * S)
+        q = As + d1
+        v = q.copy()
+        v[:, cy, cx] = np.einsum("ij,jhw->ihw", Kd, Ciz + rho1 * q[:, cy, cx])
+        wy, wx = _shrink(gy_s + dy, gx_s + dx, t)
+        d1 += As - v
+        dy += gy_s - wy
+        dx += gx_s - wx
+    return g.irfft(S), iterations
+
+
+def prepare_problem(frames: ArrayLike, alpha: ArrayLike, psfs: ChannelPSFs, offset: float, sigma: float | None,
+                    boundary: str = "padded", pad_mode: str = "edge",
+                    fpn_error_dn: float = 0.0) -> tuple[Problem, np.ndarray, dict[str, Any]]:
+    """The problem of eq. (3) from the frames: separated, offset-removed, illumination-divided channels.
+
+    Parameters
+    ----------
+    frames : array_like, shape (T, H, W)
+        DN, fixed pattern removed; ``T >= 3``.
+    alpha : array_like, shape (T,)
+        Mixing ratios.
+    psfs : ChannelPSFs
+    offset : float
+        The frames' dark level, DN.
+    sigma : float or None
+        The frames' temporal noise, DN (None: from the residuals of eq. 2).
+    boundary : {'padded', 'unknown'}
+        (Already checked by :func:`check_boundary`.)
+    pad_mode : str
+        ``numpy.pad`` mode of the padding.
+    fpn_error_dn : float
+        The rms error (DN) of the fixed pattern subtracted from the frames.
+
+    Returns
+    -------
+    problem : Problem
+    C : ndarray, shape (2, 2)
+        The separated channels' per-pixel noise covariance, DN^2.
+    info : dict
+        ``sigma_dn``, ``sigma_source`` (``'residuals'`` or ``'given'``), ``fpn_error_dn``, ``noise_std_dn``,
+        ``noise_correlation``, ``grid``, ``pad_px``, ``psf_source``, ``boundary``.
+
+    Notes
+    -----
+    The fixed pattern's error is the same in every frame, so it does not average out and enters both separated
+    channels in full (``u + [1, 1] e``): ``C += e^2 [[1, 1], [1, 1]]``.
+    """
+    fr = np.asarray(frames, dtype=np.float64)
+    if fr.ndim != 3 or fr.shape[0] < 3:
+        raise InputError("frames", f"array of shape {fr.shape}", "(T, H, W) frames with T >= 3")
+    T, H, W = fr.shape
+    a = np.asarray(alpha, dtype=np.float64).reshape(-1)
+    if a.shape != (T,) or not np.all(np.isfinite(a)):
+        raise InputError("alpha", f"array of shape {a.shape}", f"({T},) finite mixing ratios")
+    u, N, sig_fit, dof = normal_equations(fr, a)
+    sig = sig_fit if sigma is None else float(sigma)
+    if not (math.isfinite(sig) and sig > 0):
+        raise InputError("sigma", sig, "a frame noise level > 0 (DN)")
+    z = np.empty_like(u)
+    r_rms = []
+    for i in range(2):
+        r = psfs.illumination[i]
+        r = np.ones((H, W)) if r is None else np.asarray(r, dtype=np.float64)
+        if r.shape != (H, W) or not np.all(r > 0):
+            raise InputError(f"illumination_x{i + 1}", f"array of shape {r.shape}", f"(H, W) = {(H, W)} values > 0")
+        z[i] = (u[i] - offset) / r
+        r_rms.append(float(np.sqrt(np.mean(r ** -2.0))))
+    g = Grid((H, W), psfs.kernels, psfs.pedestals)
+    fe = float(fpn_error_dn or 0.0)
+    if not (math.isfinite(fe) and fe >= 0):
+        raise InputError("fpn_error_dn", fpn_error_dn, "the rms error (DN) of the subtracted fixed pattern, >= 0")
+    # the separated channels' noise covariance: temporal noise through the 2 x 2 fit, plus the FPN estimate's error
+    C = (sig ** 2 * np.linalg.inv(N) + fe ** 2 * np.ones((2, 2))) * np.outer(r_rms, r_rms)
+    info = {"sigma_dn": sig, "sigma_source": "residuals" if sigma is None else "given",
+            "fpn_error_dn": fe,
+            "noise_std_dn": [float(math.sqrt(C[0, 0])), float(math.sqrt(C[1, 1]))],
+            "noise_correlation": float(C[0, 1] / math.sqrt(C[0, 0] * C[1, 1])),
+            "grid": list(g.shape), "pad_px": g.pad, "psf_source": psfs.source,
+            "boundary": boundary}
+    return Problem(g, z, C, boundary, pad_mode), C, info

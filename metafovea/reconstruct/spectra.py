@@ -1,0 +1,250 @@
+"""Radially averaged power spectra: the scene prior of the PSF-aware reconstruction.
+
+Frequencies are those of a real FFT of an ``(P, Q)`` image, ``|f| = hypot(f_y, f_x)`` in cycles per pixel on the
+``(P, Q // 2 + 1)`` half plane (:func:`rfft_frequencies`); a radial profile averages over ``nbins`` rings of equal
+width from 0 to the grid's corner ``F_MAX = 0.5 sqrt 2`` (:func:`radial_mean`, and back onto the grid with
+:func:`radial_field`). The scene's spectrum is estimated from a crop ``z`` with white noise of variance
+``sigma^2`` per pixel, seen through a PSF of transfer function ``D``:
+
+    P_z(f) = <|FFT(w (z - mean z))|^2>_ring / sum w^2                                  (1)
+    S(f)   = (P_z(f) - sigma^2) / <|D|^2>_ring                                          (2)
+    S(f)   ~ c |f|^-beta,  fitted in log-log where P_z - sigma^2 > DETECTION_SNR sigma^2  (3)
+
+(1) is the Hann-tapered periodogram per pixel (:func:`crop_periodogram`), (2) the scene's spectral density per
+pixel, (3) the power law that extrapolates it beyond the detected bins (:func:`fitted_spectrum`). The solver works
+per unnormalised FFT bin of a padded grid of ``n_grid`` pixels, so a per-pixel density ``S`` becomes
+``scale n_grid S`` there (``scale``: the solver's ``prior_scale``). The Wiener solve needs the prior's inverse,
+:func:`inverse_prior`.
+
+Measured figures (which prior and scale, and why): BENCHMARKS.md, section "PSF-aware reconstruction against the
+scene".
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+
+#: the rfft grid's largest ``|f|`` (its corner), cycles per pixel: the radial bins span ``[0, F_MAX]``
+F_MAX = 0.5 * math.sqrt(2.0)
+#: rings of the fitted spectrum and of ``info['prior_radial']``: 0.011 cycles/px wide, about three of a 290 px
+#: crop's frequency steps (1/290), so that each ring averages several periodogram samples
+RADIAL_BINS = 64
+#: rings of the true spectrum in :func:`metafovea.reconstruct.evaluate.wiener_bound`, taken on the padded grid
+#: (2-3x the crop's size, so twice the rings of the crop's profile still average several samples each)
+TRUTH_RADIAL_BINS = 128
+#: the scene prior's models (:func:`fitted_spectrum` ``prior``)
+PRIORS = ("hybrid", "power-law", "empirical")
+#: the power-law exponents the fit may take (``beta`` of eq. 3), around the ``|f|^-2`` of natural scenes' power
+#: spectra (D. J. Field, J. Opt. Soc. Am. A 4, 2379 (1987)); the fitted slope is clipped to this range
+BETA_RANGE = (1.0, 4.0)
+#: ``beta`` where fewer than :data:`MIN_FIT_BINS` bins are detected: the natural-image spectrum ``1 / |f|^2``
+DEFAULT_BETA = 2.0
+#: a ring is detected where its signal ``P_z - sigma^2`` exceeds this multiple of the noise ``sigma^2``, i.e. the
+#: periodogram is over twice the noise level
+DETECTION_SNR = 1.0
+#: ``'hybrid'``: below the fitted tail, rings whose signal exceeds this multiple of the noise take the padded
+#: grid's measured spectrum instead of the law. Set with the hybrid prior, not tuned on its own (BENCHMARKS.md,
+#: "PSF-aware reconstruction against the scene": the hybrid against its alternatives): the measured spectrum less
+#: the noise is used only where the signal clearly dominates it
+MEASURED_SNR = 4.0
+#: fewest detected rings a power-law fit uses (two parameters, one degree of freedom left)
+MIN_FIT_BINS = 3
+#: ``'hybrid'`` fits only the tail beyond the spectrum's peak when at least this many rings are detected
+MIN_HYBRID_BINS = 6
+#: a bin without signal gets the prior of this fraction of the spectrum's largest value (the largest penalty,
+#: not none) in :func:`inverse_prior`
+PRIOR_FLOOR = 1e-9
+
+
+def rfft_frequencies(shape: tuple[int, int]) -> np.ndarray:
+    """``|f|`` (cycles per pixel) of a real 2-D FFT of an image of ``shape``.
+
+    Parameters
+    ----------
+    shape : tuple of int
+        ``(P, Q)``: the image's size.
+
+    Returns
+    -------
+    ndarray, shape (P, Q // 2 + 1)
+        ``hypot(f_y, f_x)`` on the half plane ``scipy.fft.rfft2`` returns.
+    """
+    return np.hypot(np.fft.fftfreq(shape[0])[:, None], np.fft.rfftfreq(shape[1])[None, :])
+
+
+def _ring_index(f: np.ndarray, nbins: int) -> tuple[np.ndarray, np.ndarray]:
+    """``(edges (nbins + 1,), ring of each frequency)``: equal rings over ``[0, F_MAX]``, the last one closed."""
+    edges = np.linspace(0.0, F_MAX, nbins + 1)
+    return edges, np.clip(np.digitize(f, edges) - 1, 0, nbins - 1)
+
+
+def radial_mean(f: np.ndarray, values: np.ndarray, nbins: int = RADIAL_BINS) -> tuple[np.ndarray, np.ndarray,
+                                                                                     np.ndarray]:
+    """The mean of ``values`` over rings of ``|f|``.
+
+    Parameters
+    ----------
+    f : ndarray
+        ``|f|`` in cycles per pixel (:func:`rfft_frequencies`).
+    values : ndarray, same shape as ``f``
+        A quantity per frequency (a periodogram, ``|D|^2``, a spectrum).
+    nbins : int
+        Rings of equal width over ``[0, F_MAX]``.
+
+    Returns
+    -------
+    centres : ndarray, shape (nbins,)
+        The rings' centres, cycles per pixel.
+    means : ndarray, shape (nbins,)
+        The mean of ``values`` in each ring; NaN in a ring without a frequency.
+    counts : ndarray of int, shape (nbins,)
+        Frequencies per ring.
+    """
+    edges, idx = _ring_index(f.ravel(), nbins)
+    cnt = np.bincount(idx, minlength=nbins)
+    s = np.bincount(idx, weights=values.ravel(), minlength=nbins)
+    return 0.5 * (edges[1:] + edges[:-1]), np.where(cnt > 0, s / np.maximum(cnt, 1), np.nan), cnt
+
+
+def radial_field(f: np.ndarray, profile: np.ndarray) -> np.ndarray:
+    """A radial profile spread back onto the frequencies ``f``: each frequency takes its ring's value.
+
+    Parameters
+    ----------
+    f : ndarray
+        ``|f|`` in cycles per pixel.
+    profile : ndarray, shape (nbins,)
+        One value per ring of :func:`radial_mean` (NaN counts as 0).
+
+    Returns
+    -------
+    ndarray, same shape as ``f``
+    """
+    _, idx = _ring_index(f, profile.size)
+    return np.nan_to_num(profile, nan=0.0)[idx]
+
+
+def crop_periodogram(z: np.ndarray, nbins: int = RADIAL_BINS) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The radially averaged, Hann-tapered periodogram of ``z`` per pixel, eq. (1).
+
+    Parameters
+    ----------
+    z : ndarray, shape (H, W)
+        The crop; its mean is removed. It is not padded: repeated edge noise would look like signal.
+    nbins : int
+        Rings over ``[0, F_MAX]``.
+
+    Returns
+    -------
+    centres : ndarray, shape (nbins,)
+        Cycles per pixel.
+    power : ndarray, shape (nbins,)
+        Power per pixel of taper (``sum w^2``): white noise of variance ``sigma^2`` gives ``sigma^2``; NaN in an
+        empty ring.
+    counts : ndarray of int, shape (nbins,)
+    """
+    from scipy.fft import rfft2
+
+    H, W = z.shape
+    w = np.outer(np.hanning(H + 2)[1:-1], np.hanning(W + 2)[1:-1])
+    P = np.abs(rfft2((z - np.mean(z)) * w)) ** 2
+    fc, mean, cnt = radial_mean(rfft_frequencies((H, W)), P, nbins)
+    return fc, mean / float(np.sum(w ** 2)), cnt
+
+
+def fitted_spectrum(z: np.ndarray, z_padded: np.ndarray, D: np.ndarray, noise_var: float, prior: str = "power-law",
+                    scale: float = 1.0) -> tuple[np.ndarray, dict[str, Any]]:
+    """The scene's power spectrum per unnormalised FFT bin of the padded grid, estimated from the crop ``z``.
+
+    Parameters
+    ----------
+    z : ndarray, shape (H, W)
+        One channel's separated data on the crop (DN above the dark level).
+    z_padded : ndarray, shape (P, Q)
+        ``z`` less its mean on the padded grid of the solve (edge values in the padding).
+    D : ndarray, shape (P, Q // 2 + 1)
+        The channel's transfer function on that grid.
+    noise_var : float
+        The data's noise variance per pixel, DN^2.
+    prior : {'power-law', 'hybrid', 'empirical'}
+        ``'empirical'``: eq. (2) where the signal is positive, 0 elsewhere. ``'power-law'``: eq. (3) fitted on
+        every detected ring. ``'hybrid'``: eq. (3) fitted on the detected rings beyond the spectrum's peak, and
+        below that tail, where the signal exceeds :data:`MEASURED_SNR` x the noise, the padded grid's own
+        radially averaged periodogram less the noise, over ``|D|^2``: the spectrum of the scene the solve is posed
+        on (the crop and its edge-extended padding, whose stripes hold most of the low frequencies' power).
+    scale : float
+        The per-pixel spectrum becomes ``scale x n_grid x S`` on the grid (the solver's ``prior_scale``).
+
+    Returns
+    -------
+    spectrum : ndarray, shape (P, Q // 2 + 1)
+    info : dict
+        ``prior``; ``bins`` and ``bins_with_signal`` (empirical) or ``beta`` and ``bins_used`` (the fit);
+        ``'hybrid'`` adds ``measured_bins`` and ``measured_below_cycles_per_px``.
+    """
+    from scipy.fft import rfft2
+
+    nb = RADIAL_BINS
+    shape = z_padded.shape
+    f_grid = rfft_frequencies(shape)
+    fc, pz, _ = crop_periodogram(z, nb)
+    _, pd, _ = radial_mean(f_grid, np.abs(D) ** 2, nb)
+    sig = pz - noise_var  # power spectral density per pixel
+    n_grid = shape[0] * shape[1]
+    if prior == "empirical":
+        est = np.where(np.isfinite(sig) & (sig > 0) & (pd > 0), sig / np.maximum(pd, 1e-300), 0.0)
+        return radial_field(f_grid, est) * n_grid * scale, {"prior": "empirical", "bins": nb,
+                                                             "bins_with_signal": int(np.sum(est > 0))}
+    ok = np.isfinite(sig) & (sig > DETECTION_SNR * noise_var) & (fc > 0) & (pd > 0)
+    ok[0] = False
+    idx = np.flatnonzero(ok)
+    if prior == "hybrid" and idx.size >= MIN_HYBRID_BINS:
+        # the tail beyond the spectrum's peak sets the extrapolation: fit the detected rings above the peak
+        ratio = np.where(ok, sig / np.maximum(pd, 1e-300), 0.0)
+        peak = int(idx[np.argmax(ratio[idx])])
+        tail = ok & (np.arange(ok.size) >= peak)
+        if tail.sum() >= MIN_FIT_BINS:
+            ok = tail
+    beta = DEFAULT_BETA
+    if ok.sum() >= MIN_FIT_BINS:
+        beta = float(np.clip(-np.polyfit(np.log(fc[ok]), np.log(sig[ok] / pd[ok]), 1)[0], *BETA_RANGE))
+        logc = float(np.mean(np.log(sig[ok] / pd[ok]) + beta * np.log(fc[ok])))
+    else:
+        logc = math.log(max(noise_var, 1e-30))
+    f = np.maximum(f_grid, 1.0 / max(shape))
+    law = n_grid * scale * np.exp(logc) / f ** beta
+    info = {"prior": prior, "beta": beta, "bins_used": int(ok.sum())}
+    if prior == "hybrid":
+        # below the fitted tail, where the signal is strong: the padded grid's measured spectrum
+        strong = (np.isfinite(sig) & (sig > MEASURED_SNR * noise_var) & (pd > 0)
+                  & (fc < fc[ok].min() if ok.any() else False))
+        _, pp, _ = radial_mean(f_grid, np.abs(rfft2(z_padded, axes=(-2, -1), workers=-1)) ** 2, nb)
+        meas = np.where(strong, np.maximum(pp - n_grid * noise_var, 0.0) / np.maximum(pd, 1e-300), 0.0)
+        field = radial_field(f_grid, meas)
+        law = np.where(field > 0, field, law)
+        info["measured_bins"] = int(strong.sum())
+        half_bin = 0.5 * float(fc[1] - fc[0])
+        info["measured_below_cycles_per_px"] = float(fc[strong].max()) + half_bin if strong.any() else 0.0
+    return law, info
+
+
+def inverse_prior(spectra: list[np.ndarray]) -> np.ndarray:
+    """The inverse of both channels' prior spectra, floored, with the mean (DC) not shrunk.
+
+    Parameters
+    ----------
+    spectra : list of 2 ndarray, shape (P, Q // 2 + 1)
+        Each channel's prior per unnormalised FFT bin.
+
+    Returns
+    -------
+    ndarray, shape (2, P, Q // 2 + 1)
+        ``1 / max(S, PRIOR_FLOOR max S)``, 0 at DC.
+    """
+    # a bin without signal gets the largest penalty, not none
+    inv = np.stack([1.0 / np.maximum(p, PRIOR_FLOOR * max(float(np.max(p)), 1e-300)) for p in spectra])
+    inv[:, 0, 0] = 0.0  # the mean is not shrunk
+    return inv

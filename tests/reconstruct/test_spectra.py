@@ -1,0 +1,66 @@
+"""The scene prior's spectra (:mod:`metafovea.reconstruct.spectra`): the radial profile against its definition, the
+periodogram's scale against white noise, the fitted power law against a scene drawn with a known one."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from metafovea.reconstruct.spectra import (
+    BETA_RANGE,
+    F_MAX,
+    RADIAL_BINS,
+    crop_periodogram,
+    fitted_spectrum,
+    inverse_prior,
+    radial_field,
+    radial_mean,
+    rfft_frequencies,
+)
+
+
+def test_radial_profile_is_the_mean_over_each_ring_and_spreads_back():
+    f = rfft_frequencies((40, 30))
+    assert f.shape == (40, 16) and f[0, 0] == 0.0 and f.max() <= F_MAX
+    v = np.cos(7.0 * f) + f ** 2
+    centres, means, counts = radial_mean(f, v, 16)
+    edges = np.linspace(0.0, F_MAX, 17)
+    for k in range(16):
+        ring = (f >= edges[k]) & ((f < edges[k + 1]) | (k == 15))  # the last ring holds the corner F_MAX
+        assert counts[k] == ring.sum()
+        if counts[k]:
+            assert means[k] == pytest.approx(v[ring].mean(), rel=1e-12)
+        else:
+            assert np.isnan(means[k])
+    np.testing.assert_allclose(centres, 0.5 * (edges[1:] + edges[:-1]))
+    back = radial_field(f, means)
+    assert back.shape == f.shape
+    # a function constant on each ring comes back as itself
+    np.testing.assert_allclose(radial_field(f, radial_mean(f, back, 16)[1]), back, rtol=1e-12, atol=1e-12)
+
+
+def test_the_periodogram_of_white_noise_is_its_variance():
+    rng = np.random.default_rng(0)
+    fc, power, counts = crop_periodogram(rng.normal(0.0, 2.0, (128, 128)))
+    sel = (fc > 0.05) & (fc < 0.45)
+    assert fc.size == RADIAL_BINS and counts.sum() == 128 * 65
+    assert np.mean(power[sel]) == pytest.approx(4.0, rel=0.05)
+
+
+def _power_law_scene(n: int, beta: float, rng: np.random.Generator) -> np.ndarray:
+    f = np.hypot(np.fft.fftfreq(n)[:, None], np.fft.fftfreq(n)[None, :])
+    amp = np.where(f > 0, np.maximum(f, 1.0 / n) ** (-beta / 2), 0.0)
+    return np.real(np.fft.ifft2(amp * np.fft.fft2(rng.standard_normal((n, n)))))
+
+
+@pytest.mark.parametrize("beta", [1.5, 2.5, 3.0])
+def test_the_fitted_law_finds_a_known_exponent(beta):
+    """A scene drawn with power spectrum ``|f|^-beta`` seen through no blur: the fitted exponent is beta."""
+    n = 128
+    z = 10.0 * _power_law_scene(n, beta, np.random.default_rng(int(10 * beta)))
+    D = np.ones((n, n // 2 + 1))
+    law, info = fitted_spectrum(z, z - z.mean(), D, 1e-6, "power-law")
+    assert info["beta"] == pytest.approx(beta, abs=0.25) and BETA_RANGE[0] <= info["beta"] <= BETA_RANGE[1]
+    assert law.shape == D.shape
+    inv = inverse_prior([law, law])
+    assert inv.shape == (2,) + D.shape and np.all(inv[:, 0, 0] == 0) and np.all(inv >= 0)
