@@ -12,6 +12,7 @@ from typing import Any
 import numpy as np
 
 from metafovea.errors import InputError, as_rng, check_int
+from metafovea.polarizer import RotatingPolarizer
 from metafovea.reconstruct._common import as_alpha
 from metafovea.reconstruct.operators import FovealOperator
 
@@ -64,9 +65,11 @@ def scene(shape: tuple[int, int] | int = 96, scale: float = 6.0, *, offset: tupl
 
 def polariser_alpha(n: int, *, rate_hz: float = 2.0, fps: float = 12.0, phase: float = 0.3,
                     start: int = 0) -> np.ndarray:
-    """``alpha_t = cos^2(2 pi rate t / fps + phase)`` (the reference anchors' polariser)."""
+    """``alpha_t = cos^2(2 pi rate t / fps + phase)`` for frames ``t = start .. start + n - 1`` (the reference anchors'
+    polariser: :class:`~metafovea.polarizer.RotatingPolarizer`, ideal and instantaneous)."""
     t = np.arange(start, start + n, dtype=np.float64)
-    return np.cos(2 * np.pi * rate_hz * t / fps + phase) ** 2
+    theta = 2 * np.pi * rate_hz * t / fps + phase  # in frame units, in this order: the anchors' alphas to the bit
+    return RotatingPolarizer(rate_hz).nominal_alpha(theta)
 
 
 def measure(x1: np.ndarray, x2: np.ndarray, alpha: Any, *, sigma: float = 0.01, fpn: np.ndarray | None = None,
