@@ -120,7 +120,7 @@ def test_commands_are_thin():
         n = len(path.read_text().splitlines())
         if n > MAX_CLI_LINES:
             problems.append(f"{modname}: {n} lines (> {MAX_CLI_LINES})")
-        for mod, name in imports(tree, path, modname):
+        for mod, _name in imports(tree, path, modname):
             if mod.split(".")[0] in ("matplotlib", "scipy", "jax", "skimage"):
                 problems.append(f"{modname} imports {mod} (figures and numerics belong to the library)")
         for node in ast.walk(tree):
@@ -140,7 +140,8 @@ def test_each_idea_has_one_home():
 
 
 def test_only_report_saves_figures():
-    users = [modname for path, modname, _ in modules() if "savefig" in path.read_text() and modname != "metafovea.report"]
+    users = [modname for path, modname, _ in modules()
+             if "savefig" in path.read_text() and modname != "metafovea.report"]
     assert not users, f"savefig outside metafovea.report: {users}"
 
 

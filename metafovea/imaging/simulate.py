@@ -417,7 +417,8 @@ def simulate(system: SystemDesign, scene: str | Path | Scene, options: Simulatio
     optics = [build_channel_optics(ch, provider, camera.radiance, ss=ss, psf_size_px=opt.psf_size_px,
                                    field_patches=opt.field_patches, patch_threshold=opt.patch_threshold,
                                    scene_temperature_k=system.scene_temperature_k, haze=opt.haze,
-                                   transmitted=1.0 if tr is None or provider_name != "optics" else tr.metasurface_transmission,
+                                   transmitted=(1.0 if tr is None or provider_name != "optics"
+                                                else tr.metasurface_transmission),
                                    leaks=() if tr is None else [(lk.power_fraction / tr.throughput, lk.radius_um)
                                                                 for lk in tr.leaks])
               for ch, tr in zip(camera.channels, trains)]

@@ -39,7 +39,7 @@ sensor. Each linear polarisation is focused by one lens and passes through the o
 
 Every factor is averaged over the band with the PSF's wavelength weights (post phases scale as
 ``lambda0 / lambda``, absorption as ``lambda^2``); the throughput is the band mean of the product. The
-polariser's extinction leak is the camera's (:mod:`metafovea.polarizer`); the relay's and the
+polariser's extinction leak is the camera's (:mod:`metafovea.imaging.polarizer`); the relay's and the
 polariser's own losses are common to both channels and not modelled.
 """
 
