@@ -56,8 +56,10 @@ def test_readme_quick_start_runs(tmp_path):
     reconstruction and a figure, in well under a minute."""
     code = quick_start_code()
     assert len([ln for ln in code.splitlines() if ln.strip() and not ln.lstrip().startswith("#")]) <= 16
+    # README: "x1 ~18 dB over 8-14 um"; measured x1 18.08-18.56 dB, x2 57.31-57.75 dB over rng 0-4 (README's rng=0:
+    # 18.45 / 57.65): x1 at README's figure less 0.5 dB (the seed spread), x2 (README states none) 1 dB under rng 0-4
     check = ("\nassert isinstance(rec, mf.Reconstruction) and rec.x1.shape == (290, 290)\n"
-             "assert res.metrics['psnr_x2'] > 30 and res.metrics['psnr_x1'] > 10, res.metrics\n"
+             "assert res.metrics['psnr_x2'] > 56.3 and res.metrics['psnr_x1'] > 17.5, res.metrics\n"
              "assert fig.axes\nprint('QUICKSTART-OK')\n")
     env = {**os.environ, "METAFOVEA_CACHE": str(tmp_path / "cache"), "MPLBACKEND": "Agg"}
     out = subprocess.run([sys.executable, "-c", code + check], cwd=tmp_path, env=env, capture_output=True,

@@ -15,7 +15,7 @@ PKG = Path(__file__).resolve().parents[1] / "metafovea"
 
 #: ground floor: conventions, checks, files, executors, shared data types and primitives; imports only itself
 SHARED = {"units", "errors", "io", "parallel", "config", "materials", "radiometry", "measurement", "report", "plotting",
-          "__init__"}
+          "polarizer", "__init__"}
 #: stage rank; a module may import from ranks <= its own. layout and optics are sibling branches.
 RANK = {
     "rcwa": 1, "library": 2, "lens": 3, "design_report": 3,
@@ -344,3 +344,30 @@ def test_the_reconstruction_reads_a_measurements_metadata_through_measurement_py
     assert not problems, "index a Measurement's metadata in metafovea/measurement.py: " + ", ".join(problems)
     planted = ast.parse("offset = float(m.meta.get('dark_dn', 0.0))\nsen = meta['sensor']")
     assert sorted(_meta_reads(planted)) == [1, 2]
+
+
+def _polarizer_formulas(tree: ast.AST) -> list[str]:
+    """The polariser's physics written out: Malus's ``cos(x) ** 2`` or a lag ``atan(... tau ...)``."""
+    found = []
+    for node in ast.walk(tree):
+        if isinstance(node, ast.BinOp) and isinstance(node.op, ast.Pow) and isinstance(node.left, ast.Call) \
+                and getattr(node.left.func, "attr", getattr(node.left.func, "id", None)) == "cos" \
+                and isinstance(node.right, ast.Constant) and node.right.value == 2:
+            found.append(f"line {node.lineno}: Malus cos(.) ** 2")
+        name = getattr(node.func, "attr", getattr(node.func, "id", None)) if isinstance(node, ast.Call) else None
+        if name in ("atan", "arctan") and any("tau" in (getattr(n, "id", None) or getattr(n, "attr", None) or "")
+                        for a in node.args for n in ast.walk(a)):
+            found.append(f"line {node.lineno}: bolometer lag atan(.. tau ..)")
+    return found
+
+
+def test_the_polarizer_model_has_one_home():
+    """The angle law, Malus, bolometer lag and extinction leak are written once, in ``metafovea.polarizer``; the
+    simulator and the reconstruction use it (issue 29 found them written twice in different algebra)."""
+    problems = [f"{modname} {f}" for _, modname, tree in modules() if modname != "metafovea.polarizer"
+                for f in _polarizer_formulas(tree)]
+    assert not problems, "\n".join(problems)
+    assert _polarizer_formulas(ast.parse("from math import atan\nlag = atan(w * self.tau_s)")), "the rule cannot fail"
+    assert _polarizer_formulas(ast.parse("import numpy as np\nalpha = np.cos(theta) ** 2")), "the rule cannot fail"
+    home = ast.parse((PKG / "polarizer.py").read_text())
+    assert len(_polarizer_formulas(home)) == 2, "metafovea.polarizer no longer holds both formulas: update this rule"

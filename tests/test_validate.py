@@ -50,18 +50,23 @@ def test_validate_small_runs_every_stage(tmp_path, monkeypatch, small_system, br
     methods = {r["method"].split(" (")[0] for r in rep["table"]}
     assert {"lsq", "lsq + TV denoise", "alternating", "dip", "snapshot"} <= methods
     rows = {r["method"].split(" (")[0]: r for r in rep["table"]}
-    # known alpha is the noise-limited reference; FPN correction from the shutter frames must help
-    assert rows["lsq"]["psnr_x2"] > 30
+    # known alpha is the noise-limited reference: x2 measured 40.11-40.15 dB over seeds 0-4 (seed 0: 40.11), floor
+    # 0.6 dB under it; FPN correction from the shutter frames must help
+    assert rows["lsq"]["psnr_x2"] > 39.5
     assert rows["lsq"]["psnr_x1"] > rows["lsq, no FPN correction"]["psnr_x1"]
     # the default polariser turns freely (the paper's): the unknown-alpha row estimates alpha, it is not handed the
-    # phase of a synchronised one (which made its error 1e-15 before 2026-12-03)
-    assert 1e-9 < rows["alternating"]["alpha_mae"] < 0.05
-    # the FPN estimate's error (SURE of the shutter frames' shrinkage estimate, used as noise by the PSF-aware
-    # step) against the true error of the estimate
+    # phase of a synchronised one (which made its error 1e-15); validate's own limit, 2e-3 (measured 3e-6 to 7e-6
+    # over seeds 0-4)
+    assert 1e-9 < rows["alternating"]["alpha_mae"] <= 2e-3
+    # every check of validate's verdict at validate's own limits (PSF peak against the design stage +-5 %, FPN from
+    # the shutter frames helps, the FPN estimate's error +-25 %, alpha MAE <= 2e-3, unknown against known alpha
+    # >= -0.5 dB, the scene PSNR against the Wiener bound): all passed over seeds 0-4
     from metafovea.validate import verdict
 
-    fpn_checks = [i for i in verdict(rep) if "FPN estimate's error" in i["check"]]
-    assert fpn_checks and all(i["passed"] for i in fpn_checks), fpn_checks
+    checks = verdict(rep)
+    assert any("FPN estimate's error" in i["check"] for i in checks)
+    assert any("unknown alpha, mean abs error" in i["check"] for i in checks)
+    assert all(i["passed"] for i in checks), [i for i in checks if not i["passed"]]
     # the PSF stage agrees with the design-stage efficiency estimate and the Airy reference where it applies
     for lens in rep["stages"]["psf"]["lenses"].values():
         assert lens["peak_ratio_fabricated_vs_continuous"] == pytest.approx(lens["expected_peak_ratio_from_design"],
@@ -98,7 +103,8 @@ def test_single_frame_rows_are_scored_against_that_frames_truth_of_a_video():
     # a window row against the truth averaged over the window's frames
     lsq = next(r for r in res["rows"] if r["method"] == "lsq (known alpha)")
     m1, m2 = (t[0] for t in meas.truth_over([(0, T)]))
-    assert lsq["n"] == 1 and lsq["psnr_x1"] == pytest.approx(score(res["images"]["lsq (known alpha)"], m1, m2)["psnr_x1"])
+    want = score(res["images"]["lsq (known alpha)"], m1, m2)["psnr_x1"]
+    assert lsq["n"] == 1 and lsq["psnr_x1"] == pytest.approx(want)
 
 
 def test_table_columns_and_format():

@@ -9,7 +9,8 @@ Modules, in the order of the flow:
 * :mod:`~metafovea.imaging.kernels`: PSF kernels per channel (providers: optics with its disk cache, Airy,
   Gaussian, explicit), the chromatic haze, field patches (:class:`~metafovea.imaging.kernels.ChannelOptics`).
 * :mod:`~metafovea.imaging.render`: one channel's noise-free image of a scene (incremental for video scenes).
-* :mod:`~metafovea.imaging.polarizer`: the rotating polariser and the mixing ratio alpha.
+* :mod:`~metafovea.imaging.polarizer`: the simulated rotation (drawn phase and rate) of the polariser whose mixing
+  ratio alpha :mod:`metafovea.polarizer` models.
 * :mod:`~metafovea.imaging.sensor`: radiance to DN, temporal noise, low-rank FPN, ADC.
 * :mod:`~metafovea.imaging.simulate`: end to end (:func:`simulate`), and the files of ``metafovea simulate``
   (:func:`simulate_to_files`: Measurement, TIFF stack, preview).

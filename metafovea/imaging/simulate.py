@@ -157,7 +157,7 @@ class Camera:
 
     @property
     def gains(self) -> list[float]:
-        ext_gain = 1.0 + self.polarizer.extinction
+        ext_gain = self.polarizer.physics.gain  # 1 + e
         return [g * ext_gain for g in self.optical_gains]
 
     def train_summaries(self) -> list[dict[str, Any]] | None:

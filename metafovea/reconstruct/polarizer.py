@@ -5,21 +5,21 @@ The data term leaves ``alpha`` known only up to an affine map (``alpha_hat = a a
 
     alpha_t = 1/2 + s cos(Omega t + phi),   Omega = 4 pi f_p,   s = A (1 - e) / (2 (1 + e)),
 
-(:class:`metafovea.imaging.polarizer.Polarizer`: extinction leak ``e``, bolometer lag ``tau`` with amplitude
-``A = 1 / sqrt(1 + (Omega tau)^2)`` and phase lag ``atan(Omega tau)``), whose mean (1/2) and amplitude ``s`` are
-known from the system, whatever the rotation's phase. Fitting ``alpha_hat_t = A0 + B cos(Omega t) + C sin(Omega t)``
-gives ``a = +-hypot(B, C) / s`` and ``b = A0 - a / 2``. A synchronised polariser (``mode='sync'``: rate and phase
-known) regresses ``alpha_hat`` on the model directly; a free-running one (``'free'``) also fits ``Omega`` within
-``rate_tolerance`` of the nominal rate and leaves the sign of ``a`` open (the sign swaps the two channels), which
-the caller settles with the foveal constraint.
+(:mod:`metafovea.polarizer`, the one model of the device that the simulator uses too: extinction leak ``e``,
+bolometer lag ``tau`` with amplitude ``A = 1 / sqrt(1 + (Omega tau)^2)`` and phase lag ``atan(Omega tau)``), whose
+mean (1/2) and amplitude ``s`` are known from the system, whatever the rotation's phase. Fitting
+``alpha_hat_t = A0 + B cos(Omega t) + C sin(Omega t)`` gives ``a = +-hypot(B, C) / s`` and ``b = A0 - a / 2``. A
+synchronised polariser (``mode='sync'``: rate and phase known) regresses ``alpha_hat`` on the model directly; a
+free-running one (``'free'``) also fits ``Omega`` within ``rate_tolerance`` of the nominal rate and leaves the sign
+of ``a`` open (the sign swaps the two channels), which the caller settles with the foveal constraint.
 
 Two ways to use the fit: the fitted rotation's alpha (:func:`model_alpha`, the default: a motor turns at a
-constant rate, and a frame's own ``alpha_hat`` is biased wherever the scene moves between frames: on the simulated
-waving hand the per-frame alpha is off by 0.0096 and the fitted rotation by 0.0015), or each frame's own
-``alpha_t = (alpha_hat_t - b) / a`` (:func:`gauged_alpha`: follows a rotation that jitters). The fit's residual
+constant rate, and a frame's own ``alpha_hat`` is biased wherever the scene moves between frames), or each frame's
+own ``alpha_t = (alpha_hat_t - b) / a`` (:func:`gauged_alpha`: follows a rotation that jitters). The fit's residual
 gives the uncertainty of ``(a, b)``, of the phase and frequency and of every ``alpha_t`` (delta method), and
 flags a stopped polariser (amplitude at the noise level) or an irregular sequence (residual well above the
-data-term noise of ``alpha_hat``: scene motion or a jittering rotation).
+data-term noise of ``alpha_hat``: scene motion or a jittering rotation). Measured accuracies: BENCHMARKS.md,
+"Unknown alpha with the polariser model".
 """
 
 from __future__ import annotations
@@ -30,7 +30,8 @@ from typing import Any
 
 import numpy as np
 
-from metafovea.errors import InputError, check_choice, check_range
+from metafovea.errors import InputError, check_range
+from metafovea.polarizer import ALPHA_MEAN, RotatingPolarizer, check_mode
 
 #: alpha counts as identified when its standard error (gauge and per-frame) is below this in every frame
 ALPHA_SE_MAX = 5e-3
@@ -56,12 +57,11 @@ class PolarizerModel:
         if not np.all(np.isfinite(t)):
             raise InputError("times_s", "non-finite", "finite frame times (s)")
         object.__setattr__(self, "times_s", t)
-        check_range("polarizer rate_hz", self.rate_hz, 0.0, 1000.0, unit="Hz")
-        object.__setattr__(self, "mode", check_choice("polarizer mode", self.mode, ("sync", "free")))
+        check_range("polarizer rate_hz", self.rate_hz, 0.0, 1000.0, unit="Hz")  # a stopped one fixes no gauge
+        object.__setattr__(self, "mode", check_mode(self.mode))
         if self.mode == "sync" and self.phase_rad is None:
             raise InputError("polarizer phase_rad", None, "the rotation's phase for a synchronised polariser")
-        check_range("extinction", self.extinction, 0.0, 0.5, lo_inclusive=True)
-        check_range("tau_s", self.tau_s, 0.0, 10.0, lo_inclusive=True, unit="s")
+        RotatingPolarizer(self.rate_hz, self.extinction, self.tau_s)  # checks the device's constants
         check_range("rate_tolerance", self.rate_tolerance, 0.0, 0.5, lo_inclusive=True)
 
     @classmethod
@@ -84,27 +84,31 @@ class PolarizerModel:
         return replace(self, times_s=self.times_s[start:start + n])
 
     @property
+    def physics(self) -> RotatingPolarizer:
+        """The device's constants and the model of alpha (:class:`~metafovea.polarizer.RotatingPolarizer`)."""
+        return RotatingPolarizer(self.rate_hz, self.extinction, self.tau_s)
+
+    @property
     def omega(self) -> float:
         """Angular frequency of alpha (rad/s): twice the rotation's."""
-        return 4 * math.pi * self.rate_hz
+        return self.physics.omega
 
     @property
     def lag_rad(self) -> float:
-        return math.atan(self.omega * self.tau_s)
+        """The bolometer's phase lag at :attr:`omega` (rad)."""
+        return self.physics.lag_rad
 
     @property
     def amplitude(self) -> float:
         """``s``: half the peak-to-peak range of the effective alpha."""
-        amp = 1.0 / math.sqrt(1.0 + (self.omega * self.tau_s) ** 2)
-        return 0.5 * amp * (1.0 - self.extinction) / (1.0 + self.extinction)
+        return self.physics.amplitude
 
     def alpha(self, times_s: Any = None, omega: float | None = None, phase: float | None = None) -> np.ndarray:
         """The model's effective alpha at ``times_s`` (default the frames'), for a phase of alpha ``phase``
-        (default ``2 phase_rad - lag``)."""
-        t = self.times_s if times_s is None else np.asarray(times_s, dtype=np.float64)
-        w = self.omega if omega is None else omega
-        ph = (2 * float(self.phase_rad or 0.0) - self.lag_rad) if phase is None else phase
-        return 0.5 + self.amplitude * np.cos(w * t + ph)
+        (default that of the rotation's phase ``phase_rad``, 0 when unknown)."""
+        t = self.times_s if times_s is None else times_s
+        ph = self.physics.alpha_phase(self.phase_rad or 0.0) if phase is None else phase
+        return self.physics.alpha(t, ph, omega)
 
 
 def _design(t: np.ndarray, w: float) -> np.ndarray:
@@ -138,7 +142,8 @@ def _free_omega(t: np.ndarray, y: np.ndarray, model: PolarizerModel) -> tuple[fl
     return float(grid[i]), 0.0
 
 
-def polarizer_gauge(alpha_hat: np.ndarray, model: PolarizerModel, *, alpha_noise: float | None = None) -> dict[str, Any]:
+def polarizer_gauge(alpha_hat: np.ndarray, model: PolarizerModel, *,
+                    alpha_noise: float | None = None) -> dict[str, Any]:
     """Fit the model to the data-term ``alpha_hat`` (any affine gauge): returns ``a``, ``b`` (``alpha_hat = a alpha
     + b``; free mode: the ``a > 0`` candidate, ``swap_ambiguous`` True), their covariance, the residual rms, the
     fitted frequency and phase, ``status`` ('ok', 'stopped', 'too few frames') and, with ``alpha_noise`` (the
@@ -163,7 +168,7 @@ def polarizer_gauge(alpha_hat: np.ndarray, model: PolarizerModel, *, alpha_noise
         var = float(np.sum(res ** 2)) / (T - 2)
         cov = var * np.linalg.inv(X.T @ X)
         a, b = float(coef[0]), float(coef[1])
-        out.update(omega=model.omega, phase=2 * float(model.phase_rad) - model.lag_rad, swap_ambiguous=False,
+        out.update(omega=model.omega, phase=model.physics.alpha_phase(model.phase_rad), swap_ambiguous=False,
                    t_centre=float(t.mean()), var_phase_centre=0.0, var_omega=0.0)
         out["phase_centre"] = out["phase"] + model.omega * out["t_centre"]
     else:
@@ -179,9 +184,9 @@ def polarizer_gauge(alpha_hat: np.ndarray, model: PolarizerModel, *, alpha_noise
         R = math.hypot(B, C)
         g = np.array([0.0, B / R, C / R]) if R > 0 else np.zeros(3)
         # a = R / s, b = A0 - a / 2: their covariance from (A0, B, C)'s by the Jacobian
-        J = np.array([g / s, np.array([1.0, 0.0, 0.0]) - 0.5 * g / s])
+        J = np.array([g / s, np.array([1.0, 0.0, 0.0]) - ALPHA_MEAN * g / s])
         cov = J @ S @ J.T
-        a, b = R / s, A0 - 0.5 * R / s
+        a, b = R / s, A0 - ALPHA_MEAN * R / s
         # alpha_hat = A0 + R cos(w tc - atan2(C, B)); alpha = 1/2 + s cos(w tc + phi_c) for a > 0
         gp = np.array([0.0, C / (R * R), -B / (R * R)]) if R > 0 else np.zeros(3)
         var_w = 2 * var / curv if curv > 0 else math.inf
@@ -191,7 +196,7 @@ def polarizer_gauge(alpha_hat: np.ndarray, model: PolarizerModel, *, alpha_noise
             for ww in (w - sw, w + sw):
                 cf, *_ = np.linalg.lstsq(_design(tc, ww), y, rcond=None)
                 rr = math.hypot(cf[1], cf[2]) / s
-                ab.append((rr, cf[0] - 0.5 * rr))
+                ab.append((rr, cf[0] - ALPHA_MEAN * rr))
             dab = 0.5 * (np.array(ab[1]) - np.array(ab[0]))
             cov = cov + np.outer(dab, dab)
         phi_c = -math.atan2(C, B)
@@ -248,7 +253,7 @@ def model_alpha(model: PolarizerModel, fit: dict[str, Any], sign: float = 1.0) -
     t = model.times_s
     ph = fit["phase_centre"] + (math.pi if sign < 0 else 0.0)
     u = fit["omega"] * (t - fit["t_centre"]) + ph
-    al = 0.5 + model.amplitude * np.cos(u)
+    al = model.physics.alpha(t - fit["t_centre"], ph, fit["omega"])
     var = (model.amplitude * np.sin(u)) ** 2 * (fit["var_phase_centre"] + (t - fit["t_centre"]) ** 2 * fit["var_omega"])
     return al, np.sqrt(np.maximum(var, 0.0))
 

@@ -13,6 +13,7 @@ import numpy as np
 
 from metafovea.config import PAPER_FRAME_RATE_HZ
 from metafovea.errors import InputError, as_rng, check_int
+from metafovea.polarizer import RotatingPolarizer
 from metafovea.reconstruct._common import as_alpha
 from metafovea.reconstruct.operators import FovealOperator
 
@@ -107,10 +108,12 @@ def polariser_alpha(n: int, *, rate_hz: float = 2.0, fps: float = PAPER_FRAME_RA
     Returns
     -------
     ndarray, shape (n,)
-        ``alpha_t = cos^2(2 pi rate t / fps + phase)``.
+        ``alpha_t = cos^2(2 pi rate t / fps + phase)``
+        (:class:`~metafovea.polarizer.RotatingPolarizer`, ideal and instantaneous).
     """
     t = np.arange(start, start + n, dtype=np.float64)
-    return np.cos(2 * np.pi * rate_hz * t / fps + phase) ** 2
+    theta = 2 * np.pi * rate_hz * t / fps + phase  # in frame units, in this order: the anchors' alphas to the bit
+    return RotatingPolarizer(rate_hz).nominal_alpha(theta)
 
 
 def measure(x1: np.ndarray, x2: np.ndarray, alpha: Any, *, sigma: float = 0.01, fpn: np.ndarray | None = None,

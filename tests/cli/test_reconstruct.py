@@ -130,15 +130,14 @@ def test_cli_on_a_simulated_measurement(tmp_path, capsys):
     m = simulate(s, "bars", frames=8, psf="airy", rng=0)
     path = m.save(tmp_path / "meas.npz")
     np.save(tmp_path / "pattern.npy", m.fpn)  # a calibrated pattern of the user's
-    rc, stdout, err = _run([path, "--method", "alternating", "--window", "8", "--fpn", tmp_path / "pattern.npy", "--out",
-                            tmp_path / "rec.npz", "--json", "--no-figures"], capsys)
+    rc, stdout, err = _run([path, "--method", "alternating", "--window", "8", "--fpn", tmp_path / "pattern.npy",
+                            "--out", tmp_path / "rec.npz", "--json", "--no-figures"], capsys)
     assert rc == 0, err
     out = json.loads(stdout)
     assert out["foveal_constraint"]["foveal_gain"] == pytest.approx(m.meta["foveal_constraint"]["gain"])
-    d = float(np.sqrt(np.mean((m.truth_x1 - m.truth_x2).astype(np.float64) ** 2)))
-    # alpha within 0.05 (0.02-0.03 measured: the optical train's throughput of 0.31 leaves the foveal bars ~2 DN of
-    # contrast against 2 DN of noise), and the PSNR floor that error allows
-    assert out["alpha_identified"] and out["metrics"]["psnr_x2"] > 20 * np.log10(np.ptp(m.truth_x2) / (2 * 0.05 * d))
+    # the figures of reconstruct_measurement on the same file (tests/reconstruct/test_api.py; equal here for seeds
+    # 0-2): x1 25.53-25.89 dB, x2 44.91-45.53 dB over seeds 0-9 (this seed 25.75 / 44.98), floors 1 dB under the worst
+    assert out["alpha_identified"] and out["metrics"]["psnr_x1"] > 24.5 and out["metrics"]["psnr_x2"] > 43.9
 
 
 @pytest.mark.parametrize("kind", ["text", "empty", "object", "badjson", "listjson"])

@@ -72,7 +72,9 @@ def _fmmax_stack_x64(M, eps_layers, thicknesses, formulation):
     i0 = int(np.flatnonzero(np.all(bc == 0, axis=1))[0])
     assert n == (2 * M + 1) ** 2 and np.abs(bc).max() == M      # the same harmonic set as ours
     ix, iy = n + i0, i0     # hy <-> E_x, hx <-> E_y
-    get = lambda s, a, b: complex(np.asarray(s)[a, b])
+    def get(s, a, b):
+        return complex(np.asarray(s)[a, b])
+
     return {name: {"xx": get(s, ix, ix), "yy": get(s, iy, iy), "xy": get(s, ix, iy), "yx": get(s, iy, ix)}
             for name, s in zip(("s11", "s21", "s22", "s12"), blocks)}
 
@@ -131,11 +133,31 @@ def test_patterned_layer_matches_fmmax_fft_at_identical_harmonics(wx, wy):
     assert complex(pr.t_y) == pytest.approx(fm["s11"]["yy"] * conv, abs=tol)
 
 
-def test_fmmax_vector_formulation_agrees_with_li_within_its_truncation_error():
-    # Different factorisations, so only the converged values must agree: fmmax JONES_DIRECT at
-    # 81 terms is ~0.08 rad from the limit (benchmarks/bench_rcwa.py); our Li at M = 12 ~0.004.
-    fm = _fmmax_stack(4, [NSI ** 2, _post_map(2.0, 2.0, grid=100), 1.0], [0.0, H, 0.0], "JONES_DIRECT")
-    t_li = complex(post_response(2.0, 2.0, WL, harmonics=12, polarizations=("x",)).t_x)
-    dphi = abs(np.angle(fm["s11"]["xx"] / t_li))
-    assert 0.01 < dphi < 0.15
-    assert abs(fm["s11"]["xx"]) * np.sqrt(NSI) == pytest.approx(abs(t_li), abs=0.05)
+#: posts of the default-setting check (um): one rectangular post by default, three with METAFOVEA_FULL=1
+DEFAULT_CHECK_POSTS = ((1.6, 2.4), (2.0, 2.0), (0.8, 3.2)) if os.environ.get("METAFOVEA_FULL") else ((1.6, 2.4),)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("wx,wy", DEFAULT_CHECK_POSTS)
+def test_the_library_default_agrees_with_fmmax_at_the_claimed_accuracy(wx, wy):
+    """The library's default setting (Li's rules, ``LibraryOptions().harmonics`` = 10: 441 plane waves) against an
+    independent solver, fmmax's vector formulation JONES_DIRECT on the same 441-term harmonic set, at the accuracy
+    the library claims: 0.01 rad of phase (BENCHMARKS.md, "Speed-up at equal accuracy": M = 10 is what a 0.01 rad
+    guarantee over the library's widths needs) and 0.01 in |t|, both polarisations.
+
+    Measured (fmmax 1.7.1): 1.6 x 2.4 um x 0.0046 rad, y 0.0022 rad (|dt| 0.0038, 0.0017); 2.0 x 2.0 um 0.0038 rad;
+    0.8 x 3.2 um 0.0032 / 0.0014 rad. fmmax's own error at 441 terms is ~0.008 rad on the 2 um post (BENCHMARKS.md):
+    the two factorisations converge from the same side, so their difference stays inside the claim. Slow: one
+    fmmax solve at 441 terms took 4.3 s of CPU in BENCHMARKS.md's run (20-30 s here on a loaded 2-core machine);
+    ours 0.06 s."""
+    from metafovea.library import LibraryOptions
+
+    M = LibraryOptions().harmonics
+    assert M == 10, "the library's default changed: re-measure this check"
+    fm = _fmmax_stack(M, [NSI ** 2, _post_map(wx, wy), 1.0], [0.0, H, 0.0], "JONES_DIRECT")
+    ours = post_response(wx, wy, WL, harmonics=M)
+    for pol in ("x", "y"):
+        t_ref = fm["s11"][pol * 2] * np.sqrt(NSI)
+        t = complex(getattr(ours, f"t_{pol}"))
+        assert abs(np.angle(t / t_ref)) < 0.01, pol
+        assert abs(abs(t) - abs(t_ref)) < 0.01, pol

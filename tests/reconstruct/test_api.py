@@ -46,23 +46,21 @@ def test_end_to_end_simulated_paper_measurement():
         assert psnr(est, ref) > 20 * np.log10(np.ptp(ref) / (sigma * gain)) - 1.0
     r = reconstruct(m.frames, method="alternating", fpn=m.fpn, **geo)
     assert r.info["gauge"]["applied"]
+    # floors 1 dB (alpha: 1.5x) under the worst of seeds 0-9, measured: alpha's max error 0.0010-0.0082 (this seed
+    # 0.0029), x1 13.1-24.3 dB (this seed 23.7: the foveal bars have 1.9 DN of contrast against 2 DN of noise, so the
+    # result varies from seed to seed), x2 25.3-43.6 dB (this seed 34.0; x2 moves with alpha's error)
     err = float(np.max(np.abs(r.alpha - m.alpha)))
-    # measured 0.023-0.029 over seeds 0-3 (0.003-0.005 before the optical train: its throughput of 0.31 leaves
-    # the foveal bars 1.9 DN of contrast against 2 DN of noise)
-    bound = 0.05
-    assert err < bound
-    # an alpha error e moves the images by ~e |x1 - x2| (~500 DN here, against a 1.9 DN foveal and
-    # ~70 DN perifoveal contrast): the PSNR floor that error budget allows
-    d = float(np.sqrt(np.mean((t1 - t2).astype(np.float64) ** 2)))
-    for est, ref in ((r.x1, t1), (r.x2, t2)):
-        assert psnr(est, ref) > 20 * np.log10(np.ptp(ref) / (2 * bound * d))
+    assert err < 0.012
+    assert psnr(r.x1, t1) > 12.0 and psnr(r.x2, t2) > 24.3
     # without the gain/offset (identity relation) the gauge cannot be fixed: a clear error
     with pytest.raises(InputError, match="gauge"):
         reconstruct(m.frames, method="alternating", fpn=m.fpn, scale=geo["scale"])
     # the pipeline on the Measurement: the constraint from its metadata, a calibrated pattern subtracted
     res = reconstruct_measurement(m, "alternating", window=8, fpn=m.fpn)
     assert res.constraint == m.foveal_constraint and res.reconstruction.info["alpha_identified"]
-    assert res.alpha_mae < bound and res.metrics["psnr_x2"] > 20 * np.log10(np.ptp(t2) / (2 * bound * d))
+    # the file's polariser is synchronised (phase known): alpha through the polariser model, MAE 6e-17 (seeds 0, 5);
+    # x1 25.53-25.89 dB, x2 44.91-45.53 dB over seeds 0-9 (this seed 25.75 / 44.98): floors 1 dB under the worst
+    assert res.alpha_mae < 1e-9 and res.metrics["psnr_x1"] > 24.5 and res.metrics["psnr_x2"] > 43.9
 
 
 def test_dispatcher_errors(truth, alpha8):
