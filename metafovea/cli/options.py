@@ -166,6 +166,15 @@ def default_out_dir(command: str, label: str | None = None, root: str | Path = "
     return p
 
 
+def out_file(args: argparse.Namespace, default: str | None) -> str | None:
+    """``--out`` as given, or ``default`` (a fixed name the next command reads, or None: the library derives it from
+    the input); then ``args.out_default`` is set, as :func:`out_dir` does."""
+    if getattr(args, "out", None):
+        return args.out
+    args.out_default = True
+    return default
+
+
 def out_dir(args: argparse.Namespace, command: str, label: str | None = None) -> Path:
     """``--out`` as given, or :func:`default_out_dir` (then ``args.out_default`` is set, so that an error about it
     names the default output rather than an ``--out`` the user did not type)."""

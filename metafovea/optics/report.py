@@ -1,5 +1,6 @@
 """PSF/MTF reports: :func:`psf_report` writes the PNG figures, JSON numbers and one self-contained HTML page of
-one lens; :func:`psf_reports` is the ``metafovea psf`` pipeline (checks, several lenses in worker processes)."""
+one lens; :func:`psf_reports` is the ``metafovea psf`` pipeline (checks, several lenses in worker processes);
+:func:`lens_lines` and :func:`timing_line` are its summary for people (what the command prints)."""
 
 from __future__ import annotations
 
@@ -22,7 +23,7 @@ from metafovea.io import atomic_write_bytes, atomic_write_json, file_stem, prepa
 from metafovea.library import POST_SOURCES, oblique_response, rcwa_post_sets, system_post_sets
 from metafovea.parallel import blas_threads
 from metafovea.radiometry import psf_wavelengths
-from metafovea.report import HtmlReport, fig_to_png
+from metafovea.report import HtmlReport, fig_to_png, fmt
 
 from .mtf import (
     diffraction_mtf,
@@ -721,3 +722,65 @@ def _check_wavelengths_and_fields(lens: LensDesign, band: tuple[float, float], f
         if not abs(fd) <= lim:
             raise InputError("field_deg", fd, f"|field| <= {lim:.3f} deg for lens '{lens.name}' "
                              f"(NA {lens.na:.4f}) at {wl_max:g} um")
+
+
+# ----------------------------------------------------------------------------------------------
+# the summary for people (what ``metafovea psf`` prints)
+# ----------------------------------------------------------------------------------------------
+def _frac(v: Any) -> str:
+    """A fraction (Strehl ratio, efficiency, encircled energy) to three decimals, ``-`` when not computed."""
+    return "-" if v is None else f"{v:.3f}" if abs(v) >= 0.01 else f"{v:.2g}"
+
+
+def lens_lines(name: str, s: dict[str, Any]) -> list[str]:
+    """The key figures of one lens' report, for people: per field (the monochromatic PSFs) Strehl ratio, focusing
+    efficiency, FWHM and encircled energy within the first dark ring; on axis the energy within one pixel; the
+    sensor PSFs across the field; the report's page (``s``: one lens of :func:`psf_reports`' summary)."""
+
+    sp = s["spectral"]
+    band = (f"the filter {sp['filter_um'][0]:g} um (FWHM {sp['filter_um'][1]:g} um)" if sp["filter_um"] else
+            f"{sp['band_um'][0]:g}-{sp['band_um'][1]:g} um")
+    lines = [f"{name}: f {s['f_mm']:g} mm, D {s['diameter_mm']:g} mm (NA {s['na']:.4f}), {s['polarization']}-"
+             f"polarised, {s['posts']} posts; sensor at {s['z_um'] / 1000:g} mm"
+             + (f" ({s['defocus_um']:+.1f} um from f)" if abs(s["defocus_um"]) > 1e-6 else "")
+             + f"; pixels {fmt(s['pixel_pitch_um'])} um at the focal plane ({s['sensor_pixel_um']:g} um / "
+             f"{s['relay_magnification']:g}x relay)"]
+    mono = list({m["field_deg"]: m for m in s["monochromatic"]}.values())  # a field once (few fields repeat)
+    r_ee = mono[0]["ee_radius_um"]
+    rows = [["field", "Strehl", "focusing eff.", "FWHM x / y", f"EE r {fmt(r_ee)} um", "PSF (error of peak)"]]
+    for m in mono:
+        fw = "-" if m["fwhm_um"] is None else f"{fmt(m['fwhm_um'][0])} / {fmt(m['fwhm_um'][1])} um"
+        err = "not bounded" if m.get("model_note") else f"{m['error_estimate']:.1g}"
+        grid = m["engine"] if m["grid"] == "fine" else f"pixel grid {fmt(m['pitch_um'])} um, {m['engine']}"
+        rows.append([fmt(m["field_deg"], "deg"), _frac(m["strehl"]), _frac(m["focusing_efficiency"]), fw,
+                     _frac(m["ee"]), f"{grid} ({err})"])
+    widths = [max(len(r[j]) for r in rows) for j in range(len(rows[0]))]
+    lines += ["  " + "  ".join(v.ljust(w) for v, w in zip(r, widths)).rstrip() for r in rows]
+    lines.append(f"  (at {fmt(s['mono_wavelength_um'])} um. Strehl: peak / aberration-free peak of the same pupil; "
+                 "focusing efficiency: peak / ideal continuous lens' peak;")
+    lines.append(f"   EE: fraction of the incident power within the first dark ring 0.61 lambda0/NA = {fmt(r_ee)} um)")
+    ee = s["on_axis_ee_pixel_radius"]
+    lines.append(f"  on axis within one pixel pitch (r {fmt(ee['radius_um'])} um): {_frac(ee['mono'])} at "
+                 f"{fmt(s['mono_wavelength_um'])} um, {_frac(ee['band'])} over {band} (exact)")
+    sens = s["sensor"]
+    fd = [r["field_deg"] for r in sens]
+    peak = [r["poly_center_pixel"] for r in sens]
+    lines.append(f"  sensor PSFs at {len(sens)} field{'s' if len(sens) > 1 else ''} ({fmt(min(fd))}-{fmt(max(fd))} "
+                 f"deg, {sp['n_wavelengths']} wavelength bins): the chief-ray pixel holds {min(peak):.3g}-"
+                 f"{max(peak):.3g} of the incident power over the band")
+    warn = len(set(s["warnings"])) + len(s["accuracy"])
+    lines.append(f"  report {s['html']} ({s['seconds']:.1f} s)"
+                 + (f"  [{warn} warning{'s' if warn > 1 else ''}, on stderr]" if warn else ""))
+    return lines
+
+
+def timing_line(timing: dict[str, Any]) -> str:
+    """The whole run's wall time (``timing['seconds']['total']``; the command's sets it from its own start) and its
+    stages, for people (``timing``: :func:`psf_reports`' ``"timing"``)."""
+    total_s = timing["seconds"]["total"]
+    sec = {k: v for k, v in timing["seconds"].items() if k != "total"}
+    names = {"posts": "posts (RCWA library)", "oblique": "posts at oblique incidence", "optical_train": "optical train",
+             "reports": "reports"}
+    split = [f"{names.get(k, k)} {v:.1f} s" for k, v in sec.items()]
+    split.append(f"start and checks {max(0.0, total_s - sum(sec.values())):.1f} s")
+    return f"{total_s:.1f} s in all ({', '.join(split)}); files in {timing['out_dir']}"
