@@ -86,7 +86,7 @@ def as_flag_error(command: str, err: InputError, args: argparse.Namespace | None
     err = err.renamed(flag) if flag else err
     if getattr(args, "out_default", False) and err.parameter.split(" ")[0] == "--out":
         # the command chose the path (no --out typed): say so, and what to type instead
-        from metafovea.cli.options import DEFAULT_OUT
+        from metafovea.cli.output import DEFAULT_OUT
 
         return InputError(DEFAULT_OUT + err.parameter[len("--out"):], err.value, err.allowed, source=err.source,
                           detail="the command's default: --out PATH writes elsewhere")

@@ -11,7 +11,7 @@ from __future__ import annotations
 import argparse
 from typing import Any
 
-from metafovea.cli.options import out_file
+from metafovea.cli.output import out_file
 from metafovea.io import to_json
 
 HELP = "import a camera recording (TIFF stack, HDF5, MAT) as a measurement (.npz) for reconstruct"

@@ -16,7 +16,8 @@ import time
 import warnings
 from typing import Any
 
-from metafovea.cli.options import alias, emit, out_dir, progress, stage_printer
+from metafovea.cli.options import alias, emit, progress
+from metafovea.cli.output import out_dir, stage_printer
 from metafovea.errors import InputError, NotConvergedWarning, PhysicsWarning, check_int, check_positive
 from metafovea.io import to_json
 

@@ -12,7 +12,8 @@ import argparse
 from pathlib import Path
 from typing import Any
 
-from metafovea.cli.options import out_file, progress
+from metafovea.cli.options import progress
+from metafovea.cli.output import out_file
 from metafovea.errors import InputError, as_float
 from metafovea.io import to_json
 

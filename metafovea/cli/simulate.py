@@ -12,7 +12,8 @@ from __future__ import annotations
 import argparse
 from typing import Any
 
-from metafovea.cli.options import alias, out_file, progress
+from metafovea.cli.options import alias, progress
+from metafovea.cli.output import out_file
 from metafovea.errors import InputError, as_float, check_int
 from metafovea.io import to_json
 

@@ -11,7 +11,7 @@ from __future__ import annotations
 import argparse
 from typing import Any
 
-from metafovea.cli.options import out_dir
+from metafovea.cli.output import out_dir
 from metafovea.errors import InputError, check_int
 from metafovea.io import prepare_output, to_json
 

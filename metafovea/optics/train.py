@@ -55,6 +55,7 @@ from metafovea.config import LensDesign, SystemDesign
 from metafovea.errors import check_int, check_positive
 from metafovea.lens import design_phase, quantize_phase, site_positions_um
 from metafovea.library import PostSet
+from metafovea.parallel import blas_threads
 
 from .pupil import level_transmissions, order_coefficients
 
@@ -255,11 +256,12 @@ def channel_train(system: SystemDesign, channel: str, post_sets: dict[str, PostS
     """The optical train of ``channel`` ('foveal' or 'perifoveal') of ``system`` with the post sets
     ``{'x': foveal lens' set, 'y': perifoveal lens' set}``, averaged over the wavelengths with ``weights``.
 
-    ``oblique``: ``{polarisation of a lens: ObliqueResponse of its post set}`` (:func:`metafovea.library.oblique_response`):
-    the posts off axis. The focusing lens and a front other lens see the field's plane wave; a back other lens
-    sees the focusing lens' converging cone (on axis: angles up to atan(D / 2 z), averaged over the pupil; its
-    shift with the field is left out). The field dependence is applied when it changes the throughput by more than
-    ``error`` anywhere up to ``max_field_deg`` (the channel's corner), and its size is reported either way."""
+    ``oblique``: ``{polarisation of a lens: ObliqueResponse of its post set}``
+    (:func:`metafovea.library.oblique_response`): the posts off axis. The focusing lens and a front other lens see
+    the field's plane wave; a back other lens sees the focusing lens' converging cone (on axis: angles up to atan(D
+    / 2 z), averaged over the pupil; its shift with the field is left out). The field dependence is applied when it
+    changes the throughput by more than ``error`` anywhere up to ``max_field_deg`` (the channel's corner), and its
+    size is reported either way."""
     plat = system.platform
     lenses = {"foveal": (system.foveal, system.lens_to_sensor_um[0]),
               "perifoveal": (system.perifoveal, system.lens_to_sensor_um[1])}
@@ -308,7 +310,8 @@ def channel_train(system: SystemDesign, channel: str, post_sets: dict[str, PostS
     }
     absorb = (f"free carriers of {plat.substrate_resistivity_ohm_cm:g} ohm cm {plat.substrate_dopant}-type Si, "
               f"alpha = {float(w @ alpha):.3g} /cm band mean (Schroder et al. 1978)"
-              + (f" + {plat.substrate_extra_absorption_per_cm:g} /cm given" if plat.substrate_extra_absorption_per_cm else "")
+              + (f" + {plat.substrate_extra_absorption_per_cm:g} /cm given"
+                 if plat.substrate_extra_absorption_per_cm else "")
               + f"; {d:g} um wafer")
     sources = {
         f"{L.name} lens: bare wafer face": f"1 - ((n - 1) / (n + 1))^2, n = {plat.n_substrate:g}",
@@ -423,7 +426,10 @@ def system_trains(system: SystemDesign, post_sets: dict[str, PostSet], posts: st
     wl, w = radiance.psf_wavelengths(system.platform.wavelength_um, system.scene_temperature_k, TRAIN_WAVELENGTHS)
     obl = None
     if oblique and all(ps.source == "rcwa" for ps in post_sets.values()):
-        obl = {pol: oblique_response(ps, system.platform) for pol, ps in post_sets.items()}
+        # one BLAS thread: a first run's RCWA off axis (small eigenproblems) took 7x the CPU time with OpenBLAS'
+        # threads on 2 cores (166 s against 22 s for both post sets)
+        with blas_threads(1):
+            obl = {pol: oblique_response(ps, system.platform) for pol, ps in post_sets.items()}
     half_diag = 0.5 * math.hypot(*system.sensor.crop) * system.sensor.pixel_pitch_um / system.relay_magnification
     out = []
     for channel, z in (("foveal", system.lens_to_sensor_um[0]), ("perifoveal", system.lens_to_sensor_um[1])):

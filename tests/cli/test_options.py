@@ -147,7 +147,7 @@ def test_default_out_dir_is_new_each_time(tmp_path):
     (validate and study did this each on their own; psf wrote psf_report/ and failed on the second run)."""
     from datetime import datetime
 
-    from metafovea.cli.options import default_out_dir
+    from metafovea.cli.output import default_out_dir
 
     now = datetime(2026, 12, 3, 9, 5, 7)
     first = default_out_dir("psf", root=tmp_path, now=now)
