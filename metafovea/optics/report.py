@@ -603,8 +603,8 @@ def _run_reports(lenses: list[LensDesign], out_dir: str | Path, force: bool, sys
         # one selection for the lenses reported and the camera's two (the optical train), not one each
         post_sets = rcwa_post_sets(system.platform, [*lenses, system.foveal, system.perifoveal])
         lap("posts")
-        say("posts at oblique incidence: RCWA off axis for each post set (a first run takes tens of seconds "
-            "each; cached after)")
+        say("posts at oblique incidence: RCWA off axis for each post set (a first run: ~10 s of CPU each; cached "
+            "after)")
     # the lenses' own and the optical train's (both channels' posts)
     keys = {(lens.polarization, lens.levels) for lens in (*lenses, system.foveal, system.perifoveal)}
     with blas_threads(1):  # small RCWA eigenproblems: 7x the CPU time with OpenBLAS' threads (system_trains)
