@@ -1,11 +1,11 @@
 """What a command writes when the user did not say where, and what it says while it works.
 
-Output folders, one rule for every command that writes one (``validate``, ``study``, ``psf``): ``--out DIR`` (new
-or empty, or ``--force``), else a new ``out/<command>-<time>/`` (:func:`default_out_dir`), so that running a
-command twice never collides. A command that writes one file for the next command to read (``simulate`` and
-``import``: ``meas.npz`` and the recording's name; ``reconstruct``: ``<measurement>_rec.npz``) keeps that fixed
-name (:func:`out_file`); when it exists, the error says that it is the default output (:data:`DEFAULT_OUT`), not
-that an ``--out`` nobody typed is invalid.
+Output folders, one rule for every command that writes one (``validate``, ``study``, ``psf``): ``--out DIR`` (new or
+empty, or ``--force``), else a new ``out/<command>-<time>/`` (:func:`default_out_dir`), so that running a command
+twice never collides. A command that writes one file for the next command or the fab to read (``simulate``:
+``meas.npz``; ``import``: the recording's name; ``reconstruct``: ``<measurement>_rec.npz``; ``export``:
+``gds_export/<lens>.<format>``) keeps that fixed name (:func:`out_file`); when it exists, the error says that it is
+the default output (:data:`DEFAULT_OUT`), not that an ``--out`` nobody typed is invalid.
 
 Progress: :func:`stage_printer`, one line per stage on stderr, on a terminal or not. Results less accurate than
 asked: :func:`accuracy_summary`, one line whose advice names the command's own options.
