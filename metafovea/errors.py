@@ -50,7 +50,17 @@ class InputError(ValueError):
 
 
 class NotConvergedWarning(UserWarning):
-    """A numerical result did not reach the requested tolerance."""
+    """A numerical result did not reach the requested tolerance.
+
+    ``data`` (where the raiser knows it): ``subject`` (what, e.g. "sensor PSF of 'foveal'"), ``field_deg``,
+    ``estimate`` and ``requested`` (the achieved and the requested error), ``reason`` and ``advice`` (``{library
+    parameter: what changing it does}``). A command folds such warnings into one summary line that names its own
+    options for these parameters (:func:`metafovea.cli.options.accuracy_summary`).
+    """
+
+    def __init__(self, message: str = "", data: dict[str, Any] | None = None):
+        super().__init__(message)
+        self.data = dict(data or {})
 
 
 class PhysicsWarning(UserWarning):

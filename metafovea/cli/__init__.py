@@ -43,8 +43,8 @@ PARAMETER_FLAGS: dict[str, dict[str, str]] = {
     "psf": {"band_um": "--band-um", "filter_um": "--filter-um", "pixel_pitch_um": "--pixel-um",
             "field_deg": "--field-deg", "fields_deg": "--field-deg", "error": "--error",
             "temperature_k": "--temperature-k", "n_wavelengths": "--wavelength-bins",
-            "wavelength_um": "--wavelength-um",
-            "window_um": "--window-um", "relay_magnification": "--relay", "jobs": "--workers"},
+            "wavelength_um": "--wavelength-um", "window_um": "--window-um", "relay_magnification": "--relay",
+            "jobs": "--workers", "out_dir": "--out"},
     "reconstruct": {"window": "--window", "frame": "--frame", "fpn": "--fpn", "known_alpha": "--known-alpha",
                     "regularize": "--regularize", "steps": "--steps", "channels": "--channels", "stride": "--stride",
                     "max_seconds": "--max-seconds", "seed": "--seed", "rng": "--seed", "scale": "--scale",
@@ -85,6 +85,12 @@ def as_flag_error(command: str, err: InputError, args: argparse.Namespace | None
         return err.located(f"--{dest.replace('_', '-')} {getattr(args, dest)}")
     flag = PARAMETER_FLAGS.get(command, {}).get(err.parameter)
     err = err.renamed(flag) if flag else err
+    if getattr(args, "out_default", False) and err.parameter.split(" ")[0] == "--out":
+        # the command chose the path (no --out typed): say so, and what to type instead
+        from metafovea.cli.output import DEFAULT_OUT
+
+        return InputError(DEFAULT_OUT + err.parameter[len("--out"):], err.value, err.allowed, source=err.source,
+                          detail="the command's default: --out PATH writes elsewhere")
     typed = {new: old for old, new in getattr(args, "deprecated_options", [])}  # the spelling the user typed
     return err.renamed(typed[err.parameter]) if err.parameter in typed else err
 
@@ -138,11 +144,16 @@ def main(argv: Sequence[str] | None = None) -> int:
     logging.basicConfig(format="%(levelname)s %(name)s: %(message)s")  # a handler, once per process
     log.setLevel(logging.WARNING - 10 * min(args.verbose, 2))  # each run its own level
     with warnings.catch_warnings():
-        # every warning once, on one line, under the command's name (a warnings.showwarning hook)
-        warnings.showwarning = warning_printer(args.command)
+        # every warning once, on one line, under the command's name (a warnings.showwarning hook); the results
+        # that missed their requested error as one line at the end, naming this command's options
+        show = warning_printer(args.command, flags=PARAMETER_FLAGS.get(args.command))
+        warnings.showwarning = show
         for old, new in getattr(args, "deprecated_options", []):
             log.info("%s is a deprecated spelling: use %s", old, new)
-        return _run(args)
+        try:
+            return _run(args)
+        finally:
+            show.flush()
 
 
 def _run(args: argparse.Namespace) -> int:

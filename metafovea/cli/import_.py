@@ -11,6 +11,7 @@ from __future__ import annotations
 import argparse
 from typing import Any
 
+from metafovea.cli.output import out_file
 from metafovea.io import to_json
 
 HELP = "import a camera recording (TIFF stack, HDF5, MAT) as a measurement (.npz) for reconstruct"
@@ -76,7 +77,7 @@ def run(args: argparse.Namespace) -> int:
                         band_um=tuple(args.band_um) if args.band_um else BAND_UM,
                         filter_um=tuple(args.filter_um) if args.filter_um else None, foveal_gain=args.foveal_gain,
                         scale=args.scale)
-    out, s = import_recording(args.recording, args.out, opt, force=args.force)
+    out, s = import_recording(args.recording, out_file(args, None), opt, force=args.force)
     for w in s["warnings"]:
         warnings.warn(w, UserWarning, stacklevel=1)
     if args.json:

@@ -15,6 +15,7 @@ from pathlib import Path
 from typing import Any
 
 from metafovea.cli.options import check_out_suffix, progress
+from metafovea.cli.output import out_file
 from metafovea.errors import InputError, check_choice
 
 
@@ -141,10 +142,10 @@ def run_export(args) -> int:
 
     fmt = _format(args)
     spec, ta = _inputs(args, args.design)
-    res = export_file(spec, args.out, fmt, test_array=ta, flat=args.flat, max_refs=args.max_refs, dwl=args.dwl,
-                      substrate_thickness_um=args.substrate_um, force=args.force, resume=not args.no_resume,
-                      workers=args.workers, scheduler=args.scheduler, progress=progress(args),
-                      compress=args.compress, tiles_dir=args.tiles_dir)
+    res = export_file(spec, out_file(args, None), fmt, test_array=ta, flat=args.flat, max_refs=args.max_refs,
+                      dwl=args.dwl, substrate_thickness_um=args.substrate_um, force=args.force,
+                      resume=not args.no_resume, workers=args.workers, scheduler=args.scheduler,
+                      progress=progress(args), compress=args.compress, tiles_dir=args.tiles_dir)
     if args.json:
         from metafovea.io import to_json
         print(to_json(res))

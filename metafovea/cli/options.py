@@ -1,5 +1,6 @@
 """What every command shares: ``-q/--quiet`` and ``-v/--verbose``, hidden deprecated spellings of renamed options,
-the one-line warning printer, and the check of an ``--out`` file's suffix.
+the one-line warning printer, and the check of an ``--out`` file's suffix (default outputs and progress lines:
+:mod:`metafovea.cli.output`).
 
 The vocabulary (one name, unit and meaning per option across commands) is the table "Command-line options" in
 README.md; an option renamed to fit it keeps its old spelling as a hidden alias that still works (``-v`` says
@@ -11,11 +12,11 @@ from __future__ import annotations
 import argparse
 import sys
 import warnings
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Iterator, Sequence
 from pathlib import Path
 from typing import Any
 
-from metafovea.errors import InputError
+from metafovea.errors import InputError, NotConvergedWarning
 
 
 def add_common(p: argparse.ArgumentParser) -> None:
@@ -53,19 +54,39 @@ def progress(args: argparse.Namespace) -> bool:
     return not getattr(args, "quiet", False) and not getattr(args, "json", False) and sys.stderr.isatty()
 
 
-def warning_printer(command: str, stream: Any = None) -> Callable[..., None]:
+class warning_printer:  # noqa: N801 - a function to its callers (``warnings.showwarning``), with state
     """A ``warnings.showwarning`` that prints each distinct warning once, on one line:
-    ``metafovea COMMAND: warning: MESSAGE``."""
-    seen: set[tuple[type, str]] = set()
+    ``metafovea COMMAND: warning: MESSAGE``. A :class:`~metafovea.errors.NotConvergedWarning` with data is held
+    back: :meth:`flush` prints all of them as one summary line (:func:`~metafovea.cli.output.accuracy_summary`)
+    whose advice names
+    the command's options (``flags``: library parameter -> flag, :data:`metafovea.cli.PARAMETER_FLAGS`)."""
 
-    def show(message: Any, category: type, filename: str, lineno: int, file: Any = None, line: Any = None) -> None:
-        text = " ".join(str(message).split())
-        if (category, text) in seen:
+    def __init__(self, command: str, stream: Any = None, flags: dict[str, str] | None = None):
+        self.command, self.stream, self.flags = command, stream, dict(flags or {})
+        self.seen: set[tuple[type, str]] = set()
+        self.held: list[dict[str, Any]] = []
+
+    def __call__(self, message: Any, category: type, filename: str, lineno: int, file: Any = None,
+                 line: Any = None) -> None:
+        if isinstance(message, NotConvergedWarning) and message.data.get("subject"):
+            self.held.append(message.data)
             return
-        seen.add((category, text))
-        (stream or sys.stderr).write(f"metafovea {command}: warning: {text}\n")
+        self._print(" ".join(str(message).split()), category)
 
-    return show
+    def _print(self, text: str, category: type) -> None:
+        if (category, text) in self.seen:
+            return
+        self.seen.add((category, text))
+        (self.stream or sys.stderr).write(f"metafovea {self.command}: warning: {text}\n")
+
+    def flush(self) -> None:
+        """Print the held NotConvergedWarnings as one line (nothing when there are none)."""
+        from metafovea.cli.output import accuracy_summary
+
+        held, self.held = self.held, []
+        line = accuracy_summary(held, self.flags, self.command)
+        if line:
+            self._print(line, NotConvergedWarning)
 
 
 def emit(messages: Sequence[str], category: type = UserWarning) -> None:

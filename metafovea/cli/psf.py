@@ -1,17 +1,24 @@
-"""``metafovea psf DESIGN.toml ...``: PSF/MTF report (PNG, JSON, one HTML page) for one or more lenses.
+"""``metafovea psf DESIGN.toml ...``: PSF/MTF report (PNG, JSON, one HTML page) for one or more lenses, or both
+lenses of a system file.
 
-Exit status: 0 on success, 2 on bad input (one line naming the option). The pipeline and its rules (distinct lens
-names, wavelengths and fields each lens can take, worker processes) are
+Prints, per lens and field, the key figures (Strehl ratio, focusing efficiency, FWHM, encircled energy within the
+first dark ring and within one pixel), the camera's throughput and the whole run's time by stage; one line per
+stage on stderr as it starts, and one summary warning for the results less accurate than ``--error``. Writes into
+``--out`` or a new ``out/psf-<time>/``. Exit status: 0 on success, 2 on bad input (one line naming the option).
+The pipeline and its rules (distinct lens names, wavelengths and fields each lens can take, worker processes) are
 :func:`metafovea.optics.report.psf_reports`.
 """
 
 from __future__ import annotations
 
 import argparse
+import time
+import warnings
 from typing import Any
 
 from metafovea.cli.options import alias, emit, progress
-from metafovea.errors import InputError, PhysicsWarning, check_int, check_positive
+from metafovea.cli.output import out_dir, stage_printer
+from metafovea.errors import InputError, NotConvergedWarning, PhysicsWarning, check_int, check_positive
 from metafovea.io import to_json
 
 
@@ -19,7 +26,8 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
     p = subparsers.add_parser("psf", help="PSF/MTF report of metalens designs",
                               description="PSF, MTF, encircled energy and chromatic behaviour of lens designs; "
                                           "writes PNG figures, JSON numbers and a self-contained HTML page.")
-    p.add_argument("designs", nargs="+", help="lens TOML files (e.g. designs/foveal.toml)")
+    p.add_argument("designs", nargs="+", help="lens TOML files (e.g. designs/foveal.toml), or a system TOML "
+                   "(designs/system.toml: both its lenses, with its sensor, relay and distances)")
     p.add_argument("--field-deg", type=float, nargs="+", default=None,
                    help="field angles in degrees (default: 9 points from 0 to the sensor corner / lens field)")
     g = p.add_mutually_exclusive_group()
@@ -51,7 +59,7 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
                    help="full width of the fine monochromatic PSF windows in um (default: sized from the rays); "
                         "a window that truncates the PSF above --error is an error")
     p.add_argument("--error", type=float, default=1e-4, help="requested max abs error relative to the peak")
-    p.add_argument("--out", default="psf_report", help="output directory (must be new or empty)")
+    p.add_argument("--out", default=None, help="output directory, new or empty (default: a new out/psf-<time>/)")
     p.add_argument("--force", action="store_true", help="overwrite existing output")
     p.add_argument("--json", action="store_true", help="print the numbers as JSON")
     p.add_argument("--workers", type=int, default=None,
@@ -72,29 +80,56 @@ MAX_WAVELENGTHS = 2001
 MAX_FIELDS = 64
 
 
+def _designs(paths: list[str], system_flag: str | None) -> tuple[list[Any], str | None]:
+    """The lenses the design files name (a lens file stays a path: the report loads it) and the system file, when
+    one of them is a system (both its lenses, as ``design`` takes it)."""
+    from metafovea.config import LensDesign, SystemDesign, load_design
+
+    lenses: list[Any] = []
+    system_file = None
+    for path in paths:
+        d = load_design(path)
+        if isinstance(d, SystemDesign):
+            if system_flag is not None:
+                raise InputError("--system", system_flag, f"no --system with a system file among the designs ({path} "
+                                 "is the system: its lenses, sensor, relay and distances)")
+            if system_file is not None:
+                raise InputError("designs", path, f"one system file ({system_file} is one)")
+            system_file = path
+            lenses += [d.foveal, d.perifoveal]
+        elif isinstance(d, LensDesign):
+            lenses.append(path)
+        else:
+            raise InputError("designs", path, "a lens or system TOML (a platform file has no lens)")
+    return lenses, system_file
+
+
 def run(args: argparse.Namespace) -> int:
+    t0 = time.perf_counter()
     from metafovea.config import SystemDesign, load_system
     from metafovea.optics.report import psf_reports
     from metafovea.radiometry import check_band
 
+    designs, system_file = _designs(args.designs, args.system)
+    system_file = system_file or args.system
     band = check_band(args.band_um, "--band-um") if args.band_um is not None else (8.0, 14.0)
     filt = None
     if args.filter_um is not None:
         c = check_positive("--filter-um center", args.filter_um[0], "um")
         w = check_positive("--filter-um width", args.filter_um[1], "um")
         filt = (c, w)
-    system = load_system(args.system) if args.system is not None else SystemDesign.paper()
+    system = load_system(system_file) if system_file is not None else SystemDesign.paper()
     if args.filter == "on":
         if args.band_um is not None or args.filter_um is not None:
             raise InputError("--filter", "on", "not together with --band-um or --filter-um (the system's filter)")
         filt = (system.filter_center_um, system.filter_bandwidth_um)
     check_positive("--temperature-k", args.temperature_k, "K", hi=1e5)
     check_positive("--error", args.error, hi=0.5)
-    pixel_um = system.sensor.pixel_pitch_um if args.pixel_um is None else check_positive("--pixel-um", args.pixel_um,
-                                                                                         "um", hi=1e4)
+    pixel_um = (system.sensor.pixel_pitch_um if args.pixel_um is None else
+                check_positive("--pixel-um", args.pixel_um, "um", hi=1e4))
     relay = system.relay_magnification if args.relay is None else check_positive("--relay", args.relay, hi=10.0)
     distances = ({system.foveal.name: system.lens_to_sensor_um[0], system.perifoveal.name: system.lens_to_sensor_um[1]}
-                 if args.system is not None else None)
+                 if system_file is not None else None)
     check_int("--wavelength-bins", args.wavelength_bins, 1, MAX_WAVELENGTHS)
     if args.field_deg is not None and len(args.field_deg) > MAX_FIELDS:
         raise InputError("--field-deg", f"{len(args.field_deg)} angles", f"at most {MAX_FIELDS} angles (each is an "
@@ -104,27 +139,28 @@ def run(args: argparse.Namespace) -> int:
     if args.window_um is not None:
         check_positive("--window-um", args.window_um, "um")
     jobs = check_int("--workers", args.workers, 1, 64) if args.workers is not None else None
-    summary = psf_reports(args.designs, args.out, force=args.force, fields_deg=args.field_deg, band_um=band,
+    summary = psf_reports(designs, out_dir(args, "psf"), force=args.force, fields_deg=args.field_deg, band_um=band,
                           filter_um=filt, temperature_k=args.temperature_k, n_wavelengths=args.wavelength_bins,
                           pixel_pitch_um=pixel_um, error=args.error, wavelength_um=args.wavelength_um,
                           window_um=args.window_um, jobs=jobs, relay_magnification=relay, distances_um=distances,
-                          progress=progress(args), system=system, posts=args.posts, scheduler=args.scheduler)
-    for name, s in summary.items():  # each distinct one once, on one line (also those from worker processes)
-        emit([f"{name}: {w}" for w in (s.get("warnings", ()) if name != "optical_train" else ())], PhysicsWarning)
+                          progress=progress(args), system=system, posts=args.posts, scheduler=args.scheduler,
+                          say=stage_printer(args, "psf"))
+    lenses = {k: v for k, v in summary.items() if k not in ("optical_train", "timing")}
+    for name, s in lenses.items():  # each distinct one once, on one line (also those from worker processes)
+        emit([f"{name}: {w}" for w in s["warnings"]], PhysicsWarning)
+        for item in s["accuracy"]:  # one summary line for all of them, naming this command's options
+            warnings.warn(NotConvergedWarning(item["message"], item), stacklevel=1)
+    summary["timing"]["seconds"]["total"] = time.perf_counter() - t0  # the whole run, start and checks included
     if args.json:
         print(to_json(summary))
-    else:
-        from metafovea.optics.train import throughput_lines
+        return 0
+    from metafovea.optics.report import lens_lines, timing_line
+    from metafovea.optics.train import throughput_lines
 
-        trains = summary.pop("optical_train")
-        for name, s in summary.items():
-            m0 = s["monochromatic"][0]
-            print(f"{name}: on-axis {m0['engine']} (err {m0['error_estimate']:.1g}), "
-                  f"{len(s['sensor'])} fields, pixels {s['pixel_pitch_um']:.4g} um at the focal plane "
-                  f"({pixel_um:g} um / {relay:g}x relay), sensor at {s['z_um'] / 1000:g} mm, "
-                  f"{s['seconds']:.1f} s -> {s['html']}"
-                  + (f"  [{len(set(s['warnings']))} warnings, on stderr]" if s["warnings"] else ""))
-        print("\n".join(throughput_lines(trains)))
+    for name, s in lenses.items():
+        print("\n".join(lens_lines(name, s)))
+    print("\n".join(throughput_lines(summary["optical_train"])))
+    print(timing_line(summary["timing"]))
     return 0
 
 

@@ -13,6 +13,7 @@ from pathlib import Path
 from typing import Any
 
 from metafovea.cli.options import progress
+from metafovea.cli.output import out_file
 from metafovea.errors import InputError, as_float
 from metafovea.io import to_json
 
@@ -32,7 +33,8 @@ def register(subparsers: Any) -> argparse.ArgumentParser:
     p.add_argument("--stride", type=int, default=1, help="window stride in frames (default 1)")
     p.add_argument("--denoise", default=None, choices=DENOISERS, help="denoise the outputs")
     p.add_argument("--fpn", default="none", metavar="none|prior|calibration|PATTERN",
-                   help="fixed-pattern noise: none, prior (blind, from the separated images and the foveal constraint; one window: --window = all frames), calibration (the file's "
+                   help="fixed-pattern noise: none, prior (blind, from the separated images and the foveal "
+                        "constraint; one window: --window = all frames), calibration (the file's "
                    "'calibration' frames) or a pattern file of yours (.npy/.npz/.tif, subtracted); the file's own "
                    "'fpn' is truth and only scores an estimate")
     p.add_argument("--scale", type=float, default=None, help="f1/f2 of the foveal constraint (default: file meta "
@@ -118,7 +120,7 @@ def run(args: argparse.Namespace) -> int:
 
     m = Measurement.load(args.measurement)
     solver = _solver_options(args)
-    out, figures = prepare_outputs(m.source, args.out, figures=not args.no_figures, force=args.force)
+    out, figures = prepare_outputs(m.source, out_file(args, None), figures=not args.no_figures, force=args.force)
     scene_out = scene_paths(out, not args.no_figures, args.force) if args.deconvolve else []
     fc = FovealConstraint.from_meta(m.meta, scale=args.scale, gain=args.foveal_gain, offset=args.foveal_offset)
     res = reconstruct_measurement(m, args.method, known_alpha=args.known_alpha, window=args.window,

@@ -13,6 +13,7 @@ import argparse
 from typing import Any
 
 from metafovea.cli.options import alias, progress
+from metafovea.cli.output import out_file
 from metafovea.errors import InputError, as_float, check_int
 from metafovea.io import to_json
 
@@ -29,7 +30,7 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
     p.add_argument("--list-scenes", action="store_true", help="list the built-in scenes and exit")
     p.add_argument("--frames", default="96", help="number of frames (default 96)")
     p.add_argument("--seed", default="0", help="random seed (default 0)")
-    p.add_argument("--out", default="meas.npz", help="Measurement file (default meas.npz)")
+    p.add_argument("--out", default=None, help="Measurement file (default meas.npz)")
     p.add_argument("--force", action="store_true", help="overwrite existing output")
     p.add_argument("--json", action="store_true", help="print a JSON summary")
     p.add_argument("--no-tiff", action="store_true", help="do not write the TIFF stack")
@@ -37,7 +38,8 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
     g = p.add_argument_group("optics")
     g.add_argument("--psf", default="auto",
                    help="auto (metafovea.optics if available, else airy), optics, airy, gaussian:SIGMA_UM")
-    g.add_argument("--psf-cache", help="PSF cache directory (default $METAFOVEA_CACHE/psf, i.e. ~/.cache/metafovea/psf)")
+    g.add_argument("--psf-cache",
+                   help="PSF cache directory (default $METAFOVEA_CACHE/psf, i.e. ~/.cache/metafovea/psf)")
     g.add_argument("--psf-size", help="PSF window in samples (odd, at most 1025; default 6 x supersample + 1)")
     g.add_argument("--field-patches", default="1", help="1 (shift-invariant), N (N x N patches) or auto")
     g.add_argument("--filter", nargs="?", const="on", default=None, choices=("on", "off"),
@@ -102,7 +104,8 @@ def _options(args: argparse.Namespace, frames: int) -> Any:
         polarizer_mode=args.polarizer, polarizer_phase_deg=_num("--phase-deg", args.phase_deg),
         extinction=_num("--extinction", args.extinction), bolometer_tau_s=_num("--tau", args.tau),
         netd_k=_num("--netd", args.netd),
-        fpn_rank=0 if args.no_fpn else (None if args.fpn_rank is None else check_int("--fpn-rank", args.fpn_rank, 0, 10000)),
+        fpn_rank=0 if args.no_fpn else (None if args.fpn_rank is None else
+                                        check_int("--fpn-rank", args.fpn_rank, 0, 10000)),
         fpn_amplitude=_num("--fpn-amplitude", args.fpn_amplitude), fpn_drift=_num("--drift", args.drift),
         noise=not args.no_noise, quantize=not args.no_quantize, progress=progress(args),
         posts=args.posts, optical_train=not args.no_train,
@@ -130,8 +133,8 @@ def run(args: argparse.Namespace) -> int:
     frames = check_int("--frames", args.frames, 1, 100_000)
     seed = check_int("--seed", args.seed, 0, 2 ** 63 - 1)
     opts = _options(args, frames)
-    result = simulate_to_files(args.system_file, args.scene, args.out, opts, rng=seed, force=args.force,
-                               tiff=not args.no_tiff, preview=not args.no_preview)
+    result = simulate_to_files(args.system_file, args.scene, out_file(args, "meas.npz"), opts, rng=seed,
+                               force=args.force, tiff=not args.no_tiff, preview=not args.no_preview)
     summary = result.summary()
     if args.json:
         print(to_json(summary))

@@ -9,10 +9,9 @@ Exit status 0, or 2 on bad input (an unknown study, a bad ``--seed``, an output 
 from __future__ import annotations
 
 import argparse
-from datetime import datetime
-from pathlib import Path
 from typing import Any
 
+from metafovea.cli.output import out_dir
 from metafovea.errors import InputError, check_int
 from metafovea.io import prepare_output, to_json
 
@@ -53,11 +52,7 @@ def run(args: argparse.Namespace) -> int:
     study_module(args.name)  # an unknown name before anything is created
     seed = check_int("--seed", args.seed, 0, 2**32 - 1)
     workers = check_int("--workers", args.workers, 0, 4096) or None
-    if args.out:
-        out = prepare_output(args.out, args.force, is_dir=True)
-    else:
-        stamp = datetime.now().strftime("%Y%m%d-%H%M%S")
-        out = prepare_output(Path("out") / f"study-{args.name}-{stamp}", False, is_dir=True)
+    out = prepare_output(out_dir(args, "study", args.name), args.force, is_dir=True)
     progress = not args.json and not getattr(args, "quiet", False)
     opts = StudyOptions(fast=args.fast, seed=seed, workers=workers, scheduler=args.scheduler, progress=progress)
     res = run_study(args.name, opts, out, force=True)

@@ -10,10 +10,9 @@ on bad input.
 from __future__ import annotations
 
 import argparse
-from datetime import datetime
-from pathlib import Path
 from typing import Any
 
+from metafovea.cli.output import out_dir
 from metafovea.errors import check_int
 from metafovea.io import prepare_output, to_json
 
@@ -49,11 +48,7 @@ def run(args: argparse.Namespace) -> int:
     dip_steps = check_int("--dip-steps", args.dip_steps, 1, 100_000)
     system = load_system(args.system_file) if args.system_file else SystemDesign.paper()
     make_scene(args.scene)  # a bad --scene is reported before minutes of library and PSF work
-    if args.out:
-        out = prepare_output(args.out, args.force, is_dir=True)
-    else:
-        stamp = datetime.now().strftime("%Y%m%d-%H%M%S")
-        out = prepare_output(Path("out") / f"validate-{stamp}", False, is_dir=True)
+    out = prepare_output(out_dir(args, "validate"), args.force, is_dir=True)
     opts = ValidateOptions(seed=seed, frames=frames, scene=args.scene, dip_steps=dip_steps,
                            polarizer_mode=args.polarizer,
                            progress=not getattr(args, "quiet", False) and not args.json,

@@ -15,13 +15,14 @@ Files, in the order light meets them::
                encircled_energy_on_axis (exact radial integral); diffraction_radius_um, nyquist_pitch_um
     sensor     sensor_psf(): the PSF integrated over pixels, broadband, on and off axis (batched hankel on
                axis; batched mft near focus and the geometric ray engine elsewhere off axis, with an error
-               bound for each); box_integrate, disk_pixels, geometric_pixels_multi
+               bound for each; a result less accurate than asked says why in info['accuracy']); box_integrate,
+               disk_pixels, geometric_pixels_multi
     sweep      sensor_psf_sweep(): sensor PSFs over fields and wavelength sets, one task each through
                metafovea.parallel.run_tasks (local threads or processes, or a Dask cluster: psf --scheduler)
     mtf        metrics of a PSF or a lens: mtf_2d, mtf_radial, mtf_slices, pupil_mtf (exact pupil
                autocorrelation), diffraction_mtf, pixel_mtf, encircled_energy, strehl, fwhm_um
     report     psf_report (one lens: PNG figures, JSON, HTML page) and psf_reports (several lenses, the
-               ``metafovea psf`` pipeline)
+               ``metafovea psf`` pipeline); lens_lines, timing_line (what the command prints)
 """
 
 from .mtf import (

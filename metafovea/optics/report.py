@@ -1,5 +1,6 @@
 """PSF/MTF reports: :func:`psf_report` writes the PNG figures, JSON numbers and one self-contained HTML page of
-one lens; :func:`psf_reports` is the ``metafovea psf`` pipeline (checks, several lenses in worker processes)."""
+one lens; :func:`psf_reports` is the ``metafovea psf`` pipeline (checks, several lenses in worker processes);
+:func:`lens_lines` and :func:`timing_line` are its summary for people (what the command prints)."""
 
 from __future__ import annotations
 
@@ -17,14 +18,23 @@ from typing import Any
 import numpy as np
 
 from metafovea.config import PAPER_BAND_UM, PAPER_PIXEL_PITCH_UM, LensDesign, SystemDesign, load_lens
-from metafovea.errors import InputError, check_choice, check_int, check_positive
+from metafovea.errors import InputError, NotConvergedWarning, check_choice, check_int, check_positive
 from metafovea.io import atomic_write_bytes, atomic_write_json, file_stem, prepare_output
 from metafovea.library import POST_SOURCES, oblique_response, rcwa_post_sets, system_post_sets
 from metafovea.parallel import blas_threads
 from metafovea.radiometry import psf_wavelengths
-from metafovea.report import HtmlReport, fig_to_png
+from metafovea.report import HtmlReport, fig_to_png, fmt
 
-from .mtf import diffraction_mtf, encircled_energy, focusing_efficiency, mtf_slices, pixel_mtf, pupil_mtf, strehl
+from .mtf import (
+    diffraction_mtf,
+    encircled_energy,
+    focusing_efficiency,
+    fwhm_um,
+    mtf_slices,
+    pixel_mtf,
+    pupil_mtf,
+    strehl,
+)
 from .propagate import SamplingError
 from .psf import defocus_note, depth_of_focus_um, diffraction_radius_um, encircled_energy_on_axis, psf
 from .pupil import EVANESCENT_MARGIN, max_field_deg
@@ -33,8 +43,6 @@ from .sweep import sensor_psf_sweep
 from .train import POSTS_NOTE_IDEAL, system_trains, throughput_lines
 
 log = logging.getLogger(__name__)
-
-#: resolution of the report figures
 
 
 # ----------------------------------------------------------------------------------------------
@@ -88,7 +96,8 @@ def psf_report(lens: LensDesign, out_dir: str | Path, *, fields_deg: list[float]
     res: dict[str, Any] = {"mono_wavelength_um": mono_wl[0], "lens": lens.name, "f_mm": lens.f_mm,
                            "diameter_mm": lens.diameter_mm, "na": lens.na, "wavelength_um": lens.wavelength_um,
                            "polarization": lens.polarization, "mtf_cutoff_cyc_per_mm": cut,
-                           "requested_error": error, "warnings": [], "z_um": z, "defocus_um": z - lens.f_um,
+                           "requested_error": error, "warnings": [], "accuracy": [], "z_um": z,
+                           "defocus_um": z - lens.f_um,
                            "sensor_pixel_um": sensor_pixel_um, "relay_magnification": relay,
                            "posts": "ideal" if post_set is None else post_set.source,
                            "optical_train": trains}
@@ -173,6 +182,7 @@ def _monochromatic(plt: Any, lens: LensDesign, res: dict[str, Any], fields_deg: 
     """Monochromatic PSFs (fabricated lens) on axis, at mid-field and at the last field: ``res['monochromatic']``
     and the figure. A PSF too aberrated for the fine grid is shown on a pixel grid of a quarter pitch instead."""
     mono = []
+    r_d = diffraction_radius_um(lens)
     fig, axs = plt.subplots(1, 3, figsize=(13, 4.0))
     for ax, fd in zip(axs, [0.0, fields_deg[len(fields_deg) // 2], fields_deg[-1]]):
         with warnings.catch_warnings(record=True) as ws:
@@ -187,7 +197,8 @@ def _monochromatic(plt: Any, lens: LensDesign, res: dict[str, Any], fields_deg: 
                 P = sensor_psf(lens, pixel_pitch_um=pixel_pitch_um / 4, field_deg=fd, post_set=posts_at(fd),
                                error=max(error, 1e-3), wavelengths_um=mono_wl, z_um=z)
                 res["warnings"].append(f"field {fd:.3g} deg: fine PSF not computed ({e}); pixel-grid PSF shown")
-        res["warnings"] += [str(w.message) for w in ws]
+        res["warnings"] += [str(w.message) for w in ws if not _on_the_result(w)]
+        res["accuracy"] += [P.info["accuracy"]] if "accuracy" in P.info else []
         fine = "diffraction_limited_peak_fraction" in P.info
         xs, ys = P.coords()
         im = ax.imshow(P.intensity / P.pitch_um ** 2, origin="lower", extent=[xs[0], xs[-1], ys[0], ys[-1]],
@@ -204,6 +215,8 @@ def _monochromatic(plt: Any, lens: LensDesign, res: dict[str, Any], fields_deg: 
                      "peak_fraction_per_um2": float(P.intensity.max() / P.pitch_um ** 2),
                      "strehl": strehl(P) if fine else None,
                      "focusing_efficiency": focusing_efficiency(P) if fine else None,
+                     "fwhm_um": list(fwhm_um(P)) if fine else None,
+                     **_encircled(lens, P, fd, r_d, mono_wl, posts_at, z, fine),
                      "seconds": P.info.get("seconds")})
         tick(f"PSF {fd:.2f} deg")
     axs[0].set_ylabel("y at the focal plane (um)")
@@ -212,6 +225,25 @@ def _monochromatic(plt: Any, lens: LensDesign, res: dict[str, Any], fields_deg: 
     png = fig_to_png(fig)
     plt.close(fig)
     return png
+
+
+def _encircled(lens: LensDesign, P: Any, fd: float, r_um: float, mono_wl: list[float],
+               posts_at: Callable[[float], Any], z: float, fine: bool) -> dict[str, Any]:
+    """Encircled energy (fraction of the incident power) within ``r_um`` (the first dark ring of the Airy pattern,
+    0.61 lambda0 / NA): on axis the exact radial integral, off axis the fine PSF's about its centroid."""
+    if fd == 0.0:
+        ee = encircled_energy_on_axis(lens, r_um, wavelengths_um=mono_wl, post_set=posts_at(0.0), z_um=z)
+        how = "exact"
+    elif fine:
+        ee, how = float(encircled_energy(P, r_um)[0]), "fine PSF, about its centroid"
+    else:
+        ee, how = None, None
+    return {"ee_radius_um": r_um, "ee": ee, "ee_method": how}
+
+
+def _on_the_result(w: warnings.WarningMessage) -> bool:
+    """A result's NotConvergedWarning with data: its ``info['accuracy']`` holds the same (kept once, as data)."""
+    return isinstance(w.message, NotConvergedWarning) and bool(w.message.data)
 
 
 def _wavefront(plt: Any, lens: LensDesign, res: dict[str, Any], post_set: Any) -> bytes:
@@ -368,6 +400,7 @@ def _sensor(plt: Any, lens: LensDesign, res: dict[str, Any], fields_deg: list[fl
                                  post_sets=[posts_at(fd) for fd in fields_deg], error=error, z_um=z, executor=ex,
                                  on_field=lambda fd: tick(f"sensor PSFs {fd:.2f} deg"))
     res["warnings"] += sweep.warnings
+    res["accuracy"] += sweep.accuracy()
     for fd, (mono_s, poly) in zip(fields_deg, sweep.psfs):
         c = tuple(s // 2 for s in poly.shape)
         cm = tuple(s // 2 for s in mono_s.shape)
@@ -436,18 +469,25 @@ def _page(res: dict[str, Any], figs: dict[str, bytes]) -> HtmlReport:
         f"filter {filt}, "
         f"{sp['n_wavelengths']} wavelength bins (geometric around the design wavelength).")
     page.heading("Monochromatic PSFs (engine, sampling, error estimate)")
+    r_ee = res["monochromatic"][0]["ee_radius_um"]
     page.table(["field (deg)", "engine", "grid", "error estimate (of peak)", "pitch (um)", "power in window",
-                "Strehl ratio", "peak / ideal continuous lens"],
+                "Strehl ratio", "peak / ideal continuous lens", "FWHM x / y (um)", f"EE within {r_ee:.4g} um"],
                [[f"{m['field_deg']:.3f}", m["engine"], m["grid"],
                  "not bounded (edge diffraction)" if m.get("model_note") else f"{m['error_estimate']:.2g}",
                  f"{m['pitch_um']:.3g}",
                  f"{m['energy_fraction']:.4f}", "-" if m["strehl"] is None else f"{m['strehl']:.4f}",
-                 "-" if m["focusing_efficiency"] is None else f"{m['focusing_efficiency']:.4f}"]
+                 "-" if m["focusing_efficiency"] is None else f"{m['focusing_efficiency']:.4f}",
+                 "-" if m["fwhm_um"] is None else f"{m['fwhm_um'][0]:.4g} / {m['fwhm_um'][1]:.4g}",
+                 "-" if m["ee"] is None else f"{m['ee']:.4f}"]
                 for m in res["monochromatic"]])
     page.paragraph("Strehl ratio: peak over the aberration-free peak of the same pupil amplitude (posts, levels and "
-                   "lattice included); peak / ideal continuous lens: what quantisation, lattice and posts cost at the "
-                   "focus on top of the aberrations. 'pixel' rows are PSFs too aberrated for the fine grid, shown "
-                   "on a pixel grid (no Strehl).")
+                   "lattice included); peak / ideal continuous lens (the focusing efficiency printed by the command): "
+                   "what quantisation, lattice and posts cost at the focus on top of the aberrations (sinc^2(pi/N) "
+                   "for N ideal levels in focus). FWHM through the peak (band-limited interpolation); EE: fraction of "
+                   f"the incident power within the Airy pattern's first dark ring 0.61 lambda0/NA = {r_ee:.4g} um "
+                   "(0.838 of a perfect lens' power), on axis by the exact radial integral, off axis from the fine "
+                   "PSF about its centroid. 'pixel' rows are PSFs too aberrated for the fine grid, shown on a pixel "
+                   "grid (no Strehl).")
     page.paragraph(f"On axis, power within r = {ee['radius_um']:g} um (exact radial integral): "
                    f"{res['mono_wavelength_um']:g} um {ee['mono']:.4f}, band {ee['band']:.4g} "
                    "(fractions of the incident power).")
@@ -481,7 +521,7 @@ def _page(res: dict[str, Any], figs: dict[str, bytes]) -> HtmlReport:
                        "times the wafers, the other lens' coherent pass-through and its ring); the glare is the "
                        "other lens' pass-through ripple (leakage), spread over the disks listed.")
     page.heading("Warnings")
-    for w in dict.fromkeys(res["warnings"]) or ["none"]:
+    for w in [*dict.fromkeys(res["warnings"]), *(a["message"] for a in res["accuracy"])] or ["none"]:
         page.paragraph(w)
     page.paragraph(f"Computed in {res['seconds']:.1f} s.")
     return page
@@ -498,7 +538,7 @@ def psf_reports(designs: Sequence[str | Path | LensDesign], out_dir: str | Path,
                 jobs: int | None = None, relay_magnification: float = 1.0,
                 distances_um: dict[str, float] | None = None, progress: bool = False,
                 system: SystemDesign | None = None, posts: str = "rcwa",
-                scheduler: str | None = None) -> dict[str, dict[str, Any]]:
+                scheduler: str | None = None, say: Callable[[str], None] | None = None) -> dict[str, dict[str, Any]]:
     """:func:`psf_report` of every lens (TOML paths or :class:`LensDesign`) into ``out_dir``, one process per lens.
 
     Everything that can be refused is refused before any work and before ``out_dir`` is made: a band, filter
@@ -510,11 +550,15 @@ def psf_reports(designs: Sequence[str | Path | LensDesign], out_dir: str | Path,
     focal length). ``posts``: 'rcwa' (each lens gets the platform's RCWA post set for its polarisation and levels:
     the fabricated lens; the library is computed once and cached) or 'ideal' (a simplified model). ``system``
     (default: the paper's camera): the platform of the posts and the optical train whose per-channel throughput
-    every report shows (the same numbers ``simulate`` and ``validate`` print). Returns, per lens name, its
-    seconds, monochromatic and sensor rows, warnings and the path of its HTML page, and under ``"optical_train"``
-    the trains' summaries. ``scheduler`` (a Dask scheduler address, or ``local:N``): the lenses are reported one
-    after the other and each one's sensor PSFs across the field (every field, at the design wavelength and over
-    the band) are spread over the cluster; the workers write nothing (the figures and pages are written here).
+    every report shows (the same numbers ``simulate`` and ``validate`` print). Returns, per lens name, the keys
+    :data:`SUMMARY_KEYS` of its report (its seconds, monochromatic rows with the key figures, sensor rows,
+    warnings, ``accuracy``: the results that missed ``error``, why and what would change that) and the path of its
+    HTML page; under ``"optical_train"`` the trains' summaries; under ``"timing"`` the output folder and the
+    whole run's seconds by stage (``posts``, ``oblique``, ``optical_train``, ``reports``, ``total``). ``scheduler``
+    (a Dask scheduler address, or ``local:N``): the lenses are reported one after the other and each one's sensor
+    PSFs across the field (every field, at the design wavelength and over the band) are spread over the cluster;
+    the workers write nothing (the figures and pages are written here). ``say``: called with one line per stage
+    as it starts (progress for a person: :func:`metafovea.cli.options.stage_printer`).
     """
     _check_light(band_um, filter_um, temperature_k)
     lenses = [d if isinstance(d, LensDesign) else load_lens(d) for d in designs]
@@ -533,7 +577,7 @@ def psf_reports(designs: Sequence[str | Path | LensDesign], out_dir: str | Path,
         from metafovea.parallel import get_executor
 
         ex = stack.enter_context(get_executor(scheduler=scheduler)) if scheduler else None
-        return _run_reports(lenses, out_dir, force, system, posts, dist, jobs, progress, ex,
+        return _run_reports(lenses, out_dir, force, system, posts, dist, jobs, progress, ex, say or (lambda m: None),
                             dict(fields_deg=fields_deg, band_um=band_um, filter_um=filter_um,
                                  temperature_k=temperature_k, n_wavelengths=n_wavelengths,
                                  pixel_pitch_um=pixel_pitch_um, error=error, wavelength_um=wavelength_um,
@@ -541,19 +585,43 @@ def psf_reports(designs: Sequence[str | Path | LensDesign], out_dir: str | Path,
 
 
 def _run_reports(lenses: list[LensDesign], out_dir: str | Path, force: bool, system: SystemDesign, posts: str,
-                 dist: dict[str, float], jobs: int, progress: bool, ex: Any,
+                 dist: dict[str, float], jobs: int, progress: bool, ex: Any, say: Callable[[str], None],
                  kw: dict[str, Any]) -> dict[str, dict[str, Any]]:
     """:func:`psf_reports` after its checks: the output folder, the posts, then each lens' report (in a process
     per lens, or here with the sensor PSFs on the cluster ``ex``)."""
-    out = prepare_output(out_dir, force, is_dir=True)
-    post_sets = rcwa_post_sets(system.platform, lenses) if posts == "rcwa" else {}
-    used = {(lens.polarization, lens.levels) for lens in lenses} & set(post_sets)
-    obliques = {key: oblique_response(post_sets[key], system.platform) for key in used}
-    trains = [t.summary() for t in system_trains(system, *system_post_sets(system, posts))]
+    t0 = time.perf_counter()
+    seconds: dict[str, float] = {}
+
+    def lap(stage: str) -> None:
+        seconds[stage] = time.perf_counter() - t0 - sum(seconds.values())
+
+    out = prepare_output(out_dir, force, is_dir=True, name="out_dir")
+    post_sets: dict[tuple[str, int], Any] = {}
+    if posts == "rcwa":
+        say("posts: the platform's RCWA library and post sets (a first run computes the library, about a minute "
+            "on 2 cores; cached after)")
+        # one selection for the lenses reported and the camera's two (the optical train), not one each
+        post_sets = rcwa_post_sets(system.platform, [*lenses, system.foveal, system.perifoveal])
+        lap("posts")
+        say("posts at oblique incidence: RCWA off axis for each post set (a first run: ~10 s of CPU each; cached "
+            "after)")
+    # the lenses' own and the optical train's (both channels' posts)
+    keys = {(lens.polarization, lens.levels) for lens in (*lenses, system.foveal, system.perifoveal)}
+    with blas_threads(1):  # small RCWA eigenproblems: 7x the CPU time with OpenBLAS' threads (system_trains)
+        obliques = {key: oblique_response(post_sets[key], system.platform) for key in sorted(keys & set(post_sets))}
+    if obliques:
+        lap("oblique")
+    train_sets = ({lens.polarization: post_sets[(lens.polarization, lens.levels)]
+                   for lens in (system.foveal, system.perifoveal)} if posts == "rcwa" else posts)
+    say("optical train: throughput and glare of both channels")
+    trains = [t.summary() for t in system_trains(system, *system_post_sets(system, train_sets))]
+    lap("optical_train")
     kws = [{**kw, "z_um": dist.get(lens.name), "progress": progress, "position": i, "trains": trains,
             "post_set": post_sets.get((lens.polarization, lens.levels)),
             "oblique": obliques.get((lens.polarization, lens.levels))} for i, lens in enumerate(lenses)]
+    names = ", ".join(f"'{lens.name}'" for lens in lenses)
     if ex is not None:
+        say(f"reports of {names}: PSFs, MTF, encircled energy, sensor PSFs across the field (on the cluster)")
         outcomes = [_report_one(lens, str(out), {**k, "executor": ex}) for lens, k in zip(lenses, kws)]
     elif jobs > 1 and len(lenses) > 1:
         # one process per lens (the report of a lens is single-threaded), through the project's executor
@@ -561,11 +629,17 @@ def _run_reports(lenses: list[LensDesign], out_dir: str | Path, force: bool, sys
         # (run_tasks ends the running reports on Ctrl-C rather than waiting for them)
         from metafovea.parallel import run_tasks
 
+        say(f"reports of {names} in {min(jobs, len(lenses))} processes: PSFs, MTF, encircled energy, sensor PSFs "
+            "across the field")
         done = dict(run_tasks(_report_item, [(lens, str(out), k) for lens, k in zip(lenses, kws)],
                               workers=min(jobs, len(lenses))))
         outcomes = [done[i] for i in range(len(lenses))]
     else:
-        outcomes = [_report_one(lens, str(out), k) for lens, k in zip(lenses, kws)]
+        outcomes = []
+        for lens, k in zip(lenses, kws):
+            say(f"report of '{lens.name}': PSFs, MTF, encircled energy, sensor PSFs across the field")
+            outcomes.append(_report_one(lens, str(out), k))
+    lap("reports")
     summary = {}
     for lens, (kind, val) in zip(lenses, outcomes):
         if kind == "input_error":
@@ -573,6 +647,8 @@ def _run_reports(lenses: list[LensDesign], out_dir: str | Path, force: bool, sys
             raise cls(parameter, value, allowed, source=source, detail=detail)
         summary[lens.name] = {**val, "html": str(Path(out) / f"{file_stem(lens.name)}_psf_report.html")}
     summary["optical_train"] = trains
+    seconds["total"] = time.perf_counter() - t0
+    summary["timing"] = {"seconds": seconds, "out_dir": str(out)}
     return summary
 
 
@@ -588,8 +664,14 @@ def _report_one(lens: LensDesign, out: str, kw: dict[str, Any]) -> tuple[str, An
         res = psf_report(lens, out, **kw)
     except InputError as e:
         return "input_error", (type(e), e.parameter, e.value, e.allowed, e.source, e.detail)
-    return "ok", {k: res[k] for k in ("seconds", "monochromatic", "sensor", "warnings", "pixel_pitch_um", "z_um",
-                                      "relay_magnification", "posts")}
+    return "ok", {k: res[k] for k in SUMMARY_KEYS}
+
+
+#: what :func:`psf_reports` returns of each lens' report (the whole report is its JSON file)
+SUMMARY_KEYS = ("lens", "f_mm", "diameter_mm", "na", "wavelength_um", "mono_wavelength_um", "polarization", "posts",
+                "seconds", "monochromatic", "sensor", "on_axis_ee_pixel_radius", "warnings", "accuracy",
+                "pixel_pitch_um", "sensor_pixel_um", "z_um", "defocus_um", "relay_magnification", "requested_error",
+                "spectral")
 
 
 def _check_light(band: tuple[float, float], filt: tuple[float, float] | None, temperature_k: float) -> None:
@@ -641,3 +723,65 @@ def _check_wavelengths_and_fields(lens: LensDesign, band: tuple[float, float], f
         if not abs(fd) <= lim:
             raise InputError("field_deg", fd, f"|field| <= {lim:.3f} deg for lens '{lens.name}' "
                              f"(NA {lens.na:.4f}) at {wl_max:g} um")
+
+
+# ----------------------------------------------------------------------------------------------
+# the summary for people (what ``metafovea psf`` prints)
+# ----------------------------------------------------------------------------------------------
+def _frac(v: Any) -> str:
+    """A fraction (Strehl ratio, efficiency, encircled energy) to three decimals, ``-`` when not computed."""
+    return "-" if v is None else f"{v:.3f}" if abs(v) >= 0.01 else f"{v:.2g}"
+
+
+def lens_lines(name: str, s: dict[str, Any]) -> list[str]:
+    """The key figures of one lens' report, for people: per field (the monochromatic PSFs) Strehl ratio, focusing
+    efficiency, FWHM and encircled energy within the first dark ring; on axis the energy within one pixel; the
+    sensor PSFs across the field; the report's page (``s``: one lens of :func:`psf_reports`' summary)."""
+
+    sp = s["spectral"]
+    band = (f"the filter {sp['filter_um'][0]:g} um (FWHM {sp['filter_um'][1]:g} um)" if sp["filter_um"] else
+            f"{sp['band_um'][0]:g}-{sp['band_um'][1]:g} um")
+    lines = [f"{name}: f {s['f_mm']:g} mm, D {s['diameter_mm']:g} mm (NA {s['na']:.4f}), {s['polarization']}-"
+             f"polarised, {s['posts']} posts; sensor at {s['z_um'] / 1000:g} mm"
+             + (f" ({s['defocus_um']:+.1f} um from f)" if abs(s["defocus_um"]) > 1e-6 else "")
+             + f"; pixels {fmt(s['pixel_pitch_um'])} um at the focal plane ({s['sensor_pixel_um']:g} um / "
+             f"{s['relay_magnification']:g}x relay)"]
+    mono = list({m["field_deg"]: m for m in s["monochromatic"]}.values())  # a field once (few fields repeat)
+    r_ee = mono[0]["ee_radius_um"]
+    rows = [["field", "Strehl", "focusing eff.", "FWHM x / y", f"EE r {fmt(r_ee)} um", "PSF (error of peak)"]]
+    for m in mono:
+        fw = "-" if m["fwhm_um"] is None else f"{fmt(m['fwhm_um'][0])} / {fmt(m['fwhm_um'][1])} um"
+        err = "not bounded" if m.get("model_note") else f"{m['error_estimate']:.1g}"
+        grid = m["engine"] if m["grid"] == "fine" else f"pixel grid {fmt(m['pitch_um'])} um, {m['engine']}"
+        rows.append([fmt(m["field_deg"], "deg"), _frac(m["strehl"]), _frac(m["focusing_efficiency"]), fw,
+                     _frac(m["ee"]), f"{grid} ({err})"])
+    widths = [max(len(r[j]) for r in rows) for j in range(len(rows[0]))]
+    lines += ["  " + "  ".join(v.ljust(w) for v, w in zip(r, widths)).rstrip() for r in rows]
+    lines.append(f"  (at {fmt(s['mono_wavelength_um'])} um. Strehl: peak / aberration-free peak of the same pupil; "
+                 "focusing efficiency: peak / ideal continuous lens' peak;")
+    lines.append(f"   EE: fraction of the incident power within the first dark ring 0.61 lambda0/NA = {fmt(r_ee)} um)")
+    ee = s["on_axis_ee_pixel_radius"]
+    lines.append(f"  on axis within one pixel pitch (r {fmt(ee['radius_um'])} um): {_frac(ee['mono'])} at "
+                 f"{fmt(s['mono_wavelength_um'])} um, {_frac(ee['band'])} over {band} (exact)")
+    sens = s["sensor"]
+    fd = [r["field_deg"] for r in sens]
+    peak = [r["poly_center_pixel"] for r in sens]
+    lines.append(f"  sensor PSFs at {len(sens)} field{'s' if len(sens) > 1 else ''} ({fmt(min(fd))}-{fmt(max(fd))} "
+                 f"deg, {sp['n_wavelengths']} wavelength bins): the chief-ray pixel holds {min(peak):.3g}-"
+                 f"{max(peak):.3g} of the incident power over the band")
+    warn = len(set(s["warnings"])) + len(s["accuracy"])
+    lines.append(f"  report {s['html']} ({s['seconds']:.1f} s)"
+                 + (f"  [{warn} warning{'s' if warn > 1 else ''}, on stderr]" if warn else ""))
+    return lines
+
+
+def timing_line(timing: dict[str, Any]) -> str:
+    """The whole run's wall time (``timing['seconds']['total']``; the command's sets it from its own start) and its
+    stages, for people (``timing``: :func:`psf_reports`' ``"timing"``)."""
+    total_s = timing["seconds"]["total"]
+    sec = {k: v for k, v in timing["seconds"].items() if k != "total"}
+    names = {"posts": "posts (RCWA library)", "oblique": "posts at oblique incidence", "optical_train": "optical train",
+             "reports": "reports"}
+    split = [f"{names.get(k, k)} {v:.1f} s" for k, v in sec.items()]
+    split.append(f"start and checks {max(0.0, total_s - sum(sec.values())):.1f} s")
+    return f"{total_s:.1f} s in all ({', '.join(split)}); files in {timing['out_dir']}"

@@ -473,6 +473,45 @@ def _add_haze(t: _Tally, lens: LensDesign, sets: list[PupilSet], w: np.ndarray, 
     return haze_total
 
 
+def field_text(fpair: tuple[float, float]) -> str:
+    """A field for people: ``0.3245`` (along x) or ``(0.3245, 0.1)`` (deg, 4 significant digits)."""
+    fx, fy = (float(v) for v in fpair)
+    return f"{fx:.4g}" if fy == 0.0 else f"({fx:.4g}, {fy:.4g})"
+
+
+def _accuracy(lens: LensDesign, fpair: tuple[float, float], est_rel: float, error: float, g: _Grid,
+              max_size_px: int, main: str, engine: str) -> dict[str, Any]:
+    """Why a sensor PSF missed ``error`` (``main``: the part of the estimate that dominates, 'haze', 'geometric'
+    or 'wave') and which parameters would change that: the data of its :class:`NotConvergedWarning`, also kept
+    as ``info['accuracy']``."""
+    L = g.width_um
+    detail = ""
+    if g.wanted_um is not None and g.size == max_size_px and g.wanted_um > L:
+        reason = f"the window is capped at {max_size_px} pixels, narrower than the PSF"
+        detail = f"it spreads over {g.wanted_um / 1000:.3g} mm, the window is {L / 1000:.3g} mm"
+        advice = {"band_um": "a narrower band", "filter_um": "a narrow-band filter",
+                  "pixel_pitch_um": "larger pixels, so a wider window", "max_size_px": "a larger window"}
+    elif main == "haze":
+        reason = "other diffraction orders focus near this plane (modelled as uniform disks)"
+        advice = {}
+    elif main == "geometric" and engine == "geometric":
+        reason = "the geometric engine asked for bounds its error loosely"
+        advice = {"engine": "the wave engines ('auto')"}
+    elif main == "geometric":
+        reason = "wavelengths traced as rays (the wave engines' cost budget is spent)"
+        advice = {"wavelengths_um": "fewer wavelengths", "budget": "a larger cost budget"}
+    else:
+        reason = "the wave engines' own error estimate"
+        advice = {}
+    advice["error"] = "accept the estimate"
+    subject = f"sensor PSF of '{lens.name}'"
+    msg = (f"{subject} at field {field_text(fpair)} deg: estimated error {est_rel:.2g} of the peak exceeds the "
+           f"requested error {error:g}: {reason}{f' ({detail})' if detail else ''}; what changes it: "
+           + ", ".join(f"{k} ({v})" for k, v in advice.items()))
+    return {"subject": subject, "field_deg": float(np.hypot(*fpair)), "estimate": float(est_rel),
+            "requested": float(error), "reason": reason, "advice": advice, "message": msg}
+
+
 def sensor_psf(lens: LensDesign, *, pixel_pitch_um: float, field_deg: float | tuple[float, float] = 0.0,
                wavelengths_um: Any = None, weights: Any = None, post_set: PostSet | None = None,
                size_px: int | None = None, error: float = 1e-4, polarization: str | None = None,
@@ -510,6 +549,7 @@ def sensor_psf(lens: LensDesign, *, pixel_pitch_um: float, field_deg: float | tu
     P_in = math.pi * lens.radius_um ** 2
 
     t = _Tally(np.zeros((g.size, g.size)), np.zeros((g.ax.size, g.ax.size)))
+    est_geo = 0.0
     active = [k for k in range(wl.size) if sets[k].focus is not None and w[k] > 0]
     on_axis = float(np.hypot(*s0)) == 0.0
     radial = on_axis and engine in ("auto", "hankel") and active and (
@@ -530,32 +570,35 @@ def sensor_psf(lens: LensDesign, *, pixel_pitch_um: float, field_deg: float | tu
             traced = (gmaps, gbound)
         else:
             geo_k, wave_k = [], []
+        est_before_geo = t.est_abs
         _add_geometric(t, sets, geo_k, w, spreads, g, r_diff, P_in, traced)
+        est_geo = t.est_abs - est_before_geo
         _add_wave(t, sets, wave_k, w, g, r_diff, P_in, error, engine)
     _add_fine(t, g, P_in)
+    est_before_haze = t.est_abs
     haze_total = _add_haze(t, lens, sets, w, g)
 
     pix = t.pix
     peak = float(pix.max())
     est_rel = t.est_abs / peak if peak > 0 else float("inf")
+    accuracy = None
     if est_rel > error:
-        L = g.width_um
-        capped = g.wanted_um is not None and g.size == max_size_px and g.wanted_um > L
-        why = (f"the window is capped at {max_size_px} pixels = {L:.4g} um, the PSF spreads over {g.wanted_um:.4g} "
-               "um: use larger pixels" if capped else "geometric haze or cost budget")
-        warnings.warn(f"sensor PSF of '{lens.name}' at field {fpair} deg: estimated error {est_rel:.2g} of the "
-                      f"peak exceeds the requested {error:g} ({why}); raise error or "
-                      "reduce wavelengths", NotConvergedWarning, stacklevel=2)
+        main = max((("haze", t.est_abs - est_before_haze), ("geometric", est_geo), ("wave", 0.0)), key=lambda kv: kv[1])
+        accuracy = _accuracy(lens, fpair, est_rel, error, g, max_size_px,
+                             main[0] if main[1] > 0.5 * t.est_abs else "wave", engine)
+        warnings.warn(NotConvergedWarning(accuracy["message"], accuracy), stacklevel=2)
     eng_name = "+".join(f"{k}" for k in sorted(t.engines))
     info = {"engines": t.engines, "n_sub": g.n_sub, "fine_pitch_um": g.dx, "size_px": g.size,
             "haze_power": haze_total, "seconds": time.perf_counter() - t0, "requested_error": error,
             "order_efficiency": float(np.dot(w, [s.info["order_efficiency"] for s in sets])),
             "quantize": quantize, "lattice": lattice, "z_um": z,
             "error_definition": "max abs error / PSF peak pixel (estimate)"}
+    if accuracy is not None:
+        info["accuracy"] = accuracy
     if not on_axis and t.engines.get("mft"):
         info["model_note"] = MFT_OFF_AXIS_NOTE.replace("use engine 'rs'", "not in error_estimate; psf() with "
                                                        "engine 'rs' gives the fine-grid PSF exactly")
-    log.info("sensor_psf %s field %s: %s, %d px, sum %.4g, err %.2g, %.3f s", lens.name, fpair, eng_name, g.size,
-             pix.sum(), est_rel, info["seconds"])
+    log.info("sensor_psf %s field %s deg: %s, %d px, sum %.4g, err %.2g, %.3f s", lens.name, field_text(fpair),
+             eng_name, g.size, pix.sum(), est_rel, info["seconds"])
     return PSF(pix, p, (float(chief[0]), float(chief[1])), wl, w, fpair, sets[0].info["polarization"], eng_name,
                float(est_rel), float(pix.sum()), info)

@@ -20,7 +20,7 @@ from typing import Any
 
 import numpy as np
 
-from metafovea.errors import InputError
+from metafovea.errors import InputError, NotConvergedWarning
 from metafovea.parallel import blas_threads, run_tasks
 
 from .psf import PSF
@@ -30,11 +30,18 @@ from .sensor import sensor_psf
 @dataclass(frozen=True)
 class PSFSweep:
     """The PSFs of a sweep: ``psfs[i][j]`` is field ``fields_deg[i]`` with wavelength set ``j``;
-    ``warnings``: the message of every warning the PSFs raised (each names its field), in field order."""
+    ``warnings``: the message of every warning the PSFs raised (each names its field), in field order, except a
+    PSF's own :class:`~metafovea.errors.NotConvergedWarning` with data: that is its ``info['accuracy']``
+    (:meth:`accuracy` lists them)."""
 
     fields_deg: list[float]
     psfs: list[list[PSF]]
     warnings: list[str] = field(default_factory=list)
+
+    def accuracy(self) -> list[dict[str, Any]]:
+        """``info['accuracy']`` of every PSF that missed its requested error (why, and which parameters would
+        change that: :func:`metafovea.optics.sensor.sensor_psf`), in field order."""
+        return [p.info["accuracy"] for row in self.psfs for p in row if "accuracy" in p.info]
 
     def intensities(self) -> list[list[np.ndarray]]:
         """The pixel arrays, ``[field][wavelength set]`` (fraction of incident power per pixel)."""
@@ -52,7 +59,12 @@ def _one(lens: Any, common: dict[str, Any], alone: bool, item: tuple[float, Any,
     with blas_threads(1), warnings.catch_warnings(record=True) as ws:
         warnings.simplefilter("always")
         P = sensor_psf(lens, field_deg=fd, wavelengths_um=wl, weights=w, post_set=posts, **common)
-    return P, [str(x.message) for x in ws]
+    return P, [str(x.message) for x in ws if not _on_the_psf(x)]
+
+
+def _on_the_psf(w: warnings.WarningMessage) -> bool:
+    """A PSF's NotConvergedWarning with data: its ``info['accuracy']`` holds the same (not repeated)."""
+    return isinstance(w.message, NotConvergedWarning) and bool(w.message.data)
 
 
 def sensor_psf_sweep(lens: Any, fields_deg: Sequence[float], bands: Sequence[tuple[Any, Any]], *,
@@ -113,7 +125,7 @@ def sensor_psf_sweep(lens: Any, fields_deg: Sequence[float], bands: Sequence[tup
             left[i] -= 1
             if left[i] == 0 and on_field is not None:
                 on_field(fields[i])
-    msgs = [m for _, task_msgs in out for m in task_msgs] + [str(x.message) for x in ws]
+    msgs = [m for _, task_msgs in out for m in task_msgs] + [str(x.message) for x in ws if not _on_the_psf(x)]
     psfs = [[out[i * len(bands) + j][0] for j in range(len(bands))] for i in range(len(fields))]
     return PSFSweep(fields, psfs, msgs)
 

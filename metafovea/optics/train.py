@@ -55,6 +55,7 @@ from metafovea.config import LensDesign, SystemDesign
 from metafovea.errors import check_int, check_positive
 from metafovea.lens import design_phase, quantize_phase, site_positions_um
 from metafovea.library.postset import PostSet
+from metafovea.parallel import blas_threads
 
 from .pupil import level_transmissions, order_coefficients
 
@@ -425,7 +426,10 @@ def system_trains(system: SystemDesign, post_sets: dict[str, PostSet], posts: st
     wl, w = radiance.psf_wavelengths(system.platform.wavelength_um, system.scene_temperature_k, TRAIN_WAVELENGTHS)
     obl = None
     if oblique and all(ps.source == "rcwa" for ps in post_sets.values()):
-        obl = {pol: oblique_response(ps, system.platform) for pol, ps in post_sets.items()}
+        # one BLAS thread: a first run's RCWA off axis (small eigenproblems) took 7x the CPU time with OpenBLAS'
+        # threads on 2 cores (166 s against 22 s for both post sets)
+        with blas_threads(1):
+            obl = {pol: oblique_response(ps, system.platform) for pol, ps in post_sets.items()}
     half_diag = 0.5 * math.hypot(*system.sensor.crop) * system.sensor.pixel_pitch_um / system.relay_magnification
     out = []
     for channel, z in (("foveal", system.lens_to_sensor_um[0]), ("perifoveal", system.lens_to_sensor_um[1])):

@@ -140,3 +140,60 @@ def test_export_adds_a_missing_suffix_and_says_so(tmp_path, capsys, lens_toml):
     # the format follows the --out suffix when --format is not given
     assert main(["export", str(lens), "--posts", "ideal", "--out", str(tmp_path / "Y.oas"), "-q", "--json"]) == 0
     assert json.loads(capsys.readouterr().out)["format"] == "oas"
+
+
+def test_default_out_dir_is_new_each_time(tmp_path):
+    """One rule for the folders commands write without --out: out/<command>[-label]-<time>/, never an existing one
+    (validate and study did this each on their own; psf wrote psf_report/ and failed on the second run)."""
+    from datetime import datetime
+
+    from metafovea.cli.output import default_out_dir
+
+    now = datetime(2026, 12, 3, 9, 5, 7)
+    first = default_out_dir("psf", root=tmp_path, now=now)
+    assert first == tmp_path / "psf-20261203-090507" and not first.exists()
+    first.mkdir()
+    assert default_out_dir("psf", root=tmp_path, now=now).name == "psf-20261203-090507-2"
+    assert default_out_dir("study", "gallery", root=tmp_path, now=now).name == "study-gallery-20261203-090507"
+
+
+def test_an_existing_default_file_is_not_blamed_on_an_untyped_out(tmp_path, monkeypatch, capsys):
+    """A second `metafovea simulate` said "--out = 'meas.npz' is invalid" though no --out was typed; the error now
+    names the default output and what to type instead."""
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "meas.npz").write_bytes(b"an earlier run")
+    assert main(["simulate", "--frames", "1", "--psf", "airy", "--no-tiff", "--no-preview"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("metafovea simulate: error: default output = 'meas.npz' is invalid") and "--out =" not in err
+    assert "--out PATH writes elsewhere" in err and "--force" in err and len(err.splitlines()) == 1
+    assert main(["simulate", "--frames", "1", "--psf", "airy", "--no-tiff", "--no-preview", "--out", "meas.npz"]) == 2
+    assert capsys.readouterr().err.startswith("metafovea simulate: error: --out = 'meas.npz'")  # typed: named
+
+
+def test_results_less_accurate_than_asked_are_one_line_naming_the_commands_options():
+    """Eight NotConvergedWarnings each advised 'raise error or reduce wavelengths' (psf and simulate have neither
+    option); the printer holds them and prints one line whose advice maps the parameters to the command's flags."""
+    from metafovea.errors import NotConvergedWarning
+
+    def item(fd, est):
+        return {"subject": "sensor PSF of 'foveal'", "field_deg": fd, "estimate": est, "requested": 1e-4,
+                "reason": "the window is capped at 255 pixels, narrower than the PSF",
+                "advice": {"band_um": "a narrower band", "max_size_px": "a larger window", "error": "accept it"}}
+
+    stream = io.StringIO()
+    show = warning_printer("psf", stream, flags={"band_um": "--band-um", "error": "--error"})
+    for k in range(8):
+        w = NotConvergedWarning("raise error, reduce wavelengths", item(0.32445394261570504 * (k + 1), 0.01 * (k + 1)))
+        show(w, NotConvergedWarning, "x.py", 1)
+    assert stream.getvalue() == ""
+    show.flush()
+    (line,) = stream.getvalue().splitlines()
+    assert line == ("metafovea psf: warning: 8 results less accurate than the requested error 0.0001: sensor PSF of "
+                    "'foveal' at 8 fields (0.324-2.6 deg): estimated error 0.01 to 0.08 of the peak (the window is "
+                    "capped at 255 pixels, narrower than the PSF); what changes it: --band-um (a narrower band), "
+                    "--error 0.08 accepts them")
+    other = io.StringIO()
+    show = warning_printer("simulate", other, flags={})
+    show(NotConvergedWarning("m", item(0.0, 0.01)), NotConvergedWarning, "x.py", 1)
+    show.flush()
+    assert "no option of 'simulate' changes it" in other.getvalue() and "--" not in other.getvalue()

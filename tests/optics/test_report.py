@@ -171,3 +171,39 @@ def test_mtf_against_field_from_the_sensor_psfs(tiny):
     m = mtf_slices(P, nu)
     assert s0["mono_mtf"]["tangential"] == pytest.approx(list(m["tangential"]), rel=1e-9)
     assert len(res["sensor"]) == 2 and all(0 <= v <= 1 for s in res["sensor"] for v in s["poly_mtf"]["sagittal"])
+
+
+def test_key_figures_per_field_are_the_library_functions(tiny):
+    """Each monochromatic row carries the figures `metafovea psf` prints: Strehl ratio, focusing efficiency, FWHM
+    and the encircled energy within the first dark ring (on axis the exact radial integral, off axis the fine PSF's
+    about its centroid), equal to the optics functions of the same PSF."""
+    from metafovea.optics import encircled_energy, fwhm_um, strehl
+    from metafovea.optics.psf import diffraction_radius_um, encircled_energy_on_axis
+
+    path, _, res = tiny
+    lens = load_lens(path)
+    r1 = diffraction_radius_um(lens)
+    on, off = res["monochromatic"][0], res["monochromatic"][-1]
+    assert on["field_deg"] == 0.0 and off["field_deg"] == 3.0 and on["ee_radius_um"] == r1
+    assert on["ee"] == pytest.approx(encircled_energy_on_axis(lens, r1, wavelengths_um=[10.0]), rel=1e-12)
+    P = psf(lens, field_deg=3.0, quantize=True, lattice=True, error=1e-4)
+    assert off["ee"] == pytest.approx(float(encircled_energy(P, [r1])[0]), rel=1e-9)
+    assert off["fwhm_um"] == pytest.approx(list(fwhm_um(P)), rel=1e-9) and off["strehl"] == pytest.approx(strehl(P))
+    assert 0.9 < off["strehl"] < on["strehl"] <= 1.0 + 1e-9 and 0.5 < off["ee"] < on["ee"] < 0.838
+
+
+def test_psf_reports_times_the_whole_run_and_folds_accuracy_into_data(tmp_path):
+    """The run's stages are announced as they start and timed (the summary gave the lens' report time only); a
+    sensor PSF less accurate than ``error`` is one ``accuracy`` item (why, and the parameters that change it), not
+    a warning line each."""
+    said = []
+    lens = LensDesign("t", 4000.0, 2000.0)
+    out = psf_reports([lens], tmp_path / "o", fields_deg=[0.0], n_wavelengths=3, error=1e-6, posts="ideal",
+                      say=said.append)
+    assert [x.split(":")[0] for x in said] == ["optical train", "report of 't'"]
+    sec = out["timing"]["seconds"]
+    assert set(sec) == {"optical_train", "reports", "total"} and sec["total"] >= sec["reports"] > out["t"]["seconds"]
+    acc = out["t"]["accuracy"]
+    assert acc and all(a["estimate"] > a["requested"] == 1e-6 and "error" in a["advice"] for a in acc)
+    assert not any("exceeds the requested" in w for w in out["t"]["warnings"])
+    assert out["timing"]["out_dir"] == str(tmp_path / "o")
