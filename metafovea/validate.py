@@ -172,7 +172,7 @@ def reconstruction_table(meas: Measurement, opts: ValidateOptions, label: str, *
 
     # known alpha: sliding windows over the whole sequence, without and with FPN correction
     say(f"{label}: least squares, known alpha ({T} frames, window {w})")
-    plain = reconstruct_measurement(meas, "lsq", window=w, level_free=True)
+    plain = reconstruct_measurement(meas, "lsq", window=w, fpn="none", level_free=True)
     add("lsq, no FPN correction", plain.seconds, "window", plain.outputs, plain.x1s, plain.x2s, plain.metrics)
     lsq = reconstruct_measurement(meas, "lsq", window=w, fpn=fpn, level_free=True)
     add("lsq (known alpha)", lsq.seconds + t_fpn / max(lsq.outputs, 1), "window", lsq.outputs, lsq.x1s, lsq.x2s,

@@ -34,7 +34,7 @@ from typing import Any
 #: deconvolution solvers
 _HOMES = {
     "AlternatingOptions": "alternating", "alternating": "alternating", "foveal_gauge": "alternating",
-    "FPN_MODES": "api", "METHODS": "api", "reconstruct": "api", "reconstruct_measurement": "api",
+    "FPN_MODES": "api", "METHODS": "api", "fpn_mode": "api", "reconstruct": "api", "reconstruct_measurement": "api",
     "DECONVOLUTION_METHODS": "deconvolve", "ChannelPSFs": "deconvolve", "Deconvolution": "deconvolve",
     "deconvolve_measurement": "deconvolve", "separate_deconvolve": "deconvolve", "wiener_bound": "deconvolve",
     "DipOptions": "deep_prior", "dip": "deep_prior",

@@ -23,8 +23,9 @@ from metafovea.reconstruct.video import video
 
 #: the solvers, in the CLI's words (``--method``)
 METHODS = ("lsq", "alternating", "dip", "snapshot")
-#: fixed-pattern noise handling of :func:`reconstruct_measurement` (``--fpn``)
-FPN_MODES = ("none", "prior", "calibration")
+#: fixed-pattern noise handling of :func:`reconstruct_measurement` (``--fpn``); ``auto`` picks one from the file
+#: (:func:`fpn_mode`)
+FPN_MODES = ("auto", "none", "prior", "calibration")
 #: frames per window unless told; a sequence shorter than SHORT_SEQUENCE frames is one window of all its frames
 DEFAULT_WINDOW = 8
 SHORT_SEQUENCE = 2 * DEFAULT_WINDOW
@@ -102,9 +103,26 @@ def reconstruct(frames: Any, alpha: Any = None, method: str = "lsq", *, fpn: Any
     return rec
 
 
+def fpn_mode(m: Measurement) -> tuple[str, str]:
+    """What ``fpn='auto'`` does with ``m``: ``(mode, why)``. The file's shutter frames when it has them
+    (``calibration``); otherwise the blind estimate (``prior``) when the file declares a fixed pattern
+    (:attr:`Measurement.fpn_rank` > 0: a simulated sensor with FPN, no shutter frames); otherwise ``none`` (a
+    recording that says nothing, or a sensor without FPN: the prior would only add its error, 1.5 dB on x1 of
+    the default simulation without FPN)."""
+    if "calibration" in m.extras:
+        n = int(np.shape(m.extras["calibration"])[0]) if np.ndim(m.extras["calibration"]) == 3 else 1
+        return "calibration", f"from the file's {n} shutter frames"
+    rank = m.fpn_rank
+    if rank:
+        return "prior", (f"blind estimate (the file declares a rank-{rank} fixed pattern and has no shutter "
+                         "frames)")
+    return "none", ("not corrected (the file has no shutter frames and declares no fixed pattern)" if rank is None
+                    else "not corrected (the file's sensor has no fixed pattern)")
+
+
 def reconstruct_measurement(m: Measurement, method: str = "lsq", *, known_alpha: bool = False,
                             window: int | None = None, stride: int = 1, starts: Sequence[int] | None = None,
-                            fpn: str | np.ndarray = "none", denoise: str | None = None, frame: int = 0,
+                            fpn: str | np.ndarray = "auto", denoise: str | None = None, frame: int = 0,
                             constraint: FovealConstraint | None = None, solver: dict[str, Any] | None = None,
                             level_free: bool = False, progress: bool = False, score_truth: bool = True) -> PipelineResult:
     """Reconstruct a Measurement by the pipeline's rules and score it against its truth.
@@ -122,8 +140,11 @@ def reconstruct_measurement(m: Measurement, method: str = "lsq", *, known_alpha:
         frames per window lower the noise, and a short recording has little motion to follow). A sequence longer than the window,
         or explicit window ``starts``, is reconstructed window by window (:func:`~metafovea.reconstruct.video`),
         every ``stride``-th frame or at ``starts``; otherwise the whole sequence is one window.
-    fpn : {'none', 'prior', 'calibration'} or ndarray, shape (H, W)
-        Fixed-pattern noise: an array (the user's pattern, e.g. from a dark-frame calibration) is subtracted;
+    fpn : {'auto', 'none', 'prior', 'calibration'} or ndarray, shape (H, W)
+        Fixed-pattern noise: ``auto`` (default) chooses by the file (:func:`fpn_mode`: its shutter frames, else the
+        blind estimate when it declares a pattern, else none) and records the choice in
+        ``reconstruction.info['fpn']`` (``mode``, ``auto``); an array (the user's pattern, e.g. from a dark-frame
+        calibration) is subtracted;
         ``calibration`` estimates it from the file's ``calibration`` frames and ``prior`` from the separated images
         (for a sequence of several windows: once, from the windows' images averaged over the windows, then
         subtracted from every frame before the windows are solved again). The file's own ``fpn`` array is the simulator's true pattern: it only scores
@@ -167,6 +188,9 @@ def reconstruct_measurement(m: Measurement, method: str = "lsq", *, known_alpha:
         kw["polarizer"] = None
     if "regularize" in kw and method != "lsq":
         raise InputError("regularize", kw["regularize"], "only with method 'lsq' (--method lsq)")
+    fpn_auto = None
+    if isinstance(fpn, str) and fpn.strip().lower() == "auto":
+        fpn, fpn_auto = fpn_mode(m)
     frames, fpn_kw = _fpn(m, fpn)
     frames, mask_info = _masked(m, frames, method)
     video_out = method != "snapshot" and (T > window or starts is not None)
@@ -189,6 +213,9 @@ def reconstruct_measurement(m: Measurement, method: str = "lsq", *, known_alpha:
         rec = replace(rec, info={**rec.info, "invalid_samples": mask_info})
     if not isinstance(fpn, str) and rec.fpn is None and not rec.is_video:  # the user's pattern, as subtracted
         rec = replace(rec, fpn=np.asarray(fpn, dtype=np.float32), info={**rec.info, "fpn": {"identified": "given"}})
+    if isinstance(fpn, str):  # the mode used, and why when it was chosen from the file (fpn='auto')
+        finfo = {**(rec.info.get("fpn") or {}), "mode": fpn.strip().lower()}
+        rec = replace(rec, info={**rec.info, "fpn": finfo if fpn_auto is None else {**finfo, "auto": fpn_auto}})
     res = PipelineResult(reconstruction=rec, spans=spans, seconds=seconds, constraint=fc, frames=T, source=m.source)
     return replace(res, metrics=_metrics(m, res, level_free) if score_truth else None,
                    alpha_mae=_alpha_mae(m, res, alpha is None))
@@ -302,16 +329,17 @@ def _fpn(m: Measurement, fpn: str | np.ndarray) -> tuple[np.ndarray, dict[str, A
     pattern = None
     if isinstance(fpn, str):
         if fpn.strip().lower() == "file":
-            raise InputError("fpn", "file", "none, prior, calibration or a pattern of your own (fpn=ARRAY; CLI: "
-                             "--fpn PATTERN.npy): the file's 'fpn' is the simulator's true pattern, kept for scoring",
+            raise InputError("fpn", "file", "auto, none, prior, calibration or a pattern of your own (an (H, W) "
+                             "array): the file's 'fpn' is the simulator's true pattern, kept for scoring",
                              source=m.source)
         mode = check_choice("fpn", fpn, FPN_MODES)
         if mode == "prior":
             return m.frames, {"fpn": "prior"}
         if mode == "calibration":
             if "calibration" not in m.extras:
-                raise InputError("fpn", "calibration", "a measurement with a 'calibration' frame array",
-                                 source=m.source)
+                raise InputError("fpn", "calibration", "a measurement with shutter frames (a 'calibration' "
+                                 "array; the simulator's calibration_frames), or fpn='auto' (what the file allows)",
+                                 detail=f"{m.source or 'this measurement'} has none")
             return m.frames, {"fpn": "calibration", "calibration": m.extras["calibration"]}
     else:
         pattern = np.asarray(fpn)

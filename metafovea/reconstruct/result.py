@@ -219,7 +219,9 @@ class PipelineResult:
                                 "rate_hz": fit.get("rate_hz"), "irregular": fit.get("irregular"),
                                 "warning": pg.get("warning"), "alpha_from": pg.get("alpha_from")}
         if "fpn" in rec.info:
-            out["fpn"] = rec.info["fpn"].get("identified")
+            fi = rec.info["fpn"]
+            out["fpn"] = fi.get("identified") or fi.get("mode")
+            out.update({f"fpn_{k}": fi[k] for k in ("mode", "auto") if fi.get(k)})  # auto: why fpn='auto' chose it
         if self.nonfinite_pixels:
             out["nonfinite_pixels"] = self.nonfinite_pixels
         if self.metrics is not None:
