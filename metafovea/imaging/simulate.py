@@ -44,11 +44,19 @@ from metafovea.io import atomic_write_bytes, prepare_output
 from metafovea.library import system_post_sets
 from metafovea.measurement import Measurement
 from metafovea.optics.train import system_trains
+from metafovea.parallel import progress_iter
 from metafovea.plotting import iron_colormap  # noqa: F401  (its home is the ground floor; imported from here too)
 from metafovea.radiometry import BandRadiance
 from metafovea.report import FIGURE_DPI, fig_to_png
 
 log = logging.getLogger(__name__)
+
+
+#: closed-shutter frames a simulation records by default, for the reconstruction's FPN calibration (``fpn='auto'``
+#: uses them): 16 frames estimate the default camera's pattern (10.7 DN rms) within 0.14 DN rms, for 17 % more
+#: memory than the 96 frames; without them the default reconstruction falls back to the blind estimate, 0.75 dB
+#: lower on x1 (measured on the default `metafovea simulate`)
+CALIBRATION_FRAMES = 16
 
 
 @dataclass(frozen=True)
@@ -82,7 +90,7 @@ class SimulationOptions:
     quantize: bool = True
     t0_s: float = 0.0
     scene_params: dict[str, Any] = field(default_factory=dict)
-    calibration_frames: int = 0  # closed-shutter frames (same FPN and noise model), stored as 'calibration'
+    calibration_frames: int = CALIBRATION_FRAMES  # closed-shutter frames (same FPN and noise), as 'calibration'
     progress: bool = False
     posts: Any = "rcwa"  # 'rcwa' (the fabricated lenses, library cached) | 'ideal' (simplified) | {pol: PostSet}
     optical_train: bool = True  # False: each lens alone (no wafers, other lens or ring): a simplified model
@@ -220,11 +228,7 @@ def _truth_images(renderers: list[ChannelRenderer], camera: Camera, times: np.nd
     H, W = sensor.shape
     x1 = np.empty((n_frames, H, W), np.float32)
     x2 = np.empty((n_frames, H, W), np.float32)
-    it = range(n_frames)
-    if progress:
-        from tqdm import tqdm
-        it = tqdm(it, desc=f"rendering {name}", unit="frame", leave=False)
-    for k in it:
+    for k in progress_iter(range(n_frames), f"rendering {name}", "frame", enabled=progress, leave=False):
         x1[k], x2[k] = truth_at(float(times[k]))
     return x1, x2
 

@@ -338,8 +338,8 @@ class DipOptions:
         (unknown alpha); init: ``'random'``, ``'lsq'``, ``'classical'`` or an ``(x1, x2)`` pair; warm:
         ``'residual'`` or ``'fit'`` (``warm_steps`` supervised steps).
     checkpoints: step counts recorded in ``info['checkpoints']``; rng: seed of the weights and inputs;
-        log_every: log the loss every so many steps (0: never); progress: ``True`` (a tqdm bar on stderr: step,
-        loss, ETA), a callable (called with a dict ``step, steps, loss, seconds, eta_s`` every
+        log_every: log the loss every so many steps (0: never); progress: ``True`` (step, loss and ETA on stderr:
+        a bar on a terminal, a log line every 10 s otherwise), a callable (called with a dict ``step, steps, loss, seconds, eta_s`` every
         ``progress_every`` steps and at the end) or ``False``.
     """
 
@@ -608,17 +608,17 @@ def _lr_at(k: int, opt: DipOptions, lr: float) -> float:
 
 
 class _Progress:
-    """Step, loss and ETA: a tqdm bar on stderr (``progress=True``), a callable's dict, or nothing."""
+    """Step, loss and ETA: on stderr (``progress=True``: a bar on a terminal, log lines otherwise), a callable's
+    dict, or nothing."""
 
     def __init__(self, opt: DipOptions):
         self.fn = opt.progress if callable(opt.progress) else None
         self.every, self.steps = opt.progress_every, opt.steps
         self.bar = None
-        if opt.progress is True:
-            import sys
+        if opt.progress is True:  # a bar on a terminal, log lines otherwise
+            from metafovea.parallel import progress_bar
 
-            from tqdm import tqdm
-            self.bar = tqdm(total=opt.steps, desc="dip", unit="step", file=sys.stderr)
+            self.bar = progress_bar(opt.steps, "dip", "step")
         self.done = 0
 
     def __call__(self, k: int, loss: float, seconds: float, last: bool = False) -> None:
