@@ -58,6 +58,17 @@ PARAMETER_FLAGS: dict[str, dict[str, str]] = {
                  "dip_steps": "--dip-steps"},
 }
 
+#: library keyword expressions in an error's advice -> what to type at the command, per command: a Python caller
+#: reads ``strict=False``, a command-line user ``--no-strict`` (the advice's words are written once, in the library)
+KEYWORD_ADVICE: dict[str, dict[str, str]] = {
+    "reconstruct": {"the polariser model (polarizer)": "the file's polariser model (--polarizer auto)",
+                    "(scale, foveal_gain, foveal_offset)": "(--scale, --foveal-gain, --foveal-offset)",
+                    "wrong scale/offset/gain?": "wrong --scale, --foveal-offset or --foveal-gain?",
+                    "wrong scale?": "wrong --scale?", "method='lsq'": "--method lsq", "strict=False": "--no-strict",
+                    "fpn='auto'": "--fpn auto",
+                    "the simulator's calibration_frames": "metafovea simulate --calibration-frames"},
+}
+
 #: library parameters that are a key of a file the user named, per command: parameter -> the option (or
 #: positional argument's dest) holding that file; the error then names the file (``--scene hot.npy: ...``)
 FILE_KEYS: dict[str, dict[str, str]] = {
@@ -75,7 +86,9 @@ class Parser(argparse.ArgumentParser):
 
 def as_flag_error(command: str, err: InputError, args: argparse.Namespace | None = None) -> InputError:
     """``err`` renamed to the flag of ``command`` that sets its parameter, or (:data:`FILE_KEYS`) placed in the
-    file the user gave; unchanged when there is none, or when the error already names a file's key."""
+    file the user gave; unchanged when there is none, or when the error already names a file's key. Library keywords
+    in its advice become the command's flags (:data:`KEYWORD_ADVICE`)."""
+    err = _advice_in_flags(command, err)
     if err.source is not None:
         return err
     dest = FILE_KEYS.get(command, {}).get(err.parameter)
@@ -85,6 +98,20 @@ def as_flag_error(command: str, err: InputError, args: argparse.Namespace | None
     err = err.renamed(flag) if flag else err
     typed = {new: old for old, new in getattr(args, "deprecated_options", [])}  # the spelling the user typed
     return err.renamed(typed[err.parameter]) if err.parameter in typed else err
+
+
+def _advice_in_flags(command: str, err: InputError) -> InputError:
+    """``err`` with the library keywords of its advice replaced by what to type at ``command``."""
+    advice = KEYWORD_ADVICE.get(command)
+    if not advice:
+        return err
+
+    def words(text: str | None) -> str | None:
+        for keyword, typed in advice.items():
+            text = text.replace(keyword, typed) if text else text
+        return text
+
+    return InputError(err.parameter, err.value, words(err.allowed) or "", source=err.source, detail=words(err.detail))
 
 
 #: each command's module (``layout`` holds two): :func:`build_parser` imports only the one a command line names

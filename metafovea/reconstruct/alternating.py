@@ -332,6 +332,12 @@ def _guard(rep: dict[str, Any], band: _GaugeBand, op: FovealOperator, old: tuple
     return reasons
 
 
+#: what fixes alpha's gauge when a window's frames do not (``strict``'s error; the CLI names its flags instead)
+GAUGE_ADVICE = ("frames whose alpha gauge the polariser model (polarizer) or the foveal constraint (scale, foveal_gain, "
+                "foveal_offset) fixes; or the file's alpha (method='lsq'); or strict=False: alpha up to an affine map "
+                "(flagged alpha_identified: false)")
+
+
 @dataclass(frozen=True)
 class AlternatingOptions:
     """The knobs of :func:`alternating` (each is also a keyword argument of it).
@@ -570,13 +576,9 @@ def alternating(frames: Any, options: AlternatingOptions | None = None, **overri
     info["gauge"] = grep
     fixed = bool(grep["applied"] or (prep is not None and prep["applied"]))
     if opt.strict and gauge != "none" and not fixed:
-        why = grep.get("reason") if prep is None else f"{prep.get('reason')}; foveal: {grep.get('reason')}"
-        raise InputError("frames", f"{T} frames", "frames in which the polariser model or the foveal constraint fixes "
-                         "the alpha gauge",
-                         detail=f"gauge fix not applied: {why}; alpha is only known up to an "
-                                f"affine map (polariser too slow, one channel barely observed, or the foveal "
-                                f"geometry scale/offset is wrong); pass strict=False (metafovea reconstruct "
-                                f"--no-strict) to get the frame-mean-gauge result")
+        pol = "no polariser model" if prep is None else f"polariser model: {prep.get('reason')}"
+        raise InputError("frames", f"{T} frames", GAUGE_ADVICE,
+                         detail=f"alpha's gauge not fixed: {pol}; foveal constraint: {grep.get('reason')}")
     with tm.measure("alternate"):
         by_pol = prep is not None and prep["applied"]
         if by_pol and prep["alpha_from"] == "model":  # alpha is the rotation's: the images are its LSQ images

@@ -16,6 +16,7 @@ from typing import Any
 import numpy as np
 
 from metafovea.errors import InputError, check_choice, check_int
+from metafovea.parallel import progress_iter
 from metafovea.reconstruct._common import Timings, as_alpha, as_frames, image_dtype, valid_mask
 from metafovea.reconstruct.denoise import denoise as denoise_image
 from metafovea.reconstruct.lsq import MAX_CONDITION, lsq_known_alpha, residual_sigma, solve_weights
@@ -62,8 +63,7 @@ def _lsq_windows(Y: np.ndarray, a: np.ndarray, starts: np.ndarray, window: int, 
         try:
             Wt, rep = solve_weights(a[s:s + window], max_condition=max_condition, regularize=regularize, quiet=True)
         except InputError as e:
-            raise InputError("alpha", f"window {k} (frames {s}..{s + window - 1})", e.allowed,
-                             detail=str(e)) from None
+            raise _in_window(e, k, s, window, "alpha") from None
         conds[k] = rep["condition"]
         if M is None:
             Wt = Wt.astype(dt)
@@ -74,6 +74,18 @@ def _lsq_windows(Y: np.ndarray, a: np.ndarray, starts: np.ndarray, window: int, 
                                 regularize=regularize, saturation=saturation)
             x1[k], x2[k] = r.x1.ravel(), r.x2.ravel()
     return x1, x2, conds
+
+
+def _in_window(e: InputError, k: int, s: int, window: int, parameter: str = "frames") -> InputError:
+    """``e`` (raised by a window's solver) placed in window ``k`` (frames ``s`` to ``s + window - 1``): one message,
+    the window in the value when ``e`` is about ``parameter`` (``frames``: the window is the value), else in the
+    detail."""
+    where = f"window {k} (frames {s}..{s + window - 1})"
+    if e.parameter == parameter:
+        value = where if parameter == "frames" else f"{where}: {e.value}"
+        return InputError(parameter, value, e.allowed, source=e.source, detail=e.detail)
+    return InputError(e.parameter, e.value, e.allowed, source=e.source,
+                      detail=where if not e.detail else f"{where}: {e.detail}")
 
 
 def video(frames: Any, alpha: Any = None, *, window: int = 8, stride: int = 1, starts: Sequence[int] | None = None,
@@ -98,11 +110,7 @@ def video(frames: Any, alpha: Any = None, *, window: int = 8, stride: int = 1, s
     K = len(starts)
     dt = image_dtype(Y)
     info: dict[str, Any] = {"window": int(window), "stride": int(stride), "window_starts": starts.tolist()}
-    it = range(K)
-    if progress:
-        from tqdm import tqdm
-
-        it = tqdm(it, desc=f"reconstruct ({method})", unit="window")
+    it = progress_iter(range(K), f"reconstruct ({method})", "window", enabled=progress)
     gains = None
     if method == "lsq":
         if alpha is None:
@@ -141,9 +149,8 @@ def video(frames: Any, alpha: Any = None, *, window: int = 8, stride: int = 1, s
                         pol = kw.get("polarizer")
                         wkw = {**kw, "polarizer": pol.window(s, window)} if pol is not None else kw
                         r = alternating(Y[s:s + window], saturation=saturation, **wkw)
-                    except InputError as e:
-                        raise InputError("frames", f"window {k} (frames {s}..{s + window - 1})", e.allowed,
-                                         detail=str(e)) from None
+                    except InputError as e:  # the same error, placed in its window (one message, not nested)
+                        raise _in_window(e, k, s, window) from None
                     identified.append(bool(r.info["alpha_identified"]))
                     se_w.append(r.info.get("alpha_se_max"))
                     gauges.append(r.info.get("alpha_gauge"))
