@@ -31,6 +31,12 @@ DEFAULT_WINDOW = 8
 SHORT_SEQUENCE = 2 * DEFAULT_WINDOW
 #: noise gain (x_i's noise std per unit frame noise) above which the summary warns
 NOISE_GAIN_WARN = 10.0
+#: the deep image prior's default time budget for a whole run (all windows), in seconds (``solver={'max_seconds':
+#: None}`` or ``--max-seconds 0``: none). A random start at 290 x 290 takes ~0.7 s per step on a 2-core CPU (16
+#: channels; BENCHMARKS.md), so its 2,000-step budget alone would run ~23 minutes per window, and a 96-frame file is
+#: 89 windows: without a cap a default run never ends in a session. Ten minutes bound it; a run that hits the cap
+#: keeps each window's lowest-loss images and the summary says so
+DIP_MAX_SECONDS = 600.0
 
 
 def reconstruct(frames: Any, alpha: Any = None, method: str = "lsq", *, fpn: Any = None,
@@ -156,8 +162,8 @@ def reconstruct_measurement(m: Measurement, method: str = "lsq", *, known_alpha:
         Default: the file's (:attr:`Measurement.foveal_constraint`).
     solver : dict
         Keywords of the method's function (``regularize`` for lsq; ``strict`` for alternating; ``steps``,
-        ``channels``, ``rng``, ``init``, ``max_seconds`` for dip (``progress`` shows its steps); ``iterations``
-        for snapshot).
+        ``channels``, ``rng``, ``init``, ``max_seconds`` for dip: the whole run's time budget, default
+        :data:`DIP_MAX_SECONDS`, None for none (``progress`` shows its steps); ``iterations`` for snapshot).
     level_free : bool
         Add the level-free PSNRs to the metrics (see :func:`~metafovea.reconstruct.metrics.score`).
     score_truth : bool
@@ -188,6 +194,8 @@ def reconstruct_measurement(m: Measurement, method: str = "lsq", *, known_alpha:
         kw["polarizer"] = None
     if "regularize" in kw and method != "lsq":
         raise InputError("regularize", kw["regularize"], "only with method 'lsq' (--method lsq)")
+    if method == "dip":
+        kw.setdefault("max_seconds", DIP_MAX_SECONDS)  # the whole run's, split over its windows
     fpn_auto = None
     if isinstance(fpn, str) and fpn.strip().lower() == "auto":
         fpn, fpn_auto = fpn_mode(m)
@@ -204,6 +212,8 @@ def reconstruct_measurement(m: Measurement, method: str = "lsq", *, known_alpha:
         if video_out and fpn_kw:
             frames, video_fpn = _video_fpn(m, method, frames, alpha, kw, fpn_kw, window, stride, starts, progress)
             fpn_kw = {}
+            if kw.get("max_seconds") is not None:  # what the first pass left of the time budget
+                kw["max_seconds"] = max(kw["max_seconds"] - (time.perf_counter() - t0), 1e-3)
         rec, spans = _solve(m, method, frames, alpha, kw, fpn_kw, window, stride, starts, denoise, frame, video_out,
                             progress)
     seconds = time.perf_counter() - t0
@@ -262,6 +272,8 @@ def _video_fpn(m: Measurement, method: str, frames: np.ndarray, alpha: np.ndarra
     if fpn_kw.get("fpn") == "calibration":
         f, finfo = estimate_fpn(calibration=fpn_kw["calibration"])
     else:
+        if kw.get("max_seconds") is not None:  # the first pass gets half the time budget
+            kw = {**kw, "max_seconds": kw["max_seconds"] / 2}
         first = video(frames, alpha, window=window, stride=stride, starts=starts, method=method, progress=progress,
                       **kw)
         with np.errstate(invalid="ignore"):

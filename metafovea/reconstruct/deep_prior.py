@@ -643,7 +643,9 @@ def _optimise(step: Any, params: dict[str, Any], data: dict[str, Any], opt: DipO
     compiles when this shape and these switches are new) is timed as ``compile``, the others as ``steps``.
 
     Stops after ``steps`` steps, when the best loss improved by less than ``tol`` (relative) over the last
-    ``patience`` steps, or after ``max_seconds``."""
+    ``patience`` steps, or after ``max_seconds``; stopped by the time cap it returns the state of the lowest loss
+    seen (the learning rate has not decayed yet, so the last step need not be the best), ``kept_step`` its
+    steps."""
     recorded: list[dict[str, Any]] = []
     t_start = time.perf_counter()
     beta = float(opt.average)
@@ -659,13 +661,17 @@ def _optimise(step: Any, params: dict[str, Any], data: dict[str, Any], opt: DipO
     record(0, state)
     bar = _Progress(opt)
     stop, k = "steps", 0
-    t0 = time.perf_counter()
+    lowest = (float("inf"), 0, state)  # (loss, steps done, state) of the lowest loss: the loss of step k is that of
+    t0 = time.perf_counter()  # the state before it (JAX arrays are immutable: keeping it costs no copy)
     try:
         for k in range(1, opt.steps + 1):
             f = _lr_at(k, opt, 1.0)
+            before = state
             with tm.measure("compile" if k == 1 else "steps"):
                 state, loss = step(state, float(k), w["lr"] * f, w["alpha_lr"] * f, beta, data)
                 loss = float(loss)
+            if loss < lowest[0]:
+                lowest = (loss, k - 1, before)
             best.append(min(loss, best[-1]) if best else loss)
             if k == 1 or k % max(1, opt.steps // 200) == 0 or k == opt.steps:
                 hist.append(loss)
@@ -686,7 +692,10 @@ def _optimise(step: Any, params: dict[str, Any], data: dict[str, Any], opt: DipO
         bar.close()
     if hist[-1] != loss:
         hist.append(loss)
-    return state, hist, recorded, {"steps_run": k, "stopped": stop, "best_loss": best[-1], "final_loss": loss}
+    info = {"steps_run": k, "stopped": stop, "best_loss": best[-1], "final_loss": loss, "kept_step": k}
+    if stop == "time":
+        state, info["kept_step"] = lowest[2], lowest[1]
+    return state, hist, recorded, info
 
 
 def _start_alpha(Y: np.ndarray, opt: DipOptions, alpha: Any) -> tuple[np.ndarray | None, np.ndarray | None]:
@@ -741,7 +750,8 @@ def dip(frames: Any, alpha: Any = None, options: DipOptions | None = None, **ove
     0 (held) for alternating's alpha, else ``lr`` for a random start and ``lr / 10`` for a warm start.
 
     Step budget: at most ``steps`` steps, fewer when the loss converged (``tol``, ``patience``) or
-    ``max_seconds`` ran out: ``info['steps_run']`` and ``info['stopped']`` (one of :data:`STOP_REASONS`).
+    ``max_seconds`` ran out: ``info['steps_run']`` and ``info['stopped']`` (one of :data:`STOP_REASONS`); a run
+    stopped by the time cap returns the images of its lowest loss, after ``info['kept_step']`` steps.
     The jitted step is compiled once per frame shape and switches (``depth``, ``norm``, known/learned alpha,
     foveal term, residual start) and reused by later calls (``info['traces']``: compilations this call caused).
     Memory bound: ``channels x H x W <= MAX_CHANNEL_PIXELS`` (an :class:`InputError` otherwise). Runs on JAX's
@@ -804,10 +814,10 @@ def dip(frames: Any, alpha: Any = None, options: DipOptions | None = None, **ove
     step = _make_step(opt.depth, learn_alpha, op is not None, residual, bool(opt.norm))
     state, hist, recorded, stop = _optimise(step, params, data, opt, w, cps, images, tm)
     x1, x2, a = images(state[0])
-    if opt.average:  # the running means, bias-corrected
-        c = 1.0 - opt.average ** stop["steps_run"]
+    if opt.average and stop["kept_step"]:  # the running means, bias-corrected
+        c = 1.0 - opt.average ** stop["kept_step"]
         x1, x2 = (u.to_frames(np.asarray(e, np.float64) / c).astype(dt) for e in state[3:5])
-    info = {"steps": opt.steps, **stop, "channels": opt.channels, "depth": opt.depth, "loss_history": hist,
+    info = {"steps": opt.steps, "max_seconds": opt.max_seconds, **stop, "channels": opt.channels, "depth": opt.depth, "loss_history": hist,
             "alpha_learned": learn_alpha, "tv_weight": w["tv"], "exclusion_weight": w["exclusion"],
             "tv_weight_rule": ({"rule": f"MAP: {AUTO_TV:g} sigma_x^2 / b (random start)", **tv_rule}
                                if tv_auto is not None else ("given" if opt.tv_weight is not None else "default")),

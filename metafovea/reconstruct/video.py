@@ -10,6 +10,7 @@ scalars), which is the throughput path (see BENCHMARKS). For a live camera use
 from __future__ import annotations
 
 import logging
+import time
 from collections.abc import Sequence
 from typing import Any
 
@@ -88,6 +89,17 @@ def _in_window(e: InputError, k: int, s: int, window: int, parameter: str = "fra
                       detail=where if not e.detail else f"{where}: {e.detail}")
 
 
+def _dip_window(dip: Any, Y: np.ndarray, alpha: Any, kw: dict[str, Any], s: int, window: int,
+                max_seconds: float | None) -> Reconstruction:
+    """The DIP of the window of frames ``s`` to ``s + window - 1``, with ``max_seconds`` of the run's time budget
+    (what is left of it over the windows left; at least a step)."""
+    pol = kw.get("polarizer")
+    wkw = {**kw, "polarizer": pol.window(s, window)} if pol is not None else dict(kw)
+    if max_seconds is not None:
+        wkw["max_seconds"] = max(float(max_seconds), 1e-3)
+    return dip(Y[s:s + window], alpha=None if alpha is None else np.asarray(alpha)[s:s + window], **wkw)
+
+
 def video(frames: Any, alpha: Any = None, *, window: int = 8, stride: int = 1, starts: Sequence[int] | None = None,
           method: str = "lsq", denoise: str | None = None, max_condition: float = MAX_CONDITION,
           regularize: str | float | None = None, saturation: float | None = None,
@@ -95,7 +107,9 @@ def video(frames: Any, alpha: Any = None, *, window: int = 8, stride: int = 1, s
     """Reconstruct every sliding window of ``frames (T, H, W)`` (or the windows that begin at ``starts``).
 
     ``method``: ``'lsq'`` (needs ``alpha``), ``'alternating'`` (alpha estimated per window; extra
-    keywords go to :func:`~metafovea.reconstruct.alternating.alternating`) or ``'dip'``.
+    keywords go to :func:`~metafovea.reconstruct.alternating.alternating`) or ``'dip'`` (``max_seconds``: the time
+    budget of the whole sequence, each window given what is left of it over the windows left; ``info['dip_windows']``
+    says how each stopped).
     Returns a :class:`Reconstruction` whose ``x1``, ``x2`` are ``(K, H, W)``; ``info`` holds
     ``window_starts``, per-window ``condition`` (and, for unknown alpha, ``alpha_windows``; for alternating,
     ``window_alpha_identified``).
@@ -140,7 +154,10 @@ def video(frames: Any, alpha: Any = None, *, window: int = 8, stride: int = 1, s
 
         x1 = np.empty((K, H, W), dtype=dt)
         x2 = np.empty((K, H, W), dtype=dt)
-        aw, identified, se_w, gauges = [], [], [], []
+        aw, identified, se_w, gauges, runs = [], [], [], [], []
+        kw = dict(kw)
+        budget = kw.pop("max_seconds", None) if method == "dip" else None  # the whole sequence's
+        t_run = time.perf_counter()
         with tm.measure("solve"):
             for k in it:
                 s = starts[k]
@@ -155,9 +172,10 @@ def video(frames: Any, alpha: Any = None, *, window: int = 8, stride: int = 1, s
                     se_w.append(r.info.get("alpha_se_max"))
                     gauges.append(r.info.get("alpha_gauge"))
                 else:
-                    pol = kw.get("polarizer")
-                    wkw = {**kw, "polarizer": pol.window(s, window)} if pol is not None else kw
-                    r = dip(Y[s:s + window], alpha=None if alpha is None else np.asarray(alpha)[s:s + window], **wkw)
+                    left = None if budget is None else (budget - (time.perf_counter() - t_run)) / (K - k)
+                    r = _dip_window(dip, Y, alpha, kw, s, window, left)
+                    runs.append({n: r.info.get(n) for n in ("steps", "steps_run", "stopped", "kept_step",
+                                                                "max_seconds")})
                 x1[k], x2[k] = r.x1, r.x2
                 aw.append(np.asarray(r.alpha).tolist())
         info["alpha_windows"] = aw
@@ -168,6 +186,8 @@ def video(frames: Any, alpha: Any = None, *, window: int = 8, stride: int = 1, s
             info["alpha_gauge"] = sorted({str(g) for g in gauges})
             if all(v is not None for v in se_w):
                 info["alpha_se_max"] = float(max(se_w))
+        else:
+            info.update(dip_windows=runs, max_seconds=budget)
         alpha_out = np.asarray(alpha, dtype=np.float64) if alpha is not None else np.full(T, np.nan)
     if denoise:
         with tm.measure("denoise"):

@@ -328,3 +328,20 @@ def test_blind_fpn_of_a_video_is_estimated_once_over_its_windows():
     assert blind.metrics["fpn_rms_error"] < 0.7 * blind.metrics["fpn_rms_true"]
     assert blind.metrics["psnr_x1"] > plain.metrics["psnr_x1"] + 3
     assert blind.metrics["psnr_x2"] > plain.metrics["psnr_x2"] + 1.5
+
+
+def test_the_dip_has_a_time_budget_for_the_whole_run():
+    """`reconstruct --method dip` ran past 200 s with no time cap (2,000 steps a window, one window per frame of a
+    96-frame file). The pipeline caps the whole run (DIP_MAX_SECONDS unless told), splits what is left over the
+    windows left, and says how each window stopped."""
+    small = {"channels": 4, "depth": 2, "skip_channels": 4, "input_channels": 4, "steps": 100_000, "tol": 0}
+    m = _measurement(T=12, n=32)
+    one = reconstruct_measurement(m, "dip", window=12, solver={"steps": 3, **{k: v for k, v in small.items()
+                                                                               if k != "steps"}})
+    assert one.reconstruction.info["max_seconds"] == api.DIP_MAX_SECONDS  # the default cap
+    res = reconstruct_measurement(m, "dip", window=4, stride=4, solver={**small, "max_seconds": 3.0})
+    d = res.summary()["dip"]
+    assert d["windows"] == 3 and d["stopped"] == {"time": 3} and d["max_seconds"] == 3.0
+    windows = res.reconstruction.info["dip_windows"]
+    assert windows[0]["max_seconds"] == pytest.approx(1.0, abs=0.2)  # a third of the budget for the first window
+    assert sum(w["max_seconds"] for w in windows) <= 3.0 + 3e-3  # never more than the budget in all (a step at least)
