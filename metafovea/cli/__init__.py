@@ -65,8 +65,8 @@ KEYWORD_ADVICE: dict[str, dict[str, str]] = {
                     "(scale, foveal_gain, foveal_offset)": "(--scale, --foveal-gain, --foveal-offset)",
                     "wrong scale/offset/gain?": "wrong --scale, --foveal-offset or --foveal-gain?",
                     "wrong scale?": "wrong --scale?", "method='lsq'": "--method lsq", "strict=False": "--no-strict",
-                    "fpn='auto'": "--fpn auto",
-                    "the simulator's calibration_frames": "metafovea simulate --calibration-frames"},
+                    "fpn='auto'": "--fpn auto", "the simulator's calibration_frames": "metafovea simulate "
+                                                                                      "--calibration-frames"},
 }
 
 #: library parameters that are a key of a file the user named, per command: parameter -> the option (or
@@ -102,16 +102,11 @@ def as_flag_error(command: str, err: InputError, args: argparse.Namespace | None
 
 def _advice_in_flags(command: str, err: InputError) -> InputError:
     """``err`` with the library keywords of its advice replaced by what to type at ``command``."""
-    advice = KEYWORD_ADVICE.get(command)
-    if not advice:
-        return err
-
-    def words(text: str | None) -> str | None:
-        for keyword, typed in advice.items():
-            text = text.replace(keyword, typed) if text else text
-        return text
-
-    return InputError(err.parameter, err.value, words(err.allowed) or "", source=err.source, detail=words(err.detail))
+    advice = KEYWORD_ADVICE.get(command, {})
+    words = [err.allowed, err.detail]
+    for keyword, typed in advice.items():
+        words = [w.replace(keyword, typed) if w else w for w in words]
+    return InputError(err.parameter, err.value, words[0], source=err.source, detail=words[1]) if advice else err
 
 
 #: each command's module (``layout`` holds two): :func:`build_parser` imports only the one a command line names

@@ -81,5 +81,5 @@ def __dir__() -> list[str]:
 __all__ = ["AlternatingOptions", "ChannelPSFs", "DECONVOLUTION_METHODS", "DENOISERS", "Deconvolution", "DipOptions", "FPN_MODES", "FovealOperator", "METHODS",
            "PipelineResult", "Reconstruction", "SlidingLSQ", "alternating", "centre_crop", "condition_number",
            "deconvolve_measurement", "denoise", "dip", "downsample", "downsample_adjoint", "estimate_fpn", "figure_paths", "foveal_gauge",
-           "lsq_known_alpha", "prepare_outputs", "reconstruct", "reconstruct_measurement", "register",
+           "fpn_mode", "lsq_known_alpha", "prepare_outputs", "reconstruct", "reconstruct_measurement", "register",
            "separate_deconvolve", "snapshot", "video", "wiener_bound", "write_outputs"]

@@ -36,12 +36,13 @@ FILTER = True
 @dataclass(frozen=True)
 class StudyOptions:
     """How a study runs: ``fast`` (small sizes, for CI: each study says which), ``seed`` (every random stream;
-    same seed, same JSON), ``workers``/``scheduler`` (the executor of :mod:`metafovea.parallel`; 1 = in
-    process), ``system`` (default: the paper's prototype), ``psf`` (the simulator's PSF provider)."""
+    same seed, same JSON), ``workers``/``scheduler`` (the executor of :mod:`metafovea.parallel`; None = one
+    process per core, never more than the cases, as every ``--workers``; 1 = in this process), ``system``
+    (default: the paper's prototype), ``psf`` (the simulator's PSF provider)."""
 
     fast: bool = False
     seed: int = 0
-    workers: int | None = 1
+    workers: int | None = None
     scheduler: str | None = None
     progress: bool = False
     system: SystemDesign | None = None
