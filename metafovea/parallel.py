@@ -10,7 +10,8 @@ items with progress and ordered results.
 
 Progress of a long loop (:func:`progress_bar`, :func:`progress_iter`): a tqdm bar when stderr is a terminal,
 otherwise one log line every :data:`PROGRESS_LINE_S` seconds (done, total, elapsed, ETA), so that a run under a
-scheduler, ``nohup`` or a pipe still shows that it is alive and when it will end.
+scheduler, ``nohup`` or a pipe still shows that it is alive and when it will end; :func:`heartbeat` for a long step
+with no loop to count.
 """
 
 from __future__ import annotations
@@ -129,6 +130,46 @@ def progress_bar(total: int | None = None, desc: str = "", unit: str = "it", *, 
         return tqdm(total=total, desc=desc, unit=unit, initial=initial, leave=leave, position=position,
                     file=sys.stderr)
     return LineProgress(total, desc, unit, initial=initial, interval_s=interval_s, stream=stream)
+
+
+def _say(text: str, stream: Any = None) -> None:
+    """One progress line on ``stream`` (default stderr; through tqdm on a terminal, so that bars stay whole)."""
+    if stream is None and sys.stderr.isatty():
+        from tqdm.auto import tqdm
+
+        tqdm.write(text, file=sys.stderr)
+        return
+    out = stream or sys.stderr
+    out.write(text + "\n")
+    out.flush()
+
+
+@contextlib.contextmanager
+def heartbeat(desc: str, *, enabled: bool = True, interval_s: float | None = None, stream: Any = None
+              ) -> Iterator[None]:
+    """While the block runs, a line every ``interval_s`` (default :data:`PROGRESS_LINE_S`):
+    ``metafovea: DESC: 20 s``; nothing for a block that ends sooner. For a step with no loop to count (a first run's
+    PSFs or post responses, cached afterwards), so that it is not silent for minutes."""
+    if not enabled:
+        yield
+        return
+    import threading
+
+    every = max(PROGRESS_LINE_S if interval_s is None else float(interval_s), 0.01)
+    stop = threading.Event()
+    t0 = time.monotonic()
+
+    def beat() -> None:
+        while not stop.wait(every):
+            _say(f"metafovea: {desc}: {_duration(time.monotonic() - t0)}", stream)
+
+    th = threading.Thread(target=beat, name="metafovea-heartbeat", daemon=True)
+    th.start()
+    try:
+        yield
+    finally:
+        stop.set()
+        th.join()
 
 
 def progress_iter(items: Iterable[Any], desc: str = "", unit: str = "it", *, enabled: bool = True,

@@ -44,7 +44,7 @@ from metafovea.io import atomic_write_bytes, prepare_output
 from metafovea.library import system_post_sets
 from metafovea.measurement import Measurement
 from metafovea.optics.train import system_trains
-from metafovea.parallel import progress_iter
+from metafovea.parallel import heartbeat, progress_iter
 from metafovea.plotting import iron_colormap  # noqa: F401  (its home is the ground floor; imported from here too)
 from metafovea.radiometry import BandRadiance
 from metafovea.report import FIGURE_DPI, fig_to_png
@@ -190,6 +190,19 @@ def camera_for(system: SystemDesign, opt: SimulationOptions) -> Camera:
     post_sets, posts = system_post_sets(system, opt.posts)
     trains = system_trains(system, post_sets, posts, filter_enabled=fe) if opt.optical_train else None
     return Camera(sensor, channels, fe, radiance, pol, trains, post_sets, posts)
+
+
+def _channel_optics(system: SystemDesign, camera: Camera, provider: Any, provider_name: str, trains: Any, ss: int,
+                    opt: SimulationOptions) -> list[ChannelOptics]:
+    """Each channel's optics (PSF kernels and haze; the metasurface transmission and glare leaks of its train)."""
+    return [build_channel_optics(ch, provider, camera.radiance, ss=ss, psf_size_px=opt.psf_size_px,
+                                 field_patches=opt.field_patches, patch_threshold=opt.patch_threshold,
+                                 scene_temperature_k=system.scene_temperature_k, haze=opt.haze,
+                                 transmitted=1.0 if tr is None or provider_name != "optics"
+                                 else tr.metasurface_transmission,
+                                 leaks=() if tr is None else [(lk.power_fraction / tr.throughput, lk.radius_um)
+                                                              for lk in tr.leaks])
+            for ch, tr in zip(camera.channels, trains)]
 
 
 def _options(options: SimulationOptions | None, overrides: dict[str, Any]) -> SimulationOptions:
@@ -406,7 +419,9 @@ def simulate(system: SystemDesign, scene: str | Path | Scene, options: Simulatio
     opt = _options(options, overrides)
     n_frames = check_int("frames", opt.frames, 1, 100_000)
     r_pol, r_fpn, r_noise = _child_rngs(rng, 3)
-    camera = camera_for(system, opt)
+    with heartbeat("simulate: the lenses' posts and optical train (the RCWA library and the posts at oblique "
+                   "incidence: computed on a first run, then cached)", enabled=opt.progress):
+        camera = camera_for(system, opt)
     sensor, pol = camera.sensor, camera.polarizer
 
     times = sensor.frame_times(n_frames, opt.t0_s)
@@ -418,13 +433,9 @@ def simulate(system: SystemDesign, scene: str | Path | Scene, options: Simulatio
     t_psf = time.perf_counter()
     provider, provider_name = resolve_provider(opt.psf, opt.psf_cache_dir, camera.post_sets)
     trains = camera.trains or (None, None)
-    optics = [build_channel_optics(ch, provider, camera.radiance, ss=ss, psf_size_px=opt.psf_size_px,
-                                   field_patches=opt.field_patches, patch_threshold=opt.patch_threshold,
-                                   scene_temperature_k=system.scene_temperature_k, haze=opt.haze,
-                                   transmitted=1.0 if tr is None or provider_name != "optics" else tr.metasurface_transmission,
-                                   leaks=() if tr is None else [(lk.power_fraction / tr.throughput, lk.radius_um)
-                                                                for lk in tr.leaks])
-              for ch, tr in zip(camera.channels, trains)]
+    with heartbeat(f"simulate: the channels' PSFs ({provider_name}; computed on a first run, then cached)",
+                   enabled=opt.progress):
+        optics = _channel_optics(system, camera, provider, provider_name, trains, ss, opt)
     t_psf = time.perf_counter() - t_psf
     for o in optics:
         log.info("%s channel PSF: %s", o.channel.name, o.info)

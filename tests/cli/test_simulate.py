@@ -120,3 +120,19 @@ def test_default_simulate_then_default_reconstruct_round_trips(tmp_path, capsys)
     assert main(["reconstruct", str(tmp_path / "n.npz"), "--no-figures", "--json"]) == 0
     s = json.loads(capsys.readouterr().out)
     assert s["fpn_mode"] == "prior" and "blind" in s["fpn_auto"]
+
+
+def test_simulate_off_a_terminal_says_what_it_computes(tmp_path, capsys, monkeypatch):
+    """A first `metafovea simulate` computes the RCWA library, the posts at oblique incidence and the channels' PSFs
+    (minutes, cached afterwards) and printed nothing meanwhile off a terminal: each long step now writes a line every
+    PROGRESS_LINE_S (shortened here) saying what it computes; -q silences it."""
+    import metafovea.parallel
+
+    monkeypatch.setattr(metafovea.parallel, "PROGRESS_LINE_S", 0.01, raising=False)
+    argv = ["simulate", "--scene", "bars", "--frames", "2", "--psf", "airy", "--no-tiff", "--no-preview"]
+    assert main([*argv, "--out", str(tmp_path / "a.npz")]) == 0
+    err = capsys.readouterr().err
+    assert "metafovea: simulate: the lenses' posts and optical train" in err
+    assert "metafovea: simulate: the channels' PSFs (airy;" in err
+    assert main([*argv, "--out", str(tmp_path / "b.npz"), "-q"]) == 0
+    assert "metafovea: simulate" not in capsys.readouterr().err

@@ -8,12 +8,13 @@ from __future__ import annotations
 import io
 import os
 import re
+import time
 
 import pytest
 
 import metafovea.parallel as par
 from metafovea.errors import InputError
-from metafovea.parallel import LineProgress, progress_bar, progress_iter, run_tasks, task_workers
+from metafovea.parallel import LineProgress, heartbeat, progress_bar, progress_iter, run_tasks, task_workers
 
 
 def test_lines_say_done_total_elapsed_and_eta_then_the_total_time():
@@ -69,3 +70,19 @@ def test_one_worker_per_core_never_more_than_the_tasks():
 
 def _pid(_: int) -> int:
     return os.getpid()
+
+
+def test_a_long_step_without_a_loop_says_it_is_alive():
+    """A first run's PSFs or post responses have no loop to count: a line every interval while the step runs, none
+    for a step that ends sooner."""
+    out = io.StringIO()
+    with heartbeat("simulate: the channels' PSFs", interval_s=0.05, stream=out):
+        time.sleep(0.3)
+    lines = out.getvalue().splitlines()
+    assert len(lines) >= 2 and all(re.fullmatch(r"metafovea: simulate: the channels' PSFs: \d+ s", x) for x in lines)
+    quiet = io.StringIO()
+    with heartbeat("fast", interval_s=5.0, stream=quiet):
+        pass
+    with heartbeat("off", enabled=False, interval_s=0.01, stream=quiet):
+        time.sleep(0.05)
+    assert quiet.getvalue() == ""
