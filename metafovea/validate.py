@@ -261,7 +261,7 @@ def format_scene_table(rows: list[dict[str, Any]]) -> str:
             f"{'bound':>7} {'hazy':>6} {'T rms x1':>9} {'T rms x2':>9}")
     lines = [head]
     for r in rows:
-        def f(k: str, w: int, d: int = 2) -> str:
+        def f(k: str, w: int, d: int = 2, r: dict[str, Any] = r) -> str:
             v = r.get(k)
             return f"{v:>{w}.{d}f}" if isinstance(v, float) else " " * w
         lines.append(f"  {r['case']:<28} {r['method']:<20} {r['seconds']:>6.1f} {f('psnr_x1', 8)} "
@@ -458,8 +458,8 @@ def validate_system(system: SystemDesign, opts: ValidateOptions | None = None,
             res = reconstruction_table(meas, opts, label, run_dip=run_dip, say=say)
         cases[label] = {"simulate_seconds": t_sim, "reconstruct_seconds": time.perf_counter() - t,
                         "frames": list(np.shape(meas.frames)),
-                        "haze_fraction": {ch: ((meas.meta.get("psf") or {}).get(ch) or {}).get("haze", {}).get("fraction")
-                                          for ch in ("foveal", "perifoveal")},
+                        "haze_fraction": {ch: ((meas.meta.get("psf") or {}).get(ch) or {}).get("haze", {})
+                                          .get("fraction") for ch in ("foveal", "perifoveal")},
                         "netd_effective_k": meas.meta.get("netd_effective_k"), "fpn": res["fpn"],
                         "foveal_constraint": meas.meta.get("foveal_constraint"),
                         "optical_train": meas.meta.get("optical_train")}
@@ -664,13 +664,16 @@ def format_report(rep: dict[str, Any], summaries: dict[str, Any], system: str, o
     for name, s in summaries.items():
         lines += [f"\n== design: {name} ==", format_summary(s)]
     lib = rep["stages"]["library"]
-    lines.append(f"\n== library: {lib['posts']} posts, {lib['seconds']:.1f} s{' (cache)' if lib['from_cache'] else ''} ==")
+    cached = " (cache)" if lib["from_cache"] else ""
+    lines.append(f"\n== library: {lib['posts']} posts, {lib['seconds']:.1f} s{cached} ==")
     for pol, v in lib["post_sets"].items():
         lines.append(f"  post set {pol}: expected efficiency {v['expected_focusing_efficiency']:.3f}, max phase error "
-                     f"{v['max_abs_phase_error_rad']:.3f} rad, pass-through spread {v['pass_phase_spread_rad']:.3f} rad")
+                     f"{v['max_abs_phase_error_rad']:.3f} rad, pass-through spread "
+                     f"{v['pass_phase_spread_rad']:.3f} rad")
     lines.append("\n== psf (on axis, 10 um) ==")
     for n, v in rep["stages"]["psf"]["lenses"].items():
-        lines.append(f"  {n}: EE17 {v['ee17']:.4f} (paraxial Airy {v['ee17_paraxial_airy']:.4f}), EE24 {v['ee24']:.4f}, "
+        lines.append(f"  {n}: EE17 {v['ee17']:.4f} (paraxial Airy {v['ee17_paraxial_airy']:.4f}), "
+                     f"EE24 {v['ee24']:.4f}, "
                      f"MTF@10 {v['mtf_10']:.4f}, MTF@29.4 {v['mtf_29p4']:.4f}; fabricated/continuous peak "
                      f"{v['peak_ratio_fabricated_vs_continuous']:.3f} "
                      f"(design estimate {v['expected_peak_ratio_from_design']:.3f})")

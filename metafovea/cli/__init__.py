@@ -42,8 +42,9 @@ PARAMETER_FLAGS: dict[str, dict[str, str]] = {
     "export": _LAYOUT, "verify": _LAYOUT,
     "psf": {"band_um": "--band-um", "filter_um": "--filter-um", "pixel_pitch_um": "--pixel-um",
             "field_deg": "--field-deg", "fields_deg": "--field-deg", "error": "--error",
-            "temperature_k": "--temperature-k", "n_wavelengths": "--wavelength-bins", "wavelength_um": "--wavelength-um",
-            "window_um": "--window-um", "relay_magnification": "--relay", "jobs": "--workers"},
+            "temperature_k": "--temperature-k", "n_wavelengths": "--wavelength-bins",
+            "wavelength_um": "--wavelength-um", "window_um": "--window-um", "relay_magnification": "--relay",
+            "jobs": "--workers"},
     "reconstruct": {"window": "--window", "frame": "--frame", "fpn": "--fpn", "known_alpha": "--known-alpha",
                     "regularize": "--regularize", "steps": "--steps", "channels": "--channels", "stride": "--stride",
                     "max_seconds": "--max-seconds", "seed": "--seed", "rng": "--seed", "scale": "--scale",
@@ -65,8 +66,7 @@ KEYWORD_ADVICE: dict[str, dict[str, str]] = {
                     "(scale, foveal_gain, foveal_offset)": "(--scale, --foveal-gain, --foveal-offset)",
                     "wrong scale/offset/gain?": "wrong --scale, --foveal-offset or --foveal-gain?",
                     "wrong scale?": "wrong --scale?", "method='lsq'": "--method lsq", "strict=False": "--no-strict",
-                    "fpn='auto'": "--fpn auto", "the simulator's calibration_frames": "metafovea simulate "
-                                                                                      "--calibration-frames"},
+                    "fpn='auto'": "--fpn auto", "simulate(calibration_frames)": "simulate --calibration-frames"},
 }
 
 #: library parameters that are a key of a file the user named, per command: parameter -> the option (or

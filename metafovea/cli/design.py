@@ -77,7 +77,8 @@ def design_from_args(args: argparse.Namespace) -> list:
             overrides["name"] = args.name
     else:  # checked under the flags' names (and --d in mm) before a LensDesign is made
         base = [{**{f.name: f.default for f in fields(LensDesign) if f.default is not MISSING},
-                 "name": args.name or "lens", "f_um": overrides.pop("f_um"), "diameter_um": overrides.pop("diameter_um")}]
+                 "name": args.name or "lens", "f_um": overrides.pop("f_um"),
+                 "diameter_um": overrides.pop("diameter_um")}]
     out = []
     for b in base:
         merged = {**b, **overrides}

@@ -102,7 +102,8 @@ def check_sweep_cost(args: argparse.Namespace, sweep: Any, options: Any) -> None
     workers = options.workers or os.cpu_count() or 1
     core_s, per_worker = solve_cost(options.harmonics, n)
     hours = core_s / workers / 3600
-    flag, value = ("--harmonics", args.harmonics) if int(options.harmonics) > 10 else ("--grid-step-um", args.grid_step_um)
+    flag, value = (("--harmonics", args.harmonics) if int(options.harmonics) > 10
+                   else ("--grid-step-um", args.grid_step_um))
     avail = available_memory_bytes()
     need = f"{n:,} post solves at {options.harmonics} harmonics: ~{hours:.3g} h on {workers} workers, " \
            f"{human_bytes(per_worker)} each"

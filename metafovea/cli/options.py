@@ -18,7 +18,6 @@ from typing import Any
 
 from metafovea.errors import InputError
 
-
 #: the options that several commands take: one default and one help text each, whichever command it is (values
 #: stay strings here; each command checks them under the flag, e.g. :func:`workers_arg`, :func:`seed_arg`)
 SHARED_OPTIONS: dict[str, dict[str, Any]] = {

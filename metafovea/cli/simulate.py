@@ -34,7 +34,8 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
     g = p.add_argument_group("optics")
     g.add_argument("--psf", default="auto",
                    help="auto (metafovea.optics if available, else airy), optics, airy, gaussian:SIGMA_UM")
-    g.add_argument("--psf-cache", help="PSF cache directory (default $METAFOVEA_CACHE/psf, i.e. ~/.cache/metafovea/psf)")
+    g.add_argument("--psf-cache",
+                   help="PSF cache directory (default $METAFOVEA_CACHE/psf, i.e. ~/.cache/metafovea/psf)")
     g.add_argument("--psf-size", help="PSF window in samples (odd, at most 1025; default 6 x supersample + 1)")
     g.add_argument("--field-patches", default="1", help="1 (shift-invariant), N (N x N patches) or auto")
     g.add_argument("--filter", nargs="?", const="on", default=None, choices=("on", "off"),
@@ -96,7 +97,8 @@ def _options(args: argparse.Namespace, frames: int) -> Any:
         polarizer_mode=args.polarizer, polarizer_phase_deg=_num("--phase-deg", args.phase_deg),
         extinction=_num("--extinction", args.extinction), bolometer_tau_s=_num("--tau", args.tau),
         netd_k=_num("--netd", args.netd),
-        fpn_rank=0 if args.no_fpn else (None if args.fpn_rank is None else check_int("--fpn-rank", args.fpn_rank, 0, 10000)),
+        fpn_rank=0 if args.no_fpn else (None if args.fpn_rank is None else
+                                        check_int("--fpn-rank", args.fpn_rank, 0, 10000)),
         fpn_amplitude=_num("--fpn-amplitude", args.fpn_amplitude), fpn_drift=_num("--drift", args.drift),
         noise=not args.no_noise, quantize=not args.no_quantize, progress=show_progress(args),
         posts=args.posts, optical_train=not args.no_train,

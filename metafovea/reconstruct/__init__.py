@@ -78,8 +78,9 @@ def __dir__() -> list[str]:
     return sorted(set(globals()) | set(_HOMES))
 
 
-__all__ = ["AlternatingOptions", "ChannelPSFs", "DECONVOLUTION_METHODS", "DENOISERS", "Deconvolution", "DipOptions", "FPN_MODES", "FovealOperator", "METHODS",
-           "PipelineResult", "Reconstruction", "SlidingLSQ", "alternating", "centre_crop", "condition_number",
-           "deconvolve_measurement", "denoise", "dip", "downsample", "downsample_adjoint", "estimate_fpn", "figure_paths", "foveal_gauge",
-           "fpn_mode", "lsq_known_alpha", "prepare_outputs", "reconstruct", "reconstruct_measurement", "register",
-           "separate_deconvolve", "snapshot", "video", "wiener_bound", "write_outputs"]
+__all__ = ["AlternatingOptions", "ChannelPSFs", "DECONVOLUTION_METHODS", "DENOISERS", "Deconvolution", "DipOptions",
+           "FPN_MODES", "FovealOperator", "METHODS", "PipelineResult", "Reconstruction", "SlidingLSQ", "alternating",
+           "centre_crop", "condition_number", "deconvolve_measurement", "denoise", "dip", "downsample",
+           "downsample_adjoint", "estimate_fpn", "figure_paths", "foveal_gauge", "fpn_mode", "lsq_known_alpha",
+           "prepare_outputs", "reconstruct", "reconstruct_measurement", "register", "separate_deconvolve", "snapshot",
+           "video", "wiener_bound", "write_outputs"]

@@ -301,9 +301,9 @@ def _guard(rep: dict[str, Any], band: _GaugeBand, op: FovealOperator, old: tuple
         reasons.append("foveal misfit reduction within noise")
     consistent = chi_new / n_eff <= 4.0 * var_r
     if not (chi_new <= 0.25 * chi_old or consistent):
-        reasons.append(f"the constraint does not explain the images after the fix (rms {math.sqrt(chi_new / n_eff):.3g} "
-                       f"vs {math.sqrt(chi_old / n_eff):.3g} before, noise {math.sqrt(var_r):.3g}): wrong "
-                       f"scale/offset/gain?")
+        reasons.append(f"the constraint does not explain the images after the fix (rms "
+                       f"{math.sqrt(chi_new / n_eff):.3g} vs {math.sqrt(chi_old / n_eff):.3g} before, noise "
+                       f"{math.sqrt(var_r):.3g}): wrong scale/offset/gain?")
     # objective: foveal misfit (chi^2 / n in units of var_r) + TV (relative to the current value)
     tv_old = anisotropic_tv(old[0]) + anisotropic_tv(old[1])
     tv_new = anisotropic_tv(new[0]) + anisotropic_tv(new[1])
@@ -333,9 +333,9 @@ def _guard(rep: dict[str, Any], band: _GaugeBand, op: FovealOperator, old: tuple
 
 
 #: what fixes alpha's gauge when a window's frames do not (``strict``'s error; the CLI names its flags instead)
-GAUGE_ADVICE = ("frames whose alpha gauge the polariser model (polarizer) or the foveal constraint (scale, foveal_gain, "
-                "foveal_offset) fixes; or the file's alpha (method='lsq'); or strict=False: alpha up to an affine map "
-                "(flagged alpha_identified: false)")
+GAUGE_ADVICE = ("frames whose alpha gauge the polariser model (polarizer) or the foveal constraint "
+                "(scale, foveal_gain, foveal_offset) fixes; or the file's alpha (method='lsq'); or strict=False: alpha "
+                "up to an affine map (flagged alpha_identified: false)")
 
 
 @dataclass(frozen=True)
@@ -453,7 +453,7 @@ def _alternate(win: _Window, x1: np.ndarray, x2: np.ndarray, a: np.ndarray, cond
             gain = _channel_noise_gain(a)
             x1p = denoise(x1, prior, sigma=sig * gain[0])
             x2p = denoise(x2, prior, sigma=sig * gain[1])
-            a = _alpha_step(win.Yf, x1p, x2p, win.M) if opt.alpha_from == "prior" else _alpha_step(win.Yf, x1, x2, win.M)
+            a = _alpha_step(win.Yf, *((x1p, x2p) if opt.alpha_from == "prior" else (x1, x2)), win.M)
             x1, x2 = x1p, x2p
         else:
             a = _alpha_step(win.Yf, x1, x2, win.M)
@@ -538,7 +538,8 @@ def alternating(frames: Any, options: AlternatingOptions | None = None, **overri
         prior = check_choice("prior", prior, ("tv", "nlm", "bilateral", "none"))
         prior = None if prior == "none" else prior
     opt = replace(opt, iterations=check_int("iterations", opt.iterations, 0, 10000),
-                  alpha_from=check_choice("alpha_from", opt.alpha_from, ("data", "prior")), tol=as_float("tol", opt.tol))
+                  alpha_from=check_choice("alpha_from", opt.alpha_from, ("data", "prior")),
+                  tol=as_float("tol", opt.tol))
     with tm.measure("init"):
         win = _window(frames, opt.saturation)
         T, H, W = win.Y.shape
@@ -572,7 +573,8 @@ def alternating(frames: Any, options: AlternatingOptions | None = None, **overri
                                       psf_blur=opt.foveal_psf if isinstance(opt.foveal_psf, str) else
                                       as_float("foveal_psf", opt.foveal_psf))
         if prep is not None and prep["applied"]:
-            grep["reason"] = "not needed: the polariser model fixed the gauge (the foveal constraint chose the channels)"
+            grep["reason"] = ("not needed: the polariser model fixed the gauge (the foveal constraint chose the "
+                              "channels)")
     info["gauge"] = grep
     fixed = bool(grep["applied"] or (prep is not None and prep["applied"]))
     if opt.strict and gauge != "none" and not fixed:

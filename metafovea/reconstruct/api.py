@@ -80,7 +80,8 @@ def reconstruct(frames: Any, alpha: Any = None, method: str = "lsq", *, fpn: Any
         rec = lsq_known_alpha(frames, alpha, **kw)
     elif method == "alternating":
         if alpha is not None:
-            raise InputError("alpha", "given", "alpha=None for method='alternating' (use method='lsq' with known alpha)")
+            raise InputError("alpha", "given",
+                             "alpha=None for method='alternating' (use method='lsq' with known alpha)")
         from metafovea.reconstruct.alternating import alternating
 
         rec = alternating(frames, **kw)
@@ -130,7 +131,8 @@ def reconstruct_measurement(m: Measurement, method: str = "lsq", *, known_alpha:
                             window: int | None = None, stride: int = 1, starts: Sequence[int] | None = None,
                             fpn: str | np.ndarray = "auto", denoise: str | None = None, frame: int = 0,
                             constraint: FovealConstraint | None = None, solver: dict[str, Any] | None = None,
-                            level_free: bool = False, progress: bool = False, score_truth: bool = True) -> PipelineResult:
+                            level_free: bool = False, progress: bool = False,
+                            score_truth: bool = True) -> PipelineResult:
     """Reconstruct a Measurement by the pipeline's rules and score it against its truth.
 
     Parameters
@@ -143,9 +145,10 @@ def reconstruct_measurement(m: Measurement, method: str = "lsq", *, known_alpha:
         ``alternating``, which estimates it).
     window, stride, starts : int, int, sequence of int
         Frames per window (default: 8; a sequence of fewer than 16 frames is one window of all of them: more
-        frames per window lower the noise, and a short recording has little motion to follow). A sequence longer than the window,
-        or explicit window ``starts``, is reconstructed window by window (:func:`~metafovea.reconstruct.video`),
-        every ``stride``-th frame or at ``starts``; otherwise the whole sequence is one window.
+        frames per window lower the noise, and a short recording has little motion to follow). A sequence longer
+        than the window, or explicit window ``starts``, is reconstructed window by window
+        (:func:`~metafovea.reconstruct.video`), every ``stride``-th frame or at ``starts``; otherwise the whole
+        sequence is one window.
     fpn : {'auto', 'none', 'prior', 'calibration'} or ndarray, shape (H, W)
         Fixed-pattern noise: ``auto`` (default) chooses by the file (:func:`fpn_mode`: its shutter frames, else the
         blind estimate when it declares a pattern, else none) and records the choice in
@@ -153,8 +156,9 @@ def reconstruct_measurement(m: Measurement, method: str = "lsq", *, known_alpha:
         calibration) is subtracted;
         ``calibration`` estimates it from the file's ``calibration`` frames and ``prior`` from the separated images
         (for a sequence of several windows: once, from the windows' images averaged over the windows, then
-        subtracted from every frame before the windows are solved again). The file's own ``fpn`` array is the simulator's true pattern: it only scores
-        an estimate (``metrics['fpn_rms_error']``, mean removed), it is never subtracted.
+        subtracted from every frame before the windows are solved again). The file's own ``fpn`` array is the
+        simulator's true pattern: it only scores an estimate (``metrics['fpn_rms_error']``, mean removed), it is
+        never subtracted.
     denoise : {'tv', 'bilateral', 'nlm'} or None
         Denoise the outputs: inside LSQ (noise level from its residual), after the other methods (noise level
         estimated from each image).
@@ -350,7 +354,7 @@ def _fpn(m: Measurement, fpn: str | np.ndarray) -> tuple[np.ndarray, dict[str, A
         if mode == "calibration":
             if "calibration" not in m.extras:
                 raise InputError("fpn", "calibration", "a measurement with shutter frames (a 'calibration' "
-                                 "array; the simulator's calibration_frames), or fpn='auto' (what the file allows)",
+                                 "array: simulate(calibration_frames)), or fpn='auto' (what the file allows)",
                                  detail=f"{m.source or 'this measurement'} has none")
             return m.frames, {"fpn": "calibration", "calibration": m.extras["calibration"]}
     else:

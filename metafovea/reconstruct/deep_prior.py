@@ -77,7 +77,7 @@ def _init_params(rng: np.random.Generator, cin: int, ch: int, depth: int, skip: 
         p["down"].append([conv(3, c, ch), conv(3, ch, ch)])
         p["skip"].append(conv(1, c, skip))
         c = ch
-    for lev in range(depth):
+    for _ in range(depth):
         cin_up = ch + skip
         p["up"].append([conv(3, cin_up, ch), conv(1, ch, ch)])
     p["out"] = conv(1, ch, 1)
@@ -281,7 +281,8 @@ def _initial_images(Y: np.ndarray, init: Any, alpha: Any, a_init: np.ndarray | N
         try:
             x1, x2 = (np.asarray(v, dtype=np.float64) for v in init)
         except (TypeError, ValueError):
-            raise InputError("init", type(init).__name__, f"one of {INITS} or a pair (x1, x2) of (H, W) images") from None
+            raise InputError("init", type(init).__name__,
+                             f"one of {INITS} or a pair (x1, x2) of (H, W) images") from None
         if x1.shape != (H, W) or x2.shape != (H, W):
             raise InputError("init", f"images {x1.shape}, {x2.shape}", f"a pair of ({H}, {W}) images")
         if not (np.all(np.isfinite(x1)) and np.all(np.isfinite(x2))):
@@ -339,8 +340,8 @@ class DipOptions:
         ``'residual'`` or ``'fit'`` (``warm_steps`` supervised steps).
     checkpoints: step counts recorded in ``info['checkpoints']``; rng: seed of the weights and inputs;
         log_every: log the loss every so many steps (0: never); progress: ``True`` (step, loss and ETA on stderr:
-        a bar on a terminal, a log line every 10 s otherwise), a callable (called with a dict ``step, steps, loss, seconds, eta_s`` every
-        ``progress_every`` steps and at the end) or ``False``.
+        a bar on a terminal, a log line every 10 s otherwise), a callable (called with a dict ``step, steps, loss,
+        seconds, eta_s`` every ``progress_every`` steps and at the end) or ``False``.
     """
 
     channels: int = 16
@@ -817,7 +818,8 @@ def dip(frames: Any, alpha: Any = None, options: DipOptions | None = None, **ove
     if opt.average and stop["kept_step"]:  # the running means, bias-corrected
         c = 1.0 - opt.average ** stop["kept_step"]
         x1, x2 = (u.to_frames(np.asarray(e, np.float64) / c).astype(dt) for e in state[3:5])
-    info = {"steps": opt.steps, "max_seconds": opt.max_seconds, **stop, "channels": opt.channels, "depth": opt.depth, "loss_history": hist,
+    info = {"steps": opt.steps, "max_seconds": opt.max_seconds, **stop, "channels": opt.channels, "depth": opt.depth,
+            "loss_history": hist,
             "alpha_learned": learn_alpha, "tv_weight": w["tv"], "exclusion_weight": w["exclusion"],
             "tv_weight_rule": ({"rule": f"MAP: {AUTO_TV:g} sigma_x^2 / b (random start)", **tv_rule}
                                if tv_auto is not None else ("given" if opt.tv_weight is not None else "default")),

@@ -166,7 +166,8 @@ class PipelineResult:
         rows = [("frames", f"{self.frames} in {self.outputs} output(s)"),
                 ("time", fmt(self.seconds, "s", 3))]
         if isinstance(self.metrics, dict):
-            rows += [(k.replace("_", " "), fmt(v, "dB" if k.startswith("psnr") else "")) for k, v in self.metrics.items()]
+            rows += [(k.replace("_", " "), fmt(v, "dB" if k.startswith("psnr") else ""))
+                     for k, v in self.metrics.items()]
         elif isinstance(self.metrics, str):
             rows.append(("metrics", self.metrics))
         if self.alpha_mae is not None:

@@ -150,7 +150,8 @@ SHARED_PENDING = {
     ("psf", "--force"): "cli/psf.py", ("psf", "--json"): "cli/psf.py", ("psf", "--posts"): "cli/psf.py",
     ("psf", "--pixel-um"): "cli/psf.py: type=float", ("psf", "--relay"): "cli/psf.py: type=float",
     ("export", "--workers"): "cli/layout.py: encoder threads, default 2", ("export", "--scheduler"): "cli/layout.py",
-    ("export", "--force"): "cli/layout.py", ("export", "--json"): "cli/layout.py", ("export", "--posts"): "cli/layout.py",
+    ("export", "--force"): "cli/layout.py", ("export", "--json"): "cli/layout.py",
+    ("export", "--posts"): "cli/layout.py",
     ("verify", "--workers"): "cli/layout.py: default 1", ("verify", "--scheduler"): "cli/layout.py",
     ("verify", "--json"): "cli/layout.py", ("verify", "--posts"): "cli/layout.py",
 }

@@ -131,8 +131,8 @@ def test_cli_on_a_simulated_measurement(tmp_path, capsys):
     m = simulate(s, "bars", frames=8, psf="airy", rng=0)
     path = m.save(tmp_path / "meas.npz")
     np.save(tmp_path / "pattern.npy", m.fpn)  # a calibrated pattern of the user's
-    rc, stdout, err = _run([path, "--method", "alternating", "--window", "8", "--fpn", tmp_path / "pattern.npy", "--out",
-                            tmp_path / "rec.npz", "--json", "--no-figures"], capsys)
+    rc, stdout, err = _run([path, "--method", "alternating", "--window", "8", "--fpn", tmp_path / "pattern.npy",
+                            "--out", tmp_path / "rec.npz", "--json", "--no-figures"], capsys)
     assert rc == 0, err
     out = json.loads(stdout)
     assert out["foveal_constraint"]["foveal_gain"] == pytest.approx(m.meta["foveal_constraint"]["gain"])
