@@ -180,14 +180,26 @@ def test_an_option_several_commands_take_has_one_default_and_one_help_text():
 
 
 def test_seed_and_workers_are_checked_alike_everywhere(tmp_path, capsys):
-    """--seed took 0..2^63-1 in simulate and validate, 0..2^32-1 in study and any integer >= 0 in reconstruct."""
-    for argv in (["simulate", "--seed", "-1", "--out", str(tmp_path / "a.npz")],
-                 ["study", "frames", "--seed", "x", "--out", str(tmp_path / "s")],
-                 ["validate", "--seed", "2.5", "--out", str(tmp_path / "v")],
-                 ["library", "--workers", "0"], ["study", "frames", "--workers", "-2", "--out", str(tmp_path / "t")]):
-        assert main(argv) == 2, argv
+    """--seed took 0..2^63-1 in simulate and validate, 0..2^32-1 in study and any integer >= 0 in reconstruct (as an
+    argparse type there); --workers 1..1024 in library, 0..4096 in study. One check each now, one message."""
+    allowed = set()
+    for argv in (["simulate", "--out", str(tmp_path / "a.npz")], ["study", "frames", "--out", str(tmp_path / "s")],
+                 ["validate", "--out", str(tmp_path / "v")], ["reconstruct", str(tmp_path / "m.npz")]):
+        if argv[0] == "reconstruct":
+            from metafovea.io import atomic_save_npz
+
+            atomic_save_npz(tmp_path / "m.npz", meta={}, frames=np.zeros((4, 8, 8), np.float32),
+                            times_s=np.arange(4.0), alpha=np.linspace(0.1, 0.9, 4))
+        assert main([*argv, "--seed", "-1"]) == 2, argv
         err = capsys.readouterr().err
-        assert err.count("\n") == 1 and ("--seed" in err or "--workers" in err), err
+        assert err.count("\n") == 1 and "--seed = '-1' is invalid" in err, err
+        allowed.add(err.split("allowed: ", 1)[1])
+    assert len(allowed) == 1, allowed
+    for argv in (["library"], ["study", "frames", "--out", str(tmp_path / "t")]):
+        assert main([*argv, "--workers", "5000"]) == 2, argv
+        err = capsys.readouterr().err
+        allowed.add(err.split("allowed: ", 1)[1])
+    assert len(allowed) == 2, allowed
 
 
 def test_progress_is_shown_off_a_terminal_unless_quiet_or_json():
