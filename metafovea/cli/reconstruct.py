@@ -190,8 +190,10 @@ def _print_dip(d: dict[str, Any] | None, args: argparse.Namespace) -> None:
     how = ", ".join(f"{n} by {why}" for why, n in d["stopped"].items())
     line = (f"  dip: {d['windows']} window(s), {d['steps_run_mean']:.0f} of {d['steps']} steps on average "
             f"(stopped: {how})")
-    if d["stopped"].get("time"):
-        line += (f"\n  warning: the time cap (--max-seconds {d['max_seconds']:g}) stopped {d['stopped']['time']} "
-                 "window(s) early: each keeps its lowest-loss images; --max-seconds 0 for no cap, or fewer "
-                 "windows (--window, --stride)")
+    if d["stopped"].get("time") or d["windows"] < d["windows_planned"]:
+        done = (f"after {d['windows']} of {d['windows_planned']} windows (the output holds those), "
+                if d["windows"] < d["windows_planned"] else "")
+        line += (f"\n  warning: the time cap (--max-seconds {d['max_seconds']:g}) stopped the run {done}"
+                 f"{d['stopped'].get('time', 0)} window(s) before their steps were done (each keeps its lowest-loss "
+                 "images); --max-seconds 0 for no cap, or fewer windows (--window, --stride)")
     print(line)

@@ -200,6 +200,7 @@ def reconstruct_measurement(m: Measurement, method: str = "lsq", *, known_alpha:
         raise InputError("regularize", kw["regularize"], "only with method 'lsq' (--method lsq)")
     if method == "dip":
         kw.setdefault("max_seconds", DIP_MAX_SECONDS)  # the whole run's, split over its windows
+    cap = kw.get("max_seconds")
     fpn_auto = None
     if isinstance(fpn, str) and fpn.strip().lower() == "auto":
         fpn, fpn_auto = fpn_mode(m)
@@ -223,6 +224,8 @@ def reconstruct_measurement(m: Measurement, method: str = "lsq", *, known_alpha:
     seconds = time.perf_counter() - t0
     if video_fpn is not None:
         rec = replace(rec, fpn=video_fpn[0].astype(np.float32), info={**rec.info, "fpn": video_fpn[1]})
+    if method == "dip":
+        rec = replace(rec, info={**rec.info, "max_seconds": cap})  # the run's cap (the solver saw what was left)
     if mask_info:
         rec = replace(rec, info={**rec.info, "invalid_samples": mask_info})
     if not isinstance(fpn, str) and rec.fpn is None and not rec.is_video:  # the user's pattern, as subtracted

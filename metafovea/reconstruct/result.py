@@ -234,9 +234,9 @@ class PipelineResult:
 
 
 def _dip_summary(rec: Reconstruction) -> dict[str, Any] | None:
-    """How the deep image prior's windows stopped: ``windows``, ``steps`` (the budget), ``steps_run_mean``,
-    ``stopped`` (count per reason: steps, converged, time) and ``max_seconds`` (the run's time cap); None for the
-    other methods."""
+    """How the deep image prior's windows stopped: ``windows`` (done; ``windows_planned`` when the time cap stopped
+    the run earlier), ``steps`` (the budget), ``steps_run_mean``, ``stopped`` (count per reason: steps, converged,
+    time) and ``max_seconds`` (the run's time cap); None for the other methods."""
     runs = rec.info.get("dip_windows")
     if runs is None and rec.method == "dip" and "steps_run" in rec.info:
         runs = [rec.info]
@@ -245,6 +245,7 @@ def _dip_summary(rec: Reconstruction) -> dict[str, Any] | None:
     stopped: dict[str, int] = {}
     for r in runs:
         stopped[str(r.get("stopped"))] = stopped.get(str(r.get("stopped")), 0) + 1
-    return {"windows": len(runs), "steps": runs[0].get("steps"),
+    return {"windows": len(runs), "windows_planned": rec.info.get("windows_planned", len(runs)),
+            "steps": runs[0].get("steps"),
             "steps_run_mean": float(np.mean([r.get("steps_run") or 0 for r in runs])), "stopped": stopped,
             "max_seconds": rec.info.get("max_seconds")}

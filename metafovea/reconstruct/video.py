@@ -108,8 +108,8 @@ def video(frames: Any, alpha: Any = None, *, window: int = 8, stride: int = 1, s
 
     ``method``: ``'lsq'`` (needs ``alpha``), ``'alternating'`` (alpha estimated per window; extra
     keywords go to :func:`~metafovea.reconstruct.alternating.alternating`) or ``'dip'`` (``max_seconds``: the time
-    budget of the whole sequence, each window given what is left of it over the windows left; ``info['dip_windows']``
-    says how each stopped).
+    budget of the whole sequence, each window given what is left of it over the windows left; when none is left the
+    run stops and returns the windows done; ``info['dip_windows']`` says how each stopped).
     Returns a :class:`Reconstruction` whose ``x1``, ``x2`` are ``(K, H, W)``; ``info`` holds
     ``window_starts``, per-window ``condition`` (and, for unknown alpha, ``alpha_windows``; for alternating,
     ``window_alpha_identified``).
@@ -172,8 +172,10 @@ def video(frames: Any, alpha: Any = None, *, window: int = 8, stride: int = 1, s
                     se_w.append(r.info.get("alpha_se_max"))
                     gauges.append(r.info.get("alpha_gauge"))
                 else:
-                    left = None if budget is None else (budget - (time.perf_counter() - t_run)) / (K - k)
-                    r = _dip_window(dip, Y, alpha, kw, s, window, left)
+                    left = None if budget is None else budget - (time.perf_counter() - t_run)
+                    if k and left is not None and left <= 0:  # the time cap: stop, keep the windows done
+                        break
+                    r = _dip_window(dip, Y, alpha, kw, s, window, None if left is None else left / (K - k))
                     runs.append({n: r.info.get(n) for n in ("steps", "steps_run", "stopped", "kept_step",
                                                                 "max_seconds")})
                 x1[k], x2[k] = r.x1, r.x2
@@ -187,7 +189,10 @@ def video(frames: Any, alpha: Any = None, *, window: int = 8, stride: int = 1, s
             if all(v is not None for v in se_w):
                 info["alpha_se_max"] = float(max(se_w))
         else:
-            info.update(dip_windows=runs, max_seconds=budget)
+            info.update(dip_windows=runs, max_seconds=budget, windows_planned=K)
+            if len(runs) < K:  # stopped by the time cap: the windows done
+                K, starts = len(runs), starts[:len(runs)]
+                x1, x2, info["window_starts"] = x1[:K], x2[:K], starts.tolist()
         alpha_out = np.asarray(alpha, dtype=np.float64) if alpha is not None else np.full(T, np.nan)
     if denoise:
         with tm.measure("denoise"):

@@ -455,8 +455,14 @@ def test_dip_off_a_terminal_logs_progress_lines_and_says_when_the_time_cap_stopp
     assert rc == 0, err
     assert re.search(r"metafovea: dip: \d+/100000 step \(\d+ %\), \d+ s, ETA ", err), err  # (the first step compiles)
     assert "dip: 1 window(s)" in out and "stopped: 1 by time" in out
-    assert "warning: the time cap (--max-seconds 2) stopped 1 window(s) early" in out
+    assert "warning: the time cap (--max-seconds 2) stopped the run 1 window(s) before their steps were done" in out
     rc, out, err = _run([meas, "--method", "dip", "--known-alpha", "--window", "10", "--channels", "4",
                          "--steps", "5", "--no-figures", "--out", tmp_path / "q.npz", "-q"], capsys)
     assert rc == 0 and "metafovea: dip" not in err and "stopped: 1 by steps" in out  # --quiet: no progress
+    rc, out, err = _run([meas, "--method", "dip", "--known-alpha", "--window", "4", "--stride", "4", "--channels", "4",
+                         "--steps", "100000", "--max-seconds", "0.001", "--no-figures", "--out", tmp_path / "w.npz"],
+                        capsys)
+    assert rc == 0, err
+    assert "stopped the run after 1 of 2 windows (the output holds those)" in out
+    assert Reconstruction.load(tmp_path / "w.npz").x1.shape == (1, 64, 64)
     assert _run([meas, "--method", "dip", "--max-seconds", "-1"], capsys)[0] == 2
