@@ -339,6 +339,14 @@ class Measurement:
             return None
         return self.extras["scene_x1"], self.extras["scene_x2"]
 
+    @property
+    def fpn_rank(self) -> int | None:
+        """The rank of the sensor's fixed pattern that the file declares (``meta['sensor']['fpn_rank']``, which the
+        simulator writes; 0: none), or None when the file does not say (a recording)."""
+        sen = self.meta.get("sensor")
+        rank = sen.get("fpn_rank") if isinstance(sen, dict) else None
+        return None if rank is None else int(rank)
+
     def invalid_samples(self) -> np.ndarray | None:
         """(T, H, W) bool: samples to leave out: non-finite, clipped at the ADC's floor or full scale
         (:attr:`valid_range_dn`), or on a pixel of ``extras['bad_pixels']`` (H, W); None when all are valid."""

@@ -5,8 +5,13 @@ with ``submit`` and ``map``; with a scheduler (``tcp://host:8786``, or ``local``
 ``LocalCluster`` of worker processes started for the run) it is a :class:`DaskExecutor` (futures with
 ``.result()``; a task whose worker keeps dying raises :class:`WorkerLost`, never a partial result), otherwise a
 ``ProcessPoolExecutor`` (or a serial in-process executor when ``workers == 1``, which keeps tests and
-debugging simple). Dask is the optional extra ``metafovea[dask]``. Use :func:`run_tasks` to map a function over items with a progress bar and ordered
-results.
+debugging simple). Dask is the optional extra ``metafovea[dask]``. Use :func:`run_tasks` to map a function over
+items with progress and ordered results.
+
+Progress of a long loop (:func:`progress_bar`, :func:`progress_iter`): a tqdm bar when stderr is a terminal,
+otherwise one log line every :data:`PROGRESS_LINE_S` seconds (done, total, elapsed, ETA), so that a run under a
+scheduler, ``nohup`` or a pipe still shows that it is alive and when it will end; :func:`heartbeat` for a long step
+with no loop to count.
 """
 
 from __future__ import annotations
@@ -14,10 +19,168 @@ from __future__ import annotations
 import concurrent.futures as cf
 import contextlib
 import os
+import sys
+import time
 from collections.abc import Callable, Iterable, Iterator
 from typing import Any
 
 from metafovea.errors import InputError
+
+#: seconds between two progress lines off a terminal: a sign of life in a log every 10 s, and a 30-minute run writes
+#: ~180 lines (a tqdm bar redraws 10 times a second, which a log file would keep)
+PROGRESS_LINE_S = 10.0
+
+
+def _duration(s: float) -> str:
+    """``s`` seconds as ``42 s``, ``3 min 20 s`` or ``1 h 05 min``."""
+    s = max(0.0, float(s))
+    if s < 60:
+        return f"{s:.0f} s"
+    if s < 3600:
+        return f"{int(s // 60)} min {int(s % 60):02d} s"
+    return f"{int(s // 3600)} h {int(s % 3600 // 60):02d} min"
+
+
+class LineProgress:
+    """Progress as log lines on ``stream`` (default: stderr at each write), at most one per ``interval_s``:
+    ``metafovea: DESC: 120/2000 step (6 %), 1 min 24 s, ETA 21 min 56 s; loss 0.0123``; on :meth:`close` a last
+    line with the total time, when a line was written before (a quick loop writes nothing). The methods are
+    tqdm's that the project uses (``update``, ``set_postfix``, ``set_postfix_str``, ``close``, context manager)."""
+
+    def __init__(self, total: int | None = None, desc: str = "", unit: str = "it", *, initial: int = 0,
+                 interval_s: float | None = None, stream: Any = None):
+        self.total, self.desc, self.unit, self.n = total, desc, unit, int(initial)
+        self.interval_s = PROGRESS_LINE_S if interval_s is None else float(interval_s)
+        self.stream = stream
+        self.postfix = ""
+        self.t0 = self.last = time.monotonic()
+        self.start_n = self.n
+        self.lines = 0
+        self.closed = False
+
+    def _line(self, final: bool = False) -> str:
+        el = time.monotonic() - self.t0
+        done = f"{self.n}/{self.total}" if self.total else f"{self.n}"
+        text = f"metafovea: {self.desc}: {done} {self.unit}"
+        if self.total:
+            text += f" ({100.0 * self.n / self.total:.0f} %)"
+        if final:
+            text += f" in {_duration(el)}"
+        else:
+            text += f", {_duration(el)}"
+            rate = (self.n - self.start_n) / el if el > 0 else 0.0
+            if self.total and rate > 0:
+                text += f", ETA {_duration((self.total - self.n) / rate)}"
+        return text + (f"; {self.postfix}" if self.postfix else "")
+
+    def _write(self, text: str) -> None:
+        out = self.stream or sys.stderr
+        out.write(text + "\n")
+        out.flush()
+        self.lines += 1
+
+    def update(self, n: int = 1) -> None:
+        self.n += int(n)
+        now = time.monotonic()
+        if now - self.last >= self.interval_s:
+            self.last = now
+            self._write(self._line())
+
+    def set_postfix(self, ordered_dict: Any = None, refresh: bool = True, **kw: Any) -> None:
+        items = {**(ordered_dict or {}), **kw}
+        self.postfix = ", ".join(f"{k} {v}" for k, v in items.items())
+
+    def set_postfix_str(self, s: str = "", refresh: bool = True) -> None:
+        self.postfix = str(s)
+
+    def close(self) -> None:
+        if not self.closed and self.lines:
+            self._write(self._line(final=True))
+        self.closed = True
+
+    def __enter__(self) -> LineProgress:
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        self.close()
+
+
+class _NoProgress(LineProgress):
+    """Progress that shows nothing (``enabled=False``)."""
+
+    def update(self, n: int = 1) -> None:
+        self.n += int(n)
+
+    def close(self) -> None:
+        self.closed = True
+
+
+def progress_bar(total: int | None = None, desc: str = "", unit: str = "it", *, enabled: bool = True,
+                 initial: int = 0, leave: bool = True, position: int | None = None,
+                 interval_s: float | None = None, stream: Any = None) -> Any:
+    """The progress of a loop of ``total`` ``unit``: a tqdm bar on stderr when it is a terminal, else a
+    :class:`LineProgress` (a log line every ``interval_s``, default :data:`PROGRESS_LINE_S`); nothing when not
+    ``enabled``. Either has ``update(n)``, ``set_postfix(...)``, ``close()`` and works as a context manager.
+    ``stream``: where the lines go (tests; it also selects the lines)."""
+    if not enabled:
+        return _NoProgress(total, desc, unit, initial=initial)
+    if stream is None and sys.stderr.isatty():
+        from tqdm.auto import tqdm
+
+        return tqdm(total=total, desc=desc, unit=unit, initial=initial, leave=leave, position=position,
+                    file=sys.stderr)
+    return LineProgress(total, desc, unit, initial=initial, interval_s=interval_s, stream=stream)
+
+
+def _say(text: str, stream: Any = None) -> None:
+    """One progress line on ``stream`` (default stderr; through tqdm on a terminal, so that bars stay whole)."""
+    if stream is None and sys.stderr.isatty():
+        from tqdm.auto import tqdm
+
+        tqdm.write(text, file=sys.stderr)
+        return
+    out = stream or sys.stderr
+    out.write(text + "\n")
+    out.flush()
+
+
+@contextlib.contextmanager
+def heartbeat(desc: str, *, enabled: bool = True, interval_s: float | None = None, stream: Any = None
+              ) -> Iterator[None]:
+    """While the block runs, a line every ``interval_s`` (default :data:`PROGRESS_LINE_S`):
+    ``metafovea: DESC: 20 s``; nothing for a block that ends sooner. For a step with no loop to count (a first run's
+    PSFs or post responses, cached afterwards), so that it is not silent for minutes."""
+    if not enabled:
+        yield
+        return
+    import threading
+
+    every = max(PROGRESS_LINE_S if interval_s is None else float(interval_s), 0.01)
+    stop = threading.Event()
+    t0 = time.monotonic()
+
+    def beat() -> None:
+        while not stop.wait(every):
+            _say(f"metafovea: {desc}: {_duration(time.monotonic() - t0)}", stream)
+
+    th = threading.Thread(target=beat, name="metafovea-heartbeat", daemon=True)
+    th.start()
+    try:
+        yield
+    finally:
+        stop.set()
+        th.join()
+
+
+def progress_iter(items: Iterable[Any], desc: str = "", unit: str = "it", *, enabled: bool = True,
+                  total: int | None = None, **kw: Any) -> Iterator[Any]:
+    """``items``, one at a time, with :func:`progress_bar`'s progress (``total`` default ``len(items)``)."""
+    if total is None and hasattr(items, "__len__"):
+        total = len(items)  # type: ignore[arg-type]
+    with progress_bar(total, desc, unit, enabled=enabled, **kw) as bar:
+        for it in items:
+            yield it
+            bar.update(1)
 
 
 class SerialExecutor(cf.Executor):
@@ -47,7 +210,18 @@ def blas_threads(n: int = 1) -> Iterator[None]:
 
 
 def default_workers() -> int:
+    """The cores this process may run on: the default number of local workers (``workers=None``)."""
     return max(1, len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1))
+
+
+def task_workers(workers: int | None, tasks: int) -> int:
+    """Local workers for ``tasks`` tasks: ``workers``, or one per core when None, and never more than the tasks
+    (an idle process costs its start-up: ~1 s to import the package)."""
+    if workers is None:
+        workers = default_workers()
+    if not isinstance(workers, int) or isinstance(workers, bool) or workers < 1:
+        raise InputError("workers", workers, "an integer >= 1 (None: one per core)")
+    return max(1, min(workers, tasks))
 
 
 class WorkerLost(OSError):
@@ -283,17 +457,19 @@ def stop_workers(ex: cf.ProcessPoolExecutor, grace_s: float = 10.0) -> None:
 def run_tasks(fn: Callable, items: Iterable[Any], *, workers: int | None = None,
               scheduler: str | None = None, progress: bool = False, desc: str = "",
               executor=None) -> Iterator[tuple[int, Any]]:
-    """Yield ``(index, fn(item))`` as tasks complete (not in order), with an optional tqdm bar.
+    """Yield ``(index, fn(item))`` as tasks complete (not in order), with optional progress
+    (:func:`progress_bar`: a bar on a terminal, log lines otherwise).
 
-    Callers that need resumability write each result as it arrives.
+    ``workers``: local processes; ``None`` (the default of every ``--workers``): one per core
+    (:func:`default_workers`), never more than there are items (one item runs in this process). Callers that need
+    resumability write each result as it arrives.
     """
     items = list(items)
     own = executor is None
+    if own and scheduler is None:
+        workers = task_workers(workers, len(items))
     ex = executor if executor is not None else get_executor(workers, scheduler)
-    bar = None
-    if progress:
-        from tqdm.auto import tqdm
-        bar = tqdm(total=len(items), desc=desc, unit="task")
+    bar = progress_bar(len(items), desc, "task") if progress else None
     interrupted = True  # until every result has been handed over (Ctrl-C, an error, the caller stopping)
     try:
         if isinstance(ex, DaskExecutor):

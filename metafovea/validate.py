@@ -172,7 +172,7 @@ def reconstruction_table(meas: Measurement, opts: ValidateOptions, label: str, *
 
     # known alpha: sliding windows over the whole sequence, without and with FPN correction
     say(f"{label}: least squares, known alpha ({T} frames, window {w})")
-    plain = reconstruct_measurement(meas, "lsq", window=w, level_free=True)
+    plain = reconstruct_measurement(meas, "lsq", window=w, fpn="none", level_free=True)
     add("lsq, no FPN correction", plain.seconds, "window", plain.outputs, plain.x1s, plain.x2s, plain.metrics)
     lsq = reconstruct_measurement(meas, "lsq", window=w, fpn=fpn, level_free=True)
     add("lsq (known alpha)", lsq.seconds + t_fpn / max(lsq.outputs, 1), "window", lsq.outputs, lsq.x1s, lsq.x2s,
@@ -664,8 +664,8 @@ def format_report(rep: dict[str, Any], summaries: dict[str, Any], system: str, o
     for name, s in summaries.items():
         lines += [f"\n== design: {name} ==", format_summary(s)]
     lib = rep["stages"]["library"]
-    lines.append(f"\n== library: {lib['posts']} posts, {lib['seconds']:.1f} s"
-                 f"{' (cache)' if lib['from_cache'] else ''} ==")
+    cached = " (cache)" if lib["from_cache"] else ""
+    lines.append(f"\n== library: {lib['posts']} posts, {lib['seconds']:.1f} s{cached} ==")
     for pol, v in lib["post_sets"].items():
         lines.append(f"  post set {pol}: expected efficiency {v['expected_focusing_efficiency']:.3f}, max phase error "
                      f"{v['max_abs_phase_error_rad']:.3f} rad, pass-through spread "

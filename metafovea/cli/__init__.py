@@ -6,7 +6,7 @@
 JSON with ``--json``) and writes files.
 
 Exit status: 0 on success; 1 when a check fails (``verify``); 2 on bad input, printed as one line that names the
-flag the user typed (a library parameter is mapped to its flag here, in :data:`PARAMETER_FLAGS`, the one place
+flag the user typed (a library parameter is mapped to its flag in :mod:`metafovea.cli.flags`, the one place
 that knows both names); 130 on Ctrl-C.
 """
 
@@ -21,6 +21,7 @@ import warnings
 from collections.abc import Sequence
 
 from metafovea import __version__
+from metafovea.cli.flags import PARAMETER_FLAGS, as_flag_error
 from metafovea.cli.stop import install_stop_handlers
 from metafovea.errors import InputError
 
@@ -29,70 +30,12 @@ log = logging.getLogger("metafovea")
 #: command modules under ``metafovea.cli``, in the order ``--help`` lists them
 COMMAND_MODULES = ("validate", "design", "library", "layout", "psf", "simulate", "import_", "reconstruct", "study")
 
-#: library parameter name -> the flag a user typed, per command (an InputError raised deep in a stage names the
-#: parameter; the CLI reports the flag). Only names that differ from their flag need an entry.
-_LAYOUT = {"band_rows": "--band-rows", "grid_nm": "--grid-nm", "ring_width_um": "--ring-width-um", "block": "--block",
-           "patch_mm": "--patch", "levels": "--levels", "post_set": "--post-set", "workers": "--workers",
-           "substrate_thickness_um": "--substrate-um", "max_refs": "--max-refs", "compress": "--compress"}
-PARAMETER_FLAGS: dict[str, dict[str, str]] = {
-    "design": {"post_set": "--post-set", "from_library": "--library", "samples": "--samples", "f_um": "--f",
-               "diameter_um": "--d", "period_um": "--period-um", "wavelength_um": "--wavelength-um"},
-    "library": {"grid_step_um": "--grid-step-um", "levels": "--levels", "harmonics": "--harmonics",
-                "wavelengths_um": "--wavelengths-um", "workers": "--workers", "tol": "--tol"},
-    "export": _LAYOUT, "verify": _LAYOUT,
-    "psf": {"band_um": "--band-um", "filter_um": "--filter-um", "pixel_pitch_um": "--pixel-um",
-            "field_deg": "--field-deg", "fields_deg": "--field-deg", "error": "--error",
-            "temperature_k": "--temperature-k", "n_wavelengths": "--wavelength-bins",
-            "wavelength_um": "--wavelength-um", "window_um": "--window-um", "relay_magnification": "--relay",
-            "jobs": "--workers", "out_dir": "--out"},
-    "reconstruct": {"window": "--window", "frame": "--frame", "fpn": "--fpn", "known_alpha": "--known-alpha",
-                    "regularize": "--regularize", "steps": "--steps", "channels": "--channels", "stride": "--stride",
-                    "max_seconds": "--max-seconds", "seed": "--seed", "rng": "--seed", "scale": "--scale",
-                    "gain": "--foveal-gain", "offset": "--foveal-offset", "denoise": "--denoise",
-                    "psf": "--psf", "res": "--deconvolve"},
-    "simulate": {"extinction": "--extinction", "tau_s": "--tau", "bolometer_tau_s": "--tau", "fpn_drift": "--drift",
-                 "netd_k": "--netd", "frames": "--frames", "calibration_frames": "--calibration-frames",
-                 "supersample": "--supersample", "psf_size_px": "--psf-size", "scene": "--scene",
-                 "pixel_pitch_um": "--pixel-um", "psf gaussian sigma_um": "--psf", "psf": "--psf",
-                 "relay_magnification": "--relay", "fpn_rank": "--fpn-rank", "fpn_amplitude": "--fpn-amplitude",
-                 "polarizer_phase_deg": "--phase-deg", "field_patches": "--field-patches", "rng": "--seed"},
-    "validate": {"frames": "--frames", "seed": "--seed", "rng": "--seed", "scene": "--scene",
-                 "dip_steps": "--dip-steps"},
-}
-
-#: library parameters that are a key of a file the user named, per command: parameter -> the option (or
-#: positional argument's dest) holding that file; the error then names the file (``--scene hot.npy: ...``)
-FILE_KEYS: dict[str, dict[str, str]] = {
-    "simulate": {"temperature_k": "scene", "emissivity": "scene", "image": "scene"},
-}
-
-
 class Parser(argparse.ArgumentParser):
     """argparse with one-line errors (no usage dump) and exit status 2."""
 
     def error(self, message: str) -> None:  # type: ignore[override]
         sys.stderr.write(f"{self.prog}: error: {message} (see --help)\n")
         raise SystemExit(2)
-
-
-def as_flag_error(command: str, err: InputError, args: argparse.Namespace | None = None) -> InputError:
-    """``err`` renamed to the flag of ``command`` that sets its parameter, or (:data:`FILE_KEYS`) placed in the
-    file the user gave; unchanged when there is none, or when the error already names a file's key."""
-    if err.source is not None:
-        return err
-    dest = FILE_KEYS.get(command, {}).get(err.parameter)
-    if dest is not None and args is not None and getattr(args, dest, None) is not None:
-        return err.located(f"--{dest.replace('_', '-')} {getattr(args, dest)}")
-    flag = PARAMETER_FLAGS.get(command, {}).get(err.parameter)
-    err = err.renamed(flag) if flag else err
-    if getattr(args, "out_default", False) and err.parameter.split(" ")[0] == "--out":
-        # the command chose the path (no --out typed): say so, and what to type instead
-        from metafovea.cli.output import DEFAULT_OUT
-
-        return InputError(DEFAULT_OUT + err.parameter[len("--out"):], err.value, err.allowed, source=err.source,
-                          detail="the command's default: --out PATH writes elsewhere")
-    typed = {new: old for old, new in getattr(args, "deprecated_options", [])}  # the spelling the user typed
-    return err.renamed(typed[err.parameter]) if err.parameter in typed else err
 
 
 #: each command's module (``layout`` holds two): :func:`build_parser` imports only the one a command line names

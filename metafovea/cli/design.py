@@ -7,7 +7,7 @@ import argparse
 from dataclasses import MISSING, fields
 from typing import Any
 
-from metafovea.cli.options import progress
+from metafovea.cli.options import add_shared, show_progress
 from metafovea.errors import InputError
 
 
@@ -25,15 +25,11 @@ def register(sub: Any) -> None:
     p.add_argument("--lattice", help="site positions: integer (post at the centre) or half")
     p.add_argument("--name", help="lens name (default: lens)")
     p.add_argument("--post-set", help="a PostSet .npz (from `metafovea library`) to list posts per level")
-    p.add_argument("--posts", default="rcwa", choices=("rcwa", "ideal"),
-                   help="rcwa (default): select the posts from the platform's RCWA library (computed on first use, "
-                        "~35 s on 2 cores, then cached) and list post widths per level and the expected efficiency; "
-                        "ideal: no post set (quantisation and lattice only, a simplified model)")
+    add_shared(p, "--posts")  # rcwa: post widths per level and the expected efficiency; ideal: no post set
     p.add_argument("--library", action="store_true", help="the same as --posts rcwa (the default)")
     p.add_argument("--samples", default=str(1 << 20), help="sites sampled for the lattice efficiency (default 2^20)")
     p.add_argument("--out", help="write the design bundle (JSON, TOML, CSV, PNG figures) into this directory")
-    p.add_argument("--force", action="store_true", help="overwrite existing output")
-    p.add_argument("--json", action="store_true", help="print JSON instead of a table")
+    add_shared(p, "--force", "--json")
     p.set_defaults(func=run)
 
 
@@ -108,7 +104,7 @@ def run(args: argparse.Namespace) -> int:
     if args.library and args.posts == "ideal":
         raise InputError("--library", True, "not together with --posts ideal")
     summaries = design_lenses(lenses, post_set=post_set, from_library=post_set is None and args.posts == "rcwa",
-                              samples=samples, progress=progress(args))
+                              samples=samples, progress=show_progress(args))
     if out_root is not None:
         write_design_bundles(lenses, summaries, out_root)
     if args.json:

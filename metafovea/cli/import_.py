@@ -11,6 +11,7 @@ from __future__ import annotations
 import argparse
 from typing import Any
 
+from metafovea.cli.options import add_shared
 from metafovea.cli.output import out_file
 from metafovea.io import to_json
 
@@ -57,8 +58,7 @@ def register(subparsers: Any) -> argparse.ArgumentParser:
                    "foveal constraint's gain; default 1): splits the calibration between the channels")
     c.add_argument("--scale", type=float, default=None, help="f1/f2 of the two lenses (default: reconstruct's 6)")
     p.add_argument("--out", default=None, help="output .npz (default: the recording's name with .npz)")
-    p.add_argument("--force", action="store_true", help="overwrite existing output")
-    p.add_argument("--json", action="store_true", help="print the summary as JSON")
+    add_shared(p, "--force", "--json")
     p.set_defaults(func=run)
     return p
 

@@ -14,7 +14,7 @@ from __future__ import annotations
 import argparse
 from typing import Any
 
-from metafovea.cli.options import alias, progress
+from metafovea.cli.options import add_shared, alias, show_progress, workers_arg
 from metafovea.errors import check_int, check_positive, check_range
 
 
@@ -35,14 +35,12 @@ def register(subparsers: Any) -> None:
                    help="weight of the platform's +-edge_bias_um cases in the post selection (default 0: nominal; "
                         "> 0: chosen jointly for -bias, nominal and +bias, the nominal case weighted 1)")
     p.add_argument("--tol", default="0.02", help="convergence tolerance on t for the warning (default 0.02)")
-    p.add_argument("--workers", default=None, help="local worker processes (default: all cores)")
-    p.add_argument("--scheduler", default=None, help="Dask scheduler address (tcp://host:8786) to run the sweep on")
+    add_shared(p, "--workers", "--scheduler")
     p.add_argument("--cache-dir", default=None, help="library cache directory (default $METAFOVEA_CACHE/library, "
                                                      "i.e. ~/.cache/metafovea/library)")
     p.add_argument("--no-cache", action="store_true", help="recompute even if a cached library exists")
     p.add_argument("--out", default=None, help="write library, post sets, figures and JSON into this directory")
-    p.add_argument("--force", action="store_true", help="overwrite existing output")
-    p.add_argument("--json", action="store_true", help="print JSON numbers instead of a table")
+    add_shared(p, "--force", "--json")
     alias(p, "--no-progress", "--quiet", "quiet", const=True)
     p.set_defaults(func=run)
 
@@ -63,8 +61,8 @@ def run(args: argparse.Namespace) -> int:
                              factorization=args.factorization, incidence=args.incidence,
                              tol=check_positive("--tol", args.tol), cache_dir=args.cache_dir,
                              use_cache=not args.no_cache,
-                             workers=None if args.workers is None else check_int("--workers", args.workers, 1, 1024),
-                             scheduler=args.scheduler, progress=progress(args))
+                             workers=workers_arg(args.workers), scheduler=args.scheduler,
+                             progress=show_progress(args))
     bias_weight = check_range("--bias-weight", args.bias_weight, 0.0, None, lo_inclusive=True)
     sweep = PlatformSweep(plat, levels, step, wls, options, source=src,  # checks the platform and the grid
                           bias_weight=bias_weight)

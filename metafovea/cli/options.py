@@ -1,6 +1,7 @@
-"""What every command shares: ``-q/--quiet`` and ``-v/--verbose``, hidden deprecated spellings of renamed options,
-the one-line warning printer, and the check of an ``--out`` file's suffix (default outputs and progress lines:
-:mod:`metafovea.cli.output`).
+"""What every command shares: ``-q/--quiet`` and ``-v/--verbose``, the options several commands take (one default
+and one help text each: :data:`SHARED_OPTIONS`, :func:`add_shared`), hidden deprecated spellings of renamed
+options, whether to show progress, the one-line warning printer, and the check of an ``--out`` file's suffix
+(default outputs and progress lines: :mod:`metafovea.cli.output`).
 
 The vocabulary (one name, unit and meaning per option across commands) is the table "Command-line options" in
 README.md; an option renamed to fit it keeps its old spelling as a hidden alias that still works (``-v`` says
@@ -17,6 +18,52 @@ from pathlib import Path
 from typing import Any
 
 from metafovea.errors import InputError, NotConvergedWarning
+
+#: the options that several commands take: one default and one help text each, whichever command it is (values
+#: stay strings here; each command checks them under the flag, e.g. :func:`workers_arg`, :func:`seed_arg`)
+SHARED_OPTIONS: dict[str, dict[str, Any]] = {
+    "--workers": dict(default=None, metavar="N",
+                      help="local worker processes (default: one per core, never more than there are tasks; 1 runs "
+                           "in this process)"),
+    "--scheduler": dict(default=None, metavar="ADDRESS",
+                        help="a Dask scheduler to run the work on: tcp://host:8786, or local:N for N local worker "
+                             "processes (pip install 'metafovea[dask]'; docs/scale.md)"),
+    "--seed": dict(default="0", help="random seed, an integer >= 0 (default 0): the same seed gives the same result"),
+    "--force": dict(action="store_true", help="overwrite existing output (never an input)"),
+    "--json": dict(action="store_true", help="print the result as JSON instead of a summary"),
+    "--frames": dict(default="96", help="frames to simulate (default 96: 8 s at 12 frames/s)"),
+    "--scene": dict(default="siemens-star", help="the scene: a built-in name (metafovea simulate --list-scenes; "
+                                                 "default siemens-star), skimage:NAME, or a file (.npy/.npz in "
+                                                 "kelvin, .tif, .png)"),
+    "--pixel-um": dict(default=None, help="sensor pixel pitch in um (default: the system's, 17 um in the paper's "
+                                          "camera)"),
+    "--relay": dict(default=None, help="relay magnification between the focal plane and the sensor (default: the "
+                                       "system's, 0.5 in the paper's camera)"),
+    "--posts": dict(default="rcwa", choices=("rcwa", "ideal"),
+                    help="the lenses' posts: rcwa (the platform's RCWA post set, the fabricated lens; its library is "
+                         "computed on first use, then cached; default) or ideal (exact phases, lossless: a "
+                         "simplified model)"),
+}
+
+
+def add_shared(p: Any, *flags: str) -> None:
+    """Add the shared options ``flags`` (keys of :data:`SHARED_OPTIONS`) to the parser or argument group ``p``."""
+    for flag in flags:
+        p.add_argument(flag, **SHARED_OPTIONS[flag])
+
+
+def workers_arg(value: Any) -> int | None:
+    """``--workers`` checked: an integer >= 1, or None (absent: one per core)."""
+    from metafovea.errors import check_int
+
+    return None if value is None else check_int("--workers", value, 1, 4096)
+
+
+def seed_arg(value: Any) -> int:
+    """``--seed`` checked: an integer 0 <= seed < 2**63."""
+    from metafovea.errors import check_int
+
+    return check_int("--seed", value, 0, 2 ** 63 - 1)
 
 
 def add_common(p: argparse.ArgumentParser) -> None:
@@ -49,9 +96,17 @@ def verbosity(args: argparse.Namespace, global_verbose: int = 0) -> tuple[bool, 
     return bool(getattr(args, "quiet", False)), int(getattr(args, "verbose", 0) or 0) + global_verbose
 
 
+def show_progress(args: argparse.Namespace) -> bool:
+    """Progress on stderr unless ``--quiet`` or ``--json``: the library draws a bar on a terminal and writes a log
+    line every 10 s otherwise (:func:`metafovea.parallel.progress_bar`), so that a long run in a log or a pipe is
+    not silent."""
+    return not getattr(args, "quiet", False) and not getattr(args, "json", False)
+
+
 def progress(args: argparse.Namespace) -> bool:
-    """Progress bars: on a terminal, unless ``--quiet`` or ``--json`` (the same rule for every command)."""
-    return not getattr(args, "quiet", False) and not getattr(args, "json", False) and sys.stderr.isatty()
+    """Progress bars on a terminal only, unless ``--quiet`` or ``--json``: for commands whose library code draws
+    tqdm bars itself (``export``, ``verify``, ``psf``); the others use :func:`show_progress`."""
+    return show_progress(args) and sys.stderr.isatty()
 
 
 class warning_printer:  # noqa: N801 - a function to its callers (``warnings.showwarning``), with state
@@ -59,7 +114,7 @@ class warning_printer:  # noqa: N801 - a function to its callers (``warnings.sho
     ``metafovea COMMAND: warning: MESSAGE``. A :class:`~metafovea.errors.NotConvergedWarning` with data is held
     back: :meth:`flush` prints all of them as one summary line (:func:`~metafovea.cli.output.accuracy_summary`)
     whose advice names
-    the command's options (``flags``: library parameter -> flag, :data:`metafovea.cli.PARAMETER_FLAGS`)."""
+    the command's options (``flags``: library parameter -> flag, :data:`metafovea.cli.flags.PARAMETER_FLAGS`)."""
 
     def __init__(self, command: str, stream: Any = None, flags: dict[str, str] | None = None):
         self.command, self.stream, self.flags = command, stream, dict(flags or {})

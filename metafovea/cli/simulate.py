@@ -12,7 +12,7 @@ from __future__ import annotations
 import argparse
 from typing import Any
 
-from metafovea.cli.options import alias, progress
+from metafovea.cli.options import add_shared, alias, seed_arg, show_progress
 from metafovea.cli.output import out_file
 from metafovea.errors import InputError, as_float, check_int
 from metafovea.io import to_json
@@ -25,14 +25,11 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
                     "band radiance, PSFs and haze, rotating polariser, microbolometer noise, FPN and 14-bit ADC. "
                     "Writes a Measurement .npz, a TIFF stack and a preview PNG.")
     p.add_argument("system_file", nargs="?", help="system TOML (default: the built-in paper prototype)")
-    p.add_argument("--scene", default="siemens-star",
-                   help="built-in scene name (--list-scenes), skimage:NAME, or a file (.npy/.npz kelvin, .tif, .png)")
+    add_shared(p, "--scene")
     p.add_argument("--list-scenes", action="store_true", help="list the built-in scenes and exit")
-    p.add_argument("--frames", default="96", help="number of frames (default 96)")
-    p.add_argument("--seed", default="0", help="random seed (default 0)")
+    add_shared(p, "--frames", "--seed")
     p.add_argument("--out", default=None, help="Measurement file (default meas.npz)")
-    p.add_argument("--force", action="store_true", help="overwrite existing output")
-    p.add_argument("--json", action="store_true", help="print a JSON summary")
+    add_shared(p, "--force", "--json")
     p.add_argument("--no-tiff", action="store_true", help="do not write the TIFF stack")
     p.add_argument("--no-preview", action="store_true", help="do not write the preview PNG")
     g = p.add_argument_group("optics")
@@ -48,10 +45,7 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
     alias(g, "--no-filter", "--filter off", "filter", const="off")
     g.add_argument("--no-haze", action="store_true", help="drop the chromatic haze (power outside the PSF window)")
     g.add_argument("--supersample", help="samples per pixel per axis (default 3 static, 2 video scenes)")
-    g.add_argument("--relay", help="relay magnification (default from the system file, e.g. 0.5 or 0.3)")
-    g.add_argument("--posts", default="rcwa", choices=("rcwa", "ideal"),
-                   help="the lenses' posts: rcwa (the platform's RCWA library, cached: the fabricated lenses; default) "
-                        "or ideal (exact phases, lossless: a simplified model)")
+    add_shared(g, "--relay", "--posts")
     g.add_argument("--no-train", action="store_true",
                    help="each lens alone: no wafers, other lens or aperture ring (a simplified model)")
     s = p.add_argument_group("polariser and sensor")
@@ -60,15 +54,15 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
     s.add_argument("--phase-deg", help="polariser phase at t = 0 (degrees; sync default 17.19 = 0.3 rad)")
     s.add_argument("--extinction", help="leaked fraction of the blocked polarisation (default from the system)")
     s.add_argument("--tau", default="0", help="bolometer time constant in s (low-passes alpha; default 0)")
-    s.add_argument("--pixel-um", help="sensor pixel pitch in um (17 or 24; default from the system)")
+    add_shared(s, "--pixel-um")
     alias(s, "--pitch", "--pixel-um", "pixel_um")
     s.add_argument("--netd", help="NETD in K at 300 K through the F/1 channel (default from the system)")
     s.add_argument("--fpn-rank", help="rank of the fixed-pattern noise (default from the system)")
     s.add_argument("--fpn-amplitude", help="max |FPN| as a fraction of the dynamic range (default from the system)")
     s.add_argument("--drift", default="0", help="relative slow drift of the FPN weights (default 0)")
-    s.add_argument("--calibration-frames", default="0",
-                   help="closed-shutter frames (same FPN and noise) stored as 'calibration', for reconstruct "
-                        "--fpn calibration (default 0)")
+    s.add_argument("--calibration-frames", default=None,
+                   help="closed-shutter frames (same FPN and noise) stored as 'calibration', which reconstruct "
+                        "uses for the fixed-pattern noise (default 16; 0: none)")
     s.add_argument("--no-noise", action="store_true", help="no temporal noise")
     s.add_argument("--no-fpn", action="store_true", help="no fixed-pattern noise")
     s.add_argument("--no-quantize", action="store_true", help="no ADC rounding/clipping")
@@ -90,7 +84,7 @@ def _odd(name: str, v: Any, hi: int) -> int:
 def _options(args: argparse.Namespace, frames: int) -> Any:
     """The flags as :class:`~metafovea.imaging.simulate.SimulationOptions`, each checked under its flag."""
     from metafovea.imaging.kernels import MAX_PSF_SIZE
-    from metafovea.imaging.simulate import SimulationOptions
+    from metafovea.imaging.simulate import CALIBRATION_FRAMES, SimulationOptions
 
     fp = args.field_patches
     fp = "auto" if str(fp).strip().lower() == "auto" else check_int("--field-patches", fp, 1, 9)
@@ -107,9 +101,10 @@ def _options(args: argparse.Namespace, frames: int) -> Any:
         fpn_rank=0 if args.no_fpn else (None if args.fpn_rank is None else
                                         check_int("--fpn-rank", args.fpn_rank, 0, 10000)),
         fpn_amplitude=_num("--fpn-amplitude", args.fpn_amplitude), fpn_drift=_num("--drift", args.drift),
-        noise=not args.no_noise, quantize=not args.no_quantize, progress=progress(args),
+        noise=not args.no_noise, quantize=not args.no_quantize, progress=show_progress(args),
         posts=args.posts, optical_train=not args.no_train,
-        calibration_frames=check_int("--calibration-frames", args.calibration_frames, 0, 10000))
+        calibration_frames=CALIBRATION_FRAMES if args.calibration_frames is None else
+        check_int("--calibration-frames", args.calibration_frames, 0, 10000))
 
 
 def _print_scenes(as_json: bool) -> None:
@@ -131,7 +126,7 @@ def run(args: argparse.Namespace) -> int:
         _print_scenes(args.json)
         return 0
     frames = check_int("--frames", args.frames, 1, 100_000)
-    seed = check_int("--seed", args.seed, 0, 2 ** 63 - 1)
+    seed = seed_arg(args.seed)
     opts = _options(args, frames)
     result = simulate_to_files(args.system_file, args.scene, out_file(args, "meas.npz"), opts, rng=seed,
                                force=args.force, tiff=not args.no_tiff, preview=not args.no_preview)

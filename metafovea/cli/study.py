@@ -11,8 +11,9 @@ from __future__ import annotations
 import argparse
 from typing import Any
 
+from metafovea.cli.options import add_shared, seed_arg, show_progress, workers_arg
 from metafovea.cli.output import out_dir
-from metafovea.errors import InputError, check_int
+from metafovea.errors import InputError
 from metafovea.io import prepare_output, to_json
 
 
@@ -22,13 +23,9 @@ def register(sub: Any) -> None:
     p.add_argument("--list", action="store_true", help="list the studies and exit")
     p.add_argument("--fast", action="store_true", help="small sizes (CI): fewer cases, frames and pixels; the "
                                                        "page says which")
-    p.add_argument("--seed", default="0", help="random seed (default 0): the same seed gives the same JSON "
-                                               "(apart from its 'timing' key)")
+    add_shared(p, "--seed")  # the same seed gives the same JSON, apart from its 'timing' key
     p.add_argument("--out", help="output directory (default out/study-NAME-<time>/)")
-    p.add_argument("--force", action="store_true", help="write into an existing, non-empty --out")
-    p.add_argument("--json", action="store_true", help="print the JSON instead of a summary")
-    p.add_argument("--workers", default="1", help="local processes for the sweep (default 1; 0 = every core)")
-    p.add_argument("--scheduler", help="Dask scheduler address (tcp://host:8786) to spread the sweep")
+    add_shared(p, "--force", "--json", "--workers", "--scheduler")
     p.set_defaults(func=run)
 
 
@@ -50,11 +47,11 @@ def run(args: argparse.Namespace) -> int:
     if not args.name:
         raise InputError("NAME", None, "a study: " + ", ".join(STUDIES) + " (see --list)")
     study_module(args.name)  # an unknown name before anything is created
-    seed = check_int("--seed", args.seed, 0, 2**32 - 1)
-    workers = check_int("--workers", args.workers, 0, 4096) or None
+    seed = seed_arg(args.seed)
+    workers = workers_arg(None if str(args.workers).strip() == "0" else args.workers)  # 0: its old "every core"
     out = prepare_output(out_dir(args, "study", args.name), args.force, is_dir=True)
-    progress = not args.json and not getattr(args, "quiet", False)
-    opts = StudyOptions(fast=args.fast, seed=seed, workers=workers, scheduler=args.scheduler, progress=progress)
+    opts = StudyOptions(fast=args.fast, seed=seed, workers=workers, scheduler=args.scheduler,
+                        progress=show_progress(args))
     res = run_study(args.name, opts, out, force=True)
     if args.json:
         print(to_json(res.to_json()))

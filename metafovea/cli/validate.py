@@ -12,6 +12,7 @@ from __future__ import annotations
 import argparse
 from typing import Any
 
+from metafovea.cli.options import add_shared, seed_arg, show_progress
 from metafovea.cli.output import out_dir
 from metafovea.errors import check_int
 from metafovea.io import prepare_output, to_json
@@ -21,12 +22,7 @@ def register(sub: Any) -> None:
     p = sub.add_parser("validate", help="end-to-end validation of a system (default: the paper's prototype)")
     p.add_argument("system_file", nargs="?", help="system TOML (default: built-in paper prototype)")
     p.add_argument("--out", help="write the report into this directory")
-    p.add_argument("--force", action="store_true", help="overwrite existing output")
-    p.add_argument("--json", action="store_true", help="print JSON instead of a table")
-    p.add_argument("--seed", default="0", help="random seed (default 0)")
-    p.add_argument("--scene", default="siemens-star", help="bundled scene to simulate (default siemens-star; "
-                                                          "see `metafovea simulate --list-scenes`)")
-    p.add_argument("--frames", default="96", help="frames to simulate (default 96: 8 s at 12 frames/s)")
+    add_shared(p, "--force", "--json", "--seed", "--scene", "--frames")
     p.add_argument("--filter", default="both", choices=("off", "on", "both"),
                    help="spectral cases: 8-14 um as designed (off), the 10 um / 0.5 um filter (on), or both")
     p.add_argument("--polarizer", default="free", choices=("free", "sync"),
@@ -43,7 +39,7 @@ def run(args: argparse.Namespace) -> int:
     from metafovea.imaging.scene import make_scene
     from metafovea.validate import ValidateOptions, format_report, validate_system
 
-    seed = check_int("--seed", args.seed, 0, 2**63 - 1)
+    seed = seed_arg(args.seed)
     frames = check_int("--frames", args.frames, 3, 100_000)  # the unknown-alpha solver needs 3 frames
     dip_steps = check_int("--dip-steps", args.dip_steps, 1, 100_000)
     system = load_system(args.system_file) if args.system_file else SystemDesign.paper()
@@ -51,7 +47,7 @@ def run(args: argparse.Namespace) -> int:
     out = prepare_output(out_dir(args, "validate"), args.force, is_dir=True)
     opts = ValidateOptions(seed=seed, frames=frames, scene=args.scene, dip_steps=dip_steps,
                            polarizer_mode=args.polarizer,
-                           progress=not getattr(args, "quiet", False) and not args.json,
+                           progress=show_progress(args),
                            filters=(False, True) if args.filter == "both" else (args.filter == "on",))
     rep = validate_system(system, opts, out)
     summaries = rep.pop("_summaries")

@@ -44,11 +44,19 @@ from metafovea.io import atomic_write_bytes, prepare_output
 from metafovea.library import system_post_sets
 from metafovea.measurement import Measurement
 from metafovea.optics.train import system_trains
+from metafovea.parallel import heartbeat, progress_iter
 from metafovea.plotting import iron_colormap  # noqa: F401  (its home is the ground floor; imported from here too)
 from metafovea.radiometry import BandRadiance
 from metafovea.report import FIGURE_DPI, fig_to_png
 
 log = logging.getLogger(__name__)
+
+
+#: closed-shutter frames a simulation records by default, for the reconstruction's FPN calibration (``fpn='auto'``
+#: uses them): 16 frames estimate the default camera's pattern (10.7 DN rms) within 0.14 DN rms, for 17 % more
+#: memory than the 96 frames; without them the default reconstruction falls back to the blind estimate, 0.75 dB
+#: lower on x1 (measured on the default `metafovea simulate`)
+CALIBRATION_FRAMES = 16
 
 
 @dataclass(frozen=True)
@@ -82,7 +90,7 @@ class SimulationOptions:
     quantize: bool = True
     t0_s: float = 0.0
     scene_params: dict[str, Any] = field(default_factory=dict)
-    calibration_frames: int = 0  # closed-shutter frames (same FPN and noise model), stored as 'calibration'
+    calibration_frames: int = CALIBRATION_FRAMES  # closed-shutter frames (same FPN and noise), as 'calibration'
     progress: bool = False
     posts: Any = "rcwa"  # 'rcwa' (the fabricated lenses, library cached) | 'ideal' (simplified) | {pol: PostSet}
     optical_train: bool = True  # False: each lens alone (no wafers, other lens or ring): a simplified model
@@ -184,6 +192,19 @@ def camera_for(system: SystemDesign, opt: SimulationOptions) -> Camera:
     return Camera(sensor, channels, fe, radiance, pol, trains, post_sets, posts)
 
 
+def _channel_optics(system: SystemDesign, camera: Camera, provider: Any, provider_name: str, trains: Any, ss: int,
+                    opt: SimulationOptions) -> list[ChannelOptics]:
+    """Each channel's optics (PSF kernels and haze; the metasurface transmission and glare leaks of its train)."""
+    return [build_channel_optics(ch, provider, camera.radiance, ss=ss, psf_size_px=opt.psf_size_px,
+                                 field_patches=opt.field_patches, patch_threshold=opt.patch_threshold,
+                                 scene_temperature_k=system.scene_temperature_k, haze=opt.haze,
+                                 transmitted=1.0 if tr is None or provider_name != "optics"
+                                 else tr.metasurface_transmission,
+                                 leaks=() if tr is None else [(lk.power_fraction / tr.throughput, lk.radius_um)
+                                                              for lk in tr.leaks])
+            for ch, tr in zip(camera.channels, trains)]
+
+
 def _options(options: SimulationOptions | None, overrides: dict[str, Any]) -> SimulationOptions:
     opt = options or SimulationOptions()
     if overrides:
@@ -220,11 +241,7 @@ def _truth_images(renderers: list[ChannelRenderer], camera: Camera, times: np.nd
     H, W = sensor.shape
     x1 = np.empty((n_frames, H, W), np.float32)
     x2 = np.empty((n_frames, H, W), np.float32)
-    it = range(n_frames)
-    if progress:
-        from tqdm import tqdm
-        it = tqdm(it, desc=f"rendering {name}", unit="frame", leave=False)
-    for k in it:
+    for k in progress_iter(range(n_frames), f"rendering {name}", "frame", enabled=progress, leave=False):
         x1[k], x2[k] = truth_at(float(times[k]))
     return x1, x2
 
@@ -402,7 +419,9 @@ def simulate(system: SystemDesign, scene: str | Path | Scene, options: Simulatio
     opt = _options(options, overrides)
     n_frames = check_int("frames", opt.frames, 1, 100_000)
     r_pol, r_fpn, r_noise = _child_rngs(rng, 3)
-    camera = camera_for(system, opt)
+    with heartbeat("simulate: the lenses' posts and optical train (the RCWA library and the posts at oblique "
+                   "incidence: computed on a first run, then cached)", enabled=opt.progress):
+        camera = camera_for(system, opt)
     sensor, pol = camera.sensor, camera.polarizer
 
     times = sensor.frame_times(n_frames, opt.t0_s)
@@ -414,14 +433,9 @@ def simulate(system: SystemDesign, scene: str | Path | Scene, options: Simulatio
     t_psf = time.perf_counter()
     provider, provider_name = resolve_provider(opt.psf, opt.psf_cache_dir, camera.post_sets)
     trains = camera.trains or (None, None)
-    optics = [build_channel_optics(ch, provider, camera.radiance, ss=ss, psf_size_px=opt.psf_size_px,
-                                   field_patches=opt.field_patches, patch_threshold=opt.patch_threshold,
-                                   scene_temperature_k=system.scene_temperature_k, haze=opt.haze,
-                                   transmitted=(1.0 if tr is None or provider_name != "optics"
-                                                else tr.metasurface_transmission),
-                                   leaks=() if tr is None else [(lk.power_fraction / tr.throughput, lk.radius_um)
-                                                                for lk in tr.leaks])
-              for ch, tr in zip(camera.channels, trains)]
+    with heartbeat(f"simulate: the channels' PSFs ({provider_name}; computed on a first run, then cached)",
+                   enabled=opt.progress):
+        optics = _channel_optics(system, camera, provider, provider_name, trains, ss, opt)
     t_psf = time.perf_counter() - t_psf
     for o in optics:
         log.info("%s channel PSF: %s", o.channel.name, o.info)

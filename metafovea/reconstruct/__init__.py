@@ -46,7 +46,7 @@ from typing import Any
 #: deconvolution solvers
 _HOMES = {
     "AlternatingOptions": "alternating", "alternating": "alternating", "foveal_gauge": "alternating",
-    "FPN_MODES": "api", "METHODS": "api", "reconstruct": "api", "reconstruct_measurement": "api",
+    "FPN_MODES": "api", "METHODS": "api", "fpn_mode": "api", "reconstruct": "api", "reconstruct_measurement": "api",
     "DECONVOLUTION_METHODS": "deconvolve", "ChannelPSFs": "joint", "Deconvolution": "deconvolve",
     "deconvolve_measurement": "deconvolve", "separate_deconvolve": "deconvolve", "wiener_bound": "metrics",
     "DipOptions": "deep_prior", "dip": "deep_prior",
@@ -93,6 +93,6 @@ def __dir__() -> list[str]:
 __all__ = ["AlternatingOptions", "ChannelPSFs", "DECONVOLUTION_METHODS", "DENOISERS", "Deconvolution", "DipOptions",
            "FPN_MODES", "FovealOperator", "METHODS", "PipelineResult", "Reconstruction", "SlidingLSQ", "alternating",
            "centre_crop", "condition_number", "deconvolve_measurement", "denoise", "dip", "downsample",
-           "downsample_adjoint", "estimate_fpn", "figure_paths", "foveal_gauge", "lsq_known_alpha", "prepare_outputs",
-           "reconstruct", "reconstruct_measurement", "register", "separate_deconvolve", "snapshot", "video",
-           "wiener_bound", "write_outputs"]
+           "downsample_adjoint", "estimate_fpn", "figure_paths", "foveal_gauge", "fpn_mode", "lsq_known_alpha",
+           "prepare_outputs", "reconstruct", "reconstruct_measurement", "register", "separate_deconvolve", "snapshot",
+           "video", "wiener_bound", "write_outputs"]

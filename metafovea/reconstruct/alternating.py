@@ -352,10 +352,9 @@ def _guard(rep: dict[str, Any], band: _GaugeBand, op: FovealOperator, old: tuple
         reasons.append("foveal misfit reduction within noise")
     consistent = chi_new / n_eff <= 4.0 * var_r
     if not (chi_new <= 0.25 * chi_old or consistent):
-        reasons.append(f"the constraint does not explain the images after the fix "
-                       f"(rms {math.sqrt(chi_new / n_eff):.3g} vs {math.sqrt(chi_old / n_eff):.3g} before, "
-                       f"noise {math.sqrt(var_r):.3g}): wrong "
-                       f"scale/offset/gain?")
+        reasons.append(f"the constraint does not explain the images after the fix (rms "
+                       f"{math.sqrt(chi_new / n_eff):.3g} vs {math.sqrt(chi_old / n_eff):.3g} before, noise "
+                       f"{math.sqrt(var_r):.3g}): wrong scale/offset/gain?")
     # objective: foveal misfit (chi^2 / n in units of var_r) + TV (relative to the current value)
     tv_old = anisotropic_tv(old[0]) + anisotropic_tv(old[1])
     tv_new = anisotropic_tv(new[0]) + anisotropic_tv(new[1])
@@ -382,6 +381,12 @@ def _guard(rep: dict[str, Any], band: _GaugeBand, op: FovealOperator, old: tuple
                            f"(misfit {math.sqrt(chi2 / n_eff):.3g} vs {math.sqrt(chi_new / n_eff):.3g}): wrong scale?")
             break
     return reasons
+
+
+#: what fixes alpha's gauge when a window's frames do not (``strict``'s error; the CLI names its flags instead)
+GAUGE_ADVICE = ("frames whose alpha gauge the polariser model (polarizer) or the foveal constraint "
+                "(scale, foveal_gain, foveal_offset) fixes; or the file's alpha (method='lsq'); or strict=False: alpha "
+                "up to an affine map (flagged alpha_identified: false)")
 
 
 @dataclass(frozen=True)
@@ -520,8 +525,7 @@ def _alternate(win: _Window, x1: np.ndarray, x2: np.ndarray, a: np.ndarray, cond
             gain = _channel_noise_gain(a)
             x1p = denoise(x1, prior, sigma=sig * gain[0])
             x2p = denoise(x2, prior, sigma=sig * gain[1])
-            a = (_alpha_step(win.Yf, x1p, x2p, win.M) if opt.alpha_from == "prior"
-                 else _alpha_step(win.Yf, x1, x2, win.M))
+            a = _alpha_step(win.Yf, *((x1p, x2p) if opt.alpha_from == "prior" else (x1, x2)), win.M)
             x1, x2 = x1p, x2p
         else:
             a = _alpha_step(win.Yf, x1, x2, win.M)
@@ -676,13 +680,9 @@ def alternating(frames: Any, options: AlternatingOptions | None = None, **overri
     info["gauge"] = grep
     fixed = bool(grep["applied"] or (prep is not None and prep["applied"]))
     if opt.strict and gauge != "none" and not fixed:
-        why = grep.get("reason") if prep is None else f"{prep.get('reason')}; foveal: {grep.get('reason')}"
-        raise InputError("frames", f"{T} frames", "frames in which the polariser model or the foveal constraint fixes "
-                         "the alpha gauge",
-                         detail=f"gauge fix not applied: {why}; alpha is only known up to an "
-                                f"affine map (polariser too slow, one channel barely observed, or the foveal "
-                                f"geometry scale/offset is wrong); pass strict=False (metafovea reconstruct "
-                                f"--no-strict) to get the frame-mean-gauge result")
+        pol = "no polariser model" if prep is None else f"polariser model: {prep.get('reason')}"
+        raise InputError("frames", f"{T} frames", GAUGE_ADVICE,
+                         detail=f"alpha's gauge not fixed: {pol}; foveal constraint: {grep.get('reason')}")
     with tm.measure("alternate"):
         by_pol = prep is not None and prep["applied"]
         if by_pol and prep["alpha_from"] == "model":  # alpha is the rotation's: the images are its LSQ images

@@ -32,13 +32,20 @@ from metafovea.reconstruct.video import video
 
 #: the solvers, in the CLI's words (``--method``)
 METHODS = ("lsq", "alternating", "dip", "snapshot")
-#: fixed-pattern noise handling of :func:`reconstruct_measurement` (``--fpn``)
-FPN_MODES = ("none", "prior", "calibration")
+#: fixed-pattern noise handling of :func:`reconstruct_measurement` (``--fpn``); ``auto`` picks one from the file
+#: (:func:`fpn_mode`)
+FPN_MODES = ("auto", "none", "prior", "calibration")
 #: frames per window unless told; a sequence shorter than SHORT_SEQUENCE frames is one window of all its frames
 DEFAULT_WINDOW = 8
 SHORT_SEQUENCE = 2 * DEFAULT_WINDOW
 #: noise gain (x_i's noise std per unit frame noise) above which the summary warns
 NOISE_GAIN_WARN = 10.0
+#: the deep image prior's default time budget for a whole run (all windows), in seconds (``solver={'max_seconds':
+#: None}`` or ``--max-seconds 0``: none). A random start at 290 x 290 takes ~0.7 s per step on a 2-core CPU (16
+#: channels; BENCHMARKS.md), so its 2,000-step budget alone would run ~23 minutes per window, and a 96-frame file is
+#: 89 windows: without a cap a default run never ends in a session. Ten minutes bound it; a run that hits the cap
+#: keeps each window's lowest-loss images and the summary says so
+DIP_MAX_SECONDS = 600.0
 
 
 def reconstruct(frames: Any, alpha: Any = None, method: str = "lsq", *, fpn: Any = None,
@@ -132,9 +139,26 @@ def reconstruct(frames: Any, alpha: Any = None, method: str = "lsq", *, fpn: Any
     return rec
 
 
+def fpn_mode(m: Measurement) -> tuple[str, str]:
+    """What ``fpn='auto'`` does with ``m``: ``(mode, why)``. The file's shutter frames when it has them
+    (``calibration``); otherwise the blind estimate (``prior``) when the file declares a fixed pattern
+    (:attr:`Measurement.fpn_rank` > 0: a simulated sensor with FPN, no shutter frames); otherwise ``none`` (a
+    recording that says nothing, or a sensor without FPN: the prior would only add its error, 1.5 dB on x1 of
+    the default simulation without FPN)."""
+    if "calibration" in m.extras:
+        n = int(np.shape(m.extras["calibration"])[0]) if np.ndim(m.extras["calibration"]) == 3 else 1
+        return "calibration", f"from the file's {n} shutter frames"
+    rank = m.fpn_rank
+    if rank:
+        return "prior", (f"blind estimate (the file declares a rank-{rank} fixed pattern and has no shutter "
+                         "frames)")
+    return "none", ("not corrected (the file has no shutter frames and declares no fixed pattern)" if rank is None
+                    else "not corrected (the file's sensor has no fixed pattern)")
+
+
 def reconstruct_measurement(m: Measurement, method: str = "lsq", *, known_alpha: bool = False,
                             window: int | None = None, stride: int = 1, starts: Sequence[int] | None = None,
-                            fpn: str | np.ndarray = "none", denoise: str | None = None, frame: int = 0,
+                            fpn: str | np.ndarray = "auto", denoise: str | None = None, frame: int = 0,
                             constraint: FovealConstraint | None = None, solver: dict[str, Any] | None = None,
                             level_free: bool = False, progress: bool = False,
                             score_truth: bool = True) -> PipelineResult:
@@ -154,8 +178,11 @@ def reconstruct_measurement(m: Measurement, method: str = "lsq", *, known_alpha:
         little motion to follow). A sequence longer than the window, or explicit window ``starts``, is
         reconstructed window by window (:func:`~metafovea.reconstruct.video`), every ``stride``-th frame or at
         ``starts``; otherwise the whole sequence is one window.
-    fpn : {'none', 'prior', 'calibration'} or ndarray, shape (H, W)
-        Fixed-pattern noise: an array (the user's pattern, e.g. from a dark-frame calibration) is subtracted;
+    fpn : {'auto', 'none', 'prior', 'calibration'} or ndarray, shape (H, W)
+        Fixed-pattern noise: ``auto`` (default) chooses by the file (:func:`fpn_mode`: its shutter frames, else the
+        blind estimate when it declares a pattern, else none) and records the choice in
+        ``reconstruction.info['fpn']`` (``mode``, ``auto``); an array (the user's pattern, e.g. from a dark-frame
+        calibration) is subtracted;
         ``calibration`` estimates it from the file's ``calibration`` frames and ``prior`` from the separated images
         (for a sequence of several windows: once, from the windows' images averaged over the windows, then
         subtracted from every frame before the windows are solved again). The file's own ``fpn`` array is the
@@ -168,8 +195,8 @@ def reconstruct_measurement(m: Measurement, method: str = "lsq", *, known_alpha:
         Default: the file's (:attr:`Measurement.foveal_constraint`).
     solver : dict
         Keywords of the method's function (``regularize`` for lsq; ``strict`` for alternating; ``steps``,
-        ``channels``, ``rng``, ``init``, ``max_seconds`` for dip (``progress`` shows its steps); ``iterations``
-        for snapshot).
+        ``channels``, ``rng``, ``init``, ``max_seconds`` for dip: the whole run's time budget, default
+        :data:`DIP_MAX_SECONDS`, None for none (``progress`` shows its steps); ``iterations`` for snapshot).
     level_free : bool
         Add the level-free PSNRs to the metrics (see :func:`~metafovea.reconstruct.metrics.score`).
     score_truth : bool
@@ -200,6 +227,12 @@ def reconstruct_measurement(m: Measurement, method: str = "lsq", *, known_alpha:
         kw["polarizer"] = None
     if "regularize" in kw and method != "lsq":
         raise InputError("regularize", kw["regularize"], "only with method 'lsq' (--method lsq)")
+    if method == "dip":
+        kw.setdefault("max_seconds", DIP_MAX_SECONDS)  # the whole run's, split over its windows
+    cap = kw.get("max_seconds")
+    fpn_auto = None
+    if isinstance(fpn, str) and fpn.strip().lower() == "auto":
+        fpn, fpn_auto = fpn_mode(m)
     frames, fpn_kw = _fpn(m, fpn)
     frames, mask_info = _masked(m, frames, method)
     video_out = method != "snapshot" and (T > window or starts is not None)
@@ -213,15 +246,22 @@ def reconstruct_measurement(m: Measurement, method: str = "lsq", *, known_alpha:
         if video_out and fpn_kw:
             frames, video_fpn = _video_fpn(m, method, frames, alpha, kw, fpn_kw, window, stride, starts, progress)
             fpn_kw = {}
+            if kw.get("max_seconds") is not None:  # what the first pass left of the time budget
+                kw["max_seconds"] = max(kw["max_seconds"] - (time.perf_counter() - t0), 1e-3)
         rec, spans = _solve(m, method, frames, alpha, kw, fpn_kw, window, stride, starts, denoise, frame, video_out,
                             progress)
     seconds = time.perf_counter() - t0
     if video_fpn is not None:
         rec = replace(rec, fpn=video_fpn[0].astype(np.float32), info={**rec.info, "fpn": video_fpn[1]})
+    if method == "dip":
+        rec = replace(rec, info={**rec.info, "max_seconds": cap})  # the run's cap (the solver saw what was left)
     if mask_info:
         rec = replace(rec, info={**rec.info, "invalid_samples": mask_info})
     if not isinstance(fpn, str) and rec.fpn is None and not rec.is_video:  # the user's pattern, as subtracted
         rec = replace(rec, fpn=np.asarray(fpn, dtype=np.float32), info={**rec.info, "fpn": {"identified": "given"}})
+    if isinstance(fpn, str):  # the mode used, and why when it was chosen from the file (fpn='auto')
+        finfo = {**(rec.info.get("fpn") or {}), "mode": fpn.strip().lower()}
+        rec = replace(rec, info={**rec.info, "fpn": finfo if fpn_auto is None else {**finfo, "auto": fpn_auto}})
     res = PipelineResult(reconstruction=rec, spans=spans, seconds=seconds, constraint=fc, frames=T, source=m.source)
     return replace(res, metrics=_metrics(m, res, level_free) if score_truth else None,
                    alpha_mae=_alpha_mae(m, res, alpha is None))
@@ -268,6 +308,8 @@ def _video_fpn(m: Measurement, method: str, frames: np.ndarray, alpha: np.ndarra
     if fpn_kw.get("fpn") == "calibration":
         f, finfo = estimate_fpn(calibration=fpn_kw["calibration"])
     else:
+        if kw.get("max_seconds") is not None:  # the first pass gets half the time budget
+            kw = {**kw, "max_seconds": kw["max_seconds"] / 2}
         first = video(frames, alpha, window=window, stride=stride, starts=starts, method=method, progress=progress,
                       **kw)
         with np.errstate(invalid="ignore"):
@@ -335,16 +377,17 @@ def _fpn(m: Measurement, fpn: str | np.ndarray) -> tuple[np.ndarray, dict[str, A
     pattern = None
     if isinstance(fpn, str):
         if fpn.strip().lower() == "file":
-            raise InputError("fpn", "file", "none, prior, calibration or a pattern of your own (fpn=ARRAY; CLI: "
-                             "--fpn PATTERN.npy): the file's 'fpn' is the simulator's true pattern, kept for scoring",
+            raise InputError("fpn", "file", "auto, none, prior, calibration or a pattern of your own (an (H, W) "
+                             "array): the file's 'fpn' is the simulator's true pattern, kept for scoring",
                              source=m.source)
         mode = check_choice("fpn", fpn, FPN_MODES)
         if mode == "prior":
             return m.frames, {"fpn": "prior"}
         if mode == "calibration":
             if "calibration" not in m.extras:
-                raise InputError("fpn", "calibration", "a measurement with a 'calibration' frame array",
-                                 source=m.source)
+                raise InputError("fpn", "calibration", "a measurement with shutter frames (a 'calibration' "
+                                 "array: simulate(calibration_frames)), or fpn='auto' (what the file allows)",
+                                 detail=f"{m.source or 'this measurement'} has none")
             return m.frames, {"fpn": "calibration", "calibration": m.extras["calibration"]}
     else:
         pattern = np.asarray(fpn)

@@ -367,7 +367,7 @@ class DipOptions:
     log_every : int
         Log the loss every so many steps (0: never).
     progress : bool or callable
-        True: a tqdm bar on stderr (step, loss, ETA); a callable: called with a dict ``step, steps, loss,
+        True: step, loss and ETA on stderr (a bar on a terminal, a log line every 10 s otherwise); a callable: called with a dict ``step, steps, loss,
         seconds, eta_s`` every ``progress_every`` steps and at the end.
     progress_every : int
     """
@@ -635,17 +635,17 @@ def _lr_at(k: int, opt: DipOptions, lr: float) -> float:
 
 
 class _Progress:
-    """Step, loss and ETA: a tqdm bar on stderr (``progress=True``), a callable's dict, or nothing."""
+    """Step, loss and ETA: on stderr (``progress=True``: a bar on a terminal, log lines otherwise), a callable's
+    dict, or nothing."""
 
     def __init__(self, opt: DipOptions):
         self.fn = opt.progress if callable(opt.progress) else None
         self.every, self.steps = opt.progress_every, opt.steps
         self.bar = None
-        if opt.progress is True:
-            import sys
+        if opt.progress is True:  # a bar on a terminal, log lines otherwise
+            from metafovea.parallel import progress_bar
 
-            from tqdm import tqdm
-            self.bar = tqdm(total=opt.steps, desc="dip", unit="step", file=sys.stderr)
+            self.bar = progress_bar(opt.steps, "dip", "step")
         self.done = 0
 
     def __call__(self, k: int, loss: float, seconds: float, last: bool = False) -> None:
@@ -670,7 +670,9 @@ def _optimise(step: Any, params: dict[str, Any], data: dict[str, Any], opt: DipO
     compiles when this shape and these switches are new) is timed as ``compile``, the others as ``steps``.
 
     Stops after ``steps`` steps, when the best loss improved by less than ``tol`` (relative) over the last
-    ``patience`` steps, or after ``max_seconds``."""
+    ``patience`` steps, or after ``max_seconds``; stopped by the time cap it returns the state of the lowest loss
+    seen (the learning rate has not decayed yet, so the last step need not be the best), ``kept_step`` its
+    steps."""
     recorded: list[dict[str, Any]] = []
     t_start = time.perf_counter()
     beta = float(opt.average)
@@ -686,13 +688,17 @@ def _optimise(step: Any, params: dict[str, Any], data: dict[str, Any], opt: DipO
     record(0, state)
     bar = _Progress(opt)
     stop, k = "steps", 0
-    t0 = time.perf_counter()
+    lowest = (float("inf"), 0, state)  # (loss, steps done, state) of the lowest loss: the loss of step k is that of
+    t0 = time.perf_counter()  # the state before it (JAX arrays are immutable: keeping it costs no copy)
     try:
         for k in range(1, opt.steps + 1):
             f = _lr_at(k, opt, 1.0)
+            before = state
             with tm.measure("compile" if k == 1 else "steps"):
                 state, loss = step(state, float(k), w["lr"] * f, w["alpha_lr"] * f, beta, data)
                 loss = float(loss)
+            if loss < lowest[0]:
+                lowest = (loss, k - 1, before)
             best.append(min(loss, best[-1]) if best else loss)
             if k == 1 or k % max(1, opt.steps // 200) == 0 or k == opt.steps:
                 hist.append(loss)
@@ -713,7 +719,10 @@ def _optimise(step: Any, params: dict[str, Any], data: dict[str, Any], opt: DipO
         bar.close()
     if hist[-1] != loss:
         hist.append(loss)
-    return state, hist, recorded, {"steps_run": k, "stopped": stop, "best_loss": best[-1], "final_loss": loss}
+    info = {"steps_run": k, "stopped": stop, "best_loss": best[-1], "final_loss": loss, "kept_step": k}
+    if stop == "time":
+        state, info["kept_step"] = lowest[2], lowest[1]
+    return state, hist, recorded, info
 
 
 def _start_alpha(Y: np.ndarray, opt: DipOptions, alpha: Any) -> tuple[np.ndarray | None, np.ndarray | None]:
@@ -765,6 +774,10 @@ def dip(frames: Any, alpha: Any = None, options: DipOptions | None = None, **ove
     with ``g_k``'s output layer zeroed, so step 0 returns the initial estimate exactly; ``'fit'``: ``warm_steps``
     supervised steps fitting ``g_k`` (sigmoid output) to ``x_init_k``, then the loss. With known alpha the
     normalisation range includes the LSQ images (the true images extend beyond the frames' range).
+
+    Step budget: at most ``steps`` steps, fewer when the loss converged (``tol``, ``patience``) or ``max_seconds``
+    ran out (``info['stopped']``); a run stopped by the time cap returns the images of its lowest loss, after
+    ``info['kept_step']`` steps.
 
     Defaults: ``tv_weight`` from eq. (2) for a random start, ``exclusion_weight`` 0 for it; both
     :data:`WARM_WEIGHT` after a warm start; ``lr`` :data:`PAPER_LR` for a random start, :data:`WARM_LR` for a warm
@@ -821,10 +834,11 @@ def dip(frames: Any, alpha: Any = None, options: DipOptions | None = None, **ove
     step = _make_step(opt.depth, learn_alpha, op is not None, residual, bool(opt.norm))
     state, hist, recorded, stop = _optimise(step, params, data, opt, w, cps, images, tm)
     x1, x2, a = images(state[0])
-    if opt.average:  # the running means, bias-corrected
-        c = 1.0 - opt.average ** stop["steps_run"]
+    if opt.average and stop["kept_step"]:  # the running means, bias-corrected
+        c = 1.0 - opt.average ** stop["kept_step"]
         x1, x2 = (u.to_frames(np.asarray(e, np.float64) / c).astype(dt) for e in state[3:5])
-    info = {"steps": opt.steps, **stop, "channels": opt.channels, "depth": opt.depth, "loss_history": hist,
+    info = {"steps": opt.steps, "max_seconds": opt.max_seconds, **stop, "channels": opt.channels, "depth": opt.depth,
+            "loss_history": hist,
             "alpha_learned": learn_alpha, "tv_weight": w["tv"], "exclusion_weight": w["exclusion"],
             "tv_weight_rule": ({"rule": f"MAP: {AUTO_TV:g} sigma_x^2 / b (random start)", **tv_rule}
                                if tv_auto is not None else ("given" if opt.tv_weight is not None else "default")),

@@ -261,9 +261,32 @@ class PipelineResult:
                                 "rate_hz": fit.get("rate_hz"), "irregular": fit.get("irregular"),
                                 "warning": pg.get("warning"), "alpha_from": pg.get("alpha_from")}
         if "fpn" in rec.info:
-            out["fpn"] = rec.info["fpn"].get("identified")
+            fi = rec.info["fpn"]
+            out["fpn"] = fi.get("identified") or fi.get("mode")
+            out.update({f"fpn_{k}": fi[k] for k in ("mode", "auto") if fi.get(k)})  # auto: why fpn='auto' chose it
+        dip = _dip_summary(rec)
+        if dip is not None:
+            out["dip"] = dip
         if self.nonfinite_pixels:
             out["nonfinite_pixels"] = self.nonfinite_pixels
         if self.metrics is not None:
             out["metrics"] = self.metrics
         return out
+
+
+def _dip_summary(rec: Reconstruction) -> dict[str, Any] | None:
+    """How the deep image prior's windows stopped: ``windows`` (done; ``windows_planned`` when the time cap stopped
+    the run earlier), ``steps`` (the budget), ``steps_run_mean``, ``stopped`` (count per reason: steps, converged,
+    time) and ``max_seconds`` (the run's time cap); None for the other methods."""
+    runs = rec.info.get("dip_windows")
+    if runs is None and rec.method == "dip" and "steps_run" in rec.info:
+        runs = [rec.info]
+    if not runs:
+        return None
+    stopped: dict[str, int] = {}
+    for r in runs:
+        stopped[str(r.get("stopped"))] = stopped.get(str(r.get("stopped")), 0) + 1
+    return {"windows": len(runs), "windows_planned": rec.info.get("windows_planned", len(runs)),
+            "steps": runs[0].get("steps"),
+            "steps_run_mean": float(np.mean([r.get("steps_run") or 0 for r in runs])), "stopped": stopped,
+            "max_seconds": rec.info.get("max_seconds")}

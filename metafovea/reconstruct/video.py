@@ -12,12 +12,14 @@ Measured figures: BENCHMARKS.md, sections "Reconstruction" and "`metafovea recon
 from __future__ import annotations
 
 import logging
+import time
 from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
 
 from metafovea.errors import InputError, check_choice, check_int
+from metafovea.parallel import progress_iter
 from metafovea.reconstruct._common import Timings, as_alpha, as_frames, image_dtype, valid_mask
 from metafovea.reconstruct.denoise import denoise as denoise_image
 from metafovea.reconstruct.lsq import MAX_CONDITION, lsq_known_alpha, residual_sigma, solve_weights
@@ -72,8 +74,7 @@ def _lsq_windows(Y: np.ndarray, a: np.ndarray, starts: np.ndarray, window: int, 
         try:
             Wt, rep = solve_weights(a[s:s + window], max_condition=max_condition, regularize=regularize, quiet=True)
         except InputError as e:
-            raise InputError("alpha", f"window {k} (frames {s}..{s + window - 1})", e.allowed,
-                             detail=str(e)) from None
+            raise _in_window(e, k, s, window, "alpha") from None
         conds[k] = rep["condition"]
         if M is None:
             Wt = Wt.astype(dt)
@@ -84,6 +85,29 @@ def _lsq_windows(Y: np.ndarray, a: np.ndarray, starts: np.ndarray, window: int, 
                                 regularize=regularize, saturation=saturation)
             x1[k], x2[k] = r.x1.ravel(), r.x2.ravel()
     return x1, x2, conds
+
+
+def _in_window(e: InputError, k: int, s: int, window: int, parameter: str = "frames") -> InputError:
+    """``e`` (raised by a window's solver) placed in window ``k`` (frames ``s`` to ``s + window - 1``): one message,
+    the window in the value when ``e`` is about ``parameter`` (``frames``: the window is the value), else in the
+    detail."""
+    where = f"window {k} (frames {s}..{s + window - 1})"
+    if e.parameter == parameter:
+        value = where if parameter == "frames" else f"{where}: {e.value}"
+        return InputError(parameter, value, e.allowed, source=e.source, detail=e.detail)
+    return InputError(e.parameter, e.value, e.allowed, source=e.source,
+                      detail=where if not e.detail else f"{where}: {e.detail}")
+
+
+def _dip_window(dip: Any, Y: np.ndarray, alpha: Any, kw: dict[str, Any], s: int, window: int,
+                max_seconds: float | None) -> Reconstruction:
+    """The DIP of the window of frames ``s`` to ``s + window - 1``, with ``max_seconds`` of the run's time budget
+    (what is left of it over the windows left; at least a step)."""
+    pol = kw.get("polarizer")
+    wkw = {**kw, "polarizer": pol.window(s, window)} if pol is not None else dict(kw)
+    if max_seconds is not None:
+        wkw["max_seconds"] = max(float(max_seconds), 1e-3)
+    return dip(Y[s:s + window], alpha=None if alpha is None else np.asarray(alpha)[s:s + window], **wkw)
 
 
 def video(frames: Any, alpha: Any = None, *, window: int = 8, stride: int = 1, starts: Sequence[int] | None = None,
@@ -100,11 +124,11 @@ def video(frames: Any, alpha: Any = None, *, window: int = 8, stride: int = 1, s
     window, stride, starts : int, int, sequence of int
         ``frames[k stride : k stride + window]``, or the windows that begin at ``starts``.
     method : {'lsq', 'alternating', 'dip'}
-        Alpha known, or estimated per window (extra keywords go to the method's function).
+        Alpha known, or estimated per window (extra keywords go to the method's function). ``'dip'``: ``max_seconds``
+        is the whole sequence's budget, shared over the windows left; none left: the windows done are returned.
     denoise : {'tv', 'bilateral', 'nlm'}, optional
     max_condition, regularize, saturation
-        As :func:`~metafovea.reconstruct.lsq.lsq_known_alpha`: a window whose normal matrix is too
-        ill-conditioned raises :class:`InputError` naming the window unless ``regularize`` is given.
+        As :func:`~metafovea.reconstruct.lsq.lsq_known_alpha` (an ill-conditioned window's error names it).
     progress : bool
         A progress bar over the windows.
 
@@ -122,11 +146,7 @@ def video(frames: Any, alpha: Any = None, *, window: int = 8, stride: int = 1, s
     K = len(starts)
     dt = image_dtype(Y)
     info: dict[str, Any] = {"window": int(window), "stride": int(stride), "window_starts": starts.tolist()}
-    it = range(K)
-    if progress:
-        from tqdm import tqdm
-
-        it = tqdm(it, desc=f"reconstruct ({method})", unit="window")
+    it = progress_iter(range(K), f"reconstruct ({method})", "window", enabled=progress)
     gains = None
     if method == "lsq":
         if alpha is None:
@@ -156,7 +176,10 @@ def video(frames: Any, alpha: Any = None, *, window: int = 8, stride: int = 1, s
 
         x1 = np.empty((K, H, W), dtype=dt)
         x2 = np.empty((K, H, W), dtype=dt)
-        aw, identified, se_w, gauges = [], [], [], []
+        aw, identified, se_w, gauges, runs = [], [], [], [], []
+        kw = dict(kw)
+        budget = kw.pop("max_seconds", None) if method == "dip" else None  # the whole sequence's
+        t_run = time.perf_counter()
         with tm.measure("solve"):
             for k in it:
                 s = starts[k]
@@ -165,16 +188,18 @@ def video(frames: Any, alpha: Any = None, *, window: int = 8, stride: int = 1, s
                         pol = kw.get("polarizer")
                         wkw = {**kw, "polarizer": pol.window(s, window)} if pol is not None else kw
                         r = alternating(Y[s:s + window], saturation=saturation, **wkw)
-                    except InputError as e:
-                        raise InputError("frames", f"window {k} (frames {s}..{s + window - 1})", e.allowed,
-                                         detail=str(e)) from None
+                    except InputError as e:  # the same error, placed in its window (one message, not nested)
+                        raise _in_window(e, k, s, window) from None
                     identified.append(bool(r.info["alpha_identified"]))
                     se_w.append(r.info.get("alpha_se_max"))
                     gauges.append(r.info.get("alpha_gauge"))
                 else:
-                    pol = kw.get("polarizer")
-                    wkw = {**kw, "polarizer": pol.window(s, window)} if pol is not None else kw
-                    r = dip(Y[s:s + window], alpha=None if alpha is None else np.asarray(alpha)[s:s + window], **wkw)
+                    left = None if budget is None else budget - (time.perf_counter() - t_run)
+                    if k and left is not None and left <= 0:  # the time cap: stop, keep the windows done
+                        break
+                    r = _dip_window(dip, Y, alpha, kw, s, window, None if left is None else left / (K - k))
+                    runs.append({n: r.info.get(n) for n in ("steps", "steps_run", "stopped", "kept_step",
+                                                                "max_seconds")})
                 x1[k], x2[k] = r.x1, r.x2
                 aw.append(np.asarray(r.alpha).tolist())
         info["alpha_windows"] = aw
@@ -185,6 +210,11 @@ def video(frames: Any, alpha: Any = None, *, window: int = 8, stride: int = 1, s
             info["alpha_gauge"] = sorted({str(g) for g in gauges})
             if all(v is not None for v in se_w):
                 info["alpha_se_max"] = float(max(se_w))
+        else:
+            info.update(dip_windows=runs, max_seconds=budget, windows_planned=K)
+            if len(runs) < K:  # stopped by the time cap: the windows done
+                K, starts = len(runs), starts[:len(runs)]
+                x1, x2, info["window_starts"] = x1[:K], x2[:K], starts.tolist()
         alpha_out = np.asarray(alpha, dtype=np.float64) if alpha is not None else np.full(T, np.nan)
     if denoise:
         with tm.measure("denoise"):

@@ -36,8 +36,11 @@ FILTER = True
 @dataclass(frozen=True)
 class StudyOptions:
     """How a study runs: ``fast`` (small sizes, for CI: each study says which), ``seed`` (every random stream;
-    same seed, same JSON), ``workers``/``scheduler`` (the executor of :mod:`metafovea.parallel`; 1 = in
-    process), ``system`` (default: the paper's prototype), ``psf`` (the simulator's PSF provider)."""
+    same seed, same JSON), ``workers``/``scheduler`` (the executor of :mod:`metafovea.parallel`; 1, the
+    default here, runs the cases in this process: a notebook or a script without a main guard, and the fast
+    sizes, whose cases cost less than starting worker processes that each import and compile the solvers again;
+    None = one process per core, never more than the cases, the default of ``metafovea study --workers``),
+    ``system`` (default: the paper's prototype), ``psf`` (the simulator's PSF provider)."""
 
     fast: bool = False
     seed: int = 0

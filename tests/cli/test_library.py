@@ -114,3 +114,19 @@ def test_library_cli_bias_weight_selects_jointly(tmp_path, capsys):
     assert main(argv + ["--bias-weight", "-1"]) == 2
     err = _err(capsys)
     assert "--bias-weight" in err and len(err.splitlines()) == 1
+
+
+def test_a_library_sweep_off_a_terminal_logs_progress_lines(tmp_path, capsys, monkeypatch):
+    """The library sweep (also what a first `metafovea design` runs) drew its bar on terminals only: off a terminal
+    it was silent for the minutes it takes. It now writes a line every PROGRESS_LINE_S (0 here): done, total, ETA."""
+    import metafovea.parallel
+
+    monkeypatch.setattr(metafovea.parallel, "PROGRESS_LINE_S", 0.0, raising=False)
+    argv = ["library", "--grid-step-um", "1.0", "--harmonics", "5", "--workers", "1", "--no-cache", "--levels", "2"]
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        assert main([*argv, "--cache-dir", str(tmp_path / "c")]) == 0
+        err = capsys.readouterr().err
+        assert "metafovea: RCWA library: 1/3 task (33 %)" in err and "metafovea: RCWA library: 3/3 task (100 %) in" in err
+        assert main([*argv, "--cache-dir", str(tmp_path / "d"), "-q"]) == 0
+    assert "metafovea: RCWA library" not in capsys.readouterr().err

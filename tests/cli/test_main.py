@@ -5,7 +5,8 @@ import sys
 
 import pytest
 
-from metafovea.cli import COMMAND_MODULES, COMMANDS, PARAMETER_FLAGS, as_flag_error, build_parser, main
+from metafovea.cli import COMMAND_MODULES, COMMANDS, build_parser, main
+from metafovea.cli.flags import PARAMETER_FLAGS, as_flag_error
 from metafovea.errors import InputError
 
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import re
 
 import numpy as np
 import pytest
@@ -258,7 +259,7 @@ def test_bad_fpn_and_calibration_arrays_are_named(tmp_path, capsys):
     rc, _, err = _run([m, "--window", "10", "--fpn", "calibration", "--no-figures"], capsys)
     assert rc == 2 and "calibration" in err
     rc, _, err = _run([_save(tmp_path / "n.npz"), "--window", "10", "--fpn", "calibration", "--no-figures"], capsys)
-    assert rc == 2 and "'calibration' frame array" in err
+    assert rc == 2 and "--fpn = 'calibration' is invalid" in err and "--fpn auto" in err and "n.npz has none" in err
 
 
 @pytest.mark.parametrize("argv", [["--stride", "0"], ["--window", "1"], ["--window", "11"]])
@@ -297,6 +298,24 @@ def test_no_strict_gives_the_frame_mean_gauge_result_the_error_points_to(tmp_pat
     rc, _, err = _run([m, "--method", "alternating", "--no-strict", "--no-figures"], capsys)
     assert rc == 0, err
     assert Reconstruction.load(tmp_path / "m_rec.npz").info["alpha_identified"] is False
+
+
+def test_the_gauge_error_is_one_message_naming_the_flags_to_use(tmp_path, capsys):
+    """The alternating gauge error nested three messages (a window's, the solver's, its detail) and named the library
+    keyword strict=False: one message now, in the window, naming the flags that fix it."""
+    x1 = np.random.default_rng(0).random((48, 48))  # unrelated to x2: the foveal constraint cannot fix the gauge
+    _, x2 = scene(48)
+    a = polariser_alpha(20)
+    m = tmp_path / "m.npz"
+    atomic_save_npz(m, meta={"scale": 6}, frames=measure(x1, x2, a, sigma=0.0, rng=0, dtype=np.float32),
+                    times_s=np.arange(20) / 12.0)
+    rc, out, err = _run([m, "--method", "alternating", "--no-figures"], capsys)  # 20 frames: 8-frame windows
+    assert rc == 2 and out == "" and err.count("\n") == 1
+    assert err.count("is invalid") == 1 and "window 0 (frames 0..7)" in err
+    for flag in ("--no-strict", "--polarizer auto", "--scale", "--foveal-gain", "--foveal-offset", "--method lsq"):
+        assert flag in err, flag
+    for keyword in ("strict=False", "foveal_gain", "scale/offset/gain", "method='lsq'"):
+        assert keyword not in err, keyword
 
 
 def test_cli_dead_pixel_with_denoise(tmp_path, capsys):
@@ -397,3 +416,52 @@ def test_polarizer_model_from_the_file_fixes_alpha(tmp_path, capsys):
     rc, stdout, err = _run([path, "--method", "alternating", "--window", "10", "--out", tmp_path / "r.npz",
                             "--no-figures", "--force"], capsys)
     assert "alpha gauge: absolute (polariser model); identified: True" in stdout
+
+
+def test_default_fpn_is_chosen_from_the_file_and_printed(tmp_path, capsys):
+    """``--fpn`` defaulted to none: a simulated file's fixed pattern stayed in the foveal image (-8.1 dB) with no
+    hint. The default is now auto, and the summary says what it chose and why (text and JSON)."""
+    from metafovea.reconstruct.synthetic import lowrank_fpn
+
+    x1, x2 = scene(48)
+    a = polariser_alpha(8)
+    f = lowrank_fpn((48, 48), rank=3, amplitude=0.1, rng=1).astype(np.float32)
+    frames = measure(x1, x2, a, sigma=0.0, fpn=f, rng=0, dtype=np.float32)
+    cal = measure(np.full_like(x1, 0.5), np.full_like(x1, 0.5), np.full(4, 0.5), sigma=0.0, fpn=f, rng=0)
+    cases = {"cal": ({"scale": 6}, {"calibration": cal.astype(np.float32)}, "calibration, from the file's 4 shutter"),
+             "declared": ({"scale": 6, "sensor": {"fpn_rank": 3}}, {}, "prior, blind estimate"),
+             "silent": ({"scale": 6}, {}, "none, not corrected (the file has no shutter frames")}
+    for name, (meta, extra, line) in cases.items():
+        m = _save(tmp_path / f"{name}.npz", T=8, meta=meta, frames=frames, alpha=a, fpn=f, **extra)
+        rc, out, err = _run([m, "--no-figures"], capsys)
+        assert rc == 0, err
+        assert f"fixed-pattern noise: {line}" in out and "(--fpn auto)" in out, out
+    rc, out, _ = _run([tmp_path / "cal.npz", "--no-figures", "--force", "--fpn", "none"], capsys)
+    assert rc == 0 and "fixed-pattern noise: none\n" in out  # a mode given: no reason to explain
+
+
+def test_dip_off_a_terminal_logs_progress_lines_and_says_when_the_time_cap_stopped_it(meas, tmp_path, capsys,
+                                                                                        monkeypatch):
+    """`reconstruct --method dip` printed nothing off a terminal (its bar was for terminals only) and had no time
+    cap. Off a terminal it now writes a progress line every PROGRESS_LINE_S (0 here: every update) with step, total
+    and ETA; the time cap stops it, and the summary says so."""
+    import metafovea.parallel
+
+    monkeypatch.setattr(metafovea.parallel, "PROGRESS_LINE_S", 0.0, raising=False)
+    rc, out, err = _run([meas, "--method", "dip", "--known-alpha", "--window", "10", "--channels", "4",
+                         "--steps", "100000", "--max-seconds", "2", "--no-figures", "--out", tmp_path / "d.npz"],
+                        capsys)
+    assert rc == 0, err
+    assert re.search(r"metafovea: dip: \d+/100000 step \(\d+ %\), \d+ s, ETA ", err), err  # (the first step compiles)
+    assert "dip: 1 window(s)" in out and "stopped: 1 by time" in out
+    assert "warning: the time cap (--max-seconds 2) stopped the run 1 window(s) before their steps were done" in out
+    rc, out, err = _run([meas, "--method", "dip", "--known-alpha", "--window", "10", "--channels", "4",
+                         "--steps", "5", "--no-figures", "--out", tmp_path / "q.npz", "-q"], capsys)
+    assert rc == 0 and "metafovea: dip" not in err and "stopped: 1 by steps" in out  # --quiet: no progress
+    rc, out, err = _run([meas, "--method", "dip", "--known-alpha", "--window", "4", "--stride", "4", "--channels", "4",
+                         "--steps", "100000", "--max-seconds", "0.001", "--no-figures", "--out", tmp_path / "w.npz"],
+                        capsys)
+    assert rc == 0, err
+    assert "stopped the run after 1 of 2 windows (the output holds those)" in out
+    assert Reconstruction.load(tmp_path / "w.npz").x1.shape == (1, 64, 64)
+    assert _run([meas, "--method", "dip", "--max-seconds", "-1"], capsys)[0] == 2

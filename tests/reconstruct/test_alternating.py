@@ -173,3 +173,17 @@ def test_anisotropic_tv_is_the_sum_of_absolute_differences():
     # horizontal |1| + |2| + 0 + 0, vertical |2| + |1| + |1|
     assert anisotropic_tv(x) == pytest.approx(3.0 + 4.0)
     assert anisotropic_tv(np.full((4, 5), 7.0)) == 0.0
+
+
+def test_the_gauge_error_names_the_parameters_not_the_command_line():
+    """The strict error told a Python caller to run `metafovea reconstruct --no-strict`: it names the keywords that
+    fix it (the CLI turns them into its flags), once, with the reasons of both gauge fixes."""
+    rng = np.random.default_rng(0)
+    _, x2 = scene(48)
+    Y = measure(rng.random((48, 48)), x2, polariser_alpha(8), sigma=0.0, rng=0)  # x1 unrelated: no foveal fix
+    with pytest.raises(InputError) as e:
+        alternating(Y, scale=6)
+    msg = str(e.value)
+    assert e.value.parameter == "frames" and msg.count("is invalid") == 1
+    assert "strict=False" in msg and "foveal_gain" in msg and "alpha's gauge not fixed" in msg
+    assert "--" not in msg and "metafovea" not in msg

@@ -207,7 +207,7 @@ def test_fpn_from_the_file_a_given_pattern_or_the_calibration_frames():
     cal = measure(np.full_like(x1, 0.5), np.full_like(x1, 0.5), np.full(6, 0.5), sigma=0.0, fpn=f, rng=0)
     m = _measurement(T=8, frames=measure(x1, x2, a, sigma=0.0, fpn=f, rng=0).astype(np.float32), fpn=f,
                      extras={"calibration": cal})
-    plain = reconstruct_measurement(m)
+    plain = reconstruct_measurement(m, fpn="none")
     given = reconstruct_measurement(m, fpn=f.astype(np.float64))
     cal_res = reconstruct_measurement(m, fpn="calibration")
     assert given.metrics["psnr_x1"] > plain.metrics["psnr_x1"] + 10
@@ -219,7 +219,7 @@ def test_fpn_from_the_file_a_given_pattern_or_the_calibration_frames():
     win = reconstruct_measurement(m, window=4, fpn="calibration")
     assert win.reconstruction.is_video and win.reconstruction.info["fpn"]["identified"] == "calibration"
     assert win.metrics["fpn_rms_error"] < 0.1 * win.metrics["fpn_rms_true"]
-    assert win.metrics["psnr_x1"] > reconstruct_measurement(m, window=4).metrics["psnr_x1"] + 10
+    assert win.metrics["psnr_x1"] > reconstruct_measurement(m, window=4, fpn="none").metrics["psnr_x1"] + 10
     # a missing array is named
     with pytest.raises(InputError, match="calibration"):
         reconstruct_measurement(_measurement(T=8), fpn="calibration")
@@ -227,6 +227,37 @@ def test_fpn_from_the_file_a_given_pattern_or_the_calibration_frames():
         reconstruct_measurement(m, fpn="file")
     with pytest.raises(InputError):
         reconstruct_measurement(m, fpn=np.zeros((3, 3)))
+
+
+def test_default_fpn_is_chosen_from_the_file_and_says_why():
+    """The default left a file's fixed pattern in (fpn='none'): the default `simulate` -> `reconstruct` gave a foveal
+    image at -8.1 dB with no hint. The default is now 'auto': the file's shutter frames when it has them, else the
+    blind estimate when it declares a pattern (meta sensor.fpn_rank > 0), else none; the choice and its reason are
+    in info['fpn'] and the summary."""
+    from metafovea.reconstruct import fpn_mode
+
+    x1, x2 = scene(48)
+    a = polariser_alpha(8)
+    f = lowrank_fpn((48, 48), rank=3, amplitude=0.1, rng=1).astype(np.float32)
+    cal = measure(np.full_like(x1, 0.5), np.full_like(x1, 0.5), np.full(6, 0.5), sigma=0.0, fpn=f, rng=0)
+    frames = measure(x1, x2, a, sigma=0.0, fpn=f, rng=0).astype(np.float32)
+    with_cal = _measurement(T=8, frames=frames, fpn=f, extras={"calibration": cal})
+    declared = _measurement(T=8, frames=frames, fpn=f, meta={"scale": 6.0, "sensor": {"fpn_rank": 3}})
+    clean = _measurement(T=8, meta={"scale": 6.0, "sensor": {"fpn_rank": 0}})
+    silent = _measurement(T=8)  # a recording that says nothing about its sensor
+    for m, mode in ((with_cal, "calibration"), (declared, "prior"), (clean, "none"), (silent, "none")):
+        auto = reconstruct_measurement(m)
+        chosen = reconstruct_measurement(m, fpn=mode)
+        assert fpn_mode(m)[0] == mode
+        assert np.array_equal(auto.reconstruction.x1, chosen.reconstruction.x1), mode
+        info = auto.reconstruction.info["fpn"]
+        assert info["mode"] == mode and info["auto"] == fpn_mode(m)[1]
+        s = auto.summary()
+        assert s["fpn_mode"] == mode and s["fpn_auto"] == info["auto"]
+        assert "fpn_auto" not in chosen.summary()  # a mode given is not explained
+    assert "6 shutter frames" in fpn_mode(with_cal)[1] and "rank-3" in fpn_mode(declared)[1]
+    assert reconstruct_measurement(with_cal).metrics["psnr_x1"] > \
+        reconstruct_measurement(with_cal, fpn="none").metrics["psnr_x1"] + 10
 
 
 def test_denoise_inside_lsq_and_after_the_other_methods():
@@ -288,10 +319,36 @@ def test_blind_fpn_of_a_video_is_estimated_once_over_its_windows():
     s = SystemDesign.paper()
     s = dataclasses.replace(s, sensor=dataclasses.replace(s.sensor, crop=(96, 96), pixels=(96, 96)))
     m = simulate(s, "parking-lot", frames=24, psf="airy", optical_train=False, filter_enabled=True, rng=5)
-    plain = reconstruct_measurement(m, "lsq", window=8, stride=8)
+    plain = reconstruct_measurement(m, "lsq", window=8, stride=8, fpn="none")
     blind = reconstruct_measurement(m, "lsq", window=8, stride=8, fpn="prior")
     info = blind.reconstruction.info["fpn"]
     assert blind.reconstruction.is_video and info["windows_averaged"] == 3 and info["identified"] in ("foveal", "prior")
     assert blind.metrics["fpn_rms_error"] < 0.7 * blind.metrics["fpn_rms_true"]
     assert blind.metrics["psnr_x1"] > plain.metrics["psnr_x1"] + 3
     assert blind.metrics["psnr_x2"] > plain.metrics["psnr_x2"] + 1.5
+
+
+def test_the_dip_has_a_time_budget_for_the_whole_run():
+    """`reconstruct --method dip` ran past 200 s with no time cap (2,000 steps a window, one window per frame of a
+    96-frame file). The pipeline caps the whole run (DIP_MAX_SECONDS unless told): each window gets what is left
+    over the windows left, the run stops starting windows when nothing is left and returns those done, and the
+    summary says how each window stopped."""
+    small = {"channels": 4, "depth": 2, "skip_channels": 4, "input_channels": 4, "tol": 0}
+    m = _measurement(T=12, n=32)
+    one = reconstruct_measurement(m, "dip", window=12, solver={"steps": 3, **small})
+    assert one.reconstruction.info["max_seconds"] == api.DIP_MAX_SECONDS  # the default cap
+    assert one.summary()["dip"] == {"windows": 1, "windows_planned": 1, "steps": 3, "steps_run_mean": 3.0,
+                                    "stopped": {"steps": 1}, "max_seconds": api.DIP_MAX_SECONDS}
+    res = reconstruct_measurement(m, "dip", window=4, stride=4,
+                                  solver={**small, "steps": 100_000, "max_seconds": 3.0})
+    d = res.summary()["dip"]
+    assert d["windows_planned"] == 3 and 1 <= d["windows"] <= 3 and d["stopped"] == {"time": d["windows"]}
+    assert d["max_seconds"] == 3.0 and res.outputs == d["windows"] and len(res.spans) == d["windows"]
+    windows = res.reconstruction.info["dip_windows"]
+    assert windows[0]["max_seconds"] == pytest.approx(1.0, abs=0.2)  # a third of the budget for the first window
+    assert sum(w["max_seconds"] for w in windows) <= 3.0 + 3e-3  # never more than the budget in all (a step at least)
+    # nothing left after the first window: the run stops there and returns it
+    tiny = reconstruct_measurement(m, "dip", window=4, stride=4,
+                                   solver={**small, "steps": 100_000, "max_seconds": 1e-3})
+    assert tiny.outputs == 1 and tiny.spans == ((0, 4),) and tiny.reconstruction.x1.shape == (1, 32, 32)
+    assert tiny.summary()["dip"]["windows_planned"] == 3 and isinstance(tiny.metrics, dict)

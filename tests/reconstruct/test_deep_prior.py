@@ -133,6 +133,22 @@ def test_stopping_rule_stops_a_converged_fit_early_and_says_why(data):
     assert r.info["stopped"] == "steps" and r.info["steps_run"] == 7
 
 
+def test_a_run_stopped_by_the_time_cap_keeps_its_lowest_loss_images(data):
+    """Stopped by ``max_seconds`` (the CLI's default cap) the run returned its last step's images, taken at a
+    learning rate that has not decayed; it keeps those of the lowest loss it saw and says after how many steps."""
+    x1, x2, a, Y = data
+    r = dip(Y, a, steps=10_000, max_seconds=0.5, tol=0, lr=0.05, schedule="constant", checkpoints=range(10_000),
+            rng=0, **KW)
+    assert r.info["stopped"] == "time" and r.info["max_seconds"] == 0.5
+    kept = r.info["kept_step"]
+    assert 0 <= kept < r.info["steps_run"]
+    cp = {c["step"]: c for c in r.info["checkpoints"]}
+    assert np.array_equal(r.x1, cp[kept]["x1"]) and np.array_equal(r.x2, cp[kept]["x2"])
+    # a run stopped by its step budget keeps its last step, as before
+    r = dip(Y, a, steps=7, rng=0, **KW)
+    assert r.info["kept_step"] == 7
+
+
 def test_progress_reports_step_loss_and_eta(data):
     x1, x2, a, Y = data
     seen = []

@@ -1,0 +1,92 @@
+"""The one map between the library's parameter names and the flags a user types.
+
+Stage code raises :class:`~metafovea.errors.InputError` naming its Python parameter (``band_um``), never a flag: a
+Python caller never typed one. The CLI turns the parameter back into the flag of the command that was run
+(:func:`as_flag_error`, with :data:`PARAMETER_FLAGS`), places a file's key in the file the user named
+(:data:`FILE_KEYS`) and writes the library keywords of an error's advice as that command's flags
+(:data:`KEYWORD_ADVICE`).
+"""
+
+from __future__ import annotations
+
+import argparse
+
+from metafovea.errors import InputError
+
+#: library parameter name -> the flag a user typed, per command (an InputError raised deep in a stage names the
+#: parameter; the CLI reports the flag). Only names that differ from their flag need an entry.
+_LAYOUT = {"band_rows": "--band-rows", "grid_nm": "--grid-nm", "ring_width_um": "--ring-width-um", "block": "--block",
+           "patch_mm": "--patch", "levels": "--levels", "post_set": "--post-set", "workers": "--workers",
+           "substrate_thickness_um": "--substrate-um", "max_refs": "--max-refs", "compress": "--compress"}
+PARAMETER_FLAGS: dict[str, dict[str, str]] = {
+    "design": {"post_set": "--post-set", "from_library": "--library", "samples": "--samples", "f_um": "--f",
+               "diameter_um": "--d", "period_um": "--period-um", "wavelength_um": "--wavelength-um"},
+    "library": {"grid_step_um": "--grid-step-um", "levels": "--levels", "harmonics": "--harmonics",
+                "wavelengths_um": "--wavelengths-um", "workers": "--workers", "tol": "--tol"},
+    "export": _LAYOUT, "verify": _LAYOUT,
+    "psf": {"band_um": "--band-um", "filter_um": "--filter-um", "pixel_pitch_um": "--pixel-um",
+            "field_deg": "--field-deg", "fields_deg": "--field-deg", "error": "--error",
+            "temperature_k": "--temperature-k", "n_wavelengths": "--wavelength-bins",
+            "wavelength_um": "--wavelength-um", "window_um": "--window-um", "relay_magnification": "--relay",
+            "jobs": "--workers", "out_dir": "--out"},
+    "reconstruct": {"window": "--window", "frame": "--frame", "fpn": "--fpn", "known_alpha": "--known-alpha",
+                    "regularize": "--regularize", "steps": "--steps", "channels": "--channels", "stride": "--stride",
+                    "max_seconds": "--max-seconds", "seed": "--seed", "rng": "--seed", "scale": "--scale",
+                    "gain": "--foveal-gain", "offset": "--foveal-offset", "denoise": "--denoise",
+                    "psf": "--psf", "res": "--deconvolve"},
+    "simulate": {"extinction": "--extinction", "tau_s": "--tau", "bolometer_tau_s": "--tau", "fpn_drift": "--drift",
+                 "netd_k": "--netd", "frames": "--frames", "calibration_frames": "--calibration-frames",
+                 "supersample": "--supersample", "psf_size_px": "--psf-size", "scene": "--scene",
+                 "pixel_pitch_um": "--pixel-um", "psf gaussian sigma_um": "--psf", "psf": "--psf",
+                 "relay_magnification": "--relay", "fpn_rank": "--fpn-rank", "fpn_amplitude": "--fpn-amplitude",
+                 "polarizer_phase_deg": "--phase-deg", "field_patches": "--field-patches", "rng": "--seed"},
+    "validate": {"frames": "--frames", "seed": "--seed", "rng": "--seed", "scene": "--scene",
+                 "dip_steps": "--dip-steps"},
+}
+
+#: library keyword expressions in an error's advice -> what to type at the command, per command: a Python caller
+#: reads ``strict=False``, a command-line user ``--no-strict`` (the advice's words are written once, in the library)
+KEYWORD_ADVICE: dict[str, dict[str, str]] = {
+    "reconstruct": {"the polariser model (polarizer)": "the file's polariser model (--polarizer auto)",
+                    "(scale, foveal_gain, foveal_offset)": "(--scale, --foveal-gain, --foveal-offset)",
+                    "wrong scale/offset/gain?": "wrong --scale, --foveal-offset or --foveal-gain?",
+                    "wrong scale?": "wrong --scale?", "method='lsq'": "--method lsq", "strict=False": "--no-strict",
+                    "fpn='auto'": "--fpn auto", "simulate(calibration_frames)": "simulate --calibration-frames"},
+}
+
+#: library parameters that are a key of a file the user named, per command: parameter -> the option (or
+#: positional argument's dest) holding that file; the error then names the file (``--scene hot.npy: ...``)
+FILE_KEYS: dict[str, dict[str, str]] = {
+    "simulate": {"temperature_k": "scene", "emissivity": "scene", "image": "scene"},
+}
+
+
+def as_flag_error(command: str, err: InputError, args: argparse.Namespace | None = None) -> InputError:
+    """``err`` renamed to the flag of ``command`` that sets its parameter, or (:data:`FILE_KEYS`) placed in the
+    file the user gave; unchanged when there is none, or when the error already names a file's key. Library keywords
+    in its advice become the command's flags (:data:`KEYWORD_ADVICE`)."""
+    err = _advice_in_flags(command, err)
+    if err.source is not None:
+        return err
+    dest = FILE_KEYS.get(command, {}).get(err.parameter)
+    if dest is not None and args is not None and getattr(args, dest, None) is not None:
+        return err.located(f"--{dest.replace('_', '-')} {getattr(args, dest)}")
+    flag = PARAMETER_FLAGS.get(command, {}).get(err.parameter)
+    err = err.renamed(flag) if flag else err
+    if getattr(args, "out_default", False) and err.parameter.split(" ")[0] == "--out":
+        # the command chose the path (no --out typed): say so, and what to type instead
+        from metafovea.cli.output import DEFAULT_OUT
+
+        return InputError(DEFAULT_OUT + err.parameter[len("--out"):], err.value, err.allowed, source=err.source,
+                          detail="the command's default: --out PATH writes elsewhere")
+    typed = {new: old for old, new in getattr(args, "deprecated_options", [])}  # the spelling the user typed
+    return err.renamed(typed[err.parameter]) if err.parameter in typed else err
+
+
+def _advice_in_flags(command: str, err: InputError) -> InputError:
+    """``err`` with the library keywords of its advice replaced by what to type at ``command``."""
+    advice = KEYWORD_ADVICE.get(command, {})
+    words = [err.allowed, err.detail]
+    for keyword, typed in advice.items():
+        words = [w.replace(keyword, typed) if w else w for w in words]
+    return InputError(err.parameter, err.value, words[0], source=err.source, detail=words[1]) if advice else err
