@@ -251,7 +251,7 @@ def numpy_malloc() -> bool:
     Dask's nanny starts its workers with ``MALLOC_TRIM_THRESHOLD_=65536`` (to hand memory back to the system);
     setting it turns off glibc's dynamic mmap threshold, so every temporary above 128 kB is a fresh mmap whose
     pages fault in again. The layout encoder took 5.4-5.5 s for a 25 mm lens' 98 bands with that variable, 2.1-2.7 s
-    without it and 1.9-2.0 s with it and these settings (measured here, one process, 2026-12-03). Allocations
+    without it and 1.9-2.0 s with it and these settings (one process on the 2-core machine). Allocations
     above 32 MB are still mmapped and returned at once; a worker keeps at most 64 MB of freed heap."""
     import ctypes
     import ctypes.util

@@ -7,6 +7,7 @@ allow-list entry carries its reason.
 from __future__ import annotations
 
 import ast
+import re
 from pathlib import Path
 
 import pytest
@@ -371,3 +372,40 @@ def test_the_polarizer_model_has_one_home():
     assert _polarizer_formulas(ast.parse("import numpy as np\nalpha = np.cos(theta) ** 2")), "the rule cannot fail"
     home = ast.parse((PKG / "polarizer.py").read_text())
     assert len(_polarizer_formulas(home)) == 2, "metafovea.polarizer no longer holds both formulas: update this rule"
+
+
+#: what a measurement or a piece of history looks like in a docstring: a date, "(was ...)" / "before 2026", a
+#: sentence that says "measured" and gives a number, a figure in dB. Module docstrings hold the model and the file
+#: map; measured figures live in BENCHMARKS.md (they rot in code with the next tuning commit). Any docstring: no date.
+_HISTORY = re.compile(r"\((?:was|before)\b|\bwas -?\d|\bbefore (?:19|20)\d\d|\b[Mm]easured\b[^.;]*?\d"
+                      r"|-?\d+(?:\.\d+)? ?dB\b")
+_DATE = re.compile(r"\b(?:19|20)\d\d-\d\d(?:-\d\d)?\b")
+
+
+def docstring_history(tree: ast.AST) -> list[str]:
+    """What in ``tree``'s docstrings reads as a measurement or history: any of :data:`_HISTORY` in the module
+    docstring, a date in any docstring."""
+    found = []
+    module_doc = (ast.get_docstring(tree) or "") if isinstance(tree, ast.Module) else ""
+    found += [f"module docstring: {m.group(0)!r}" for m in _HISTORY.finditer(module_doc)]
+    for node in ast.walk(tree):
+        if isinstance(node, (ast.Module, ast.FunctionDef, ast.AsyncFunctionDef, ast.ClassDef)):
+            doc = ast.get_docstring(node) or ""
+            found += [f"{getattr(node, 'name', 'module')} docstring: date {m.group(0)}" for m in _DATE.finditer(doc)]
+    return found
+
+
+def test_docstrings_describe_the_code_not_its_history():
+    """No module docstring carries a measurement or history, no docstring a date (issue 29: the reconstruct
+    docstrings had become a changelog of dB tables and 'was -1.98, before 2026-12-03')."""
+    problems = [f"{modname}: {f}" for _, modname, tree in modules() for f in docstring_history(tree)]
+    assert not problems, "move measured figures to BENCHMARKS.md:\n" + "\n".join(problems)
+
+
+@pytest.mark.parametrize("doc", ['"""Wiener prior.\n\nMeasured: +0.18 dB on the star."""',
+                                 '"""The prior (the estimator before 2026-12-03)."""',
+                                 '"""Padding (was -1.98)."""',
+                                 '"""x"""\ndef f():\n    """Chosen on 2026-12-03."""'])
+def test_the_docstring_history_check_can_fail(doc):
+    assert docstring_history(ast.parse(doc))
+    assert not docstring_history(ast.parse('"""The model: y = a x1 + (1 - a) x2 (BENCHMARKS.md, "Reconstruction")."""'))

@@ -19,7 +19,7 @@ Engine choice (``engine='auto'``), per wavelength:
 
 The geometric engine is *not* accurate to O(1/W020) at the brightest pixels: the axial (Poisson) spot of a
 defocused circular pupil and the coma cusp keep an O(1) relative error however many waves of defocus
-(measured 0.27-0.82 of the pixel peak, :data:`GEO_ERROR`); only its pixel-averaged power is (to ~1 %). Its
+(:data:`GEO_ERROR`: BENCHMARKS.md, "PSF engines"); only its pixel-averaged power is (to ~1 %). Its
 error estimate is therefore ``GEO_ERROR x`` each geometric wavelength's own peak (:func:`_geo_bound`).
 """
 

@@ -13,10 +13,9 @@ A recording gets ``dark_dn``, ``G`` and the band in one of two ways; both keep t
   the camera's counts are ``counts = R1 / (R2 (exp(B / T) - F)) - O``, FLIR's and ExifTool's sign of ``O``
   (flyr's too; ``PlanckO`` is typically negative, e.g. -7340). That curve is a one-wavelength fit to the camera's
   band response; :func:`from_planck` fits ``counts = dark_dn + G L(T)`` to it by least squares over the
-  recording's temperature range (+-10 K) and reports the fit's largest temperature error (``fit_max_error_k``).
-  Measured for a FLIR curve (B = 1501 K, R1 = 21107, R2 = 0.01255, O = -7340) against a 7.5-13.5 um band:
-  0.11 K over 280-330 K, 0.31 K over 270-350 K; against 8-14 um 0.28 K over 280-330 K (set ``--band-um`` to
-  the camera's band; a wider scene range costs accuracy: the band model is affine in ``L(T)``, FLIR's curve is not).
+  recording's temperature range (+-10 K) and reports the fit's largest temperature error (``fit_max_error_k``;
+  figures for a FLIR curve: BENCHMARKS.md, "Recordings"). The band should be the camera's (``band_um``), and a
+  wider scene range costs accuracy: the band model is affine in ``L(T)``, FLIR's curve is not.
 * **Two-point blackbody** (frames of a blackbody filling the field at ``T1`` and at ``T2``, :func:`two_point`):
   per pixel ``g_p = (c2_p - c1_p) / (L(T2) - L(T1))``, ``o_p = c1_p - g_p L(T1)``; ``G`` and ``dark_dn`` are their
   medians. ``per-pixel`` (default) also corrects the frames, ``DN = dark_dn + (G / g_p) (counts - o_p)``, the
