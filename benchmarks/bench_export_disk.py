@@ -57,7 +57,7 @@ def main(argv=None) -> int:
     ap.add_argument("--dir", default="/tmp/bench_disk")
     ap.add_argument("--json", default=None)
     a = ap.parse_args(argv)
-    from metafovea.layout.export import export_layout
+    from metafovea.layout.export import ExportOptions, export_layout
     from metafovea.layout.tiling import load_spec
 
     d = Path(a.dir)
@@ -71,7 +71,7 @@ def main(argv=None) -> int:
         t_disk = disk_write(d / "disk.bin", nbytes)
         p = d / "lens.gds"
         t0 = time.perf_counter()
-        res = export_layout(spec, p, "gds", workers=a.workers, force=True, resume=False)
+        res = export_layout(spec, p, "gds", ExportOptions(workers=a.workers, force=True, resume=False))
         t_exp = time.perf_counter() - t0
         assert res.bytes == nbytes == p.stat().st_size, (res.bytes, nbytes)
         p.unlink()

@@ -30,10 +30,14 @@ log = logging.getLogger("metafovea")
 COMMAND_MODULES = ("validate", "design", "library", "layout", "psf", "simulate", "import_", "reconstruct", "study")
 
 #: library parameter name -> the flag a user typed, per command (an InputError raised deep in a stage names the
-#: parameter; the CLI reports the flag). Only names that differ from their flag need an entry.
+#: parameter; the CLI reports the flag, and the flags of the parameters a message mentions, :func:`as_flag_error`).
+#: :data:`EVERY_COMMAND`: the ground floor's parameters, which every command shares.
+EVERY_COMMAND = {"out": "--out", "force": "--force", "scheduler": "--scheduler"}
 _LAYOUT = {"band_rows": "--band-rows", "grid_nm": "--grid-nm", "ring_width_um": "--ring-width-um", "block": "--block",
-           "patch_mm": "--patch", "levels": "--levels", "post_set": "--post-set", "workers": "--workers",
-           "substrate_thickness_um": "--substrate-um", "max_refs": "--max-refs", "compress": "--compress"}
+           "patch_mm": "--patch", "levels": "--levels", "post_set": "--post-set", "posts": "--posts", "date": "--date",
+           "workers": "--workers", "substrate_thickness_um": "--substrate-um", "max_refs": "--max-refs", "dwl": "--dwl",
+           "compress": "--compress", "fmt": "--format", "path": "--out", "flat": "--flat", "test_array": "--test-array",
+           "tiles_dir": "--tiles-dir", "reader": "--reader"}
 PARAMETER_FLAGS: dict[str, dict[str, str]] = {
     "design": {"post_set": "--post-set", "from_library": "--library", "samples": "--samples", "f_um": "--f",
                "diameter_um": "--d", "period_um": "--period-um", "wavelength_um": "--wavelength-um"},
@@ -42,7 +46,8 @@ PARAMETER_FLAGS: dict[str, dict[str, str]] = {
     "export": _LAYOUT, "verify": _LAYOUT,
     "psf": {"band_um": "--band-um", "filter_um": "--filter-um", "pixel_pitch_um": "--pixel-um",
             "field_deg": "--field-deg", "fields_deg": "--field-deg", "error": "--error",
-            "temperature_k": "--temperature-k", "n_wavelengths": "--wavelength-bins", "wavelength_um": "--wavelength-um",
+            "temperature_k": "--temperature-k", "n_wavelengths": "--wavelength-bins",
+            "wavelength_um": "--wavelength-um",
             "window_um": "--window-um", "relay_magnification": "--relay", "jobs": "--workers"},
     "reconstruct": {"window": "--window", "frame": "--frame", "fpn": "--fpn", "known_alpha": "--known-alpha",
                     "regularize": "--regularize", "steps": "--steps", "channels": "--channels", "stride": "--stride",
@@ -53,9 +58,15 @@ PARAMETER_FLAGS: dict[str, dict[str, str]] = {
                  "supersample": "--supersample", "psf_size_px": "--psf-size", "scene": "--scene",
                  "pixel_pitch_um": "--pixel-um", "psf gaussian sigma_um": "--psf", "psf": "--psf",
                  "relay_magnification": "--relay", "fpn_rank": "--fpn-rank", "fpn_amplitude": "--fpn-amplitude",
-                 "polarizer_phase_deg": "--phase-deg", "field_patches": "--field-patches", "rng": "--seed"},
+                 "polarizer_phase_deg": "--phase-deg", "field_patches": "--field-patches", "rng": "--seed",
+                 "out (TIFF)": "--out (TIFF)", "out (preview)": "--out (preview)"},
     "validate": {"frames": "--frames", "seed": "--seed", "rng": "--seed", "scene": "--scene",
                  "dip_steps": "--dip-steps"},
+    "import": {"format": "--format", "frames_key": "--frames-key", "frame_axis": "--frame-axis", "times": "--times",
+               "time_unit": "--time-unit", "frame_rate_hz": "--frame-rate", "polarizer_key": "--polarizer-key",
+               "polarizer_unit": "--polarizer-unit", "calibration": "--calibration", "planck": "--planck",
+               "calibration_gain": "--calibration-gain", "band_um": "--band-um", "filter_um": "--filter-um",
+               "foveal_gain": "--foveal-gain", "scale": "--scale"},
 }
 
 #: library parameters that are a key of a file the user named, per command: parameter -> the option (or
@@ -73,16 +84,26 @@ class Parser(argparse.ArgumentParser):
         raise SystemExit(2)
 
 
+def flag_map(command: str) -> dict[str, str]:
+    """Parameter -> flag for ``command``: its :data:`PARAMETER_FLAGS` over :data:`EVERY_COMMAND`."""
+    return {**EVERY_COMMAND, **PARAMETER_FLAGS.get(command, {})}
+
+
 def as_flag_error(command: str, err: InputError, args: argparse.Namespace | None = None) -> InputError:
     """``err`` renamed to the flag of ``command`` that sets its parameter, or (:data:`FILE_KEYS`) placed in the
-    file the user gave; unchanged when there is none, or when the error already names a file's key."""
+    file the user gave; unchanged when there is none, or when the error already names a file's key. Parameters
+    its range and detail mention are written as flags too (:func:`~metafovea.cli.options.in_flags`)."""
     if err.source is not None:
         return err
     dest = FILE_KEYS.get(command, {}).get(err.parameter)
     if dest is not None and args is not None and getattr(args, dest, None) is not None:
         return err.located(f"--{dest.replace('_', '-')} {getattr(args, dest)}")
-    flag = PARAMETER_FLAGS.get(command, {}).get(err.parameter)
-    err = err.renamed(flag) if flag else err
+    from metafovea.cli.options import in_flags
+
+    flags = flag_map(command)
+    err = err.renamed(flags[err.parameter]) if err.parameter in flags else err
+    err = InputError(err.parameter, err.value, in_flags(err.allowed, flags), source=err.source,
+                     detail=None if err.detail is None else in_flags(err.detail, flags))
     typed = {new: old for old, new in getattr(args, "deprecated_options", [])}  # the spelling the user typed
     return err.renamed(typed[err.parameter]) if err.parameter in typed else err
 

@@ -1,5 +1,5 @@
 """What every command shares: ``-q/--quiet`` and ``-v/--verbose``, hidden deprecated spellings of renamed options,
-the one-line warning printer, and the check of an ``--out`` file's suffix.
+the one-line warning printer, the check of an ``--out`` file's suffix, and a stage's message in the flags' words.
 
 The vocabulary (one name, unit and meaning per option across commands) is the table "Command-line options" in
 README.md; an option renamed to fit it keeps its old spelling as a hidden alias that still works (``-v`` says
@@ -9,6 +9,7 @@ what to type instead).
 from __future__ import annotations
 
 import argparse
+import re
 import sys
 import warnings
 from collections.abc import Callable, Iterator, Sequence
@@ -80,6 +81,22 @@ def check_out_suffix(out: str | None, suffixes: Sequence[str], why: str, flag: s
         return
     if Path(out).suffix.lower() not in tuple(s.lower() for s in suffixes):
         raise InputError(flag, out, f"a file name ending in {' or '.join(suffixes)} ({why})")
+
+
+def in_flags(text: str, flags: dict[str, str]) -> str:
+    """A stage's message ``text`` in the words of a command's flags (``flags``: parameter -> flag,
+    :func:`metafovea.cli.flag_map`): a parameter written as a keyword argument, ``name=value``, becomes ``--flag
+    value`` (a quoted value unquoted; ``True`` and ``...`` leave the flag alone: ``fmt='gds'`` -> ``--format gds``,
+    ``max_refs=...`` -> ``--max-refs``). A bare name is left alone: it may be a file's key or an English word."""
+    def flag(m: re.Match, to: str) -> str:
+        value = m.group(1)
+        value = value[1:-1] if value[:1] in "'\"" else value
+        return to if value in ("True", "...") else f"{to} {value}"
+
+    for name, to in flags.items():
+        if name.isidentifier():
+            text = re.sub(rf"(?<![\w.'-]){name}=('[^']*'|\"[^\"]*\"|[^\s,;)\]]+)", lambda m, t=to: flag(m, t), text)
+    return text
 
 
 def iter_subparsers(parser: argparse.ArgumentParser) -> Iterator[tuple[str, argparse.ArgumentParser]]:

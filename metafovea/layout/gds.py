@@ -19,7 +19,7 @@ import tempfile
 import numpy as np
 
 from metafovea.layout.frame import frame_shapes
-from metafovea.layout.tiling import LayoutSpec, band_levels, task_levels, task_rows, used_levels
+from metafovea.layout.tiling import LayoutSpec, task_levels, task_rows, used_levels, window_levels
 from metafovea.units import NM_PER_UM
 
 ENDSTR_ENDLIB = bytes.fromhex("00040700") + bytes.fromhex("00040400")
@@ -110,13 +110,8 @@ def band_index(spec: LayoutSpec, band: tuple[int, int, int, int]):
     """Posts of one band restricted to the window, row-major: ``(k, r, c, xs, ys)`` with post type
     ``k`` (uint8), row/column indices into the band and the site positions ``xs`` (per column) and
     ``ys`` (per row) in nm (int64)."""
-    iy0, rows, ix0, cols = band
-    lev = band_levels(spec.design, iy0, rows, ix0, cols, spec.levels)
-    _, _, ix_lo, ix_hi = spec.window()
-    if ix0 < ix_lo or ix0 + cols - 1 > ix_hi:
-        a, b = max(ix0, ix_lo), min(ix0 + cols - 1, ix_hi)
-        lev = np.ascontiguousarray(lev[:, a - ix0:b - ix0 + 1])
-        ix0 = a
+    iy0, rows = band[:2]
+    lev, ix0 = window_levels(spec, band)
     ncol = lev.shape[1]
     flat = lev.reshape(-1)
     fi = np.flatnonzero(flat >= 0)
