@@ -39,13 +39,18 @@ def disk_write(path: Path, nbytes: int, block: int = 32 << 20) -> float:
 
 
 def encode_only(spec, workers: int) -> tuple[float, int]:
-    from metafovea.layout.export import _encoder, _ordered_map
+    """The export's own encoding of every task (in place into its aligned buffers, given back at once), no disk."""
+    from metafovea.layout.export import ExportOptions, _encoded, _encoder, _Placed
 
     header, footer, _, _, enc = _encoder(spec, "gds", False, 1, None)
     t0 = time.perf_counter()
     n = len(header) + len(footer)
-    for pieces, _, _ in _ordered_map(enc, spec.tasks(), workers, None):
-        n += sum(p.nbytes for p in pieces)
+    for pieces, _, _ in _encoded(spec, "gds", ExportOptions(workers=workers), enc, spec.tasks(), len(header)):
+        if isinstance(pieces, _Placed):
+            n += pieces.n
+            pieces.done()
+        else:
+            n += sum(p.nbytes for p in pieces)
     return time.perf_counter() - t0, n
 
 

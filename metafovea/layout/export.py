@@ -3,7 +3,10 @@
 The file is written to ``.<name>.part`` next to the final path, task after task (a task is a
 mirror-row band, see :meth:`LayoutSpec.tasks`; tasks are encoded serially, in local threads or
 processes, at most a few in flight, and written in order by a writer thread through :class:`DirectFile`,
-``O_DIRECT`` where possible). On a Dask cluster the workers write tile files that this process stitches in
+``O_DIRECT`` where possible). GDSII without a hierarchy is encoded in place: each task's size is known beforehand
+(:func:`~metafovea.layout.tiling.task_post_counts`), so its offset in the file is too, and its encoder fills a
+page-aligned buffer from a bounded pool at that offset within a disk block; the disk writes the buffer as it is
+(:meth:`DirectFile.write_placed`), so encoding and writing overlap with no copy between them. On a Dask cluster the workers write tile files that this process stitches in
 band order (:mod:`metafovea.layout.tilefiles`). A small journal ``.<name>.part.json``
 (updated at most every 0.5 s) records the tasks finished and the byte offset (and, for hierarchical
 GDSII, the leaf structures per task); a rerun with the same parameters truncates the part file to that
@@ -29,7 +32,7 @@ from dataclasses import dataclass, field, replace
 from functools import partial
 from itertools import islice
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -39,7 +42,7 @@ from metafovea.layout import gds, oasis
 from metafovea.layout.directfile import DirectFile
 from metafovea.layout.mesh import MESH_FORMATS, export_mesh
 from metafovea.layout.tilefiles import TileDir, default_tiles_dir
-from metafovea.layout.tiling import Expected, LayoutSpec, drc_summary, post_count
+from metafovea.layout.tiling import Expected, LayoutSpec, drc_summary, post_count, task_post_counts
 
 FORMATS = ("gds", "oas")  #: layout formats (:func:`export_layout`)
 #: every format :func:`export_file` writes, and the file-name suffixes each accepts
@@ -128,6 +131,66 @@ def _ordered_map(fn: Callable, items: list, workers: int | None, scheduler: None
             ex.close()
 
 
+class _Placed(NamedTuple):
+    """A task encoded in place: its ``n`` bytes at ``pre`` in the page-aligned ``buf`` (see
+    :meth:`DirectFile.write_placed`); ``done()`` gives ``buf`` back to its pool."""
+
+    buf: Any
+    pre: int
+    n: int
+    done: Callable[[], None]
+
+
+class _Buffers:
+    """A pool of page-aligned buffers (anonymous mmaps, each page touched once here rather than faulted in by the
+    encoders) that encoders fill in place and the disk gives back; taking one waits for one to be free, which bounds
+    the memory (``count * size`` bytes)."""
+
+    def __init__(self, count: int, size: int):
+        import mmap
+
+        self.free: queue.Queue = queue.Queue()
+        for _ in range(count):
+            b = mmap.mmap(-1, size)
+            np.frombuffer(b, dtype=np.uint8)[::mmap.PAGESIZE] = 0
+            self.free.put(b)
+
+    def get(self) -> Any:
+        return self.free.get()
+
+
+def _placed_tasks(todo: list, sizes: list[int], offset: int, pool: _Buffers) -> Iterator[tuple]:
+    """``(task, pre, n, buffer)`` for each task, in order: its bytes ``n`` start ``pre`` bytes into a block of the
+    file (the tasks before it end at ``offset + sum(sizes)``), in a buffer from ``pool`` (taken here, in task order,
+    so that a task never waits for a buffer a later task holds)."""
+    for t, n in zip(todo, sizes):
+        yield t, offset % DirectFile.BLOCK, n, pool.get()
+        offset += n
+
+
+def _gds_task_into(spec: LayoutSpec, flat: bool, pool: _Buffers, item: tuple):
+    task, pre, n, buf = item
+    counts = gds.encode_task_into(spec, flat, task, np.frombuffer(buf, dtype=np.uint8, count=n, offset=pre))
+    return _Placed(buf, pre, n, partial(pool.free.put, buf)), counts, None
+
+
+def _encoded(spec: LayoutSpec, fmt: str, o: ExportOptions, enc: Callable, todo: list,
+             offset: int) -> Iterator[tuple[Any, np.ndarray, Any]]:
+    """``(pieces, counts, meta)`` of each task of ``todo``, in order, the first written at ``offset``. GDSII without
+    a hierarchy, encoded in threads, goes in place into page-aligned buffers (``pieces``: one :class:`_Placed`, which
+    the disk writes without a copy); anything else into new arrays (``pieces``: a list, copied into the writer's
+    staging buffers)."""
+    workers = o.workers or default_workers()
+    window = o.inflight or workers + 1
+    if fmt != "gds" or o.max_refs is not None or o.dwl or not o.threads or not todo:
+        yield from _ordered_map(enc, todo, workers, None, window, o.threads)
+        return
+    sizes = [sum(task_post_counts(spec, t)) * (gds.BOUNDARY_BYTES if o.flat else gds.SREF_BYTES) for t in todo]
+    pool = _Buffers(window + 4, max(sizes) + DirectFile.BLOCK)  # > window + 1: see _placed_tasks
+    yield from _ordered_map(partial(_gds_task_into, spec, o.flat, pool), _placed_tasks(todo, sizes, offset, pool),
+                            workers, None, window, True)
+
+
 class _Writer(threading.Thread):
     """Writes band data in a background thread (overlaps disk writes with the band computation)."""
 
@@ -143,20 +206,27 @@ class _Writer(threading.Thread):
             item = self.q.get()
             if item is None:
                 return
+            pieces, c, meta = item
             if self.exc is not None:
+                if isinstance(pieces, _Placed):
+                    pieces.done()  # its buffer back to the pool: an encoder may be waiting for it
                 continue
             try:
-                pieces, c, meta = item
-                nbytes = 0
-                for data in pieces:
-                    self.fh.write(data)
-                    nbytes += memoryview(data).nbytes
+                if isinstance(pieces, _Placed):
+                    nbytes = self.fh.write_placed(pieces.buf, pieces.pre, pieces.n, pieces.done)
+                else:
+                    nbytes = 0
+                    for data in pieces:
+                        self.fh.write(data)
+                        nbytes += memoryview(data).nbytes
                 self.on_written(nbytes, c, meta)
             except BaseException as e:  # noqa: BLE001 - re-raised in the caller
                 self.exc = e
 
-    def put(self, pieces: list, c: np.ndarray, meta: Any = None) -> None:
+    def put(self, pieces: Any, c: np.ndarray, meta: Any = None) -> None:
         if self.exc is not None:
+            if isinstance(pieces, _Placed):
+                pieces.done()
             raise self.exc
         self.q.put((pieces, c, meta))
 
@@ -501,8 +571,7 @@ def _export_local(spec: LayoutSpec, path: Path, fmt: str, key: str, o: ExportOpt
         writer = _Writer(fh, ck)
         try:
             todo = bands[start:] if o.stop_after is None else bands[start:start + o.stop_after]
-            for pieces, c, meta in _ordered_map(enc, todo, o.workers or default_workers(), None, o.inflight,
-                                                o.threads):
+            for pieces, c, meta in _encoded(spec, fmt, o, enc, todo, offset):
                 writer.put(pieces, c, meta)
         finally:
             writer.close()

@@ -502,6 +502,16 @@ def post_count(spec: LayoutSpec) -> int:
     return int(np.maximum(np.minimum(hi, ix_hi) - np.maximum(lo, ix_lo) + 1, 0).sum())
 
 
+def task_post_counts(spec: LayoutSpec, task: tuple[int, int, int, int, int]) -> list[int]:
+    """Posts of each row side of ``task`` (in :func:`task_rows`' order), from the rows' site ranges alone: what an
+    encoder writes for it, known before its levels are computed."""
+    _, j0, rows, _, _ = task
+    _, _, ix_lo, ix_hi = spec.window()
+    lo, hi = row_half_counts(spec.design, np.arange(j0, j0 + rows))
+    n = np.maximum(np.minimum(hi, ix_hi) - np.maximum(lo, ix_lo) + 1, 0)
+    return [int(n[mask].sum()) for _, mask, _ in task_rows(spec, task)]
+
+
 def task_rows(spec: LayoutSpec, task: tuple[int, int, int, int, int]) -> list[tuple[np.ndarray, np.ndarray]]:
     """For each row side (+1, then -1): ``(side, mask, ys)``, the task's local rows written on that side
     (bool per row) and their site y positions (nm, int64). Sides with no row are left out."""
@@ -603,5 +613,5 @@ def has_frame(spec: LayoutSpec) -> bool:
 
 
 __all__ = ["DBU_UM", "EMPTY", "Expected", "Layers", "LayoutSpec", "MAX_COORD_NM", "band_levels", "expected_content",
-           "has_frame", "load_spec", "make_spec", "post_count", "task_levels", "task_rows", "used_levels",
-           "window_levels"]
+           "has_frame", "load_spec", "make_spec", "post_count", "task_levels", "task_post_counts", "task_rows",
+           "used_levels", "window_levels"]

@@ -193,6 +193,49 @@ def test_direct_file_matches_buffered(tmp_path, spec, exported):
     assert p.read_bytes() == exported[("gds", False)][0].read_bytes()
 
 
+def test_direct_file_placed_buffers(tmp_path, monkeypatch):
+    """Buffers an encoder filled in place (at the file's offset within its block) go to the disk as they are, between
+    staged writes, flushes and a resume: the same bytes as one plain write; each buffer is given back once."""
+    import mmap
+    import os
+
+    with open(tmp_path / "probe", "wb"):
+        pass
+    try:  # where O_DIRECT is refused (tmpfs): a plain descriptor, the same code path
+        os.close(os.open(tmp_path / "probe", os.O_WRONLY | os.O_DIRECT))
+    except (OSError, AttributeError):
+        monkeypatch.setattr(os, "O_DIRECT", 0, raising=False)
+    rng = np.random.default_rng(2)
+    chunks = [rng.integers(0, 256, int(n), dtype=np.uint8) for n in rng.integers(1, 30000, 30)]
+    want = b"".join(c.tobytes() for c in chunks)
+    a = tmp_path / "a.bin"
+    given_back = []
+    for resume_at in (None, 17):
+        f = DirectFile(a, staging=16384, depth=1) if resume_at is None else \
+            DirectFile(a, sum(c.size for c in chunks[:resume_at]), staging=16384, depth=1)
+        assert f.direct
+        for i, c in enumerate(chunks[resume_at or 0:], start=resume_at or 0):
+            if resume_at is None and i >= 25:
+                break
+            if i % 3 == 0:
+                f.write(c)
+                continue
+            pre = f.pos % f.BLOCK
+            buf = mmap.mmap(-1, pre + c.size + f.BLOCK)
+            np.frombuffer(buf, np.uint8, count=c.size, offset=pre)[:] = c
+            f.write_placed(buf, pre, c.size, done=lambda i=i: given_back.append(i))
+            if i % 5 == 0:
+                f.flush()
+                assert a.stat().st_size == f.pos
+            with pytest.raises(ValueError):
+                f.write_placed(buf, (f.pos + 1) % f.BLOCK, 1)  # not at the file's offset in its block
+        f.sync()
+        f.close()
+    assert a.read_bytes() == want
+    placed = [i for i in range(30) if i % 3]
+    assert sorted(given_back) == sorted(placed[:placed.index(25)] + [i for i in placed if i >= 17])
+
+
 def test_direct_file_background_error_is_raised(tmp_path, monkeypatch):
     """A failed background write (disk full) comes back as the OSError of the next write or flush, not lost."""
     import errno

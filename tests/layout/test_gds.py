@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from metafovea.errors import InputError
-from metafovea.layout import ExportOptions, expected_content, export_layout
+from metafovea.layout import ExportOptions, expected_content, export_layout, make_spec
 from metafovea.layout.verify import verify_layout
 
 db = pytest.importorskip("klayout.db")
@@ -114,3 +114,25 @@ def test_max_refs_bad_input(tmp_path, spec):
     with pytest.raises(InputError, match="^max_refs = "):
         export_layout(spec, tmp_path / "a.gds", "gds", ExportOptions(max_refs=3))
     assert not (tmp_path / "a.gds").exists()
+
+
+@pytest.mark.parametrize("flat", [False, True])
+def test_encoding_in_place_is_the_records(spec, design, small_frame, flat):
+    """The records written into a buffer of the size known beforehand (the posts from the rows' site ranges) are
+    the records encoded into new arrays, byte for byte, for the lens and a patch across its edge."""
+    import mmap
+
+    from metafovea.layout.gds import BOUNDARY_BYTES, SREF_BYTES, encode_task_into, encode_task_records
+    from metafovea.layout.tiling import task_post_counts
+
+    size = BOUNDARY_BYTES if flat else SREF_BYTES
+    patch = make_spec(design, patch_mm=(0.35, -0.1, 0.3), **small_frame)
+    for sp in (spec, patch):
+        for task in sp.tasks():
+            pieces, counts = encode_task_records(sp, flat, task)
+            n = sum(task_post_counts(sp, task)) * size
+            buf = mmap.mmap(-1, n + 6)
+            out = np.frombuffer(buf, np.uint8, count=n, offset=6)  # at an offset, as in a file's block
+            assert np.array_equal(encode_task_into(sp, flat, task, out), counts)
+            assert out.tobytes() == b"".join(p.tobytes() for p in pieces)
+            del out
