@@ -141,4 +141,4 @@ def test_foveal_constraint_fallbacks_and_explicit_values():
             FovealConstraint.from_meta(bad)
     with pytest.raises(InputError) as e:
         FovealConstraint.from_meta({}, scale=1e9)
-    assert e.value.parameter == "--scale"
+    assert e.value.parameter == "scale"
