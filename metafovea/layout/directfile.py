@@ -1,5 +1,5 @@
-"""A sequential file writer for multi-gigabyte layouts: ``O_DIRECT`` from aligned buffers, written by a background
-thread while the caller fills the next ones, so the disk never waits for the encoders, nor they for it.
+"""A sequential file writer for multi-gigabyte layouts: ``O_DIRECT`` from aligned buffers, written by background
+threads while the caller fills the next ones, so the disk never waits for the encoders, nor they for it.
 
 Two ways in: :meth:`DirectFile.write` copies bytes into two aligned staging buffers (headers, footers, pieces of
 any size); :meth:`DirectFile.write_placed` takes a page-aligned buffer that an encoder filled at the file's current
@@ -28,7 +28,8 @@ class DirectFile:
     """Sequential writer with ``O_DIRECT`` from aligned buffers; falls back to plain writes where ``O_DIRECT`` is
     refused (tmpfs, some network file systems) or ``direct=False``.
 
-    A background thread writes queued blocks (``pwrite`` releases the GIL), at most ``depth`` waiting. :meth:`write`
+    ``io_threads`` background threads write queued blocks (``pwrite`` releases the GIL; with two, the disk is busy
+    with one write while the other thread, its write done, waits for the GIL), at most ``depth`` waiting. :meth:`write`
     copies into one of two staging buffers of ``staging`` bytes and queues it when full; :meth:`write_placed` queues
     a caller's aligned buffer. An error of the background write is raised by the next :meth:`write`,
     :meth:`write_placed`, :meth:`flush` or :meth:`sync`.
@@ -40,7 +41,7 @@ class DirectFile:
     BLOCK = 4096
 
     def __init__(self, path: Path, offset: int | None = None, *, direct: bool = True, staging: int = 32 << 20,
-                 depth: int = 2):
+                 depth: int = 2, io_threads: int = 2):
         import mmap
 
         self.path = path
@@ -49,10 +50,10 @@ class DirectFile:
         self.dfd = -1
         self.pos = 0 if new else int(offset)
         self.bufs: list = []
-        self._io: threading.Thread | None = None
+        self._io: list[threading.Thread] = []
         self._exc: BaseException | None = None
         self._jobs: collections.deque = collections.deque()  # (memoryview, file offset, done callback or None)
-        self._busy = False  # a job is being written
+        self._busy = 0  # jobs being written
         self._depth = max(1, depth)
         self._cv = threading.Condition()
         self._stop = False
@@ -78,8 +79,10 @@ class DirectFile:
                 self.fill = self.pos - self.base
                 if self.fill:
                     self.mv[:self.fill] = os.pread(self.bfd, self.fill, self.base)
-                self._io = threading.Thread(target=self._run, daemon=True, name="directfile-io")
-                self._io.start()
+                self._io = [threading.Thread(target=self._run, daemon=True, name=f"directfile-io-{i}")
+                            for i in range(max(1, io_threads))]
+                for t in self._io:
+                    t.start()
         except BaseException:
             self.close()
             raise
@@ -97,7 +100,7 @@ class DirectFile:
                 if not self._jobs:
                     return
                 mv, off, done = self._jobs.popleft()
-                self._busy = True
+                self._busy += 1
                 drop = self._stop or self._exc is not None  # closing, or failed before: nothing more written
             try:
                 if not drop:
@@ -108,7 +111,7 @@ class DirectFile:
                 if done is not None:
                     done()
                 with self._cv:
-                    self._busy = False
+                    self._busy -= 1
                     self._cv.notify_all()
 
     def _submit(self, mv: memoryview, off: int, done: Callable[[], None] | None) -> None:
@@ -239,13 +242,14 @@ class DirectFile:
         os.fsync(self.bfd)
 
     def close(self) -> None:
-        """Stop the background thread (jobs still queued are dropped, their ``done`` called) and close the file."""
-        if self._io is not None:
+        """Stop the background threads (jobs still queued are dropped, their ``done`` called); close the file."""
+        if self._io:
             with self._cv:
                 self._stop = True
                 self._cv.notify_all()
-            self._io.join()
-            self._io = None
+            for t in self._io:
+                t.join()
+            self._io = []
         for fd in (self.dfd, self.bfd):
             if fd >= 0:
                 with contextlib.suppress(OSError):

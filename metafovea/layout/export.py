@@ -142,8 +142,8 @@ class _Placed(NamedTuple):
 
 
 class _Buffers:
-    """A pool of page-aligned buffers (anonymous mmaps, each page touched once here rather than faulted in by the
-    encoders) that encoders fill in place and the disk gives back; taking one waits for one to be free, which bounds
+    """A pool of page-aligned buffers (anonymous mmaps: their pages are faulted in by their first encoder, then
+    reused) that encoders fill in place and the disk gives back; taking one waits for one to be free, which bounds
     the memory (``count * size`` bytes)."""
 
     def __init__(self, count: int, size: int):
@@ -151,9 +151,7 @@ class _Buffers:
 
         self.free: queue.Queue = queue.Queue()
         for _ in range(count):
-            b = mmap.mmap(-1, size)
-            np.frombuffer(b, dtype=np.uint8)[::mmap.PAGESIZE] = 0
-            self.free.put(b)
+            self.free.put(mmap.mmap(-1, size))
 
     def get(self) -> Any:
         return self.free.get()
