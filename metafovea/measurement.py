@@ -226,7 +226,8 @@ class Measurement:
         if bp is not None:
             bp = np.asarray(bp)
             if bp.shape != f.shape[1:]:
-                raise InputError("bad_pixels", f"array of shape {bp.shape}", f"(H, W) = {f.shape[1:]}", source=self.source)
+                raise InputError("bad_pixels", f"array of shape {bp.shape}", f"(H, W) = {f.shape[1:]}",
+                                 source=self.source)
             bad |= bp.astype(bool)[None]
         return bad if bad.any() else None
 

@@ -14,9 +14,9 @@ dominate). Seen through the foveal channel the same noise is ``netd / g_1`` kelv
 
 Fixed-pattern noise (FPN): ``F = U diag(s) V^T`` of exactly ``rank`` r: a column-stripe
 component (readout column amplifiers), a row-stripe component, smooth low-order shading and random
-components (zero mean except the shading). ``max |F| = fpn_amplitude * dynamic range`` (the config's convention; the dynamic range is
-that of the noise-free images, at least ``counts_per_k * 1 K``). Optional slow drift: the r component
-weights vary as ``s_k (1 + drift * w_k(t))`` with smooth random ``w_k`` (|w| <= 1) over
+components (zero mean except the shading). ``max |F| = fpn_amplitude * dynamic range`` (the config's convention;
+the dynamic range is that of the noise-free images, at least ``counts_per_k * 1 K``). Optional slow drift: the r
+component weights vary as ``s_k (1 + drift * w_k(t))`` with smooth random ``w_k`` (|w| <= 1) over
 ``drift_period_s``; the pattern stays rank r in each frame.
 """
 
@@ -144,7 +144,8 @@ class SensorModel:
                 u, v = 1.0 - yy ** 2, 1.0 - xx ** 2
             else:  # random components, half smooth half stripe-like
                 if k % 2:
-                    u = np.cumsum(rng.standard_normal(H)); v = np.cumsum(rng.standard_normal(W))
+                    u = np.cumsum(rng.standard_normal(H))
+                    v = np.cumsum(rng.standard_normal(W))
                 else:
                     u, v = rng.standard_normal(H), rng.standard_normal(W)
             us.append(u - u.mean() if k != 2 else u)

@@ -1,18 +1,18 @@
 """Streamed, resumable, atomic export of a lens layout (GDSII or OASIS) and of a calibration array.
 
-The file is written to ``.<name>.part`` next to the final path, task after task (a task is a
-mirror-row band, see :meth:`LayoutSpec.tasks`; tasks are encoded serially, in local threads or
-processes, at most a few in flight, and written in order by a writer thread through :class:`DirectFile`,
-``O_DIRECT`` where possible). GDSII without a hierarchy is encoded in place: each task's size is known beforehand
+The file is written to ``.<name>.part`` next to the final path, task after task (a task is a mirror-row band, see
+:meth:`LayoutSpec.tasks`; tasks are encoded serially, in local threads or processes, at most a few in flight, and
+written in order by a writer thread through :class:`DirectFile`, ``O_DIRECT`` where possible). GDSII without a
+hierarchy is encoded in place: each task's size is known beforehand
 (:func:`~metafovea.layout.tiling.task_post_counts`), so its offset in the file is too, and its encoder fills a
 page-aligned buffer from a bounded pool at that offset within a disk block; the disk writes the buffer as it is
-(:meth:`DirectFile.write_placed`), so encoding and writing overlap with no copy between them. On a Dask cluster the workers write tile files that this process stitches in
-band order (:mod:`metafovea.layout.tilefiles`). A small journal ``.<name>.part.json``
-(updated at most every 0.5 s) records the tasks finished and the byte offset (and, for hierarchical
-GDSII, the leaf structures per task); a rerun with the same parameters truncates the part file to that
-offset and continues. When all tasks are written the footer is added (hierarchical GDSII: the
-intermediate structures and the top cell), the file is fsynced and renamed to the final name; nothing
-ever appears under the final name half-written.
+(:meth:`DirectFile.write_placed`), so encoding and writing overlap with no copy between them. On a Dask cluster the
+workers write tile files that this process stitches in band order (:mod:`metafovea.layout.tilefiles`). A small
+journal ``.<name>.part.json`` (updated at most every 0.5 s) records the tasks finished and the byte offset (and, for
+hierarchical GDSII, the leaf structures per task); a rerun with the same parameters truncates the part file to that
+offset and continues. When all tasks are written the footer is added (hierarchical GDSII: the intermediate
+structures and the top cell), the file is fsynced and renamed to the final name; nothing ever appears under the
+final name half-written.
 """
 
 from __future__ import annotations
