@@ -39,13 +39,18 @@ def disk_write(path: Path, nbytes: int, block: int = 32 << 20) -> float:
 
 
 def encode_only(spec, workers: int) -> tuple[float, int]:
-    from metafovea.layout.export import _encoder, _ordered_map
+    """The export's own encoding of every task (in place into its aligned buffers, given back at once), no disk."""
+    from metafovea.layout.export import ExportOptions, _encoded, _encoder, _Placed
 
     header, footer, _, _, enc = _encoder(spec, "gds", False, 1, None)
     t0 = time.perf_counter()
     n = len(header) + len(footer)
-    for pieces, _, _ in _ordered_map(enc, spec.tasks(), workers, None):
-        n += sum(p.nbytes for p in pieces)
+    for pieces, _, _ in _encoded(spec, "gds", ExportOptions(workers=workers), enc, spec.tasks(), len(header)):
+        if isinstance(pieces, _Placed):
+            n += pieces.n
+            pieces.done()
+        else:
+            n += sum(p.nbytes for p in pieces)
     return time.perf_counter() - t0, n
 
 
@@ -57,7 +62,7 @@ def main(argv=None) -> int:
     ap.add_argument("--dir", default="/tmp/bench_disk")
     ap.add_argument("--json", default=None)
     a = ap.parse_args(argv)
-    from metafovea.layout.export import export_layout
+    from metafovea.layout.export import ExportOptions, export_layout
     from metafovea.layout.tiling import load_spec
 
     d = Path(a.dir)
@@ -71,7 +76,7 @@ def main(argv=None) -> int:
         t_disk = disk_write(d / "disk.bin", nbytes)
         p = d / "lens.gds"
         t0 = time.perf_counter()
-        res = export_layout(spec, p, "gds", workers=a.workers, force=True, resume=False)
+        res = export_layout(spec, p, "gds", ExportOptions(workers=a.workers, force=True, resume=False))
         t_exp = time.perf_counter() - t0
         assert res.bytes == nbytes == p.stat().st_size, (res.bytes, nbytes)
         p.unlink()

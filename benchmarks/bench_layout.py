@@ -49,12 +49,13 @@ if kind == "disk":
     out["bytes"] = n * len(buf)
 else:
     from metafovea.config import load_lens
-    from metafovea.layout import make_spec, export_layout
+    from metafovea.layout import ExportOptions, make_spec, export_layout
     d = load_lens(args["design"])
     spec = make_spec(d)
     if kind == "export":
-        r = export_layout(spec, args["path"], args["fmt"], workers=args.get("workers", 1), force=True,
-                          max_refs=args.get("max_refs"), threads=args.get("threads", True))
+        r = export_layout(spec, args["path"], args["fmt"],
+                          ExportOptions(workers=args.get("workers", 1), force=True, max_refs=args.get("max_refs"),
+                                        threads=args.get("threads", True)))
         out.update(posts=r.posts, bytes=r.bytes, extra=r.extra)
     elif kind == "verify":
         from metafovea.layout.verify import verify_layout

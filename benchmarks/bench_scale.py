@@ -63,7 +63,7 @@ def library_runs(n: int, harmonics: int) -> list[dict]:
 
 def export_runs(mm: float) -> list[dict]:
     from metafovea.config import LensDesign
-    from metafovea.layout import export_file, make_spec
+    from metafovea.layout import ExportOptions, export_file, make_spec
 
     spec = make_spec(LensDesign("scale", 2.0 * mm * 1000, mm * 1000, polarization="x"), band_rows=32)
     rows, ref = [], None
@@ -71,7 +71,7 @@ def export_runs(mm: float) -> list[dict]:
     with tempfile.TemporaryDirectory() as d:
         for key, val, label in runs:
             out = Path(d) / f"{label.replace(' ', '_')}.oas"
-            res, sec = _timed({key: val}, lambda **kw: export_file(spec, out, "oas", **kw))
+            res, sec = _timed({key: val}, lambda **kw: export_file(spec, out, "oas", ExportOptions(**kw)))
             data = out.read_bytes()
             same = ref is None or data == ref
             ref = ref or data

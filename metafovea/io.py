@@ -188,7 +188,7 @@ def input_hash(obj: Any) -> str:
 
 
 def prepare_output(path: str | os.PathLike, force: bool = False, *, is_dir: bool = False,
-                   name: str = "--out") -> Path:
+                   name: str = "out") -> Path:
     """Check that ``path`` can be written without clobbering anything.
 
     A directory is accepted if it does not exist or is empty; a file if it does not exist. With
@@ -200,7 +200,7 @@ def prepare_output(path: str | os.PathLike, force: bool = False, *, is_dir: bool
         if is_dir and p.is_dir() and not any(p.iterdir()):
             pass
         else:
-            raise InputError(name, str(p), "a path that does not exist yet (or pass --force to overwrite)")
+            raise InputError(name, str(p), "a path that does not exist yet (or pass force=True to overwrite)")
     if is_dir and p.exists() and not p.is_dir():
         raise InputError(name, str(p), "a directory path (a file is in the way)")
     target = p if is_dir else p.parent

@@ -83,7 +83,7 @@ class FovealConstraint:
         """Explicit values first, then ``meta['foveal_constraint']`` (``scale``, ``gain``, ``offset_dn``), then
         ``meta['scale']`` with gain 1 and offset 0 (older files, real recordings), then scale 6.
 
-        An explicit ``scale`` is a user's ``--scale``; a bad one from the file names the file's key."""
+        A bad explicit ``scale`` names ``scale``; a bad one from the file names the file's key."""
         fc = meta.get("foveal_constraint")
         if fc is not None and not isinstance(fc, dict):
             raise InputError("meta.foveal_constraint", fc, "a mapping {scale, gain, offset_dn}")
@@ -102,9 +102,9 @@ class FovealConstraint:
         out = cls(scale=pick(scale, "scale", meta.get("scale", 6.0)), gain=pick(gain, "gain", 1.0),
                   offset=pick(offset, "offset_dn", 0.0))
         if not 1.0 <= out.scale <= 1000.0:
-            raise InputError("foveal_constraint.scale" if scale is None else "--scale", out.scale,
+            raise InputError("foveal_constraint.scale" if scale is None else "scale", out.scale,
                              "1 <= scale <= 1000 (f1/f2 of the two lenses, 6 for the paper's)",
-                             detail=None if scale is not None else "from the file's meta; override with --scale")
+                             detail=None if scale is not None else "from the file's meta; override with scale=...")
         if not out.gain > 0:
             raise InputError("foveal gain", out.gain, "a positive radiometric gain (NA1^2/NA2^2)")
         return out

@@ -285,7 +285,7 @@ class DaskExecutor:
         try:
             from distributed import Client, LocalCluster  # type: ignore
         except ImportError:
-            raise InputError("--scheduler", scheduler, "a Dask scheduler with dask.distributed installed "
+            raise InputError("scheduler", scheduler, "a Dask scheduler with dask.distributed installed "
                              "(pip install 'metafovea[dask]')") from None
         s = scheduler.strip()
         self.cluster = None
@@ -293,17 +293,17 @@ class DaskExecutor:
             try:
                 n = int(s.split(":", 1)[1]) if ":" in s else default_workers()
             except ValueError:
-                raise InputError("--scheduler", scheduler, "local, local:N (N >= 1 worker processes) or "
+                raise InputError("scheduler", scheduler, "local, local:N (N >= 1 worker processes) or "
                                  "tcp://host:port") from None
             if n < 1:
-                raise InputError("--scheduler", scheduler, "local:N with N >= 1 worker processes")
+                raise InputError("scheduler", scheduler, "local:N with N >= 1 worker processes")
             self.cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=None)
             self.client = Client(self.cluster)
         else:
             try:
                 self.client = Client(s, timeout="10s")
             except (OSError, TimeoutError) as e:
-                raise InputError("--scheduler", scheduler, f"a reachable Dask scheduler address ({e})") from None
+                raise InputError("scheduler", scheduler, f"a reachable Dask scheduler address ({e})") from None
         self.address = self.client.scheduler.address
         #: seconds without any worker, tasks waiting, before :meth:`completed` gives up
         self.no_worker_timeout_s = 60.0

@@ -51,12 +51,12 @@ for pol, ps in posts.items():
 # ## 3. A layout patch of the foveal lens (GDSII, 0.2 mm wide at the rim), checked by reading it back
 
 # %%
-from metafovea.layout.export import export_file
+from metafovea.layout.export import ExportOptions, export_file
 from metafovea.layout.tiling import load_spec
 
 r_mm = system.foveal.diameter_mm / 2 - 0.2
 spec = load_spec(system.foveal, posts["x"], patch_mm=(r_mm, 0.0, 0.1 if SMALL else 0.2))
-res = export_file(spec, OUT / "foveal_patch.gds", "gds", force=True)
+res = export_file(spec, OUT / "foveal_patch.gds", "gds", ExportOptions(force=True))
 print({k: res[k] for k in ("path", "posts") if k in res})
 
 # %% [markdown]

@@ -409,3 +409,177 @@ def test_docstrings_describe_the_code_not_its_history():
 def test_the_docstring_history_check_can_fail(doc):
     assert docstring_history(ast.parse(doc))
     assert not docstring_history(ast.parse('"""The model: y = a x1 + (1 - a) x2 (BENCHMARKS.md, "Reconstruction")."""'))
+
+
+#: modules allowed to name a CLI flag in a raise, with the reason (delete an entry once its module is clean)
+FLAG_NAMES_ALLOWED: dict[str, str] = {}
+
+
+def _is_flag(node: ast.AST | None) -> bool:
+    """A string constant (or an f-string's first part) that starts with ``--``: a CLI flag's spelling."""
+    if isinstance(node, ast.JoinedStr) and node.values:
+        node = node.values[0]
+    return isinstance(node, ast.Constant) and isinstance(node.value, str) and node.value.startswith("--")
+
+
+def flag_named_raises(tree: ast.AST) -> list[tuple[int, str]]:
+    """``(line, what)`` for every place a stage names a CLI flag as the parameter of an error: ``XError("--x", ...)``
+    and validators ``check_*("--x", ...)`` / ``as_*("--x", ...)``; a ``name=`` / ``parameter=`` keyword ``"--x"``
+    (the name an error will carry); a function parameter defaulting to ``"--x"``."""
+    out = []
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Call):
+            f = node.func
+            fname = f.id if isinstance(f, ast.Name) else f.attr if isinstance(f, ast.Attribute) else ""
+            if (fname.endswith("Error") or fname.startswith(("check_", "as_"))) and node.args \
+                    and _is_flag(node.args[0]):
+                out.append((node.lineno, f"{fname}({ast.unparse(node.args[0])}, ...)"))
+            out += [(node.lineno, f"{fname}(..., {k.arg}={ast.unparse(k.value)})") for k in node.keywords
+                    if k.arg in ("name", "parameter") and _is_flag(k.value)]
+        elif isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):
+            out += [(node.lineno, f"def {node.name}(... = {ast.unparse(d)})")
+                    for d in node.args.defaults + node.args.kw_defaults if _is_flag(d)]
+    return out
+
+
+def test_stages_raise_with_parameter_names():
+    """Flags live only in ``cli/``: a stage's error names the Python parameter (or the file's key), and the CLI's one
+    map (``metafovea.cli.flags``) turns it into the flag a user typed. A Python caller is never told about a
+    flag they did not type."""
+    problems = []
+    for _, modname, tree in modules():
+        if stage_of(modname) == "cli" or modname in FLAG_NAMES_ALLOWED:
+            continue
+        problems += [f"{modname}:{line}: {what}" for line, what in flag_named_raises(tree)]
+    assert not problems, "\n".join(problems)
+
+
+@pytest.mark.parametrize("bad", ['raise InputError("--flat", True, "only with gds")',
+                                 'x = check_int("--max-refs", n, 16)',
+                                 'raise InputError(f"--{name}", v, "a number")',
+                                 'p = prepare_output(path, force, name="--tiff")',
+                                 'def load(path, name="--post-set"): pass'])
+def test_the_flag_rule_can_fail(bad):
+    """Each form of a flag-named raise outside ``cli/`` is caught; the parameter's name is not."""
+    assert flag_named_raises(ast.parse(bad))
+    assert not flag_named_raises(ast.parse(bad.replace('"--', '"').replace("f\"--", "f\"")))
+
+
+def _type_checking_only(node: ast.AST) -> bool:
+    """``if TYPE_CHECKING:`` (or ``typing.TYPE_CHECKING``): imports for annotations, never run."""
+    t = node.test if isinstance(node, ast.If) else None
+    return isinstance(t, ast.Name) and t.id == "TYPE_CHECKING" or isinstance(t, ast.Attribute) and \
+        t.attr == "TYPE_CHECKING"
+
+
+def import_graph(sources) -> dict[str, set[str]]:
+    """Module -> the metafovea modules it imports when it runs, at module level or inside a function (an import
+    under ``if TYPE_CHECKING:`` is left out: it never runs). ``from package import name`` is an edge to the
+    submodule ``package.name`` when there is one, else to the package. ``sources``: ``(path, modname, tree)``."""
+    sources = list(sources)
+    names = {modname for _, modname, _ in sources}
+    graph: dict[str, set[str]] = {}
+    for path, modname, tree in sources:
+        tree = ast.parse(ast.unparse(tree))  # a copy, pruned of the type-checking blocks below
+        for node in ast.walk(tree):
+            if _type_checking_only(node):
+                node.body = [ast.Pass()]
+        deps = set()
+        for mod, name in imports(tree, path, modname):
+            if name is not None and f"{mod}.{name}" in names:
+                deps.add(f"{mod}.{name}")
+            elif mod in names:
+                deps.add(mod)
+        deps.discard(modname)
+        graph[modname] = deps
+    return graph
+
+
+def import_cycles(graph: dict[str, set[str]]) -> list[list[str]]:
+    """One cycle ``[a, b, ..., a]`` through each group of modules that import each other (strongly connected
+    components, Tarjan's algorithm, iterative)."""
+    index: dict[str, int] = {}
+    low: dict[str, int] = {}
+    stack: list[str] = []
+    on_stack: set[str] = set()
+    groups = []
+    for root in sorted(graph):
+        if root in index:
+            continue
+        work = [(root, iter(sorted(graph[root])))]
+        index[root] = low[root] = len(index)
+        stack.append(root)
+        on_stack.add(root)
+        while work:
+            v, children = work[-1]
+            w = next(children, None)
+            if w is not None:
+                if w not in graph:
+                    continue
+                if w not in index:
+                    index[w] = low[w] = len(index)
+                    stack.append(w)
+                    on_stack.add(w)
+                    work.append((w, iter(sorted(graph[w]))))
+                elif w in on_stack:
+                    low[v] = min(low[v], index[w])
+                continue
+            work.pop()
+            if work:
+                low[work[-1][0]] = min(low[work[-1][0]], low[v])
+            if low[v] == index[v]:
+                group = []
+                while True:
+                    w = stack.pop()
+                    on_stack.discard(w)
+                    group.append(w)
+                    if w == v:
+                        break
+                if len(group) > 1:
+                    groups.append(set(group))
+    return [_cycle_in(graph, g) for g in groups]
+
+
+def _cycle_in(graph: dict[str, set[str]], group: set[str]) -> list[str]:
+    """A shortest cycle through the first module of ``group`` (breadth first inside the group)."""
+    start = min(group)
+    prev: dict[str, str] = {}
+    frontier = [start]
+    while frontier:
+        nxt = []
+        for v in frontier:
+            for w in sorted(graph[v] & group):
+                if w == start:
+                    path = [v]
+                    while path[-1] != start:
+                        path.append(prev[path[-1]])
+                    return [*reversed(path), start]
+                if w not in prev:
+                    prev[w] = v
+                    nxt.append(w)
+        frontier = nxt
+    return sorted(group)  # pragma: no cover - a strongly connected group always has a cycle
+
+
+def test_no_import_cycles():
+    """No module imports, directly or through others, a module that imports it back, counting the imports inside
+    functions: a lazy import hides a cycle from Python, not from the design (each idea has one home, below the
+    ideas that use it)."""
+    cycles = import_cycles(import_graph(modules()))
+    assert not cycles, "\n".join(" -> ".join(c) for c in cycles)
+
+
+def test_the_cycle_rule_can_fail(tmp_path):
+    """A planted cycle through a function-level import is found; the same edge under ``if TYPE_CHECKING:`` is not
+    one (it never runs)."""
+    src = {"metafovea.layout.a": "from metafovea.layout.b import B\n",
+           "metafovea.layout.b": "def f():\n    from metafovea.layout import c\n",
+           "metafovea.layout.c": "if TYPE_CHECKING:\n    from metafovea.layout.a import A\n"}
+
+    def graph(sources):
+        return import_graph((tmp_path / (m.split(".")[-1] + ".py"), m, ast.parse(s)) for m, s in sources.items())
+
+    assert import_cycles(graph(src)) == []
+    src["metafovea.layout.c"] += "def g():\n    import metafovea.layout.a\n"
+    assert import_cycles(graph(src)) == [["metafovea.layout.a", "metafovea.layout.b", "metafovea.layout.c",
+                                          "metafovea.layout.a"]]

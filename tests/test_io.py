@@ -28,14 +28,14 @@ def test_npz_roundtrip(tmp_path):
 def test_prepare_output_refuses_overwrite(tmp_path):
     f = tmp_path / "f.txt"
     f.write_text("x")
-    with pytest.raises(InputError, match="--force"):
+    with pytest.raises(InputError, match="force=True"):
         prepare_output(f)
     assert prepare_output(f, force=True) == f
     d = tmp_path / "d"
     d.mkdir()
     assert prepare_output(d, is_dir=True) == d  # empty dir is fine
     (d / "x").write_text("1")
-    with pytest.raises(InputError, match="--force"):
+    with pytest.raises(InputError, match="force=True"):
         prepare_output(d, is_dir=True)
 
 

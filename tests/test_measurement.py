@@ -149,7 +149,7 @@ def test_foveal_constraint_fallbacks_and_explicit_values():
             FovealConstraint.from_meta(bad)
     with pytest.raises(InputError) as e:
         FovealConstraint.from_meta({}, scale=1e9)
-    assert e.value.parameter == "--scale"
+    assert e.value.parameter == "scale"
 
 
 def test_the_reconstructions_metadata_is_read_here(tmp_path):

@@ -21,7 +21,7 @@ import warnings
 from collections.abc import Sequence
 
 from metafovea import __version__
-from metafovea.cli.flags import PARAMETER_FLAGS, as_flag_error
+from metafovea.cli.flags import as_flag_error, flag_map
 from metafovea.cli.stop import install_stop_handlers
 from metafovea.errors import InputError
 
@@ -89,7 +89,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     with warnings.catch_warnings():
         # every warning once, on one line, under the command's name (a warnings.showwarning hook); the results
         # that missed their requested error as one line at the end, naming this command's options
-        show = warning_printer(args.command, flags=PARAMETER_FLAGS.get(args.command))
+        show = warning_printer(args.command, flags=flag_map(args.command))
         warnings.showwarning = show
         for old, new in getattr(args, "deprecated_options", []):
             log.info("%s is a deprecated spelling: use %s", old, new)

@@ -10,14 +10,19 @@ Python caller never typed one. The CLI turns the parameter back into the flag of
 from __future__ import annotations
 
 import argparse
+import re
 
 from metafovea.errors import InputError
 
 #: library parameter name -> the flag a user typed, per command (an InputError raised deep in a stage names the
-#: parameter; the CLI reports the flag). Only names that differ from their flag need an entry.
+#: parameter; the CLI reports the flag, and the flags of the parameters a message mentions, :func:`as_flag_error`).
+#: :data:`EVERY_COMMAND`: the ground floor's parameters, which every command shares.
+EVERY_COMMAND = {"out": "--out", "force": "--force", "scheduler": "--scheduler"}
 _LAYOUT = {"band_rows": "--band-rows", "grid_nm": "--grid-nm", "ring_width_um": "--ring-width-um", "block": "--block",
-           "patch_mm": "--patch", "levels": "--levels", "post_set": "--post-set", "workers": "--workers",
-           "substrate_thickness_um": "--substrate-um", "max_refs": "--max-refs", "compress": "--compress"}
+           "patch_mm": "--patch", "levels": "--levels", "post_set": "--post-set", "posts": "--posts", "date": "--date",
+           "workers": "--workers", "substrate_thickness_um": "--substrate-um", "max_refs": "--max-refs", "dwl": "--dwl",
+           "compress": "--compress", "fmt": "--format", "path": "--out", "flat": "--flat", "test_array": "--test-array",
+           "tiles_dir": "--tiles-dir", "reader": "--reader"}
 PARAMETER_FLAGS: dict[str, dict[str, str]] = {
     "design": {"post_set": "--post-set", "from_library": "--library", "samples": "--samples", "f_um": "--f",
                "diameter_um": "--d", "period_um": "--period-um", "wavelength_um": "--wavelength-um"},
@@ -28,20 +33,26 @@ PARAMETER_FLAGS: dict[str, dict[str, str]] = {
             "field_deg": "--field-deg", "fields_deg": "--field-deg", "error": "--error",
             "temperature_k": "--temperature-k", "n_wavelengths": "--wavelength-bins",
             "wavelength_um": "--wavelength-um", "window_um": "--window-um", "relay_magnification": "--relay",
-            "jobs": "--workers", "out_dir": "--out"},
+            "jobs": "--workers", "out_dir": "--out", "posts": "--posts"},
     "reconstruct": {"window": "--window", "frame": "--frame", "fpn": "--fpn", "known_alpha": "--known-alpha",
                     "regularize": "--regularize", "steps": "--steps", "channels": "--channels", "stride": "--stride",
                     "max_seconds": "--max-seconds", "seed": "--seed", "rng": "--seed", "scale": "--scale",
                     "gain": "--foveal-gain", "offset": "--foveal-offset", "denoise": "--denoise",
-                    "psf": "--psf", "res": "--deconvolve"},
+                    "psf": "--psf", "res": "--deconvolve", "method": "--method"},
     "simulate": {"extinction": "--extinction", "tau_s": "--tau", "bolometer_tau_s": "--tau", "fpn_drift": "--drift",
                  "netd_k": "--netd", "frames": "--frames", "calibration_frames": "--calibration-frames",
                  "supersample": "--supersample", "psf_size_px": "--psf-size", "scene": "--scene",
                  "pixel_pitch_um": "--pixel-um", "psf gaussian sigma_um": "--psf", "psf": "--psf",
                  "relay_magnification": "--relay", "fpn_rank": "--fpn-rank", "fpn_amplitude": "--fpn-amplitude",
-                 "polarizer_phase_deg": "--phase-deg", "field_patches": "--field-patches", "rng": "--seed"},
+                 "polarizer_phase_deg": "--phase-deg", "field_patches": "--field-patches", "rng": "--seed",
+                 "out (TIFF)": "--out (TIFF)", "out (preview)": "--out (preview)"},
     "validate": {"frames": "--frames", "seed": "--seed", "rng": "--seed", "scene": "--scene",
                  "dip_steps": "--dip-steps"},
+    "import": {"format": "--format", "frames_key": "--frames-key", "frame_axis": "--frame-axis", "times": "--times",
+               "time_unit": "--time-unit", "frame_rate_hz": "--frame-rate", "polarizer_key": "--polarizer-key",
+               "polarizer_unit": "--polarizer-unit", "calibration": "--calibration", "planck": "--planck",
+               "calibration_gain": "--calibration-gain", "band_um": "--band-um", "filter_um": "--filter-um",
+               "foveal_gain": "--foveal-gain", "scale": "--scale"},
 }
 
 #: library keyword expressions in an error's advice -> what to type at the command, per command: a Python caller
@@ -61,18 +72,42 @@ FILE_KEYS: dict[str, dict[str, str]] = {
 }
 
 
+def flag_map(command: str) -> dict[str, str]:
+    """Parameter -> flag for ``command``: its :data:`PARAMETER_FLAGS` over :data:`EVERY_COMMAND`."""
+    return {**EVERY_COMMAND, **PARAMETER_FLAGS.get(command, {})}
+
+
+def in_flags(text: str, flags: dict[str, str]) -> str:
+    """A stage's message ``text`` in the words of a command's flags (``flags``: parameter -> flag,
+    :func:`flag_map`): a parameter written as a keyword argument, ``name=value``, becomes ``--flag value`` (a quoted
+    value unquoted; ``True`` and ``...`` leave the flag alone: ``fmt='gds'`` -> ``--format gds``, ``max_refs=...``
+    -> ``--max-refs``). A bare name is left alone: it may be a file's key or an English word."""
+    def flag(m: re.Match, to: str) -> str:
+        value = m.group(1)
+        value = value[1:-1] if value[:1] in "'\"" else value
+        return to if value in ("True", "...") else f"{to} {value}"
+
+    for name, to in flags.items():
+        if name.isidentifier():
+            text = re.sub(rf"(?<![\w.'-]){name}=('[^']*'|\"[^\"]*\"|[^\s,;)\]]+)", lambda m, t=to: flag(m, t), text)
+    return text
+
+
 def as_flag_error(command: str, err: InputError, args: argparse.Namespace | None = None) -> InputError:
     """``err`` renamed to the flag of ``command`` that sets its parameter, or (:data:`FILE_KEYS`) placed in the
     file the user gave; unchanged when there is none, or when the error already names a file's key. Library keywords
-    in its advice become the command's flags (:data:`KEYWORD_ADVICE`)."""
+    in its advice become the command's flags (:data:`KEYWORD_ADVICE`), and so do the parameters its range and
+    detail mention (:func:`in_flags`)."""
     err = _advice_in_flags(command, err)
     if err.source is not None:
         return err
     dest = FILE_KEYS.get(command, {}).get(err.parameter)
     if dest is not None and args is not None and getattr(args, dest, None) is not None:
         return err.located(f"--{dest.replace('_', '-')} {getattr(args, dest)}")
-    flag = PARAMETER_FLAGS.get(command, {}).get(err.parameter)
-    err = err.renamed(flag) if flag else err
+    flags = flag_map(command)
+    err = err.renamed(flags[err.parameter]) if err.parameter in flags else err
+    err = InputError(err.parameter, err.value, in_flags(err.allowed, flags), source=err.source,
+                     detail=None if err.detail is None else in_flags(err.detail, flags))
     if getattr(args, "out_default", False) and err.parameter.split(" ")[0] == "--out":
         # the command chose the path (no --out typed): say so, and what to type instead
         from metafovea.cli.output import DEFAULT_OUT

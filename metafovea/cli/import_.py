@@ -67,6 +67,7 @@ def run(args: argparse.Namespace) -> int:
     """Import, print the summary, write the Measurement; 0 on success (an InputError is reported by main)."""
     import warnings
 
+    from metafovea.cli.flags import flag_map, in_flags
     from metafovea.radiometry import BAND_UM
     from metafovea.recordings import ImportOptions, import_recording
 
@@ -78,6 +79,7 @@ def run(args: argparse.Namespace) -> int:
                         filter_um=tuple(args.filter_um) if args.filter_um else None, foveal_gain=args.foveal_gain,
                         scale=args.scale)
     out, s = import_recording(args.recording, out_file(args, None), opt, force=args.force)
+    s["warnings"] = [in_flags(w, flag_map("import")) for w in s["warnings"]]  # the flags for the options they advise
     for w in s["warnings"]:
         warnings.warn(w, UserWarning, stacklevel=1)
     if args.json:

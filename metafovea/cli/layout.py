@@ -20,18 +20,26 @@ from metafovea.errors import InputError, check_choice
 
 
 def _patch(s: str | None):
-    if s is None:
-        return None
     try:
-        v = tuple(float(x) for x in s.split(","))
+        v = None if s is None else tuple(float(x) for x in s.split(","))
     except ValueError:
-        raise InputError("--patch", s, "X,Y,W in mm (three numbers: patch centre and width)") from None
-    if len(v) != 3:
+        v = ()
+    if v is not None and len(v) != 3:
         raise InputError("--patch", s, "X,Y,W in mm (three numbers: patch centre and width)")
     return v
 
 
-def _common(p: argparse.ArgumentParser) -> None:
+#: the help of the options export and verify share, where it differs: (export's, verify's)
+_HELP = {"workers": ("encoder threads (default 2, at most the CPU count)",
+                     "processes for the expected post counts (default 1)"),
+         "scheduler": ("Dask scheduler address (tcp://host:8786, or local:N): the workers write tiles that this "
+                       "process stitches (see --tiles-dir)",
+                       "Dask scheduler address (tcp://host:8786, or local:N) to count the expected posts on")}
+
+
+def _common(p: argparse.ArgumentParser, command: str) -> None:
+    """The layout's options (design, post set, frame, patch), export's and verify's; the help is ``command``'s."""
+    h = {k: v[command == "verify"] for k, v in _HELP.items()}
     p.add_argument("--levels", type=int, default=None, help="phase levels N (default: the design's)")
     p.add_argument("--post-set", default=None, help="PostSet .npz (default: the platform's RCWA post set, see --posts)")
     p.add_argument("--posts", default="rcwa", choices=("rcwa", "ideal"),
@@ -44,11 +52,8 @@ def _common(p: argparse.ArgumentParser) -> None:
     p.add_argument("--ring-width-um", type=float, default=1000.0, help="aluminium aperture ring width (um)")
     p.add_argument("--test-array", action="store_true", help="calibration layout: each post type in its own block")
     p.add_argument("--block", type=int, default=50, help="posts per side of a calibration block")
-    p.add_argument("--workers", type=int, default=None,
-                   help="export: encoder threads (default 2, at most the CPU count); verify: processes for "
-                        "the expected counts (default 1)")
-    p.add_argument("--scheduler", default=None, help="Dask scheduler address (tcp://host:8786, or local:N); export: "
-                   "the workers write tiles that this process stitches (see --tiles-dir)")
+    p.add_argument("--workers", type=int, default=None, help=h["workers"])
+    p.add_argument("--scheduler", default=None, help=h["scheduler"])
     p.add_argument("--json", action="store_true", help="print the result as JSON")
 
 
@@ -79,7 +84,7 @@ def add_export_parser(subparsers) -> argparse.ArgumentParser:
                    help="GDSII for the Heidelberg DWL 66: posts as rectangles in one structure per band side, at "
                         "most 8192 structure definitions and 8192 references per structure")
     p.add_argument("--substrate-um", type=float, default=None, help="mesh substrate thickness (um)")
-    _common(p)
+    _common(p, "export")
     p.set_defaults(func=run_export)
     return p
 
@@ -96,7 +101,7 @@ def add_verify_parser(subparsers) -> argparse.ArgumentParser:
                    help="also fail when a structure holds more than N elements (references and shapes)")
     p.add_argument("--dwl", action="store_true",
                    help="also fail beyond the Heidelberg DWL 66 limits (8192 structures, 8192 references each)")
-    _common(p)
+    _common(p, "verify")
     p.set_defaults(func=run_verify)
     return p
 
@@ -138,14 +143,19 @@ def _format(args) -> str:
 
 
 def run_export(args) -> int:
-    from metafovea.layout.export import export_file
+    from metafovea.layout.export import FORMATS, ExportOptions, export_file, output_path, size_notice
 
     fmt = _format(args)
     spec, ta = _inputs(args, args.design)
-    res = export_file(spec, out_file(args, None), fmt, test_array=ta, flat=args.flat, max_refs=args.max_refs,
-                      dwl=args.dwl, substrate_thickness_um=args.substrate_um, force=args.force,
-                      resume=not args.no_resume, workers=args.workers, scheduler=args.scheduler,
-                      progress=progress(args), compress=args.compress, tiles_dir=args.tiles_dir)
+    out = out_file(args, None)
+    opt = ExportOptions(flat=args.flat, max_refs=args.max_refs, dwl=args.dwl, compress=args.compress, force=args.force,
+                        resume=not args.no_resume, workers=args.workers, scheduler=args.scheduler,
+                        tiles_dir=args.tiles_dir, progress=progress(args))
+    notice = None if fmt not in FORMATS or ta is not None or args.quiet else size_notice(
+        spec, output_path(spec, fmt, out, flat=opt.flat, max_refs=opt.max_refs, dwl=opt.dwl), fmt, opt)
+    if notice:  # a multi-GB file is announced before its write starts
+        print(f"metafovea export: {notice}", file=sys.stderr)
+    res = export_file(spec, out, fmt, opt, test_array=ta, substrate_thickness_um=args.substrate_um)
     if args.json:
         from metafovea.io import to_json
         print(to_json(res))
@@ -171,11 +181,13 @@ def run_verify(args) -> int:
 
     spec, ta = _inputs(args, args.design)
     rep = verify_layout(args.file, spec, reader=args.reader, test_array=ta,
-                        workers=1 if args.workers is None else args.workers,
+                        workers=1 if args.workers is None else args.workers, scheduler=args.scheduler,
                         progress=progress(args), max_refs=args.max_refs, dwl=args.dwl)
+    from metafovea.cli.flags import flag_map, in_flags
+    mismatches = [in_flags(m, flag_map("verify")) for m in rep.mismatches]  # the flags for the parameters they name
     if args.json:
         from metafovea.io import to_json
-        print(to_json(rep.as_dict()))
+        print(to_json({**rep.as_dict(), "mismatches": mismatches}))
     else:
         status = "OK" if rep.ok else "MISMATCH"
         print(f"{status}: {rep.file} ({rep.format}, read by {rep.reader} in {rep.seconds_read:.1f} s): "
@@ -183,6 +195,6 @@ def run_verify(args) -> int:
         if rep.drc is not None:
             from metafovea.layout.tiling import drc_line
             print("  " + drc_line(rep.drc))
-        for m in rep.mismatches:
+        for m in mismatches:
             print(f"  - {m}", file=sys.stderr)
     return 0 if rep.ok else 1

@@ -16,6 +16,7 @@ import time
 import warnings
 from typing import Any
 
+from metafovea.cli.flags import flag_map, in_flags
 from metafovea.cli.options import alias, emit, progress
 from metafovea.cli.output import out_dir, stage_printer
 from metafovea.errors import InputError, NotConvergedWarning, PhysicsWarning, check_int, check_positive
@@ -147,7 +148,7 @@ def run(args: argparse.Namespace) -> int:
                           say=stage_printer(args, "psf"))
     lenses = {k: v for k, v in summary.items() if k not in ("optical_train", "timing")}
     for name, s in lenses.items():  # each distinct one once, on one line (also those from worker processes)
-        emit([f"{name}: {w}" for w in s["warnings"]], PhysicsWarning)
+        emit([f"{name}: {in_flags(w, flag_map('psf'))}" for w in s["warnings"]], PhysicsWarning)
         for item in s["accuracy"]:  # one summary line for all of them, naming this command's options
             warnings.warn(NotConvergedWarning(item["message"], item), stacklevel=1)
     summary["timing"]["seconds"]["total"] = time.perf_counter() - t0  # the whole run, start and checks included

@@ -96,7 +96,7 @@ class SensorModel:
         if r > min(self.shape):
             raise InputError("fpn_rank", r, f"integer 0 <= fpn_rank <= {min(self.shape)} (the smaller side of the "
                              f"{self.shape[0]} x {self.shape[1]} crop)",
-                             detail="set by --fpn-rank or the system file's [sensor] fpn_rank")
+                             detail="set by fpn_rank=... or the system file's [sensor] fpn_rank")
         check_range("fpn_amplitude", self.fpn_amplitude, 0.0, 1.0, lo_inclusive=True)
         check_range("fpn_drift", self.fpn_drift, 0.0, 1.0, lo_inclusive=True)
         check_positive("drift_period_s", self.drift_period_s, "s")

@@ -495,7 +495,7 @@ def output_paths(out: str | Path, *, tiff: bool = True, preview: bool = True) ->
     next to it."""
     out = Path(out)
     if out.suffix.lower() != ".npz":
-        raise InputError("--out", str(out), "a file name ending in .npz")
+        raise InputError("out", str(out), "a file name ending in .npz")
     paths = {"measurement": out}
     if tiff:
         paths["tiff"] = out.with_suffix(".tif")
@@ -509,7 +509,7 @@ def _refuse_to_overwrite_inputs(outputs: list[Path], inputs: list[Path]) -> None
     for o in outputs:
         for src in inputs:
             if o.resolve() == src.resolve() or (o.exists() and os.path.samefile(o, src)):
-                raise InputError("--out", str(o), f"a path other than the input {src} (it would be overwritten)")
+                raise InputError("out", str(o), f"a path other than the input {src} (it would be overwritten)")
 
 
 def simulate_to_files(system: SystemDesign | str | Path | None, scene: str | Path | Scene, out: str | Path,
@@ -529,7 +529,7 @@ def simulate_to_files(system: SystemDesign | str | Path | None, scene: str | Pat
     scene_file = None if isinstance(scene, Scene) else scene
     inputs = [Path(p) for p in (system_file, scene_file) if p and Path(p).is_file()]
     _refuse_to_overwrite_inputs(list(paths.values()), inputs)
-    names = {"measurement": "--out", "tiff": "--out (TIFF)", "preview": "--out (preview)"}
+    names = {"measurement": "out", "tiff": "out (TIFF)", "preview": "out (preview)"}
     for kind, p in paths.items():
         prepare_output(p, force, name=names[kind])
     t0 = time.perf_counter()
@@ -552,7 +552,7 @@ def write_tiff(m: Measurement, path: str | Path, force: bool = False) -> Path:
     float32. The JSON summary (times, alpha) goes into the ImageJ 'Info' property."""
     import tifffile
 
-    p = prepare_output(path, force, name="--tiff")
+    p = prepare_output(path, force, name="path")
     f = m.frames
     data = f
     if float(f.min()) >= 0 and float(f.max()) <= 65535 and np.array_equal(f, np.rint(f)):
@@ -572,7 +572,7 @@ def write_preview(m: Measurement, path: str | Path, force: bool = False, dpi: in
     and alpha(t)."""
     from matplotlib.figure import Figure
 
-    p = prepare_output(path, force, name="--preview")
+    p = prepare_output(path, force, name="path")
     cmap = iron_colormap()
     T = m.frames.shape[0]
     if m.alpha is not None and np.all(np.isfinite(m.alpha)):

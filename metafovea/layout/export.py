@@ -1,15 +1,18 @@
 """Streamed, resumable, atomic export of a lens layout (GDSII or OASIS) and of a calibration array.
 
-The file is written to ``.<name>.part`` next to the final path, task after task (a task is a
-mirror-row band, see :meth:`LayoutSpec.tasks`; tasks are encoded serially, in local threads or
-processes, at most a few in flight, and written in order by a writer thread through :class:`DirectFile`,
-``O_DIRECT`` where possible). On a Dask cluster the workers write tile files that this process stitches in
-band order (:mod:`metafovea.layout.tilefiles`). A small journal ``.<name>.part.json``
-(updated at most every 0.5 s) records the tasks finished and the byte offset (and, for hierarchical
-GDSII, the leaf structures per task); a rerun with the same parameters truncates the part file to that
-offset and continues. When all tasks are written the footer is added (hierarchical GDSII: the
-intermediate structures and the top cell), the file is fsynced and renamed to the final name; nothing
-ever appears under the final name half-written.
+The file is written to ``.<name>.part`` next to the final path, task after task (a task is a mirror-row band, see
+:meth:`LayoutSpec.tasks`; tasks are encoded serially, in local threads or processes, at most a few in flight, and
+written in order by a writer thread through :class:`DirectFile`, ``O_DIRECT`` where possible). GDSII without a
+hierarchy is encoded in place: each task's size is known beforehand
+(:func:`~metafovea.layout.tiling.task_post_counts`), so its offset in the file is too, and its encoder fills a
+page-aligned buffer from a bounded pool at that offset within a disk block; the disk writes the buffer as it is
+(:meth:`DirectFile.write_placed`), so encoding and writing overlap with no copy between them. On a Dask cluster the
+workers write tile files that this process stitches in band order (:mod:`metafovea.layout.tilefiles`). A small
+journal ``.<name>.part.json`` (updated at most every 0.5 s) records the tasks finished and the byte offset (and, for
+hierarchical GDSII, the leaf structures per task); a rerun with the same parameters truncates the part file to that
+offset and continues. When all tasks are written the footer is added (hierarchical GDSII: the intermediate
+structures and the top cell), the file is fsynced and renamed to the final name; nothing ever appears under the
+final name half-written.
 """
 
 from __future__ import annotations
@@ -18,8 +21,10 @@ import collections
 import contextlib
 import errno
 import json
+import logging
 import os
 import queue
+import shutil
 import threading
 import time
 from collections.abc import Callable, Iterator
@@ -27,23 +32,27 @@ from dataclasses import dataclass, field, replace
 from functools import partial
 from itertools import islice
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 
-from metafovea.errors import InputError, check_choice, check_int
+from metafovea.errors import InputError, check_choice, check_int, human_bytes
 from metafovea.io import file_stem, input_hash, prepare_output
 from metafovea.layout import gds, oasis
 from metafovea.layout.directfile import DirectFile
 from metafovea.layout.mesh import MESH_FORMATS, export_mesh
 from metafovea.layout.tilefiles import TileDir, default_tiles_dir
-from metafovea.layout.tiling import Expected, LayoutSpec, drc_summary
+from metafovea.layout.tiling import Expected, LayoutSpec, drc_summary, post_count, task_post_counts
 
 FORMATS = ("gds", "oas")  #: layout formats (:func:`export_layout`)
 #: every format :func:`export_file` writes, and the file-name suffixes each accepts
 SUFFIXES = {"gds": (".gds", ".gdsii"), "oas": (".oas", ".oasis"), "stl": (".stl",), "glb": (".glb",)}
 DEFAULT_DIR = Path("gds_export")  #: where :func:`export_file` writes without ``out``
 JOURNAL_VERSION = 2
+#: a layout file estimated this large or larger is announced before the write starts (:func:`size_notice`)
+SIZE_NOTICE_BYTES = 1 << 30
+
+log = logging.getLogger(__name__)
 
 
 @dataclass
@@ -80,7 +89,7 @@ class ExportError(InputError):
     """Writing failed (disk full, not writable); nothing under the final name."""
 
     def __init__(self, path: Path, reason: str, detail: str | None = None):
-        super().__init__("--out", str(path), reason, detail=detail)
+        super().__init__("path", str(path), reason, detail=detail)
 
 
 def _ordered_map(fn: Callable, items: list, workers: int | None, scheduler: None = None,
@@ -122,6 +131,64 @@ def _ordered_map(fn: Callable, items: list, workers: int | None, scheduler: None
             ex.close()
 
 
+class _Placed(NamedTuple):
+    """A task encoded in place: its ``n`` bytes at ``pre`` in the page-aligned ``buf`` (see
+    :meth:`DirectFile.write_placed`); ``done()`` gives ``buf`` back to its pool."""
+
+    buf: Any
+    pre: int
+    n: int
+    done: Callable[[], None]
+
+
+class _Buffers:
+    """A pool of page-aligned buffers (anonymous mmaps: their pages are faulted in by their first encoder, then
+    reused) that encoders fill in place and the disk gives back; taking one waits for one to be free, which bounds
+    the memory (``count * size`` bytes)."""
+
+    def __init__(self, count: int, size: int):
+        import mmap
+
+        self.free: queue.Queue = queue.Queue()
+        for _ in range(count):
+            self.free.put(mmap.mmap(-1, size))
+
+    def get(self) -> Any:
+        return self.free.get()
+
+
+def _placed_tasks(todo: list, sizes: list[int], offset: int, pool: _Buffers) -> Iterator[tuple]:
+    """``(task, pre, n, buffer)`` for each task, in order: its bytes ``n`` start ``pre`` bytes into a block of the
+    file (the tasks before it end at ``offset + sum(sizes)``), in a buffer from ``pool`` (taken here, in task order,
+    so that a task never waits for a buffer a later task holds)."""
+    for t, n in zip(todo, sizes):
+        yield t, offset % DirectFile.BLOCK, n, pool.get()
+        offset += n
+
+
+def _gds_task_into(spec: LayoutSpec, flat: bool, pool: _Buffers, item: tuple):
+    task, pre, n, buf = item
+    counts = gds.encode_task_into(spec, flat, task, np.frombuffer(buf, dtype=np.uint8, count=n, offset=pre))
+    return _Placed(buf, pre, n, partial(pool.free.put, buf)), counts, None
+
+
+def _encoded(spec: LayoutSpec, fmt: str, o: ExportOptions, enc: Callable, todo: list,
+             offset: int) -> Iterator[tuple[Any, np.ndarray, Any]]:
+    """``(pieces, counts, meta)`` of each task of ``todo``, in order, the first written at ``offset``. GDSII without
+    a hierarchy, encoded in threads, goes in place into page-aligned buffers (``pieces``: one :class:`_Placed`, which
+    the disk writes without a copy); anything else into new arrays (``pieces``: a list, copied into the writer's
+    staging buffers)."""
+    workers = o.workers or default_workers()
+    window = o.inflight or workers + 1
+    if fmt != "gds" or o.max_refs is not None or o.dwl or not o.threads or not todo:
+        yield from _ordered_map(enc, todo, workers, None, window, o.threads)
+        return
+    sizes = [sum(task_post_counts(spec, t)) * (gds.BOUNDARY_BYTES if o.flat else gds.SREF_BYTES) for t in todo]
+    pool = _Buffers(window + 4, max(sizes) + DirectFile.BLOCK)  # > window + 1: see _placed_tasks
+    yield from _ordered_map(partial(_gds_task_into, spec, o.flat, pool), _placed_tasks(todo, sizes, offset, pool),
+                            workers, None, window, True)
+
+
 class _Writer(threading.Thread):
     """Writes band data in a background thread (overlaps disk writes with the band computation)."""
 
@@ -137,20 +204,27 @@ class _Writer(threading.Thread):
             item = self.q.get()
             if item is None:
                 return
+            pieces, c, meta = item
             if self.exc is not None:
+                if isinstance(pieces, _Placed):
+                    pieces.done()  # its buffer back to the pool: an encoder may be waiting for it
                 continue
             try:
-                pieces, c, meta = item
-                nbytes = 0
-                for data in pieces:
-                    self.fh.write(data)
-                    nbytes += memoryview(data).nbytes
+                if isinstance(pieces, _Placed):
+                    nbytes = self.fh.write_placed(pieces.buf, pieces.pre, pieces.n, pieces.done)
+                else:
+                    nbytes = 0
+                    for data in pieces:
+                        self.fh.write(data)
+                        nbytes += memoryview(data).nbytes
                 self.on_written(nbytes, c, meta)
             except BaseException as e:  # noqa: BLE001 - re-raised in the caller
                 self.exc = e
 
-    def put(self, pieces: list, c: np.ndarray, meta: Any = None) -> None:
+    def put(self, pieces: Any, c: np.ndarray, meta: Any = None) -> None:
         if self.exc is not None:
+            if isinstance(pieces, _Placed):
+                pieces.done()
             raise self.exc
         self.q.put((pieces, c, meta))
 
@@ -265,7 +339,7 @@ def _encoder(spec: LayoutSpec, fmt: str, flat: bool, compress: int, max_refs: in
         if dwl:
             leaves = 2 * len(spec.tasks()) + 1
             if leaves > DWL_LIMIT - 64:
-                raise InputError("--band-rows", spec.band_rows, f"more rows per task: {leaves:,} leaf structures "
+                raise InputError("band_rows", spec.band_rows, f"more rows per task: {leaves:,} leaf structures "
                                  f"exceed the DWL 66 limit of {DWL_LIMIT} definitions")
             return header, footer, top_open, frame_el, partial(_gds_task_hier, spec, flat, None)
         return header, footer, top_open, frame_el, partial(_gds_task_hier, spec, flat, max_refs)
@@ -284,95 +358,218 @@ def _publish(part: Path, path: Path, jpath: Path) -> None:
         os.close(dfd)
 
 
-def _layout_options(fmt: str, flat: bool, max_refs: int | None, dwl: bool) -> tuple[str, bool, int | None]:
-    """:func:`export_layout`'s format options checked together: ``(fmt, flat, max_refs)`` (``dwl`` is flat)."""
-    fmt = check_choice("--format", fmt, FORMATS)
-    if flat and fmt != "gds":
-        raise InputError("--flat", True, "only with --format gds (OASIS is always hierarchical)")
-    if max_refs is not None:
-        if fmt != "gds":
-            raise InputError("--max-refs", max_refs, "only with --format gds (OASIS has no such limit)")
-        max_refs = check_int("--max-refs", max_refs, 16, 1 << 30)
-    if dwl:
-        if fmt != "gds" or max_refs is not None:
-            raise InputError("--dwl", True, "only with --format gds and without --max-refs")
-        flat = True
-    return fmt, flat, max_refs
+def default_workers() -> int:
+    """Encoder threads when :attr:`ExportOptions.workers` is None: 2, at most the CPU count."""
+    return max(1, min(2, os.cpu_count() or 1))
 
 
-def export_layout(spec: LayoutSpec, path: str | os.PathLike, fmt: str = "gds", *, flat: bool = False,
-                  force: bool = False, resume: bool = True, workers: int | None = 1,
-                  scheduler: str | None = None, progress: bool = False, compress: int = 1,
-                  inflight: int | None = None, max_refs: int | None = None, threads: bool = True,
-                  direct: bool = True, dwl: bool = False, tiles_dir: str | os.PathLike | None = None,
-                  _stop_after: int | None = None) -> ExportResult:
+@dataclass(frozen=True)
+class ExportOptions:
+    """How :func:`export_layout` (and :func:`export_file`) write a layout; validated on construction, each error
+    naming its field.
+
+    Attributes
+    ----------
+    flat : bool
+        GDSII only: one rectangle per post instead of one reference.
+    max_refs : int, optional
+        GDSII only: a hierarchical file with at most that many elements per structure (posts in leaf structures, a
+        tree of intermediate structures, the top cell holding the frame and its children), e.g. 8192 for the
+        Heidelberg DWL 66 if it counts every element; 16 to 2**30.
+    dwl : bool
+        GDSII only, without ``max_refs``: the Heidelberg DWL 66 mode: posts as boundaries in one leaf structure per
+        task side, the frame in one structure, a tree of references above them: at most :data:`DWL_LIMIT` structure
+        definitions and references per structure (shapes per structure are not limited: no layout of a large lens
+        meets both limits counting every shape).
+    compress : int
+        OASIS deflate level of the per-task CBLOCKs, 0 (none) to 9.
+    force, resume : bool
+        Overwrite an existing file; continue a partial export of the same parameters (its journal) instead of
+        starting over.
+    workers : int, optional
+        Local encoder threads (processes with ``threads=False``) while the writer thread writes; None:
+        :func:`default_workers`. The output bytes do not depend on it.
+    threads : bool
+        Encoders in threads (default: numpy and zlib release the GIL, results need no pickling) or processes.
+    inflight : int, optional
+        Encoded tasks waiting for the writer at most (memory: each holds one task's bytes); default ``workers + 1``.
+    direct : bool
+        Write with ``O_DIRECT`` where the file system allows it (:class:`~metafovea.layout.directfile.DirectFile`).
+    scheduler : str, optional
+        A Dask scheduler address, or ``local:N``: the workers write the encoded bands as tile files into
+        ``tiles_dir`` and this process stitches them in band order (:mod:`metafovea.layout.tilefiles`): the same
+        bytes, resumable from the tiles written.
+    tiles_dir : path, optional
+        With ``scheduler``: where the workers write their tiles, on a file system the client and every worker share
+        (default ``.<name>.tiles`` next to the output).
+    progress : bool
+        A progress bar over the tasks.
+    stop_after : int, optional
+        For tests of resumption: stop, as if interrupted (``KeyboardInterrupt``), after that many tasks, with the
+        journal written after each.
+    """
+
+    flat: bool = False
+    max_refs: int | None = None
+    dwl: bool = False
+    compress: int = 1
+    force: bool = False
+    resume: bool = True
+    workers: int | None = None
+    threads: bool = True
+    inflight: int | None = None
+    direct: bool = True
+    scheduler: str | None = None
+    tiles_dir: str | os.PathLike | None = None
+    progress: bool = False
+    stop_after: int | None = None
+
+    def __post_init__(self) -> None:
+        if isinstance(self.compress, bool) or not isinstance(self.compress, int) or not 0 <= self.compress <= 9:
+            raise InputError("compress", self.compress, "an integer 0..9")
+        for name in ("workers", "inflight"):
+            v = getattr(self, name)
+            if v is not None and (isinstance(v, bool) or not isinstance(v, int) or v < 1):
+                raise InputError(name, v, "an integer >= 1")
+        if self.max_refs is not None:
+            object.__setattr__(self, "max_refs", check_int("max_refs", self.max_refs, 16, 1 << 30))
+        if self.dwl and self.max_refs is not None:
+            raise InputError("dwl", True, "only without max_refs=...")
+        if self.stop_after is not None:
+            object.__setattr__(self, "stop_after", check_int("stop_after", self.stop_after, 0))
+        if self.tiles_dir is not None and not self.scheduler:
+            raise InputError("tiles_dir", str(self.tiles_dir), "only with scheduler=... (local exports write one file)")
+
+    def checked_for(self, fmt: str) -> tuple[str, ExportOptions]:
+        """``(fmt, options)`` checked together (``flat``, ``max_refs`` and ``dwl`` are GDSII's; ``dwl`` is flat)."""
+        fmt = check_choice("fmt", fmt, FORMATS)
+        if self.flat and fmt != "gds":
+            raise InputError("flat", True, "only with fmt='gds' (OASIS is always hierarchical)")
+        if self.max_refs is not None and fmt != "gds":
+            raise InputError("max_refs", self.max_refs, "only with fmt='gds' (OASIS has no such limit)")
+        if self.dwl and fmt != "gds":
+            raise InputError("dwl", True, "only with fmt='gds' and without max_refs=...")
+        return fmt, replace(self, flat=True) if self.dwl else self
+
+
+def estimated_bytes(spec: LayoutSpec, fmt: str = "gds", options: ExportOptions | None = None) -> int | None:
+    """The size of the file :func:`export_layout` writes, without writing it: GDSII's record per post (an SREF,
+    :data:`~metafovea.layout.gds.SREF_BYTES`; flat or ``dwl``: a BOUNDARY, ``BOUNDARY_BYTES``) times the posts
+    (:func:`~metafovea.layout.tiling.post_count`); the header, the frame and a hierarchy's structures (a few kB to
+    MB) are left out. None for OASIS, whose compressed size is known only once written."""
+    fmt, o = (options or ExportOptions()).checked_for(fmt)
+    if fmt != "gds":
+        return None
+    return post_count(spec) * (gds.BOUNDARY_BYTES if o.flat else gds.SREF_BYTES)
+
+
+def free_bytes(path: str | os.PathLike) -> int:
+    """Free space (bytes) on the file system ``path`` goes to (its nearest existing folder's)."""
+    d = Path(path).absolute().parent
+    while not d.exists() and d != d.parent:
+        d = d.parent
+    return shutil.disk_usage(d).free
+
+
+def size_notice(spec: LayoutSpec, path: str | os.PathLike, fmt: str = "gds",
+                options: ExportOptions | None = None) -> str | None:
+    """One line announcing a write of :data:`SIZE_NOTICE_BYTES` or more (``writing about 7.2 GiB to x.gds; 73 GiB
+    free there``), None for a smaller file or an OASIS one (:func:`estimated_bytes`)."""
+    n = estimated_bytes(spec, fmt, options)
+    if n is None or n < SIZE_NOTICE_BYTES:
+        return None
+    return f"writing about {human_bytes(n)} to {path}; {human_bytes(free_bytes(path))} free there"
+
+
+def _check_space(path: Path, need: int | None) -> None:
+    """Refuse a write of ``need`` more bytes (None: unknown) where less is free; log a large one."""
+    if need is None:
+        return
+    free = free_bytes(path)
+    if need > free:
+        raise ExportError(path, "a location with enough free space",
+                          f"about {human_bytes(need)} to write, {human_bytes(free)} free there")
+    if need >= SIZE_NOTICE_BYTES:
+        log.info("writing about %s to %s; %s free there", human_bytes(need), path, human_bytes(free))
+
+
+def export_layout(spec: LayoutSpec, path: str | os.PathLike, fmt: str = "gds",
+                  options: ExportOptions | None = None) -> ExportResult:
     """Write the lens (or patch) layout of ``spec`` to ``path`` as GDSII (``'gds'``) or OASIS (``'oas'``).
 
-    ``flat`` (GDSII only): one rectangle per post instead of one reference. ``max_refs`` (GDSII only):
-    hierarchical file with at most that many elements per structure (posts in leaf structures, a tree of
-    intermediate structures, the top cell holding the frame and its children), e.g. 8192 for the
-    Heidelberg DWL 66 if it counts every element. ``dwl`` (GDSII only): the Heidelberg DWL 66 mode: posts as
-    boundaries in one leaf structure per task side, the frame in one structure, a tree of references above them:
-    at most :data:`DWL_LIMIT` structure definitions and references per structure (shapes per structure are not
-    limited: no layout of a large lens meets both limits counting every shape). ``compress``: OASIS deflate level for the per-task CBLOCKs (0 = none).
-    ``workers``: local threads (``threads=False``: processes) encoding tasks while the writer thread
-    writes; the output bytes do not depend on it. ``direct``: write with ``O_DIRECT`` where the file
-    system allows it (see :class:`DirectFile`). ``scheduler`` (a Dask scheduler address, or ``local:N``): the
-    workers write the encoded bands as tile files into ``tiles_dir`` (default ``.<name>.tiles`` next to ``path``;
-    it must be on a file system the client and every worker share) and this process stitches them in band order
-    (:mod:`metafovea.layout.tilefiles`): the same bytes, resumable from the tiles written. ``_stop_after``: stop
-    (as if interrupted) after that many tasks; for tests of resumption.
+    Parameters
+    ----------
+    spec : LayoutSpec
+        The layout: design, post set, frame, patch.
+    path : str or PathLike
+        The file written (atomically: under its name only once complete; see the module docstring).
+    fmt : {'gds', 'oas'}
+        GDSII or OASIS.
+    options : ExportOptions, optional
+        How to write it (hierarchy, compression, encoder threads, ``O_DIRECT``, a Dask cluster, resuming).
+
+    Returns
+    -------
+    ExportResult
+        What was written: posts per type, bytes, seconds, tasks (``bands``) and those resumed.
     """
-    fmt, flat, max_refs = _layout_options(fmt, flat, max_refs, dwl)
+    fmt, o = (options or ExportOptions()).checked_for(fmt)
     path = Path(path)
-    bands = spec.tasks()
     skey = spec.key()
     skey.pop("date", None)  # the labels' date: a resumed export keeps the date its part file was started with
-    key = input_hash({"v": JOURNAL_VERSION, "spec": skey, "fmt": fmt, "flat": flat, "compress": compress,
-                      "max_refs": max_refs, "dwl": dwl})
-    prepare_output(path, force)
-    if tiles_dir is not None and not scheduler:
-        raise InputError("--tiles-dir", str(tiles_dir), "only with --scheduler (local exports write one file)")
-    if scheduler:
-        return _export_tiled(spec, path, fmt, key, flat=flat, compress=compress, max_refs=max_refs, dwl=dwl,
-                             resume=resume, scheduler=scheduler, progress=progress, direct=direct,
-                             tiles_dir=tiles_dir, stop_after=_stop_after)
+    key = input_hash({"v": JOURNAL_VERSION, "spec": skey, "fmt": fmt, "flat": o.flat, "compress": o.compress,
+                      "max_refs": o.max_refs, "dwl": o.dwl})
+    prepare_output(path, o.force, name="path")
+    need = estimated_bytes(spec, fmt, o)
+    if o.scheduler:
+        _check_space(path, need)
+        return _export_tiled(spec, path, fmt, key, o)
+    return _export_local(spec, path, fmt, key, o, need)
+
+
+def _export_local(spec: LayoutSpec, path: Path, fmt: str, key: str, o: ExportOptions,
+                  need: int | None) -> ExportResult:
+    """:func:`export_layout` in this process: encoder threads (or processes), a writer thread, the journal;
+    ``need``: the bytes it will write (:func:`estimated_bytes`), less what a resumed part file holds."""
+    bands = spec.tasks()
     part, jpath = part_paths(path)
-    j = _load_journal(jpath) if resume else None
+    j = _load_journal(jpath) if o.resume else None
     if j is not None and j.get("key") == key and isinstance(j.get("date"), str) and j["date"] != spec.date:
         spec = replace(spec, date=j["date"])
-    header, footer, top_open, frame_el, enc = _encoder(spec, fmt, flat, compress, max_refs, dwl)
+    header, footer, top_open, frame_el, enc = _encoder(spec, fmt, o.flat, o.compress, o.max_refs, o.dwl)
     journal = _Journal(jpath, key, len(bands), spec.date)
 
     t0 = time.perf_counter()
     start, offset = 0, len(header)
     counts = np.zeros(spec.levels, dtype=np.int64)
     leaves: list[int] = []  # leaf structures per task (max_refs)
+    hier = o.max_refs is not None or o.dwl
     fh = None
     try:
-        hier = max_refs is not None or dwl
-        if journal.resumable(j, part, hier):
+        resumed = journal.resumable(j, part, hier)
+        _check_space(path, None if need is None else need - (int(j["offset"]) - len(header) if resumed else 0))
+        if resumed:
             start, offset = int(j["bands_done"]), int(j["offset"])
             counts += np.asarray(j["counts"], dtype=np.int64)
             leaves = [int(v) for v in j.get("leaves", [])]
-            fh = DirectFile(part, offset, direct=direct)
+            fh = DirectFile(part, offset, direct=o.direct)
         else:
             with contextlib.suppress(FileNotFoundError):
                 jpath.unlink()
-            fh = DirectFile(part, direct=direct)
+            fh = DirectFile(part, direct=o.direct)
             fh.write(header)
             fh.flush()
             journal.write(0, offset, counts, [])
         bar = None
-        if progress:
+        if o.progress:
             from tqdm.auto import tqdm
             bar = tqdm(total=len(bands), initial=start, unit="band", desc=f"export {path.name}")
-        ck = _Checkpoint(fh, journal, counts, leaves, start, offset, hier=hier,
-                         every_task=_stop_after is not None, bar=bar)
+        ck = _Checkpoint(fh, journal, counts, leaves, start, offset, hier=hier, every_task=o.stop_after is not None,
+                         bar=bar)
         writer = _Writer(fh, ck)
         try:
-            todo = bands[start:] if _stop_after is None else bands[start:start + _stop_after]
-            for pieces, c, meta in _ordered_map(enc, todo, workers, None, inflight, threads):
+            todo = bands[start:] if o.stop_after is None else bands[start:start + o.stop_after]
+            for pieces, c, meta in _encoded(spec, fmt, o, enc, todo, offset):
                 writer.put(pieces, c, meta)
         finally:
             writer.close()
@@ -382,11 +579,11 @@ def export_layout(spec: LayoutSpec, path: str | os.PathLike, fmt: str = "gds", *
         if ck.done < len(bands):
             fh.close()
             fh = None
-            raise KeyboardInterrupt("stopped after %d bands (test)" % ck.done)
+            raise KeyboardInterrupt(f"stopped after {ck.done} bands (test)")
         if hier:
             names = [gds.leaf_name(t, i) for t, n in enumerate(leaves) for i in range(n)]
             footer = (gds.hierarchy_footer(spec, top_open, frame_el, names, DWL_LIMIT, frame_max=len(frame_el))
-                      if dwl else gds.hierarchy_footer(spec, top_open, frame_el, names, max_refs))
+                      if o.dwl else gds.hierarchy_footer(spec, top_open, frame_el, names, o.max_refs))
         fh.write(footer)
         offset += len(footer)
         fh.sync()
@@ -397,24 +594,27 @@ def export_layout(spec: LayoutSpec, path: str | os.PathLike, fmt: str = "gds", *
         if fh is not None:
             with contextlib.suppress(OSError):
                 fh.close()
-        if e.errno in (errno.ENOSPC, errno.EDQUOT, errno.EFBIG):
-            # what reached the disk (``offset`` is only brought up to date at the end of the bands)
-            try:
-                written = part.stat().st_size
-            except OSError:
-                written = offset
-            raise ExportError(path, "a location with enough free space",
-                              f"disk full (or file size limit) after {written:,} bytes; the partial output {part.name} "
-                              "is kept for resuming (rerun the same command after freeing space, or delete it)") from None
-        raise ExportError(path, "a writable location", f"{e.strerror or e}") from None
+        raise _write_error(path, part, offset, e) from None
     except BaseException:
         if fh is not None:
             with contextlib.suppress(OSError):
                 fh.close()
         raise
-    dt = time.perf_counter() - t0
-    return ExportResult(path, fmt, flat, int(counts.sum()), counts.tolist(), offset, dt, len(bands), start,
-                        _extra(spec, hier, dwl, max_refs, leaves))
+    return ExportResult(path, fmt, o.flat, int(counts.sum()), counts.tolist(), offset, time.perf_counter() - t0,
+                        len(bands), start, _extra(spec, hier, o.dwl, o.max_refs, leaves))
+
+
+def _write_error(path: Path, part: Path, offset: int, e: OSError) -> ExportError:
+    """The :class:`ExportError` of a failed write: a full disk (the partial output kept for resuming) or another."""
+    if e.errno in (errno.ENOSPC, errno.EDQUOT, errno.EFBIG):
+        try:  # what reached the disk (``offset`` is only brought up to date at the end of the bands)
+            written = part.stat().st_size
+        except OSError:
+            written = offset
+        return ExportError(path, "a location with enough free space",
+                           f"disk full (or file size limit) after {written:,} bytes; the partial output {part.name} "
+                           "is kept for resuming (rerun the same command after freeing space, or delete it)")
+    return ExportError(path, "a writable location", f"{e.strerror or e}")
 
 
 def _extra(spec: LayoutSpec, hier: bool, dwl: bool, max_refs: int | None, leaves: list[int]) -> dict[str, Any]:
@@ -427,50 +627,45 @@ def _extra(spec: LayoutSpec, hier: bool, dwl: bool, max_refs: int | None, leaves
     return extra
 
 
-def _export_tiled(spec: LayoutSpec, path: Path, fmt: str, key: str, *, flat: bool, compress: int,
-                  max_refs: int | None, dwl: bool, resume: bool, scheduler: str, progress: bool, direct: bool,
-                  tiles_dir: str | os.PathLike | None, stop_after: int | None) -> ExportResult:
+def _export_tiled(spec: LayoutSpec, path: Path, fmt: str, key: str, o: ExportOptions) -> ExportResult:
     """:func:`export_layout` on a Dask cluster: tiles written by the workers, stitched here in band order."""
     from metafovea.parallel import get_executor
 
-    with get_executor(scheduler=scheduler) as ex:  # a bad --scheduler is refused before anything is made
-        return _tiled(spec, path, fmt, key, flat=flat, compress=compress, max_refs=max_refs, dwl=dwl, resume=resume,
-                      executor=ex, progress=progress, direct=direct, tiles_dir=tiles_dir, stop_after=stop_after)
+    with get_executor(scheduler=o.scheduler) as ex:  # a bad scheduler is refused before anything is made
+        return _tiled(spec, path, fmt, key, o, ex)
 
 
-def _tiled(spec: LayoutSpec, path: Path, fmt: str, key: str, *, flat: bool, compress: int, max_refs: int | None,
-           dwl: bool, resume: bool, executor: Any, progress: bool, direct: bool,
-           tiles_dir: str | os.PathLike | None, stop_after: int | None) -> ExportResult:
+def _tiled(spec: LayoutSpec, path: Path, fmt: str, key: str, o: ExportOptions, executor: Any) -> ExportResult:
     """:func:`_export_tiled` on the open cluster ``executor``."""
     bands = spec.tasks()
-    hier = max_refs is not None or dwl
-    td = TileDir(Path(tiles_dir) if tiles_dir is not None else default_tiles_dir(path), key, len(bands))
+    hier = o.max_refs is not None or o.dwl
+    td = TileDir(Path(o.tiles_dir) if o.tiles_dir is not None else default_tiles_dir(path), key, len(bands))
     t0 = time.perf_counter()
-    date, done = td.open(resume, spec.date)
+    date, done = td.open(o.resume, spec.date)
     if date != spec.date:  # a resumed export keeps the date its tiles were started with
         spec = replace(spec, date=date)
-    header, footer, top_open, frame_el, enc = _encoder(spec, fmt, flat, compress, max_refs, dwl)
+    header, footer, top_open, frame_el, enc = _encoder(spec, fmt, o.flat, o.compress, o.max_refs, o.dwl)
     todo = [(i, b) for i, b in enumerate(bands) if i not in done]
-    if stop_after is not None:
-        todo = todo[:stop_after]
+    if o.stop_after is not None:
+        todo = todo[:o.stop_after]
     try:
-        td.run(enc, todo, executor, progress, f"export {path.name}")
+        td.run(enc, todo, executor, o.progress, f"export {path.name}")
     except OSError as e:  # raised by a worker writing its tile
-        raise InputError("--tiles-dir", str(td.d), "a writable directory with free space, shared by the client and "
+        raise InputError("tiles_dir", str(td.d), "a writable directory with free space, shared by the client and "
                          "every worker", detail=f"a worker could not write its tile: {e.strerror or e}") from None
     if len(done) + len(todo) < len(bands):
-        raise KeyboardInterrupt("stopped after %d bands (test)" % len(todo))
+        raise KeyboardInterrupt(f"stopped after {len(todo)} bands (test)")
     part, jpath = part_paths(path)
     fh = None
     try:
-        fh = DirectFile(part, direct=direct)
+        fh = DirectFile(part, direct=o.direct)
         fh.write(header)
         counts, metas = td.stitch(fh.write)
         leaves = [int(m) for m in metas] if hier else []
         if hier:
             names = [gds.leaf_name(t, i) for t, n in enumerate(leaves) for i in range(n)]
             footer = (gds.hierarchy_footer(spec, top_open, frame_el, names, DWL_LIMIT, frame_max=len(frame_el))
-                      if dwl else gds.hierarchy_footer(spec, top_open, frame_el, names, max_refs))
+                      if o.dwl else gds.hierarchy_footer(spec, top_open, frame_el, names, o.max_refs))
         fh.write(footer)
         fh.sync()
         fh.close()
@@ -482,12 +677,12 @@ def _tiled(spec: LayoutSpec, path: Path, fmt: str, key: str, *, flat: bool, comp
         if fh is not None:
             with contextlib.suppress(OSError):
                 fh.close()
-    td.clean(remove_dir=tiles_dir is None)
+    td.clean(remove_dir=o.tiles_dir is None)
     if counts.size == 0:
         counts = np.zeros(spec.levels, dtype=np.int64)
-    return ExportResult(path, fmt, flat, int(counts.sum()), counts.tolist(), path.stat().st_size,
+    return ExportResult(path, fmt, o.flat, int(counts.sum()), counts.tolist(), path.stat().st_size,
                         time.perf_counter() - t0, len(bands), len(done),
-                        {**_extra(spec, hier, dwl, max_refs, leaves), "tiles_dir": str(td.d)})
+                        {**_extra(spec, hier, o.dwl, o.max_refs, leaves), "tiles_dir": str(td.d)})
 
 
 # ----------------------------------------------------------------------------------------------
@@ -508,7 +703,7 @@ class TestArraySpec:
     __test__ = False  # not a pytest class
 
     def __post_init__(self) -> None:
-        object.__setattr__(self, "block", check_int("--block", self.block, 1, 4096))
+        object.__setattr__(self, "block", check_int("block", self.block, 1, 4096))
 
     @property
     def columns(self) -> int:
@@ -549,11 +744,11 @@ def export_test_array(ta: TestArraySpec, path: str | os.PathLike, fmt: str = "gd
 
     from metafovea.io import atomic_open
 
-    fmt = check_choice("--format", fmt, FORMATS)
+    fmt = check_choice("fmt", fmt, FORMATS)
     if flat and fmt != "gds":
-        raise InputError("--flat", True, "only with --format gds")
+        raise InputError("flat", True, "only with fmt='gds'")
     path = Path(path)
-    prepare_output(path, force)
+    prepare_output(path, force, name="path")
     t0 = time.perf_counter()
     s = ta.spec
     lib = gdstk.Library(name="CALIBRATION", unit=1e-6, precision=1e-9)
@@ -616,47 +811,39 @@ def output_path(spec: LayoutSpec, fmt: str, out: str | os.PathLike | None = None
         return path.with_name(path.name + "." + fmt)
     if path.suffix.lower() not in SUFFIXES[fmt]:
         # a .oas name with GDSII inside (or the reverse) would mislead every tool that trusts the suffix
-        raise InputError("--out", str(path), f"a file name ending in {' or '.join(SUFFIXES[fmt])} for --format {fmt} "
+        raise InputError("out", str(path), f"a file name ending in {' or '.join(SUFFIXES[fmt])} for fmt={fmt!r} "
                          "(or no suffix: it is added)")
     return path
 
 
-def export_file(spec: LayoutSpec, out: str | os.PathLike | None = None, fmt: str = "gds", *,
-                test_array: TestArraySpec | None = None, flat: bool = False, max_refs: int | None = None,
-                dwl: bool = False,
-                substrate_thickness_um: float | None = None, force: bool = False, resume: bool = True,
-                workers: int | None = None, scheduler: str | None = None, progress: bool = False,
-                compress: int = 1, tiles_dir: str | os.PathLike | None = None) -> dict[str, Any]:
+def export_file(spec: LayoutSpec, out: str | os.PathLike | None = None, fmt: str = "gds",
+                options: ExportOptions | None = None, *, test_array: TestArraySpec | None = None,
+                substrate_thickness_um: float | None = None) -> dict[str, Any]:
     """Write one file as ``metafovea export`` does: the lens (or patch) layout (:func:`export_layout`), the
     calibration array ``test_array`` (:func:`export_test_array`) or a patch mesh
     (:func:`~metafovea.layout.mesh.export_mesh`), chosen by ``fmt`` (one of :data:`SUFFIXES`, any case), at
-    :func:`output_path`. ``workers`` (lens layouts): encoder threads, default 2 (at most the CPU count).
-    ``scheduler`` / ``tiles_dir`` (lens layouts): a Dask cluster whose workers write tiles into ``tiles_dir``
-    (a shared file system), stitched here (:func:`export_layout`).
-    Returns the writer's result as a dict (layouts: :meth:`ExportResult.as_dict`)."""
+    :func:`output_path`. ``options``: :class:`ExportOptions` (the calibration array and the mesh use ``flat`` and
+    ``force``; a lens layout all of them). Returns the writer's result as a dict (layouts:
+    :meth:`ExportResult.as_dict`)."""
+    o = options or ExportOptions()
     fmt_given, fmt = fmt, str(fmt).lower()
     if fmt not in SUFFIXES:
-        raise InputError("--format", fmt_given, "one of 'gds', 'oas', 'stl', 'glb'")
-    if dwl and (fmt != "gds" or test_array is not None or max_refs is not None):
-        raise InputError("--dwl", True, "only with --format gds for a lens (not --test-array, not --max-refs)")
-    path = output_path(spec, fmt, out, test_array=test_array is not None, flat=flat, max_refs=max_refs, dwl=dwl)
-    if max_refs is not None and (fmt != "gds" or test_array is not None):
-        raise InputError("--max-refs", max_refs, "only with --format gds for a lens (not --test-array)")
+        raise InputError("fmt", fmt_given, "one of 'gds', 'oas', 'stl', 'glb'")
+    if o.dwl and (fmt != "gds" or test_array is not None):
+        raise InputError("dwl", True, "only with fmt='gds' for a lens (not test_array=..., not max_refs=...)")
+    path = output_path(spec, fmt, out, test_array=test_array is not None, flat=o.flat, max_refs=o.max_refs,
+                       dwl=o.dwl)
+    if o.max_refs is not None and (fmt != "gds" or test_array is not None):
+        raise InputError("max_refs", o.max_refs, "only with fmt='gds' for a lens (not test_array=...)")
     if fmt in MESH_FORMATS:
-        if flat or test_array is not None:
-            raise InputError("--format", fmt, "gds or oas with --flat/--test-array")
-        return export_mesh(spec, path, fmt, force=force, substrate_thickness_um=substrate_thickness_um)
+        if o.flat or test_array is not None:
+            raise InputError("fmt", fmt, "gds or oas with flat=True or test_array=...")
+        return export_mesh(spec, path, fmt, force=o.force, substrate_thickness_um=substrate_thickness_um)
     if test_array is not None:
-        return _with_posts(export_test_array(test_array, path, fmt, flat=flat, force=force).as_dict(), spec)
-    if not 0 <= compress <= 9:
-        raise InputError("--compress", compress, "an integer 0..9")
-    if workers is not None and workers < 1:
-        raise InputError("--workers", workers, "an integer >= 1")
-    workers = workers if workers is not None else max(1, min(2, os.cpu_count() or 1))
-    return _with_posts(export_layout(spec, path, fmt, flat=flat, force=force, resume=resume, workers=workers,
-                                     scheduler=scheduler, progress=progress, compress=compress,
-                                     max_refs=max_refs, dwl=dwl, tiles_dir=tiles_dir).as_dict(), spec)
+        return _with_posts(export_test_array(test_array, path, fmt, flat=o.flat, force=o.force).as_dict(), spec)
+    return _with_posts(export_layout(spec, path, fmt, o).as_dict(), spec)
 
 
-__all__ = ["DEFAULT_DIR", "ExportError", "ExportResult", "FORMATS", "SUFFIXES", "TestArraySpec", "export_file",
-           "export_layout", "export_test_array", "output_path", "part_paths"]
+__all__ = ["DEFAULT_DIR", "ExportError", "ExportOptions", "ExportResult", "FORMATS", "SIZE_NOTICE_BYTES", "SUFFIXES",
+           "TestArraySpec", "default_workers", "estimated_bytes", "export_file", "export_layout", "export_test_array",
+           "free_bytes", "output_path", "part_paths", "size_notice"]

@@ -10,8 +10,8 @@ layer      exposure     content
 1/0        1            posts (polygons = silicon kept)
 2/0        2            aluminium aperture ring (polygons = aluminium kept)
 3/0        1            alignment crosses at the four compass points, the verniers' main scales
-4/0        2            the matching exposure-2 marks (four squares in the quadrants of each cross, ``mark_clearance_um``
-                        from its arms) and the verniers' second scales
+4/0        2            the matching exposure-2 marks (four squares in the quadrants of each cross,
+                        ``mark_clearance_um`` from its arms) and the verniers' second scales
 5/0        1            die frame: the dicing outline (a square scribe lane, or a circle when the square does not fit
                         the wafer)
 6/0        1            printed label (polygon text: lens, post set, date, content hash)
@@ -40,6 +40,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from metafovea.errors import InputError
+from metafovea.layout.bbox import union_bbox
 from metafovea.units import NM_PER_UM
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -70,7 +71,7 @@ def layout_date(date: str | None = None) -> str:
         try:
             return datetime.date.fromisoformat(str(date)).isoformat()
         except ValueError:
-            raise InputError("--date", date, "a date YYYY-MM-DD") from None
+            raise InputError("date", date, "a date YYYY-MM-DD") from None
     epoch = os.environ.get("SOURCE_DATE_EPOCH")
     if epoch:
         try:
@@ -306,8 +307,6 @@ def frame_shapes(spec: LayoutSpec) -> list[Shape]:
 
 def expected_frame(spec: LayoutSpec) -> dict[tuple[int, int], tuple[int, tuple[int, int, int, int]]]:
     """Per frame layer: (polygons, bounding box in nm) as an independent reader should find them."""
-    from metafovea.layout.read.base import union_bbox
-
     out: dict[tuple[int, int], list[Any]] = {}
     for s in frame_shapes(spec):
         x0, y0 = s.points.min(0).tolist()

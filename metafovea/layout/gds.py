@@ -19,7 +19,7 @@ import tempfile
 import numpy as np
 
 from metafovea.layout.frame import frame_shapes
-from metafovea.layout.tiling import LayoutSpec, band_levels, task_levels, task_rows, used_levels
+from metafovea.layout.tiling import LayoutSpec, task_levels, task_rows, used_levels, window_levels
 from metafovea.units import NM_PER_UM
 
 ENDSTR_ENDLIB = bytes.fromhex("00040700") + bytes.fromhex("00040400")
@@ -110,13 +110,8 @@ def band_index(spec: LayoutSpec, band: tuple[int, int, int, int]):
     """Posts of one band restricted to the window, row-major: ``(k, r, c, xs, ys)`` with post type
     ``k`` (uint8), row/column indices into the band and the site positions ``xs`` (per column) and
     ``ys`` (per row) in nm (int64)."""
-    iy0, rows, ix0, cols = band
-    lev = band_levels(spec.design, iy0, rows, ix0, cols, spec.levels)
-    _, _, ix_lo, ix_hi = spec.window()
-    if ix0 < ix_lo or ix0 + cols - 1 > ix_hi:
-        a, b = max(ix0, ix_lo), min(ix0 + cols - 1, ix_hi)
-        lev = np.ascontiguousarray(lev[:, a - ix0:b - ix0 + 1])
-        ix0 = a
+    iy0, rows = band[:2]
+    lev, ix0 = window_levels(spec, band)
     ncol = lev.shape[1]
     flat = lev.reshape(-1)
     fi = np.flatnonzero(flat >= 0)
@@ -208,6 +203,73 @@ def encode_task_records(spec: LayoutSpec, flat: bool, task) -> tuple[list[np.nda
         xy[:, 1], xy[:, 3], xy[:, 5], xy[:, 7], xy[:, 9] = y0, y0, y1, y1, y0
         out.append(rec.view(np.uint8).reshape(-1))
     return out, counts
+
+
+def encode_task_into(spec: LayoutSpec, flat: bool, task, out: np.ndarray) -> np.ndarray:
+    """:func:`encode_task_records`' bytes written into ``out`` (uint8, exactly their size:
+    :func:`~metafovea.layout.tiling.task_post_counts` times the record size) instead of new arrays, so that an
+    aligned buffer can go to the disk as it is; returns the posts per type.
+
+    Row by row (a row's records, ~0.5 MB, stay in the cache while both its sides are written: the mirrored side is
+    a copy of the first with another y): the sites inside the aperture and the window are one run of columns per
+    row, so a row's posts are a slice of the levels and of the column positions, with no index arrays."""
+    lev, ix0 = task_levels(spec, task)
+    sides = task_rows(spec, task)
+    size = BOUNDARY_BYTES if flat else SREF_BYTES
+    valid = lev >= 0
+    a = np.argmax(valid, axis=1)
+    n = np.where(valid.any(axis=1), lev.shape[1] - np.argmax(valid[:, ::-1], axis=1) - a, 0)
+    if int(n.sum()) != int(np.count_nonzero(valid)):
+        raise RuntimeError(f"task {task}: the posts of a row are not one run of columns")
+    starts, pos = [], 0  # per side: the byte offset of each row's records
+    for _, mask, ys in sides:
+        nr = np.where(mask, n, 0) * size
+        starts.append((mask, ys, pos + np.cumsum(nr) - nr))
+        pos += int(nr.sum())
+    if pos != out.size:
+        raise RuntimeError(f"task {task}: {pos} bytes of posts, expected {out.size}")
+    xs = spec.site_x_nm(np.arange(ix0, ix0 + lev.shape[1]))
+    if not flat:
+        head = np.array([_SREF, _SNAME4, 0, _XY1, 0, 0, _ENDEL], dtype=">u4")
+        names = _name_words(spec).astype(">u4")
+        xw = xs.astype(">i4").view(">u4")
+    else:
+        hw = spec.post_sizes_nm[:, 0] // 2
+        hh = spec.post_sizes_nm[:, 1] // 2
+    counts = np.zeros(spec.levels, dtype=np.int64)
+    for r in np.flatnonzero(n).tolist():
+        ar, br = int(a[r]), int(a[r] + n[r])
+        k = lev[r, ar:br]
+        first = None
+        for mask, ys, st in starts:
+            if not mask[r]:
+                continue
+            seg = out[st[r]:st[r] + (br - ar) * size]
+            rec = seg.view(">u4").reshape(-1, 7) if not flat else seg.view(_BOUNDARY_DTYPE)
+            if first is not None:
+                rec[:] = first
+            elif not flat:
+                rec[:] = head
+                rec[:, 2] = names[k]
+                rec[:, 4] = xw[ar:br]
+            else:
+                for name, v in (("h", _BOUNDARY), ("lh", _LAYER), ("layer", spec.layers.posts[0]),
+                                ("dh", _DATATYPE), ("dt", spec.layers.posts[1]), ("xyh", _XY5), ("end", _ENDEL)):
+                    rec[name] = v
+                x, hx = xs[ar:br], hw[k]
+                x0, x1 = x - hx, x + hx
+                xy = rec["xy"]
+                xy[:, 0], xy[:, 2], xy[:, 4], xy[:, 6], xy[:, 8] = x0, x1, x1, x0, x0
+            if not flat:
+                rec[:, 5] = ys[r:r + 1].astype(">i4").view(">u4")
+            else:
+                hy = hh[k]
+                y0, y1 = ys[r] - hy, ys[r] + hy
+                xy = rec["xy"]
+                xy[:, 1], xy[:, 3], xy[:, 5], xy[:, 7], xy[:, 9] = y0, y0, y1, y1, y0
+            first = rec
+            counts += np.bincount(k, minlength=spec.levels)
+    return counts
 
 
 # ----------------------------------------------------------------------------------------------

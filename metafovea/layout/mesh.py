@@ -41,14 +41,14 @@ def boxes_mesh(lo: np.ndarray, hi: np.ndarray):
 def patch_mesh(spec: LayoutSpec, substrate_thickness_um: float | None = None):
     """Posts of ``spec``'s patch on a substrate slab, as one :class:`trimesh.Trimesh` (um)."""
     if spec.patch_um is None:
-        raise InputError("--patch", None, "a patch X,Y,W (mm) for a mesh export (a whole lens is too large)")
+        raise InputError("patch_mm", None, "a patch X,Y,W (mm) for a mesh export (a whole lens is too large)")
     ks, xs, ys = [], [], []
     for band in spec.bands():
         k, x, y = band_sites(spec, band)
         ks.append(k), xs.append(x), ys.append(y)
     k = np.concatenate(ks)
     if k.size > MAX_POSTS:
-        raise InputError("--patch", spec.patch_um, f"a patch with at most {MAX_POSTS:,} posts for a mesh "
+        raise InputError("patch_mm", spec.patch_um, f"a patch with at most {MAX_POSTS:,} posts for a mesh "
                          f"(this one has {k.size:,})")
     c = spec.centre_nm
     x = (np.concatenate(xs) - c) / 1000.0
@@ -57,7 +57,7 @@ def patch_mesh(spec: LayoutSpec, substrate_thickness_um: float | None = None):
     h = spec.design.post_height_um
     lo = np.stack([x - sz[:, 0] / 2, y - sz[:, 1] / 2, np.zeros_like(x)], 1)
     hi = np.stack([x + sz[:, 0] / 2, y + sz[:, 1] / 2, np.full_like(x, h)], 1)
-    t = h if substrate_thickness_um is None else check_range("--substrate-um", substrate_thickness_um, 0.0, 1e5,
+    t = h if substrate_thickness_um is None else check_range("substrate_thickness_um", substrate_thickness_um, 0.0, 1e5,
                                                              unit="um", lo_inclusive=True)
     if t > 0:
         p = spec.design.period_um
@@ -72,17 +72,17 @@ def export_mesh(spec: LayoutSpec, path: str | os.PathLike, fmt: str | None = Non
                 substrate_thickness_um: float | None = None) -> dict[str, Any]:
     """Write the patch mesh as binary STL or GLB (atomically)."""
     path = Path(path)
-    fmt = check_choice("--format", fmt or path.suffix.lstrip("."), MESH_FORMATS)
+    fmt = check_choice("fmt", fmt or path.suffix.lstrip("."), MESH_FORMATS)
     if substrate_thickness_um is not None:
-        substrate_thickness_um = check_range("--substrate-um", substrate_thickness_um, 0.0, 1e5, unit="um",
+        substrate_thickness_um = check_range("substrate_thickness_um", substrate_thickness_um, 0.0, 1e5, unit="um",
                                              lo_inclusive=True)
-    prepare_output(path, force)
+    prepare_output(path, force, name="path")
     m = patch_mesh(spec, substrate_thickness_um)
     data = m.export(file_type=fmt)
     try:
         atomic_write_bytes(path, data)
     except OSError as e:
-        raise InputError("--out", str(path), "a writable location with free space", detail=e.strerror) from None
+        raise InputError("path", str(path), "a writable location with free space", detail=e.strerror) from None
     t = spec.design.post_height_um if substrate_thickness_um is None else substrate_thickness_um
     return {"path": str(path), "format": fmt, "posts": int(len(m.faces) // 12 - (1 if t > 0 else 0)),
             "triangles": int(len(m.faces)), "bytes": len(data), "bounds_um": m.bounds.tolist()}

@@ -92,7 +92,7 @@ class TileDir:
         try:
             self.d.mkdir(parents=True, exist_ok=True)
         except OSError as e:
-            raise InputError("--tiles-dir", str(self.d), "a directory that can be created and written",
+            raise InputError("tiles_dir", str(self.d), "a directory that can be created and written",
                              detail=e.strerror or str(e)) from None
         m = _read_json(self.manifest) if resume else None
         if isinstance(m, dict) and m.get("key") == self.key and m.get("total") == self.total \
@@ -139,7 +139,7 @@ class TileDir:
             rec = self.record(i)
             if rec is None:
                 what = "its record" if b.is_file() else "its tile"
-                raise InputError("--tiles-dir", str(self.d), "a directory that the client and every worker share "
+                raise InputError("tiles_dir", str(self.d), "a directory that the client and every worker share "
                                  "(the workers write the tiles there, the client reads them)",
                                  detail=f"band {i}: {what} ({b.name if what == 'its tile' else r.name}) is missing or "
                                         "belongs to another export; rerun the command to write it again")
@@ -153,7 +153,7 @@ class TileDir:
             if n != rec["bytes"] or crc != rec["crc32"]:
                 with contextlib.suppress(OSError):
                     r.unlink()  # a rerun computes the band again
-                raise InputError("--tiles-dir", str(self.d), "tiles as the workers wrote them",
+                raise InputError("tiles_dir", str(self.d), "tiles as the workers wrote them",
                                  detail=f"band {i}: {b.name} is corrupt ({n:,} bytes, CRC-32 {crc:08x}; its record "
                                         f"says {rec['bytes']:,} bytes, {rec['crc32']:08x}); its record was removed, "
                                         "rerun the command to write it again")

@@ -329,9 +329,8 @@ def drc_line(d: dict[str, Any]) -> str:
     """One line of :func:`drc_summary` for the export and verify summaries."""
     r = d["rules"]
     return (f"DRC {'OK' if d['ok'] else 'VIOLATED'}: smallest side {d['min_side_um']:.3f} um "
-            f"(>= {r['min_feature_um']:g}), "
-            f"smallest gap {d['min_gap_um']:.3f} um (>= {r['min_gap_um']:g}), aspect ratio {d['max_aspect_ratio']:.1f} "
-            f"(<= {r['max_aspect_ratio']:g}), on a {d['grid_nm']} nm grid")
+            f"(>= {r['min_feature_um']:g}), smallest gap {d['min_gap_um']:.3f} um (>= {r['min_gap_um']:g}), "
+            f"aspect ratio {d['max_aspect_ratio']:.1f} (<= {r['max_aspect_ratio']:g}), on a {d['grid_nm']} nm grid")
 
 
 def make_spec(design: LensDesign, post_set: PostSet | str | None = "rcwa", levels: int | None = None, *,
@@ -343,7 +342,7 @@ def make_spec(design: LensDesign, post_set: PostSet | str | None = "rcwa", level
     lens' polarisation and levels, library computed once and cached: the posts a fab should write) or
     ``'ideal'`` (the idealised ramp of :meth:`PostSet.ideal`, not a physical design; the label says so). Posts
     that break the platform's fabrication rules (:meth:`PlatformDesign.fabrication_violations`) are refused."""
-    n = design.levels if levels is None else check_int("--levels", levels, 2, 256)
+    n = design.levels if levels is None else check_int("levels", levels, 2, 256)
     plat = lens_platform(design, platform)
     if post_set is None or isinstance(post_set, str):
         src = check_choice("posts", post_set or "rcwa", ("rcwa", "ideal"))
@@ -357,28 +356,27 @@ def make_spec(design: LensDesign, post_set: PostSet | str | None = "rcwa", level
     if post_set.source != "ideal":
         bad = plat.fabrication_violations(post_set.widths_um, post_set.height_um)
         if bad:
-            raise InputError("--post-set", f"{post_set.source} post set",
+            raise InputError("post_set", f"{post_set.source} post set",
                              f"posts that meet the platform's fabrication rules ({bad[0]}"
                              + (f"; {len(bad) - 1} more" if len(bad) > 1 else "") + ")")
     if post_set.levels != n:
-        raise InputError("--levels", n, f"the number of posts in the post set ({post_set.levels})")
+        raise InputError("levels", n, f"the number of posts in the post set ({post_set.levels})")
     if abs(post_set.period_um - design.period_um) > 1e-9:
-        raise InputError("--post-set", post_set.period_um, f"a post set for period {design.period_um:g} um")
-    grid_nm = check_int("--grid-nm", grid_nm, 1, 1000)
+        raise InputError("post_set", post_set.period_um, f"a post set for period {design.period_um:g} um")
+    grid_nm = check_int("grid_nm", grid_nm, 1, 1000)
     band_rows = check_int("band_rows", band_rows, 1, 1 << 16)
     patch = None
     if patch_mm is not None:
         if len(patch_mm) != 3:
-            raise InputError("--patch", patch_mm, "X,Y,W in mm (patch centre and width)")
+            raise InputError("patch_mm", patch_mm, "X,Y,W in mm (patch centre and width)")
         x, y, w = (float(v) for v in patch_mm)
         if not all(math.isfinite(v) for v in (x, y, w)) or w <= 0:
-            raise InputError("--patch", patch_mm, "finite X,Y and W > 0 (mm)")
+            raise InputError("patch_mm", patch_mm, "finite X,Y and W > 0 (mm)")
         patch = (x * 1000.0, y * 1000.0, w * 1000.0)
-    for name, flag, lo_incl in (("ring_width_um", "--ring-width-um", False), ("ring_gap_um", "ring_gap_um", True),
-                                ("mark_offset_um", "mark_offset_um", True), ("mark_size_um", "mark_size_um", False),
-                                ("mark_width_um", "mark_width_um", False)):
+    for name, lo_incl in (("ring_width_um", False), ("ring_gap_um", True), ("mark_offset_um", True),
+                          ("mark_size_um", False), ("mark_width_um", False)):
         if kw.get(name) is not None:
-            kw[name] = check_range(flag, kw[name], 0.0, MAX_COORD_NM / NM_PER_UM, unit="um", lo_inclusive=lo_incl)
+            kw[name] = check_range(name, kw[name], 0.0, MAX_COORD_NM / NM_PER_UM, unit="um", lo_inclusive=lo_incl)
     for name in ("wafer_diameter_mm", "wafer_flat_mm", "wafer_edge_exclusion_mm", "write_bias_um", "posts_resist_tone",
                  "ring_resist_tone"):
         if kw.get(name) is None:
@@ -388,7 +386,7 @@ def make_spec(design: LensDesign, post_set: PostSet | str | None = "rcwa", level
         kw["date"] = layout_date()
     spec = LayoutSpec(design, post_set, n, grid_nm=grid_nm, patch_um=patch, band_rows=band_rows, **kw)
     if 2 * spec.centre_nm > MAX_COORD_NM:
-        raise InputError("--ring-width-um" if "ring_width_um" in kw else "diameter_mm",
+        raise InputError("ring_width_um" if "ring_width_um" in kw else "diameter_mm",
                          kw.get("ring_width_um", design.diameter_mm),
                          f"a layout frame (lens diameter + 2 x (ring gap + ring width + marks) = "
                          f"{2 * spec.frame_half_um / 1000:.6g} mm) of at most {MAX_COORD_NM / 1e6:.6g} mm: "
@@ -397,17 +395,17 @@ def make_spec(design: LensDesign, post_set: PostSet | str | None = "rcwa", level
         from metafovea.layout.frame import frame_shapes
         frame_shapes(spec)  # the die must fit the wafer: an InputError naming wafer_diameter_mm if not
     if np.any(spec.post_sizes_nm >= spec.design.period_um * NM_PER_UM):
-        raise InputError("--grid-nm", grid_nm, "a grid on which the post widths stay below the period")
+        raise InputError("grid_nm", grid_nm, "a grid on which the post widths stay below the period")
     if patch is not None and not spec.bands():
         x, y, w = patch
         R = design.radius_um
         # nearest point of the square to the lens centre: inside the aperture means it only misses the sites
         dx, dy = max(abs(x) - w / 2, 0.0), max(abs(y) - w / 2, 0.0)
         if math.hypot(dx, dy) < R:
-            raise InputError("--patch", patch_mm, f"a square holding at least one of the lens' lattice sites "
+            raise InputError("patch_mm", patch_mm, f"a square holding at least one of the lens' lattice sites "
                              f"(sites every {design.period_um:g} um, {design.lattice} lattice; this one holds none: "
                              "widen or move it)")
-        raise InputError("--patch", patch_mm, f"a square that overlaps the lens aperture (radius "
+        raise InputError("patch_mm", patch_mm, f"a square that overlaps the lens aperture (radius "
                          f"{R / 1000:g} mm around 0,0)")
     return spec
 
@@ -422,16 +420,16 @@ def load_spec(design: str | os.PathLike | LensDesign, post_set: str | os.PathLik
     d = design if isinstance(design, LensDesign) else load_design(design)
     if not isinstance(d, LensDesign):
         raise InputError("design", design, "a lens design file (with f_mm, diameter_mm, ...)")
-    ps: Any = check_choice("--posts", posts, ("rcwa", "ideal"))
+    ps: Any = check_choice("posts", posts, ("rcwa", "ideal"))
     if post_set:
         if isinstance(post_set, PostSet):
             ps = post_set
         else:
-            ps = PostSet.load(post_set, name="--post-set")
+            ps = PostSet.load(post_set, name="post_set")
         if levels is not None and levels != ps.levels:
-            raise InputError("--levels", levels, f"the number of posts in {post_set} ({ps.levels})")
+            raise InputError("levels", levels, f"the number of posts in {post_set} ({ps.levels})")
         if ps.polarization != d.polarization:
-            raise InputError("--post-set", post_set, f"a post set for polarisation {d.polarization!r}")
+            raise InputError("post_set", post_set, f"a post set for polarisation {d.polarization!r}")
     if levels is None and isinstance(ps, PostSet):
         levels = ps.levels
     return make_spec(d, ps, levels, **kw)
@@ -494,6 +492,26 @@ class Expected:
         return int(self.counts.sum())
 
 
+def post_count(spec: LayoutSpec) -> int:
+    """Posts the layout of ``spec`` holds: the lattice sites inside the aperture and the window (exact, from the
+    rows' site ranges: no level is computed)."""
+    iy_lo, iy_hi, ix_lo, ix_hi = spec.window()
+    if iy_lo > iy_hi or ix_lo > ix_hi:
+        return 0
+    lo, hi = row_half_counts(spec.design, np.arange(iy_lo, iy_hi + 1))
+    return int(np.maximum(np.minimum(hi, ix_hi) - np.maximum(lo, ix_lo) + 1, 0).sum())
+
+
+def task_post_counts(spec: LayoutSpec, task: tuple[int, int, int, int, int]) -> list[int]:
+    """Posts of each row side of ``task`` (in :func:`task_rows`' order), from the rows' site ranges alone: what an
+    encoder writes for it, known before its levels are computed."""
+    _, j0, rows, _, _ = task
+    _, _, ix_lo, ix_hi = spec.window()
+    lo, hi = row_half_counts(spec.design, np.arange(j0, j0 + rows))
+    n = np.maximum(np.minimum(hi, ix_hi) - np.maximum(lo, ix_lo) + 1, 0)
+    return [int(n[mask].sum()) for _, mask, _ in task_rows(spec, task)]
+
+
 def task_rows(spec: LayoutSpec, task: tuple[int, int, int, int, int]) -> list[tuple[np.ndarray, np.ndarray]]:
     """For each row side (+1, then -1): ``(side, mask, ys)``, the task's local rows written on that side
     (bool per row) and their site y positions (nm, int64). Sides with no row are left out."""
@@ -509,17 +527,23 @@ def task_rows(spec: LayoutSpec, task: tuple[int, int, int, int, int]) -> list[tu
     return out
 
 
-def task_levels(spec: LayoutSpec, task: tuple[int, int, int, int, int]) -> tuple[np.ndarray, int]:
-    """Levels of the task's rows ``j0 ..`` (int16, EMPTY outside the aperture) on the window's columns,
-    and the first column index."""
-    _, j0, rows, ix0, cols = task
-    lev = band_levels(spec.design, j0, rows, ix0, cols, spec.levels)
+def window_levels(spec: LayoutSpec, band: tuple[int, int, int, int]) -> tuple[np.ndarray, int]:
+    """Levels of the band ``(iy0, rows, ix0, cols)`` (int16, EMPTY outside the aperture) on the columns inside the
+    window (:meth:`LayoutSpec.window`: a patch clips them), and the first column index."""
+    iy0, rows, ix0, cols = band
+    lev = band_levels(spec.design, iy0, rows, ix0, cols, spec.levels)
     _, _, ix_lo, ix_hi = spec.window()
     if ix0 < ix_lo or ix0 + cols - 1 > ix_hi:
         a, b = max(ix0, ix_lo), min(ix0 + cols - 1, ix_hi)
         lev = np.ascontiguousarray(lev[:, a - ix0:b - ix0 + 1])
         ix0 = a
     return lev, ix0
+
+
+def task_levels(spec: LayoutSpec, task: tuple[int, int, int, int, int]) -> tuple[np.ndarray, int]:
+    """Levels of the task's rows ``j0 ..`` on the window's columns, and the first column index
+    (:func:`window_levels` of the task's band)."""
+    return window_levels(spec, task[1:])
 
 
 def _task_summary(spec: LayoutSpec, task: tuple[int, int, int, int, int]) -> tuple[np.ndarray, list[int]]:
@@ -589,4 +613,5 @@ def has_frame(spec: LayoutSpec) -> bool:
 
 
 __all__ = ["DBU_UM", "EMPTY", "Expected", "Layers", "LayoutSpec", "MAX_COORD_NM", "band_levels", "expected_content",
-           "has_frame", "load_spec", "make_spec", "task_levels", "task_rows", "used_levels"]
+           "has_frame", "load_spec", "make_spec", "post_count", "task_levels", "task_post_counts", "task_rows",
+           "used_levels", "window_levels"]

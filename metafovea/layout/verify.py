@@ -302,7 +302,7 @@ def label_spec(path: Path, spec: LayoutSpec) -> tuple[LayoutSpec, list[str]]:
         spec = replace(spec, patch_um=lab["patch_um"])
     elif spec.patch_um is not None and (lab["patch_um"] is None
                                         or not np.allclose(lab["patch_um"], spec.patch_um, rtol=0, atol=1e-3)):
-        mm.append(f"the label's patch {lab['patch_um']} um, expected {spec.patch_um} um (--patch)")
+        mm.append(f"the label's patch {lab['patch_um']} um, expected {spec.patch_um} um (patch_mm=...)")
     if lab["hash"] != content_hash(spec):
         mm.append(f"the label's content hash {lab['hash']}, the design gives {content_hash(spec)} (another design, "
                   "post set, frame or write bias)")
@@ -310,24 +310,25 @@ def label_spec(path: Path, spec: LayoutSpec) -> tuple[LayoutSpec, list[str]]:
 
 
 def verify_layout(path: str | os.PathLike, spec: LayoutSpec, *, reader: str = "auto", test_array: Any = None,
-                  workers: int | None = 1, progress: bool = False, expected: Expected | None = None,
-                  max_refs: int | None = None, dwl: bool = False) -> VerifyReport:
+                  workers: int | None = 1, scheduler: str | None = None, progress: bool = False,
+                  expected: Expected | None = None, max_refs: int | None = None, dwl: bool = False) -> VerifyReport:
     """Read ``path`` back and compare it with ``spec`` (or with the calibration array ``test_array``, a
     :class:`~metafovea.layout.export.TestArraySpec`).
 
     Hierarchical files are counted through the hierarchy (cells not named like post cells are
     expanded); ``max_refs``: also a mismatch when a structure holds more elements than that; ``dwl``: also a
     mismatch beyond the Heidelberg DWL 66 limits (structure definitions, references per structure);
-    ``workers``: processes for the expected counts. The file's text label gives the date (shown by the printed
-    label) and, when ``spec`` has none, the patch; its content hash must be the design's."""
+    ``workers`` / ``scheduler`` (a Dask scheduler address, or ``local:N``): processes for the expected counts.
+    The file's text label gives the date (shown by the printed label) and, when ``spec`` has none, the patch; its
+    content hash must be the design's."""
     if workers is not None and workers < 1:
-        raise InputError("--workers", workers, "an integer >= 1")
+        raise InputError("workers", workers, "an integer >= 1")
     if max_refs is not None and max_refs < 1:
-        raise InputError("--max-refs", max_refs, "an integer >= 1")
+        raise InputError("max_refs", max_refs, "an integer >= 1")
     path = Path(path)
     if not path.is_file():
         raise InputError("FILE", str(path), "an existing GDSII or OASIS file")
-    reader = check_choice("--reader", reader, READERS)
+    reader = check_choice("reader", reader, READERS)
     fmt = sniff_format(path)
     size = path.stat().st_size
     reader = choose_reader(reader, fmt, size)
@@ -340,7 +341,7 @@ def verify_layout(path: str | os.PathLike, spec: LayoutSpec, *, reader: str = "a
         exp = test_array.expected()
         lat = None
     else:
-        exp = expected or expected_content(spec, workers=workers, progress=progress)
+        exp = expected or expected_content(spec, workers=workers, scheduler=scheduler, progress=progress)
     t_exp = time.perf_counter() - t0
     t0 = time.perf_counter()
     names = spec.post_names
@@ -373,8 +374,8 @@ def verify_layout(path: str | os.PathLike, spec: LayoutSpec, *, reader: str = "a
     if not drc["ok"]:
         mm.append(drc_line(drc))
     if max_refs is not None and ob.max_refs > max_refs:
-        mm.append(f"a structure holds {ob.max_refs:,} elements (references and shapes), more than --max-refs "
-                  f"{max_refs}")
+        mm.append(f"a structure holds {ob.max_refs:,} elements (references and shapes), more than "
+                  f"max_refs={max_refs}")
     if dwl:
         from metafovea.layout.export import DWL_LIMIT
         if ob.structures > DWL_LIMIT:

@@ -104,8 +104,8 @@ class PlatformSweep:
                          "not a zero-order library)" if wl <= plat.period_um * plat.n_superstrate else "")
             raise InputError("levels", self.levels,
                              f"at most the {n_ok} of {lib.wx_um.size} x {lib.wy_um.size} posts converged at {wl:g} um "
-                             "(convergence estimate <= 0.05): use more --harmonics, a finer --grid-step-um or fewer "
-                             f"--levels{diffracts}")
+                             "(convergence estimate <= 0.05): use more harmonics=..., a finer grid_step_um=... or "
+                             f"fewer levels=...{diffracts}")
         return {pol: select_posts(lib, pol, self.levels, wavelength_um=wl, platform=self.platform,
                                   bias_weight=self.bias_weight) for pol in POLARIZATIONS}
 

@@ -90,7 +90,7 @@ class LibraryReport:
         if bd:
             lines.append(f"truncation-error bound 3 max(|t(M) - t(M-2)|, |t(M) - t(M-4)|): max {bd['max']:.3g}, "
                          f"median {bd['median']:.3g}"
-                         + (f", {100 * bd['above_tol']:.0f} % of the posts above --tol {bd['tol']:g}"
+                         + (f", {100 * bd['above_tol']:.0f} % of the posts above tol={bd['tol']:g}"
                             if bd.get("above_tol") is not None else "")
                          + "; chosen posts: " + ", ".join(f"{pol} up to {v:.3g}" for pol, v in bd["chosen"].items()))
         for pol, p in d["post_sets"].items():

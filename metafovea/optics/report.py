@@ -103,7 +103,7 @@ def psf_report(lens: LensDesign, out_dir: str | Path, *, fields_deg: list[float]
                            "optical_train": trains}
     if post_set is None:
         res["warnings"].append(f"{POSTS_NOTE_IDEAL} (the PSFs of a lens the platform's RCWA post set was not "
-                               "chosen for, or --posts ideal)")
+                               "chosen for, or posts=ideal)")
     note = defocus_note(lens, z)
     if note:
         res["warnings"].append(note)

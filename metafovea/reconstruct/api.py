@@ -212,7 +212,7 @@ def reconstruct_measurement(m: Measurement, method: str = "lsq", *, known_alpha:
     T = m.shape[0]
     fc = constraint if constraint is not None else m.foveal_constraint
     if method != "snapshot" and T < 2:
-        raise InputError("frames", f"{T} frame", "at least 2 frames (or --method snapshot for a single frame)",
+        raise InputError("frames", f"{T} frame", "at least 2 frames (or method='snapshot' for a single frame)",
                          source=m.source)
     window = (T if T < SHORT_SEQUENCE else DEFAULT_WINDOW) if window is None else window
     if method != "snapshot" and not 2 <= window <= T:
@@ -226,7 +226,7 @@ def reconstruct_measurement(m: Measurement, method: str = "lsq", *, known_alpha:
     elif kw.get("polarizer") == "none":
         kw["polarizer"] = None
     if "regularize" in kw and method != "lsq":
-        raise InputError("regularize", kw["regularize"], "only with method 'lsq' (--method lsq)")
+        raise InputError("regularize", kw["regularize"], "only with method='lsq'")
     if method == "dip":
         kw.setdefault("max_seconds", DIP_MAX_SECONDS)  # the whole run's, split over its windows
     cap = kw.get("max_seconds")
@@ -278,7 +278,7 @@ def _solve(m: Measurement, method: str, frames: np.ndarray, alpha: np.ndarray | 
         a = None if alpha is None else alpha[frame:frame + 1]
         if a is not None and not 0.0 < float(a[0]) < 1.0:
             raise InputError("alpha", f"{float(a[0]):g} (the file's, frame {frame})", "0 < alpha < 1: a snapshot needs "
-                             "both channels in its frame (this one holds only one; choose another --frame)",
+                             "both channels in its frame (this one holds only one; choose another frame=N)",
                              source=m.source)
         rec = _denoised(reconstruct(frames[frame][None], a, method="snapshot", **kw, **fpn_kw), denoise)
         spans = ((frame, frame + 1),)
@@ -367,8 +367,8 @@ def _file_alpha(m: Measurement, method: str, known_alpha: bool) -> np.ndarray | 
         return None
     if m.alpha is None:
         raise InputError("alpha", "absent", f"an 'alpha' array in the measurement for "
-                         f"{'--known-alpha' if known_alpha else '--method lsq'} (or --method alternating / "
-                         f"dip / snapshot for unknown alpha)", source=m.source)
+                         f"{'known_alpha=True' if known_alpha else 'method=lsq'} (or method=alternating, "
+                         f"method=dip or method=snapshot for unknown alpha)", source=m.source)
     return m.alpha
 
 

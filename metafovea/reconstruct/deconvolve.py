@@ -377,7 +377,7 @@ def deconvolve_measurement(m: Measurement, *, alpha: ArrayLike | None = None, fp
     a = m.alpha if alpha is None else alpha
     if a is None:
         raise InputError("alpha", None, "mixing ratios: the file's, or an unknown-alpha solver's estimate "
-                         "(reconstruct --method alternating first)", source=m.source)
+                         "(method=alternating first)", source=m.source)
     psfs = psfs or ChannelPSFs.from_measurement(m)
     offset = m.dark_dn
     frames = _frames_for(m, fpn)

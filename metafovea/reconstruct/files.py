@@ -20,7 +20,7 @@ if TYPE_CHECKING:
     from metafovea.reconstruct.deconvolve import Deconvolution
 
 
-def load_pattern(path: str | os.PathLike, name: str = "--fpn") -> np.ndarray:
+def load_pattern(path: str | os.PathLike, name: str = "fpn") -> np.ndarray:
     """A fixed pattern from a user's file.
 
     Parameters
@@ -103,9 +103,9 @@ def prepare_outputs(measurement: str | os.PathLike, out: str | os.PathLike | Non
     src = Path(measurement)
     path = Path(out) if out else src.with_name(src.stem + "_rec.npz")
     if path.suffix.lower() != ".npz":
-        raise InputError("--out", str(path), "a file name ending in .npz")
+        raise InputError("out", str(path), "a file name ending in .npz")
     if path.resolve() == src.resolve() or (path.exists() and src.exists() and os.path.samefile(path, src)):
-        raise InputError("--out", str(path), "a path other than the measurement itself (it would be overwritten)")
+        raise InputError("out", str(path), "a path other than the measurement itself (it would be overwritten)")
     path = prepare_output(path, force)
     pngs = figure_paths(path) if figures else []
     for name in pngs:

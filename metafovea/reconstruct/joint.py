@@ -129,7 +129,7 @@ class ChannelPSFs:
         ex = m.extras
         if "psf_x1" not in ex or "psf_x2" not in ex:
             raise InputError("measurement", m.source or "in memory", "a file with the channel PSFs 'psf_x1' and "
-                             "'psf_x2' (metafovea simulate writes them), or a PSF file (--psf)", source=m.source)
+                             "'psf_x2' (metafovea simulate writes them), or a PSF file (psf=PATH)", source=m.source)
         ill = tuple(ex.get(f"illumination_x{i}") for i in (1, 2))
         return cls((ex["psf_x1"], ex["psf_x2"]), m.psf_pedestals, ill, source=m.source or "measurement")
 

@@ -166,7 +166,7 @@ def solve_weights(alpha: np.ndarray, *, max_condition: float = MAX_CONDITION,
                 "alpha", [round(float(v), 4) for v in a],
                 f"mixing ratios that vary within the window (normal-matrix condition number <= {max_condition:g})",
                 detail=f"condition number {cond:.3g}: the channels cannot be separated without amplifying "
-                       f"noise; pass regularize='difference' (metafovea reconstruct --regularize difference) or a "
+                       f"noise; pass regularize='difference' or a "
                        f"longer window / faster polariser")
     elif isinstance(regularize, str):
         if regularize.lower() not in ("difference", "auto"):

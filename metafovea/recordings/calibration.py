@@ -64,7 +64,7 @@ class PlanckConstants:
                 raise InputError(f"Planck {k}", getattr(self, k), "a finite number")
 
     @classmethod
-    def parse(cls, text: str, name: str = "--planck") -> PlanckConstants:
+    def parse(cls, text: str, name: str = "planck") -> PlanckConstants:
         """``'R,B,F,O'`` (``R = R1 / R2``)."""
         parts = [p for p in re.split(r"[,\s]+", str(text).strip()) if p]
         if len(parts) != 4:
@@ -133,7 +133,7 @@ def temperature_range(planck: PlanckConstants, frames: np.ndarray) -> tuple[floa
     sample = sample[np.isfinite(sample)]
     t = planck.temperature(np.percentile(sample, [0.1, 99.9])) if sample.size else np.array([np.nan, np.nan])
     if not np.all(np.isfinite(t)):
-        raise InputError("--planck", f"R1={planck.R1:g}, B={planck.B:g}, F={planck.F:g}, O={planck.O:g}",
+        raise InputError("planck", f"R1={planck.R1:g}, B={planck.B:g}, F={planck.F:g}, O={planck.O:g}",
                          "constants under which the recording's counts are temperatures (counts + O > 0)")
     return max(150.0, float(t[0]) - 10.0), min(T_MAX_K - 1.0, float(t[1]) + 10.0)
 
@@ -149,7 +149,7 @@ def from_planck(planck: PlanckConstants, frames: np.ndarray, *, band_um: tuple[f
     A = np.stack([np.ones_like(L), L], axis=1)
     (dark, gain), *_ = np.linalg.lstsq(A, c, rcond=None)
     if not gain > 0:
-        raise InputError("--planck", f"B={planck.B:g}", "constants whose counts rise with temperature")
+        raise InputError("planck", f"B={planck.B:g}", "constants whose counts rise with temperature")
     err = band.temperature((c - dark) / gain) - t
     info = {"planck": {"R1": planck.R1, "R2": planck.R2, "B": planck.B, "F": planck.F, "O": planck.O,
                        "from": source, "curve": "counts = R1 / (R2 (exp(B / T) - F)) - O"},
@@ -157,7 +157,7 @@ def from_planck(planck: PlanckConstants, frames: np.ndarray, *, band_um: tuple[f
     return Radiometric(float(gain), float(dark), tuple(band_um), filter_um, "planck", info)
 
 
-def parse_two_point(spec: str, name: str = "--calibration") -> list[tuple[float, str]]:
+def parse_two_point(spec: str, name: str = "calibration") -> list[tuple[float, str]]:
     """``'two-point:T1=FILE1,T2=FILE2'`` (kelvin, an optional trailing K) -> ``[(T1, FILE1), (T2, FILE2)]``,
     colder first."""
     s = str(spec).strip()
@@ -185,7 +185,7 @@ def two_point(cold: np.ndarray, t_cold_k: float, hot: np.ndarray, t_hot_k: float
               band_um: tuple[float, float] = BAND_UM, filter_um: tuple[float, float] | None = None,
               spec: str = "") -> tuple[Radiometric, np.ndarray | None, np.ndarray | None, np.ndarray]:
     """``(model, per-pixel gain or None, per-pixel offset or None, bad pixels (H, W))`` from the mean frames of a
-    blackbody at ``t_cold_k`` and at ``t_hot_k`` (module docstring); an InputError naming ``--calibration`` when
+    blackbody at ``t_cold_k`` and at ``t_hot_k`` (module docstring); an InputError naming ``calibration`` when
     the hotter one does not give more counts."""
     band = BandRadiance.from_band(band_um, filter_um=filter_um)
     l1, l2 = (float(band(t)) for t in (t_cold_k, t_hot_k))
@@ -194,7 +194,7 @@ def two_point(cold: np.ndarray, t_cold_k: float, hot: np.ndarray, t_hot_k: float
     o = c1 - g * l1
     ok = np.isfinite(g) & np.isfinite(o) & (g > 0)
     if not ok.any():
-        raise InputError("--calibration", spec, "a hotter blackbody that gives more counts than the colder one")
+        raise InputError("calibration", spec, "a hotter blackbody that gives more counts than the colder one")
     gm = float(np.median(g[ok]))
     ok &= (g > gm / GAIN_OUTLIER) & (g < gm * GAIN_OUTLIER)
     info = {"blackbody_k": [t_cold_k, t_hot_k], "mode": mode, "bad_pixels": int((~ok).sum()),

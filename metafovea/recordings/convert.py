@@ -65,15 +65,15 @@ def _polarizer(rec: Recording, kept: np.ndarray, times: np.ndarray, unit: str | 
     if rec.polarizer is None:
         return {}, {}
     key = (rec.polarizer_key or "").lower()
-    unit = check_choice("--polarizer-unit", unit or ("alpha" if "alpha" in key else "deg" if "deg" in key else "rad"),
+    unit = check_choice("polarizer_unit", unit or ("alpha" if "alpha" in key else "deg" if "deg" in key else "rad"),
                         POLARIZER_UNITS)
     v = rec.polarizer[kept]
     if not np.all(np.isfinite(v)):
-        raise InputError("--polarizer-key", rec.polarizer_key, "finite polariser values (NaN/inf found)")
+        raise InputError("polarizer_key", rec.polarizer_key, "finite polariser values (NaN/inf found)")
     if unit == "alpha":
         if v.min() < -1e-9 or v.max() > 1 + 1e-9:
-            raise InputError("--polarizer-key", rec.polarizer_key, "mixing ratios alpha in [0, 1] (or set "
-                             "--polarizer-unit rad|deg for angles)", detail=f"range {v.min():.4g} to {v.max():.4g}")
+            raise InputError("polarizer_key", rec.polarizer_key, "mixing ratios alpha in [0, 1] (or set "
+                             "polarizer_unit=rad|deg for angles)", detail=f"range {v.min():.4g} to {v.max():.4g}")
         return {"alpha": np.clip(v, 0.0, 1.0)}, {"polarizer": {"recorded": "alpha", "key": rec.polarizer_key}}
     theta = np.deg2rad(v) if unit == "deg" else v
     meta: dict[str, Any] = {"recorded": f"angle ({unit})", "key": rec.polarizer_key}
@@ -93,13 +93,13 @@ def _calibration_frames(path: str, opt: ImportOptions, shape: tuple[int, int]) -
     """The mean frame (H, W) of one blackbody file, read as the recording was."""
     p = Path(path)
     if not p.is_file():
-        raise InputError("--calibration", path, "an existing file of blackbody frames")
+        raise InputError("calibration", path, "an existing file of blackbody frames")
     try:
         r = read_recording(p, frames_key=opt.frames_key, frame_axis=opt.frame_axis)
     except InputError as e:
-        raise InputError("--calibration", path, f"a readable blackbody file ({e})") from None
+        raise InputError("calibration", path, f"a readable blackbody file ({e})") from None
     if r.frames.shape[1:] != shape:
-        raise InputError("--calibration", path, f"blackbody frames of the recording's size {shape}",
+        raise InputError("calibration", path, f"blackbody frames of the recording's size {shape}",
                          detail=f"they are {r.frames.shape[1:]}")
     return np.nanmean(_saturated_as_nan(r.frames)[0], axis=0)
 
@@ -120,18 +120,18 @@ def _saturated_as_nan(frames: np.ndarray) -> tuple[np.ndarray, int]:
 def _radiometry(frames: np.ndarray, rec: Recording, opt: ImportOptions) -> tuple[np.ndarray, Radiometric | None,
                                                                                  np.ndarray | None]:
     """``(frames, model or None, bad pixels or None)`` after the calibration the options and the file give."""
-    band = check_band(opt.band_um, "--band-um")
-    filt = check_filter(opt.filter_um, "--filter-um")
+    band = check_band(opt.band_um, "band_um")
+    filt = check_filter(opt.filter_um, "filter_um")
     if opt.calibration is not None:
         (t1, f1), (t2, f2) = parse_two_point(opt.calibration)
-        mode = check_choice("--calibration-gain", opt.calibration_gain, GAIN_MODES)
+        mode = check_choice("calibration_gain", opt.calibration_gain, GAIN_MODES)
         cold, hot = (_calibration_frames(f, opt, frames.shape[1:]) for f in (f1, f2))
         model, g, o, bad = two_point(cold, t1, hot, t2, mode=mode, band_um=band, filter_um=filt, spec=opt.calibration)
         if g is not None:
             frames = correct_frames(frames, model, g, o, bad)
         return frames, model, bad if bad.any() else None
     if opt.planck is not None:
-        pc, src = PlanckConstants.parse(opt.planck), "--planck"
+        pc, src = PlanckConstants.parse(opt.planck), "given"
     elif rec.planck is not None:
         try:
             pc, src = PlanckConstants(**rec.planck), f"{Path(rec.source).name} (Planck constants)"
@@ -155,7 +155,7 @@ def to_measurement(rec: Recording, options: ImportOptions | None = None) -> tupl
     frames, model, bad = _radiometry(frames, rec, opt)
     r = 1.0 if opt.foveal_gain is None else float(opt.foveal_gain)
     if not (math.isfinite(r) and r > 0):
-        raise InputError("--foveal-gain", opt.foveal_gain, "a positive flat-field ratio of the channels")
+        raise InputError("foveal_gain", opt.foveal_gain, "a positive flat-field ratio of the channels")
     meta: dict[str, Any] = {
         "units": "DN" if model is not None else "counts",
         "units_note": ("camera counts, linear in radiance: DN = dark_dn + G_i L(T) (see calibration)" if model
@@ -185,7 +185,7 @@ def to_measurement(rec: Recording, options: ImportOptions | None = None) -> tupl
         warn.append(f"{n_sat} sample(s) at the {rec.frames.dtype} full scale: left out (NaN) as saturated")
     if model is not None and model.info.get("fit_max_error_k", 0) > 0.25:
         warn.append(f"the Planck curve departs from the {model.band_um[0]:g}-{model.band_um[1]:g} um band model by "
-                    f"up to {model.info['fit_max_error_k']:.2g} K: set --band-um to the camera's band")
+                    f"up to {model.info['fit_max_error_k']:.2g} K: set band_um=... to the camera's band")
     summary = {"frames_in": timing.frames_in, "frames": m.shape[0], "shape": list(m.shape[1:]),
                "times_from": t_from, "frame_rate_hz": timing.frame_rate_hz, "n_dropped": timing.n_dropped,
                "duplicates_removed": len(timing.duplicates_removed), "uniform_timing": timing.uniform,
@@ -207,9 +207,9 @@ def import_recording(path: str | Path, out: str | Path | None = None, options: I
     src = Path(path)
     dest = Path(out) if out is not None else src.with_suffix(".npz")
     if dest.suffix.lower() != ".npz":
-        raise InputError("--out", str(dest), "a file name ending in .npz")
+        raise InputError("out", str(dest), "a file name ending in .npz")
     if src.exists() and dest.exists() and dest.resolve() == src.resolve():
-        raise InputError("--out", str(dest), "a path other than the recording itself")
+        raise InputError("out", str(dest), "a path other than the recording itself")
     prepare_output(dest, force)  # refuse an existing file before reading anything
     rec = read_recording(src, format=opt.format, frames_key=opt.frames_key, times=opt.times,
                          time_unit=opt.time_unit, frame_axis=opt.frame_axis, polarizer_key=opt.polarizer_key)

@@ -76,12 +76,12 @@ class _Store:
 
 def detect_format(path: Path, fmt: str = "auto") -> str:
     """The reader for ``path``: ``fmt`` unless ``'auto'``, else from the suffix (:data:`SUFFIXES`)."""
-    fmt = check_choice("--format", fmt, FORMATS)
+    fmt = check_choice("format", fmt, FORMATS)
     if fmt != "auto":
         return fmt
     got = SUFFIXES.get(path.suffix.lower())
     if got is None:
-        raise InputError("--format", "auto", "tiff, hdf5 or mat (the suffix " + repr(path.suffix) + " of "
+        raise InputError("format", "auto", "tiff, hdf5 or mat (the suffix " + repr(path.suffix) + " of "
                          f"{path.name} is none of {', '.join(sorted(SUFFIXES))})")
     return got
 
@@ -166,21 +166,21 @@ def open_store(path: Path, fmt: str) -> _Store:
     except InputError:
         raise
     except ImportError as e:
-        raise InputError("--format", fmt, "a format whose reader is installed (HDF5 and MAT v7.3 need h5py: "
+        raise InputError("format", fmt, "a format whose reader is installed (HDF5 and MAT v7.3 need h5py: "
                          "pip install 'metafovea[recordings]')", detail=str(e)) from None
     except (OSError, ValueError, KeyError, TypeError) as e:
         raise InputError("recording", str(path), f"a readable {fmt} file", detail=str(e)[:200]) from None
 
 
-def _pick(store: _Store, key: str | None, names: tuple[str, ...], flag: str, path: Path,
+def _pick(store: _Store, key: str | None, names: tuple[str, ...], parameter: str, path: Path,
           want_ndim: int | None = None) -> str | None:
-    """``key`` if the file has it (else an error naming ``flag``), or the first of ``names`` it has, or (with
+    """``key`` if the file has it (else an error naming ``parameter``), or the first of ``names`` it has, or (with
     ``want_ndim``) its only array of that many dimensions; None when nothing fits."""
     if key is not None:
         if key in store.keys:
             return key
         have = ", ".join(store.keys[:12]) + (" ..." if len(store.keys) > 12 else "") or "none"
-        raise InputError(flag, key, f"a key of {path.name} (its arrays: {have})")
+        raise InputError(parameter, key, f"a key of {path.name} (its arrays: {have})")
     lower = {k.lower().split("/")[-1]: k for k in store.keys}
     for n in names:
         if n in lower:
@@ -191,45 +191,46 @@ def _pick(store: _Store, key: str | None, names: tuple[str, ...], flag: str, pat
 def _frames(store: _Store, key: str | None, path: Path, axis: str) -> tuple[np.ndarray, str | None]:
     if store.frames is not None and key is None:
         return store.frames(), None
-    k = _pick(store, key, FRAME_KEYS, "--frames-key", path)
+    k = _pick(store, key, FRAME_KEYS, "frames_key", path)
     if k is None:
         three = [n for n in store.keys if store.ndims.get(n) == 3]
         if len(three) != 1:
-            raise InputError("--frames-key", None, f"the name of the frames' array in {path.name} (it has "
+            raise InputError("frames_key", None, f"the name of the frames' array in {path.name} (it has "
                              f"{len(three)} 3-D arrays: {', '.join(three) or 'none'})")
         k = three[0]
     a = np.asarray(store.get(k))
     if a.ndim == 2:
         a = a[None] if axis == "first" else a[..., None]
     if a.ndim != 3 or a.dtype.kind not in "biuf":
-        raise InputError("--frames-key", k, f"a 3-D numeric array of frames in {path.name}",
+        raise InputError("frames_key", k, f"a 3-D numeric array of frames in {path.name}",
                          detail=f"it has shape {a.shape}, dtype {a.dtype}")
     return (np.moveaxis(a, -1, 0) if axis == "last" else a), k
 
 
-def _times(store: _Store, times: str | None, unit: str | None, n: int, path: Path) -> tuple[np.ndarray | None, str | None]:
+def _times(store: _Store, times: str | None, unit: str | None, n: int,
+           path: Path) -> tuple[np.ndarray | None, str | None]:
     """Timestamps in seconds: ``times`` a key of the file or a file of its own (.npy, or text with one time per
     line, first column), else a key of :data:`TIME_KEYS`, else the file's frame interval or rate; None if none."""
     if times is not None and times not in store.keys and Path(times).suffix.lower() in (".npy", ".txt", ".csv"):
         p = Path(times)
         if not p.is_file():
-            raise InputError("--times", times, "a key of the recording or an existing .npy/.txt/.csv file of times")
+            raise InputError("times", times, "a key of the recording or an existing .npy/.txt/.csv file of times")
         try:
             t = np.load(p) if p.suffix.lower() == ".npy" else np.loadtxt(p, delimiter="," if p.suffix.lower() == ".csv"
                                                                          else None, ndmin=2)[:, 0]
         except (OSError, ValueError) as e:
-            raise InputError("--times", times, "a readable file of one time per frame", detail=str(e)[:200]) from None
+            raise InputError("times", times, "a readable file of one time per frame", detail=str(e)[:200]) from None
         src = f"file {p.name}"
     else:
-        k = _pick(store, times, TIME_KEYS, "--times", path)
+        k = _pick(store, times, TIME_KEYS, "times", path)
         if k is None:
             return _times_from_rate(store.attrs, n)
         t, src = store.get(k), f"key {k}"
         unit = unit or _unit_attr(store.attrs, k)
-    t = np.asarray(t, dtype=np.float64).reshape(-1) * TIME_UNITS[check_choice("--time-unit", unit or "s",
+    t = np.asarray(t, dtype=np.float64).reshape(-1) * TIME_UNITS[check_choice("time_unit", unit or "s",
                                                                               tuple(TIME_UNITS))]
     if t.size != n or not np.all(np.isfinite(t)):
-        raise InputError("--times", times or src, f"{n} finite timestamps, one per frame",
+        raise InputError("times", times or src, f"{n} finite timestamps, one per frame",
                          detail=f"{src} has {t.size}{'' if np.all(np.isfinite(t)) else ' with NaN/inf'}")
     return t - t[0], src
 
@@ -289,16 +290,16 @@ def read_recording(path: str | Path, *, format: str = "auto", frames_key: str | 
     if not p.is_file():
         raise InputError("recording", str(p), "an existing recording file (.tif, .h5, .mat)")
     fmt = detect_format(p, format)
-    axis = check_choice("--frame-axis", frame_axis, FRAME_AXES)
+    axis = check_choice("frame_axis", frame_axis, FRAME_AXES)
     store = open_store(p, fmt)
     frames, fkey = _frames(store, frames_key, p, axis)
     t, t_src = _times(store, times, time_unit, frames.shape[0], p)
     pol = None
     if polarizer_key is not None:
-        k = _pick(store, polarizer_key, (), "--polarizer-key", p)
+        k = _pick(store, polarizer_key, (), "polarizer_key", p)
         pol = np.asarray(store.get(k), dtype=np.float64).reshape(-1)
         if pol.size != frames.shape[0]:
-            raise InputError("--polarizer-key", polarizer_key, f"one polariser value per frame ({frames.shape[0]})",
+            raise InputError("polarizer_key", polarizer_key, f"one polariser value per frame ({frames.shape[0]})",
                              detail=f"it has {pol.size}")
     return Recording(frames=frames, source=str(p), format=fmt, frames_key=fkey, times_s=t, times_from=t_src,
                      polarizer=pol, polarizer_key=polarizer_key, planck=_planck(store.attrs), attrs=dict(store.attrs))

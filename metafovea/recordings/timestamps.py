@@ -11,11 +11,11 @@ The rules (:func:`check_timing`):
 * **dropped frames are detected, not filled**: an interval longer than 1.5 nominal intervals (the median one, or
   ``1 / frame_rate_hz`` when the user gave the rate) is a gap of ``round(dt / nominal) - 1`` frames. The kept
   frames carry their true times, which the reconstruction and the polariser model use, so nothing is
-  interpolated. (With times made from ``--frame-rate`` a dropped frame cannot be seen: the report says so.)
+  interpolated. (With times made from ``frame_rate_hz`` a dropped frame cannot be seen: the report says so.)
 * **non-uniform timing** is flagged when an interval (gaps aside) deviates from the nominal one by more than
   ``tolerance`` (1 %: a camera's own clock jitters by microseconds over 10-30 ms frames, 1e-4 relative; 1 % is a
   frame grabber or a software timestamp).
-* timestamps that go **backwards** are an error (``--times``): the file's order is then not the time order.
+* timestamps that go **backwards** are an error (``times``): the file's order is then not the time order.
 """
 
 from __future__ import annotations
@@ -31,6 +31,8 @@ from metafovea.errors import InputError
 GAP_FACTOR = 1.5
 #: relative deviation of an interval from the nominal one above which the timing is non-uniform
 JITTER_TOLERANCE = 0.01
+#: how :func:`frame_times` names times made from the nominal frame rate (``frame rate 30 Hz``)
+FROM_RATE = "frame rate"
 
 
 @dataclass(frozen=True)
@@ -85,15 +87,15 @@ def _short(ix: list[int], n: int = 8) -> str:
 
 def frame_times(times_s: np.ndarray | None, n: int, frame_rate_hz: float | None,
                 times_from: str | None) -> tuple[np.ndarray, str]:
-    """The file's times, else ``arange(n) / frame_rate_hz``; neither is an error naming ``--frame-rate``."""
+    """The file's times, else ``arange(n) / frame_rate_hz``; neither is an error naming ``frame_rate_hz``."""
     if times_s is not None:
         return np.asarray(times_s, dtype=np.float64), times_from or "file"
     if frame_rate_hz is None:
-        raise InputError("--frame-rate", None, "the camera's frame rate in Hz: the recording has no timestamps "
-                         "(or name them with --times)")
+        raise InputError("frame_rate_hz", None, "the camera's frame rate in Hz: the recording has no timestamps "
+                         "(or name them with times=...)")
     if not (np.isfinite(frame_rate_hz) and 0 < frame_rate_hz <= 1e6):
-        raise InputError("--frame-rate", frame_rate_hz, "0 < frame rate <= 1e6 Hz")
-    return np.arange(n) / float(frame_rate_hz), f"--frame-rate {frame_rate_hz:g} Hz"
+        raise InputError("frame_rate_hz", frame_rate_hz, "0 < frame rate <= 1e6 Hz")
+    return np.arange(n) / float(frame_rate_hz), f"{FROM_RATE} {frame_rate_hz:g} Hz"
 
 
 def check_timing(frames: np.ndarray, times_s: np.ndarray, *, times_from: str = "file",
@@ -101,14 +103,14 @@ def check_timing(frames: np.ndarray, times_s: np.ndarray, *, times_from: str = "
                  tolerance: float = JITTER_TOLERANCE) -> tuple[np.ndarray, TimingReport]:
     """``(kept frame indices, report)``: duplicates removed, drops and non-uniform intervals found (module notes).
 
-    ``frame_rate_hz``: the nominal rate when known (the user's ``--frame-rate`` next to the file's times); the
+    ``frame_rate_hz``: the nominal rate when known (the user's ``frame_rate_hz`` next to the file's times); the
     median interval otherwise."""
     t = np.asarray(times_s, dtype=np.float64)
     n = t.size
     dt = np.diff(t)
     if np.any(dt < 0):
         i = int(np.argmax(dt < 0))
-        raise InputError("--times", f"{t[i + 1]:.6g} s after {t[i]:.6g} s (frame {i + 1})",
+        raise InputError("times", f"{t[i + 1]:.6g} s after {t[i]:.6g} s (frame {i + 1})",
                          "non-decreasing timestamps in the file's frame order")
     keep = [0]
     same_time = same_pixels = 0
@@ -124,7 +126,7 @@ def check_timing(frames: np.ndarray, times_s: np.ndarray, *, times_from: str = "
     removed = sorted(set(range(n)) - set(keep))
     tk = t[kept]
     dk = np.diff(tk)
-    from_rate = times_from.startswith("--frame-rate")
+    from_rate = times_from.startswith(FROM_RATE)
     nominal = (1.0 / frame_rate_hz if frame_rate_hz else float(np.median(dk))) if dk.size else None
     dropped: list[dict[str, int]] = []
     dev = jit = 0.0

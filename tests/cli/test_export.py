@@ -166,3 +166,27 @@ def test_export_labels_an_idealised_post_set_and_refuses_posts_that_break_the_ru
     err = capsys.readouterr().err.strip()
     assert rc == 2 and "min_feature_um" in err and "post 3" in err and len(err.splitlines()) == 1
     assert not (tmp_path / "bad.gds").exists()
+
+
+def test_a_large_write_is_announced_and_refused_without_the_space(tmp_path, capsys, toml, monkeypatch, cli_error):
+    """A 7.7 GB GDSII started writing with no size notice; now the size and the free space come first (here every
+    file counts as large), and a disk without the space is one line with nothing written."""
+    import shutil
+
+    import metafovea.layout.export as export
+
+    monkeypatch.setattr(export, "SIZE_NOTICE_BYTES", 0)
+    out = tmp_path / "n.gds"
+    assert main(["export", str(toml), "--ring-width-um", "100", "--posts", "ideal", "--out", str(out)]) == 0
+    cap = capsys.readouterr()
+    notice = cap.err.strip().splitlines()[0]
+    assert notice.startswith("metafovea export: writing about ") and f"to {out}; " in notice, cap.err
+    assert notice.endswith("free there") and "posts" in cap.out
+    usage = shutil.disk_usage(tmp_path)
+    monkeypatch.setattr(shutil, "disk_usage", lambda p: usage._replace(free=1000))
+    rc = main(["export", str(toml), "--ring-width-um", "100", "--posts", "ideal", "--out", str(tmp_path / "m.gds"),
+               "--quiet"])
+    err = cli_error(capsys)
+    assert rc == 2 and err.startswith("metafovea export: error: --out = ") and "enough free space" in err, err
+    assert "1000 B free there" in err and len(err.splitlines()) == 1
+    assert [p.name for p in tmp_path.iterdir()] == ["n.gds"]

@@ -267,3 +267,22 @@ def test_progress_is_shown_off_a_terminal_unless_quiet_or_json():
     assert show_progress(p.parse_args(["simulate"]))  # capsys: stderr is not a terminal here
     assert not show_progress(p.parse_args(["simulate", "-q"])) and not show_progress(p.parse_args(["simulate",
                                                                                                     "--json"]))
+
+
+def test_stage_messages_in_the_words_of_the_flags():
+    """A stage's message names parameters (``fmt='gds'``, ``max_refs=...``, ``force=True``); the CLI writes the flags
+    a user types instead. A bare name stays: it may be a file's key or an English word."""
+    from metafovea.cli.flags import as_flag_error, flag_map, in_flags
+    from metafovea.errors import InputError
+
+    flags = flag_map("export")
+    assert in_flags("only with fmt='gds' and without max_refs=...", flags) == \
+        "only with --format gds and without --max-refs"
+    assert in_flags("(or pass force=True to overwrite); more than max_refs=100", flags) == \
+        "(or pass --force to overwrite); more than --max-refs 100"
+    bare = "a flat file; the system file's [sensor] max_refs; fmt; path=x"  # 'path' is --out only as a parameter
+    assert in_flags(bare, flags) == bare.replace("path=x", "--out x")
+    err = as_flag_error("export", InputError("tiles_dir", "t", "only with scheduler=... (local exports: one file)"))
+    assert str(err) == "--tiles-dir = 't' is invalid; allowed: only with --scheduler (local exports: one file)"
+    assert str(as_flag_error("import", InputError("frame_rate_hz", None, "a rate (or name them with times=...)"))) == \
+        "--frame-rate = None is invalid; allowed: a rate (or name them with --times)"

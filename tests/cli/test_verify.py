@@ -108,3 +108,17 @@ def test_gdstk_damaged_file_error_is_one_line(tmp_path, capfd, exported_gds, dam
     out, err = capfd.readouterr()
     assert rc == 2 and len(err.strip().splitlines()) == 1, err
     assert err.startswith("metafovea verify: error: FILE")
+
+
+
+def test_verify_help_is_its_own(capsys):
+    """``verify --help`` showed export's text for the options they share (encoder threads, tiles)."""
+    text = {}
+    for command in ("verify", "export"):
+        with pytest.raises(SystemExit) as e:
+            main([command, "--help"])
+        assert e.value.code == 0
+        text[command] = " ".join(capsys.readouterr().out.split())
+    assert "Read FILE" in text["verify"] and "expected post counts" in text["verify"]
+    assert "encoder threads" not in text["verify"] and "tiles-dir" not in text["verify"]
+    assert "encoder threads" in text["export"] and "expected post counts" not in text["export"]

@@ -73,10 +73,10 @@ def test_adc_rounds_and_clips_to_its_range():
 # ---------------------------------------------------------------------------------------------
 def test_small_crop_errors_name_the_crop_and_where_fpn_rank_comes_from():
     """A too-small crop was reported as 'shape'; an fpn_rank above the crop did not say that it comes from
-    --fpn-rank or the system file's [sensor] fpn_rank."""
+    fpn_rank (--fpn-rank at the CLI) or the system file's [sensor] fpn_rank."""
     with pytest.raises(InputError, match="sensor crop"):
         SensorModel(shape=(7, 64))
-    with pytest.raises(InputError, match="--fpn-rank") as e:
+    with pytest.raises(InputError, match=r"fpn_rank=\.\.\. or the system file's \[sensor\] fpn_rank") as e:
         SensorModel(shape=(12, 40), fpn_rank=20)
     assert e.value.parameter == "fpn_rank" and "12" in e.value.allowed
     assert SensorModel(shape=(12, 40), fpn_rank=12).fpn_rank == 12

@@ -8,7 +8,7 @@ import pytest
 
 from metafovea import lens
 from metafovea.config import LensDesign
-from metafovea.layout import export_layout, make_spec
+from metafovea.layout import ExportOptions, export_layout, make_spec
 
 #: ring and marks small enough for a 1.2 mm lens
 SMALL = dict(ring_width_um=100.0, mark_offset_um=50.0, mark_size_um=40.0, mark_width_um=4.0)
@@ -37,7 +37,7 @@ def exported(tmp_path_factory, spec):
     out = {}
     for fmt, flat in (("gds", False), ("gds", True), ("oas", False)):
         p = d / f"lens{'_flat' if flat else ''}.{fmt}"
-        out[(fmt, flat)] = (p, export_layout(spec, p, fmt, flat=flat))
+        out[(fmt, flat)] = (p, export_layout(spec, p, fmt, ExportOptions(flat=flat)))
     return out
 
 

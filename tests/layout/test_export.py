@@ -9,7 +9,15 @@ import pytest
 from metafovea import lens
 from metafovea.config import LensDesign
 from metafovea.errors import InputError
-from metafovea.layout import TestArraySpec, expected_content, export_file, export_layout, export_test_array, make_spec
+from metafovea.layout import (
+    ExportOptions,
+    TestArraySpec,
+    expected_content,
+    export_file,
+    export_layout,
+    export_test_array,
+    make_spec,
+)
 from metafovea.layout.export import DirectFile, output_path, part_paths
 from metafovea.layout.verify import verify_layout
 
@@ -39,7 +47,7 @@ def test_exact_counts_per_type(design, spec, exported, tile_counts):
     exp = expected_content(spec)
     assert exp.total == lens.count_posts(design)
     assert np.array_equal(exp.counts, tile_counts(design, 8))
-    for (fmt, flat), (p, res) in exported.items():
+    for (fmt, flat), (_p, res) in exported.items():
         assert res.counts == exp.counts.tolist(), (fmt, flat)
         assert res.posts == exp.total
     p, res = exported[("gds", False)]
@@ -53,7 +61,7 @@ def test_patch_xor_against_design(tmp_path, design, small_frame, fmt, flat):
     # a patch at the rim: cut by the aperture
     sp = make_spec(design, patch_mm=(0.45, -0.3, 0.12), band_rows=8, **small_frame)
     p = tmp_path / f"patch.{fmt}"
-    res = export_layout(sp, p, fmt, flat=flat)
+    res = export_layout(sp, p, fmt, ExportOptions(flat=flat))
     ly = db.Layout()
     ly.read(str(p))
     top = ly.top_cells()[0]
@@ -71,7 +79,7 @@ def test_half_lattice_export_counts_and_xor(tmp_path, small_frame, tile_counts, 
     d = LensDesign("half", 1500.0, 1200.0, polarization="x", lattice="half")
     sp = make_spec(d, band_rows=16, **small_frame)
     p = tmp_path / f"h.{fmt}"
-    res = export_layout(sp, p, fmt, workers=2)
+    res = export_layout(sp, p, fmt, ExportOptions(workers=2))
     assert res.counts == tile_counts(d, 8).tolist()
     rep = verify_layout(p, sp, reader="klayout")
     assert rep.ok, rep.mismatches
@@ -100,7 +108,7 @@ def test_half_lattice_export_counts_and_xor(tmp_path, small_frame, tile_counts, 
 def test_resume_after_interrupt(tmp_path, spec, exported):
     p = tmp_path / "r.gds"
     with pytest.raises(KeyboardInterrupt):
-        export_layout(spec, p, "gds", _stop_after=3)
+        export_layout(spec, p, "gds", ExportOptions(stop_after=3))
     part, journal = part_paths(p)
     assert not p.exists() and part.exists() and journal.exists()
     # a crash after the last checkpoint leaves extra bytes: they are cut off on resume
@@ -116,14 +124,14 @@ def test_resume_after_interrupt(tmp_path, spec, exported):
 def test_resume_oasis_and_changed_parameters_restart(tmp_path, spec, design, small_frame, exported):
     p = tmp_path / "r.oas"
     with pytest.raises(KeyboardInterrupt):
-        export_layout(spec, p, "oas", _stop_after=2)
+        export_layout(spec, p, "oas", ExportOptions(stop_after=2))
     res = export_layout(spec, p, "oas")
     assert res.resumed_bands == 2
     assert p.read_bytes() == exported[("oas", False)][0].read_bytes()
     # a partial export with other parameters is not continued
     q = tmp_path / "q.gds"
     with pytest.raises(KeyboardInterrupt):
-        export_layout(spec, q, "gds", _stop_after=2)
+        export_layout(spec, q, "gds", ExportOptions(stop_after=2))
     other = make_spec(design, levels=4, band_rows=16, **small_frame)
     res = export_layout(other, q, "gds")
     assert res.resumed_bands == 0 and verify_layout(q, other).ok
@@ -137,7 +145,7 @@ def test_export_resume_with_malformed_journal_starts_over(tmp_path, journal):
     ref = export_layout(spec, tmp_path / "ref.gds", "gds")
     p = tmp_path / "lens.gds"
     with pytest.raises(KeyboardInterrupt):
-        export_layout(spec, p, "gds", _stop_after=2)
+        export_layout(spec, p, "gds", ExportOptions(stop_after=2))
     part, jpath = part_paths(p)
     jpath.write_text(journal)
     res = export_layout(spec, p, "gds")
@@ -146,17 +154,17 @@ def test_export_resume_with_malformed_journal_starts_over(tmp_path, journal):
 
 def test_parallel_workers_same_bytes(tmp_path, spec, exported):
     p = tmp_path / "w.oas"
-    export_layout(spec, p, "oas", workers=2)
+    export_layout(spec, p, "oas", ExportOptions(workers=2))
     assert p.read_bytes() == exported[("oas", False)][0].read_bytes()
 
 
 @pytest.mark.parametrize("fmt,flat", [("gds", False), ("gds", True)])
 def test_threads_same_bytes_gds(tmp_path, spec, exported, fmt, flat):
     p = tmp_path / f"w.{fmt}"
-    export_layout(spec, p, fmt, flat=flat, workers=2, inflight=3)
+    export_layout(spec, p, fmt, ExportOptions(flat=flat, workers=2, inflight=3))
     assert p.read_bytes() == exported[(fmt, flat)][0].read_bytes()
     q = tmp_path / f"wp.{fmt}"  # processes
-    export_layout(spec, q, fmt, flat=flat, workers=2, threads=False)
+    export_layout(spec, q, fmt, ExportOptions(flat=flat, workers=2, threads=False))
     assert q.read_bytes() == p.read_bytes()
 
 
@@ -181,8 +189,51 @@ def test_direct_file_matches_buffered(tmp_path, spec, exported):
     assert a.read_bytes() == want
     # the export with and without O_DIRECT: same bytes
     p = tmp_path / "b.gds"
-    export_layout(spec, p, "gds", direct=False)
+    export_layout(spec, p, "gds", ExportOptions(direct=False))
     assert p.read_bytes() == exported[("gds", False)][0].read_bytes()
+
+
+def test_direct_file_placed_buffers(tmp_path, monkeypatch):
+    """Buffers an encoder filled in place (at the file's offset within its block) go to the disk as they are, between
+    staged writes, flushes and a resume: the same bytes as one plain write; each buffer is given back once."""
+    import mmap
+    import os
+
+    with open(tmp_path / "probe", "wb"):
+        pass
+    try:  # where O_DIRECT is refused (tmpfs): a plain descriptor, the same code path
+        os.close(os.open(tmp_path / "probe", os.O_WRONLY | os.O_DIRECT))
+    except (OSError, AttributeError):
+        monkeypatch.setattr(os, "O_DIRECT", 0, raising=False)
+    rng = np.random.default_rng(2)
+    chunks = [rng.integers(0, 256, int(n), dtype=np.uint8) for n in rng.integers(1, 30000, 30)]
+    want = b"".join(c.tobytes() for c in chunks)
+    a = tmp_path / "a.bin"
+    given_back = []
+    for resume_at in (None, 17):
+        f = DirectFile(a, staging=16384, depth=1) if resume_at is None else \
+            DirectFile(a, sum(c.size for c in chunks[:resume_at]), staging=16384, depth=1)
+        assert f.direct
+        for i, c in enumerate(chunks[resume_at or 0:], start=resume_at or 0):
+            if resume_at is None and i >= 25:
+                break
+            if i % 3 == 0:
+                f.write(c)
+                continue
+            pre = f.pos % f.BLOCK
+            buf = mmap.mmap(-1, pre + c.size + f.BLOCK)
+            np.frombuffer(buf, np.uint8, count=c.size, offset=pre)[:] = c
+            f.write_placed(buf, pre, c.size, done=lambda i=i: given_back.append(i))
+            if i % 5 == 0:
+                f.flush()
+                assert a.stat().st_size == f.pos
+            with pytest.raises(ValueError):
+                f.write_placed(buf, (f.pos + 1) % f.BLOCK, 1)  # not at the file's offset in its block
+        f.sync()
+        f.close()
+    assert a.read_bytes() == want
+    placed = [i for i in range(30) if i % 3]
+    assert sorted(given_back) == sorted(placed[:placed.index(25)] + [i for i in placed if i >= 17])
 
 
 def test_direct_file_background_error_is_raised(tmp_path, monkeypatch):
@@ -222,7 +273,7 @@ def test_refuses_overwrite_without_force(tmp_path, spec):
     export_layout(spec, p, "gds")
     with pytest.raises(InputError, match="force"):
         export_layout(spec, p, "gds")
-    export_layout(spec, p, "gds", force=True)
+    export_layout(spec, p, "gds", ExportOptions(force=True))
     assert verify_layout(p, spec).ok
 
 
@@ -245,7 +296,7 @@ def test_calibration_array(tmp_path, spec, fmt, flat):
 
 def test_calibration_block_checked(spec):
     for block in (0, 5000):
-        with pytest.raises(InputError, match="--block"):
+        with pytest.raises(InputError, match="block"):
             TestArraySpec(spec, block=block)
 
 
@@ -261,12 +312,12 @@ def test_output_path_names_and_suffixes(spec, design):
     assert output_path(spec, "gds", "out/a.GDSII").name == "a.GDSII"
     assert output_path(spec, "oas", "out/a").name == "a.oas"
     assert output_path(spec, "gds", "out/a.b").name == "a.b.gds"
-    with pytest.raises(InputError, match="--out .*ending in .oas or .oasis for --format oas"):
+    with pytest.raises(InputError, match="out = .*ending in .oas or .oasis for fmt='oas'"):
         output_path(spec, "oas", "a.gds")
 
 
 def test_export_file_writes_the_lens_the_array_or_the_mesh(tmp_path, spec, design, small_frame, exported):
-    res = export_file(spec, tmp_path / "a", "GDS", workers=1)
+    res = export_file(spec, tmp_path / "a", "GDS", ExportOptions(workers=1))
     assert res["path"] == str(tmp_path / "a.gds") and res["posts"] == exported[("gds", False)][1].posts
     assert (tmp_path / "a.gds").read_bytes() == exported[("gds", False)][0].read_bytes()
     res = export_file(spec, tmp_path / "c", "oas", test_array=TestArraySpec(spec, block=3))
@@ -279,19 +330,43 @@ def test_export_file_writes_the_lens_the_array_or_the_mesh(tmp_path, spec, desig
 
 def test_export_bad_input(tmp_path, design, spec, small_frame):
     sp = make_spec(design, **small_frame)
-    with pytest.raises(InputError, match="--format"):
+    with pytest.raises(InputError, match="^fmt = "):
         export_layout(sp, tmp_path / "a.dxf", "dxf")
-    with pytest.raises(InputError, match="--flat"):
-        export_layout(sp, tmp_path / "a.oas", "oas", flat=True)
+    with pytest.raises(InputError, match="^flat = "):
+        export_layout(sp, tmp_path / "a.oas", "oas", ExportOptions(flat=True))
     blocker = tmp_path / "file"
     blocker.write_text("x")
-    with pytest.raises(InputError, match="--out"):
+    with pytest.raises(InputError, match="^path = "):
         export_layout(sp, blocker / "sub" / "a.gds", "gds")
     assert not (tmp_path / "a.dxf").exists() and not (tmp_path / "a.oas").exists()
-    for kw, flag in ((dict(fmt="dxf"), "--format = 'dxf'"), (dict(fmt="oas", max_refs=100), "--max-refs"),
-                     (dict(fmt="stl", flat=True), "--format = 'stl' .*--flat/--test-array"),
-                     (dict(compress=10), "--compress"), (dict(workers=0), "--workers"),
-                     (dict(tiles_dir=tmp_path / "t"), "--tiles-dir = .* only with --scheduler")):
+    for fmt, kw, flag in (("dxf", {}, "^fmt = 'dxf'"), ("oas", dict(max_refs=100), "^max_refs = "),
+                          ("stl", dict(flat=True), "^fmt = 'stl' .*flat=True or test_array=")):
         with pytest.raises(InputError, match=flag):
-            export_file(spec, tmp_path / "z", **kw)
+            export_file(spec, tmp_path / "z", fmt, ExportOptions(**kw))
+    for kw, flag in ((dict(compress=10), "^compress = "), (dict(workers=0), "^workers = "),
+                     (dict(tiles_dir=tmp_path / "t"), r"^tiles_dir = .* only with scheduler=\.\.\."),
+                     (dict(dwl=True, max_refs=100), r"^dwl = .*only without max_refs=\.\.\.")):
+        with pytest.raises(InputError, match=flag):
+            ExportOptions(**kw)
     assert not list(tmp_path.glob("z*")) and not (tmp_path / "t").exists()
+
+
+def test_estimated_size_and_free_space(tmp_path, spec, exported, monkeypatch):
+    """The estimate is the posts' records (the header and frame left out; OASIS unknown); a disk without the room
+    for it is refused before anything is written, naming the file."""
+    import shutil
+
+    from metafovea.layout.export import estimated_bytes, size_notice
+    from metafovea.layout.gds import BOUNDARY_BYTES, SREF_BYTES
+
+    for flat, size in ((False, SREF_BYTES), (True, BOUNDARY_BYTES)):
+        p, res = exported[("gds", flat)]
+        est = estimated_bytes(spec, "gds", ExportOptions(flat=flat))
+        assert est == res.posts * size and 0 < res.bytes - est < 200_000
+    assert estimated_bytes(spec, "oas") is None and size_notice(spec, tmp_path / "a.gds") is None  # small: no notice
+    usage = shutil.disk_usage(tmp_path)
+    monkeypatch.setattr(shutil, "disk_usage", lambda p: usage._replace(free=est - 1))
+    with pytest.raises(InputError, match=r"^path = .*enough free space.*to write, .* free there"):
+        export_layout(spec, tmp_path / "a.gds", "gds", ExportOptions(flat=True))
+    assert list(tmp_path.iterdir()) == []
+    export_layout(spec, tmp_path / "a.oas", "oas")  # size unknown: written

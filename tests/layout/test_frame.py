@@ -12,7 +12,7 @@ import pytest
 
 from metafovea.config import LensDesign
 from metafovea.errors import InputError
-from metafovea.layout import export_layout, make_spec
+from metafovea.layout import ExportOptions, export_layout, make_spec
 from metafovea.layout.frame import MAX_POINTS, frame_shapes, vernier_origins_nm, vernier_readout
 from metafovea.layout.tiling import load_spec
 from metafovea.layout.verify import verify_layout
@@ -142,12 +142,12 @@ def test_date_is_recorded_and_kept_on_resume(tmp_path, design, small_frame, monk
     assert a.date == "2001-09-09" and "2001-09-09" in a.printed_text()
     p = tmp_path / "d.gds"
     with pytest.raises(KeyboardInterrupt):
-        export_layout(a, p, "gds", max_refs=4096, _stop_after=3)
+        export_layout(a, p, "gds", ExportOptions(max_refs=4096, stop_after=3))
     b = replace(a, date="2001-09-10")  # the next day: the resumed file keeps its date, bytes as one run
-    res = export_layout(b, p, "gds", max_refs=4096)
+    res = export_layout(b, p, "gds", ExportOptions(max_refs=4096))
     assert res.resumed_bands == 3 and res.extra["date"] == "2001-09-09"
     q = tmp_path / "one.gds"
-    export_layout(a, q, "gds", max_refs=4096)
+    export_layout(a, q, "gds", ExportOptions(max_refs=4096))
     assert p.read_bytes() == q.read_bytes()
 
 
@@ -186,7 +186,7 @@ def test_dwl_mode_limits(tmp_path, spec):
     import gdstk
 
     p = tmp_path / "dwl.gds"
-    res = export_layout(spec, p, "gds", dwl=True)
+    res = export_layout(spec, p, "gds", ExportOptions(dwl=True))
     assert res.flat and res.extra["dwl"]
     lib = gdstk.read_gds(str(p), unit=1e-6)
     assert len(lib.cells) <= 8192
@@ -196,7 +196,7 @@ def test_dwl_mode_limits(tmp_path, spec):
     for reader in ("stream", "gdstk", "klayout"):
         rep = verify_layout(p, spec, reader=reader, dwl=True)
         assert rep.ok, (reader, rep.mismatches)
-    with pytest.raises(InputError, match="--dwl"):
-        export_layout(spec, tmp_path / "x.oas", "oas", dwl=True)
-    with pytest.raises(InputError, match="--dwl"):
-        export_layout(spec, tmp_path / "y.gds", "gds", dwl=True, max_refs=100)
+    with pytest.raises(InputError, match="^dwl = "):
+        export_layout(spec, tmp_path / "x.oas", "oas", ExportOptions(dwl=True))
+    with pytest.raises(InputError, match="^dwl = "):
+        ExportOptions(dwl=True, max_refs=100)

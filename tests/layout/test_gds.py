@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from metafovea.errors import InputError
-from metafovea.layout import expected_content, export_layout
+from metafovea.layout import ExportOptions, expected_content, export_layout, make_spec
 from metafovea.layout.verify import verify_layout
 
 db = pytest.importorskip("klayout.db")
@@ -44,7 +44,7 @@ def _gds_structures(path):
 def test_hierarchical_gds_max_refs(tmp_path, spec, flat, max_refs):
     exp = expected_content(spec)
     p = tmp_path / "h.gds"
-    res = export_layout(spec, p, "gds", flat=flat, max_refs=max_refs, workers=2)
+    res = export_layout(spec, p, "gds", ExportOptions(flat=flat, max_refs=max_refs, workers=2))
     assert res.counts == exp.counts.tolist()
     st = _gds_structures(p)
     # every structure within the limit (elements: references + boundaries + the top's texts)
@@ -83,7 +83,7 @@ def test_hierarchical_gds_max_refs(tmp_path, spec, flat, max_refs):
         assert rep.structures == len(st)
     # a tighter limit is reported
     rep = verify_layout(p, spec, reader="stream", max_refs=max_refs // 2)
-    assert not rep.ok and any("--max-refs" in m for m in rep.mismatches)
+    assert not rep.ok and any(f"max_refs={max_refs // 2}" in m for m in rep.mismatches)
     # klayout reads it with one top cell and the same flattened shape count
     ly = db.Layout()
     ly.read(str(p))
@@ -94,11 +94,11 @@ def test_hierarchical_gds_max_refs(tmp_path, spec, flat, max_refs):
 
 def test_hierarchical_resume_and_tamper(tmp_path, spec, retype_reference):
     ref = tmp_path / "ref.gds"
-    export_layout(spec, ref, "gds", max_refs=64)
+    export_layout(spec, ref, "gds", ExportOptions(max_refs=64))
     p = tmp_path / "r.gds"
     with pytest.raises(KeyboardInterrupt):
-        export_layout(spec, p, "gds", max_refs=64, _stop_after=2)
-    res = export_layout(spec, p, "gds", max_refs=64)
+        export_layout(spec, p, "gds", ExportOptions(max_refs=64, stop_after=2))
+    res = export_layout(spec, p, "gds", ExportOptions(max_refs=64))
     assert res.resumed_bands == 2 and p.read_bytes() == ref.read_bytes()
     # moving one post reference into another type is seen through the hierarchy
     q = retype_reference(p, tmp_path / "t.gds", "P003", "P004", start=1 / 3)
@@ -109,8 +109,30 @@ def test_hierarchical_resume_and_tamper(tmp_path, spec, retype_reference):
 
 
 def test_max_refs_bad_input(tmp_path, spec):
-    with pytest.raises(InputError, match="--max-refs"):
-        export_layout(spec, tmp_path / "a.oas", "oas", max_refs=8192)
-    with pytest.raises(InputError, match="--max-refs"):
-        export_layout(spec, tmp_path / "a.gds", "gds", max_refs=3)
+    with pytest.raises(InputError, match="^max_refs = "):
+        export_layout(spec, tmp_path / "a.oas", "oas", ExportOptions(max_refs=8192))
+    with pytest.raises(InputError, match="^max_refs = "):
+        export_layout(spec, tmp_path / "a.gds", "gds", ExportOptions(max_refs=3))
     assert not (tmp_path / "a.gds").exists()
+
+
+@pytest.mark.parametrize("flat", [False, True])
+def test_encoding_in_place_is_the_records(spec, design, small_frame, flat):
+    """The records written into a buffer of the size known beforehand (the posts from the rows' site ranges) are
+    the records encoded into new arrays, byte for byte, for the lens and a patch across its edge."""
+    import mmap
+
+    from metafovea.layout.gds import BOUNDARY_BYTES, SREF_BYTES, encode_task_into, encode_task_records
+    from metafovea.layout.tiling import task_post_counts
+
+    size = BOUNDARY_BYTES if flat else SREF_BYTES
+    patch = make_spec(design, patch_mm=(0.35, -0.1, 0.3), **small_frame)
+    for sp in (spec, patch):
+        for task in sp.tasks():
+            pieces, counts = encode_task_records(sp, flat, task)
+            n = sum(task_post_counts(sp, task)) * size
+            buf = mmap.mmap(-1, n + 6)
+            out = np.frombuffer(buf, np.uint8, count=n, offset=6)  # at an offset, as in a file's block
+            assert np.array_equal(encode_task_into(sp, flat, task, out), counts)
+            assert out.tobytes() == b"".join(p.tobytes() for p in pieces)
+            del out

@@ -58,7 +58,7 @@ def test_stream_reader_accepts_padding_after_endlib(tmp_path, spec, exported):
 
 
 def test_stream_reader_refuses_oasis_and_truncated_files(tmp_path, spec, exported, damaged):
-    with pytest.raises(InputError, match="--reader = 'stream' .*klayout or gdstk for OASIS"):
+    with pytest.raises(InputError, match="^reader = 'stream' .*klayout or gdstk for OASIS"):
         read_stream(exported[("oas", False)][0], None, spec.layers.posts)
     cut = damaged(exported[("gds", False)][0], tmp_path / "cut.gds", "truncated", keep=0.6)
     with pytest.raises(InputError, match="FILE .*ending with an ENDLIB record.*truncated or damaged"):

@@ -9,7 +9,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from metafovea.layout import export_layout, make_spec
+from metafovea.layout import ExportOptions, export_layout, make_spec
 from metafovea.layout.read import klayout as kl
 from metafovea.layout.read import lattice_of, read_gdstk, read_klayout
 
@@ -108,7 +108,7 @@ def test_patch_and_hierarchical_files(tmp_path, design, small_frame, fmt, flat, 
     """A patch at the rim, with references, flat, OASIS, and hierarchical (at most 64 elements per structure)."""
     sp = make_spec(design, patch_mm=(0.45, -0.3, 0.12), band_rows=8, **small_frame)
     p = tmp_path / f"patch.{fmt}"
-    res = export_layout(sp, p, fmt, flat=flat, max_refs=max_refs)
+    res = export_layout(sp, p, fmt, ExportOptions(flat=flat, max_refs=max_refs))
     got = _check_against_gdstk(p, sp)
     assert len(got) == res.posts > 500
     if max_refs:

@@ -9,8 +9,8 @@ import pytest
 from metafovea import lens
 from metafovea.config import LensDesign
 from metafovea.errors import InputError
-from metafovea.layout import band_levels, load_spec, make_spec
-from metafovea.layout.tiling import MAX_COORD_NM, task_rows
+from metafovea.layout import band_levels, expected_content, load_spec, make_spec
+from metafovea.layout.tiling import MAX_COORD_NM, post_count, task_rows
 from metafovea.library import PostSet
 
 
@@ -45,15 +45,15 @@ def test_tasks_cover_each_row_once(lattice):
 
 
 def test_make_spec_bad_input(design):
-    with pytest.raises(InputError, match="--patch"):
+    with pytest.raises(InputError, match="^patch_mm = "):
         make_spec(design, patch_mm=(5.0, 5.0, 0.5))
-    with pytest.raises(InputError, match="--levels"):
+    with pytest.raises(InputError, match="^levels = "):
         make_spec(design, PostSet.ideal(8, period_um=4.0), levels=4)
 
 
 def test_load_spec_checks_the_post_set_file(tmp_path, designs_dir):
     """The post set given as a file must be a PostSet, for the design's polarisation, with ``levels`` posts;
-    its errors name --post-set (PostSet.load names its file 'path')."""
+    its errors name post_set (PostSet.load names its file 'path')."""
     toml = tmp_path / "lens.toml"
     toml.write_text('name = "t"\nf_mm = 0.9\ndiameter_mm = 0.4\npolarization = "x"\n')
     ps = tmp_path / "ps.npz"
@@ -61,14 +61,14 @@ def test_load_spec_checks_the_post_set_file(tmp_path, designs_dir):
     sp = load_spec(toml, ps)
     assert sp.levels == 6 and sp.design.name == "t"
     assert np.array_equal(sp.post_set.widths_um, PostSet.load(ps).widths_um)
-    with pytest.raises(InputError, match="--levels = 4 .*the number of posts in"):
+    with pytest.raises(InputError, match="^levels = 4 .*the number of posts in"):
         load_spec(toml, ps, 4)
     PostSet.ideal(6, period_um=4.0, polarization="y").save(tmp_path / "y.npz")
-    with pytest.raises(InputError, match="--post-set .*polarisation 'x'"):
+    with pytest.raises(InputError, match="^post_set = .*polarisation 'x'"):
         load_spec(toml, tmp_path / "y.npz")
-    with pytest.raises(InputError, match="^--post-set = .*an existing .npz file"):
+    with pytest.raises(InputError, match="^post_set = .*an existing .npz file"):
         load_spec(toml, tmp_path / "none.npz")
-    with pytest.raises(InputError, match="^--post-set = .*not an .npz"):
+    with pytest.raises(InputError, match="^post_set = .*not an .npz"):
         load_spec(toml, toml)
     with pytest.raises(InputError, match="^design = .*a lens design file"):
         load_spec(designs_dir / "system.toml")
@@ -92,3 +92,12 @@ def test_frame_beyond_32bit_coordinates_refused():
     assert 2 * ok.centre_nm <= MAX_COORD_NM
     with pytest.raises(InputError, match="32-bit"):
         make_spec(d, ring_width_um=1.08e6, wafer_diameter_mm=2100.0)
+
+
+@pytest.mark.parametrize("lattice", ["integer", "half"])
+def test_post_count_is_the_expected_total(lattice):
+    """The posts counted from the rows' site ranges alone are those the levels give, for the lens and a patch."""
+    d = LensDesign("c", 900.0, 400.0, lattice=lattice)
+    for patch in (None, (0.1, -0.05, 0.12), (0.19, 0.0, 0.05)):
+        sp = make_spec(d, "ideal", patch_mm=patch, ring_width_um=30.0)
+        assert post_count(sp) == expected_content(sp).total

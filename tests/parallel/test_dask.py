@@ -69,18 +69,18 @@ def _small_spec():
 def test_layout_export_on_a_cluster_writes_tiles_and_stitches_the_same_bytes(tmp_path, cluster, fmt, kw):
     """The workers write one tile per band, the client stitches them in band order: the serial file's bytes (also
     hierarchical GDSII, whose footer needs every band's leaf count), the tiles removed once the file is in place."""
-    from metafovea.layout import export_file
+    from metafovea.layout import ExportOptions, export_file
 
     spec = _small_spec()
-    a = export_file(spec, tmp_path / f"serial.{fmt}", fmt, workers=1, **kw)
-    b = export_file(spec, tmp_path / f"dask.{fmt}", fmt, scheduler=cluster.address, **kw)
+    a = export_file(spec, tmp_path / f"serial.{fmt}", fmt, ExportOptions(workers=1, **kw))
+    b = export_file(spec, tmp_path / f"dask.{fmt}", fmt, ExportOptions(scheduler=cluster.address, **kw))
     assert Path(a["path"]).read_bytes() == Path(b["path"]).read_bytes()
     assert b["bands"] > 2 and b["counts"] == a["counts"] and b["extra"]["tiles_dir"].endswith(f".dask.{fmt}.tiles")
     assert sorted(p.name for p in tmp_path.iterdir()) == [f"dask.{fmt}", f"serial.{fmt}"]
 
 
 def test_cluster_export_resumes_from_its_tiles_and_names_a_missing_or_corrupt_tile(tmp_path, cluster):
-    from metafovea.layout import export_layout
+    from metafovea.layout import ExportOptions, export_layout
     from metafovea.layout.tilefiles import tile_paths
 
     spec = _small_spec()
@@ -88,26 +88,27 @@ def test_cluster_export_resumes_from_its_tiles_and_names_a_missing_or_corrupt_ti
     tiles = tmp_path / "shared"
     p = tmp_path / "lens.oas"
     with pytest.raises(KeyboardInterrupt):
-        export_layout(spec, p, "oas", scheduler=cluster.address, tiles_dir=tiles, _stop_after=2)
+        export_layout(spec, p, "oas", ExportOptions(scheduler=cluster.address, tiles_dir=tiles, stop_after=2))
     assert not p.exists() and len(list(tiles.glob("band_*.bin"))) == 2
-    res = export_layout(spec, p, "oas", scheduler=cluster.address, tiles_dir=tiles)
+    res = export_layout(spec, p, "oas", ExportOptions(scheduler=cluster.address, tiles_dir=tiles))
     assert res.resumed_bands == 2 and p.read_bytes() == (tmp_path / "ref.oas").read_bytes()
     assert res.posts == ref.posts and not list(tiles.iterdir())  # the tiles removed, the given directory kept
     # a corrupt tile stops the stitch naming the file, and its record is removed: a rerun writes it again
     q = tmp_path / "q.oas"
     with pytest.raises(KeyboardInterrupt):
-        export_layout(spec, q, "oas", scheduler=cluster.address, tiles_dir=tiles, _stop_after=ref.bands - 1)
+        export_layout(spec, q, "oas", ExportOptions(scheduler=cluster.address, tiles_dir=tiles,
+                                                    stop_after=ref.bands - 1))
     b1, r1 = tile_paths(tiles, 1)
     b1.write_bytes(b"\x00" + b1.read_bytes()[1:])
-    with pytest.raises(InputError, match=r"--tiles-dir.*band 1: band_0000001.bin is corrupt.*rerun"):
-        export_layout(spec, q, "oas", scheduler=cluster.address, tiles_dir=tiles)
+    with pytest.raises(InputError, match=r"^tiles_dir = .*band 1: band_0000001.bin is corrupt.*rerun"):
+        export_layout(spec, q, "oas", ExportOptions(scheduler=cluster.address, tiles_dir=tiles))
     assert not q.exists() and not r1.exists() and tile_paths(tiles, 0)[1].exists()
-    res = export_layout(spec, q, "oas", scheduler=cluster.address, tiles_dir=tiles)
+    res = export_layout(spec, q, "oas", ExportOptions(scheduler=cluster.address, tiles_dir=tiles))
     assert res.resumed_bands == ref.bands - 1 and q.read_bytes() == (tmp_path / "ref.oas").read_bytes()
-    with pytest.raises(InputError, match="--tiles-dir.*only with --scheduler"):
-        export_layout(spec, tmp_path / "x.oas", "oas", tiles_dir=tiles)
-    with pytest.raises(InputError, match="--scheduler"):  # refused before the tiles' folder is made
-        export_layout(spec, tmp_path / "y.oas", "oas", scheduler="local:x")
+    with pytest.raises(InputError, match=r"^tiles_dir = .*only with scheduler=\.\.\."):
+        export_layout(spec, tmp_path / "x.oas", "oas", ExportOptions(tiles_dir=tiles))
+    with pytest.raises(InputError, match="^scheduler = "):  # refused before the tiles' folder is made
+        export_layout(spec, tmp_path / "y.oas", "oas", ExportOptions(scheduler="local:x"))
     assert not list(tmp_path.glob("*y.oas*"))
 
 
@@ -141,16 +142,16 @@ def test_a_tile_the_client_cannot_see_names_the_shared_directory(tmp_path):
         write_tile(lambda task: ([bytes([task]) * 10], np.array([task, 1]), None), str(td.d), "k", (i, i))
     tile_paths(td.d, 2)[0].unlink()
     got = []
-    with pytest.raises(InputError, match=r"--tiles-dir.*client and every worker share.*band 2: its tile "
+    with pytest.raises(InputError, match=r"^tiles_dir = .*client and every worker share.*band 2: its tile "
                                          r"\(band_0000002.bin\) is missing"):
         td.stitch(got.append)
     assert b"".join(got) == bytes(10) + bytes([1]) * 10
 
 
 def test_bad_scheduler_is_one_line_naming_the_flag():
-    with pytest.raises(InputError, match="--scheduler"):
+    with pytest.raises(InputError, match="^scheduler = "):
         DaskExecutor("local:x")
-    with pytest.raises(InputError, match="--scheduler"):
+    with pytest.raises(InputError, match="^scheduler = "):
         DaskExecutor("tcp://127.0.0.1:9")
 
 
@@ -209,7 +210,7 @@ def test_a_bad_scheduler_for_psf_writes_nothing(tmp_path):
     from metafovea.config import LensDesign
     from metafovea.optics.report import psf_reports
 
-    with pytest.raises(InputError, match="--scheduler"):
+    with pytest.raises(InputError, match="^scheduler = "):
         psf_reports([LensDesign("t", 20000.0, 2000.0)], tmp_path / "o", fields_deg=[0.0], n_wavelengths=3,
                     posts="ideal", scheduler="local:x")
     assert not (tmp_path / "o").exists()

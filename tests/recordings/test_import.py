@@ -96,7 +96,7 @@ def test_planck_flag_overrides_and_matches_the_file(tmp_path, cli, camera_consta
     s = json.loads(out)
     assert s["times_from"] == "key times_s" and s["calibration"]["method"] == "planck"
     m = Measurement.load(tmp_path / "rec.npz")
-    assert m.meta["calibration"]["planck"]["from"] == "--planck"
+    assert m.meta["calibration"]["planck"]["from"] == "given"
     # default band 8-14 um: the fit is poorer and the import says so
     assert any("--band-um" in w for w in s["warnings"]) == (s["calibration"]["fit_max_error_k"] > 0.25)
 

@@ -61,7 +61,7 @@ def test_hdf5_frames_found_as_the_only_3d_array(tmp_path, frames):
         f["a"], f["b"] = frames, frames
     with pytest.raises(InputError, match="2 3-D arrays") as e:
         read_recording(tmp_path / "two.h5")
-    assert e.value.parameter == "--frames-key"
+    assert e.value.parameter == "frames_key"
 
 
 def test_tiff_imagej_interval_and_sidecar_times(tmp_path, frames):
@@ -75,7 +75,7 @@ def test_tiff_imagej_interval_and_sidecar_times(tmp_path, frames):
     np.testing.assert_allclose(rec.times_s, (t - t[0]) * 1e-3)  # times start at 0
     with pytest.raises(InputError) as e:
         read_recording(tmp_path / "plain.tif", times=str(tmp_path / "missing.csv"))
-    assert e.value.parameter == "--times"
+    assert e.value.parameter == "times"
 
 
 def test_saturated_samples_are_left_out(tmp_path, frames):

@@ -61,7 +61,7 @@ def test_a_given_frame_rate_is_the_nominal_interval():
 def test_backwards_timestamps_are_an_error():
     with pytest.raises(InputError) as e:
         check_timing(_noisy(4), np.array([0.0, 0.1, 0.05, 0.2]))
-    assert e.value.parameter == "--times"
+    assert e.value.parameter == "times"
 
 
 def test_import_records_timing_in_meta(tmp_path, cli):

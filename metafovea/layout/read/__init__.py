@@ -1,7 +1,8 @@
 """Readers of exported layouts, each independent of the writers: a file reduced to an :class:`Observed`.
 
 * :mod:`~metafovea.layout.read.base`: the :class:`Observed` record, :func:`sniff_format`, :func:`lattice_of`
-  and the helpers the readers share (bounding-box union, capturing what C libraries print).
+  and what the readers share (capturing what C libraries print; the bounding-box union is
+  :mod:`metafovea.layout.bbox`'s).
 * :mod:`~metafovea.layout.read.klayout`: :func:`read_klayout`, KLayout's Python module (what fabs use);
   GDSII and OASIS, loaded whole.
 * :mod:`~metafovea.layout.read.gdstk`: :func:`read_gdstk`, gdstk's readers (fast for large OASIS files).

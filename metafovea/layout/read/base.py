@@ -1,5 +1,6 @@
 """What a layout reader reports, and what the readers share: format sniffing, the lattice a reader checks
-positions against, bounding-box union and capturing what C libraries print on file descriptor 2."""
+positions against and capturing what C libraries print on file descriptor 2 (the bounding-box union is
+:mod:`metafovea.layout.bbox`'s, which the frame shares)."""
 
 from __future__ import annotations
 
@@ -10,10 +11,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from metafovea.errors import InputError
+from metafovea.layout.bbox import BBox
+from metafovea.layout.bbox import union_bbox as union_bbox  # re-exported: the readers' old home of it
 from metafovea.layout.tiling import LayoutSpec
-
-#: bounding box ``(x0, y0, x1, y1)`` in database units
-BBox = tuple[int, int, int, int]
 
 
 @dataclass
@@ -46,15 +46,6 @@ class Observed:
     #: (layer, datatype) -> [polygons, bbox] of every layer but the posts', through the hierarchy (None: not read)
     frame_layers: dict | None = None
     max_references: int = 0  # most reference records (SREF/AREF or instances) in one structure
-
-
-def union_bbox(a: BBox | None, b: BBox | None) -> BBox | None:
-    """The smallest box holding boxes ``a`` and ``b`` (either may be None: no box)."""
-    if a is None:
-        return b
-    if b is None:
-        return a
-    return (min(a[0], b[0]), min(a[1], b[1]), max(a[2], b[2]), max(a[3], b[3]))
 
 
 def read_label(path: Path, span: int = 4 << 20) -> str | None:

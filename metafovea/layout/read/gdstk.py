@@ -12,7 +12,8 @@ from typing import Any
 
 import numpy as np
 
-from metafovea.layout.read.base import Observed, captured_stderr, sniff_format, union_bbox
+from metafovea.layout.bbox import union_bbox
+from metafovea.layout.read.base import Observed, captured_stderr, sniff_format
 
 
 def read_gdstk(path: Path, lattice: tuple[int, int, int] | None, posts_layer: tuple[int, int],

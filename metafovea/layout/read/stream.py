@@ -17,7 +17,8 @@ from typing import Any
 import numpy as np
 
 from metafovea.errors import InputError
-from metafovea.layout.read.base import Observed, sniff_format, union_bbox
+from metafovea.layout.bbox import union_bbox
+from metafovea.layout.read.base import Observed, sniff_format
 
 _SREF_T = np.array([0x00040A00, 0x00081206, 0, 0x000C1003, 0, 0, 0x00041100], dtype=np.uint32)
 _SREF_N = np.frombuffer(_SREF_T.astype(">u4").tobytes(), dtype=np.uint32)  # raw big-endian bytes, native view
@@ -513,7 +514,7 @@ class GdsScanner:
                 self.ob.anomalies.append(
                     f"structure {nm} is placed {self.placements[nm]} time(s) at offsets {mn.tolist()}..{mx.tolist()}: "
                     "the streaming reader checks posts one by one only in structures placed once at the origin "
-                    "(as metafovea writes them); use --reader gdstk")
+                    "(as metafovea writes them); use reader='gdstk'")
             sP, sF, soff, sT = self._content(nm, is_post, memo, stack + (S,))
             if lat is not None and (np.any(mn != mx) or np.any(mn % lat[2] != 0)):
                 self.ob.anomalies.append(f"references to structure {nm} at offsets {mn.tolist()}..{mx.tolist()}: "
@@ -540,5 +541,5 @@ def read_stream(path: Path, lattice, posts_layer, progress: bool = False, post_n
     """Read the GDSII file ``path`` with :class:`GdsScanner` (an OASIS file is an :class:`InputError`);
     arguments as :func:`~metafovea.layout.read.klayout.read_klayout`, ``progress``: a bar over the bytes."""
     if sniff_format(path) != "gds":
-        raise InputError("--reader", "stream", "klayout or gdstk for OASIS files (the scanner reads GDSII)")
+        raise InputError("reader", "stream", "klayout or gdstk for OASIS files (the scanner reads GDSII)")
     return GdsScanner(path, lattice, posts_layer, progress, post_names, sink, sizes).run()
