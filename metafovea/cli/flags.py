@@ -98,16 +98,16 @@ def as_flag_error(command: str, err: InputError, args: argparse.Namespace | None
     file the user gave; unchanged when there is none, or when the error already names a file's key. Library keywords
     in its advice become the command's flags (:data:`KEYWORD_ADVICE`), and so do the parameters its range and
     detail mention (:func:`in_flags`)."""
+    flags = flag_map(command)
     err = _advice_in_flags(command, err)
+    err = InputError(err.parameter, err.value, in_flags(err.allowed, flags), source=err.source,
+                     detail=None if err.detail is None else in_flags(err.detail, flags))
     if err.source is not None:
         return err
     dest = FILE_KEYS.get(command, {}).get(err.parameter)
     if dest is not None and args is not None and getattr(args, dest, None) is not None:
         return err.located(f"--{dest.replace('_', '-')} {getattr(args, dest)}")
-    flags = flag_map(command)
     err = err.renamed(flags[err.parameter]) if err.parameter in flags else err
-    err = InputError(err.parameter, err.value, in_flags(err.allowed, flags), source=err.source,
-                     detail=None if err.detail is None else in_flags(err.detail, flags))
     if getattr(args, "out_default", False) and err.parameter.split(" ")[0] == "--out":
         # the command chose the path (no --out typed): say so, and what to type instead
         from metafovea.cli.output import DEFAULT_OUT

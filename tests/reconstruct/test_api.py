@@ -292,7 +292,7 @@ def test_rules_of_the_pipeline_are_input_errors():
             reconstruct_measurement(m, **kw)
         assert e.value.parameter == name, kw
     no_alpha = _measurement(T=10, alpha=None)
-    with pytest.raises(InputError, match="--method lsq") as e:
+    with pytest.raises(InputError, match="method=lsq") as e:
         reconstruct_measurement(no_alpha)
     assert e.value.value == "absent"
     assert reconstruct_measurement(no_alpha, "alternating").alpha_mae is None  # nothing to compare with
