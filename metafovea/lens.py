@@ -325,8 +325,9 @@ def design_warnings(design: LensDesign, n_superstrate: float = 1.0) -> list[str]
     out = []
     rim = float(posts_per_2pi(design, design.radius_um))
     if rim < 4.0:
+        r4_mm = radius_below_posts(design, 4.0) / UM_PER_MM
         out.append(f"only {rim:.2f} posts per 2 pi at the rim (< 4): the outer zones are undersampled; "
-                   f"expect lower efficiency and stray orders beyond r = {radius_below_posts(design, 4.0) / UM_PER_MM:.3g} mm")
+                   f"expect lower efficiency and stray orders beyond r = {r4_mm:.3g} mm")
     out += aperture_warnings(design)
     lam_sub = design.wavelength_um / design.n_substrate
     if design.period_um > lam_sub:

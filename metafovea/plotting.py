@@ -319,7 +319,8 @@ def postset_html(ps: Any) -> str:
                                    f"phase {np.mod(np.angle(ps.t_focus[i]), 2 * np.pi):.3f} rad"))
     fig, axs = small_figure(3, width=2.8)
     plot_postset(ps, axs)
-    return html_card(f"PostSet ({ps.polarization}, {ps.levels} levels)", rows, [("phases, |t|^2, posts", figure_png(fig))])
+    return html_card(f"PostSet ({ps.polarization}, {ps.levels} levels)", rows,
+                     [("phases, |t|^2, posts", figure_png(fig))])
 
 
 # ----------------------------------------------------------------------------------------------
@@ -453,7 +454,8 @@ def measurement_html(m: Any) -> str:
     imgs = [(f"frame 0 ({units})", thumbnail_png(m.frames[0]))]
     tr = m.truth(0)
     if tr is not None:
-        imgs += [(f"truth foveal ({units})", thumbnail_png(tr[0])), (f"truth perifoveal ({units})", thumbnail_png(tr[1]))]
+        imgs += [(f"truth foveal ({units})", thumbnail_png(tr[0])),
+                 (f"truth perifoveal ({units})", thumbnail_png(tr[1]))]
     return html_card("Measurement", rows, imgs)
 
 

@@ -137,8 +137,8 @@ class HtmlReport:
             + (f'<td class="{"pass" if it["passed"] else "fail"}">{"pass" if it["passed"] else "FAIL"}</td></tr>')
             for it in items)
         n_fail = sum(1 for it in items if not it["passed"])
-        head = (f"<h2>Verdict: {'all ' + str(len(items)) + ' checks pass' if not n_fail else f'{n_fail} of {len(items)} checks fail'}"
-                "</h2>")
+        verdict = f"all {len(items)} checks pass" if not n_fail else f"{n_fail} of {len(items)} checks fail"
+        head = f"<h2>Verdict: {verdict}</h2>"
         self._verdict = (head + '<div class="scroll"><table><thead><tr><th class="text">stage</th>'
                          '<th class="text">check</th><th class="text">value</th><th class="text">reference</th>'
                          f"<th>result</th></tr></thead><tbody>{rows}</tbody></table></div>")
@@ -146,7 +146,8 @@ class HtmlReport:
     def image(self, png: bytes, caption: str = "") -> None:
         b64 = base64.b64encode(png).decode()
         cap = f"<figcaption>{html.escape(caption)}</figcaption>" if caption else ""
-        self.parts.append(f'<figure><img src="data:image/png;base64,{b64}" alt="{html.escape(caption)}"/>{cap}</figure>')
+        self.parts.append(f'<figure><img src="data:image/png;base64,{b64}" alt="{html.escape(caption)}"/>'
+                          f'{cap}</figure>')
 
     def render(self) -> str:
         return (f"<!DOCTYPE html><html lang='en'><head><meta charset='utf-8'>"

@@ -200,7 +200,8 @@ def mft_intensity_multi(pupils: list[Pupil], weights: Any, xs: Any, ys: Any, *, 
         a = pu.alpha
         sx = s0[0] + uw / a
         sy = s0[1] + vvw / a
-        Q[:, i, :] = (wq / (a * a)) * pu.amplitude(sx, sy) * np.exp(1j * (pu.phase(sx, sy) + pu.k * (sx * xc + sy * yc)))
+        Q[:, i, :] = ((wq / (a * a)) * pu.amplitude(sx, sy)
+                      * np.exp(1j * (pu.phase(sx, sy) + pu.k * (sx * xc + sy * yc))))
     ey = np.exp(1j * kap * np.outer(ys - yc, vw))  # (My, nt)
     dx = xs - xc
     h = np.diff(dx)

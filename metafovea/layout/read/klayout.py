@@ -92,7 +92,7 @@ def read_klayout(path: Path, lattice: tuple[int, int, int] | None, posts_layer: 
     flatc, off, found = _flatten_posts(ly, top, passes, sizes or {}, lattice, sink)
     ob.flat_counts.update(flatc)
     ob.off_lattice = int(off)
-    for li, kind, what, n, exact in passes:  # KLayout's flattening against its own count, record by record
+    for li, _, what, n, _ in passes:  # KLayout's flattening against its own count, record by record
         if found[li] != n:
             ob.anomalies.append(f"klayout flattened {found[li]:,} {what}, counted {n:,}")
     return ob
