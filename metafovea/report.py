@@ -16,9 +16,13 @@ import io as _io
 import math
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from metafovea.io import atomic_write_text
+
+if TYPE_CHECKING:
+    from matplotlib.figure import Figure
+    from numpy.typing import ArrayLike
 
 #: the resolution of every figure a report or a command writes (one for all: figures of two stages side by side
 #: in a page then share one scale)
@@ -27,14 +31,14 @@ FIGURE_DPI = 100
 THUMBNAIL_DPI = 60
 
 
-def fig_to_png(fig: Any, dpi: int = FIGURE_DPI) -> bytes:
+def fig_to_png(fig: Figure, dpi: int = FIGURE_DPI) -> bytes:
     """A matplotlib figure as PNG bytes at ``dpi`` (default :data:`FIGURE_DPI`), trimmed to its content."""
     buf = _io.BytesIO()
     fig.savefig(buf, format="png", dpi=dpi, bbox_inches="tight")
     return buf.getvalue()
 
 
-def array_png(img: Any, cmap: str = "inferno") -> bytes:
+def array_png(img: ArrayLike, cmap: str = "inferno") -> bytes:
     """One image as a PNG, one pixel per array element, in the colour map ``cmap`` (NaN shown as 0)."""
     import matplotlib
 

@@ -10,17 +10,20 @@ from __future__ import annotations
 
 import argparse
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from metafovea.cli.options import add_shared, seed_arg, show_progress
 from metafovea.cli.output import out_file
 from metafovea.errors import InputError, as_float
 from metafovea.io import to_json
 
+if TYPE_CHECKING:
+    import numpy as np
+
 HELP = "separate foveal and perifoveal images from a measurement (.npz)"
 
 
-def register(subparsers: Any) -> argparse.ArgumentParser:
+def register(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
     from metafovea.reconstruct import DENOISERS, METHODS
 
     p = subparsers.add_parser("reconstruct", help=HELP, description=HELP)
@@ -107,7 +110,7 @@ def _solver_options(args: argparse.Namespace) -> dict[str, Any]:
     return kw
 
 
-def _fpn_arg(v: str) -> Any:
+def _fpn_arg(v: str) -> str | np.ndarray:
     """A mode name as is; anything else is a pattern file, loaded."""
     from metafovea.reconstruct import FPN_MODES
 

@@ -31,6 +31,7 @@ from __future__ import annotations
 
 import logging
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Protocol
@@ -232,7 +233,7 @@ class OpticsPSFProvider:
 
 
 def resolve_provider(psf: str | PSFProvider | dict | None, cache_dir: str | Path | None = None,
-                     post_sets: dict | None = None) -> tuple[Any, str]:
+                     post_sets: dict | None = None) -> tuple[PSFProvider, str]:
     """``psf``: 'auto' (optics if importable, else analytic Airy), 'optics', 'airy', 'gaussian:SIGMA_UM',
     a dict of kernels, or a provider callable. ``post_sets``: the lenses' posts for the optics provider.
     Returns (provider, name)."""
@@ -338,11 +339,11 @@ def _kernel_tv_distance(a: np.ndarray, b: np.ndarray) -> float:
     return 0.5 * float(np.abs(pad(a) - pad(b)).sum())
 
 
-def build_channel_optics(channel: Channel, provider: Any, radiance: BandRadiance, *, ss: int = 1,
+def build_channel_optics(channel: Channel, provider: PSFProvider, radiance: BandRadiance, *, ss: int = 1,
                          psf_size_px: int | None = None, field_patches: int | str = 1,
                          patch_threshold: float = 0.2, scene_temperature_k: float = 300.0,
                          haze: bool = True, n_psf_wavelengths: int = 31, transmitted: float = 1.0,
-                         leaks: Any = ()) -> ChannelOptics:
+                         leaks: Sequence[tuple[float, float]] = ()) -> ChannelOptics:
     """Ask the provider for the channel's kernel(s) and build the haze model (see module docstring).
 
     ``transmitted``: the fraction of the incident power the focusing metasurface transmits (the optical

@@ -15,6 +15,7 @@ from typing import Any
 
 import numpy as np
 
+from metafovea.measurement import Measurement
 from metafovea.studies.common import (
     FILTER,
     Stopwatch,
@@ -83,7 +84,7 @@ def _trend(rows: list[dict[str, Any]]) -> dict[str, Any]:
                     "foveal and perifoveal PSNR)"}
 
 
-def _figure(rows: list[dict[str, Any]], meas: Any, cs: list[int]) -> bytes:
+def _figure(rows: list[dict[str, Any]], meas: Measurement, cs: list[int]) -> bytes:
     from metafovea.imaging.simulate import iron_colormap
     from metafovea.report import fig_to_png
 

@@ -15,7 +15,7 @@ the pre-heating baseline, reconstruction over truth) and correlation.
 
 from __future__ import annotations
 
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -32,6 +32,9 @@ from metafovea.studies.common import (
     sweep,
 )
 
+if TYPE_CHECKING:
+    from metafovea.imaging.scene import CoilHeater
+
 NAME = "transients"
 WINDOW = 8  #: frames per window: the frames study's optimum (8-12 at 2 Hz / 12 frames/s)
 FULL = {"scenes": ["heater-5s", "heater-10s", "heater-20s"], "crop": [290, 290], "cooling_taus": 3.0,
@@ -42,7 +45,7 @@ CHANNELS = (("foveal", "x1"), ("perifoveal", "x2"))
 FLAT_DN = 5.0  #: a truth rising less than this (about the noise of one pixel's series) has no peak to compare
 
 
-def duration_s(scene: Any, cooling_taus: float) -> float:
+def duration_s(scene: CoilHeater, cooling_taus: float) -> float:
     """Seconds that hold the heating and ``cooling_taus`` cooling time constants: ``t_on + on + n tau_cool``."""
     return float(scene.t_on_s + scene.on_duration_s + cooling_taus * scene.tau_cool_s)
 
