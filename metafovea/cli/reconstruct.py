@@ -10,15 +10,12 @@ from __future__ import annotations
 
 import argparse
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 from metafovea.cli.options import add_shared, seed_arg, show_progress
 from metafovea.cli.output import out_file
 from metafovea.errors import InputError, as_float
 from metafovea.io import to_json
-
-if TYPE_CHECKING:
-    import numpy as np
 
 HELP = "separate foveal and perifoveal images from a measurement (.npz)"
 
@@ -110,7 +107,7 @@ def _solver_options(args: argparse.Namespace) -> dict[str, Any]:
     return kw
 
 
-def _fpn_arg(v: str) -> str | np.ndarray:
+def _fpn_arg(v: str) -> Any:
     """A mode name as is; anything else is a pattern file, loaded."""
     from metafovea.reconstruct import FPN_MODES
 
