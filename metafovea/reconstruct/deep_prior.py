@@ -374,8 +374,8 @@ class DipOptions:
     log_every : int
         Log the loss every so many steps (0: never).
     progress : bool or callable
-        True: step, loss and ETA on stderr (a bar on a terminal, a log line every 10 s otherwise); a callable: called
-        with a dict ``step, steps, loss, seconds, eta_s`` every ``progress_every`` steps and at the end.
+        True: step, loss and ETA on stderr (a bar on a terminal, a log line every 10 s otherwise); a callable:
+        called with a dict ``step, steps, loss, seconds, eta_s`` every ``progress_every`` steps and at the end.
     progress_every : int
     """
 
