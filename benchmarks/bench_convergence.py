@@ -34,7 +34,8 @@ def main() -> None:
         both = np.maximum(step, np.abs(t[M] - t[M - 4]))
         bound = convergence_bound(t[M], t[M - 2], t[M - 4])
         print(f"M = {M}: true error median {np.median(true):.2g} max {true.max():.2g}; holds: step "
-              f"{np.mean(true <= step):.3f}, max(step, step4) {np.mean(true <= both):.3f}, 2x {np.mean(true <= 2 * both):.3f}, "
+              f"{np.mean(true <= step):.3f}, max(step, step4) {np.mean(true <= both):.3f}, "
+              f"2x {np.mean(true <= 2 * both):.3f}, "
               f"bound (3x) {np.mean(true <= bound):.3f}; true/step median {np.median(true / step):.2f} "
               f"q95 {np.quantile(true / step, 0.95):.1f} max {np.max(true / step):.1f}")
 

@@ -75,7 +75,8 @@ def main() -> None:
                 if not known:
                     r0 = alternating(Y, scale=6, strict=False, prior="none")
                     plain = f"{psnr(r0.x1, x1, 1.0):.2f} / {psnr(r0.x2, x2, 1.0):.2f}"
-                label = f"{fov}:{peri}, {sigma:g}, {kind} ({'lsq' if known else 'alternating + TV'} {1e3 * t_cl:.0f} ms)"
+                solver = "lsq" if known else "alternating + TV"
+                label = f"{fov}:{peri}, {sigma:g}, {kind} ({solver} {1e3 * t_cl:.0f} ms)"
                 for start in args.starts.split(","):
                     kw = {"alpha": a} if known else {"alpha_init": "classical", "scale": 6}
                     r = dip(Y, init=start, steps=args.steps, channels=args.channels, rng=args.seed,

@@ -10,6 +10,7 @@ x1/x2, seconds. Make the files with
 """
 import sys
 import time
+from functools import partial
 
 import numpy as np
 
@@ -19,6 +20,27 @@ from metafovea.reconstruct import lsq_known_alpha
 from metafovea.reconstruct.fpn import estimate_fpn
 from metafovea.reconstruct.metrics import psnr
 
+
+def row(est, truth, name, F, sec=None, extra=""):
+    """Print one table row: the FPN rms error of `F` (mean removed) and the level-free PSNR of x1/x2 after
+    subtracting `F` from the LSQ estimates `est` = (x1, x2), against `truth` = (x1, x2, pattern)."""
+    (x1p, x2p), (t1, t2, Ft) = est, truth
+    d = F - Ft
+    err = np.sqrt(np.mean((d - d.mean())**2))
+    e1, e2 = x1p - F, x2p - F
+    # level-free PSNR (the pattern's mean is not identified: each image's mean error removed)
+    print(f"| {name} | {err:.2f} | {psnr(e1 - (e1-t1).mean(), t1):.2f} | {psnr(e2-(e2-t2).mean(), t2):.2f} | "
+          f"{'-' if sec is None else f'{sec:.2f}'} | {extra}", flush=True)
+
+
+def timed_fpn(x1p, x2p, fc, **kw):
+    """`estimate_fpn` on one BLAS thread; returns (pattern, info, seconds)."""
+    with blas_threads(1):
+        t0 = time.perf_counter()
+        F, info = estimate_fpn(x1=x1p, x2=x2p, **fc.as_kwargs(), **kw)
+        return F, info, time.perf_counter() - t0
+
+
 tv = "tv" in sys.argv
 for path in [a for a in sys.argv[1:] if a.endswith(".npz")]:
     m = Measurement.load(path)
@@ -27,25 +49,20 @@ for path in [a for a in sys.argv[1:] if a.endswith(".npz")]:
         r = lsq_known_alpha(m.frames.astype(np.float64), m.alpha)
     x1p, x2p = r.x1, r.x2
     t1, t2 = m.truth_x1.astype(float), m.truth_x2.astype(float)
-    if t1.ndim == 3: t1, t2 = t1.mean(0), t2.mean(0)
+    if t1.ndim == 3:
+        t1, t2 = t1.mean(0), t2.mean(0)
     Ft = m.fpn.astype(float)
-    print(f"\n{path}: {m.meta['scene']} {m.shape}, FPN rms {Ft.std():.2f} DN, x1 range {np.ptp(t1):.1f}, x2 {np.ptp(t2):.1f}")
-    def rep(name, F, sec=None, extra=""):
-        d = F - Ft; err = np.sqrt(np.mean((d - d.mean())**2))
-        e1, e2 = x1p - F, x2p - F
-        # level-free PSNR (the pattern's mean is not identified: each image's mean error removed)
-        print(f"| {name} | {err:.2f} | {psnr(e1 - (e1-t1).mean(), t1):.2f} | {psnr(e2-(e2-t2).mean(), t2):.2f} | "
-              f"{'-' if sec is None else f'{sec:.2f}'} | {extra}", flush=True)
-    rep("none", np.zeros_like(Ft)); rep("true pattern subtracted", Ft - Ft.mean())
+    print(f"\n{path}: {m.meta['scene']} {m.shape}, FPN rms {Ft.std():.2f} DN, x1 range {np.ptp(t1):.1f}, "
+          f"x2 {np.ptp(t2):.1f}")
+    rep = partial(row, (x1p, x2p), (t1, t2, Ft))
+    rep("none", np.zeros_like(Ft))
+    rep("true pattern subtracted", Ft - Ft.mean())
     for rk in (2, 4, 6, 10, 20):
-        with blas_threads(1):
-            t0 = time.perf_counter(); F, info = estimate_fpn(x1=x1p, x2=x2p, **fc.as_kwargs(), rank=rk); s = time.perf_counter() - t0
+        F, info, s = timed_fpn(x1p, x2p, fc, rank=rk)
         rep(f"foveal, rank {rk}" + (" (default)" if rk == 4 else ""), F, s,
             f"g {info.get('foveal_gain', float('nan')):.3f} {info.get('fallback', '')}")
-    with blas_threads(1):
-        F, info = estimate_fpn(x1=x1p, x2=x2p, **fc.as_kwargs(), fit_gain=False)
+    F, info, _ = timed_fpn(x1p, x2p, fc, fit_gain=False)
     rep("foveal, rank 4, stored gain", F, None, f"g {info.get('foveal_gain', float('nan')):.3f}")
     if tv:
-        with blas_threads(1):
-            t0 = time.perf_counter(); F, info = estimate_fpn(x1=x1p, x2=x2p, **fc.as_kwargs(), method="tv"); s = time.perf_counter() - t0
+        F, info, s = timed_fpn(x1p, x2p, fc, method="tv")
         rep("TV prior (previous --fpn prior)", F, s, f"rank {info['rank']}")

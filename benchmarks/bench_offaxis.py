@@ -70,8 +70,8 @@ def main() -> None:
             err = float(np.abs(I[np.ix_(r_idx, c_idx)] - ref).max() / ref.max())
             print(f"| {lens.name} F/{lens.f_um / lens.diameter_um:g} | {field:g} deg | {xs.size}^2 at "
                   f"{xs[1] - xs[0]:.2f} um | {name} | {dt:.2f} | {err:.1e} | {claim:.1e} |", flush=True)
-        print(f"| {lens.name} | {field:g} deg | {len(r_idx)} x {len(c_idx)} points | rs_reference | {t_ref:.0f} | - | - |",
-              flush=True)
+        print(f"| {lens.name} | {field:g} deg | {len(r_idx)} x {len(c_idx)} points | rs_reference | "
+              f"{t_ref:.0f} | - | - |", flush=True)
     print(f"load average {os.getloadavg()[0]:.2f} at the end")
 
 

@@ -99,7 +99,8 @@ def broadband() -> None:
         H, dt = timed(sensor_psf, lens, pixel_pitch_um=17.0, field_deg=1.0, wavelengths_um=wl, weights=w,
                       size_px=41, budget=budget)
         print(f"| foveal | 1 deg, 9.7-10.3 um ({wl.size} wl), 41^2 px, budget {budget:g} | {H.info['engines']} | "
-              f"{dt:.2f} | {H.error_estimate:.2g} | {np.abs(H.intensity - R.intensity).max() / R.intensity.max():.2g} | "
+              f"{dt:.2f} | {H.error_estimate:.2g} | "
+              f"{np.abs(H.intensity - R.intensity).max() / R.intensity.max():.2g} | "
               f"all-wave mft ({tref:.1f}) |")
     for lens, fd in ((LensDesign.foveal(), 1.3), (LensDesign.perifoveal(), 3.8), (LensDesign.perifoveal(), 7.6)):
         wl, w = _weights(lens)

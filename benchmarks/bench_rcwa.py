@@ -40,20 +40,21 @@ from __future__ import annotations
 
 import os
 
+# one thread per process, set before numpy and jax load their BLAS and XLA runtimes
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 os.environ.setdefault("MKL_NUM_THREADS", "1")
 os.environ.setdefault("XLA_FLAGS", "--xla_cpu_multi_thread_eigen=false intra_op_parallelism_threads=1")
 
-import argparse  # noqa: E402
-import json  # noqa: E402
-import platform  # noqa: E402
-import resource  # noqa: E402
-import time  # noqa: E402
+import argparse
+import json
+import platform
+import resource
+import time
 
-import numpy as np  # noqa: E402
+import numpy as np
 
-from metafovea.rcwa.posts import post_response  # noqa: E402
+from metafovea.rcwa.posts import post_response
 
 P, H, WL, W, NSI = 4.0, 10.0, 10.0, 2.0, 3.42
 TOL = 0.01
@@ -237,7 +238,8 @@ def main() -> None:
     if a.out:
         with open(a.out, "w") as fh:
             json.dump(dict(reference_phase=ph_ref, richardson_phase=float(ph_ext), ref_M=ref_M, rows=rows,
-                           speedup=summary, library_31x31_s=lib_time, library_31x31_cpu_s=lib_cpu, load_average=os.getloadavg()),
+                           speedup=summary, library_31x31_s=lib_time, library_31x31_cpu_s=lib_cpu,
+                           load_average=os.getloadavg()),
                       fh, indent=1, default=float)
 
 

@@ -12,6 +12,7 @@ import argparse
 import os
 import platform
 import time
+from functools import partial
 
 import numpy as np
 
@@ -28,6 +29,15 @@ def best_of(fn, n=3):
         out = fn()
         best = min(best, time.perf_counter() - t)
     return best, out
+
+
+def sliding(Y, a, window=8):
+    """Push every frame of `Y` through a `SlidingLSQ` and solve each full window (the real-time path)."""
+    s = SlidingLSQ(window)
+    for t in range(len(Y)):
+        s.push(Y[t], a[t])
+        if s.ready:
+            s.solve()
 
 
 def main() -> None:
@@ -47,35 +57,29 @@ def main() -> None:
         Y = measure(x1, x2, a, sigma=sigma, rng=0, dtype=np.float32)
         K = T - 7
         # known alpha: throughput over the whole sequence
-        dt, v = best_of(lambda: video(Y, a, window=8))
+        dt, v = best_of(partial(video, Y, a, window=8))
         p1 = np.mean([psnr(v.x1[k], x1, 1.0) for k in range(0, K, max(1, K // 10))])
         p2 = np.mean([psnr(v.x2[k], x2, 1.0) for k in range(0, K, max(1, K // 10))])
         rows.append(("known alpha, video LSQ (batched)", sigma, K / dt, 1e3 * dt / K, p1, p2))
-        def sliding():
-            s = SlidingLSQ(8)
-            for t in range(T):
-                s.push(Y[t], a[t])
-                if s.ready:
-                    s.solve()
-        dt, _ = best_of(sliding, 2)
+        dt, _ = best_of(partial(sliding, Y, a), 2)
         rows.append(("known alpha, SlidingLSQ (real time)", sigma, K / dt, 1e3 * dt / K, p1, p2))
         Ksub = min(K, 40)
         for dn in ("tv", "nlm") if sigma == 0.05 or not args.quick else ("tv",):
             Kd = Ksub if dn == "tv" else 5
-            dt, vd = best_of(lambda: video(Y[:Kd + 7], a[:Kd + 7], window=8, denoise=dn), 1)
+            dt, vd = best_of(partial(video, Y[:Kd + 7], a[:Kd + 7], window=8, denoise=dn), 1)
             rows.append((f"known alpha, video LSQ + {dn}", sigma, Kd / dt, 1e3 * dt / Kd,
                          psnr(vd.x1[0], x1, 1.0), psnr(vd.x2[0], x2, 1.0)))
         W8 = Y[:8]
         for prior in (None, "tv"):
-            dt, r = best_of(lambda: alternating(W8, prior=prior), 3)
+            dt, r = best_of(partial(alternating, W8, prior=prior), 3)
             rows.append((f"unknown alpha, alternating ({prior or 'no prior'}) + foveal gauge", sigma, 1 / dt, 1e3 * dt,
                          psnr(r.x1, x1, 1.0), psnr(r.x2, x2, 1.0)))
-        dt, r = best_of(lambda: alternating(W8, prior=None, gauge="none", init="means"), 3)
+        dt, r = best_of(partial(alternating, W8, prior=None, gauge="none", init="means"), 3)
         rows.append(("unknown alpha, alternating, no gauge fix (paper init)", sigma, 1 / dt, 1e3 * dt,
                      psnr(r.x1, x1, 1.0), psnr(r.x2, x2, 1.0)))
         if sigma == 0.01:
             y0 = measure(x1, x2, [0.5], sigma=sigma, rng=0)[0]
-            dt, r = best_of(lambda: snapshot(y0, iterations=100), 1)
+            dt, r = best_of(partial(snapshot, y0, iterations=100), 1)
             rows.append(("snapshot (1 frame, 100 L-BFGS its)", sigma, 1 / dt, 1e3 * dt,
                          psnr(r.x1, x1, 1.0), psnr(r.x2, x2, 1.0)))
             rows.append(("  (unseparated frame as both images)", sigma, float("nan"), float("nan"),

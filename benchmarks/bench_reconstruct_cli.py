@@ -76,7 +76,7 @@ def main(argv=None) -> int:
                         "--no-tiff", "--no-preview"], check=True, capture_output=True)
     n_out = a.frames - 8 + 1
     print(f"{n_out} windows of 8 frames; {os.cpu_count()} CPUs; load {_load()}")
-    print("| command | seconds (best of %d) | windows/s | median s | windows/s | s/window (best) |" % a.reps)
+    print(f"| command | seconds (best of {a.reps}) | windows/s | median s | windows/s | s/window (best) |")
     print("|---|---|---|---|---|---|")
     for name, flags in CASES[:a.cases]:
         cmd = [*exe, "reconstruct", str(meas), "--window", "8", "--out", str(d / "rec.npz"), "--force", *flags]

@@ -73,7 +73,8 @@ def main() -> None:
     if args.json:
         print(json.dumps(rows, indent=2))
         return
-    print("| FPN | method | windows | PSNR x1 (dB) | PSNR x2 (dB) | alpha err max / median | gauge applied | ms per window |")
+    print("| FPN | method | windows | PSNR x1 (dB) | PSNR x2 (dB) | alpha err max / median | gauge applied "
+          "| ms per window |")
     print("|---|---|---|---|---|---|---|---|")
     for r in rows:
         print(f"| {r['fpn']} | {r['method']} | {r['windows']} | {r['psnr_x1']:.2f} | {r['psnr_x2']:.2f} | "

@@ -20,6 +20,11 @@ from metafovea.library import bias_table, platform_post_sets, select_posts
 KEYS = ("expected_focusing_efficiency", "rms_phase_error_rad", "max_abs_phase_error_rad", "pass_phase_spread_rad")
 
 
+def per_bias(pb: dict, key: str) -> str:
+    """One table cell: `key` of the -delta / 0 / +delta cases of `bias_table`'s `per_bias`."""
+    return " / ".join(f"{pb[c][key]:.3f}" for c in ("-", "0", "+"))
+
+
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--weights", type=float, nargs="+", default=[0.0, 0.5, 1.0, 2.0])
@@ -40,9 +45,8 @@ def main() -> None:
         pb = bias_table(lib, ps.widths_um, a.polarization, d)["per_bias"]
         cases = ps.info["tolerance"]["cases"]
         diff = max(abs(pb[c][k] - cases[c][k]) for c in ("-", "0", "+") for k in KEYS if cases[c] is not None)
-        f = lambda key: " / ".join(f"{pb[c][key]:.3f}" for c in ("-", "0", "+"))  # noqa: E731
-        print(f"| {w:g}{' (default)' if w == 0 else ''} | {f(KEYS[0])} | {f(KEYS[1])} | {f(KEYS[2])} | {f(KEYS[3])} "
-              f"| {sel_s:.1f} | {diff:.1e} |")
+        cols = " | ".join(per_bias(pb, key) for key in KEYS)
+        print(f"| {w:g}{' (default)' if w == 0 else ''} | {cols} | {sel_s:.1f} | {diff:.1e} |")
     print(f"load average after: {os.getloadavg()[0]:.2f}")
 
 

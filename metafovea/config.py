@@ -19,16 +19,21 @@ from __future__ import annotations
 
 import math
 import tomllib
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from metafovea.errors import InputError, check_choice, check_int, check_positive, check_range
 from metafovea.materials import N_AIR, N_SI_10UM
 from metafovea.units import PHASE_SIGN, UM_PER_MM
+
+if TYPE_CHECKING:
+    from matplotlib.axes import Axes
+    from matplotlib.figure import Figure
 
 #: the polarisation a lens focuses: E along the lattice x or y axis
 POLARIZATIONS = ("x", "y")
@@ -115,7 +120,7 @@ class PlatformDesign:
         check_choice("posts_resist_tone", self.posts_resist_tone, ("negative", "positive"))
         check_choice("ring_resist_tone", self.ring_resist_tone, ("negative", "positive"))
 
-    def fabrication_violations(self, widths_um: Any, height_um: float | None = None) -> list[str]:
+    def fabrication_violations(self, widths_um: ArrayLike, height_um: float | None = None) -> list[str]:
         """The fabrication rules (``min_feature_um``, ``min_gap_um``, ``max_aspect_ratio``) that posts of
         ``widths_um`` ``(N, 2)`` break, one sentence each naming the post, the value and the rule."""
         w = np.asarray(widths_um, dtype=float).reshape(-1, 2)
@@ -182,7 +187,7 @@ class LensDesign:
     def with_(self, **kw: Any) -> LensDesign:
         return replace(self, **kw)
 
-    def plot(self, ax: Any = None) -> Any:
+    def plot(self, ax: Axes | Sequence[Axes] | None = None) -> Figure:
         """Posts per 2 pi zone against radius (mm) and the phase levels of a patch of posts at the rim.
 
         Parameters

@@ -99,11 +99,13 @@ def summary_rows(s: LensSummary) -> list[tuple[str, str]]:
         ("design wavelength", f"{s.wavelength_um:g} um"),
         ("NA", f"{s.na:.4f}"),
         ("F-number f/D", f"F/{s.f_number:.3g}"),
-        ("lattice", f"{s.period_um:g} um square, sites at {'integer' if s.lattice == 'integer' else 'half-integer'} multiples"),
+        ("lattice", f"{s.period_um:g} um square, sites at "
+                    f"{'integer' if s.lattice == 'integer' else 'half-integer'} multiples"),
         ("posts in aperture (exact)", f"{s.posts_in_aperture:,}"),
         ("2 pi zones", f"{s.zones_2pi:.2f}  (rim phase {s.rim_phase_rad:.1f} rad)"),
         ("zone width at rim", f"{s.rim_zone_width_um:.2f} um = {s.rim_posts_per_2pi:.2f} posts per 2 pi"),
-        ("Airy first zero", f"{s.airy_first_zero_paraxial_um:.4g} um (1.22 lambda F#), {s.airy_first_zero_na_um:.4g} um (0.61 lambda/NA)"),
+        ("Airy first zero", f"{s.airy_first_zero_paraxial_um:.4g} um (1.22 lambda F#), "
+                            f"{s.airy_first_zero_na_um:.4g} um (0.61 lambda/NA)"),
         ("PSF FWHM (0.514 lambda/NA)", f"{s.fwhm_um:.4g} um"),
         ("MTF cutoff 2 NA / lambda", f"{s.mtf_cutoff_cyc_per_mm:.2f} cycles/mm"),
         ("phase levels", f"{s.levels}"),

@@ -9,7 +9,10 @@ from __future__ import annotations
 import math
 import numbers
 import re
-from typing import Any
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    import numpy as np
 
 
 class InputError(ValueError):
@@ -152,7 +155,7 @@ def check_choice(name: str, value: Any, choices: tuple[str, ...], source: str | 
     raise InputError(name, value, "one of " + ", ".join(repr(c) for c in choices), source)
 
 
-def as_rng(rng: Any, name: str = "seed") -> Any:
+def as_rng(rng: np.random.Generator | int | str | None, name: str = "seed") -> np.random.Generator:
     """A :class:`numpy.random.Generator` from a seed (an integer >= 0, or its decimal string), ``None`` (fresh
     entropy) or a generator (returned as is). ``name`` is the parameter an error names (a CLI passes its flag)."""
     import numpy as np

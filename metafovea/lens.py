@@ -20,13 +20,17 @@ import warnings
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 from fractions import Fraction
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from metafovea.config import LensDesign
 from metafovea.errors import InputError, PhysicsWarning, check_int
 from metafovea.units import TWO_PI, UM_PER_MM
+
+if TYPE_CHECKING:
+    from metafovea.library import PostSet
 
 EMPTY = -1  #: level value of lattice sites outside the aperture
 
@@ -34,7 +38,7 @@ EMPTY = -1  #: level value of lattice sites outside the aperture
 # ----------------------------------------------------------------------------------------------
 # phase profiles
 # ----------------------------------------------------------------------------------------------
-def hyperbolic_phase(r_um: Any, f_um: float, wavelength_um: float, sign: int = -1) -> np.ndarray:
+def hyperbolic_phase(r_um: ArrayLike, f_um: float, wavelength_um: float, sign: int = -1) -> np.ndarray:
     """Unwrapped hyperbolic phase (rad) at radius ``r_um``; 0 at the centre.
 
     Evaluated as ``r^2 / (sqrt(r^2 + f^2) + f)`` to avoid cancellation for r << f.
@@ -43,36 +47,36 @@ def hyperbolic_phase(r_um: Any, f_um: float, wavelength_um: float, sign: int = -
     return sign * (TWO_PI / wavelength_um) * r2 / (np.sqrt(r2 + f_um * f_um) + f_um)
 
 
-def paraxial_phase(r_um: Any, f_um: float, wavelength_um: float, sign: int = -1) -> np.ndarray:
+def paraxial_phase(r_um: ArrayLike, f_um: float, wavelength_um: float, sign: int = -1) -> np.ndarray:
     """Paraxial (quadratic) phase ``sign * k r^2 / (2 f)`` for comparison."""
     r2 = np.square(np.asarray(r_um, dtype=float))
     return sign * (TWO_PI / wavelength_um) * r2 / (2.0 * f_um)
 
 
-def wrap_phase(phi: Any) -> np.ndarray:
+def wrap_phase(phi: ArrayLike) -> np.ndarray:
     """Wrap to ``[0, 2 pi)`` (exactly: values that round to 2 pi are mapped to 0)."""
     w = np.mod(np.asarray(phi, dtype=float), TWO_PI)
     return np.where(w >= TWO_PI, 0.0, w)
 
 
-def quantize_phase(phi: Any, levels: int) -> np.ndarray:
+def quantize_phase(phi: ArrayLike, levels: int) -> np.ndarray:
     """Level index ``k in [0, N)`` nearest to the wrapped phase (ties to the upper level, mod N)."""
     n = check_int("levels", levels, 2, 256)
     k = np.floor(wrap_phase(phi) * (n / TWO_PI) + 0.5).astype(np.int64)
     return np.mod(k, n)
 
 
-def level_phase(k: Any, levels: int) -> np.ndarray:
+def level_phase(k: ArrayLike, levels: int) -> np.ndarray:
     """Phase (rad) carried by level ``k``."""
     return TWO_PI * np.asarray(k, dtype=float) / levels
 
 
-def design_phase(design: LensDesign, x_um: Any, y_um: Any) -> np.ndarray:
+def design_phase(design: LensDesign, x_um: ArrayLike, y_um: ArrayLike) -> np.ndarray:
     """Unwrapped design phase at positions (um); broadcasting."""
     return hyperbolic_phase(np.hypot(x_um, y_um), design.f_um, design.wavelength_um, design.phase_sign)
 
 
-def posts_per_2pi(design: LensDesign, r_um: Any) -> np.ndarray:
+def posts_per_2pi(design: LensDesign, r_um: ArrayLike) -> np.ndarray:
     """Local zone width divided by the lattice period at radius r (inf at the centre)."""
     r = np.asarray(r_um, dtype=float)
     with np.errstate(divide="ignore"):
@@ -80,7 +84,7 @@ def posts_per_2pi(design: LensDesign, r_um: Any) -> np.ndarray:
     return zone / design.period_um
 
 
-def zone_width_um(design: LensDesign, r_um: Any) -> np.ndarray:
+def zone_width_um(design: LensDesign, r_um: ArrayLike) -> np.ndarray:
     """Local 2 pi zone width (um) = 2 pi / |d phi / d r| = lambda sqrt(r^2+f^2) / r."""
     return posts_per_2pi(design, r_um) * design.period_um
 
@@ -139,7 +143,7 @@ def count_posts(design: LensDesign) -> int:
     return int(np.maximum(hi - lo + 1, 0).sum())
 
 
-def site_positions_um(design: LensDesign, ix: Any, iy: Any) -> tuple[np.ndarray, np.ndarray]:
+def site_positions_um(design: LensDesign, ix: ArrayLike, iy: ArrayLike) -> tuple[np.ndarray, np.ndarray]:
     o = float(_offset(design))
     return (np.asarray(ix, dtype=float) + o) * design.period_um, (np.asarray(iy, dtype=float) + o) * design.period_um
 
@@ -243,7 +247,8 @@ class EfficiencyEstimate:
 
 
 def lattice_efficiency(design: LensDesign, levels: int | None = None, *, samples: int = 1 << 20,
-                       exact: bool | None = None, rng: Any = 0, tile_sites: int = 1024) -> EfficiencyEstimate:
+                       exact: bool | None = None, rng: np.random.Generator | int | None = 0,
+                       tile_sites: int = 1024) -> EfficiencyEstimate:
     """Focal-peak ratio of the lattice-sampled, N-level lens to the continuous-phase lens.
 
     ``levels=None`` means the design's levels; ``levels=0`` evaluates lattice sampling alone
@@ -325,8 +330,9 @@ def design_warnings(design: LensDesign, n_superstrate: float = 1.0) -> list[str]
     out = []
     rim = float(posts_per_2pi(design, design.radius_um))
     if rim < 4.0:
+        r4_mm = radius_below_posts(design, 4.0) / UM_PER_MM
         out.append(f"only {rim:.2f} posts per 2 pi at the rim (< 4): the outer zones are undersampled; "
-                   f"expect lower efficiency and stray orders beyond r = {radius_below_posts(design, 4.0) / UM_PER_MM:.3g} mm")
+                   f"expect lower efficiency and stray orders beyond r = {r4_mm:.3g} mm")
     out += aperture_warnings(design)
     lam_sub = design.wavelength_um / design.n_substrate
     if design.period_um > lam_sub:
@@ -367,8 +373,8 @@ def radius_below_posts(design: LensDesign, n_posts: float) -> float:
     return design.f_um / math.sqrt(q * q - 1.0)
 
 
-def summarize(design: LensDesign, *, post_set: Any = None, samples: int = 1 << 20, rng: Any = 0,
-              emit_warnings: bool = True) -> LensSummary:
+def summarize(design: LensDesign, *, post_set: PostSet | None = None, samples: int = 1 << 20,
+              rng: np.random.Generator | int | None = 0, emit_warnings: bool = True) -> LensSummary:
     """Compute the design summary (exact post count, sampled lattice efficiency).
 
     Parameters

@@ -9,7 +9,6 @@ from __future__ import annotations
 import numbers
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Union
 
 import numpy as np
 
@@ -59,7 +58,7 @@ class Material:
 SILICON = Material("Si", N_SI_10UM)
 AIR = Material("air", N_AIR)
 
-IndexLike = Union[float, complex, Material]
+IndexLike = float | complex | Material
 
 
 def check_index(name: str, n) -> np.ndarray:

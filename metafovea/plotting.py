@@ -5,7 +5,9 @@
 Ground floor (every stage may use it): matplotlib is imported inside the functions, so importing this module
 costs nothing. Thermal images are shown in :func:`iron_colormap` with a colour bar in their unit (K or DN);
 every axis names its quantity and unit. PNG bytes come from :func:`metafovea.report.fig_to_png` (the one figure writer)
-or, for thumbnails of one array, ``matplotlib.image.imsave`` (no figure, no pyplot state).
+or, for thumbnails of one array, ``matplotlib.image.imsave`` (no figure, no pyplot state). A PostSet, PSF or
+Reconstruction argument is typed ``Any``: a ground-floor module may not import their stages, not even for type
+checking (``tests/test_architecture.py``).
 """
 
 from __future__ import annotations
@@ -15,9 +17,19 @@ import html
 import io as _io
 import math
 from collections.abc import Sequence
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
+from numpy.typing import ArrayLike
+
+if TYPE_CHECKING:
+    from matplotlib.axes import Axes
+    from matplotlib.colors import Colormap, Normalize
+    from matplotlib.figure import Figure
+    from matplotlib.image import AxesImage
+
+    from metafovea.config import LensDesign
+    from metafovea.measurement import Measurement
 
 #: the largest side of an inline thumbnail (pixels): larger arrays are shown with a stride
 THUMB_PX = 160
@@ -32,7 +44,8 @@ def iron_colormap():
     return LinearSegmentedColormap.from_list("iron", stops, N=256)
 
 
-def panels(ax: Any, n: int, *, width: float = 4.4, height: float = 3.6) -> tuple[Any, list[Any]]:
+def panels(ax: Axes | Sequence[Axes] | None, n: int, *, width: float = 4.4,
+           height: float = 3.6) -> tuple[Figure, list[Axes | None]]:
     """The figure and ``n`` panels to draw into.
 
     Parameters
@@ -63,7 +76,7 @@ def panels(ax: Any, n: int, *, width: float = 4.4, height: float = 3.6) -> tuple
     return ax.figure, [ax] + [None] * (n - 1)
 
 
-def display_range(img: Any, percentiles: tuple[float, float] = (0.5, 99.5)) -> tuple[float, float]:
+def display_range(img: ArrayLike, percentiles: tuple[float, float] = (0.5, 99.5)) -> tuple[float, float]:
     """``(vmin, vmax)`` of the finite values at ``percentiles`` (the automatic gain of a thermal camera)."""
     a = np.asarray(img, dtype=np.float64)
     a = a[np.isfinite(a)]
@@ -73,9 +86,9 @@ def display_range(img: Any, percentiles: tuple[float, float] = (0.5, 99.5)) -> t
     return lo, hi if hi > lo else lo + 1.0
 
 
-def image(ax: Any, img: Any, *, label: str, title: str = "", extent: Sequence[float] | None = None,
-          xlabel: str = "x (pixels)", ylabel: str = "y (pixels)", cmap: Any = None, vmin: float | None = None,
-          vmax: float | None = None, norm: Any = None) -> Any:
+def image(ax: Axes, img: ArrayLike, *, label: str, title: str = "", extent: Sequence[float] | None = None,
+          xlabel: str = "x (pixels)", ylabel: str = "y (pixels)", cmap: str | Colormap | None = None,
+          vmin: float | None = None, vmax: float | None = None, norm: Normalize | None = None) -> AxesImage:
     """Draw ``img`` ``(H, W)`` (row = y, origin at the top unless ``extent`` gives y increasing upward) with a
     colour bar labelled ``label`` (quantity and unit) and labelled axes; returns the image artist.
 
@@ -98,8 +111,8 @@ def image(ax: Any, img: Any, *, label: str, title: str = "", extent: Sequence[fl
     return im
 
 
-def thumbnail_png(img: Any, *, cmap: Any = None, vmin: float | None = None, vmax: float | None = None,
-                  log: bool = False) -> bytes:
+def thumbnail_png(img: ArrayLike, *, cmap: str | Colormap | None = None, vmin: float | None = None,
+                  vmax: float | None = None, log: bool = False) -> bytes:
     """A small PNG of one array ``(H, W)`` (at most :data:`THUMB_PX` per side, strided), in ``cmap`` (default: the
     iron palette) between ``vmin`` and ``vmax`` (default :func:`display_range`); ``log``: log10 of the values
     over 4 decades below the peak."""
@@ -121,7 +134,7 @@ def thumbnail_png(img: Any, *, cmap: Any = None, vmin: float | None = None, vmax
     return buf.getvalue()
 
 
-def figure_png(fig: Any, dpi: int | None = None) -> bytes:
+def figure_png(fig: Figure, dpi: int | None = None) -> bytes:
     """A figure as PNG bytes (through :func:`metafovea.report.fig_to_png`), by default at the thumbnail
     resolution :data:`metafovea.report.THUMBNAIL_DPI`."""
     from metafovea.report import THUMBNAIL_DPI, fig_to_png
@@ -131,7 +144,7 @@ def figure_png(fig: Any, dpi: int | None = None) -> bytes:
     return fig_to_png(fig, dpi=dpi)
 
 
-def small_figure(n: int = 1, *, width: float = 3.2, height: float = 2.4) -> tuple[Any, list[Any]]:
+def small_figure(n: int = 1, *, width: float = 3.2, height: float = 2.4) -> tuple[Figure, list[Axes]]:
     """A pyplot-free figure with ``n`` panels for an inline thumbnail (nothing left open in pyplot)."""
     from matplotlib.figure import Figure
 
@@ -174,7 +187,7 @@ def html_card(title: str, rows: Sequence[tuple[str, str]], images: Sequence[tupl
 # ----------------------------------------------------------------------------------------------
 # LensDesign
 # ----------------------------------------------------------------------------------------------
-def _lens_numbers(design: Any) -> dict[str, float]:
+def _lens_numbers(design: LensDesign) -> dict[str, float]:
     """Rim zone width and posts per 2 pi zone (the local zone width ``lambda sqrt(r^2 + f^2) / r``, as
     :func:`metafovea.lens.zone_width_um`, which this ground-floor module cannot import)."""
     R, f, wl = design.radius_um, design.f_um, design.wavelength_um
@@ -182,7 +195,7 @@ def _lens_numbers(design: Any) -> dict[str, float]:
     return {"rim_zone_um": zone, "rim_posts": zone / design.period_um}
 
 
-def plot_lens(design: Any, ax: Any = None) -> Any:
+def plot_lens(design: LensDesign, ax: Axes | Sequence[Axes] | None = None) -> Figure:
     """Posts per 2 pi zone against radius and the quantised phase levels of a patch of posts at the rim.
 
     Parameters
@@ -223,7 +236,7 @@ def plot_lens(design: Any, ax: Any = None) -> Any:
     return fig
 
 
-def lens_html(design: Any) -> str:
+def lens_html(design: LensDesign) -> str:
     """The HTML view of a :class:`~metafovea.config.LensDesign`: its numbers and the :func:`plot_lens` figure."""
     nums = _lens_numbers(design)
     rows = [("focuses", f"{design.polarization}-polarised light"), ("focal length f", fmt(design.f_mm, "mm")),
@@ -256,7 +269,7 @@ def _postset_errors(ps: Any) -> dict[str, float]:
             "efficiency": float(abs(np.mean(ps.t_focus * np.exp(-1j * target))) ** 2)}
 
 
-def plot_postset(ps: Any, ax: Any = None) -> Any:
+def plot_postset(ps: Any, ax: Axes | Sequence[Axes] | None = None) -> Figure:
     """Phase and power transmission of each level's post, both polarisations, and the posts' cross-sections.
 
     Parameters
@@ -319,13 +332,14 @@ def postset_html(ps: Any) -> str:
                                    f"phase {np.mod(np.angle(ps.t_focus[i]), 2 * np.pi):.3f} rad"))
     fig, axs = small_figure(3, width=2.8)
     plot_postset(ps, axs)
-    return html_card(f"PostSet ({ps.polarization}, {ps.levels} levels)", rows, [("phases, |t|^2, posts", figure_png(fig))])
+    return html_card(f"PostSet ({ps.polarization}, {ps.levels} levels)", rows,
+                     [("phases, |t|^2, posts", figure_png(fig))])
 
 
 # ----------------------------------------------------------------------------------------------
 # PSF
 # ----------------------------------------------------------------------------------------------
-def plot_psf(p: Any, ax: Any = None, *, log: bool = True) -> Any:
+def plot_psf(p: Any, ax: Axes | Sequence[Axes] | None = None, *, log: bool = True) -> Figure:
     """The PSF on the focal plane (fraction of the incident power per um^2; log scale over 4 decades by default)
     and its cuts through the peak.
 
@@ -392,7 +406,7 @@ def psf_html(p: Any) -> str:
 # ----------------------------------------------------------------------------------------------
 # Measurement and Reconstruction (thermal images: iron palette, DN)
 # ----------------------------------------------------------------------------------------------
-def plot_measurement(m: Any, ax: Any = None, *, frame: int = 0) -> Any:
+def plot_measurement(m: Measurement, ax: Axes | Sequence[Axes] | None = None, *, frame: int = 0) -> Figure:
     """One frame in the iron palette (DN) and the mixing ratio alpha (or the mean frame level) against time.
 
     Parameters
@@ -428,7 +442,7 @@ def plot_measurement(m: Any, ax: Any = None, *, frame: int = 0) -> Any:
     return fig
 
 
-def measurement_html(m: Any) -> str:
+def measurement_html(m: Measurement) -> str:
     """The HTML view of a :class:`~metafovea.measurement.Measurement`: size, timing, alpha, truth, the file, and
     thumbnails of the first frame (and of the truth images when stored)."""
     T, H, W = m.shape
@@ -453,11 +467,13 @@ def measurement_html(m: Any) -> str:
     imgs = [(f"frame 0 ({units})", thumbnail_png(m.frames[0]))]
     tr = m.truth(0)
     if tr is not None:
-        imgs += [(f"truth foveal ({units})", thumbnail_png(tr[0])), (f"truth perifoveal ({units})", thumbnail_png(tr[1]))]
+        imgs += [(f"truth foveal ({units})", thumbnail_png(tr[0])),
+                 (f"truth perifoveal ({units})", thumbnail_png(tr[1]))]
     return html_card("Measurement", rows, imgs)
 
 
-def plot_reconstruction(rec: Any, ax: Any = None, *, window: int = 0, units: str = "DN") -> Any:
+def plot_reconstruction(rec: Any, ax: Axes | Sequence[Axes] | None = None, *, window: int = 0,
+                        units: str = "DN") -> Figure:
     """The foveal (x1) and perifoveal (x2) images in the iron palette.
 
     Parameters

@@ -27,13 +27,14 @@ surroundings at ``T_refl`` has apparent radiance ``eps L(T) + (1 - eps) L(T_refl
 from __future__ import annotations
 
 import logging
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
+from numpy.typing import ArrayLike
 
-from metafovea.config import PAPER_BAND_UM
+from metafovea.config import PAPER_BAND_UM, SystemDesign
 from metafovea.errors import InputError, check_int, check_positive, check_range
 
 log = logging.getLogger(__name__)
@@ -50,7 +51,7 @@ PSF_BIN_MIN_REL = 1e-4
 Response = Callable[[np.ndarray], np.ndarray]
 
 
-def planck_radiance(wavelength_um: Any, temperature_k: Any) -> np.ndarray:
+def planck_radiance(wavelength_um: ArrayLike, temperature_k: ArrayLike) -> np.ndarray:
     """Planck spectral radiance ``B(lambda, T)`` in W m^-2 sr^-1 um^-1 (colour-science's ``planck_law``).
 
     Parameters
@@ -87,7 +88,7 @@ def planck_radiance(wavelength_um: Any, temperature_k: Any) -> np.ndarray:
     return table[il.reshape(-1), it.reshape(-1)].reshape(lam_b.shape)
 
 
-def check_band(band_um: Any, name: str = "band_um") -> tuple[float, float]:
+def check_band(band_um: Sequence[float], name: str = "band_um") -> tuple[float, float]:
     """``(lo, hi)`` with ``0 < lo < hi`` (um), or an InputError naming ``name``."""
     try:
         lo, hi = (float(v) for v in band_um)
@@ -100,7 +101,7 @@ def check_band(band_um: Any, name: str = "band_um") -> tuple[float, float]:
     return lo, hi
 
 
-def check_filter(filter_um: Any, name: str = "filter_um") -> tuple[float, float] | None:
+def check_filter(filter_um: Sequence[float] | None, name: str = "filter_um") -> tuple[float, float] | None:
     """``(centre, FWHM)`` in um, both > 0, or None (no filter)."""
     if filter_um is None:
         return None
@@ -116,7 +117,7 @@ def band_edge_um(band_um: tuple[float, float]) -> float:
     return min(0.1, 0.25 * (band_um[1] - band_um[0]))
 
 
-def spectral_transmission(wavelength_um: Any, band_um: tuple[float, float] = BAND_UM, *,
+def spectral_transmission(wavelength_um: ArrayLike, band_um: tuple[float, float] = BAND_UM, *,
                           filter_um: tuple[float, float] | None = None, response: Response | None = None) -> np.ndarray:
     """``w(lambda) = band x filter x response`` (dimensionless, peak <= 1 for a response <= 1); see module notes."""
     lam = np.asarray(wavelength_um, dtype=np.float64)
@@ -250,7 +251,7 @@ class BandRadiance:
         return cls(lam, w, tuple(band_um), filter_um, response)
 
     @classmethod
-    def for_system(cls, system: Any, *, filter_enabled: bool | None = None,
+    def for_system(cls, system: SystemDesign, *, filter_enabled: bool | None = None,
                    response: Response | None = None) -> BandRadiance:
         """The weighting of a :class:`~metafovea.config.SystemDesign` (its band and, if enabled, filter)."""
         return cls.from_band(system.band_um, filter_um=system_filter_um(system, filter_enabled), response=response)
@@ -261,13 +262,13 @@ class BandRadiance:
         return psf_wavelengths(self.band_um, design_um=design_um, temperature_k=temperature_k,
                                filter_um=self.filter_um, response=self.response, n=n)
 
-    def exact(self, temperature_k: Any) -> np.ndarray:
+    def exact(self, temperature_k: ArrayLike) -> np.ndarray:
         """Band radiance by trapezoidal quadrature over the wavelength grid (no table)."""
         t = np.asarray(temperature_k, dtype=np.float64)
         b = planck_radiance(self.wavelengths_um[:, None], t.reshape(1, -1))  # (n_lambda, n_T)
         return np.trapezoid(b * self.weights[:, None], self.wavelengths_um, axis=0).reshape(t.shape)
 
-    def __call__(self, temperature_k: Any) -> np.ndarray:
+    def __call__(self, temperature_k: ArrayLike) -> np.ndarray:
         """``L(T)`` from the table (relative error < 1e-5 for T >= 100 K); temperatures in [0, 3000] K."""
         t = np.asarray(temperature_k, dtype=np.float64)
         if t.size:
@@ -277,7 +278,7 @@ class BandRadiance:
                                  f"finite temperatures in [0, {T_MAX_K:g}] K")
         return np.interp(t, self._t, self._l)
 
-    def temperature(self, radiance: Any) -> np.ndarray:
+    def temperature(self, radiance: ArrayLike) -> np.ndarray:
         """The brightness temperature (K) of in-band radiance ``radiance`` (W m^-2 sr^-1): the inverse of ``L(T)``
         on the same table (a black body at that temperature gives that radiance; below 0 or above the table's
         3000 K the result is NaN)."""
@@ -291,7 +292,8 @@ class BandRadiance:
         h = 0.01
         return float((self.exact(t + h) - self.exact(t - h)) / (2 * h))
 
-    def apparent(self, temperature_k: Any, emissivity: Any = 1.0, reflected_k: float = 293.15) -> np.ndarray:
+    def apparent(self, temperature_k: ArrayLike, emissivity: ArrayLike = 1.0,
+                 reflected_k: float = 293.15) -> np.ndarray:
         """``eps L(T) + (1 - eps) L(T_refl)`` (grey opaque surfaces)."""
         eps = np.asarray(emissivity, dtype=np.float64)
         if eps.size and (np.min(eps) < 0 or np.max(eps) > 1):
@@ -309,7 +311,7 @@ class BandRadiance:
                 "L_300K_W_m2_sr": float(self(300.0)), "dL_dT_300K": self.derivative(300.0)}
 
 
-def system_filter_um(system: Any, filter_enabled: bool | None = None) -> tuple[float, float] | None:
+def system_filter_um(system: SystemDesign, filter_enabled: bool | None = None) -> tuple[float, float] | None:
     """``(centre, FWHM)`` of a SystemDesign's filter when enabled (its own flag unless ``filter_enabled``)."""
     fe = system.filter_enabled if filter_enabled is None else bool(filter_enabled)
     return (float(system.filter_center_um), float(system.filter_bandwidth_um)) if fe else None

@@ -16,9 +16,13 @@ import io as _io
 import math
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from metafovea.io import atomic_write_text
+
+if TYPE_CHECKING:
+    from matplotlib.figure import Figure
+    from numpy.typing import ArrayLike
 
 #: the resolution of every figure a report or a command writes (one for all: figures of two stages side by side
 #: in a page then share one scale)
@@ -27,14 +31,14 @@ FIGURE_DPI = 100
 THUMBNAIL_DPI = 60
 
 
-def fig_to_png(fig: Any, dpi: int = FIGURE_DPI) -> bytes:
+def fig_to_png(fig: Figure, dpi: int = FIGURE_DPI) -> bytes:
     """A matplotlib figure as PNG bytes at ``dpi`` (default :data:`FIGURE_DPI`), trimmed to its content."""
     buf = _io.BytesIO()
     fig.savefig(buf, format="png", dpi=dpi, bbox_inches="tight")
     return buf.getvalue()
 
 
-def array_png(img: Any, cmap: str = "inferno") -> bytes:
+def array_png(img: ArrayLike, cmap: str = "inferno") -> bytes:
     """One image as a PNG, one pixel per array element, in the colour map ``cmap`` (NaN shown as 0)."""
     import matplotlib
 
@@ -137,8 +141,8 @@ class HtmlReport:
             + (f'<td class="{"pass" if it["passed"] else "fail"}">{"pass" if it["passed"] else "FAIL"}</td></tr>')
             for it in items)
         n_fail = sum(1 for it in items if not it["passed"])
-        head = (f"<h2>Verdict: {'all ' + str(len(items)) + ' checks pass' if not n_fail else f'{n_fail} of {len(items)} checks fail'}"
-                "</h2>")
+        verdict = f"all {len(items)} checks pass" if not n_fail else f"{n_fail} of {len(items)} checks fail"
+        head = f"<h2>Verdict: {verdict}</h2>"
         self._verdict = (head + '<div class="scroll"><table><thead><tr><th class="text">stage</th>'
                          '<th class="text">check</th><th class="text">value</th><th class="text">reference</th>'
                          f"<th>result</th></tr></thead><tbody>{rows}</tbody></table></div>")
@@ -146,7 +150,8 @@ class HtmlReport:
     def image(self, png: bytes, caption: str = "") -> None:
         b64 = base64.b64encode(png).decode()
         cap = f"<figcaption>{html.escape(caption)}</figcaption>" if caption else ""
-        self.parts.append(f'<figure><img src="data:image/png;base64,{b64}" alt="{html.escape(caption)}"/>{cap}</figure>')
+        self.parts.append(f'<figure><img src="data:image/png;base64,{b64}" alt="{html.escape(caption)}"/>'
+                          f'{cap}</figure>')
 
     def render(self) -> str:
         return (f"<!DOCTYPE html><html lang='en'><head><meta charset='utf-8'>"

@@ -36,7 +36,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from datetime import UTC, datetime
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -47,6 +47,9 @@ from metafovea.lens import summarize
 from metafovea.measurement import Measurement
 from metafovea.optics.train import throughput_lines
 from metafovea.parallel import blas_threads
+
+if TYPE_CHECKING:
+    from metafovea.report import HtmlReport
 
 log = logging.getLogger(__name__)
 
@@ -539,7 +542,7 @@ HTML_COLUMNS = (("method", "method"), ("time", "time"), ("psnr_x1", "PSNR x1 (dB
 BASELINES = ("no separation", "lsq, no FPN correction")
 
 
-def _case_table(html: Any, rows: list[dict[str, Any]]) -> None:
+def _case_table(html: HtmlReport, rows: list[dict[str, Any]]) -> None:
     """One case's speed-against-error table: units in the headers, the best PSNR/SSIM of the methods marked,
     baselines marked."""
     body, base = [], []

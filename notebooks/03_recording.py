@@ -28,8 +28,14 @@ from pathlib import Path
 
 import numpy as np
 import tifffile
+from matplotlib.figure import Figure
 
 import metafovea as mf
+from metafovea.imaging.scene import make_scene
+from metafovea.imaging.simulate import iron_colormap
+from metafovea.reconstruct.deconvolve import temperatures
+from metafovea.recordings import ImportOptions, import_recording
+from metafovea.report import fig_to_png
 
 SMALL = os.environ.get("METAFOVEA_NOTEBOOK_SMALL") == "1"
 OUT = Path(os.environ.get("METAFOVEA_NOTEBOOK_OUT") or tempfile.mkdtemp(prefix="metafovea-nb03-"))
@@ -48,8 +54,6 @@ print("output folder:", OUT)
 # polariser angles (rad) go into the TIFF's JSON description, one value per frame.
 
 # %%
-from metafovea.imaging.scene import make_scene
-
 sim = dict(posts="ideal", fpn_amplitude=0.0)  # ideal posts: a quick PSF; "rcwa" (default) is the fabricated lens
 m_true = mf.simulate(system, "hand", frames=FRAMES, rng=0, **sim)
 rec = OUT / "rec.tif"
@@ -72,8 +76,6 @@ print(f"{rec.name}: {m_true.frames.shape} uint16, {m_true.times_s[-1]:.2f} s; bl
 # the unknown-alpha reconstruction.
 
 # %%
-from metafovea.recordings import ImportOptions, import_recording
-
 fc = m_true.meta["foveal_constraint"]
 opts = ImportOptions(times="times_s", polarizer_key="theta_rad", polarizer_unit="rad",
                      calibration=f"two-point:293.15={blackbody[293.15]},323.15={blackbody[323.15]}",
@@ -106,8 +108,6 @@ print(f"{len(r.x1s)} windows of 8 frames, every {step} frames; {r.seconds:.2f} s
 # +1.1 K (RMS 1.6 K), perifoveal +0.55 K (RMS 0.67 K).
 
 # %%
-from metafovea.reconstruct.deconvolve import temperatures
-
 foveal_k, perifoveal_k = temperatures((np.asarray(r.x1s), np.asarray(r.x2s)), m.meta["dark_dn"], m.meta)
 centre = np.array([(a + b) // 2 for a, b in r.spans])  # each window's middle frame
 tx1 = m_true.truth_x1 if m_true.truth_x1.ndim == 3 else np.broadcast_to(m_true.truth_x1, m_true.frames.shape)
@@ -122,11 +122,6 @@ tifffile.imwrite(OUT / "foveal_K.tif", foveal_k.astype(np.float32))
 tifffile.imwrite(OUT / "perifoveal_K.tif", perifoveal_k.astype(np.float32))
 
 # %%
-from matplotlib.figure import Figure
-
-from metafovea.imaging.simulate import iron_colormap
-from metafovea.report import fig_to_png
-
 picks = np.unique(np.linspace(0, len(centre) - 1, 4).round().astype(int))
 fig = Figure(figsize=(2.6 * len(picks) + 1.0, 5.4), layout="constrained")
 axs = fig.subplots(2, len(picks), squeeze=False)

@@ -37,7 +37,7 @@ def test_every_exported_name_resolves():
     assert mf.psf is __import__("metafovea.optics", fromlist=["psf"]).psf
     assert mf.iron_colormap().name == "iron"
     with pytest.raises(AttributeError):
-        mf.no_such_name  # noqa: B018
+        mf.no_such_name  # noqa: B018 - the attribute access is the test (it must raise)
 
 
 def quick_start_code() -> str:

@@ -5,11 +5,11 @@ import io
 import matplotlib
 
 matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
-import pytest  # noqa: E402
+import matplotlib.pyplot as plt
+import numpy as np
+import pytest
 
-from metafovea.report import HtmlReport, array_png, fig_to_png  # noqa: E402
+from metafovea.report import HtmlReport, array_png, fig_to_png
 
 PNG = b"\x89PNG\r\n\x1a\n"
 

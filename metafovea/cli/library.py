@@ -12,13 +12,16 @@ fig7c_selected_posts.png and library.json (:mod:`metafovea.library.report`).
 from __future__ import annotations
 
 import argparse
-from typing import Any
+from typing import TYPE_CHECKING
 
 from metafovea.cli.options import add_shared, alias, show_progress, workers_arg
 from metafovea.errors import check_int, check_positive, check_range
 
+if TYPE_CHECKING:
+    from metafovea.library import LibraryOptions, PlatformSweep
 
-def register(subparsers: Any) -> None:
+
+def register(subparsers: argparse._SubParsersAction) -> None:
     from metafovea.rcwa.solve import FACTORIZATIONS, SIDES
 
     p = subparsers.add_parser("library", help="RCWA scatterer library and birefringent post selection (Fig. 7)")
@@ -88,7 +91,7 @@ def run(args: argparse.Namespace) -> int:
 MAX_SWEEP_HOURS = 24.0
 
 
-def check_sweep_cost(args: argparse.Namespace, sweep: Any, options: Any) -> None:
+def check_sweep_cost(args: argparse.Namespace, sweep: PlatformSweep, options: LibraryOptions) -> None:
     """Refuse a sweep that cannot finish here (time or memory, from the number of posts and the harmonics), naming
     --harmonics when it is above the default, else --grid-step-um; warn about one that takes over 15 minutes."""
     import os

@@ -19,7 +19,7 @@ import time
 from collections.abc import Callable, Sequence
 from datetime import datetime
 from pathlib import Path
-from typing import Any
+from typing import Any, TextIO
 
 #: the name under which an output the user did not name is reported (set on ``args.out_default`` by the command)
 DEFAULT_OUT = "default output"
@@ -57,7 +57,7 @@ def out_dir(args: argparse.Namespace, command: str, label: str | None = None) ->
     return default_out_dir(command, label)
 
 
-def stage_printer(args: argparse.Namespace, command: str, stream: Any = None) -> Callable[[str], None]:
+def stage_printer(args: argparse.Namespace, command: str, stream: TextIO | None = None) -> Callable[[str], None]:
     """A ``say(msg)`` that prints one line per stage, ``metafovea COMMAND: [  12.3 s] MSG``, on stderr, on a
     terminal or not (a long first run says what it is doing), unless ``--quiet`` or ``--json``."""
     t0 = time.perf_counter()

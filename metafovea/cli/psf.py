@@ -23,7 +23,7 @@ from metafovea.errors import InputError, NotConvergedWarning, PhysicsWarning, ch
 from metafovea.io import to_json
 
 
-def add_parser(subparsers: Any) -> argparse.ArgumentParser:
+def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
     p = subparsers.add_parser("psf", help="PSF/MTF report of metalens designs",
                               description="PSF, MTF, encircled energy and chromatic behaviour of lens designs; "
                                           "writes PNG figures, JSON numbers and a self-contained HTML page.")
@@ -165,5 +165,5 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def register(subparsers: Any) -> None:
+def register(subparsers: argparse._SubParsersAction) -> None:
     add_parser(subparsers)

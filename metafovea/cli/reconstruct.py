@@ -20,7 +20,7 @@ from metafovea.io import to_json
 HELP = "separate foveal and perifoveal images from a measurement (.npz)"
 
 
-def register(subparsers: Any) -> argparse.ArgumentParser:
+def register(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
     from metafovea.reconstruct import DENOISERS, METHODS
 
     p = subparsers.add_parser("reconstruct", help=HELP, description=HELP)

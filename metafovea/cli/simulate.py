@@ -10,15 +10,18 @@ Exit status: 0 on success, 2 on bad input (one line naming the option).
 from __future__ import annotations
 
 import argparse
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from metafovea.cli.options import add_shared, alias, seed_arg, show_progress
 from metafovea.cli.output import out_file
 from metafovea.errors import InputError, as_float, check_int
 from metafovea.io import to_json
 
+if TYPE_CHECKING:
+    from metafovea.imaging.simulate import SimulationOptions
 
-def add_parser(subparsers: Any) -> argparse.ArgumentParser:
+
+def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
     p = subparsers.add_parser(
         "simulate", help="simulate polariser-multiplexed camera frames of a scene",
         description="Simulate frames of a scene (temperatures in K) through the two-channel system: Planck "
@@ -81,7 +84,7 @@ def _odd(name: str, v: Any, hi: int) -> int:
     return n
 
 
-def _options(args: argparse.Namespace, frames: int) -> Any:
+def _options(args: argparse.Namespace, frames: int) -> SimulationOptions:
     """The flags as :class:`~metafovea.imaging.simulate.SimulationOptions`, each checked under its flag."""
     from metafovea.imaging.kernels import MAX_PSF_SIZE
     from metafovea.imaging.simulate import CALIBRATION_FRAMES, SimulationOptions
@@ -147,5 +150,5 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def register(subparsers: Any) -> None:
+def register(subparsers: argparse._SubParsersAction) -> None:
     add_parser(subparsers)

@@ -4,14 +4,13 @@ the resumable state kept, :func:`metafovea.cli.main`)."""
 from __future__ import annotations
 
 import sys
-from typing import Any
 
 
 def _interrupt(signum: int, frame: object) -> None:
     raise KeyboardInterrupt(f"signal {signum}")
 
 
-def _unraisable(u: Any) -> None:
+def _unraisable(u: sys.UnraisableHookArgs) -> None:
     """``sys.unraisablehook``: a stop signal that lands in a garbage-collector callback or a ``__del__`` (JAX's
     ``_xla_gc_callback``, seen in CI) raises where Python can only print and drop it; deliver it again, a moment
     later, instead of printing a traceback and running on."""

@@ -17,7 +17,7 @@ from metafovea.errors import InputError
 from metafovea.io import prepare_output, to_json
 
 
-def register(sub: Any) -> None:
+def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("study", help="run one of the paper's studies (figure, JSON, HTML page)")
     p.add_argument("name", nargs="?", help="the study (see --list)")
     p.add_argument("--list", action="store_true", help="list the studies and exit")

@@ -10,7 +10,6 @@ on bad input.
 from __future__ import annotations
 
 import argparse
-from typing import Any
 
 from metafovea.cli.options import add_shared, seed_arg, show_progress
 from metafovea.cli.output import out_dir
@@ -18,7 +17,7 @@ from metafovea.errors import check_int
 from metafovea.io import prepare_output, to_json
 
 
-def register(sub: Any) -> None:
+def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("validate", help="end-to-end validation of a system (default: the paper's prototype)")
     p.add_argument("system_file", nargs="?", help="system TOML (default: built-in paper prototype)")
     p.add_argument("--out", help="write the report into this directory")

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import math
 import warnings
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
@@ -101,7 +102,8 @@ def channels_for(system: SystemDesign, *, pixel_pitch_um: float | None = None,
     return (Channel("foveal", system.foveal, f1, fp, shp), Channel("perifoveal", system.perifoveal, f2, fp, shp))
 
 
-def relative_illumination_map(ch: Channel, field_factor: Any = None) -> np.ndarray:
+def relative_illumination_map(ch: Channel,
+                              field_factor: Callable[[np.ndarray, np.ndarray], np.ndarray] | None = None) -> np.ndarray:
     """``cos^4`` of the field angle at each pixel centre, ``(H, W)``, times ``field_factor(tan_x, tan_y)`` when
     given (the other lens' aperture ring and the posts at oblique incidence:
     :meth:`metafovea.optics.train.ChannelTrain.field_factor`)."""

@@ -31,6 +31,7 @@ from __future__ import annotations
 
 import logging
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Protocol
@@ -181,7 +182,7 @@ class OpticsPSFProvider:
     @staticmethod
     def available() -> bool:
         try:
-            from metafovea.optics import sensor_psf  # noqa: F401
+            from metafovea.optics import sensor_psf  # noqa: F401 - imported only to see that it imports
         except Exception:  # noqa: BLE001 - any import problem means "not available"
             return False
         return True
@@ -198,7 +199,8 @@ class OpticsPSFProvider:
             ps = None  # the same PSF as sensor_psf's ideal posts
         posts = None if ps is None else {"t_x": np.round(np.stack([ps.t_x.real, ps.t_x.imag]), 9).tolist(),
                                          "t_y": np.round(np.stack([ps.t_y.real, ps.t_y.imag]), 9).tolist()}
-        key = {"lens": asdict(channel.lens), "posts": posts, "pitch_um": round(float(pitch_um), 9), "field_deg": round(float(field_deg), 9),
+        key = {"lens": asdict(channel.lens), "posts": posts, "pitch_um": round(float(pitch_um), 9),
+               "field_deg": round(float(field_deg), 9),
                "z_um": round(float(channel.focal_length_um), 6),
                "wavelengths_um": np.round(np.asarray(wavelengths_um, dtype=float), 9).tolist(),
                "weights": np.round(np.asarray(weights, dtype=float) / np.sum(weights), 12).tolist(),
@@ -231,7 +233,7 @@ class OpticsPSFProvider:
 
 
 def resolve_provider(psf: str | PSFProvider | dict | None, cache_dir: str | Path | None = None,
-                     post_sets: dict | None = None) -> tuple[Any, str]:
+                     post_sets: dict | None = None) -> tuple[PSFProvider, str]:
     """``psf``: 'auto' (optics if importable, else analytic Airy), 'optics', 'airy', 'gaussian:SIGMA_UM',
     a dict of kernels, or a provider callable. ``post_sets``: the lenses' posts for the optics provider.
     Returns (provider, name)."""
@@ -248,7 +250,8 @@ def resolve_provider(psf: str | PSFProvider | dict | None, cache_dir: str | Path
         s = psf.strip().lower()
         if s == "optics":
             if not OpticsPSFProvider.available():
-                raise InputError("psf", psf, "'auto', 'airy' or 'gaussian:SIGMA_UM' (metafovea.optics is not installed)")
+                raise InputError("psf", psf,
+                                 "'auto', 'airy' or 'gaussian:SIGMA_UM' (metafovea.optics is not installed)")
             return OpticsPSFProvider(cache_dir, post_sets=post_sets), "optics"
         if s == "airy":
             return airy_provider, "airy"
@@ -336,11 +339,11 @@ def _kernel_tv_distance(a: np.ndarray, b: np.ndarray) -> float:
     return 0.5 * float(np.abs(pad(a) - pad(b)).sum())
 
 
-def build_channel_optics(channel: Channel, provider: Any, radiance: BandRadiance, *, ss: int = 1,
+def build_channel_optics(channel: Channel, provider: PSFProvider, radiance: BandRadiance, *, ss: int = 1,
                          psf_size_px: int | None = None, field_patches: int | str = 1,
                          patch_threshold: float = 0.2, scene_temperature_k: float = 300.0,
                          haze: bool = True, n_psf_wavelengths: int = 31, transmitted: float = 1.0,
-                         leaks: Any = ()) -> ChannelOptics:
+                         leaks: Sequence[tuple[float, float]] = ()) -> ChannelOptics:
     """Ask the provider for the channel's kernel(s) and build the haze model (see module docstring).
 
     ``transmitted``: the fraction of the incident power the focusing metasurface transmits (the optical
@@ -468,8 +471,9 @@ def _embed_add(a: np.ndarray, b: np.ndarray, wb: float) -> np.ndarray:
 
 def pixel_psf(optics: ChannelOptics, max_radius_px: int | None = None) -> tuple[np.ndarray, float]:
     """The channel's PSF on the sensor's pixel grid and its pedestal: ``(K, pedestal)``, ``K`` ``(n, n)``, ``n``
-    odd, centred, ``sum(K) + pedestal`` = the power the channel keeps (kernel + haze + glare, ~1), what :class:`~metafovea.imaging.render.ChannelRenderer` does to a scene that is
-    uniform within each pixel (before relative illumination).
+    odd, centred, ``sum(K) + pedestal`` = the power the channel keeps (kernel + haze + glare, ~1), what
+    :class:`~metafovea.imaging.render.ChannelRenderer` does to a scene that is uniform within each pixel (before
+    relative illumination).
 
     The kernel at the sample pitch (near haze folded in) becomes, for pixel offset ``d``,
     ``(K * tri)[d s] / s^2`` with ``tri`` the ``(2s-1)^2`` self-correlation of the ``s x s`` pixel box; each far

@@ -9,7 +9,7 @@ declare their changing boxes are rendered incrementally (:class:`ChannelRenderer
 
 from __future__ import annotations
 
-from typing import Any
+from collections.abc import Callable
 
 import numpy as np
 
@@ -58,7 +58,8 @@ class ChannelRenderer:
     SUB = 3  # supersampling of each coarse haze sample (small hot objects must not be missed)
 
     def __init__(self, scene: Scene, optics: ChannelOptics, radiance: BandRadiance,
-                 relative_illumination: bool = True, field_factor: Any = None):
+                 relative_illumination: bool = True,
+                 field_factor: Callable[[np.ndarray, np.ndarray], np.ndarray] | None = None):
         self.scene, self.optics, self.radiance = scene, optics, radiance
         ch, ss = optics.channel, optics.ss
         H, W = ch.shape

@@ -588,7 +588,7 @@ class RasterScene(Scene):
     """
 
     temperature_k: np.ndarray = field(default_factory=lambda: np.full((2, 2), 300.0))
-    emissivity: Any = 0.95
+    emissivity: float | np.ndarray = 0.95
     half_width_rad: float = 0.5 * PAPER_FOV_RAD
     background_k: float = AMBIENT_K
     frame_rate_hz: float = PAPER_FRAME_RATE_HZ
@@ -717,7 +717,7 @@ def load_scene_file(path: str | Path, geometry: SceneGeometry | None = None, *,
     g = geometry or SceneGeometry()
     suffix = p.suffix.lower()
     half = g.half
-    emis: Any = 0.95
+    emis: float | np.ndarray = 0.95
     try:
         if suffix == ".npy":
             temp = np.load(p, allow_pickle=False)

@@ -10,13 +10,19 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from metafovea.config import PAPER_PERIOD_UM, PAPER_POST_HEIGHT_UM, PAPER_WAVELENGTH_UM, POLARIZATIONS
 from metafovea.errors import InputError, check_choice, check_int, check_positive
 from metafovea.io import atomic_save_npz, load_npz
+
+if TYPE_CHECKING:
+    from collections.abc import Sequence
+
+    from matplotlib.axes import Axes
+    from matplotlib.figure import Figure
 
 
 @dataclass(frozen=True)
@@ -87,7 +93,7 @@ class PostSet:
         """(N,) zero-order field transmission of ``polarization`` light."""
         return self.t_x if check_choice("polarization", polarization, POLARIZATIONS) == "x" else self.t_y
 
-    def plot(self, ax: Any = None) -> Any:
+    def plot(self, ax: Axes | Sequence[Axes] | None = None) -> Figure:
         """Phase (rad) and power transmission of each level's post for both polarisations, and the posts'
         cross-sections (um).
 

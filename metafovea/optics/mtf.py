@@ -5,9 +5,9 @@ FWHM, pixel MTF. Spatial frequencies in cycles/mm at the interfaces.
 from __future__ import annotations
 
 import math
-from typing import Any
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from metafovea.config import LensDesign
 from metafovea.errors import InputError, check_positive
@@ -18,13 +18,13 @@ from .psf import PSF
 from .pupil import build_pupils
 
 
-def diffraction_mtf(nu_cyc_per_mm: Any, cutoff_cyc_per_mm: float) -> np.ndarray:
+def diffraction_mtf(nu_cyc_per_mm: ArrayLike, cutoff_cyc_per_mm: float) -> np.ndarray:
     """Diffraction-limited MTF of a circular, uniformly filled paraxial pupil."""
     x = np.clip(np.asarray(nu_cyc_per_mm, float) / cutoff_cyc_per_mm, 0.0, 1.0)
     return (2 / np.pi) * (np.arccos(x) - x * np.sqrt(1 - x * x))
 
 
-def pixel_mtf(nu_cyc_per_mm: Any, pitch_um: float) -> np.ndarray:
+def pixel_mtf(nu_cyc_per_mm: ArrayLike, pitch_um: float) -> np.ndarray:
     """MTF of a square pixel of width ``pitch_um`` (100 % fill) along one axis: |sinc(nu p)|."""
     p = check_positive("pitch_um", pitch_um, "um")
     return np.abs(np.sinc(np.asarray(nu_cyc_per_mm, float) * p / 1000.0))
@@ -52,7 +52,7 @@ def _otf_dir(psf: PSF, nu_cyc_per_mm: np.ndarray, angle: float) -> np.ndarray:
     return val / psf.intensity.sum()
 
 
-def mtf_slices(psf: PSF, nu_cyc_per_mm: Any, pixel_pitch_um: float | None = None) -> dict[str, np.ndarray]:
+def mtf_slices(psf: PSF, nu_cyc_per_mm: ArrayLike, pixel_pitch_um: float | None = None) -> dict[str, np.ndarray]:
     """Tangential and sagittal MTF (|OTF| along and across the field direction; x/y on axis).
 
     With ``pixel_pitch_um`` the pixel MTF is multiplied in (for a PSF sampled finer than the pixels).
@@ -68,15 +68,15 @@ def mtf_slices(psf: PSF, nu_cyc_per_mm: Any, pixel_pitch_um: float | None = None
     return {"nu_cyc_per_mm": nu, "tangential": tan, "sagittal": sag}
 
 
-def mtf_radial(psf: PSF, nu_cyc_per_mm: Any, n_angles: int = 8) -> np.ndarray:
+def mtf_radial(psf: PSF, nu_cyc_per_mm: ArrayLike, n_angles: int = 8) -> np.ndarray:
     """Azimuthally averaged MTF."""
     nu = np.asarray(nu_cyc_per_mm, float)
     angs = np.arange(n_angles) * (math.pi / n_angles)
     return np.mean([np.abs(_otf_dir(psf, nu, a)) for a in angs], axis=0)
 
 
-def pupil_mtf(lens: LensDesign, nu_cyc_per_mm: Any, *, wavelength_um: float | None = None,
-              field_deg: Any = 0.0, angle_rad: float = 0.0, post_set: PostSet | None = None,
+def pupil_mtf(lens: LensDesign, nu_cyc_per_mm: ArrayLike, *, wavelength_um: float | None = None,
+              field_deg: float | tuple[float, float] = 0.0, angle_rad: float = 0.0, post_set: PostSet | None = None,
               quantize: bool = False, lattice: bool = False, z_um: float | None = None,
               nodes: int | None = None) -> np.ndarray:
     """Exact MTF of the focusing order from the pupil autocorrelation (no window truncation).
@@ -156,7 +156,7 @@ def _interpolated(psf: PSF, r_min_um: float, max_side: int = 2048) -> tuple[np.n
     return If, xs[0] + p * np.arange(W * k), ys[0] + p * np.arange(H * k), p
 
 
-def encircled_energy(psf: PSF, radii_um: Any, center_um: tuple[float, float] | None = None,
+def encircled_energy(psf: PSF, radii_um: ArrayLike, center_um: tuple[float, float] | None = None,
                      relative_to: str = "incident", sub: int = 8) -> np.ndarray:
     """Power within circles (fraction of the incident power, or of the window's power with
     ``relative_to='window'``) around ``center_um`` (default: the centroid).

@@ -32,6 +32,7 @@ from functools import lru_cache
 from typing import Any
 
 import numpy as np
+from numpy.typing import ArrayLike
 from scipy import special
 
 from metafovea.errors import InputError, check_positive, check_range
@@ -129,7 +130,7 @@ def mft_nodes(pupil: Pupil, xs: np.ndarray, ys: np.ndarray, error: float,
 # ----------------------------------------------------------------------------------------------
 # MFT engine (2-D, any window, any field)
 # ----------------------------------------------------------------------------------------------
-def mft_field(pupil: Pupil, xs: Any, ys: Any, *, error: float = 1e-6, nodes: tuple[int, int] | None = None,
+def mft_field(pupil: Pupil, xs: ArrayLike, ys: ArrayLike, *, error: float = 1e-6, nodes: tuple[int, int] | None = None,
               max_bytes: float = 64e6) -> np.ndarray:
     """Complex field (len(ys), len(xs)) on the plane z at coordinates xs (columns), ys (rows), um.
 
@@ -164,7 +165,7 @@ def mft_field(pupil: Pupil, xs: Any, ys: Any, *, error: float = 1e-6, nodes: tup
     return ey @ g
 
 
-def mft_intensity_multi(pupils: list[Pupil], weights: Any, xs: Any, ys: Any, *, error: float = 1e-6,
+def mft_intensity_multi(pupils: list[Pupil], weights: ArrayLike, xs: ArrayLike, ys: ArrayLike, *, error: float = 1e-6,
                         max_bytes: float = 64e6) -> np.ndarray:
     """``sum_k weights[k] |U_k|^2`` on the grid (len(ys), len(xs)) for pupils of one lens and field.
 
@@ -200,7 +201,8 @@ def mft_intensity_multi(pupils: list[Pupil], weights: Any, xs: Any, ys: Any, *, 
         a = pu.alpha
         sx = s0[0] + uw / a
         sy = s0[1] + vvw / a
-        Q[:, i, :] = (wq / (a * a)) * pu.amplitude(sx, sy) * np.exp(1j * (pu.phase(sx, sy) + pu.k * (sx * xc + sy * yc)))
+        Q[:, i, :] = ((wq / (a * a)) * pu.amplitude(sx, sy)
+                      * np.exp(1j * (pu.phase(sx, sy) + pu.k * (sx * xc + sy * yc))))
     ey = np.exp(1j * kap * np.outer(ys - yc, vw))  # (My, nt)
     dx = xs - xc
     h = np.diff(dx)
@@ -244,7 +246,7 @@ def hankel_nodes(pupil: Pupil, r_max: float, error: float) -> int:
     return nodes_for_phase(pupil.k * pupil.radius * reach * 0.5, error, 8)
 
 
-def hankel_field(pupil: Pupil, r: Any, *, error: float = 1e-6, n: int | None = None) -> np.ndarray:
+def hankel_field(pupil: Pupil, r: ArrayLike, *, error: float = 1e-6, n: int | None = None) -> np.ndarray:
     """Complex field at radii ``r`` (um) for an on-axis pupil (s0 = 0), azimuthally averaged amplitude."""
     if float(np.hypot(*pupil.s0)) > 0:
         raise InputError("field_deg", pupil.s0.tolist(), "0 for the Hankel engine (on axis only)")
@@ -284,7 +286,7 @@ def _hankel_weights(pupil: Pupil, t: np.ndarray, wt: np.ndarray) -> np.ndarray:
     return (S * S) * wt * 2 * np.pi * t * amp * np.exp(1j * pupil.phase(s, zero))
 
 
-def hankel_profiles(pupils: list[Pupil], r: Any, *, error: float = 1e-6, n: int | None = None,
+def hankel_profiles(pupils: list[Pupil], r: ArrayLike, *, error: float = 1e-6, n: int | None = None,
                     max_bytes: float = 48e6) -> np.ndarray:
     """Complex fields (len(pupils), len(r)) of several on-axis pupils at radii ``r`` in one pass.
 

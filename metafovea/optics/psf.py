@@ -30,9 +30,10 @@ import math
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from metafovea.config import LensDesign
 from metafovea.errors import InputError, check_choice, check_int, check_positive, check_range
@@ -41,7 +42,13 @@ from metafovea.library.postset import PostSet
 
 from . import propagate as prop
 from . import rayleigh
-from .pupil import Pupil, build_pupils, field_direction, max_field_deg
+from .pupil import Pupil, PupilSet, build_pupils, field_direction, max_field_deg
+
+if TYPE_CHECKING:
+    from collections.abc import Sequence
+
+    from matplotlib.axes import Axes
+    from matplotlib.figure import Figure
 
 log = logging.getLogger(__name__)
 
@@ -95,7 +102,7 @@ class PSF:
         s = self.intensity.sum()
         return float((self.intensity.sum(0) * xs).sum() / s), float((self.intensity.sum(1) * ys).sum() / s)
 
-    def plot(self, ax: Any = None, *, log: bool = True) -> Any:
+    def plot(self, ax: Axes | Sequence[Axes] | None = None, *, log: bool = True) -> Figure:
         """The PSF on the focal plane (x, y in um; colour bar in fraction of the incident power per um^2) and its
         cuts through the peak.
 
@@ -140,7 +147,7 @@ class PSF:
 # ----------------------------------------------------------------------------------------------
 # input checks
 # ----------------------------------------------------------------------------------------------
-def _field_pair(field_deg: Any) -> tuple[float, float]:
+def _field_pair(field_deg: ArrayLike) -> tuple[float, float]:
     s = field_direction(field_deg)  # validates
     del s
     if np.ndim(field_deg) == 0:
@@ -149,7 +156,7 @@ def _field_pair(field_deg: Any) -> tuple[float, float]:
     return float(a[0]), float(a[1])
 
 
-def _no_focus_error(lens: LensDesign, wl: np.ndarray, polarization: Any) -> None:
+def _no_focus_error(lens: LensDesign, wl: np.ndarray, polarization: str | None) -> None:
     """Raise the InputError for a PSF whose focusing order vanishes at every wavelength.
 
     For the lens' own polarisation that happens where the wrapped phase is a whole number of extra
@@ -166,7 +173,8 @@ def _no_focus_error(lens: LensDesign, wl: np.ndarray, polarization: Any) -> None
     raise InputError("polarization", polarization, "a polarisation with a focusing component")
 
 
-def check_wavelengths(lens: LensDesign, wavelengths_um: Any, weights: Any) -> tuple[np.ndarray, np.ndarray]:
+def check_wavelengths(lens: LensDesign, wavelengths_um: ArrayLike | None,
+                      weights: ArrayLike | None) -> tuple[np.ndarray, np.ndarray]:
     """Wavelength array (um, > 0) and weights (>= 0, normalised to sum 1)."""
     if wavelengths_um is None:
         wl = np.array([lens.wavelength_um])
@@ -192,7 +200,7 @@ def check_wavelengths(lens: LensDesign, wavelengths_um: Any, weights: Any) -> tu
     return wl, w
 
 
-def _check_field(lens: LensDesign, field_deg: Any, wl: np.ndarray) -> None:
+def _check_field(lens: LensDesign, field_deg: ArrayLike, wl: np.ndarray) -> None:
     s0 = field_direction(field_deg)
     lim = max_field_deg(lens, float(wl.max()))
     ang = math.degrees(math.asin(min(1.0, float(np.hypot(*s0)))))
@@ -202,10 +210,10 @@ def _check_field(lens: LensDesign, field_deg: Any, wl: np.ndarray) -> None:
                          f"{wl.max():g} um: beyond it the rim of the lens sends light into evanescent directions")
 
 
-def checked_inputs(lens: LensDesign, *, wavelengths_um: Any, weights: Any, error: Any, engine: Any, refused: str,
-                   allowed: str, field_deg: Any, post_set: PostSet | None, polarization: str | None,
-                   quantize: bool, lattice: bool, z_um: float | None
-                   ) -> tuple[np.ndarray, np.ndarray, float, str, tuple[float, float], list[Any]]:
+def checked_inputs(lens: LensDesign, *, wavelengths_um: ArrayLike | None, weights: ArrayLike | None, error: float,
+                   engine: str, refused: str, allowed: str, field_deg: ArrayLike, post_set: PostSet | None,
+                   polarization: str | None, quantize: bool, lattice: bool, z_um: float | None
+                   ) -> tuple[np.ndarray, np.ndarray, float, str, tuple[float, float], list[PupilSet]]:
     """The input checks psf() and sensor_psf() share: (wavelengths, weights, error, engine, field pair, the
     pupil sets per wavelength). ``refused``: the engine this caller does not run (``allowed`` says what it does)."""
     wl, w = check_wavelengths(lens, wavelengths_um, weights)
@@ -310,8 +318,9 @@ def _auto_window(pupils: list[Pupil], lens: LensDesign, margin_um: float) -> tup
     return c, half
 
 
-def psf(lens: LensDesign, *, wavelengths_um: Any = None, weights: Any = None, field_deg: Any = 0.0,
-        window_um: float | None = None, center_um: tuple[float, float] | None = None,
+def psf(lens: LensDesign, *, wavelengths_um: ArrayLike | None = None, weights: ArrayLike | None = None,
+        field_deg: float | tuple[float, float] = 0.0, window_um: float | None = None,
+        center_um: tuple[float, float] | None = None,
         pitch_um: float | None = None, post_set: PostSet | None = None, polarization: str | None = None,
         quantize: bool = False, lattice: bool = False, z_um: float | None = None, error: float = 1e-4,
         engine: str = "auto", allow_truncation: bool = False, max_samples: int = 1200) -> PSF:
@@ -430,9 +439,9 @@ def psf(lens: LensDesign, *, wavelengths_um: Any = None, weights: Any = None, fi
                eng_name, float(max(est_rel, 1e-16)), float(inten.sum()), info)
 
 
-def encircled_energy_on_axis(lens: LensDesign, radius_um: Any, *, wavelengths_um: Any = None, weights: Any = None,
-                             post_set: PostSet | None = None, quantize: bool = True, lattice: bool = True,
-                             z_um: float | None = None, n: int = 400) -> Any:
+def encircled_energy_on_axis(lens: LensDesign, radius_um: ArrayLike, *, wavelengths_um: ArrayLike | None = None,
+                             weights: ArrayLike | None = None, post_set: PostSet | None = None, quantize: bool = True,
+                             lattice: bool = True, z_um: float | None = None, n: int = 400) -> float | np.ndarray:
     """Fraction of the incident power within ``radius_um`` of the axis for an on-axis source (exact).
 
     Radial Gauss quadrature of the batched Hankel profiles of every wavelength's focusing order (lattice

@@ -43,6 +43,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from metafovea.config import LensDesign
 from metafovea.errors import InputError, check_choice, check_int, check_positive
@@ -52,7 +53,7 @@ from metafovea.library.postset import PostSet
 EVANESCENT_MARGIN = 1e-3
 
 
-def field_direction(field_deg: float | tuple[float, float] | Any) -> np.ndarray:
+def field_direction(field_deg: ArrayLike) -> np.ndarray:
     """Direction sines (sx, sy) of the incident plane wave for a field angle in degrees.
 
     A scalar is an angle along +x; a pair (ax, ay) is the direction whose chief ray lands at
@@ -242,7 +243,7 @@ class PupilSet:
     info: dict[str, Any] = field(default_factory=dict)
 
 
-def build_pupils(lens: LensDesign, wavelength_um: float, *, field_deg: Any = 0.0,
+def build_pupils(lens: LensDesign, wavelength_um: float, *, field_deg: ArrayLike = 0.0,
                  post_set: PostSet | None = None, polarization: str | None = None,
                  quantize: bool = True, lattice: bool = True, z_um: float | None = None,
                  orders: int = 6) -> PupilSet:

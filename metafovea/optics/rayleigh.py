@@ -42,6 +42,7 @@ from concurrent.futures import ThreadPoolExecutor
 from typing import Any
 
 import numpy as np
+from numpy.typing import ArrayLike
 from scipy import special
 
 from metafovea.parallel import blas_threads
@@ -137,7 +138,7 @@ def _integrand(pupil: Pupil, xb: float, yb: float, u: np.ndarray, v: np.ndarray
     px, py = xb - R * u, yb - R * vv
     L = np.sqrt(px * px + py * py + f * f)
     theta = -km * (L - f) + k * (pupil.s0[0] * px + pupil.s0[1] * py) + k * R
-    amp: Any = pupil.amplitude_factor
+    amp: complex | np.ndarray = pupil.amplitude_factor
     if pupil.lattice:
         q = lens.period_um / lens.wavelength_um * pupil.order
         amp = amp * np.sinc(q * px / L) * np.sinc(q * py / L)
@@ -277,8 +278,8 @@ def _plan(pupil: Pupil, xs: np.ndarray, ys: np.ndarray, error: float, q: float, 
     return out
 
 
-def rs_field(pupil: Pupil, xs: Any, ys: Any, *, error: float = 1e-4, workers: int = 2, block_px: int | None = None
-             ) -> tuple[np.ndarray, dict[str, Any]]:
+def rs_field(pupil: Pupil, xs: ArrayLike, ys: ArrayLike, *, error: float = 1e-4, workers: int = 2,
+             block_px: int | None = None) -> tuple[np.ndarray, dict[str, Any]]:
     """Complex field (len(ys), len(xs)) of the pupil's focusing order at the plane ``pupil.z_um`` (exact RS).
 
     ``xs``, ``ys``: uniformly spaced output coordinates (um). ``error``: the largest intensity error wanted,
@@ -346,7 +347,7 @@ def zone_radii(pupil: Pupil) -> np.ndarray:
     return np.append(r, a)
 
 
-def rs_reference(pupil: Pupil, xs: Any, ys: Any, *, nodes_per_zone: int = 16, phi_margin: int = 48,
+def rs_reference(pupil: Pupil, xs: ArrayLike, ys: ArrayLike, *, nodes_per_zone: int = 16, phi_margin: int = 48,
                  chunk: int = 4_000_000) -> np.ndarray:
     """Brute-force Rayleigh-Sommerfeld field (len(ys), len(xs)) over the true aperture (see the module docstring).
 
@@ -380,7 +381,7 @@ def rs_reference(pupil: Pupil, xs: Any, ys: Any, *, nodes_per_zone: int = 16, ph
         W = np.meshgrid(wr, phi)[0] * (2 * np.pi / n_phi) * R
         qx, qy = (R * np.cos(PH)).ravel(), (R * np.sin(PH)).ravel()
         L = np.sqrt(qx * qx + qy * qy + f * f)
-        amp: Any = pupil.amplitude_factor * W.ravel()
+        amp: complex | np.ndarray = pupil.amplitude_factor * W.ravel()
         if pupil.lattice:
             p = lens.period_um / lens.wavelength_um * pupil.order
             amp = amp * np.sinc(p * qx / L) * np.sinc(p * qy / L)

@@ -11,8 +11,9 @@ import os
 import time
 import warnings
 from collections.abc import Callable, Sequence
-from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import Executor, ThreadPoolExecutor
 from pathlib import Path
+from types import ModuleType
 from typing import Any
 
 import numpy as np
@@ -20,8 +21,8 @@ import numpy as np
 from metafovea.config import PAPER_BAND_UM, PAPER_PIXEL_PITCH_UM, LensDesign, SystemDesign, load_lens
 from metafovea.errors import InputError, NotConvergedWarning, check_choice, check_int, check_positive
 from metafovea.io import atomic_write_bytes, atomic_write_json, file_stem, prepare_output
-from metafovea.library import POST_SOURCES, oblique_response, rcwa_post_sets, system_post_sets
-from metafovea.parallel import blas_threads
+from metafovea.library import POST_SOURCES, ObliqueResponse, PostSet, oblique_response, rcwa_post_sets, system_post_sets
+from metafovea.parallel import DaskExecutor, blas_threads
 from metafovea.radiometry import psf_wavelengths
 from metafovea.report import HtmlReport, fig_to_png, fmt
 
@@ -36,7 +37,7 @@ from .mtf import (
     strehl,
 )
 from .propagate import SamplingError
-from .psf import defocus_note, depth_of_focus_um, diffraction_radius_um, encircled_energy_on_axis, psf
+from .psf import PSF, defocus_note, depth_of_focus_um, diffraction_radius_um, encircled_energy_on_axis, psf
 from .pupil import EVANESCENT_MARGIN, max_field_deg
 from .sensor import sensor_psf
 from .sweep import sensor_psf_sweep
@@ -51,11 +52,11 @@ log = logging.getLogger(__name__)
 def psf_report(lens: LensDesign, out_dir: str | Path, *, fields_deg: list[float] | None = None,
                band_um: tuple[float, float] = PAPER_BAND_UM, filter_um: tuple[float, float] | None = None,
                temperature_k: float = 300.0, n_wavelengths: int = 61, pixel_pitch_um: float = PAPER_PIXEL_PITCH_UM,
-               error: float = 1e-4, post_set: Any = None, wavelength_um: float | None = None,
+               error: float = 1e-4, post_set: PostSet | None = None, wavelength_um: float | None = None,
                window_um: float | None = None, relay_magnification: float = 1.0,
                z_um: float | None = None, progress: bool = False, position: int = 0,
-               trains: list[dict[str, Any]] | None = None, oblique: Any = None,
-               executor: Any = None) -> dict[str, Any]:
+               trains: list[dict[str, Any]] | None = None, oblique: ObliqueResponse | None = None,
+               executor: Executor | DaskExecutor | None = None) -> dict[str, Any]:
     """Compute the report numbers and write figures, ``psf_report.json`` and ``psf_report.html``.
 
     Geometry: ``pixel_pitch_um`` is the sensor's pixel pitch; behind a relay of ``relay_magnification`` a pixel
@@ -148,8 +149,8 @@ def psf_report(lens: LensDesign, out_dir: str | Path, *, fields_deg: list[float]
     return res
 
 
-def _field_posts(lens: LensDesign, post_set: Any, oblique: Any, error: float,
-                 res: dict[str, Any]) -> Callable[[float], Any]:
+def _field_posts(lens: LensDesign, post_set: PostSet | None, oblique: ObliqueResponse | None, error: float,
+                 res: dict[str, Any]) -> Callable[[float], PostSet | None]:
     """``field_deg -> posts`` for the PSFs: ``post_set`` at normal incidence, or the posts at the field (along +x)
     where that moves the focusing order's power by more than ``error``; each decision goes to
     ``res['oblique_incidence']``."""
@@ -163,7 +164,7 @@ def _field_posts(lens: LensDesign, post_set: Any, oblique: Any, error: float,
     c0 = abs(complex(order_coefficients(tau, lens.levels, np.array([1]))[0])) ** 2
     cache: dict[float, Any] = {}
 
-    def at(fd: float) -> Any:
+    def at(fd: float) -> PostSet | None:
         fd = float(fd)
         if fd not in cache:
             obl = oblique.post_set_at(post_set, abs(fd), 0.0)
@@ -175,10 +176,9 @@ def _field_posts(lens: LensDesign, post_set: Any, oblique: Any, error: float,
     return at
 
 
-def _monochromatic(plt: Any, lens: LensDesign, res: dict[str, Any], fields_deg: list[float], mono_wl: list[float],
-                   posts_at: Callable[[float], Any], error: float, window_um: float | None, pixel_pitch_um: float,
-                   z: float,
-                   tick: Callable[[str], None]) -> bytes:
+def _monochromatic(plt: ModuleType, lens: LensDesign, res: dict[str, Any], fields_deg: list[float],
+                   mono_wl: list[float], posts_at: Callable[[float], PostSet | None], error: float,
+                   window_um: float | None, pixel_pitch_um: float, z: float, tick: Callable[[str], None]) -> bytes:
     """Monochromatic PSFs (fabricated lens) on axis, at mid-field and at the last field: ``res['monochromatic']``
     and the figure. A PSF too aberrated for the fine grid is shown on a pixel grid of a quarter pitch instead."""
     mono = []
@@ -227,8 +227,8 @@ def _monochromatic(plt: Any, lens: LensDesign, res: dict[str, Any], fields_deg: 
     return png
 
 
-def _encircled(lens: LensDesign, P: Any, fd: float, r_um: float, mono_wl: list[float],
-               posts_at: Callable[[float], Any], z: float, fine: bool) -> dict[str, Any]:
+def _encircled(lens: LensDesign, P: PSF, fd: float, r_um: float, mono_wl: list[float],
+               posts_at: Callable[[float], PostSet | None], z: float, fine: bool) -> dict[str, Any]:
     """Encircled energy (fraction of the incident power) within ``r_um`` (the first dark ring of the Airy pattern,
     0.61 lambda0 / NA): on axis the exact radial integral, off axis the fine PSF's about its centroid."""
     if fd == 0.0:
@@ -246,7 +246,7 @@ def _on_the_result(w: warnings.WarningMessage) -> bool:
     return isinstance(w.message, NotConvergedWarning) and bool(w.message.data)
 
 
-def _wavefront(plt: Any, lens: LensDesign, res: dict[str, Any], post_set: Any) -> bytes:
+def _wavefront(plt: ModuleType, lens: LensDesign, res: dict[str, Any], post_set: PostSet | None) -> bytes:
     """Phase error of the fabricated lens (posts on the lattice, N levels, the post set's phases) against the
     continuous hyperbolic phase, on 120 um patches at the centre and at the rim, sampled at a sixteenth of the
     period (so the hold over each 4 um cell shows): ``res['wavefront']`` (rms and max after the common phase is
@@ -292,8 +292,8 @@ def _wavefront(plt: Any, lens: LensDesign, res: dict[str, Any], post_set: Any) -
     return png
 
 
-def _through_focus(plt: Any, lens: LensDesign, res: dict[str, Any], mono_wl: list[float], wl: np.ndarray,
-                   w: np.ndarray, post_set: Any, pixel_pitch_um: float, z: float) -> bytes:
+def _through_focus(plt: ModuleType, lens: LensDesign, res: dict[str, Any], mono_wl: list[float], wl: np.ndarray,
+                   w: np.ndarray, post_set: PostSet | None, pixel_pitch_um: float, z: float) -> bytes:
     """On-axis through-focus curves of the fabricated lens (exact radial integrals, optical PSF): the power within
     one focal-plane pixel pitch of the axis at the design wavelength and over the band, against the focal-plane
     distance, f +- 3 depths of focus, with the sensor's plane marked: ``res['through_focus']``."""
@@ -329,7 +329,7 @@ def _through_focus(plt: Any, lens: LensDesign, res: dict[str, Any], mono_wl: lis
     return png
 
 
-def _mtf(plt: Any, lens: LensDesign, res: dict[str, Any], fields_deg: list[float], cut: float, z: float,
+def _mtf(plt: ModuleType, lens: LensDesign, res: dict[str, Any], fields_deg: list[float], cut: float, z: float,
          pixel_pitch_um: float) -> bytes:
     """MTF of the focusing order (exact pupil autocorrelation, design wavelength, at the plane ``z``): the
     continuous-phase and the fabricated (8-level + lattice) lens on axis, the fabricated lens times the pixel
@@ -374,9 +374,10 @@ def _mtf(plt: Any, lens: LensDesign, res: dict[str, Any], fields_deg: list[float
     return png
 
 
-def _sensor(plt: Any, lens: LensDesign, res: dict[str, Any], fields_deg: list[float], mono_wl: list[float],
-            wl: np.ndarray, w: np.ndarray, posts_at: Callable[[float], Any], error: float, pixel_pitch_um: float,
-            z: float, tick: Callable[[str], None], executor: Any = None) -> bytes:
+def _sensor(plt: ModuleType, lens: LensDesign, res: dict[str, Any], fields_deg: list[float], mono_wl: list[float],
+            wl: np.ndarray, w: np.ndarray, posts_at: Callable[[float], PostSet | None], error: float,
+            pixel_pitch_um: float, z: float, tick: Callable[[str], None],
+            executor: Executor | DaskExecutor | None = None) -> bytes:
     """Encircled energy and broadband sensor PSFs over the field: ``res['on_axis_ee_pixel_radius']`` (power within
     one pixel pitch of the axis, exact radial integral, no pixel grid), ``res['sensor']`` and the figure."""
     post_set = posts_at(0.0)
@@ -585,7 +586,7 @@ def psf_reports(designs: Sequence[str | Path | LensDesign], out_dir: str | Path,
 
 
 def _run_reports(lenses: list[LensDesign], out_dir: str | Path, force: bool, system: SystemDesign, posts: str,
-                 dist: dict[str, float], jobs: int, progress: bool, ex: Any, say: Callable[[str], None],
+                 dist: dict[str, float], jobs: int, progress: bool, ex: DaskExecutor | None, say: Callable[[str], None],
                  kw: dict[str, Any]) -> dict[str, dict[str, Any]]:
     """:func:`psf_reports` after its checks: the output folder, the posts, then each lens' report (in a process
     per lens, or here with the sensor PSFs on the cluster ``ex``)."""
@@ -728,7 +729,7 @@ def _check_wavelengths_and_fields(lens: LensDesign, band: tuple[float, float], f
 # ----------------------------------------------------------------------------------------------
 # the summary for people (what ``metafovea psf`` prints)
 # ----------------------------------------------------------------------------------------------
-def _frac(v: Any) -> str:
+def _frac(v: float | None) -> str:
     """A fraction (Strehl ratio, efficiency, encircled energy) to three decimals, ``-`` when not computed."""
     return "-" if v is None else f"{v:.3f}" if abs(v) >= 0.01 else f"{v:.2g}"
 

@@ -34,6 +34,7 @@ from functools import lru_cache
 from typing import Any
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from metafovea.config import LensDesign
 from metafovea.errors import NotConvergedWarning, check_int, check_positive
@@ -89,7 +90,8 @@ def box_integrate(I: np.ndarray, n_sub: int) -> np.ndarray:
     return out
 
 
-def disk_pixels(center_um: Any, radius_um: float, x_e0: float, y_e0: float, p: float, size: int) -> np.ndarray:
+def disk_pixels(center_um: tuple[float, float], radius_um: float, x_e0: float, y_e0: float, p: float,
+                size: int) -> np.ndarray:
     """Fraction of a uniform disk's area falling in each pixel of a ``size`` x ``size`` grid.
 
     Pixels are sub-sampled finely enough to resolve the disk (at least ~8 samples across its
@@ -144,7 +146,7 @@ def _sunflower_cached(n: int) -> tuple[np.ndarray, np.ndarray]:
     return x, y
 
 
-def geometric_pixels_multi(pupils: list[Pupil], weights: Any, x_edges0: float, y_edges0: float, pitch: float,
+def geometric_pixels_multi(pupils: list[Pupil], weights: np.ndarray, x_edges0: float, y_edges0: float, pitch: float,
                            size: int, n_rays: int, each: bool = False) -> np.ndarray:
     """Weighted sum of the geometric PSFs of several wavelengths (same lens and field) binned on pixels.
 
@@ -513,8 +515,9 @@ def _accuracy(lens: LensDesign, fpair: tuple[float, float], est_rel: float, erro
 
 
 def sensor_psf(lens: LensDesign, *, pixel_pitch_um: float, field_deg: float | tuple[float, float] = 0.0,
-               wavelengths_um: Any = None, weights: Any = None, post_set: PostSet | None = None,
-               size_px: int | None = None, error: float = 1e-4, polarization: str | None = None,
+               wavelengths_um: ArrayLike | None = None, weights: ArrayLike | None = None,
+               post_set: PostSet | None = None, size_px: int | None = None, error: float = 1e-4,
+               polarization: str | None = None,
                quantize: bool = True, lattice: bool = True, z_um: float | None = None,
                engine: str = "auto", max_size_px: int = 255, budget: float | None = None) -> PSF:
     """PSF integrated over square pixels of ``pixel_pitch_um`` on the lens' focal plane.

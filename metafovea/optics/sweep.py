@@ -19,9 +19,12 @@ from functools import partial
 from typing import Any
 
 import numpy as np
+from numpy.typing import ArrayLike
 
+from metafovea.config import LensDesign
 from metafovea.errors import InputError, NotConvergedWarning
-from metafovea.parallel import blas_threads, run_tasks
+from metafovea.library.postset import PostSet
+from metafovea.parallel import DaskExecutor, blas_threads, run_tasks
 
 from .psf import PSF
 from .sensor import sensor_psf
@@ -48,7 +51,8 @@ class PSFSweep:
         return [[p.intensity for p in row] for row in self.psfs]
 
 
-def _one(lens: Any, common: dict[str, Any], alone: bool, item: tuple[float, Any, Any, Any]) -> tuple[PSF, list[str]]:
+def _one(lens: LensDesign, common: dict[str, Any], alone: bool,
+         item: tuple[float, ArrayLike, ArrayLike | None, PostSet | None]) -> tuple[PSF, list[str]]:
     """One sensor PSF. ``alone`` (the task has its process to itself: serial, process pool, Dask worker): one BLAS
     thread, and its warnings come back as data (a worker's would stay in the worker's log). In threads neither:
     threadpoolctl's limit and catch_warnings are process-wide (a thread leaving them would undo them under its
@@ -67,9 +71,10 @@ def _on_the_psf(w: warnings.WarningMessage) -> bool:
     return isinstance(w.message, NotConvergedWarning) and bool(w.message.data)
 
 
-def sensor_psf_sweep(lens: Any, fields_deg: Sequence[float], bands: Sequence[tuple[Any, Any]], *,
-                     pixel_pitch_um: float, post_sets: Any = None, error: float = 1e-4, z_um: float | None = None,
-                     workers: int | None = 1, scheduler: str | None = None, executor: Any = None,
+def sensor_psf_sweep(lens: LensDesign, fields_deg: Sequence[float], bands: Sequence[tuple[ArrayLike, ArrayLike | None]],
+                     *, pixel_pitch_um: float, post_sets: PostSet | Sequence[PostSet | None] | None = None,
+                     error: float = 1e-4, z_um: float | None = None, workers: int | None = 1,
+                     scheduler: str | None = None, executor: cf.Executor | DaskExecutor | None = None,
                      on_field: Callable[[float], None] | None = None, **kwargs: Any) -> PSFSweep:
     """Sensor PSFs of ``lens`` at every field of ``fields_deg`` (deg) for every wavelength set of ``bands``.
 

@@ -50,6 +50,7 @@ from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from metafovea.config import LensDesign, SystemDesign
 from metafovea.errors import check_int, check_positive
@@ -75,7 +76,7 @@ POSTS_NOTE_IDEAL = ("ideal posts (exact phases, unit transmission and pass-throu
                     "simplified model, not the fabricated lens")
 
 
-def silicon_absorption_per_cm(wavelength_um: Any, resistivity_ohm_cm: float, dopant: str,
+def silicon_absorption_per_cm(wavelength_um: ArrayLike, resistivity_ohm_cm: float, dopant: str,
                               extra_per_cm: float = 0.0) -> np.ndarray:
     """Absorption coefficient (1/cm) of a lightly doped silicon wafer: free carriers (``C lambda^2 N``, see the
     module docstring) plus ``extra_per_cm``."""
@@ -85,7 +86,8 @@ def silicon_absorption_per_cm(wavelength_um: Any, resistivity_ohm_cm: float, dop
     return FREE_CARRIER_CM2_PER_UM2[dopant] * lam ** 2 * n_carriers + extra_per_cm
 
 
-def wafer_transmission(t_front: Any, r_front: Any, t_back: Any, r_back: Any, internal: Any) -> np.ndarray:
+def wafer_transmission(t_front: ArrayLike, r_front: ArrayLike, t_back: ArrayLike, r_back: ArrayLike,
+                       internal: ArrayLike) -> np.ndarray:
     """Power transmission of a thick slab with incoherent multiple reflections:
     ``T1 T2 A / (1 - R1 R2 A^2)`` (faces' transmittances T, internal reflectances R, single-pass internal
     transmittance A)."""
@@ -98,7 +100,7 @@ def bare_face_reflectance(n: float) -> float:
     return ((n - 1.0) / (n + 1.0)) ** 2
 
 
-def circle_overlap_fraction(r_beam: float, r_aperture: float, offset: Any) -> np.ndarray:
+def circle_overlap_fraction(r_beam: float, r_aperture: float, offset: ArrayLike) -> np.ndarray:
     """Fraction of a disk of radius ``r_beam`` centred ``offset`` away from the centre of a disk of radius
     ``r_aperture`` that lies inside it (exact circle-circle overlap area)."""
     a, b = float(r_beam), float(r_aperture)
@@ -119,7 +121,8 @@ def circle_overlap_fraction(r_beam: float, r_aperture: float, offset: Any) -> np
 
 
 def level_fractions(lens: LensDesign, radius_um: float, center_um: tuple[float, float] = (0.0, 0.0), *,
-                    samples: int = FOOTPRINT_SAMPLES, rng: Any = 0) -> tuple[np.ndarray, int]:
+                    samples: int = FOOTPRINT_SAMPLES,
+                    rng: np.random.Generator | int | None = 0) -> tuple[np.ndarray, int]:
     """Fractions ``p_k`` (N,) of the lens' lattice sites at each level inside a disk footprint (radius, centre
     in um), from ``samples`` sites drawn uniformly over it (each point snapped to its lattice site; sites
     outside the aperture are skipped), and how many sites landed inside. Standard error ~ sqrt(p / samples)."""
@@ -193,12 +196,12 @@ class ChannelTrain:
         """Power of the pass-through ripple on the focal plane / the channel's throughput."""
         return float(sum(lk.power_fraction for lk in self.leaks)) / self.throughput
 
-    def clear_fraction(self, field_tan: Any) -> np.ndarray:
+    def clear_fraction(self, field_tan: ArrayLike) -> np.ndarray:
         """Unclipped fraction of the bundle at ``tan(field angle)`` (array) by the other lens' ring."""
         r_beam, r_clear, shift = self.ring
         return circle_overlap_fraction(r_beam, r_clear, shift * np.asarray(field_tan, dtype=float))
 
-    def oblique_factor(self, tan_x: Any, tan_y: Any) -> np.ndarray:
+    def oblique_factor(self, tan_x: ArrayLike, tan_y: ArrayLike) -> np.ndarray:
         """Throughput at the field (tan of the angles along x and y) relative to the axis from the posts' oblique
         incidence (1 where not applied)."""
         tx, ty = np.asarray(tan_x, dtype=float), np.asarray(tan_y, dtype=float)
@@ -209,7 +212,7 @@ class ChannelTrain:
         c2 = np.where(th > 0, tx ** 2 / np.maximum(tx ** 2 + ty ** 2, 1e-300), 1.0)
         return c2 * np.interp(th, grid, g0) + (1 - c2) * np.interp(th, grid, g1)
 
-    def field_factor(self, tan_x: Any, tan_y: Any) -> np.ndarray:
+    def field_factor(self, tan_x: ArrayLike, tan_y: ArrayLike) -> np.ndarray:
         """Throughput at the field relative to the axis, beyond ``cos^4``: the other lens' ring and oblique
         incidence on the posts."""
         return self.clear_fraction(np.hypot(tan_x, tan_y)) * self.oblique_factor(tan_x, tan_y)
@@ -249,8 +252,8 @@ def _wafer_terms(lens: LensDesign, post_set: PostSet, pol: str, fractions: np.nd
     return t_ms, d0, g, r_ms, refl_src
 
 
-def channel_train(system: SystemDesign, channel: str, post_sets: dict[str, PostSet], wavelengths_um: Any,
-                  weights: Any, *, posts: str = "rcwa", samples: int = FOOTPRINT_SAMPLES,
+def channel_train(system: SystemDesign, channel: str, post_sets: dict[str, PostSet], wavelengths_um: ArrayLike,
+                  weights: ArrayLike, *, posts: str = "rcwa", samples: int = FOOTPRINT_SAMPLES,
                   oblique: dict[str, Any] | None = None, max_field_deg: float = 0.0,
                   error: float = OBLIQUE_MIN_EFFECT) -> ChannelTrain:
     """The optical train of ``channel`` ('foveal' or 'perifoveal') of ``system`` with the post sets
@@ -402,8 +405,8 @@ def _oblique_field(L: LensDesign, O: LensDesign, psL: PostSet, psO: PostSet, pol
 
 
 
-def camera_trains(system: SystemDesign, post_sets: dict[str, PostSet], wavelengths_um: Any, weights: Any, *,
-                  posts: str = "rcwa") -> tuple[ChannelTrain, ChannelTrain]:
+def camera_trains(system: SystemDesign, post_sets: dict[str, PostSet], wavelengths_um: ArrayLike,
+                  weights: ArrayLike, *, posts: str = "rcwa") -> tuple[ChannelTrain, ChannelTrain]:
     """(foveal, perifoveal) trains of ``system`` (see :func:`channel_train`)."""
     return (channel_train(system, "foveal", post_sets, wavelengths_um, weights, posts=posts),
             channel_train(system, "perifoveal", post_sets, wavelengths_um, weights, posts=posts))

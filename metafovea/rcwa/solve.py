@@ -435,7 +435,9 @@ def solve(stack: Stack, wavelength_um, *, harmonics=8, theta_deg: float = 0.0, p
 
 
 def _squeeze(res: Result) -> Result:
-    sq = lambda a: a[0]
+    def sq(a):
+        return a[0]
+
     return Result(res.orders, sq(res.kx), sq(res.ky), sq(res.kz_sub), sq(res.kz_sup),
                   {k: sq(v) for k, v in res.t.items()}, {k: sq(v) for k, v in res.r.items()},
                   {k: sq(v) for k, v in res.T.items()}, {k: sq(v) for k, v in res.R.items()},

@@ -9,6 +9,7 @@ from contextlib import contextmanager
 from typing import Any, TypeVar
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from metafovea.errors import InputError
 
@@ -20,7 +21,7 @@ def image_dtype(a: np.ndarray) -> np.dtype:
     return np.dtype(np.float32) if a.dtype == np.float32 else np.dtype(np.float64)
 
 
-def as_frames(frames: Any, *, min_frames: int = 1, name: str = "frames") -> np.ndarray:
+def as_frames(frames: ArrayLike, *, min_frames: int = 1, name: str = "frames") -> np.ndarray:
     """Validate a frame stack and return it as a float ``(T, H, W)`` array (float32 preserved).
 
     A list of 2-D arrays is stacked (all must have one shape); a single 2-D frame becomes ``T = 1``.
@@ -54,7 +55,7 @@ def as_frames(frames: Any, *, min_frames: int = 1, name: str = "frames") -> np.n
     return a
 
 
-def as_alpha(alpha: Any, n: int, *, name: str = "alpha", tol: float = 1e-6) -> np.ndarray:
+def as_alpha(alpha: ArrayLike, n: int, *, name: str = "alpha", tol: float = 1e-6) -> np.ndarray:
     """Mixing ratios ``(T,)`` in [0, 1] (float64), one per frame."""
     if np.iscomplexobj(alpha) or (isinstance(alpha, np.ndarray) and alpha.dtype == bool):
         raise InputError(name, f"array of dtype {np.asarray(alpha).dtype}", "real numbers in [0, 1]")

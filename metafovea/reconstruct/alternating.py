@@ -67,13 +67,14 @@ from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from metafovea.errors import InputError, as_float, check_choice, check_int
 from metafovea.reconstruct._common import Timings, as_frames, image_dtype, valid_mask, with_overrides
 from metafovea.reconstruct.denoise import denoise
 from metafovea.reconstruct.lsq import MAX_CONDITION, _lsq_masked, normal_matrix, solve_weights
 from metafovea.reconstruct.operators import FovealOperator, lowpass, lowpass_noise_factor
-from metafovea.reconstruct.polarizer import ALPHA_SE_MAX
+from metafovea.reconstruct.polarizer import ALPHA_SE_MAX, PolarizerModel
 from metafovea.reconstruct.result import Reconstruction
 
 log = logging.getLogger(__name__)
@@ -446,7 +447,7 @@ class AlternatingOptions:
     foveal_contrast: float | None = None
     foveal_psf: float | str = "fit"
     gauge: str = "auto"
-    polarizer: Any = None
+    polarizer: PolarizerModel | None = None
     polarizer_alpha: str = "model"
     prior: str | None = "tv"
     init: str = "svd"
@@ -479,7 +480,7 @@ def _channel_noise_gain(a: np.ndarray) -> np.ndarray:
     return np.sqrt(np.diag(np.linalg.inv(normal_matrix(a) + 1e-12 * np.eye(2))))
 
 
-def _window(frames: Any, saturation: float | None) -> _Window:
+def _window(frames: ArrayLike, saturation: float | None) -> _Window:
     Y = as_frames(frames, min_frames=3)
     dt = image_dtype(Y)
     M = valid_mask(Y, saturation)
@@ -546,7 +547,7 @@ def _alternate(win: _Window, x1: np.ndarray, x2: np.ndarray, a: np.ndarray, cond
 
 
 def polarizer_gauge_step(win: _Window, x1: np.ndarray, x2: np.ndarray, alpha: np.ndarray, op: FovealOperator,
-                         model: Any, sig: float, use: str = "model"
+                         model: PolarizerModel, sig: float, use: str = "model"
                          ) -> tuple[np.ndarray, np.ndarray, np.ndarray, dict[str, Any]]:
     """Fix the gauge with the polariser model (:func:`~metafovea.reconstruct.polarizer.polarizer_gauge`).
 
@@ -612,7 +613,7 @@ def polarizer_gauge_step(win: _Window, x1: np.ndarray, x2: np.ndarray, alpha: np
     return n1.astype(x1.dtype), n2.astype(x2.dtype), al, rep
 
 
-def alternating(frames: Any, options: AlternatingOptions | None = None, **overrides: Any) -> Reconstruction:
+def alternating(frames: ArrayLike, options: AlternatingOptions | None = None, **overrides: Any) -> Reconstruction:
     """Unknown-alpha separation of the frames (Algorithm, module docstring).
 
     Parameters

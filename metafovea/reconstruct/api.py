@@ -20,6 +20,7 @@ from dataclasses import replace
 from typing import Any
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from metafovea.errors import InputError, check_choice
 from metafovea.measurement import FovealConstraint, Measurement
@@ -48,8 +49,9 @@ NOISE_GAIN_WARN = 10.0
 DIP_MAX_SECONDS = 600.0
 
 
-def reconstruct(frames: Any, alpha: Any = None, method: str = "lsq", *, fpn: Any = None,
-                calibration: Any = None, **kw: Any) -> Reconstruction:
+def reconstruct(frames: ArrayLike, alpha: ArrayLike | None = None, method: str = "lsq", *,
+                fpn: str | ArrayLike | None = None, calibration: ArrayLike | None = None,
+                **kw: Any) -> Reconstruction:
     """Separate the foveal and perifoveal images from the frames with one solver.
 
     Parameters

@@ -48,10 +48,12 @@ from __future__ import annotations
 import functools
 import logging
 import time
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from metafovea.errors import InputError, as_float, as_rng, check_choice, check_int
 from metafovea.reconstruct._common import Timings, as_alpha, as_frames, image_dtype, with_overrides
@@ -59,7 +61,11 @@ from metafovea.reconstruct.alternating import alternating, frame_mean_alpha
 from metafovea.reconstruct.denoise import denoise
 from metafovea.reconstruct.lsq import lsq_known_alpha
 from metafovea.reconstruct.operators import FovealOperator
+from metafovea.reconstruct.polarizer import PolarizerModel
 from metafovea.reconstruct.result import Reconstruction
+
+if TYPE_CHECKING:
+    import jax
 
 log = logging.getLogger(__name__)
 
@@ -273,9 +279,10 @@ ALPHA_INITS = ("means", "classical")
 STOP_REASONS = ("steps", "converged", "time")
 
 
-def _initial_images(Y: np.ndarray, init: Any, alpha: Any, a_init: np.ndarray | None, scale: float,
-                    gain: float, offset: float,
-                    polarizer: Any = None) -> tuple[np.ndarray | None, np.ndarray | None, np.ndarray | None]:
+def _initial_images(Y: np.ndarray, init: str | tuple[ArrayLike, ArrayLike], alpha: np.ndarray | None,
+                    a_init: np.ndarray | None, scale: float, gain: float, offset: float,
+                    polarizer: PolarizerModel | None = None
+                    ) -> tuple[np.ndarray | None, np.ndarray | None, np.ndarray | None]:
     """``(x1, x2, alpha)`` of the warm start (``None`` for ``init='random'``)."""
     T, H, W = Y.shape
     if not isinstance(init, str):
@@ -393,15 +400,15 @@ class DipOptions:
     scale: float = 6.0
     foveal_gain: float = 1.0
     foveal_offset: float = 0.0
-    alpha_init: Any = "means"
-    polarizer: Any = None
-    init: Any = "random"
+    alpha_init: str | ArrayLike = "means"
+    polarizer: PolarizerModel | None = None
+    init: str | tuple[ArrayLike, ArrayLike] = "random"
     warm: str = "residual"
     warm_steps: int = 40
-    checkpoints: Any = ()
-    rng: Any = None
+    checkpoints: Sequence[int] = ()
+    rng: np.random.Generator | int | None = None
     log_every: int = 0
-    progress: Any = False
+    progress: bool | Callable[[dict[str, Any]], None] = False
     progress_every: int = 10
 
 
@@ -607,7 +614,7 @@ def _zeros_state(params: dict[str, Any], shape: tuple[int, int]) -> tuple:
             jnp.zeros(shape, jnp.float32))
 
 
-def _warm_fit(params: dict[str, Any], z1: Any, z2: Any, u: _Units, opt: DipOptions, lr: float,
+def _warm_fit(params: dict[str, Any], z1: jax.Array, z2: jax.Array, u: _Units, opt: DipOptions, lr: float,
               hist: list[float]) -> dict[str, Any]:
     """The supervised warm start (``warm='fit'``): ``warm_steps`` Adam steps fitting each network to its image."""
     import jax.numpy as jnp
@@ -664,8 +671,10 @@ class _Progress:
             self.bar.close()
 
 
-def _optimise(step: Any, params: dict[str, Any], data: dict[str, Any], opt: DipOptions, w: dict,
-              cps: list[int], images: Any, tm: Timings) -> tuple[tuple, list[float], list[dict[str, Any]], dict]:
+def _optimise(step: Callable[..., tuple[tuple, jax.Array]], params: dict[str, Any], data: dict[str, Any],
+              opt: DipOptions, w: dict, cps: list[int],
+              images: Callable[[dict[str, Any]], tuple[np.ndarray, np.ndarray, np.ndarray]],
+              tm: Timings) -> tuple[tuple, list[float], list[dict[str, Any]], dict]:
     """The Adam loop of the DIP loss: ``(state, loss history, checkpoints, stop info)``; the first step (which
     compiles when this shape and these switches are new) is timed as ``compile``, the others as ``steps``.
 
@@ -725,7 +734,8 @@ def _optimise(step: Any, params: dict[str, Any], data: dict[str, Any], opt: DipO
     return state, hist, recorded, info
 
 
-def _start_alpha(Y: np.ndarray, opt: DipOptions, alpha: Any) -> tuple[np.ndarray | None, np.ndarray | None]:
+def _start_alpha(Y: np.ndarray, opt: DipOptions,
+                 alpha: ArrayLike | None) -> tuple[np.ndarray | None, np.ndarray | None]:
     """``(alpha held fixed, initial alpha of a learned one)`` from ``alpha`` and ``alpha_init``."""
     T = Y.shape[0]
     if alpha is not None:
@@ -742,7 +752,8 @@ def _start_alpha(Y: np.ndarray, opt: DipOptions, alpha: Any) -> tuple[np.ndarray
     return None, as_alpha(ai, T, name="alpha_init")
 
 
-def dip(frames: Any, alpha: Any = None, options: DipOptions | None = None, **overrides: Any) -> Reconstruction:
+def dip(frames: ArrayLike, alpha: ArrayLike | None = None, options: DipOptions | None = None,
+        **overrides: Any) -> Reconstruction:
     """Fit the double DIP, eq. (1), to the frames.
 
     Parameters

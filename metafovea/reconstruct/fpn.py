@@ -57,6 +57,7 @@ import math
 from typing import Any
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from metafovea.errors import InputError, as_float, check_choice, check_int
 from metafovea.reconstruct._common import as_frames
@@ -97,7 +98,7 @@ FOVEAL_RANK = 4
 MAX_FOVEAL_GAIN = 0.98
 
 
-def estimate_fpn(*, calibration: Any = None, x1: np.ndarray | None = None, x2: np.ndarray | None = None,
+def estimate_fpn(*, calibration: ArrayLike | None = None, x1: np.ndarray | None = None, x2: np.ndarray | None = None,
                  rank: int | None = None, bound: float | None = None, scale: float = 6.0,
                  offset: tuple[float, float] = (0.0, 0.0), iterations: int = 150, eps: float | None = None,
                  foveal_weight: float = 1.0, foveal_gain: float = 1.0, foveal_offset: float = 0.0,
@@ -185,7 +186,7 @@ def estimate_fpn(*, calibration: Any = None, x1: np.ndarray | None = None, x2: n
     return _tv_prior(a1, a2, rank, bound, scale, offset, iterations, eps, foveal_weight, foveal_gain, foveal_offset)
 
 
-def _from_calibration(calibration: Any, rank: int | None, bound: float) -> tuple[np.ndarray, dict[str, Any]]:
+def _from_calibration(calibration: ArrayLike, rank: int | None, bound: float) -> tuple[np.ndarray, dict[str, Any]]:
     C = as_frames(calibration, min_frames=1, name="calibration")
     if not np.all(np.isfinite(C)):
         raise InputError("calibration", "frames with NaN/inf", "finite calibration frames")

@@ -40,6 +40,7 @@ from collections import deque
 from typing import Any
 
 import numpy as np
+from numpy.typing import ArrayLike, DTypeLike
 
 from metafovea.errors import InputError, as_float, check_int
 from metafovea.reconstruct._common import Timings, as_alpha, as_frames, estimate_noise, image_dtype, valid_mask
@@ -219,7 +220,7 @@ def _lsq_masked(Y: np.ndarray, a: np.ndarray, M: np.ndarray, max_condition: floa
     return x1.reshape(H, W).astype(dt), x2.reshape(H, W).astype(dt), info
 
 
-def lsq_known_alpha(frames: Any, alpha: Any, *, max_condition: float = MAX_CONDITION,
+def lsq_known_alpha(frames: ArrayLike, alpha: ArrayLike, *, max_condition: float = MAX_CONDITION,
                     regularize: str | float | None = None, saturation: float | None = None,
                     denoise: str | None = None, denoise_kw: dict[str, Any] | None = None,
                     noise_sigma: float | None = None) -> Reconstruction:
@@ -334,7 +335,7 @@ class SlidingLSQ:
 
     def __init__(self, window: int = 8, *, max_condition: float = MAX_CONDITION,
                  regularize: str | float | None = None, refresh: int = 4096,
-                 out_dtype: Any = None) -> None:
+                 out_dtype: DTypeLike = None) -> None:
         self.window = check_int("window", window, 2, 100000)
         self.max_condition = as_float("max_condition", max_condition)
         self.regularize = regularize
@@ -361,7 +362,7 @@ class SlidingLSQ:
         self._say = np.tensordot(a, F, axes=1)
         self._sy = F.sum(axis=0)
 
-    def push(self, frame: Any, alpha: float) -> None:
+    def push(self, frame: ArrayLike, alpha: float) -> None:
         """Add ``frame`` (H, W), finite, with its mixing ratio; drop the oldest beyond ``window``."""
         f = np.asarray(frame)
         if f.ndim != 2:
@@ -413,7 +414,7 @@ class SlidingLSQ:
         x2 = (u[1] * self._say + v[1] * self._sy).astype(dt, copy=False)
         return x1, x2, rep["condition"]
 
-    def update(self, frame: Any, alpha: float) -> tuple[np.ndarray, np.ndarray, float] | None:
+    def update(self, frame: ArrayLike, alpha: float) -> tuple[np.ndarray, np.ndarray, float] | None:
         """:meth:`push`, then :meth:`solve` once the window is full.
 
         Returns

@@ -22,6 +22,7 @@ from metafovea.errors import InputError
 if TYPE_CHECKING:
     from metafovea.measurement import Measurement
     from metafovea.reconstruct.joint import ChannelPSFs
+    from metafovea.reconstruct.result import Reconstruction
 
 
 def _pair(est: np.ndarray, ref: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -121,8 +122,9 @@ def _psnr_stack(ests: np.ndarray, refs: np.ndarray, data_range: float | None) ->
     return out
 
 
-def score(rec: Any, truth_x1: np.ndarray | None = None, truth_x2: np.ndarray | None = None,
-          data_range: float | None = None, *, level_free: bool = False) -> dict[str, float]:
+def score(rec: Reconstruction | tuple[ArrayLike, ArrayLike], truth_x1: np.ndarray | None = None,
+          truth_x2: np.ndarray | None = None, data_range: float | None = None, *,
+          level_free: bool = False) -> dict[str, float]:
     """PSNR and SSIM of a reconstruction against the noise-free images: the one scorer.
 
     Parameters

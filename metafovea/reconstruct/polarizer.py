@@ -29,6 +29,7 @@ from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from metafovea.errors import InputError, check_range
 from metafovea.polarizer import ALPHA_MEAN, RotatingPolarizer, check_mode
@@ -65,7 +66,7 @@ class PolarizerModel:
         check_range("rate_tolerance", self.rate_tolerance, 0.0, 0.5, lo_inclusive=True)
 
     @classmethod
-    def from_meta(cls, meta: dict[str, Any], times_s: Any) -> PolarizerModel | None:
+    def from_meta(cls, meta: dict[str, Any], times_s: ArrayLike) -> PolarizerModel | None:
         """The model a measurement's metadata gives (``polarizer_hz``, ``polarizer``: mode, extinction, tau_s and,
         in sync mode, phase_rad); None when the file says nothing about its polariser. A free-running polariser's
         realised phase and rate (the simulator records them as truth) are not used."""
@@ -103,7 +104,8 @@ class PolarizerModel:
         """``s``: half the peak-to-peak range of the effective alpha."""
         return self.physics.amplitude
 
-    def alpha(self, times_s: Any = None, omega: float | None = None, phase: float | None = None) -> np.ndarray:
+    def alpha(self, times_s: ArrayLike | None = None, omega: float | None = None,
+              phase: float | None = None) -> np.ndarray:
         """The model's effective alpha at ``times_s`` (default the frames'), for a phase of alpha ``phase``
         (default that of the rotation's phase ``phase_rad``, 0 when unknown)."""
         t = self.times_s if times_s is None else times_s

@@ -7,12 +7,20 @@ from __future__ import annotations
 import os
 import zipfile
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from metafovea.errors import InputError
 from metafovea.io import SCHEMA_VERSION, atomic_open, jsonable, load_npz, to_json
+
+if TYPE_CHECKING:
+    from collections.abc import Sequence
+
+    from matplotlib.axes import Axes
+    from matplotlib.figure import Figure
+
+    from metafovea.measurement import FovealConstraint
 
 KIND = "metafovea.Reconstruction"
 
@@ -88,7 +96,7 @@ class Reconstruction:
         """True for one image per window, ``(K, H, W)``."""
         return np.ndim(self.x1) == 3
 
-    def plot(self, ax: Any = None, *, window: int = 0, units: str = "DN") -> Any:
+    def plot(self, ax: Axes | Sequence[Axes] | None = None, *, window: int = 0, units: str = "DN") -> Figure:
         """The foveal (x1) and perifoveal (x2) images in the iron palette, colour bars in ``units``.
 
         Parameters
@@ -186,7 +194,7 @@ class PipelineResult:
     reconstruction: Reconstruction
     spans: tuple[tuple[int, int], ...]
     seconds: float
-    constraint: Any
+    constraint: FovealConstraint
     frames: int
     source: str | None = None
     metrics: dict[str, float] | str | None = None
@@ -197,7 +205,7 @@ class PipelineResult:
         """The number of outputs (windows)."""
         return len(self.spans)
 
-    def plot(self, ax: Any = None, *, window: int = 0, units: str = "DN") -> Any:
+    def plot(self, ax: Axes | Sequence[Axes] | None = None, *, window: int = 0, units: str = "DN") -> Figure:
         """The reconstruction's images: :meth:`Reconstruction.plot`."""
         return self.reconstruction.plot(ax, window=window, units=units)
 

@@ -43,6 +43,7 @@ import math
 from typing import Any
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from metafovea.errors import InputError, as_float, check_choice, check_int
 from metafovea.reconstruct._common import Timings, image_dtype
@@ -62,7 +63,7 @@ def _ncc(a: np.ndarray, b: np.ndarray) -> float:
     return float(np.sum(a * b) / den) if den > 0 else 0.0
 
 
-def _as_frame(frame: Any) -> np.ndarray:
+def _as_frame(frame: ArrayLike) -> np.ndarray:
     y = np.asarray(frame)
     if y.ndim == 3 and y.shape[0] == 1:
         y = y[0]
@@ -73,7 +74,7 @@ def _as_frame(frame: Any) -> np.ndarray:
     return y if y.dtype in (np.float32, np.float64) else y.astype(np.float64)
 
 
-def register(frame: Any, *, scale: float = 6.0, search: int | None = None, refine: bool = True,
+def register(frame: ArrayLike, *, scale: float = 6.0, search: int | None = None, refine: bool = True,
              refine_scale: bool = True, max_scale_change: float = 0.03, min_gain: float = 0.02) -> dict[str, Any]:
     """Locate the foveal content in the frame's centre (Registration, module docstring).
 
@@ -225,7 +226,7 @@ def mean_charbonnier_tv(z: np.ndarray, eps: float) -> tuple[float, np.ndarray]:
     return val / z.size, g / z.size
 
 
-def snapshot(frame: Any, *, alpha: float | None = None, scale: float = 6.0,
+def snapshot(frame: ArrayLike, *, alpha: float | None = None, scale: float = 6.0,
              offset: tuple[float, float] | None = None, register_frame: bool = True,
              foveal_gain: float = 1.0, foveal_offset: float = 0.0,
              foveal_weight: float = 1.0, tv_weight: float = 0.01, exclusion_weight: float = 0.001,

@@ -7,9 +7,8 @@ constraint ``D x1 == C x2`` holding exactly (the centre crop of ``x2`` is replac
 
 from __future__ import annotations
 
-from typing import Any
-
 import numpy as np
+from numpy.typing import ArrayLike, DTypeLike
 
 from metafovea.config import PAPER_FRAME_RATE_HZ
 from metafovea.errors import InputError, as_rng, check_int
@@ -54,7 +53,7 @@ def _fit(img: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
 def scene(shape: tuple[int, int] | int = 96, scale: float = 6.0, *, offset: tuple[float, float] = (0.0, 0.0),
           foveal: str = "camera", perifoveal: str = "astronaut", lo: float = 0.0, hi: float = 1.0,
           foveal_gain: float = 1.0, foveal_offset: float = 0.0,
-          dtype: Any = np.float64) -> tuple[np.ndarray, np.ndarray]:
+          dtype: DTypeLike = np.float64) -> tuple[np.ndarray, np.ndarray]:
     """A foveal/perifoveal pair for which the foveal constraint holds exactly.
 
     Parameters
@@ -116,8 +115,8 @@ def polariser_alpha(n: int, *, rate_hz: float = 2.0, fps: float = PAPER_FRAME_RA
     return RotatingPolarizer(rate_hz).nominal_alpha(theta)
 
 
-def measure(x1: np.ndarray, x2: np.ndarray, alpha: Any, *, sigma: float = 0.01, fpn: np.ndarray | None = None,
-            rng: Any = None, dtype: Any = None) -> np.ndarray:
+def measure(x1: np.ndarray, x2: np.ndarray, alpha: ArrayLike, *, sigma: float = 0.01, fpn: np.ndarray | None = None,
+            rng: np.random.Generator | int | None = None, dtype: DTypeLike = None) -> np.ndarray:
     """Mix two images as the sensor does.
 
     Parameters
@@ -148,7 +147,8 @@ def measure(x1: np.ndarray, x2: np.ndarray, alpha: Any, *, sigma: float = 0.01, 
     return y.astype(dtype or x1.dtype)
 
 
-def lowrank_fpn(shape: tuple[int, int], *, rank: int = 3, amplitude: float = 0.05, rng: Any = None) -> np.ndarray:
+def lowrank_fpn(shape: tuple[int, int], *, rank: int = 3, amplitude: float = 0.05,
+                rng: np.random.Generator | int | None = None) -> np.ndarray:
     """A zero-mean, low-rank fixed pattern: column offsets (readout stripes) plus ``rank - 1`` outer products.
 
     Parameters

@@ -13,10 +13,11 @@ from __future__ import annotations
 
 import logging
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Iterable, Sequence
 from typing import Any
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from metafovea.errors import InputError, check_choice, check_int
 from metafovea.parallel import progress_iter
@@ -53,7 +54,7 @@ def window_starts(n_frames: int, window: int, stride: int, starts: Sequence[int]
     return out
 
 
-def _lsq_windows(Y: np.ndarray, a: np.ndarray, starts: np.ndarray, window: int, it: Any, M: np.ndarray | None,
+def _lsq_windows(Y: np.ndarray, a: np.ndarray, starts: np.ndarray, window: int, it: Iterable[int], M: np.ndarray | None,
                  max_condition: float, regularize: str | float | None,
                  saturation: float | None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Known-alpha LSQ of every window: ``(x1 (K, H*W), x2 (K, H*W), condition (K,))``.
@@ -99,8 +100,8 @@ def _in_window(e: InputError, k: int, s: int, window: int, parameter: str = "fra
                       detail=where if not e.detail else f"{where}: {e.detail}")
 
 
-def _dip_window(dip: Any, Y: np.ndarray, alpha: Any, kw: dict[str, Any], s: int, window: int,
-                max_seconds: float | None) -> Reconstruction:
+def _dip_window(dip: Callable[..., Reconstruction], Y: np.ndarray, alpha: ArrayLike | None, kw: dict[str, Any], s: int,
+                window: int, max_seconds: float | None) -> Reconstruction:
     """The DIP of the window of frames ``s`` to ``s + window - 1``, with ``max_seconds`` of the run's time budget
     (what is left of it over the windows left; at least a step)."""
     pol = kw.get("polarizer")
@@ -110,9 +111,9 @@ def _dip_window(dip: Any, Y: np.ndarray, alpha: Any, kw: dict[str, Any], s: int,
     return dip(Y[s:s + window], alpha=None if alpha is None else np.asarray(alpha)[s:s + window], **wkw)
 
 
-def video(frames: Any, alpha: Any = None, *, window: int = 8, stride: int = 1, starts: Sequence[int] | None = None,
-          method: str = "lsq", denoise: str | None = None, max_condition: float = MAX_CONDITION,
-          regularize: str | float | None = None, saturation: float | None = None,
+def video(frames: ArrayLike, alpha: ArrayLike | None = None, *, window: int = 8, stride: int = 1,
+          starts: Sequence[int] | None = None, method: str = "lsq", denoise: str | None = None,
+          max_condition: float = MAX_CONDITION, regularize: str | float | None = None, saturation: float | None = None,
           progress: bool = False, **kw: Any) -> Reconstruction:
     """Reconstruct every sliding window of the frames.
 

@@ -23,10 +23,11 @@ start (``init='frame'``) instead of ``n1 = D^T y``; no exclusion loss (snapshot 
 
 from __future__ import annotations
 
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from metafovea.measurement import FovealConstraint, Measurement
 from metafovea.studies.common import (
     FILTER,
     Stopwatch,
@@ -38,6 +39,9 @@ from metafovea.studies.common import (
     simulated,
     sweep,
 )
+
+if TYPE_CHECKING:
+    from metafovea.reconstruct.result import Reconstruction
 
 NAME = "ablation"
 #: DIP step budgets: ``warm_steps`` after a warm start (the default stopping rule may end it earlier),
@@ -103,8 +107,8 @@ def run_multi(item: dict[str, Any]) -> dict[str, Any]:
         "images": (np.asarray(r.reconstruction.x1, np.float32), np.asarray(r.reconstruction.x2, np.float32))}
 
 
-def _snapshot_dip(y: np.ndarray, a: float, start: tuple[np.ndarray, np.ndarray], fc: Any, p: dict[str, Any],
-                  seed: int, exclusion: bool) -> Any:
+def _snapshot_dip(y: np.ndarray, a: float, start: tuple[np.ndarray, np.ndarray], fc: FovealConstraint,
+                  p: dict[str, Any], seed: int, exclusion: bool) -> Reconstruction:
     """The double deep prior fitted to one frame (given twice: :func:`~metafovea.reconstruct.dip` needs two frames;
     the loss, a mean over frames, is the one frame's), warm-started from ``start``, alpha held, the foveal term
     on (weight 1, as the snapshot's)."""
@@ -137,7 +141,7 @@ def run_snapshot(item: dict[str, Any]) -> dict[str, Any]:
         "images": (x1.astype(np.float32), x2.astype(np.float32))}
 
 
-def start_evidence(multi: list[dict[str, Any]], meas: Any) -> dict[str, float]:
+def start_evidence(multi: list[dict[str, Any]], meas: Measurement) -> dict[str, float]:
     """How far the warm-started DIP (the full row) moves from the TV prior alone (the classical estimate it starts
     from, alpha held), against that estimate's own error and the DIP's: RMS differences in DN per image."""
     full, tv = (next(r for r in multi if r["variant"] == k) for k in ("full", "tv_only"))
@@ -207,7 +211,7 @@ def _trend(multi: list[dict[str, Any]], snap: list[dict[str, Any]], ev: dict[str
                         if fast else "")}
 
 
-def _figure(multi: list[dict[str, Any]], snap: list[dict[str, Any]], meas: Any) -> bytes:
+def _figure(multi: list[dict[str, Any]], snap: list[dict[str, Any]], meas: Measurement) -> bytes:
     from metafovea.imaging.simulate import iron_colormap
     from metafovea.report import fig_to_png
 

@@ -18,14 +18,18 @@ import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from metafovea.config import SystemDesign
 from metafovea.errors import InputError
 from metafovea.io import atomic_write_bytes, atomic_write_json, prepare_output
+from metafovea.measurement import Measurement
 from metafovea.report import FIGURE_DPI
+
+if TYPE_CHECKING:
+    from metafovea.imaging.scene import Scene
 
 #: the 10 um / 0.5 um filter is in place in every study unless it says otherwise: without it the foveal channel
 #: (designed at 10 um, F/2) is mostly chromatic haze (validate's report: haze fraction ~0.8 over 8-14 um), and the
@@ -116,7 +120,7 @@ def sweep(fn: Callable[[Any], Any], items: Sequence[Any], options: StudyOptions,
 STUDY_FPN_RANK: int | None = 20
 
 
-def shutter_fpn(meas: Any) -> np.ndarray:
+def shutter_fpn(meas: Measurement) -> np.ndarray:
     """The fixed pattern from the measurement's closed-shutter ``calibration`` frames (as ``validate`` does, at
     rank :data:`STUDY_FPN_RANK`)."""
     from metafovea.reconstruct import estimate_fpn
@@ -127,8 +131,8 @@ def shutter_fpn(meas: Any) -> np.ndarray:
 
 
 
-def measure(system: SystemDesign, scene: Any, frames: int, seed: int, psf: str,
-            filter_enabled: bool = FILTER) -> tuple[Any, np.ndarray]:
+def measure(system: SystemDesign, scene: str | Scene, frames: int, seed: int, psf: str,
+            filter_enabled: bool = FILTER) -> tuple[Measurement, np.ndarray]:
     """``frames`` frames of ``scene`` on ``system`` (a free-running polariser, 16 shutter frames) and the fixed
     pattern from those frames: every study's measurement."""
     from metafovea.imaging.simulate import simulate
@@ -138,7 +142,8 @@ def measure(system: SystemDesign, scene: Any, frames: int, seed: int, psf: str,
     return meas, shutter_fpn(meas)
 
 
-def simulated(options: StudyOptions, p: dict[str, Any], sw: Any, filter_enabled: bool) -> tuple[Any, np.ndarray]:
+def simulated(options: StudyOptions, p: dict[str, Any], sw: Stopwatch,
+              filter_enabled: bool) -> tuple[Measurement, np.ndarray]:
     """:func:`measure` of ``p['scene']`` (``p['frames']`` frames on the ``p['crop']`` camera), timed under
     ``sw('simulate')``."""
     with sw("simulate"):

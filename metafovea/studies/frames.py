@@ -4,8 +4,9 @@ The waving hand (0.8 Hz, +-25 deg) through the paper's camera (2 Hz polariser, f
 unknown, 12 frames/s, RCWA posts and optical train, 10 um filter). For each window length W the sequence is
 reconstructed at the same output times (one window centred on each of them) by the unknown-alpha solver and, as
 the reference, by least squares with the true alpha. Each output is scored against the scene *at its own time*
-(the truth of the window's middle frame or two, PSNR peak: the channel's range over the whole sequence): what a viewer of the video wants, so that a long window pays for
-the motion it averages over; the pipeline's own score against the window's mean truth is kept beside it.
+(the truth of the window's middle frame or two, PSNR peak: the channel's range over the whole sequence): what a
+viewer of the video wants, so that a long window pays for the motion it averages over; the pipeline's own score
+against the window's mean truth is kept beside it.
 """
 
 from __future__ import annotations
@@ -14,6 +15,7 @@ from typing import Any
 
 import numpy as np
 
+from metafovea.measurement import Measurement
 from metafovea.studies.common import (
     FILTER,
     Stopwatch,
@@ -82,7 +84,7 @@ def _trend(rows: list[dict[str, Any]]) -> dict[str, Any]:
                     "foveal and perifoveal PSNR)"}
 
 
-def _figure(rows: list[dict[str, Any]], meas: Any, cs: list[int]) -> bytes:
+def _figure(rows: list[dict[str, Any]], meas: Measurement, cs: list[int]) -> bytes:
     from metafovea.imaging.simulate import iron_colormap
     from metafovea.report import fig_to_png
 

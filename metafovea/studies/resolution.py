@@ -1,13 +1,13 @@
 """``metafovea study resolution``: the Siemens star at a foveal expansion of 9:1 (paper point 4).
 
-The paper's wooden Siemens star (36 spokes, heated paper behind) fills the foveal field (its rim just outside it); the perifoveal lens is at
-``f2 = f1 / 9`` (the paper's 9:1 at an object distance of 300 mm). A free-running polariser (alpha unknown) gives
-the frames; the unknown-alpha solver separates them (FPN from shutter frames). Along circles about the star's
-centre (radius r in foveal pixels) the intensity of the foveal image and of the perifoveal image upsampled by 9 to
-the foveal grid (cubic interpolation at the same circle) is read; its contrast is the Michelson contrast of the
-spoke-frequency Fourier component (36 cycles per turn), at ``36 / (2 pi r)`` line pairs per pixel. The
-modulation (that contrast over the foveal truth's, the star as the foveal grid samples it, on the same circle) is
-the trend's measure for both images.
+The paper's wooden Siemens star (36 spokes, heated paper behind) fills the foveal field (its rim just outside it);
+the perifoveal lens is at ``f2 = f1 / 9`` (the paper's 9:1 at an object distance of 300 mm). A free-running
+polariser (alpha unknown) gives the frames; the unknown-alpha solver separates them (FPN from shutter frames). Along
+circles about the star's centre (radius r in foveal pixels) the intensity of the foveal image and of the perifoveal
+image upsampled by 9 to the foveal grid (cubic interpolation at the same circle) is read; its contrast is the
+Michelson contrast of the spoke-frequency Fourier component (36 cycles per turn), at ``36 / (2 pi r)`` line pairs
+per pixel. The modulation (that contrast over the foveal truth's, the star as the foveal grid samples it, on the
+same circle) is the trend's measure for both images.
 """
 
 from __future__ import annotations
@@ -78,7 +78,7 @@ def run_case(item: dict[str, Any]) -> dict[str, Any]:
     radii = list(np.round(np.geomspace(rmin, rmax, item["radii"]), 2)) + [float(v) for v in item["circles"]]
     truth1 = meas.truth_x1  # the star as the foveal grid samples it: the reference contrast for both images
     curves: dict[str, Any] = {}
-    for name, (img, truth, k) in imgs.items():
+    for name, (img, _, k) in imgs.items():
         con = [spoke_contrast(circle_profile(img, rr, c, k), cyc) for rr in radii]
         ref = [spoke_contrast(circle_profile(truth1, rr, c), cyc) for rr in radii]
         curves[name] = {"contrast": con, "truth_contrast": ref,
@@ -112,8 +112,8 @@ def _trend(case: dict[str, Any]) -> dict[str, Any]:
                         f"modulation {m2[-1]:.2f} at the largest radius, {m2[0]:.2f} at the finest radius",
             "holds": bool(better and peri_falls and finer), "foveal_limit_lp_per_px": l1,
             "perifoveal_limit_lp_per_px": l2,
-            "note": "modulation = the spoke-frequency Michelson contrast of the reconstruction over the foveal truth's on "
-                    "the same circle; the limit is the finest line pairs per pixel where it is still >= 0.5 "
+            "note": "modulation = the spoke-frequency Michelson contrast of the reconstruction over the foveal "
+                    "truth's on the same circle; the limit is the finest line pairs per pixel where it is still >= 0.5 "
                     f"(NaN: nowhere). The perifoveal grid's Nyquist, 0.5 lp per perifoveal pixel, is 0.5/{EXPANSION} "
                     f"lp per foveal pixel: its image can carry the 36 spokes only outside r = 36 x {EXPANSION} / pi "
                     f"= {36 * EXPANSION / np.pi:.0f} foveal px, so inside that radius its modulation is ~0 "
@@ -195,7 +195,8 @@ def run(options: StudyOptions) -> StudyResult:
         name=NAME, title="Siemens star at 9:1",
         modelled=f"The paper's camera (RCWA posts, both wafers' optical train, 10 um filter, NETD, FPN corrected "
                  f"from shutter frames) with the perifoveal lens at f2 = f1/{EXPANSION}, D2 = f2; the built-in "
-                 f"Siemens star (36 wooden spokes on heated paper, radius 1.1 x the foveal half-field so that its rim lies outside the foveal image); {p['frames']} frames of "
+                 f"Siemens star (36 wooden spokes on heated paper, radius 1.1 x the foveal half-field so that its "
+                 f"rim lies outside the foveal image); {p['frames']} frames of "
                  f"a free-running polariser, crop {p['crop'][0]} x {p['crop'][1]}, separated without alpha "
                  f"(alternating, foveal gauge). Contrast on circles about the centre at {n} radii (geometric) and "
                  f"on the circles of radius {p['circles_px']} foveal pixels: the Michelson contrast of the "

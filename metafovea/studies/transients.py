@@ -15,7 +15,7 @@ the pre-heating baseline, reconstruction over truth) and correlation.
 
 from __future__ import annotations
 
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -32,6 +32,9 @@ from metafovea.studies.common import (
     sweep,
 )
 
+if TYPE_CHECKING:
+    from metafovea.imaging.scene import CoilHeater
+
 NAME = "transients"
 WINDOW = 8  #: frames per window: the frames study's optimum (8-12 at 2 Hz / 12 frames/s)
 FULL = {"scenes": ["heater-5s", "heater-10s", "heater-20s"], "crop": [290, 290], "cooling_taus": 3.0,
@@ -42,7 +45,7 @@ CHANNELS = (("foveal", "x1"), ("perifoveal", "x2"))
 FLAT_DN = 5.0  #: a truth rising less than this (about the noise of one pixel's series) has no peak to compare
 
 
-def duration_s(scene: Any, cooling_taus: float) -> float:
+def duration_s(scene: CoilHeater, cooling_taus: float) -> float:
     """Seconds that hold the heating and ``cooling_taus`` cooling time constants: ``t_on + on + n tau_cool``."""
     return float(scene.t_on_s + scene.on_duration_s + cooling_taus * scene.tau_cool_s)
 
@@ -169,7 +172,8 @@ def _figure(rows: list[dict[str, Any]]) -> bytes:
             ax[i, j].set_axis_off()
             a = ax[i, 2 + j]
             for k, q in enumerate(POINTS):
-                a.plot(r["times_s"], r[ch][q]["truth"], "--", color=f"C{k}", lw=1.2, label=f"{q.replace('_', ' ')}, truth")
+                a.plot(r["times_s"], r[ch][q]["truth"], "--", color=f"C{k}", lw=1.2,
+                       label=f"{q.replace('_', ' ')}, truth")
                 a.plot(r["times_s"], r[ch][q]["reconstruction"], "-", color=f"C{k}", lw=1.0,
                        label=f"{q.replace('_', ' ')}, reconstruction")
             a.axvspan(1.0, r["t_off_s"], color="0.9", zorder=0)
@@ -205,7 +209,8 @@ def run(options: StudyOptions) -> StudyResult:
                  f"the solver); sequences of {lengths}; video reconstruction by the unknown-alpha solver, one "
                  f"{WINDOW}-frame window centred on an output time every {p['output_step']} frames "
                  f"({p['output_step'] / 12:.2f} s). Points from each channel's own truth at switch-off: on the coil "
-                 f"(largest rise), {p['near_px']} px off the wire, and the pixel farthest from the wire (wall or holder).",
+                 f"(largest rise), {p['near_px']} px off the wire, and the pixel farthest from the wire "
+                 "(wall or holder).",
         why=f"A window of {WINDOW} frames is the frames study's optimum (8-12 at 2 Hz / 12 frames/s): shorter ones "
             f"leave alpha unidentified, longer ones average the transient. The sequence holds t_on + on + "
             f"{p['cooling_taus']:g} tau_cool so that heating and cooling are both seen. Each point is compared with "

@@ -46,8 +46,8 @@ def _fresh_python(code: str) -> str:
 def test_known_alpha_reconstruct_starts_without_the_other_solvers():
     """A known-alpha run imports neither the unknown-alpha, deep-prior or deconvolution solvers nor the other
     commands' packages (start-up counts in the file-to-file throughput, BENCHMARKS.md)."""
-    heavy = ("metafovea.reconstruct.alternating", "metafovea.reconstruct.deep_prior", "metafovea.reconstruct.deconvolve",
-             "metafovea.rcwa", "metafovea.recordings", "jax")
+    heavy = ("metafovea.reconstruct.alternating", "metafovea.reconstruct.deep_prior",
+             "metafovea.reconstruct.deconvolve", "metafovea.rcwa", "metafovea.recordings", "jax")
     assert _fresh_python("import sys; from metafovea.cli import build_parser; build_parser(['reconstruct', 'x.npz']); "
                          "import metafovea.reconstruct.api, metafovea.cli.reconstruct; "
                          f"print([m for m in {heavy!r} if m in sys.modules])") == "[]"

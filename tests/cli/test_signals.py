@@ -62,7 +62,10 @@ def test_library_sweep_stops_on_a_signal_and_keeps_its_rows(tmp_path, sig, ignor
     args = ["library", "--grid-step-um", "0.25", "--harmonics", "8", "--workers", "2", "--out", str(tmp_path / "o"),
             "--cache-dir", str(tmp_path / "lib")]
     p = _command(args, tmp_path, ignore_sigint=ignore)
-    parts = lambda: list((tmp_path / "lib").glob("*.parts/row-*.npz"))  # noqa: E731
+
+    def parts():
+        return list((tmp_path / "lib").glob("*.parts/row-*.npz"))
+
     assert _wait_for(lambda: parts() or p.poll() is not None, 120), "no row finished"
     assert p.poll() is None, "the sweep finished before the signal: make it longer"
     t0 = time.monotonic()
@@ -113,8 +116,8 @@ def test_a_full_disk_reports_the_bytes_written(tmp_path):
         signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
         resource.setrlimit(resource.RLIMIT_FSIZE, (limit, limit))
 
-    cmd = [*_metafovea(), "export", str(REPO / "designs" / "foveal.toml"), "--format", "oas", "--posts", "ideal", "--out",
-           str(tmp_path / "lens.oas"), "--quiet"]
+    cmd = [*_metafovea(), "export", str(REPO / "designs" / "foveal.toml"), "--format", "oas", "--posts", "ideal",
+           "--out", str(tmp_path / "lens.oas"), "--quiet"]
     r = subprocess.run(cmd, cwd=tmp_path, preexec_fn=pre, capture_output=True, text=True, timeout=300)
     assert r.returncode == 2, r.stderr
     m = re.search(r"after ([\d,]+) bytes", r.stderr)

@@ -94,7 +94,8 @@ def test_level_fractions_sample_the_sites(radius_um, centre):
 
 def _posts(rng, pol, levels=8):
     """A post set with rough pass-through (amplitude 0.7-0.95, phase spread ~0.6 rad) and reflections."""
-    t_f = rng.uniform(0.75, 0.95, levels) * np.exp(2j * np.pi * np.arange(levels) / levels + 1j * rng.normal(0, .1, levels))
+    t_f = rng.uniform(0.75, 0.95, levels) * np.exp(2j * np.pi * np.arange(levels) / levels
+                                                   + 1j * rng.normal(0, .1, levels))
     t_p = rng.uniform(0.7, 0.95, levels) * np.exp(1j * rng.uniform(-0.3, 0.3, levels))
     r = rng.uniform(0.02, 0.2, levels)
     t_x, t_y = (t_f, t_p) if pol == "x" else (t_p, t_f)
@@ -126,7 +127,8 @@ def test_coherent_pass_through_is_the_site_average(channel):
     assert got == pytest.approx(abs(d0) ** 2, abs=2 * 5 * sigma * abs(d0))
     kl = _sites(L, L.radius_um)
     t_f = posts[L.polarization].transmission(L.polarization)
-    assert tr.metasurface_transmission == pytest.approx(np.mean(np.abs(t_f[kl]) ** 2), abs=5 * np.std(np.abs(t_f[kl]) ** 2) / 256)
+    p_kl = np.abs(t_f[kl]) ** 2
+    assert tr.metasurface_transmission == pytest.approx(np.mean(p_kl), abs=5 * np.std(p_kl) / 256)
     # the wafer factors: bare face, and G = A / (1 - R_b R_ms A^2) with the footprint's mean reflectance
     rb = bare_face_reflectance(system.platform.n_substrate)
     a = math.exp(-float(silicon_absorption_per_cm(10.0, 15.0, "p")) * 500e-4)
@@ -245,7 +247,10 @@ def test_oblique_incidence_factor_against_posts_solved_at_the_corner():
         return ps.transmission(pol) * np.array(out)
 
     per, fov = posts["y"], posts["x"]
-    c = lambda t: abs(complex(order_coefficients(t, 8, np.array([1]))[0])) ** 2
+
+    def c(t):
+        return abs(complex(order_coefficients(t, 8, np.array([1]))[0])) ** 2
+
     focus = c(solved(per, "y")) / c(per.transmission("y"))
     p_fov, _ = level_fractions(system.foveal, system.perifoveal.radius_um, samples=1 << 16, rng=2)
     d0 = abs(complex(p_fov @ solved(fov, "y"))) ** 2 / abs(complex(p_fov @ fov.transmission("y"))) ** 2

@@ -26,9 +26,9 @@ import pytest
 os.environ.setdefault("XLA_FLAGS", "--xla_cpu_multi_thread_eigen=false intra_op_parallelism_threads=1")
 fmmax = pytest.importorskip("fmmax")
 jax = pytest.importorskip("jax")
-import jax.numpy as jnp  # noqa: E402
+import jax.numpy as jnp  # noqa: E402 - after the importorskips: the module skips without fmmax or jax
 
-from metafovea.rcwa import Layer, Rectangle, Stack, post_response, solve  # noqa: E402
+from metafovea.rcwa import Layer, Rectangle, Stack, post_response, solve  # noqa: E402 - as jax.numpy above
 
 P, H, WL, NSI = 4.0, 10.0, 10.0, 3.42
 

@@ -96,7 +96,10 @@ def test_blind_foveal_fpn_identifies_what_it_reports():
         est, info = estimate_fpn(x1=x1 + f, x2=x2 + f, foveal_gain=g, foveal_offset=o, fit_gain=False, rank=96)
         assert info["identified"] == "foveal" and not info["foveal_gain_fitted"] and abs(est.mean()) < 1e-9
         assert "x1 = U D x1" in info["assumed"] and "(D - g C) f" in info["observed"]
-        obs = lambda u: op.D(u) - g * op.C(u)  # noqa: E731, B023 (used in this iteration only)
+
+        def obs(u, op=op, g=g):
+            return op.D(u) - g * op.C(u)
+
         err_obs = obs(est) - obs(f)
         assert np.max(np.abs(err_obs - err_obs.mean())) < 1e-8 * np.abs(f).max() + 1e-9  # observed part: exact
         # the error is the stated unidentified part: (I - g U C)^-1 d, i.e. err - g U C err == detail * d
@@ -120,7 +123,10 @@ def test_blind_fpn_reduces_the_error_on_a_fresh_noisy_case():
     est, info = estimate_fpn(x1=plain.x1, x2=plain.x2, foveal_gain=1.0, foveal_offset=0.0)  # stored gain wrong
     seconds = time.perf_counter() - t0
     tv, _ = estimate_fpn(x1=plain.x1, x2=plain.x2, foveal_gain=g, foveal_offset=o, method="tv", iterations=60)
-    rms = lambda u: float(np.sqrt(np.mean((u - u.mean()) ** 2)))  # noqa: E731
+
+    def rms(u):
+        return float(np.sqrt(np.mean((u - u.mean()) ** 2)))
+
     assert info["foveal_gain_fitted"] and abs(info["foveal_gain"] - g) < 0.02
     assert rms(est - f) < 0.25 * rms(f) and rms(est - f) < 0.5 * rms(tv - f)
     assert seconds < 1.0
@@ -160,7 +166,10 @@ def test_calibration_shrinkage_beats_a_fixed_rank_and_knows_its_error(seed, T, s
     cal = 50.0 + f_true[None] + rng.normal(0, 2.0, (T, H, W))
     f, info = estimate_fpn(calibration=cal)
     f20, _ = estimate_fpn(calibration=cal, rank=20)
-    err = lambda e: float(np.sqrt(np.mean(((e - e.mean()) - (f_true - f_true.mean())) ** 2)))  # noqa: E731
+
+    def err(e):
+        return float(np.sqrt(np.mean(((e - e.mean()) - (f_true - f_true.mean())) ** 2)))
+
     assert err(f) < 0.85 * err(f20), (err(f), err(f20))
     assert 0 < info["rank"] < 20 and info["rank_rule"] == "shrinkage" and info["error_rms_from"] == "sure"
     assert 0.8 < info["error_rms_dn"] / err(f) < 1.2, (info["error_rms_dn"], err(f))

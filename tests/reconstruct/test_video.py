@@ -89,7 +89,7 @@ def test_float32_fast_path_equals_the_float64_per_window_solve_incl_masked_pixel
         assert v.x1.shape == (T - 7, H, W)
         for k in range(T - 7):
             ref = lsq_known_alpha(Y[k:k + 8].astype(np.float64), a[k:k + 8], saturation=4900.0 if masked else None)
-            for got, want, t in ((v.x1[k], ref.x1, x1), (v.x2[k], ref.x2, x2)):
+            for got, want in ((v.x1[k], ref.x1), (v.x2[k], ref.x2)):
                 assert np.array_equal(np.isnan(got), np.isnan(want))
                 ok = ~np.isnan(want)
                 assert np.max(np.abs(got[ok] - want[ok])) <= 1e-5 * np.ptp(Y64), (masked, k)

@@ -59,6 +59,9 @@ def test_ablation_fast_rows_physics_and_same_seed_same_json(tmp_path):
     assert multi["random_start"]["dip_tv_weight"] > 0 and multi["full"]["dip_tv_weight"] == 0.001
 
     again = run(StudyOptions(fast=True, seed=0)).to_json()
-    strip = lambda r: {k: v for k, v in r.items() if k != "timing"}  # noqa: E731
+
+    def strip(r):
+        return {k: v for k, v in r.items() if k != "timing"}
+
     assert json.dumps(strip(json.loads(json.dumps(again))), sort_keys=True) == json.dumps(strip(rep), sort_keys=True)
     assert res.name == "ablation"

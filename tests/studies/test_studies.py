@@ -61,7 +61,10 @@ def test_realtime_fast_and_same_seed_same_json(tmp_path, capsys):
     assert speed["lsq"]["fps"] > 5 * speed["alternating"]["fps"]
     assert rep["trend"]["holds"]
     again = run_study("realtime", StudyOptions(fast=True, seed=0)).to_json()
-    strip = lambda r: {k: v for k, v in r.items() if k != "timing"}  # noqa: E731
+
+    def strip(r):
+        return {k: v for k, v in r.items() if k != "timing"}
+
     assert json.dumps(strip(json.loads(json.dumps(again))), sort_keys=True) == \
         json.dumps(strip(rep), sort_keys=True)
 

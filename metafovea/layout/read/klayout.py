@@ -19,12 +19,19 @@ KLayout's hierarchical bounding boxes, without flattening.
 from __future__ import annotations
 
 from collections import Counter
+from collections.abc import Callable, Iterable
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from metafovea.layout.read.base import Observed, sniff_format
+
+if TYPE_CHECKING:
+    import klayout.db as kdb
+
+#: ``sink(x_nm, y_nm, types)``: called with each slice of posts (absolute centres and type indices)
+Sink = Callable[[np.ndarray, np.ndarray, np.ndarray], None]
 
 #: posts flattened per strip (bounds the scratch layout and the GDSII bytes: ~100 bytes a post)
 STRIP_POSTS = 4 << 20
@@ -38,7 +45,8 @@ _RECORD = np.dtype([("head", np.uint8, (20,)), ("xy", ">i4", (10,)), ("tail", np
 
 
 def read_klayout(path: Path, lattice: tuple[int, int, int] | None, posts_layer: tuple[int, int],
-                 post_names: Any = None, sink: Any = None, sizes: dict | None = None) -> Observed:
+                 post_names: Iterable[str] | None = None, sink: Sink | None = None,
+                 sizes: dict | None = None) -> Observed:
     """Read ``path`` (GDSII or OASIS) with KLayout; ``lattice``: see :func:`~metafovea.layout.read.base.lattice_of`
     (None: positions are not checked); ``post_names``: the post cells (default: cells without children);
     ``sink``: called as ``sink(x_nm, y_nm, type)`` with every post (absolute centre; type the index of its cell
@@ -92,14 +100,14 @@ def read_klayout(path: Path, lattice: tuple[int, int, int] | None, posts_layer: 
     flatc, off, found = _flatten_posts(ly, top, passes, sizes or {}, lattice, sink)
     ob.flat_counts.update(flatc)
     ob.off_lattice = int(off)
-    for li, kind, what, n, exact in passes:  # KLayout's flattening against its own count, record by record
+    for li, _, what, n, _ in passes:  # KLayout's flattening against its own count, record by record
         if found[li] != n:
             ob.anomalies.append(f"klayout flattened {found[li]:,} {what}, counted {n:,}")
     return ob
 
 
-def _census(ly: Any, top_ci: int, is_post: Any, li_posts: Any, lattice: tuple[int, int, int] | None,
-            ob: Observed) -> tuple[Counter, Counter, dict[int, tuple[int, int]]]:
+def _census(ly: kdb.Layout, top_ci: int, is_post: Callable[[kdb.Cell], bool], li_posts: int | None,
+            lattice: tuple[int, int, int] | None, ob: Observed) -> tuple[Counter, Counter, dict[int, tuple[int, int]]]:
     """References per post cell in cell ``top_ci`` through the hierarchy, one Python step per instance record (an
     array counts as its size); the placements of the cells that hold shapes (cell index -> placements in the top
     cell); and of those, the ones with posts-layer shapes: cell index -> (boxes and polygons, other shapes) in the
@@ -200,7 +208,8 @@ def _census(ly: Any, top_ci: int, is_post: Any, li_posts: Any, lattice: tuple[in
     return refs, held, {ci: (held[ci] * a, held[ci] * b) for ci, (a, b) in own.items()}
 
 
-def _frame_census(ly: Any, held: Counter, layers: list[int]) -> list[tuple[tuple[int, int], int, int, list[int]]]:
+def _frame_census(ly: kdb.Layout, held: Counter,
+                  layers: list[int]) -> list[tuple[tuple[int, int], int, int, list[int]]]:
     """``((layer, datatype), polygons, layer index, cells holding them)`` for each of the file's ``layers`` (all
     but the posts') with polygons (boxes included) in the top cell through the hierarchy, outside the post cells (as
     the other readers report the frame): polygons counted per cell times its placements ``held``."""
@@ -222,7 +231,7 @@ def _frame_census(ly: Any, held: Counter, layers: list[int]) -> list[tuple[tuple
     return found
 
 
-def _copy_frame(ly: Any, found: list) -> list[tuple[tuple[int, int], int, int]]:
+def _copy_frame(ly: kdb.Layout, found: list) -> list[tuple[tuple[int, int], int, int]]:
     """The frame polygons ``found`` (:func:`_frame_census`) copied to layers of their own, whose hierarchical
     bounding boxes (KLayout's, no flattening) are theirs: ``((layer, datatype), polygons, copy layer)``."""
     import klayout.db as db
@@ -237,8 +246,8 @@ def _copy_frame(ly: Any, found: list) -> list[tuple[tuple[int, int], int, int]]:
     return frame
 
 
-def _mark_posts(ly: Any, top: Any, is_post: Any, li_posts: Any, holders: dict, refs: Counter, with_refs: bool,
-                index: dict) -> list[tuple[int, int | None, str, int, bool]]:
+def _mark_posts(ly: kdb.Layout, top: kdb.Cell, is_post: Callable[[kdb.Cell], bool], li_posts: int | None, holders: dict,
+                refs: Counter, with_refs: bool, index: dict) -> list[tuple[int, int | None, str, int, bool]]:
     """Prepare this private copy of the layout for flattening; returns the passes ``(layer, type (None: by size),
     what, posts counted, boundaries only)``: a layer per post cell (``with_refs``) holding a marker square on the
     cell's origin, and the posts-layer boxes and polygons, and other shapes, of the cells ``holders`` copied to two
@@ -271,8 +280,8 @@ def _mark_posts(ly: Any, top: Any, is_post: Any, li_posts: Any, holders: dict, r
     return passes
 
 
-def _flatten_posts(ly: Any, top: Any, passes: list, sizes: dict, lattice: tuple[int, int, int] | None,
-                   sink: Any) -> tuple[Counter, int, Counter]:
+def _flatten_posts(ly: kdb.Layout, top: kdb.Cell, passes: list, sizes: dict, lattice: tuple[int, int, int] | None,
+                   sink: Sink | None) -> tuple[Counter, int, Counter]:
     """Flatten each pass's layer under ``top`` in KLayout (see :func:`_mark_posts`), in strips of about
     :data:`STRIP_POSTS` posts, and hand the posts to ``sink`` in slices of :data:`SINK_POSTS`: a marker's centre
     (the post cell's origin) with the pass's type, or a shape's bounding-box centre with the index of its size in
@@ -308,7 +317,7 @@ def _flatten_posts(ly: Any, top: Any, passes: list, sizes: dict, lattice: tuple[
 
 
 def _hand_over(xy: np.ndarray, kind: int | None, strip: tuple[int, int] | None, sizes: dict,
-               lattice: tuple[int, int, int] | None, sink: Any, flatc: Counter) -> tuple[int, int]:
+               lattice: tuple[int, int, int] | None, sink: Sink | None, flatc: Counter) -> tuple[int, int]:
     """Posts from the corners ``xy`` (rows of five points) of one slice of a strip: a marker's centre (the midpoint
     of opposite corners) with type ``kind``, or (``kind`` None) a shape's bounding-box centre typed by its size
     (counted into ``flatc``); only centres in ``strip`` (y0 <= y < y1; a post on a strip edge is touched by two
@@ -341,7 +350,7 @@ def _hand_over(xy: np.ndarray, kind: int | None, strip: tuple[int, int] | None, 
     return int(x.size), off
 
 
-def _corners(dump: _GdsDump, shapes: Any, exact: bool) -> np.ndarray:
+def _corners(dump: _GdsDump, shapes: kdb.Shapes, exact: bool) -> np.ndarray:
     """The corners of the shapes in ``shapes`` (the only ones in the scratch layout ``dump`` writes), an ``(n,
     10)`` integer array of five points per row: read from the GDSII bytes KLayout writes when every shape is a
     four-corner boundary (boxes and transformed boxes; ``exact``; a view on the dump's buffer, valid until its next
@@ -374,7 +383,7 @@ class _GdsDump:
         self.opts.write_context_info = False
         self.buf = np.empty(0, np.uint8)
 
-    def __call__(self, layout: Any) -> memoryview:
+    def __call__(self, layout: kdb.Layout) -> memoryview:
         import os
         import tempfile
 
