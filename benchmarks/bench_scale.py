@@ -51,9 +51,13 @@ def library_runs(n: int, harmonics: int) -> list[dict]:
     runs = (("workers", 1, "serial (1 process)"), ("workers", 2, "local processes, 2")) + LOCAL_AND_DASK
     with tempfile.TemporaryDirectory() as d:
         for key, val, label in runs:
-            lib, sec = _timed({key: val}, lambda **kw: compute_library(
-                widths, None, (10.0,), harmonics=harmonics, use_cache=False, progress=False, tol=None,
-                cache_dir=Path(d) / label.replace(" ", "_"), **kw))
+            cache_dir = Path(d) / label.replace(" ", "_")
+
+            def sweep(cache: Path = cache_dir, **kw):
+                return compute_library(widths, None, (10.0,), harmonics=harmonics, use_cache=False, progress=False,
+                                       tol=None, cache_dir=cache, **kw)
+
+            lib, sec = _timed({key: val}, sweep)
             same = ref is None or bool(np.array_equal(np.asarray(lib.t_x), np.asarray(ref.t_x)))
             ref = ref or lib
             rows.append({"job": f"library {n} x {n} posts, M = {harmonics}", "run": label, "seconds": sec,
@@ -71,7 +75,10 @@ def export_runs(mm: float) -> list[dict]:
     with tempfile.TemporaryDirectory() as d:
         for key, val, label in runs:
             out = Path(d) / f"{label.replace(' ', '_')}.oas"
-            res, sec = _timed({key: val}, lambda **kw: export_file(spec, out, "oas", ExportOptions(**kw)))
+            def export(path: Path = out, **kw):
+                return export_file(spec, path, "oas", ExportOptions(**kw))
+
+            res, sec = _timed({key: val}, export)
             data = out.read_bytes()
             same = ref is None or data == ref
             ref = ref or data
@@ -133,8 +140,10 @@ def main() -> None:
     head["load_after"] = _load()
     print(f"nproc {head['nproc']}, load {head['load_before']} -> {head['load_after']}")
     for r in rows:
-        rate = (f"{r['seconds_per_task']:.2f} s/task" if "seconds_per_task" in r else f"{r['posts_per_s'] / 1e6:.2f} M posts/s")
-        print(f"  {r['job']:<50} {r['run']:<30} {r['seconds']:7.2f} s  {rate:>16}  identical {r['identical_to_serial']}")
+        rate = (f"{r['seconds_per_task']:.2f} s/task" if "seconds_per_task" in r
+                else f"{r['posts_per_s'] / 1e6:.2f} M posts/s")
+        print(f"  {r['job']:<50} {r['run']:<30} {r['seconds']:7.2f} s  {rate:>16}  "
+              f"identical {r['identical_to_serial']}")
     if args.json:
         Path(args.json).write_text(json.dumps({**head, "rows": rows}, indent=1))
 

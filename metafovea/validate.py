@@ -279,7 +279,7 @@ def _plt():
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from metafovea.imaging.simulate import iron_colormap
+    from metafovea.plotting import iron_colormap
 
     return plt, iron_colormap()
 

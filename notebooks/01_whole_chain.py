@@ -21,7 +21,14 @@ import tempfile
 from dataclasses import replace
 from pathlib import Path
 
+from matplotlib.figure import Figure
+
 import metafovea as mf
+from metafovea.layout.export import ExportOptions, export_file
+from metafovea.layout.tiling import load_spec
+from metafovea.optics.report import psf_report
+from metafovea.plotting import iron_colormap
+from metafovea.report import fig_to_png
 
 SMALL = os.environ.get("METAFOVEA_NOTEBOOK_SMALL") == "1"
 OUT = Path(os.environ.get("METAFOVEA_NOTEBOOK_OUT") or tempfile.mkdtemp(prefix="metafovea-nb01-"))
@@ -45,15 +52,13 @@ for lens in (system.foveal, system.perifoveal):
 # %%
 posts, library = mf.platform_post_sets(system.platform)
 for pol, ps in posts.items():
-    print(f"focuses {pol}: {len(ps.widths_um)} posts, widths (um) {[tuple(round(float(v), 2) for v in w) for w in ps.widths_um][:3]} ...")
+    first = [tuple(round(float(v), 2) for v in w) for w in ps.widths_um][:3]
+    print(f"focuses {pol}: {len(ps.widths_um)} posts, widths (um) {first} ...")
 
 # %% [markdown]
 # ## 3. A layout patch of the foveal lens (GDSII, 0.2 mm wide at the rim), checked by reading it back
 
 # %%
-from metafovea.layout.export import ExportOptions, export_file
-from metafovea.layout.tiling import load_spec
-
 r_mm = system.foveal.diameter_mm / 2 - 0.2
 spec = load_spec(system.foveal, posts["x"], patch_mm=(r_mm, 0.0, 0.1 if SMALL else 0.2))
 res = export_file(spec, OUT / "foveal_patch.gds", "gds", ExportOptions(force=True))
@@ -63,8 +68,6 @@ print({k: res[k] for k in ("path", "posts") if k in res})
 # ## 4. PSF report of the perifoveal lens (on axis, the 10 um filter, few wavelengths)
 
 # %%
-from metafovea.optics.report import psf_report
-
 rep = psf_report(system.perifoveal, OUT / "psf", fields_deg=[0.0], filter_um=(10.0, 0.5),
                  n_wavelengths=3 if SMALL else 9, post_set=posts["y"], relay_magnification=system.relay_magnification)
 print(sorted(rep)[:10])
@@ -82,15 +85,11 @@ print(m.summary())
 for method in ("lsq", "alternating"):
     r = mf.reconstruct_measurement(m, method, fpn="calibration",
                                    solver={"strict": False} if method == "alternating" else None)
-    print(f"{method:12s} PSNR x1 {r.metrics['psnr_x1']:.2f} dB, x2 {r.metrics['psnr_x2']:.2f} dB, {r.seconds * 1e3:.1f} ms")
+    print(f"{method:12s} PSNR x1 {r.metrics['psnr_x1']:.2f} dB, x2 {r.metrics['psnr_x2']:.2f} dB, "
+          f"{r.seconds * 1e3:.1f} ms")
     assert r.metrics["psnr_x2"] > 20.0
 
 # %%
-from matplotlib.figure import Figure
-
-from metafovea.imaging.simulate import iron_colormap
-from metafovea.report import fig_to_png
-
 fig = Figure(figsize=(9, 3))
 for ax, img, title in zip(fig.subplots(1, 3), (m.frames[0], r.x1s[0], r.x2s[0]),
                           ("measured frame", "foveal (reconstructed)", "perifoveal (reconstructed)")):

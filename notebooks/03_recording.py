@@ -32,7 +32,7 @@ from matplotlib.figure import Figure
 
 import metafovea as mf
 from metafovea.imaging.scene import make_scene
-from metafovea.imaging.simulate import iron_colormap
+from metafovea.plotting import iron_colormap
 from metafovea.reconstruct.deconvolve import temperatures
 from metafovea.recordings import ImportOptions, import_recording
 from metafovea.report import fig_to_png

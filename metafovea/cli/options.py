@@ -109,7 +109,7 @@ def progress(args: argparse.Namespace) -> bool:
     return show_progress(args) and sys.stderr.isatty()
 
 
-class warning_printer:  # noqa: N801 - a function to its callers (``warnings.showwarning``), with state
+class warning_printer:  # lower case: a function to its callers (``warnings.showwarning``), with state
     """A ``warnings.showwarning`` that prints each distinct warning once, on one line:
     ``metafovea COMMAND: warning: MESSAGE``. A :class:`~metafovea.errors.NotConvergedWarning` with data is held
     back: :meth:`flush` prints all of them as one summary line (:func:`~metafovea.cli.output.accuracy_summary`)

@@ -45,7 +45,7 @@ from metafovea.library import system_post_sets
 from metafovea.measurement import Measurement
 from metafovea.optics.train import system_trains
 from metafovea.parallel import heartbeat, progress_iter
-from metafovea.plotting import iron_colormap  # noqa: F401  (its home is the ground floor; imported from here too)
+from metafovea.plotting import iron_colormap
 from metafovea.radiometry import BandRadiance
 from metafovea.report import FIGURE_DPI, fig_to_png
 

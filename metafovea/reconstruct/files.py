@@ -241,7 +241,7 @@ def scene_figure(d: Deconvolution, title: str = "") -> bytes:
     matplotlib.use("Agg", force=False)
     import matplotlib.pyplot as plt
 
-    from metafovea.imaging.simulate import iron_colormap
+    from metafovea.plotting import iron_colormap
 
     imgs = d.temperature_k if d.temperature_k is not None else d.scene
     unit = "K" if d.temperature_k is not None else "DN"

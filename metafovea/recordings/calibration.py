@@ -52,7 +52,7 @@ class PlanckConstants:
     R1: float
     B: float
     F: float = 1.0
-    O: float = 0.0  # noqa: E741 (FLIR's name)
+    O: float = 0.0  # FLIR's name
     R2: float = 1.0
 
     def __post_init__(self) -> None:

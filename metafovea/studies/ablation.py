@@ -212,7 +212,7 @@ def _trend(multi: list[dict[str, Any]], snap: list[dict[str, Any]], ev: dict[str
 
 
 def _figure(multi: list[dict[str, Any]], snap: list[dict[str, Any]], meas: Measurement) -> bytes:
-    from metafovea.imaging.simulate import iron_colormap
+    from metafovea.plotting import iron_colormap
     from metafovea.report import fig_to_png
 
     fig, ax = figure(2, 4, (17, 8))

@@ -223,7 +223,7 @@ def _trend(mean: dict[str, dict[str, float]], cases: list[dict[str, Any]],
 
 
 def _figure(case: dict[str, Any], mean: dict[str, dict[str, float]]) -> bytes:
-    from metafovea.imaging.simulate import iron_colormap
+    from metafovea.plotting import iron_colormap
     from metafovea.report import fig_to_png
 
     imgs = case["images"]

@@ -85,7 +85,7 @@ def _trend(rows: list[dict[str, Any]]) -> dict[str, Any]:
 
 
 def _figure(rows: list[dict[str, Any]], meas: Measurement, cs: list[int]) -> bytes:
-    from metafovea.imaging.simulate import iron_colormap
+    from metafovea.plotting import iron_colormap
     from metafovea.report import fig_to_png
 
     ws = [r["window"] for r in rows]

@@ -112,7 +112,7 @@ def _trend(cases: list[dict[str, Any]]) -> dict[str, Any]:
 
 
 def _figure(cases: list[dict[str, Any]], types: list[str]) -> bytes:
-    from metafovea.imaging.simulate import iron_colormap
+    from metafovea.plotting import iron_colormap
     from metafovea.report import fig_to_png
 
     fig, ax = figure(len(types), 4, (12.5, 2.9 * len(types)))

@@ -124,7 +124,7 @@ def _trend(case: dict[str, Any]) -> dict[str, Any]:
 def _figure(case: dict[str, Any], circles: list[float], k: int) -> bytes:
     from matplotlib.ticker import NullFormatter
 
-    from metafovea.imaging.simulate import iron_colormap
+    from metafovea.plotting import iron_colormap
     from metafovea.report import fig_to_png
 
     fig, ax = figure(2, 3, (15, 8.5))

@@ -151,7 +151,7 @@ def _trend(rows: list[dict[str, Any]]) -> dict[str, Any]:
 
 
 def _figure(rows: list[dict[str, Any]]) -> bytes:
-    from metafovea.imaging.simulate import iron_colormap
+    from metafovea.plotting import iron_colormap
     from metafovea.report import fig_to_png
 
     fig, ax = figure(len(rows), 4, (21, 4.4 * len(rows)))

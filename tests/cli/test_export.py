@@ -41,7 +41,8 @@ def test_export_writes_and_refuses(tmp_path, capsys, toml):
     rcwa = platform_post_sets(None, 8)[0]["x"]
     assert res["post_set"]["source"] == "rcwa" and res["post_set"]["widths_um"] == rcwa.widths_um.tolist()
     assert posts_line.startswith("  posts: rcwa post set") and "idealised" not in posts_line
-    assert res["drc"]["ok"] and res["drc"]["max_aspect_ratio"] == pytest.approx(10 / min(min(w) for w in rcwa.widths_um))
+    assert res["drc"]["ok"]
+    assert res["drc"]["max_aspect_ratio"] == pytest.approx(10 / min(min(w) for w in rcwa.widths_um))
     # existing output: exit 2 with a one-line error
     assert main(["export", *args, "--format", "oas", "--out", str(out)]) == 2
     err = capsys.readouterr().err
