@@ -98,8 +98,7 @@ def test_single_frame_rows_are_scored_against_that_frames_truth_of_a_video():
     # a window row against the truth averaged over the window's frames
     lsq = next(r for r in res["rows"] if r["method"] == "lsq (known alpha)")
     m1, m2 = (t[0] for t in meas.truth_over([(0, T)]))
-    assert lsq["n"] == 1
-    assert lsq["psnr_x1"] == pytest.approx(score(res["images"]["lsq (known alpha)"], m1, m2)["psnr_x1"])
+    assert lsq["n"] == 1 and lsq["psnr_x1"] == pytest.approx(score(res["images"]["lsq (known alpha)"], m1, m2)["psnr_x1"])
 
 
 def test_table_columns_and_format():

@@ -26,9 +26,8 @@ def register(sub: Any) -> None:
     p.add_argument("--name", help="lens name (default: lens)")
     p.add_argument("--post-set", help="a PostSet .npz (from `metafovea library`) to list posts per level")
     p.add_argument("--posts", default="rcwa", choices=("rcwa", "ideal"),
-                   help="rcwa (default): select the posts from the platform's RCWA library (shipped for the default "
-                        "platform; another is computed on first use, ~35 s on 2 cores, then cached) and list post "
-                        "widths per level and the expected efficiency; "
+                   help="rcwa (default): select the posts from the platform's RCWA library (computed on first use, "
+                        "~35 s on 2 cores, then cached) and list post widths per level and the expected efficiency; "
                         "ideal: no post set (quantisation and lattice only, a simplified model)")
     p.add_argument("--library", action="store_true", help="the same as --posts rcwa (the default)")
     p.add_argument("--samples", default=str(1 << 20), help="sites sampled for the lattice efficiency (default 2^20)")
