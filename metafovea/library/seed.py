@@ -1,8 +1,8 @@
 """The library cache's seed: what the default system needs from this stage, shipped with the package.
 
-The default platform's RCWA library (31 x 31 posts at 10 harmonics, ~35 s on 2 cores) and the oblique-incidence
-responses of the default system's two post sets (~25 s) are in ``metafovea/data/`` (:data:`metafovea.io.DATA_DIR`)
-under their cache file names. :func:`~metafovea.library.compute_library` and
+The default platform's RCWA library (31 x 31 posts at 10 harmonics) and the oblique-incidence responses of the
+default system's two post sets are in ``metafovea/data/`` (:data:`metafovea.io.DATA_DIR`) under their cache file
+names: the work a first ``design``, ``psf``, ``simulate`` or ``validate`` would otherwise start with (BENCHMARKS.md). :func:`~metafovea.library.compute_library` and
 :func:`~metafovea.library.oblique_response` read a seed file when the user's cache has no file of that name, and
 only when the file's key is the key of the inputs (a hash of every input that changes the numbers): any other
 setting is computed as before, and says so on the log.
