@@ -2,7 +2,8 @@
 
 The default platform's RCWA library (31 x 31 posts at 10 harmonics) and the oblique-incidence responses of the
 default system's two post sets are in ``metafovea/data/`` (:data:`metafovea.io.DATA_DIR`) under their cache file
-names: the work a first ``design``, ``psf``, ``simulate`` or ``validate`` would otherwise start with (BENCHMARKS.md). :func:`~metafovea.library.compute_library` and
+names: the work a first ``design``, ``psf``, ``simulate`` or ``validate`` would otherwise start with (their cost:
+BENCHMARKS.md, "First run on an empty cache"). :func:`~metafovea.library.compute_library` and
 :func:`~metafovea.library.oblique_response` read a seed file when the user's cache has no file of that name, and
 only when the file's key is the key of the inputs (a hash of every input that changes the numbers): any other
 setting is computed as before, and says so on the log.
