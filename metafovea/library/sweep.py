@@ -318,11 +318,14 @@ def _announce(sweep: _Sweep, opts: LibraryOptions, final: Path | None) -> None:
 
     what = (f"computing the RCWA scatterer library: {sweep.wx.size} x {sweep.wy.size} posts x {sweep.wls.size} "
             f"wavelength(s), harmonics {sweep.solver_kw['harmonics']}")
+    def about(seconds: float) -> str:
+        return "under 1 s" if seconds < 1 else f"about {seconds:.0f} s"
+
     if opts.scheduler is None:
         workers = opts.workers or default_workers()
-        what += (f", {workers} worker process(es): about {_expected_seconds(sweep, workers):.0f} s on idle cores")
+        what += f", {workers} worker process(es): {about(_expected_seconds(sweep, workers))} on idle cores"
     else:
-        what += f" on the Dask scheduler {opts.scheduler}: about {_expected_seconds(sweep, 1):.0f} core-seconds"
+        what += f" on the Dask scheduler {opts.scheduler}: {about(_expected_seconds(sweep, 1))} of one core"
     log.warning("%s (%s)", what, f"then cached in {final.parent}" if final is not None else "use_cache=False")
 
 
