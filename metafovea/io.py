@@ -158,6 +158,17 @@ def cache_dir(stage: str) -> Path:
     return cache_root() / stage
 
 
+#: files shipped with the package: read-only seeds of the caches, each under its cache file's name (which holds the
+#: hash of every input), so a seed serves exactly the inputs it was made from (``python -m metafovea.library.seed``)
+DATA_DIR = Path(__file__).resolve().parent / "data"
+
+
+def seed_file(name: str) -> Path | None:
+    """The file shipped in :data:`DATA_DIR` under the cache file name ``name``, or None when none is."""
+    p = DATA_DIR / name
+    return p if p.is_file() else None
+
+
 @contextlib.contextmanager
 def cache_lock(path: str | os.PathLike) -> Iterator[None]:
     """Hold an exclusive lock on ``<path>.lock`` (made if missing): two processes that both miss a cache entry

@@ -7,6 +7,12 @@ REPO = Path(__file__).resolve().parents[1]
 DESIGNS = REPO / "designs"
 
 os.environ.setdefault("MPLBACKEND", "Agg")
+if os.environ.get("PYTEST_XDIST_WORKER"):
+    # the test workers (-n auto) already fill the cores: one BLAS thread each, also for the commands they start (two
+    # workers with two OpenBLAS threads each on 2 cores: tests/rcwa and optics' RCWA tests took 72 s, 118 CPU s;
+    # with one, 52 s, 73 CPU s). Set before numpy loads (xdist sets the variable before it reads this file).
+    for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS"):
+        os.environ.setdefault(_var, "1")
 
 
 @pytest.fixture

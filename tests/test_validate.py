@@ -30,8 +30,8 @@ def small_system():
 def test_validate_small_runs_every_stage(tmp_path, monkeypatch, small_system, browser_check):
     monkeypatch.setenv("METAFOVEA_CACHE", str(tmp_path / "cache"))
     opts = ValidateOptions(scene="bars", frames=16, calibration_frames=8, filters=(True,), alternating_windows=2,
-                           dip_steps=2, dip_channels=4, snapshot_iterations=20, library_grid_step_um=0.5,
-                           library_harmonics=5, psf="airy", cache_dir=str(tmp_path / "psf"))
+                           dip_steps=2, dip_channels=4, snapshot_iterations=20, psf="airy",
+                           cache_dir=str(tmp_path / "psf"))  # the default library: shipped, as are its posts off axis
     out = tmp_path / "report"
     out.mkdir()
     rep = validate_system(small_system, opts, out)
@@ -41,7 +41,7 @@ def test_validate_small_runs_every_stage(tmp_path, monkeypatch, small_system, br
     from metafovea.library import platform_post_sets
     from metafovea.optics.train import system_trains, throughput_lines
 
-    ps, _ = platform_post_sets(small_system.platform, 8, grid_step_um=0.5, harmonics=5)
+    ps, _ = platform_post_sets(small_system.platform, 8)
     trains = [t.summary() for t in system_trains(small_system, ps, "rcwa", filter_enabled=True)]
     case = next(iter(rep["stages"]["simulate_reconstruct"].values()))
     assert json.loads(json.dumps(case["optical_train"])) == json.loads(json.dumps(trains))

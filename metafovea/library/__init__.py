@@ -10,23 +10,26 @@ Files, in the order a library is made and used::
                checked loading of the stage's .npz files
     sweep      Library (t, T, R per (wavelength, wx, wy)), LibraryOptions (stack, solver, run), width_grid,
                compute_library (one task per row through metafovea.parallel.run_tasks; cached under a hash of
-               every input, resumable from finished rows)
+               every input, library_key; resumable from finished rows)
     select     select_posts (the paper's Fig. 7c: nominal grid search, or jointly over the -/0/+ edge-bias
                cases), usable_posts, bias_table (a set solved by RCWA under the edge bias)
     platform   PlatformSweep and platform_post_sets (a platform's library and both post sets: the path of
                ``metafovea library``, ``design`` and ``validate``), system_post_sets, rcwa_post_sets, POST_SOURCES
     oblique    ObliqueResponse, oblique_response (the chosen posts off axis, as t(theta) / t(0); cached)
+    seed       the default system's library and oblique responses shipped in metafovea/data/ (read when the
+               cache misses with the same key), seed_names, write_seed (``python -m metafovea.library.seed``)
     report     library_report / LibraryReport (numbers, the paper's Fig. 7b/7c and the files ``metafovea library``
                writes); imported as ``metafovea.library.report``
 """
 
-from .oblique import OBLIQUE_ANGLES_DEG, OBLIQUE_HARMONICS, ObliqueResponse, oblique_response
+from .oblique import OBLIQUE_ANGLES_DEG, OBLIQUE_HARMONICS, ObliqueResponse, oblique_cache_name, oblique_response
 from .platform import POST_SOURCES, PlatformSweep, platform_post_sets, rcwa_post_sets, system_post_sets
 from .postset import PostSet, postset_table
 from .select import BIAS_CASES, JOINT_MAX_ROUNDS, JOINT_POLISH, bias_table, select_posts, usable_posts
-from .sweep import DEFAULT_HARMONICS, LIBRARY_ARRAYS, Library, LibraryOptions, compute_library, width_grid
+from .sweep import DEFAULT_HARMONICS, LIBRARY_ARRAYS, Library, LibraryOptions, compute_library, library_key, width_grid
 
 __all__ = ["BIAS_CASES", "DEFAULT_HARMONICS", "JOINT_MAX_ROUNDS", "JOINT_POLISH", "LIBRARY_ARRAYS",
            "OBLIQUE_ANGLES_DEG", "OBLIQUE_HARMONICS", "POST_SOURCES", "Library", "LibraryOptions", "ObliqueResponse",
-           "PlatformSweep", "PostSet", "bias_table", "compute_library", "oblique_response", "platform_post_sets",
-           "postset_table", "rcwa_post_sets", "select_posts", "system_post_sets", "usable_posts", "width_grid"]
+           "PlatformSweep", "PostSet", "bias_table", "compute_library", "library_key", "oblique_cache_name",
+           "oblique_response", "platform_post_sets", "postset_table", "rcwa_post_sets", "select_posts",
+           "system_post_sets", "usable_posts", "width_grid"]

@@ -19,7 +19,7 @@ import numpy as np
 
 from metafovea.config import POLARIZATIONS, PlatformDesign
 from metafovea.errors import InputError, check_choice, check_int
-from metafovea.io import atomic_save_npz, cache_lock, input_hash, load_npz
+from metafovea.io import atomic_save_npz, cache_lock, input_hash, load_npz, seed_file
 from metafovea.io import cache_dir as io_cache_dir
 
 from .postset import PostSet
@@ -32,6 +32,8 @@ OBLIQUE_ANGLES_DEG = (0.0, 6.0, 11.0, 16.0)
 #: Fourier orders of the oblique solves: only the ratio t(theta) / t(0) at the same truncation is used, which
 #: converges much faster than t itself (harmonics 5 is within 5e-4 of harmonics 8 for the paper's posts)
 OBLIQUE_HARMONICS = 5
+#: CPU seconds per post of :func:`oblique_response` at harmonics 5 and 4 angles (its 19 solves; measured on one core)
+_OBLIQUE_POST_SECONDS = 1.5
 
 
 @dataclass(frozen=True)
@@ -113,28 +115,53 @@ def _oblique_ratios(widths_um: np.ndarray, platform: PlatformDesign, angles_deg:
     return out
 
 
-def oblique_response(post_set: PostSet, platform: PlatformDesign | None = None, *,
-                     angles_deg: Sequence[float] = OBLIQUE_ANGLES_DEG, harmonics: int = OBLIQUE_HARMONICS,
-                     cache_dir: str | Path | None = None) -> ObliqueResponse:
-    """The :class:`ObliqueResponse` of ``post_set``'s posts on ``platform`` (RCWA off axis at ``harmonics`` and one
-    less for the error estimate; cached on disk in the library cache)."""
+def _oblique_key(post_set: PostSet, plat: PlatformDesign, angles: np.ndarray, m: int) -> dict[str, Any]:
+    return {"kind": "oblique", "widths_um": np.round(post_set.widths_um, 9).tolist(), "angles_deg": angles.tolist(),
+            "harmonics": m, "wavelength_um": post_set.wavelength_um, "period_um": plat.period_um,
+            "height_um": plat.post_height_um, "n_post": plat.n_post, "n_substrate": plat.n_substrate,
+            "n_superstrate": plat.n_superstrate}
+
+
+def _checked(platform: PlatformDesign | None, angles_deg: Sequence[float], harmonics: int
+             ) -> tuple[PlatformDesign, np.ndarray, int]:
     plat = platform or PlatformDesign()
     m = check_int("harmonics", harmonics, 3, 12)
     angles = np.asarray(sorted({0.0, *(float(a) for a in angles_deg)}), dtype=float)
     if angles.size < 2 or angles[-1] >= 60.0 or angles[0] < 0:
         raise InputError("angles_deg", list(angles_deg), "angles in [0, 60) deg, at least one above 0")
-    key = {"kind": "oblique", "widths_um": np.round(post_set.widths_um, 9).tolist(), "angles_deg": angles.tolist(),
-           "harmonics": m, "wavelength_um": post_set.wavelength_um, "period_um": plat.period_um,
-           "height_um": plat.post_height_um, "n_post": plat.n_post, "n_substrate": plat.n_substrate,
-           "n_superstrate": plat.n_superstrate}
+    return plat, angles, m
+
+
+def oblique_cache_name(post_set: PostSet, platform: PlatformDesign | None = None, *,
+                       angles_deg: Sequence[float] = OBLIQUE_ANGLES_DEG, harmonics: int = OBLIQUE_HARMONICS) -> str:
+    """The cache file name of :func:`oblique_response` for these arguments, ``oblique_<key>.npz``: the key hashes
+    every input that changes the numbers (the posts' widths, angles, harmonics, wavelength and the stack)."""
+    plat, angles, m = _checked(platform, angles_deg, harmonics)
+    return f"oblique_{input_hash(_oblique_key(post_set, plat, angles, m))}.npz"
+
+
+def oblique_response(post_set: PostSet, platform: PlatformDesign | None = None, *,
+                     angles_deg: Sequence[float] = OBLIQUE_ANGLES_DEG, harmonics: int = OBLIQUE_HARMONICS,
+                     cache_dir: str | Path | None = None) -> ObliqueResponse:
+    """The :class:`ObliqueResponse` of ``post_set``'s posts on ``platform`` (RCWA off axis at ``harmonics`` and one
+    less for the error estimate; cached on disk in the library cache, or taken from the package's seed,
+    :func:`metafovea.io.seed_file`, when that holds the same key)."""
+    plat, angles, m = _checked(platform, angles_deg, harmonics)
+    key = _oblique_key(post_set, plat, angles, m)
     path = Path(cache_dir) if cache_dir else io_cache_dir("library")
     path = path / f"oblique_{input_hash(key)}.npz"
     ratios, err = _cached_oblique(path)
+    if ratios is None:
+        ratios, err = _seed_oblique(path.name, key)
     lock = cache_lock(path) if ratios is None else contextlib.nullcontext()
     with lock:
         if ratios is None:
             ratios, err = _cached_oblique(path)  # another process may have written it meanwhile
         if ratios is None:
+            log.warning("computing the posts' oblique-incidence response: %d posts at %d angles, harmonics %d, one "
+                        "process: about %.0f s on an idle core (then cached in %s)", post_set.levels, angles.size, m,
+                        _OBLIQUE_POST_SECONDS * post_set.levels * angles.size / 4 * ((2 * m + 1) / 11) ** 4.5,
+                        path.parent)
             ratios, err = _solve_oblique(post_set, plat, angles, m, key, path)
     return ObliqueResponse(angles, {"x": ratios[:, :, 0, :], "y": ratios[:, :, 1, :]}, err, m)
 
@@ -149,15 +176,37 @@ def _cached_oblique(path: Path) -> tuple[np.ndarray | None, float | None]:
     return None, None
 
 
+def _seed_oblique(name: str, key: dict[str, Any]) -> tuple[np.ndarray | None, float | None]:
+    """The response shipped with the package under the cache file name ``name`` when its key is ``key``."""
+    path = seed_file(name)
+    if path is None:
+        return None, None
+    try:
+        _, meta = load_npz(path)
+    except InputError as e:
+        log.warning("ignoring the damaged oblique-incidence seed %s: %s", path, e)
+        return None, None
+    if input_hash(meta.get("key")) != input_hash(key):
+        log.warning("ignoring the oblique-incidence seed %s: its key is not the inputs'", path)
+        return None, None
+    log.info("oblique-incidence response loaded from the package's seed %s", path)
+    return _cached_oblique(path)
+
+
 def _solve_oblique(post_set: PostSet, plat: PlatformDesign, angles: np.ndarray, m: int, key: dict[str, Any],
                    path: Path) -> tuple[np.ndarray, float]:
     """The ratios at ``m`` harmonics and their error estimate (truncation, interpolation), written to ``path``."""
-    ratios = _oblique_ratios(post_set.widths_um, plat, angles, post_set.wavelength_um, m)
-    lower = _oblique_ratios(post_set.widths_um, plat, angles, post_set.wavelength_um, m - 1)
-    err = float(np.max(np.abs(ratios - lower)))
-    # interpolation: solve at the midpoints (in angle^2) of the upper segments and compare
+    from metafovea.parallel import blas_threads
+
     mids = np.sqrt(0.5 * (angles[1:] ** 2 + angles[:-1] ** 2))[-2:]
-    solved = _oblique_ratios(post_set.widths_um, plat, np.concatenate([[0.0], mids]), post_set.wavelength_um, m)
+    # one BLAS thread: the eigenproblems are small (242 unknowns at M = 5), and OpenBLAS' threads made the CPU time
+    # per post 16x larger on a loaded 2-core machine (24 s against 1.5 s, measured here)
+    with blas_threads(1):
+        ratios = _oblique_ratios(post_set.widths_um, plat, angles, post_set.wavelength_um, m)
+        lower = _oblique_ratios(post_set.widths_um, plat, angles, post_set.wavelength_um, m - 1)
+        # interpolation: solve at the midpoints (in angle^2) of the upper segments and compare
+        solved = _oblique_ratios(post_set.widths_um, plat, np.concatenate([[0.0], mids]), post_set.wavelength_um, m)
+    err = float(np.max(np.abs(ratios - lower)))
     trial = ObliqueResponse(angles, {"x": ratios[:, :, 0, :], "y": ratios[:, :, 1, :]}, err, m)
     for i, th in enumerate(mids, start=1):
         for plane, az in ((0, 0.0), (1, 0.5 * math.pi)):

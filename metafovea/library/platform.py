@@ -19,7 +19,7 @@ from metafovea.errors import InputError, check_choice, check_int, check_positive
 
 from .postset import PostSet
 from .select import select_posts, usable_posts
-from .sweep import Library, LibraryOptions, compute_library, width_grid
+from .sweep import Library, LibraryOptions, compute_library, library_key, width_grid
 
 
 @dataclass(frozen=True)
@@ -87,9 +87,13 @@ class PlatformSweep:
         return wl if wl in self.wavelengths else self.wavelengths[0]
 
     def library(self) -> Library:
-        """The swept library (computed once, then loaded from the cache)."""
+        """The swept library (computed once, then loaded from the cache or the package's seed)."""
         return compute_library(self.widths_um, None, self.wavelengths,
                                options=self.options.with_platform(self.platform))
+
+    def cache_key(self) -> str:
+        """The key of :meth:`library` in the cache (:func:`~metafovea.library.sweep.library_key`)."""
+        return library_key(self.widths_um, None, self.wavelengths, options=self.options.with_platform(self.platform))
 
     def select(self, lib: Library) -> dict[str, PostSet]:
         """Both post sets, ``{'x': foveal lens' set, 'y': perifoveal lens' set}``.
@@ -115,9 +119,9 @@ def platform_post_sets(platform: PlatformDesign | None = None, levels: int = 8, 
                        bias_weight: float = 0.0, **overrides: Any) -> tuple[dict[str, PostSet], Library]:
     """The library of a platform (computed once, then loaded from the cache) and both post sets.
 
-    See :class:`PlatformSweep`. The paper's library (the defaults, 31 x 31 widths at 10 harmonics) takes ~35 s on 2
-    cores on a first run; the workers are separate processes, so a script calling this needs the usual
-    ``if __name__ == "__main__":`` guard.
+    See :class:`PlatformSweep`. The paper's library (the defaults, 31 x 31 widths at 10 harmonics) ships with the
+    package (:mod:`metafovea.library.seed`); another takes ~35 s on 2 cores on a first run (announced on the log), in
+    worker processes, so a script calling this needs the usual ``if __name__ == "__main__":`` guard.
 
     Parameters
     ----------

@@ -21,13 +21,13 @@ def test_oblique_response_against_direct_solves_at_unseen_angles(tmp_path):
     ob = oblique_response(ps, cache_dir=tmp_path)
     assert np.allclose(ob.factor("x", 0.0, 0.3), 1.0) and np.allclose(ob.factor("y", 0.0, 1.1), 1.0)
     assert 0 < ob.error < 0.1
+    stacks = [Stack(4.0, 4.0, (Layer(10.0, 1.0, (Rectangle(wx, wy, 3.42),)),), 3.42, 1.0) for wx, wy in widths]
+    normal = [solve(st, 10.0, harmonics=7, check_energy=False).t00("substrate") for st in stacks]
     for theta, az in ((4.3, 0.0), (9.7, 0.5 * math.pi), (14.2, 0.0), (15.6, 0.5 * math.pi)):
-        for k, (wx, wy) in enumerate(widths):
-            st = Stack(4.0, 4.0, (Layer(10.0, 1.0, (Rectangle(wx, wy, 3.42),)),), 3.42, 1.0)
+        for k, (st, j0) in enumerate(zip(stacks, normal)):
             th_si = math.degrees(math.asin(math.sin(math.radians(theta)) / 3.42))
             j = solve(st, 10.0, harmonics=7, theta_deg=th_si, phi_deg=math.degrees(az), incidence="substrate",
                       check_energy=False).t00("substrate")
-            j0 = solve(st, 10.0, harmonics=7, check_energy=False).t00("substrate")
             tx, ty = (j[0, 0], j[1, 1]) if az == 0.0 else (j[1, 1], j[0, 0])
             assert abs(ob.factor("x", theta, az)[k] - tx / j0[0, 0]) <= ob.error
             assert abs(ob.factor("y", theta, az)[k] - ty / j0[1, 1]) <= ob.error

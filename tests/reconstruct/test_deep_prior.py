@@ -106,6 +106,7 @@ def test_dip_warm_start_input_errors(data):
             dip(Y, channels=2, depth=1, steps=1, **kw)
 
 
+@pytest.mark.slow  # a convergence study at a small size: 600 steps on 32 x 32
 def test_random_start_reaches_the_known_alpha_lsq_within_its_budget():
     """Issue 13: the paper's random start (fixed random inputs, per-channel normalisation, cosine-decayed Adam)
     within 1 dB of the known-alpha LSQ on a 32 x 32 scene (sigma 0.05), with alpha held at the truth (measured
@@ -188,6 +189,7 @@ def test_sizes_beyond_the_memory_bound_are_refused():
             dip(np.zeros((3, 16, 16), np.float32), channels=2, depth=1, steps=1, **kw)
 
 
+@pytest.mark.slow  # a convergence study at a small size: twice 1000 steps on 32 x 32
 def test_random_starts_tv_weight_from_the_data_reaches_alternatings_prior():
     """Issue 13: from random inputs with unknown alpha (alternating's alpha held) at sigma 0.05, the DIP with its
     data-driven TV weight (MAP rule, :func:`metafovea.reconstruct.deep_prior._auto_tv_weight`) comes within 1 dB of

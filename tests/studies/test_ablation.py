@@ -7,6 +7,8 @@ from __future__ import annotations
 import json
 import math
 
+import pytest
+
 from metafovea.studies import StudyOptions, run_study
 from metafovea.studies.ablation import MULTI, QUANTITIES, SNAP, run
 
@@ -15,6 +17,7 @@ def _finite(rows: list[dict]) -> bool:
     return all(math.isfinite(r[q]) and math.isfinite(r[f"delta_{q}"]) for r in rows for q in QUANTITIES)
 
 
+@pytest.mark.slow  # a study: at its --fast size (64 x 64, DIP budgets of 30 and 60 steps), run twice
 def test_ablation_fast_rows_physics_and_same_seed_same_json(tmp_path):
     res = run_study("ablation", StudyOptions(fast=True, seed=0), tmp_path / "abl")
     for suffix in ("json", "png", "html"):

@@ -32,6 +32,7 @@ def test_new_scene_temperatures(name, lo, hi, fovea_lo, fovea_hi):
     assert s.static
 
 
+@pytest.mark.slow  # a study, at its --fast size
 def test_gallery_fast(tmp_path, capsys):
     out = tmp_path / "gal"
     assert main(["study", "gallery", "--fast", "--out", str(out), "-q"]) == 0
