@@ -56,7 +56,8 @@ def design_lenses(lenses: Sequence[LensDesign], *, post_set: PostSet | None = No
     ``post_set``: the posts to list for the lens of its polarisation. One lens must focus the post set's
     polarisation (else an :class:`InputError` on ``post_set``); of several lenses (a system) the others get
     none. ``from_library``: instead, select each lens' posts from the RCWA library of the platform the lenses
-    share (:func:`shared_platform`; computed on first use, then cached; ``progress`` shows a bar).
+    share (:func:`shared_platform`; the default platform's ships with metafovea, another is computed on first use and
+    cached; ``progress`` shows a bar).
     """
     if not lenses:
         raise InputError("lenses", [], "at least one lens")

@@ -40,9 +40,9 @@ SHARED_OPTIONS: dict[str, dict[str, Any]] = {
     "--relay": dict(default=None, help="relay magnification between the focal plane and the sensor (default: the "
                                        "system's, 0.5 in the paper's camera)"),
     "--posts": dict(default="rcwa", choices=("rcwa", "ideal"),
-                    help="the lenses' posts: rcwa (the platform's RCWA post set, the fabricated lens; its library is "
-                         "computed on first use, then cached; default) or ideal (exact phases, lossless: a "
-                         "simplified model)"),
+                    help="the lenses' posts: rcwa (the platform's RCWA post set, the fabricated lens; the default "
+                         "platform's library ships with metafovea, another is computed on first use and cached; "
+                         "default) or ideal (exact phases, lossless: a simplified model)"),
 }
 
 

@@ -46,4 +46,4 @@ def test_too_few_converged_posts_is_an_error_on_levels(small_lib):
     with pytest.raises(InputError) as e:
         PlatformSweep(levels=n_ok + 1).select(lib)
     assert e.value.parameter == "levels" and e.value.value == n_ok + 1
-    assert f"at most the {n_ok} of 3 x 3 posts" in e.value.allowed and "--harmonics" in e.value.allowed
+    assert f"at most the {n_ok} of 3 x 3 posts" in e.value.allowed and "harmonics=..." in e.value.allowed
