@@ -125,7 +125,8 @@ class SensorModel:
         return self.dark_dn + (self.counts_per_k * gain / dl_dt_300) * radiance
 
     # ----------------------------------------------------------------------------------------------
-    def make_fpn(self, dynamic_range_dn: float, times_s: np.ndarray, rng: Any) -> FixedPattern:
+    def make_fpn(self, dynamic_range_dn: float, times_s: np.ndarray,
+                 rng: np.random.Generator | int | None) -> FixedPattern:
         """Zero-mean rank-``fpn_rank`` pattern with ``max |F| = fpn_amplitude * max(range, counts_per_k)``."""
         rng = as_rng(rng)
         H, W = self.shape
@@ -169,7 +170,7 @@ class SensorModel:
                        + np.sin(2 * np.pi * t[:, None] / (1.7 * self.drift_period_s) + ph[1]))
         return FixedPattern(U, V, s * scale, w, self.fpn_drift)
 
-    def add_noise_and_digitise(self, frames: np.ndarray, rng: Any, chunk: int = 8) -> None:
+    def add_noise_and_digitise(self, frames: np.ndarray, rng: np.random.Generator | int | None, chunk: int = 8) -> None:
         """In place: add white Gaussian noise (``noise_sigma_dn``) then round and clip to the ADC range.
 
         Noise is drawn in fixed chunks of ``chunk`` frames (float32), so memory stays bounded by the

@@ -96,7 +96,7 @@ class SimulationOptions:
     optical_train: bool = True  # False: each lens alone (no wafers, other lens or ring): a simplified model
 
 
-def _child_rngs(rng: Any, n: int) -> list[np.random.Generator]:
+def _child_rngs(rng: np.random.Generator | int | None, n: int) -> list[np.random.Generator]:
     g = as_rng(rng)
     seeds = g.integers(0, 2 ** 63 - 1, size=n)
     return [np.random.default_rng(int(s)) for s in seeds]
@@ -336,8 +336,9 @@ def _saturated_fraction(frames: np.ndarray, sensor: SensorModel) -> float:
     return saturated
 
 
-def _measurement_meta(system: SystemDesign, camera: Camera, sc: Scene, opt: SimulationOptions, *, rng: Any,
-                      ss: int, provider_name: str, optics: list[ChannelOptics], pol_info: dict[str, Any],
+def _measurement_meta(system: SystemDesign, camera: Camera, sc: Scene, opt: SimulationOptions, *,
+                      rng: np.random.Generator | int | None, ss: int, provider_name: str,
+                      optics: list[ChannelOptics], pol_info: dict[str, Any],
                       alpha_nominal: np.ndarray, saturated: float, timing_s: dict[str, float]) -> dict[str, Any]:
     """The Measurement's metadata: units, scene, foveal constraint, gains, sensor, polariser, radiometry, PSFs."""
     sensor, pol, radiance, fe = camera.sensor, camera.polarizer, camera.radiance, camera.filter_enabled
@@ -392,7 +393,7 @@ def _measurement_meta(system: SystemDesign, camera: Camera, sc: Scene, opt: Simu
 
 
 def simulate(system: SystemDesign, scene: str | Path | Scene, options: SimulationOptions | None = None,
-             rng: Any = 0, **overrides: Any) -> Measurement:
+             rng: np.random.Generator | int | None = 0, **overrides: Any) -> Measurement:
     """Simulate ``options.frames`` frames of ``scene`` through ``system``.
 
     Parameters
@@ -513,8 +514,8 @@ def _refuse_to_overwrite_inputs(outputs: list[Path], inputs: list[Path]) -> None
 
 
 def simulate_to_files(system: SystemDesign | str | Path | None, scene: str | Path | Scene, out: str | Path,
-                      options: SimulationOptions | None = None, *, rng: Any = 0, force: bool = False,
-                      tiff: bool = True, preview: bool = True) -> SimulationRun:
+                      options: SimulationOptions | None = None, *, rng: np.random.Generator | int | None = 0,
+                      force: bool = False, tiff: bool = True, preview: bool = True) -> SimulationRun:
     """Simulate (:func:`simulate`) and write the Measurement ``out`` (``.npz``), its TIFF stack and its preview.
 
     ``system``: a design, a system TOML file, or None for the paper's prototype. Every output is checked before

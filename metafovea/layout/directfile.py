@@ -166,7 +166,7 @@ class DirectFile:
         self.fill = tail
 
     # -- public ----------------------------------------------------------------------------------
-    def write(self, data: Any) -> int:
+    def write(self, data: bytes | bytearray | memoryview) -> int:
         """Append ``data`` (any bytes-like object), copied into the staging buffers."""
         m = np.frombuffer(memoryview(data).cast("B"), dtype=np.uint8)
         n = m.size

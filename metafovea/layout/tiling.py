@@ -32,6 +32,7 @@ from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from metafovea.config import LensDesign, PlatformDesign, load_design
 from metafovea.errors import InputError, check_choice, check_int, check_range
@@ -139,7 +140,7 @@ class LayoutSpec:
         """The lens (and wafer) centre in file coordinates: the wafer radius (or the frame's half-size if larger)."""
         return int(round(max(float(math.ceil(self.wafer_diameter_mm * 500.0)), self.frame_half_um) * NM_PER_UM))
 
-    def snap(self, v_nm: Any) -> np.ndarray:
+    def snap(self, v_nm: ArrayLike) -> np.ndarray:
         g = self.grid_nm
         return (np.rint(np.asarray(v_nm, dtype=float) / g) * g).astype(np.int64)
 
@@ -150,7 +151,7 @@ class LayoutSpec:
         w = np.rint((self.post_set.widths_um + 2 * self.write_bias_um) * NM_PER_UM / g2).astype(np.int64) * g2
         return np.maximum(w, g2)
 
-    def site_x_nm(self, ix: Any) -> np.ndarray:
+    def site_x_nm(self, ix: ArrayLike) -> np.ndarray:
         o = 0.0 if self.design.lattice == "integer" else 0.5
         return self.centre_nm + self.snap((np.asarray(ix, dtype=float) + o) * self.design.period_um * NM_PER_UM)
 

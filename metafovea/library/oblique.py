@@ -16,6 +16,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from metafovea.config import POLARIZATIONS, PlatformDesign
 from metafovea.errors import InputError, check_choice, check_int
@@ -51,7 +52,7 @@ class ObliqueResponse:
     error: float
     harmonics: int
 
-    def factor(self, polarization: str, theta_deg: Any, azimuth_rad: Any = 0.0) -> np.ndarray:
+    def factor(self, polarization: str, theta_deg: ArrayLike, azimuth_rad: ArrayLike = 0.0) -> np.ndarray:
         """``(..., N)`` ratio at field angle(s) ``theta_deg`` and azimuth(s) of the plane of incidence (from +x):
         interpolated in ``theta^2`` between the solved angles, the two planes blended as ``cos^2 / sin^2`` of
         the azimuth (exact in the planes, second order between them)."""

@@ -25,6 +25,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from metafovea.config import PAPER_PERIOD_UM, PAPER_POST_HEIGHT_UM, PAPER_WAVELENGTH_UM, PlatformDesign
 from metafovea.errors import InputError, NotConvergedWarning, check_choice, check_int, check_positive, check_range
@@ -210,7 +211,8 @@ class _Sweep:
     key: str
 
 
-def _checked_sweep(wx_um: Any, wy_um: Any, wavelengths_um: Any, opts: LibraryOptions) -> _Sweep:
+def _checked_sweep(wx_um: ArrayLike, wy_um: ArrayLike | None, wavelengths_um: ArrayLike,
+                   opts: LibraryOptions) -> _Sweep:
     """Every input checked (clear errors before any work is queued) and hashed."""
     from metafovea.materials import index_of
     from metafovea.rcwa.solve import FACTORIZATIONS, SIDES

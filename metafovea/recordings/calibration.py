@@ -35,6 +35,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from metafovea.errors import InputError, as_float
 from metafovea.radiometry import BAND_UM, T_MAX_K, BandRadiance
@@ -75,11 +76,11 @@ class PlanckConstants:
         except InputError as e:
             raise InputError(name, text, f"constants with {e.parameter.split()[-1]} {e.allowed}") from None
 
-    def counts(self, temperature_k: Any) -> np.ndarray:
+    def counts(self, temperature_k: ArrayLike) -> np.ndarray:
         t = np.asarray(temperature_k, dtype=np.float64)
         return self.R1 / (self.R2 * (np.exp(self.B / t) - self.F)) - self.O
 
-    def temperature(self, counts: Any) -> np.ndarray:
+    def temperature(self, counts: ArrayLike) -> np.ndarray:
         """The curve's inverse (NaN where the counts are below its range)."""
         c = np.asarray(counts, dtype=np.float64)
         with np.errstate(divide="ignore", invalid="ignore"):
