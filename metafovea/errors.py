@@ -34,7 +34,7 @@ class InputError(ValueError):
         self.source = source
         self.detail = detail
         where = f"{source}: " if source else ""
-        msg = f"{where}{parameter} = {value!r} is invalid; allowed: {allowed}"
+        msg = f"{where}{parameter} = {_shown(value)} is invalid; allowed: {allowed}"
         if detail:
             msg += f" ({detail})"
         super().__init__(msg)
@@ -50,6 +50,14 @@ class InputError(ValueError):
     def located(self, source: str) -> InputError:
         """The same error, placed in ``source`` (a file the user named: the parameter is its key)."""
         return InputError(self.parameter, self.value, self.allowed, source=source, detail=self.detail)
+
+
+def _shown(value: Any) -> str:
+    """A value as an error message shows it: a float to 6 significant digits (``6274.5``, not
+    ``6274.495703445411``), anything else as its repr."""
+    if isinstance(value, float) or type(value).__name__ in ("float64", "float32"):
+        return f"{float(value):.6g}"
+    return repr(value)
 
 
 class NotConvergedWarning(UserWarning):

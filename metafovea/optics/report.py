@@ -599,13 +599,13 @@ def _run_reports(lenses: list[LensDesign], out_dir: str | Path, force: bool, sys
     out = prepare_output(out_dir, force, is_dir=True, name="out_dir")
     post_sets: dict[tuple[str, int], Any] = {}
     if posts == "rcwa":
-        say("posts: the platform's RCWA library and post sets (a first run computes the library, about a minute "
-            "on 2 cores; cached after)")
+        say("posts: the platform's RCWA library and post sets (the default platform's ships with metafovea; "
+            "another's is computed on its first run, about a minute on 2 cores, then cached)")
         # one selection for the lenses reported and the camera's two (the optical train), not one each
         post_sets = rcwa_post_sets(system.platform, [*lenses, system.foveal, system.perifoveal])
         lap("posts")
-        say("posts at oblique incidence: RCWA off axis for each post set (a first run: ~10 s of CPU each; cached "
-            "after)")
+        say("posts at oblique incidence: RCWA off axis for each post set (shipped for the default platform; "
+            "otherwise ~10 s of CPU each on a first run, then cached)")
     # the lenses' own and the optical train's (both channels' posts)
     keys = {(lens.polarization, lens.levels) for lens in (*lenses, system.foveal, system.perifoveal)}
     with blas_threads(1):  # small RCWA eigenproblems: 7x the CPU time with OpenBLAS' threads (system_trains)

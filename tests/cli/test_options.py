@@ -71,8 +71,8 @@ def _neg_scene(folder):
 
 #: (argv after the command, the flag or file the one error line must name, text it must not contain)
 BAD = [
-    (["design", "--f", "150", "--d", "1e9", "--posts", "ideal"], "--d = 1000000000.0", "diameter_um"),
-    (["design", "--f", "150", "--d", "1e5", "--posts", "ideal"], "--d = 100000.0", "diameter_um"),
+    (["design", "--f", "150", "--d", "1e9", "--posts", "ideal"], "--d = 1e+09", "diameter_um"),
+    (["design", "--f", "150", "--d", "1e5", "--posts", "ideal"], "--d = 100000", "diameter_um"),
     (["design", "--f", "150", "--d", "75", "--period-um", "0.001", "--posts", "ideal"], "--period-um", "period_um"),
     (["library", "--harmonics", "40", "--workers", "1", "--cache-dir", "{tmp}/c"], "--harmonics", None),
     (["simulate", "--netd", "-1", "--out", "{tmp}/m.npz"], "--netd", "netd_k"),
