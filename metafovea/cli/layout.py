@@ -14,7 +14,7 @@ import warnings
 from pathlib import Path
 from typing import Any
 
-from metafovea.cli.options import check_out_suffix, progress
+from metafovea.cli.options import add_shared, check_out_suffix, progress, workers_arg
 from metafovea.cli.output import out_file
 from metafovea.errors import InputError, check_choice
 
@@ -29,32 +29,18 @@ def _patch(s: str | None):
     return v
 
 
-#: the help of the options export and verify share, where it differs: (export's, verify's)
-_HELP = {"workers": ("encoder threads (default 2, at most the CPU count)",
-                     "processes for the expected post counts (default 1)"),
-         "scheduler": ("Dask scheduler address (tcp://host:8786, or local:N): the workers write tiles that this "
-                       "process stitches (see --tiles-dir)",
-                       "Dask scheduler address (tcp://host:8786, or local:N) to count the expected posts on")}
-
-
 def _common(p: argparse.ArgumentParser, command: str) -> None:
     """The layout's options (design, post set, frame, patch), export's and verify's; the help is ``command``'s."""
-    h = {k: v[command == "verify"] for k, v in _HELP.items()}
     p.add_argument("--levels", type=int, default=None, help="phase levels N (default: the design's)")
     p.add_argument("--post-set", default=None, help="PostSet .npz (default: the platform's RCWA post set, see --posts)")
-    p.add_argument("--posts", default="rcwa", choices=("rcwa", "ideal"),
-                   help="without --post-set: rcwa (the RCWA library's post set for the lens' polarisation and "
-                        "levels, computed once and cached: what a fab should write; default) or ideal (an "
-                        "idealised width ramp, not a physical design; named in the label and the summary)")
+    add_shared(p, "--posts")  # without --post-set; ideal: an idealised width ramp, named in the label
     p.add_argument("--patch", default=None, metavar="X,Y,W",
                    help="only sites with centre in the square of width W around (X, Y), mm from the lens centre")
     p.add_argument("--grid-nm", type=int, default=5, help="manufacturing grid for positions and sizes (nm)")
     p.add_argument("--ring-width-um", type=float, default=1000.0, help="aluminium aperture ring width (um)")
     p.add_argument("--test-array", action="store_true", help="calibration layout: each post type in its own block")
     p.add_argument("--block", type=int, default=50, help="posts per side of a calibration block")
-    p.add_argument("--workers", type=int, default=None, help=h["workers"])
-    p.add_argument("--scheduler", default=None, help=h["scheduler"])
-    p.add_argument("--json", action="store_true", help="print the result as JSON")
+    add_shared(p, "--workers", "--scheduler", "--json")  # export: encoder threads and tiles on the cluster
 
 
 def add_export_parser(subparsers) -> argparse.ArgumentParser:
@@ -70,7 +56,7 @@ def add_export_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--flat", action="store_true", help="GDSII with one rectangle per post (no references)")
     p.add_argument("--out", default=None, help="output file, ending in the format's suffix: .gds/.gdsii, .oas/.oasis, "
                                                ".stl, .glb (default gds_export/<name>.<format>)")
-    p.add_argument("--force", action="store_true", help="overwrite an existing output file")
+    add_shared(p, "--force")
     p.add_argument("--no-resume", action="store_true", help="start over even if a partial export exists")
     p.add_argument("--compress", type=int, default=1, help="OASIS CBLOCK deflate level 0-9 (default 1)")
     p.add_argument("--band-rows", type=int, default=32,
@@ -149,7 +135,7 @@ def run_export(args) -> int:
     spec, ta = _inputs(args, args.design)
     out = out_file(args, None)
     opt = ExportOptions(flat=args.flat, max_refs=args.max_refs, dwl=args.dwl, compress=args.compress, force=args.force,
-                        resume=not args.no_resume, workers=args.workers, scheduler=args.scheduler,
+                        resume=not args.no_resume, workers=workers_arg(args.workers), scheduler=args.scheduler,
                         tiles_dir=args.tiles_dir, progress=progress(args))
     notice = None if fmt not in FORMATS or ta is not None or args.quiet else size_notice(
         spec, output_path(spec, fmt, out, flat=opt.flat, max_refs=opt.max_refs, dwl=opt.dwl), fmt, opt)
@@ -181,7 +167,7 @@ def run_verify(args) -> int:
 
     spec, ta = _inputs(args, args.design)
     rep = verify_layout(args.file, spec, reader=args.reader, test_array=ta,
-                        workers=1 if args.workers is None else args.workers, scheduler=args.scheduler,
+                        workers=workers_arg(args.workers), scheduler=args.scheduler,
                         progress=progress(args), max_refs=args.max_refs, dwl=args.dwl)
     from metafovea.cli.flags import flag_map, in_flags
     mismatches = [in_flags(m, flag_map("verify")) for m in rep.mismatches]  # the flags for the parameters they name

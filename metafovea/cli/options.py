@@ -23,8 +23,8 @@ from metafovea.errors import InputError, NotConvergedWarning
 #: stay strings here; each command checks them under the flag, e.g. :func:`workers_arg`, :func:`seed_arg`)
 SHARED_OPTIONS: dict[str, dict[str, Any]] = {
     "--workers": dict(default=None, metavar="N",
-                      help="local worker processes (default: one per core, never more than there are tasks; 1 runs "
-                           "in this process)"),
+                      help="local workers (default: one per core, never more than the work needs; 1 runs in this "
+                           "process)"),
     "--scheduler": dict(default=None, metavar="ADDRESS",
                         help="a Dask scheduler to run the work on: tcp://host:8786, or local:N for N local worker "
                              "processes (pip install 'metafovea[dask]'; docs/scale.md)"),
@@ -42,7 +42,7 @@ SHARED_OPTIONS: dict[str, dict[str, Any]] = {
     "--posts": dict(default="rcwa", choices=("rcwa", "ideal"),
                     help="the lenses' posts: rcwa (the platform's RCWA post set, the fabricated lens; the default "
                          "platform's library ships with metafovea, another is computed on first use and cached; "
-                         "default) or ideal (exact phases, lossless: a simplified model)"),
+                         "default) or ideal (an idealised, simplified model, named as such in the output)"),
 }
 
 

@@ -17,7 +17,7 @@ import warnings
 from typing import Any
 
 from metafovea.cli.flags import flag_map, in_flags
-from metafovea.cli.options import alias, emit, progress
+from metafovea.cli.options import add_shared, alias, emit, progress, workers_arg
 from metafovea.cli.output import out_dir, stage_printer
 from metafovea.errors import InputError, NotConvergedWarning, PhysicsWarning, check_int, check_positive
 from metafovea.io import to_json
@@ -43,17 +43,11 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
     p.add_argument("--wavelength-bins", type=int, default=61, help="wavelength bins across the band (geometric "
                    "around the design wavelength; metafovea.radiometry.psf_wavelengths)")
     alias(p, "--wavelengths", "--wavelength-bins", "wavelength_bins", type=int)
-    p.add_argument("--pixel-um", type=float, default=None,
-                   help="sensor pixel pitch in um (default: the system's, 17 um in the paper's camera)")
-    p.add_argument("--relay", type=float, default=None,
-                   help="relay magnification between the focal plane and the sensor (default: the system's, 0.5 in "
-                        "the paper's camera: a 17 um pixel covers 34 um of the focal plane)")
+    add_shared(p, "--pixel-um", "--relay")
     p.add_argument("--system", default=None,
                    help="system TOML (e.g. designs/system.toml): sensor pitch, relay and the lens-to-sensor "
                         "distances of its two lenses (matched by lens name; default: the paper's camera)")
-    p.add_argument("--posts", default="rcwa", choices=("rcwa", "ideal"),
-                   help="the lenses' posts: rcwa (the platform's RCWA post set for each lens' polarisation and "
-                        "levels, library cached: the fabricated lens; default) or ideal (a simplified model)")
+    add_shared(p, "--posts")
     p.add_argument("--wavelength-um", type=float, default=None,
                    help="wavelength of the monochromatic PSFs in um (default: the design wavelength)")
     p.add_argument("--window-um", type=float, default=None,
@@ -61,15 +55,8 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
                         "a window that truncates the PSF above --error is an error")
     p.add_argument("--error", type=float, default=1e-4, help="requested max abs error relative to the peak")
     p.add_argument("--out", default=None, help="output directory, new or empty (default: a new out/psf-<time>/)")
-    p.add_argument("--force", action="store_true", help="overwrite existing output")
-    p.add_argument("--json", action="store_true", help="print the numbers as JSON")
-    p.add_argument("--workers", type=int, default=None,
-                   help="processes, one lens each (default: min(2, lenses, CPUs))")
-    alias(p, "--jobs", "--workers", "workers", type=int)
-    p.add_argument("--scheduler", default=None,
-                   help="Dask scheduler address (tcp://host:8786, or local:N for N local worker processes): the "
-                        "sensor PSFs across the field of each lens are spread over the cluster (pip install "
-                        "'metafovea[dask]')")
+    add_shared(p, "--force", "--json", "--workers", "--scheduler")  # workers: one lens each
+    alias(p, "--jobs", "--workers", "workers")
     p.set_defaults(func=run)
     return p
 
@@ -139,7 +126,7 @@ def run(args: argparse.Namespace) -> int:
         check_positive("--wavelength-um", args.wavelength_um, "um", hi=1e4)
     if args.window_um is not None:
         check_positive("--window-um", args.window_um, "um")
-    jobs = check_int("--workers", args.workers, 1, 64) if args.workers is not None else None
+    jobs = workers_arg(args.workers)
     summary = psf_reports(designs, out_dir(args, "psf"), force=args.force, fields_deg=args.field_deg, band_um=band,
                           filter_um=filt, temperature_k=args.temperature_k, n_wavelengths=args.wavelength_bins,
                           pixel_pitch_um=pixel_um, error=args.error, wavelength_um=args.wavelength_um,

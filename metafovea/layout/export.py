@@ -43,6 +43,7 @@ from metafovea.layout.directfile import DirectFile
 from metafovea.layout.mesh import MESH_FORMATS, export_mesh
 from metafovea.layout.tilefiles import TileDir, default_tiles_dir
 from metafovea.layout.tiling import Expected, LayoutSpec, drc_summary, post_count, task_post_counts
+from metafovea.parallel import default_workers
 
 FORMATS = ("gds", "oas")  #: layout formats (:func:`export_layout`)
 #: every format :func:`export_file` writes, and the file-name suffixes each accepts
@@ -358,11 +359,6 @@ def _publish(part: Path, path: Path, jpath: Path) -> None:
         os.close(dfd)
 
 
-def default_workers() -> int:
-    """Encoder threads when :attr:`ExportOptions.workers` is None: 2, at most the CPU count."""
-    return max(1, min(2, os.cpu_count() or 1))
-
-
 @dataclass(frozen=True)
 class ExportOptions:
     """How :func:`export_layout` (and :func:`export_file`) write a layout; validated on construction, each error
@@ -388,7 +384,8 @@ class ExportOptions:
         starting over.
     workers : int, optional
         Local encoder threads (processes with ``threads=False``) while the writer thread writes; None:
-        :func:`default_workers`. The output bytes do not depend on it.
+        :func:`metafovea.parallel.default_workers` (one per core, the default of every ``--workers``). The
+        output bytes do not depend on it.
     threads : bool
         Encoders in threads (default: numpy and zlib release the GIL, results need no pickling) or processes.
     inflight : int, optional
@@ -845,5 +842,5 @@ def export_file(spec: LayoutSpec, out: str | os.PathLike | None = None, fmt: str
 
 
 __all__ = ["DEFAULT_DIR", "ExportError", "ExportOptions", "ExportResult", "FORMATS", "SIZE_NOTICE_BYTES", "SUFFIXES",
-           "TestArraySpec", "default_workers", "estimated_bytes", "export_file", "export_layout", "export_test_array",
+           "TestArraySpec", "estimated_bytes", "export_file", "export_layout", "export_test_array",
            "free_bytes", "output_path", "part_paths", "size_notice"]

@@ -578,13 +578,23 @@ def _task_summary(spec: LayoutSpec, task: tuple[int, int, int, int, int]) -> tup
     return counts, [x0, y0, x1, y1]
 
 
-def expected_content(spec: LayoutSpec, *, workers: int | None = 1, scheduler: str | None = None,
+#: posts counted per second and core (~16 M/s on the 2-core machine) times the ~1 s a worker process takes to start:
+#: :func:`expected_content` gives a design one worker per this many posts at most (fewer would cost more to start)
+POSTS_PER_WORKER = 16_000_000
+
+
+def expected_content(spec: LayoutSpec, *, workers: int | None = None, scheduler: str | None = None,
                      progress: bool = False) -> Expected:
-    """Count posts per type and the posts' bounding box from the design (band by band)."""
+    """Count posts per type and the posts' bounding box from the design (band by band).
+
+    ``workers``: local processes; None (the default of every ``--workers``): one per core, but no more than one per
+    :data:`POSTS_PER_WORKER` posts (a small design is counted in this process)."""
     from functools import partial
 
-    from metafovea.parallel import run_tasks
+    from metafovea.parallel import default_workers, run_tasks
 
+    if workers is None and scheduler is None:
+        workers = max(1, min(default_workers(), -(-post_count(spec) // POSTS_PER_WORKER)))
     bands = spec.tasks()
     counts = np.zeros(spec.levels, dtype=np.int64)
     bb = [None, None, None, None]

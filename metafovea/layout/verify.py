@@ -310,7 +310,7 @@ def label_spec(path: Path, spec: LayoutSpec) -> tuple[LayoutSpec, list[str]]:
 
 
 def verify_layout(path: str | os.PathLike, spec: LayoutSpec, *, reader: str = "auto", test_array: Any = None,
-                  workers: int | None = 1, scheduler: str | None = None, progress: bool = False,
+                  workers: int | None = None, scheduler: str | None = None, progress: bool = False,
                   expected: Expected | None = None, max_refs: int | None = None, dwl: bool = False) -> VerifyReport:
     """Read ``path`` back and compare it with ``spec`` (or with the calibration array ``test_array``, a
     :class:`~metafovea.layout.export.TestArraySpec`).

@@ -7,7 +7,6 @@ from __future__ import annotations
 import contextlib
 import logging
 import math
-import os
 import time
 import warnings
 from collections.abc import Callable, Sequence
@@ -22,7 +21,7 @@ from metafovea.config import PAPER_BAND_UM, PAPER_PIXEL_PITCH_UM, LensDesign, Sy
 from metafovea.errors import InputError, NotConvergedWarning, check_choice, check_int, check_positive
 from metafovea.io import atomic_write_bytes, atomic_write_json, file_stem, prepare_output
 from metafovea.library import POST_SOURCES, ObliqueResponse, PostSet, oblique_response, rcwa_post_sets, system_post_sets
-from metafovea.parallel import DaskExecutor, blas_threads
+from metafovea.parallel import DaskExecutor, blas_threads, default_workers
 from metafovea.radiometry import psf_wavelengths
 from metafovea.report import HtmlReport, fig_to_png, fmt
 
@@ -546,10 +545,11 @@ def psf_reports(designs: Sequence[str | Path | LensDesign], out_dir: str | Path,
     and scene temperature that give no light; two lenses whose names make the same file stem (their reports
     would overwrite each other); wavelengths that leave a lens' rim evanescent even on axis; fields outside a
     lens' field at the longest wavelength used. ``out_dir`` must be new or empty unless ``force``. ``jobs``
-    defaults to min(2, lenses, CPUs). ``pixel_pitch_um`` is the sensor pitch behind a relay of
-    ``relay_magnification``; ``distances_um`` maps a lens name to its lens-to-sensor distance (default: its
-    focal length). ``posts``: 'rcwa' (each lens gets the platform's RCWA post set for its polarisation and levels:
-    the fabricated lens; the library is computed once and cached) or 'ideal' (a simplified model). ``system``
+    (processes, one lens each) defaults to one per core, never more than the lenses. ``pixel_pitch_um`` is the
+    sensor pitch behind a relay of ``relay_magnification``; ``distances_um`` maps a lens name to its lens-to-sensor
+    distance (default: its focal length). ``posts``: 'rcwa' (each lens gets the platform's RCWA post set for its
+    polarisation and levels: the fabricated lens; the library is computed once and cached) or 'ideal' (a simplified
+    model). ``system``
     (default: the paper's camera): the platform of the posts and the optical train whose per-channel throughput
     every report shows (the same numbers ``simulate`` and ``validate`` print). Returns, per lens name, the keys
     :data:`SUMMARY_KEYS` of its report (its seconds, monochromatic rows with the key figures, sensor rows,
@@ -566,7 +566,7 @@ def psf_reports(designs: Sequence[str | Path | LensDesign], out_dir: str | Path,
     _check_distinct_names([str(d) if not isinstance(d, LensDesign) else f"lens '{d.name}'" for d in designs], lenses)
     for lens in lenses:
         _check_wavelengths_and_fields(lens, band_um, filter_um, wavelength_um, fields_deg)
-    jobs = min(2, len(lenses), os.cpu_count() or 1) if jobs is None else check_int("jobs", jobs, 1, 64)
+    jobs = min(default_workers(), len(lenses)) if jobs is None else check_int("jobs", jobs, 1, 4096)
     check_positive("relay_magnification", relay_magnification, hi=10.0)
     dist = dict(distances_um or {})
     for name, z in dist.items():

@@ -24,7 +24,7 @@ def test_every_command_has_quiet_and_verbose():
 
 
 @pytest.mark.parametrize("argv,dest,value", [
-    (["psf", "a.toml", "--jobs", "2"], "workers", 2),
+    (["psf", "a.toml", "--jobs", "2"], "workers", "2"),  # checked by workers_arg, as --workers
     (["psf", "a.toml", "--wavelengths", "3"], "wavelength_bins", 3),
     (["library", "--no-progress"], "quiet", True),
     (["simulate", "--pitch", "17"], "pixel_um", "17"),
@@ -199,19 +199,8 @@ def test_results_less_accurate_than_asked_are_one_line_naming_the_commands_optio
     assert "no option of 'simulate' changes it" in other.getvalue() and "--" not in other.getvalue()
 
 
-#: commands whose module another part of issue 29 rewrites (cli/psf.py, cli/layout.py): they adopt
-#: ``options.add_shared`` there; until then their own spelling of these options is allowed, with its reason
-SHARED_PENDING = {
-    ("psf", "--workers"): "cli/psf.py: 'processes, one lens each (default: min(2, lenses, CPUs))'",
-    ("psf", "--scheduler"): "cli/psf.py: its own help text",
-    ("psf", "--force"): "cli/psf.py", ("psf", "--json"): "cli/psf.py", ("psf", "--posts"): "cli/psf.py",
-    ("psf", "--pixel-um"): "cli/psf.py: type=float", ("psf", "--relay"): "cli/psf.py: type=float",
-    ("export", "--workers"): "cli/layout.py: encoder threads, default 2", ("export", "--scheduler"): "cli/layout.py",
-    ("export", "--force"): "cli/layout.py", ("export", "--json"): "cli/layout.py",
-    ("export", "--posts"): "cli/layout.py",
-    ("verify", "--workers"): "cli/layout.py: default 1", ("verify", "--scheduler"): "cli/layout.py",
-    ("verify", "--json"): "cli/layout.py", ("verify", "--posts"): "cli/layout.py",
-}
+#: options a command spells its own way, with the reason (none: every shared option has one default and one help)
+SHARED_PENDING: dict[tuple[str, str], str] = {}
 
 
 def test_an_option_several_commands_take_has_one_default_and_one_help_text():

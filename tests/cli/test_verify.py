@@ -34,9 +34,11 @@ def test_verify_exit_status(tmp_path, capsys, exported_gds, cli_error):
     # a limit on the elements per structure
     assert main(["verify", str(gds), *common, "--ring-width-um", "50", "--max-refs", "100"]) == 1
     assert "--max-refs 100" in capsys.readouterr().err
-    for flag in ("--workers", "--max-refs"):
-        assert main(["verify", str(gds), *common, flag, "0"]) == 2
-        assert cli_error(capsys) == f"metafovea verify: error: {flag} = 0 is invalid; allowed: an integer >= 1"
+    assert main(["verify", str(gds), *common, "--max-refs", "0"]) == 2
+    assert cli_error(capsys) == "metafovea verify: error: --max-refs = 0 is invalid; allowed: an integer >= 1"
+    assert main(["verify", str(gds), *common, "--workers", "0"]) == 2  # checked as every command's --workers
+    assert cli_error(capsys) == ("metafovea verify: error: --workers = '0' is invalid; allowed: integer 1 <= --workers "
+                                 "<= 4096")
 
 
 def test_verify_hierarchical_max_refs(tmp_path, lens_toml):
@@ -112,13 +114,14 @@ def test_gdstk_damaged_file_error_is_one_line(tmp_path, capfd, exported_gds, dam
 
 
 def test_verify_help_is_its_own(capsys):
-    """``verify --help`` showed export's text for the options they share (encoder threads, tiles)."""
+    """``verify --help`` showed export's text for the options they share (encoder threads, tiles); the options both
+    take now share one text that fits both (``metafovea.cli.options.SHARED_OPTIONS``)."""
     text = {}
     for command in ("verify", "export"):
         with pytest.raises(SystemExit) as e:
             main([command, "--help"])
         assert e.value.code == 0
         text[command] = " ".join(capsys.readouterr().out.split())
-    assert "Read FILE" in text["verify"] and "expected post counts" in text["verify"]
+    assert "Read FILE" in text["verify"] and "Read FILE" not in text["export"]
     assert "encoder threads" not in text["verify"] and "tiles-dir" not in text["verify"]
-    assert "encoder threads" in text["export"] and "expected post counts" not in text["export"]
+    assert "tiles-dir" in text["export"] and "Stream a lens layout" in text["export"]
