@@ -444,18 +444,20 @@ def test_dip_off_a_terminal_logs_progress_lines_and_says_when_the_time_cap_stopp
                                                                                         monkeypatch):
     """`reconstruct --method dip` printed nothing off a terminal (its bar was for terminals only) and had no time
     cap. Off a terminal it now writes a progress line every PROGRESS_LINE_S (0 here: every update) with step, total
-    and ETA; the time cap stops it, and the summary says so."""
+    and ETA; the time cap stops it, and the summary says so. Every run solves windows of 4 frames of 64 x 64 (one
+    compilation of the DIP's step for the three: a 4-frame file in one window, then 4-frame windows of ``meas``)."""
     import metafovea.parallel
 
     monkeypatch.setattr(metafovea.parallel, "PROGRESS_LINE_S", 0.0, raising=False)
-    rc, out, err = _run([meas, "--method", "dip", "--known-alpha", "--window", "10", "--channels", "4",
-                         "--steps", "100000", "--max-seconds", "2", "--no-figures", "--out", tmp_path / "d.npz"],
+    four = _save(tmp_path / "four.npz", T=4, n=64)
+    rc, out, err = _run([four, "--method", "dip", "--known-alpha", "--window", "4", "--channels", "4",
+                         "--steps", "100000", "--max-seconds", "0.5", "--no-figures", "--out", tmp_path / "d.npz"],
                         capsys)
     assert rc == 0, err
     assert re.search(r"metafovea: dip: \d+/100000 step \(\d+ %\), \d+ s, ETA ", err), err  # (the first step compiles)
     assert "dip: 1 window(s)" in out and "stopped: 1 by time" in out
-    assert "warning: the time cap (--max-seconds 2) stopped the run 1 window(s) before their steps were done" in out
-    rc, out, err = _run([meas, "--method", "dip", "--known-alpha", "--window", "10", "--channels", "4",
+    assert "warning: the time cap (--max-seconds 0.5) stopped the run 1 window(s) before their steps were done" in out
+    rc, out, err = _run([four, "--method", "dip", "--known-alpha", "--window", "4", "--channels", "4",
                          "--steps", "5", "--no-figures", "--out", tmp_path / "q.npz", "-q"], capsys)
     assert rc == 0 and "metafovea: dip" not in err and "stopped: 1 by steps" in out  # --quiet: no progress
     rc, out, err = _run([meas, "--method", "dip", "--known-alpha", "--window", "4", "--stride", "4", "--channels", "4",
