@@ -278,6 +278,32 @@ def _malloc_plugin() -> Any:
     return MallocPlugin()
 
 
+def _refused(address: str) -> str | None:
+    """Why a ``tcp://`` (or ``tls://``) scheduler address cannot be reached at once: its host name does not resolve
+    or the host refuses the connection (nothing listens on the port); None otherwise, also for a host that does not
+    answer within 2 s (Dask's client then waits for its own timeout)."""
+    import socket
+
+    from distributed.comm.addressing import parse_address, parse_host_port  # type: ignore
+
+    try:
+        proto, loc = parse_address(address)
+        host, port = parse_host_port(loc)
+    except (ValueError, TypeError):
+        return None  # Dask's client says what is wrong with it
+    if proto not in ("tcp", "tls"):
+        return None
+    try:
+        with socket.create_connection((host, int(port)), timeout=2.0):
+            return None
+    except socket.gaierror as e:
+        return f"host {host!r} not found: {e.strerror}"
+    except ConnectionRefusedError:
+        return f"connection refused by {host}:{port}"
+    except OSError:
+        return None
+
+
 class DaskExecutor:
     """``submit``/``map``/``close`` on a Dask client: a scheduler at an address (``tcp://host:8786``), or a
     ``LocalCluster`` of worker processes started for this run (``local`` = one per core, ``local:N``)."""
@@ -301,9 +327,12 @@ class DaskExecutor:
             self.cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=None)
             self.client = Client(self.cluster)
         else:
+            refused = _refused(s)
+            if refused is not None:  # nothing listens there: say so at once (Dask's client retries until timeout)
+                raise InputError("scheduler", scheduler, f"a reachable Dask scheduler address ({refused})")
             try:
-                self.client = Client(s, timeout="10s")
-            except (OSError, TimeoutError) as e:
+                self.client = Client(s, timeout="10s")  # an address that does not answer: 10 s
+            except (OSError, TimeoutError, ValueError) as e:  # ValueError: an unknown scheme (foo://)
                 raise InputError("scheduler", scheduler, f"a reachable Dask scheduler address ({e})") from None
         self.address = self.client.scheduler.address
         #: seconds without any worker, tasks waiting, before :meth:`completed` gives up
