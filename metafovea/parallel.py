@@ -6,7 +6,8 @@ with ``submit`` and ``map``; with a scheduler (``tcp://host:8786``, or ``local``
 ``.result()``; a task whose worker keeps dying raises :class:`WorkerLost`, never a partial result), otherwise a
 ``ProcessPoolExecutor`` (or a serial in-process executor when ``workers == 1``, which keeps tests and
 debugging simple). Dask is the optional extra ``metafovea[dask]``. Use :func:`run_tasks` to map a function over
-items with progress and ordered results.
+items with progress and ordered results. Local threads: :class:`StoppableThreadPool`, whose running tasks stop on a
+Ctrl-C (as :func:`stop_workers` ends a process pool's) instead of holding the command until they finish.
 
 Progress of a long loop (:func:`progress_bar`, :func:`progress_iter`): a tqdm bar when stderr is a terminal,
 otherwise one log line every :data:`PROGRESS_LINE_S` seconds (done, total, elapsed, ETA), so that a run under a
@@ -277,6 +278,32 @@ def _malloc_plugin() -> Any:
     return MallocPlugin()
 
 
+def _refused(address: str) -> str | None:
+    """Why a ``tcp://`` (or ``tls://``) scheduler address cannot be reached at once: its host name does not resolve
+    or the host refuses the connection (nothing listens on the port); None otherwise, also for a host that does not
+    answer within 2 s (Dask's client then waits for its own timeout)."""
+    import socket
+
+    from distributed.comm.addressing import parse_address, parse_host_port  # type: ignore
+
+    try:
+        proto, loc = parse_address(address)
+        host, port = parse_host_port(loc)
+    except (ValueError, TypeError):
+        return None  # Dask's client says what is wrong with it
+    if proto not in ("tcp", "tls"):
+        return None
+    try:
+        with socket.create_connection((host, int(port)), timeout=2.0):
+            return None
+    except socket.gaierror as e:
+        return f"host {host!r} not found: {e.strerror}"
+    except ConnectionRefusedError:
+        return f"connection refused by {host}:{port}"
+    except OSError:
+        return None
+
+
 class DaskExecutor:
     """``submit``/``map``/``close`` on a Dask client: a scheduler at an address (``tcp://host:8786``), or a
     ``LocalCluster`` of worker processes started for this run (``local`` = one per core, ``local:N``)."""
@@ -300,9 +327,12 @@ class DaskExecutor:
             self.cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=None)
             self.client = Client(self.cluster)
         else:
+            refused = _refused(s)
+            if refused is not None:  # nothing listens there: say so at once (Dask's client retries until timeout)
+                raise InputError("scheduler", scheduler, f"a reachable Dask scheduler address ({refused})")
             try:
-                self.client = Client(s, timeout="10s")
-            except (OSError, TimeoutError) as e:
+                self.client = Client(s, timeout="10s")  # an address that does not answer: 10 s
+            except (OSError, TimeoutError, ValueError) as e:  # ValueError: an unknown scheme (foo://)
                 raise InputError("scheduler", scheduler, f"a reachable Dask scheduler address ({e})") from None
         self.address = self.client.scheduler.address
         #: seconds without any worker, tasks waiting, before :meth:`completed` gives up
@@ -452,6 +482,74 @@ def stop_workers(ex: cf.ProcessPoolExecutor, grace_s: float = 10.0) -> None:
         if p.is_alive():
             p.kill()
             p.join(1.0)
+
+
+class TaskStopped(BaseException):
+    """Raised inside a :class:`StoppableThreadPool` task by :meth:`StoppableThreadPool.stop`: the task unwinds (its
+    ``finally`` blocks and atomic writes clean up) and its result is dropped. A ``BaseException``, so that no
+    ``except Exception`` in the task swallows it."""
+
+
+def _raise_in_thread(ident: int, exc: type[BaseException] | None) -> None:
+    """Raise ``exc`` in thread ``ident`` at its next Python instruction (CPython's ``PyThreadState_SetAsyncExc``; a
+    thread inside one long numpy call sees it when the call returns); ``None`` takes back one not raised yet."""
+    import ctypes
+
+    ctypes.pythonapi.PyThreadState_SetAsyncExc(ctypes.c_ulong(ident), ctypes.py_object(exc) if exc else None)
+
+
+class StoppableThreadPool(cf.ThreadPoolExecutor):
+    """A thread pool whose running tasks stop when the block that uses it is left by an exception (a Ctrl-C): the
+    tasks not started are cancelled and :class:`TaskStopped` is raised in the running ones (:meth:`stop`), where a
+    ``ThreadPoolExecutor`` waits for every task submitted (the rest of a PSF report's sensor PSFs, seconds to
+    minutes). Left normally, it waits for its tasks as a ``ThreadPoolExecutor`` does."""
+
+    def __init__(self, max_workers: int | None = None, thread_name_prefix: str = "metafovea"):
+        import threading
+
+        super().__init__(max_workers, thread_name_prefix=thread_name_prefix)
+        self._stop_lock = threading.Lock()
+        self._running: dict[int, bool] = {}  # thread ident -> TaskStopped sent to it
+
+    def submit(self, fn: Callable, /, *args: Any, **kwargs: Any) -> cf.Future:  # type: ignore[override]
+        return super().submit(self._tracked, fn, args, kwargs)
+
+    def _tracked(self, fn: Callable, args: tuple, kwargs: dict) -> Any:
+        """``fn(*args, **kwargs)`` with its thread marked as running a task, so that :meth:`stop` raises only inside
+        a task (where the pool's future catches it), never in the pool's own loop."""
+        import threading
+
+        ident = threading.get_ident()
+        with self._stop_lock:
+            self._running[ident] = False
+        try:
+            return fn(*args, **kwargs)
+        finally:
+            with self._stop_lock:
+                if self._running.pop(ident, False):
+                    _raise_in_thread(ident, None)  # a stop that has not landed yet must not land outside the task
+
+    def stop(self, grace_s: float = 5.0) -> None:
+        """Cancel the tasks not started, raise :class:`TaskStopped` in the running ones and wait up to ``grace_s``
+        for the threads to end (a thread still inside one long native call is left to finish it)."""
+        import time
+
+        self.shutdown(wait=False, cancel_futures=True)
+        with self._stop_lock:
+            for ident, sent in self._running.items():
+                if not sent:
+                    self._running[ident] = True
+                    _raise_in_thread(ident, TaskStopped)
+        deadline = time.monotonic() + grace_s
+        for t in list(self._threads):
+            t.join(max(0.0, deadline - time.monotonic()))
+
+    def __exit__(self, exc_type: Any, exc: Any, tb: Any) -> bool:
+        if exc_type is None:
+            self.shutdown(wait=True)
+        else:
+            self.stop()
+        return False
 
 
 def run_tasks(fn: Callable, items: Iterable[Any], *, workers: int | None = None,

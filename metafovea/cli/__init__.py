@@ -94,9 +94,13 @@ def main(argv: Sequence[str] | None = None) -> int:
         for old, new in getattr(args, "deprecated_options", []):
             log.info("%s is a deprecated spelling: use %s", old, new)
         try:
-            return _run(args)
-        finally:
+            rc = _run(args)
+        except BaseException:
             show.flush()
+            raise
+        if rc != 130:  # a stopped run says 'interrupted' and nothing more: it dropped the results the summary is about
+            show.flush()
+        return rc
 
 
 def _run(args: argparse.Namespace) -> int:

@@ -38,14 +38,13 @@ beyond the library's periodic approximation, the other diffraction orders (haze,
 from __future__ import annotations
 
 import math
-from concurrent.futures import ThreadPoolExecutor
 from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike
 from scipy import special
 
-from metafovea.parallel import blas_threads
+from metafovea.parallel import StoppableThreadPool, blas_threads
 
 from .propagate import _gl, mft_field, nodes_for_phase
 from .pupil import Pupil
@@ -306,7 +305,7 @@ def rs_field(pupil: Pupil, xs: ArrayLike, ys: ArrayLike, *, error: float = 1e-4,
 
     splits = 0
     planned = len(todo)
-    with blas_threads(1), ThreadPoolExecutor(max(1, int(workers))) as ex:
+    with blas_threads(1), StoppableThreadPool(max(1, int(workers))) as ex:
         while todo:
             for box, U, e, nn in ex.map(run, todo):
                 out[box[0]:box[1], box[2]:box[3]] = U

@@ -10,7 +10,7 @@ import math
 import time
 import warnings
 from collections.abc import Callable, Sequence
-from concurrent.futures import Executor, ThreadPoolExecutor
+from concurrent.futures import Executor
 from pathlib import Path
 from types import ModuleType
 from typing import Any
@@ -21,7 +21,7 @@ from metafovea.config import PAPER_BAND_UM, PAPER_PIXEL_PITCH_UM, LensDesign, Sy
 from metafovea.errors import InputError, NotConvergedWarning, check_choice, check_int, check_positive
 from metafovea.io import atomic_write_bytes, atomic_write_json, file_stem, prepare_output
 from metafovea.library import POST_SOURCES, ObliqueResponse, PostSet, oblique_response, rcwa_post_sets, system_post_sets
-from metafovea.parallel import DaskExecutor, blas_threads, default_workers
+from metafovea.parallel import DaskExecutor, StoppableThreadPool, blas_threads, default_workers
 from metafovea.radiometry import psf_wavelengths
 from metafovea.report import HtmlReport, fig_to_png, fmt
 
@@ -351,7 +351,7 @@ def _mtf(plt: ModuleType, lens: LensDesign, res: dict[str, Any], fields_deg: lis
           "on_axis_fabricated_pixel": fab * pix,
           "paraxial_cutoff_cyc_per_mm": paraxial_cut, "z_um": z}
     fields = [fd for fd in dict.fromkeys((fields_deg[len(fields_deg) // 2], fields_deg[-1])) if fd != 0]
-    with blas_threads(1), ThreadPoolExecutor(2) as ex:  # four independent autocorrelations, two at a time
+    with blas_threads(1), StoppableThreadPool(2) as ex:  # four independent autocorrelations, two at a time
         jobs = {(fd, a): ex.submit(pupil_mtf, lens, nu_f, field_deg=fd, angle_rad=a, z_um=z)
                 for fd in fields for a in (0.0, math.pi / 2)}
         for fd in fields:
@@ -395,7 +395,7 @@ def _sensor(plt: ModuleType, lens: LensDesign, res: dict[str, Any], fields_deg: 
     # local threads (numpy releases the GIL in the engines), or the Dask cluster ``executor``; each warning names
     # its field
     with contextlib.ExitStack() as stack:
-        ex = executor if executor is not None else stack.enter_context(ThreadPoolExecutor(2))
+        ex = executor if executor is not None else stack.enter_context(StoppableThreadPool(2))
         sweep = sensor_psf_sweep(lens, fields_deg, [(mono_wl, None), (wl, w)], pixel_pitch_um=pixel_pitch_um,
                                  post_sets=[posts_at(fd) for fd in fields_deg], error=error, z_um=z, executor=ex,
                                  on_field=lambda fd: tick(f"sensor PSFs {fd:.2f} deg"))

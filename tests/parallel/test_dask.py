@@ -149,10 +149,21 @@ def test_a_tile_the_client_cannot_see_names_the_shared_directory(tmp_path):
 
 
 def test_bad_scheduler_is_one_line_naming_the_flag():
+    """Also an unknown scheme; and an address where nothing listens is refused at once (Dask's client retried it
+    for its whole 10 s timeout)."""
+    import socket
+    import time
+
     with pytest.raises(InputError, match="^scheduler = "):
         DaskExecutor("local:x")
-    with pytest.raises(InputError, match="^scheduler = "):
-        DaskExecutor("tcp://127.0.0.1:9")
+    with pytest.raises(InputError, match="^scheduler = .*unknown address scheme"):
+        DaskExecutor("foo://127.0.0.1:9")
+    with socket.socket() as s:  # a port bound but not listening: a connection to it is refused
+        s.bind(("127.0.0.1", 0))
+        t0 = time.monotonic()
+        with pytest.raises(InputError, match="^scheduler = .*connection refused"):
+            DaskExecutor(f"tcp://127.0.0.1:{s.getsockname()[1]}")
+        assert time.monotonic() - t0 < 5.0
 
 
 def test_a_study_on_a_cluster_gives_the_same_json(cluster):
