@@ -113,8 +113,11 @@ def _rewrite(src, dst, spec, *, drop_layer=None, move_layer=None, label=None):
 
 
 @pytest.mark.parametrize("fmt,reader", [("gds", "stream"), ("gds", "gdstk"), ("oas", "gdstk")])
-def test_verify_fails_on_a_tampered_frame_or_label(tmp_path, spec, exported, fmt, reader):
-    src = exported[(fmt, False)][0]
+def test_verify_fails_on_a_tampered_frame_or_label(tmp_path, tamper_spec, tamper_exported, fmt, reader):
+    """A missing exposure-2 mark, a missing ring polygon, a moved label and a label of another design each fail (on
+    the tamper tests' smaller lens, its small frame); the untampered rewrite passes, also on another day."""
+    spec = tamper_spec
+    src = tamper_exported[fmt][0]
     L = spec.layers
     same = tmp_path / f"same.{fmt}"
     _rewrite(src, same, spec)

@@ -117,8 +117,9 @@ def test_patch_and_hierarchical_files(tmp_path, design, small_frame, fmt, flat, 
 
 
 def _rewrite(src, dst, names, how: str, period_um: float) -> None:
-    """Rewrite ``src`` with gdstk (references expanded), ``how``: 'move' one post one period to the right, 'swap'
-    two posts of different types (counts per type unchanged), or 'none'."""
+    """Rewrite ``src`` with gdstk (references expanded), ``how``: 'move' one post one period to the right (from
+    the middle of the file on, the first whose right-hand site holds no post of its type), 'swap' two posts of
+    different types (counts per type unchanged), or 'none'."""
     oas = str(src).endswith(".oas")
     lib = gdstk.read_oas(str(src), unit=1e-6) if oas else gdstk.read_gds(str(src), unit=1e-6)
     top = next(c for c in lib.top_level() if c.name not in names)
@@ -130,6 +131,9 @@ def _rewrite(src, dst, names, how: str, period_um: float) -> None:
     i = len(plain) // 2
     j = next(j for j in range(i + 1, len(plain)) if plain[j][0].name != plain[i][0].name)
     if how == "move":
+        held = {(c.name, round(o[0] / period_um), round(o[1] / period_um)) for c, o in plain}
+        i = next(i for i in range(i, len(plain)) if (plain[i][0].name, round(plain[i][1][0] / period_um) + 1,
+                                                     round(plain[i][1][1] / period_um)) not in held)
         plain[i][1] = (plain[i][1][0] + period_um, plain[i][1][1])
     elif how == "swap":
         plain[i][0], plain[j][0] = plain[j][0], plain[i][0]
@@ -139,16 +143,18 @@ def _rewrite(src, dst, names, how: str, period_um: float) -> None:
 
 
 @pytest.mark.parametrize("fmt", ["gds", "oas"])
-def test_tampered_files(tmp_path, spec, exported, fmt):
+def test_tampered_files(tmp_path, tamper_spec, tamper_exported, fmt):
     """A moved post and two swapped types show in the sink output exactly as in the brute-force walk: one row
-    differs in x (by one period), two rows differ in type."""
-    src = exported[(fmt, False)][0]
+    differs in x (by one period), two rows differ in type (on the tamper tests' smaller lens)."""
+    spec = tamper_spec
+    src, res = tamper_exported[fmt]
     rows = {}
     for how in ("none", "move", "swap"):
         q = tmp_path / f"{how}.{fmt}"
         _rewrite(src, q, spec.post_names, how, spec.design.period_um)
         rows[how] = _check_against_gdstk(q, spec)
     same, moved, swapped = rows["none"], rows["move"], rows["swap"]
+    assert len(same) == res.posts
     assert np.array_equal(same, _sorted(_collect(src, lattice_of(spec), spec.layers.posts, spec.post_names,
                                                  _sizes(spec))[1]))
     a = {tuple(r) for r in same.tolist()}

@@ -102,26 +102,29 @@ TAMPER_READERS = [("gds", ("klayout", "gdstk", "stream")), ("oas", ("klayout", "
 
 
 @pytest.mark.parametrize("fmt,readers", TAMPER_READERS)
-def test_the_untampered_rewrite_verifies(tmp_path, spec, exported, fmt, readers):
+def test_the_untampered_rewrite_verifies(tmp_path, tamper_spec, tamper_exported, fmt, readers):
     """The control of the tampered files: rewritten by gdstk as they are, with nothing changed, they pass with
     every reader (so a failure below is the tamper's)."""
     same = tmp_path / f"same.{fmt}"
-    _tamper(exported[(fmt, False)][0], same, "none", spec)
+    src, res = tamper_exported[fmt]
+    _tamper(src, same, "none", tamper_spec)
     for reader in readers:
-        assert verify_layout(same, spec, reader=reader).ok, reader
+        rep = verify_layout(same, tamper_spec, reader=reader)
+        assert rep.ok and rep.sites["posts"] == res.posts, (reader, rep.mismatches)
 
 
 @pytest.mark.parametrize("fmt,readers", TAMPER_READERS)
 @pytest.mark.parametrize("how", sorted(TAMPERS))
-def test_verify_checks_every_post(tmp_path, spec, exported, fmt, readers, how):
+def test_verify_checks_every_post(tmp_path, tamper_spec, tamper_exported, fmt, readers, how):
     """Post by post: a swapped, moved, duplicated, missing or off-lattice post in a real exported file (GDSII and
-    OASIS) fails with every reader, naming what is wrong and where (the untampered rewrite passes:
-    :func:`test_the_untampered_rewrite_verifies`)."""
-    src = exported[(fmt, False)][0]
+    OASIS) fails with every reader, naming what is wrong and where, every post of the file checked (the
+    untampered rewrite passes: :func:`test_the_untampered_rewrite_verifies`)."""
+    src, res = tamper_exported[fmt]
     bad = tmp_path / f"{how}.{fmt}"
-    _tamper(src, bad, how, spec)
+    _tamper(src, bad, how, tamper_spec)
+    posts = res.posts + {"duplicate": 1, "delete": -1}.get(how, 0)
     for reader in readers:
-        rep = verify_layout(bad, spec, reader=reader)
+        rep = verify_layout(bad, tamper_spec, reader=reader)
         assert not rep.ok, (how, reader)
         assert any(TAMPERS[how] in m for m in rep.mismatches), (how, reader, rep.mismatches)
-        assert rep.sites is not None and rep.sites["posts"] > 60_000
+        assert rep.sites is not None and rep.sites["posts"] == posts, (how, reader, rep.sites)
