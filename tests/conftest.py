@@ -127,3 +127,28 @@ def browser_check(tmp_path):
             results.append(r)
         return results
     return check
+
+
+@pytest.fixture(scope="session")
+def made_once(tmp_path_factory):
+    """Factory fixture: ``made_once(key, make)`` returns a folder that ``make(folder)`` filled, once per test run
+    even under ``-n auto``: the first worker to ask makes it, the others wait for it (a file lock) and read it. For
+    an expensive module fixture (a CLI report) whose tests the workers share: each would make its own."""
+    import shutil
+
+    from metafovea.io import cache_lock
+
+    base = tmp_path_factory.getbasetemp()
+    root = base.parent if os.environ.get("PYTEST_XDIST_WORKER") else base  # the workers' common folder
+
+    def made(key: str, make) -> Path:
+        d = root / f"made-once-{key}"
+        with cache_lock(d):
+            if not (d / ".made").is_file():
+                shutil.rmtree(d, ignore_errors=True)
+                d.mkdir()
+                make(d)
+                (d / ".made").write_text("")
+        return d
+
+    return made

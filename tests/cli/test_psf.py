@@ -29,15 +29,53 @@ def tiny_toml(tmp_path_factory, lens_toml):
     return lens_toml(tmp_path_factory.mktemp("toml"), name="tiny", f_mm=4.0, d_mm=2.0)
 
 
-@pytest.fixture(scope="module")
-def tiny(tmp_path_factory, tiny_toml):
-    """The text summary of one report: (lens file, folder, stdout, stderr, the report's JSON)."""
-    out = tmp_path_factory.mktemp("tiny") / "report"
+def _psf_to_files(d: Path, args: list[str]) -> None:
+    """``metafovea psf ARGS``: its status, stdout and stderr into ``d`` (rc.txt, stdout.txt, stderr.txt)."""
     stdout, stderr = io.StringIO(), io.StringIO()
     with contextlib.redirect_stdout(stdout), contextlib.redirect_stderr(stderr):
-        rc = main(["psf", str(tiny_toml), "--field-deg", "0", "3", "--wavelengths", "9", "--out", str(out)])
-    assert rc == 0, stderr.getvalue()
-    return tiny_toml, out, stdout.getvalue(), stderr.getvalue(), json.loads((out / "tiny_psf_report.json").read_text())
+        rc = main(["psf", *args])
+    for name, text in (("rc", str(rc)), ("stdout", stdout.getvalue()), ("stderr", stderr.getvalue())):
+        (d / f"{name}.txt").write_text(text)
+
+
+def _read(d: Path) -> tuple[int, str, str]:
+    return int((d / "rc.txt").read_text()), (d / "stdout.txt").read_text(), (d / "stderr.txt").read_text()
+
+
+@pytest.fixture(scope="module")
+def tiny(made_once, lens_toml):
+    """The text summary of one report (one run for all the test workers): (lens file, folder, stdout, stderr, the
+    report's JSON)."""
+    def make(d):
+        toml = lens_toml(d, name="tiny", f_mm=4.0, d_mm=2.0)
+        _psf_to_files(d, [str(toml), "--field-deg", "0", "3", "--wavelengths", "9", "--out", str(d / "report")])
+
+    d = made_once("psf-tiny", make)
+    rc, stdout, stderr = _read(d)
+    assert rc == 0, stderr
+    out = d / "report"
+    return d / "tiny.toml", out, stdout, stderr, json.loads((out / "tiny_psf_report.json").read_text())
+
+
+@pytest.fixture(scope="module")
+def system_pair(made_once, lens_toml):
+    """Both lenses of a system file, each in its own process (``--workers 2``): a foveal lens as ``tiny`` (4 mm,
+    2 mm, x) at 4.0 mm from the sensor and a perifoveal one (3 mm, 2 mm, y) at 3.02 mm, the other settings as
+    ``tiny``'s report: (the designs folder, the output folder, the summary printed with --json)."""
+    def make(d):
+        designs = d / "designs"
+        shutil.copytree(Path(__file__).resolve().parents[2] / "designs", designs)
+        lens_toml(designs, name="foveal", f_mm=4.0, d_mm=2.0, pol="x")
+        lens_toml(designs, name="perifoveal", f_mm=3.0, d_mm=2.0, pol="y")
+        text = (designs / "system.toml").read_text().replace("= 150.0", "= 4.0").replace("= 25.0", "= 3.02")
+        (designs / "system.toml").write_text(text)
+        _psf_to_files(d, [str(designs / "system.toml"), "--field-deg", "0", "3", "--wavelengths", "9", "--workers",
+                          "2", "--out", str(d / "o"), "--json"])
+
+    d = made_once("psf-system", make)
+    rc, stdout, stderr = _read(d)
+    assert rc == 0, stderr
+    return d / "designs", d / "o", json.loads(stdout)
 
 
 def test_writes_the_report_and_prints_its_summary(tiny):
@@ -111,21 +149,11 @@ def test_one_summary_warning_naming_the_options_psf_has(tiny_toml, tmp_path, cap
     assert "0.3245 deg" in cap.out
 
 
-def test_system_file_reports_both_lenses(tmp_path, lens_toml, capsys):
+def test_system_file_reports_both_lenses(system_pair, tmp_path, capsys):
     """psf refused the system file that design takes; now it reports both lenses at the system's distances."""
-    d = tmp_path / "designs"
-    shutil.copytree(Path(__file__).resolve().parents[2] / "designs", d)
-    lens_toml(d, name="foveal", f_mm=4.0, d_mm=2.0, pol="x")
-    lens_toml(d, name="perifoveal", f_mm=3.0, d_mm=2.0, pol="y")
-    text = (d / "system.toml").read_text().replace("= 150.0", "= 4.0").replace("= 25.0", "= 3.02")
-    (d / "system.toml").write_text(text)
-    rc = main(["psf", str(d / "system.toml"), "--field-deg", "0", "--wavelengths", "3", "--posts", "ideal",
-               "--workers", "1", "--out", str(tmp_path / "o"), "--json"])
-    cap = capsys.readouterr()
-    assert rc == 0, cap.err
-    s = json.loads(cap.out)
+    d, out, s = system_pair
     assert s["foveal"]["z_um"] == 4000.0 and s["perifoveal"]["z_um"] == pytest.approx(3020.0)
-    assert (tmp_path / "o" / "perifoveal_psf_report.html").is_file() and s["timing"]["seconds"]["total"] > 0
+    assert (out / "perifoveal_psf_report.html").is_file() and s["timing"]["seconds"]["total"] > 0
     assert main(["psf", str(d / "system.toml"), "--system", str(d / "system.toml"), "--out", str(tmp_path / "p")]) == 2
     assert "--system" in capsys.readouterr().err and not (tmp_path / "p").exists()
 
@@ -168,22 +196,17 @@ def test_window_ok_for_a_looser_error(tiny_toml, tmp_path):
     assert 150 <= m["samples"] * m["pitch_um"] <= 150 + 2 * m["pitch_um"]
 
 
-def test_two_lenses_in_two_processes(tiny, tmp_path, capsys, lens_toml):
-    path, out1 = tiny[:2]
-    other = lens_toml(tmp_path, name="tiny2", f_mm=3.0, d_mm=2.0)
-    out = tmp_path / "o"
-    assert main(["psf", str(path), str(other), "--field-deg", "0", "3", "--wavelengths", "9", "--jobs", "2",
-                 "--out", str(out)]) == 0
-    a = json.loads((out / "tiny_psf_report.json").read_text())
-    b = json.loads((out1 / "tiny_psf_report.json").read_text())
-
+def test_two_lenses_in_two_processes(tiny, system_pair, tmp_path, capsys, lens_toml):
+    """Two lenses, one process each: the numbers of the single-process run (``tiny``'s lens is the system's foveal
+    lens), and an error in a worker is one line naming the option."""
     def strip(rows):
         return [{k: v for k, v in r.items() if k != "seconds"} for r in rows]
 
-    assert strip(a["sensor"]) == strip(b["sensor"])  # the same numbers as the single-process run
-    assert (out / "tiny2_psf_report.html").is_file()
+    a = json.loads((system_pair[1] / "foveal_psf_report.json").read_text())
+    assert strip(a["sensor"]) == strip(tiny[4]["sensor"])  # the same numbers as the single-process run
+    other = lens_toml(tmp_path, name="tiny2", f_mm=3.0, d_mm=2.0)
     capsys.readouterr()
-    assert main(["psf", str(path), str(other), "--field-deg", "0", "--wavelengths", "3", "--window-um", "150",
+    assert main(["psf", str(tiny[0]), str(other), "--field-deg", "0", "--wavelengths", "3", "--window-um", "150",
                  "--jobs", "2", "--out", str(tmp_path / "o2")]) == 2
     lines = error_lines(capsys.readouterr().err)
     assert len(lines) == 1 and "--window-um" in lines[0]
