@@ -57,6 +57,27 @@ from metafovea.errors import InputError
 from metafovea.io import atomic_save_npz, load_npz, prepare_output
 
 KIND = "measurement"
+#: The recording schema: the metadata keys a recording may carry and the only ones the reconstruction reads
+#: (docs/measurement_format.md, "The recording schema"; a test strips every other key and finds the
+#: reconstruction unchanged)
+RECORDING_META = ("units", "frame_rate_hz", "pixel_pitch_um", "netd_k", "scale", "foveal_constraint",
+                  "polarizer_hz", "polarizer_mode", "polarizer_phase_deg", "polarizer_extinction", "bolometer_tau_s",
+                  "dark_dn", "saturation_dn", "floor_dn", "channel_gain", "dn_per_k_300K", "radiometry", "fpn_rank",
+                  "psf_pedestal")
+#: the arrays the reconstruction reads (``alpha``: the camera's logged mixing ratio, which ``lsq`` uses and the
+#: unknown-alpha methods only score against)
+RECORDING_ARRAYS = ("frames", "times_s", "alpha", "theta_rad", "calibration", "bad_pixels", "psf_x1", "psf_x2",
+                    "illumination_x1", "illumination_x2")
+#: truth for scoring only: arrays, and the metadata key ``truth`` (a dict of what the writer knows and a camera
+#: would not record: the simulator's realised polariser phase and rate, its noise level, ...)
+SCORING_ARRAYS = ("truth_x1", "truth_x2", "scene_x1", "scene_x2", "fpn", "fpn_u", "fpn_v", "fpn_s", "fpn_weights")
+TRUTH_KEY = "truth"
+#: what a recording that says nothing about its polariser is taken to be: the paper's, turning freely at 2 Hz, with
+#: an ideal polariser and an instantaneous sensor (PolarizerSpec.from_meta says so in ``assumed``)
+POLARIZER_DEFAULTS = {"rate_hz": 2.0, "mode": "free", "phase_deg": None, "extinction": 0.0, "tau_s": 0.0}
+#: each polariser quantity's key in a recording (and the flag of ``import`` / ``reconstruct`` that sets it)
+POLARIZER_KEYS = {"rate_hz": "polarizer_hz", "mode": "polarizer_mode", "phase_deg": "polarizer_phase_deg",
+                  "extinction": "polarizer_extinction", "tau_s": "bolometer_tau_s"}
 OPTIONAL = ("alpha", "truth_x1", "truth_x2", "fpn", "fpn_u", "fpn_v", "fpn_s", "fpn_weights", "theta_rad",
             "calibration", "bad_pixels", "psf_x1", "psf_x2", "illumination_x1", "illumination_x2", "scene_x1",
             "scene_x2")
@@ -112,6 +133,102 @@ class FovealConstraint:
     def as_kwargs(self) -> dict[str, float]:
         """``{scale, foveal_gain, foveal_offset}``: the keyword names of the reconstruction solvers."""
         return {"scale": self.scale, "foveal_gain": self.gain, "foveal_offset": self.offset}
+
+
+@dataclass(frozen=True)
+class PolarizerSpec:
+    """The rotating polariser as a recording states it: rate, mode, phase (sync), extinction leak and the bolometer's
+    time constant, each with its source.
+
+    Attributes
+    ----------
+    rate_hz : float, Hz
+        Revolutions per second (``polarizer_hz``).
+    mode : {'free', 'sync'}
+        ``'sync'``: the rotation is locked to the frames and its phase is known (``polarizer_mode``).
+    phase_deg : float or None, degrees
+        Sync mode: the polariser's angle at ``t = 0`` (``polarizer_phase_deg``); None when free-running.
+    extinction : float
+        Leaked fraction of the blocked polarisation (``polarizer_extinction``).
+    tau_s : float, s
+        The bolometer's first-order time constant (``bolometer_tau_s``).
+    sources : dict
+        Per quantity: ``"file"`` (the recording's key), ``"given"`` (an explicit value: a flag or keyword), or
+        ``"default"`` (:data:`POLARIZER_DEFAULTS`, the paper's camera).
+    """
+
+    rate_hz: float
+    mode: str
+    phase_deg: float | None
+    extinction: float
+    tau_s: float
+    sources: dict[str, str] = field(default_factory=dict)
+
+    @classmethod
+    def from_meta(cls, meta: dict[str, Any], **given: Any) -> PolarizerSpec:
+        """Explicit values (``rate_hz``, ``mode``, ``phase_deg``, ``extinction``, ``tau_s``; None: not given) first,
+        then the recording's keys (:data:`POLARIZER_KEYS`), then :data:`POLARIZER_DEFAULTS`. A sync mode without a
+        phase is refused; a phase given to a free-running polariser is ignored (``sources`` says so)."""
+        from metafovea.polarizer import RotatingPolarizer, check_mode
+
+        unknown = set(given) - set(POLARIZER_KEYS)
+        if unknown:
+            raise InputError("polarizer", sorted(unknown), "keywords among " + ", ".join(POLARIZER_KEYS))
+        vals: dict[str, Any] = {}
+        sources: dict[str, str] = {}
+        for name, key in POLARIZER_KEYS.items():
+            if given.get(name) is not None:
+                vals[name], sources[name] = given[name], "given"
+            elif meta.get(key) is not None:
+                vals[name], sources[name] = meta[key], "file"
+            else:
+                vals[name], sources[name] = POLARIZER_DEFAULTS[name], "default"
+        where = {n: (n if sources[n] == "given" else POLARIZER_KEYS[n]) for n in POLARIZER_KEYS}
+        for name in ("rate_hz", "extinction", "tau_s") + (("phase_deg",) if vals["phase_deg"] is not None else ()):
+            try:
+                vals[name] = float(vals[name])
+            except (TypeError, ValueError):
+                raise InputError(where[name], vals[name], "a number") from None
+            if not math.isfinite(vals[name]):
+                raise InputError(where[name], vals[name], "a finite number")
+        vals["mode"] = check_mode(str(vals["mode"]).lower())
+        if vals["mode"] == "sync" and vals["phase_deg"] is None:
+            raise InputError(where["phase_deg"], None, "the polariser's angle at t = 0 (degrees) for a polariser "
+                             "synchronised to the frames (or polarizer_mode free)")
+        if vals["mode"] == "free" and vals["phase_deg"] is not None:
+            vals["phase_deg"], sources["phase_deg"] = None, "ignored (free-running: the phase is fitted)"
+        try:
+            RotatingPolarizer(vals["rate_hz"], vals["extinction"], vals["tau_s"])
+        except InputError as e:  # name the key or keyword the value came from
+            name = {"polarizer rate_hz": "rate_hz"}.get(e.parameter, e.parameter)
+            raise InputError(where.get(name, e.parameter), e.value, e.allowed) from None
+        return cls(sources=sources, **vals)
+
+    @property
+    def assumed(self) -> list[str]:
+        """The quantities taken from :data:`POLARIZER_DEFAULTS` because neither the file nor the caller gave
+        them, each as ``"key = value (why)"``."""
+        why = "the recording does not say: the paper's camera"
+        return [f"{POLARIZER_KEYS[n]} = {getattr(self, n)} ({why})" for n, src in self.sources.items()
+                if src == "default" and n != "phase_deg"]
+
+    def summary(self) -> dict[str, Any]:
+        """``{rate_hz, mode, phase_deg, extinction, tau_s, sources, assumed}`` (JSON-ready)."""
+        return {"rate_hz": self.rate_hz, "mode": self.mode, "phase_deg": self.phase_deg,
+                "extinction": self.extinction, "tau_s": self.tau_s, "sources": dict(self.sources),
+                "assumed": self.assumed}
+
+    def as_meta(self) -> dict[str, Any]:
+        """The recording's keys for the values that were given or read (what ``metafovea import`` writes; a
+        default stays unwritten, so that a reader still sees it as an assumption)."""
+        return {POLARIZER_KEYS[n]: getattr(self, n) for n, src in self.sources.items()
+                if src in ("given", "file") and getattr(self, n) is not None}
+
+
+def recording_view(meta: dict[str, Any]) -> dict[str, Any]:
+    """The part of ``meta`` the reconstruction may read: the keys of the recording schema
+    (:data:`RECORDING_META`) and the scoring-only ``truth`` dict."""
+    return {k: v for k, v in meta.items() if k in RECORDING_META or k in (TRUTH_KEY, "kind", "schema_version")}
 
 
 @dataclass(frozen=True)
@@ -278,16 +395,9 @@ class Measurement:
 
     @property
     def valid_range_dn(self) -> tuple[float | None, float | None]:
-        """``(floor, full scale)``: samples at or beyond either are clipped by the ADC and carry no information.
-        From ``meta['saturation_dn']`` / ``meta['floor_dn']`` (a recording's), else the simulator's sensor
-        (``meta['sensor']``: ``adc_bits`` when ``quantize``: 0 and 2^bits - 1); ``None`` where unknown."""
-        hi = self.meta.get("saturation_dn")
-        lo = self.meta.get("floor_dn")
-        sen = self.meta.get("sensor")
-        if isinstance(sen, dict) and sen.get("quantize") and sen.get("adc_bits"):
-            bits = int(sen["adc_bits"])
-            hi = float(2 ** bits - 1) if hi is None else hi
-            lo = 0.0 if lo is None else lo
+        """``(floor, full scale)``: samples at or beyond either are clipped by the ADC and carry no information
+        (``meta['floor_dn']`` / ``meta['saturation_dn']``; ``None`` where the file does not say)."""
+        hi, lo = self.meta.get("saturation_dn"), self.meta.get("floor_dn")
         return (None if lo is None else float(lo)), (None if hi is None else float(hi))
 
     @property
@@ -311,10 +421,10 @@ class Measurement:
 
     @property
     def psf_pedestals(self) -> tuple[float, float]:
-        """The power of each channel's PSF beyond its kernel ``psf_x*`` (``meta['psf']['pixel']['x*']
-        ['pedestal']``, as the simulator writes it; 0 where not recorded)."""
-        pix = (self.meta.get("psf") or {}).get("pixel") or {}
-        return tuple(float((pix.get(f"x{i}") or {}).get("pedestal", 0.0)) for i in (1, 2))  # type: ignore[return-value]
+        """The power of each channel's PSF beyond its kernel ``psf_x*`` (``meta['psf_pedestal']`` ``{x1, x2}``; 0
+        where not recorded)."""
+        ped = self.meta.get("psf_pedestal") or {}
+        return float(ped.get("x1", 0.0)), float(ped.get("x2", 0.0))
 
     @property
     def radiometric_calibration(self) -> RadiometricCalibration | None:
@@ -323,13 +433,10 @@ class Measurement:
 
     @property
     def true_noise_dn(self) -> float | None:
-        """The frames' true temporal noise, DN, as the simulator records it (``meta['sensor']``): the sensor's
-        ``noise_sigma_dn`` and, when quantised, the ADC's ``1/12`` DN^2 in quadrature; None when not recorded
-        (a real recording)."""
-        sen = self.meta.get("sensor") or {}
-        if "noise_sigma_dn" not in sen:
-            return None
-        return math.sqrt(float(sen["noise_sigma_dn"]) ** 2 + (1.0 / 12.0 if sen.get("quantize", True) else 0.0))
+        """The frames' true temporal noise, DN, for scoring only (``meta['truth']['noise_dn']``, which the simulator
+        writes: the sensor's noise and the ADC's 1/12 DN^2 in quadrature); None when not recorded (a recording)."""
+        v = (self.meta.get(TRUTH_KEY) or {}).get("noise_dn")
+        return None if v is None else float(v)
 
     @property
     def scene_truth(self) -> tuple[np.ndarray, np.ndarray] | None:
@@ -341,11 +448,27 @@ class Measurement:
 
     @property
     def fpn_rank(self) -> int | None:
-        """The rank of the sensor's fixed pattern that the file declares (``meta['sensor']['fpn_rank']``, which the
-        simulator writes; 0: none), or None when the file does not say (a recording)."""
-        sen = self.meta.get("sensor")
-        rank = sen.get("fpn_rank") if isinstance(sen, dict) else None
+        """The rank of the sensor's fixed pattern that the file declares (``meta['fpn_rank']``; 0: none), or None
+        when the file does not say."""
+        rank = self.meta.get("fpn_rank")
         return None if rank is None else int(rank)
+
+    def polarizer_spec(self, **given: Any) -> PolarizerSpec:
+        """The polariser the file states, with ``given`` values first (:meth:`PolarizerSpec.from_meta`); a bad
+        value of the file's names the file."""
+        try:
+            return PolarizerSpec.from_meta(self.meta, **given)
+        except InputError as e:
+            if e.parameter in POLARIZER_KEYS.values() and e.source is None:
+                raise InputError(e.parameter, e.value, e.allowed, source=self.source, detail=e.detail) from None
+            raise
+
+    def as_recording(self) -> Measurement:
+        """This measurement with only the recording schema's metadata (:func:`recording_view`): what the
+        reconstruction reads."""
+        from dataclasses import replace
+
+        return replace(self, meta=recording_view(self.meta), source=self.source)
 
     def invalid_samples(self) -> np.ndarray | None:
         """(T, H, W) bool: samples to leave out: non-finite, clipped at the ADC's floor or full scale

@@ -317,7 +317,6 @@ def test_the_platform_literal_check_spares_ordinary_numbers():
 #: reconstruct modules that may read a metadata dict themselves, with the reason
 META_READERS = {
     "metafovea.reconstruct.result": "reads the metadata of its own Reconstruction file, not a Measurement's",
-    "metafovea.reconstruct.polarizer": "PolarizerModel.from_meta: the polariser's one reader of 'polarizer'",
 }
 
 

@@ -161,6 +161,7 @@ def test_the_reconstructions_metadata_is_read_here(tmp_path):
     assert m.dark_dn == meta["dark_dn"] and m.recorded_scale == meta["scale"] == 6.0
     assert m.channel_gains == (meta["channel_gain"]["x1"], meta["channel_gain"]["x2"])
     assert m.psf_pedestals == tuple(meta["psf"]["pixel"][f"x{i}"]["pedestal"] for i in (1, 2))
+    assert m.valid_range_dn == (0.0, 2.0 ** meta["sensor"]["adc_bits"] - 1) and m.fpn_rank == meta["sensor"]["fpn_rank"]
     sen = meta["sensor"]
     assert m.true_noise_dn == pytest.approx(np.sqrt(sen["noise_sigma_dn"] ** 2 + 1 / 12))  # quantised: ADC's 1/12
     cal = m.radiometric_calibration

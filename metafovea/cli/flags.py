@@ -23,6 +23,9 @@ _LAYOUT = {"band_rows": "--band-rows", "grid_nm": "--grid-nm", "ring_width_um": 
            "workers": "--workers", "substrate_thickness_um": "--substrate-um", "max_refs": "--max-refs", "dwl": "--dwl",
            "compress": "--compress", "fmt": "--format", "path": "--out", "flat": "--flat", "test_array": "--test-array",
            "tiles_dir": "--tiles-dir", "reader": "--reader"}
+#: the polariser's keywords (metafovea.measurement.PolarizerSpec) and the flags of import and reconstruct
+_POLARIZER = {"rate_hz": "--polarizer-hz", "mode": "--polarizer-mode", "phase_deg": "--polarizer-phase-deg",
+              "extinction": "--extinction", "tau_s": "--tau"}
 PARAMETER_FLAGS: dict[str, dict[str, str]] = {
     "design": {"post_set": "--post-set", "from_library": "--library", "samples": "--samples", "f_um": "--f",
                "diameter_um": "--d", "period_um": "--period-um", "wavelength_um": "--wavelength-um"},
@@ -38,7 +41,7 @@ PARAMETER_FLAGS: dict[str, dict[str, str]] = {
                     "regularize": "--regularize", "steps": "--steps", "channels": "--channels", "stride": "--stride",
                     "max_seconds": "--max-seconds", "seed": "--seed", "rng": "--seed", "scale": "--scale",
                     "gain": "--foveal-gain", "offset": "--foveal-offset", "denoise": "--denoise",
-                    "psf": "--psf", "res": "--deconvolve", "method": "--method"},
+                    "psf": "--psf", "res": "--deconvolve", "method": "--method", **_POLARIZER},
     "simulate": {"extinction": "--extinction", "tau_s": "--tau", "bolometer_tau_s": "--tau", "fpn_drift": "--drift",
                  "netd_k": "--netd", "frames": "--frames", "calibration_frames": "--calibration-frames",
                  "supersample": "--supersample", "psf_size_px": "--psf-size", "scene": "--scene",
@@ -52,7 +55,7 @@ PARAMETER_FLAGS: dict[str, dict[str, str]] = {
                "time_unit": "--time-unit", "frame_rate_hz": "--frame-rate", "polarizer_key": "--polarizer-key",
                "polarizer_unit": "--polarizer-unit", "calibration": "--calibration", "planck": "--planck",
                "calibration_gain": "--calibration-gain", "band_um": "--band-um", "filter_um": "--filter-um",
-               "foveal_gain": "--foveal-gain", "scale": "--scale"},
+               "foveal_gain": "--foveal-gain", "scale": "--scale", **_POLARIZER},
 }
 
 #: library keyword expressions in an error's advice -> what to type at the command, per command: a Python caller

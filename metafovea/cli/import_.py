@@ -13,6 +13,7 @@ from typing import Any
 
 from metafovea.cli.options import add_shared
 from metafovea.cli.output import out_file
+from metafovea.cli.polarizer import polarizer_args
 from metafovea.io import to_json
 
 HELP = "import a camera recording (TIFF stack, HDF5, MAT) as a measurement (.npz) for reconstruct"
@@ -41,6 +42,8 @@ def register(subparsers: Any) -> argparse.ArgumentParser:
                    "(stored as theta_rad; a uniform rotation also gives the polariser model) or alpha")
     g.add_argument("--polarizer-unit", default=None, choices=POLARIZER_UNITS, help="of --polarizer-key (default: "
                    "alpha if its name contains 'alpha', deg if 'deg', else rad)")
+    pg = p.add_argument_group("the polariser (written to the file as the recording schema's keys)")
+    add_shared(pg, "--polarizer-hz", "--polarizer-mode", "--polarizer-phase-deg", "--extinction", "--tau")
     c = p.add_argument_group("counts to kelvin (default: the file's Planck constants, else none)")
     cal = c.add_mutually_exclusive_group()
     cal.add_argument("--calibration", default=None, metavar="two-point:T1=FILE1,T2=FILE2",
@@ -77,7 +80,7 @@ def run(args: argparse.Namespace) -> int:
                         calibration_gain=args.calibration_gain, planck=args.planck,
                         band_um=tuple(args.band_um) if args.band_um else BAND_UM,
                         filter_um=tuple(args.filter_um) if args.filter_um else None, foveal_gain=args.foveal_gain,
-                        scale=args.scale)
+                        scale=args.scale, polarizer=polarizer_args(args))
     out, s = import_recording(args.recording, out_file(args, None), opt, force=args.force)
     s["warnings"] = [in_flags(w, flag_map("import")) for w in s["warnings"]]  # the flags for the options they advise
     for w in s["warnings"]:
@@ -89,7 +92,14 @@ def run(args: argparse.Namespace) -> int:
     print(f"{args.recording}: {s['frames']} of {s['frames_in']} frames of {s['shape'][0]} x {s['shape'][1]}, "
           f"{rate} (times from {s['times_from']}); {s['n_dropped']} dropped, {s['duplicates_removed']} duplicated "
           f"(removed), timing {'uniform' if s['uniform_timing'] else 'non-uniform'}")
-    pol = "alpha" if s["alpha_known"] else "angles (theta_rad)" if s["theta_rad"] else "not recorded"
+    pol = "alpha" if s["alpha_known"] else "angles (theta_rad)" if s["theta_rad"] else "no per-frame state"
+    ps = s.get("polarizer")
+    if ps:
+        pol += (f"; {ps['mode']} at {ps['rate_hz']:g} Hz" + (f", phase {ps['phase_deg']:g} deg"
+                                                             if ps.get("phase_deg") is not None else "")
+                + f", extinction {ps['extinction']:g}, tau {ps['tau_s']:g} s")
+    elif not s["alpha_known"]:
+        pol += " (reconstruct will assume the paper's free-running 2 Hz polariser: --polarizer-hz, --polarizer-mode)"
     cal = s["calibration"]
     how = "none: frames in camera counts, no kelvin" if cal is None else (
         f"{cal['method']}, dark level {cal['dark_dn']:.6g} DN"

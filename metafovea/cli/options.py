@@ -43,8 +43,19 @@ SHARED_OPTIONS: dict[str, dict[str, Any]] = {
                     help="the lenses' posts: rcwa (the platform's RCWA post set, the fabricated lens; the default "
                          "platform's library ships with metafovea, another is computed on first use and cached; "
                          "default) or ideal (an idealised, simplified model, named as such in the output)"),
+    # the rotating polariser, in the recording schema's words (simulate: the camera simulated; import: written to
+    # the file; reconstruct: instead of the file's)
+    "--polarizer-hz": dict(default=None, metavar="HZ", help="polariser revolutions per second (default: the "
+                           "file's, else the paper's 2, said in the output)"),
+    "--polarizer-mode": dict(default=None, choices=("free", "sync"), help="free: free-running, its phase fitted from "
+                             "the frames; sync: locked to the frames at --polarizer-phase-deg (default: the file's, "
+                             "else free)"),
+    "--polarizer-phase-deg": dict(default=None, metavar="DEG", help="sync: the polariser's angle at t = 0, degrees"),
+    "--extinction": dict(default=None, help="the polariser's leaked fraction of the blocked polarisation, 0 to 0.5 "
+                                            "(default: the file's or the system's, else 0)"),
+    "--tau": dict(default=None, metavar="SECONDS", help="the bolometer's time constant in s, 0 to 10 (it low-passes "
+                  "alpha; default: the file's, else 0)"),
 }
-
 
 def add_shared(p: Any, *flags: str) -> None:
     """Add the shared options ``flags`` (keys of :data:`SHARED_OPTIONS`) to the parser or argument group ``p``."""

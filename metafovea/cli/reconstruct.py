@@ -14,6 +14,7 @@ from typing import Any
 
 from metafovea.cli.options import add_shared, seed_arg, show_progress
 from metafovea.cli.output import out_file
+from metafovea.cli.polarizer import polarizer_args, polarizer_lines
 from metafovea.errors import InputError, as_float
 from metafovea.io import to_json
 
@@ -33,11 +34,9 @@ def register(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
     p.add_argument("--stride", type=int, default=1, help="window stride in frames (default 1)")
     p.add_argument("--denoise", default=None, choices=DENOISERS, help="denoise the outputs")
     p.add_argument("--fpn", default="auto", metavar="auto|none|prior|calibration|PATTERN",
-                   help="fixed-pattern noise: auto (default: the file's shutter frames when it has them, else the "
-                        "blind estimate when it declares a fixed pattern, else none; the summary says which), none, "
-                        "prior (blind, from the separated images and the foveal constraint), calibration (the file's "
-                        "'calibration' shutter frames) or a pattern file of yours (.npy/.npz/.tif, subtracted); the "
-                        "file's own 'fpn' is truth and only scores an estimate")
+                   help="fixed-pattern noise: auto (default: the file's shutter frames, else the blind estimate when "
+                        "it declares a pattern (fpn_rank), else none; the summary says which), none, prior (blind), "
+                        "calibration (the file's shutter frames) or a pattern file (.npy/.npz/.tif, subtracted)")
     p.add_argument("--scale", type=float, default=None, help="f1/f2 of the foveal constraint (default: file meta "
                    "'foveal_constraint.scale', else 'scale', else 6)")
     p.add_argument("--foveal-gain", type=float, default=None, help="radiometric gain of the foveal constraint "
@@ -50,8 +49,10 @@ def register(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
                    "alpha's gauge, return the frame-mean-gauge result (flagged alpha_identified: false) instead of "
                    "an error")
     p.add_argument("--polarizer", default="auto", choices=("auto", "none"),
-                   help="alternating: fix alpha's gauge with the file's polariser model (rate, mode, extinction; "
-                        "auto, default) or not (none: the foveal constraint alone)")
+                   help="alternating: fix alpha's gauge with the polariser model (the file's keys, the flags "
+                        "below, else the paper's free-running 2 Hz polariser: auto, default) or not (none: the "
+                        "foveal constraint alone)")
+    add_shared(p, "--polarizer-hz", "--polarizer-mode", "--polarizer-phase-deg", "--extinction", "--tau")
     p.add_argument("--polarizer-alpha", default="model", choices=("model", "frames"),
                    help="alternating with the polariser model: alpha of the fitted constant-rate rotation (model, "
                         "default) or each frame's own (frames: follows a jittering polariser)")
@@ -62,15 +63,12 @@ def register(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
     p.add_argument("--init", default="random", choices=("random", "classical"), help="DIP start: random (the "
                    "paper's fixed random inputs, default) or classical (a residual warm start from alternating, or "
                    "from LSQ + TV with --known-alpha)")
-    p.add_argument("--max-seconds", type=float, default=None, help="DIP time budget of the whole run, all windows "
-                   "together (default 600: a random start at 290 x 290 takes ~0.7 s per step on a 2-core CPU; 0: no "
-                   "cap). A window stopped by it keeps its lowest-loss images and the summary says so; the DIP also "
-                   "stops when the loss has converged")
+    p.add_argument("--max-seconds", type=float, default=None, help="DIP time budget of the whole run (default 600; "
+                   "0: no cap); a window it stops keeps its lowest-loss images, and the summary says so")
     add_shared(p, "--seed")  # the DIP's weights and inputs
     p.add_argument("--deconvolve", default=None, choices=("wiener", "tv"), help="also recover the scene itself "
                    "(PSF-aware joint separation and deconvolution, static scenes): <out>_scene.npz and .png in kelvin")
-    p.add_argument("--psf", default=None, help="for --deconvolve: a PSF file (.npz with psf_x1, psf_x2 on the pixel "
-                   "grid) instead of the measurement's")
+    p.add_argument("--psf", default=None, help="for --deconvolve: a PSF file (.npz: psf_x1, psf_x2) (not the file's)")
     p.add_argument("--out", default=None, help="output .npz (default: <measurement>_rec.npz); figures next to it")
     p.add_argument("--no-figures", action="store_true", help="do not write PNG figures")
     p.add_argument("--no-score", action="store_true", help="do not score against the file's truth (faster)")
@@ -132,7 +130,7 @@ def run(args: argparse.Namespace) -> int:
     res = reconstruct_measurement(m, args.method, known_alpha=args.known_alpha, window=args.window,
                                   stride=args.stride, fpn=_fpn_arg(args.fpn), denoise=args.denoise, frame=args.frame,
                                   constraint=fc, solver=solver, progress=show_progress(args),
-                                  score_truth=not args.no_score)
+                                  score_truth=not args.no_score, polarizer=polarizer_args(args))
     files = write_outputs(res, out, figures, title=f"{res.reconstruction.method}: {Path(m.source).name}")
     dec = None
     if args.deconvolve:
@@ -169,6 +167,8 @@ def run(args: argparse.Namespace) -> int:
         print(f"  {iv['count']:,} samples ({100 * iv['fraction']:.2g} %) {iv['how']}: outside the ADC range "
               f"{iv['valid_range_dn']} DN, non-finite or on bad pixels")
     pol = s.get("polarizer") or {}
+    if pol.get("model"):
+        print(polarizer_lines(pol["model"]))
     if pol.get("warning"):
         print(f"  warning: {pol['warning']}")
     if s.get("nonfinite_pixels"):

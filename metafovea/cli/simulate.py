@@ -55,8 +55,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
     s.add_argument("--polarizer", default="sync", choices=("sync", "free"),
                    help="sync: locked to the frames, known phase; free: running with an unknown random phase")
     s.add_argument("--phase-deg", help="polariser phase at t = 0 (degrees; sync default 17.19 = 0.3 rad)")
-    s.add_argument("--extinction", help="leaked fraction of the blocked polarisation (default from the system)")
-    s.add_argument("--tau", default="0", help="bolometer time constant in s (low-passes alpha; default 0)")
+    add_shared(s, "--extinction", "--tau")
     add_shared(s, "--pixel-um")
     alias(s, "--pitch", "--pixel-um", "pixel_um")
     s.add_argument("--netd", help="NETD in K at 300 K through the F/1 channel (default from the system)")
@@ -99,7 +98,8 @@ def _options(args: argparse.Namespace, frames: int) -> SimulationOptions:
         field_patches=fp, haze=not args.no_haze, filter_enabled=None if args.filter is None else args.filter == "on",
         pixel_pitch_um=_num("--pixel-um", args.pixel_um), relay_magnification=_num("--relay", args.relay),
         polarizer_mode=args.polarizer, polarizer_phase_deg=_num("--phase-deg", args.phase_deg),
-        extinction=_num("--extinction", args.extinction), bolometer_tau_s=_num("--tau", args.tau),
+        extinction=_num("--extinction", args.extinction),
+        bolometer_tau_s=_num("--tau", "0" if args.tau is None else args.tau),
         netd_k=_num("--netd", args.netd),
         fpn_rank=0 if args.no_fpn else (None if args.fpn_rank is None else
                                         check_int("--fpn-rank", args.fpn_rank, 0, 10000)),

@@ -370,9 +370,18 @@ def _measurement_meta(system: SystemDesign, camera: Camera, sc: Scene, opt: Simu
         "netd_effective_k": {"x1": sensor.netd_k / gains[0], "x2": sensor.netd_k / gains[1]},
         "pixel_pitch_um": sensor.pixel_pitch_um,
         "frame_rate_hz": sensor.frame_rate_hz,
+        # the polariser in the recording schema's keys (a free-running one's phase and rate are truth, below)
         "polarizer_hz": pol.rate_hz,
-        "polarizer": {**pol_info, "extinction": pol.extinction, "tau_s": pol.tau_s,
-                      "alpha_nominal_range": [float(alpha_nominal.min()), float(alpha_nominal.max())]},
+        "polarizer_mode": pol.mode,
+        **({"polarizer_phase_deg": math.degrees(pol_info["phase_rad"])} if pol.mode == "sync" else {}),
+        "polarizer_extinction": pol.extinction,
+        "bolometer_tau_s": pol.tau_s,
+        **({"floor_dn": 0.0, "saturation_dn": float(sensor.full_scale_dn)} if sensor.quantize else {}),
+        "fpn_rank": int(sensor.fpn_rank),
+        # scoring only: what the simulator knows and a camera would not record
+        "truth": {"polarizer": {**pol_info, "alpha_nominal_range": [float(alpha_nominal.min()),
+                                                                    float(alpha_nominal.max())]},
+                  "noise_dn": math.sqrt(sensor.noise_sigma_dn ** 2 + (1.0 / 12.0 if sensor.quantize else 0.0))},
         "netd_k": sensor.netd_k,
         "sensor": sensor.summary(),
         "dark_dn": sensor.dark_dn,
@@ -462,6 +471,7 @@ def simulate(system: SystemDesign, scene: str | Path | Scene, options: Simulatio
     meta = _measurement_meta(system, camera, sc, opt, rng=rng, ss=ss, provider_name=provider_name, optics=optics,
                              pol_info=pol_info, alpha_nominal=alpha_nominal, saturated=saturated, timing_s=timing)
     psf_arrays, meta["psf"]["pixel"] = _psf_extras(renderers, camera, times, static=sc.static)
+    meta["psf_pedestal"] = {c: float((meta["psf"]["pixel"].get(c) or {}).get("pedestal", 0.0)) for c in ("x1", "x2")}
     extras = {**_extras(theta, calibration, fpn, n_frames), **psf_arrays}
     return Measurement(frames=frames, times_s=times, alpha=alpha, truth_x1=x1, truth_x2=x2,
                        fpn=fpn.frame(None) if fpn.rank else None, meta=meta, extras=extras)

@@ -23,11 +23,12 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from metafovea.errors import InputError, check_choice
-from metafovea.measurement import FovealConstraint, Measurement
+from metafovea.measurement import FovealConstraint, Measurement, PolarizerSpec
 from metafovea.reconstruct.denoise import denoise as denoise_image
 from metafovea.reconstruct.fpn import estimate_fpn
 from metafovea.reconstruct.lsq import lsq_known_alpha
 from metafovea.reconstruct.metrics import score
+from metafovea.reconstruct.polarizer import PolarizerModel
 from metafovea.reconstruct.result import PipelineResult, Reconstruction
 from metafovea.reconstruct.video import video
 
@@ -163,7 +164,7 @@ def reconstruct_measurement(m: Measurement, method: str = "lsq", *, known_alpha:
                             fpn: str | np.ndarray = "auto", denoise: str | None = None, frame: int = 0,
                             constraint: FovealConstraint | None = None, solver: dict[str, Any] | None = None,
                             level_free: bool = False, progress: bool = False,
-                            score_truth: bool = True) -> PipelineResult:
+                            score_truth: bool = True, polarizer: dict[str, Any] | None = None) -> PipelineResult:
     """Reconstruct a Measurement by the pipeline's rules and score it against its truth.
 
     Parameters
@@ -203,6 +204,16 @@ def reconstruct_measurement(m: Measurement, method: str = "lsq", *, known_alpha:
         Add the level-free PSNRs to the metrics (see :func:`~metafovea.reconstruct.metrics.score`).
     score_truth : bool
         Score against the file's truth (default); False leaves ``metrics`` None (file-to-file speed).
+    polarizer : dict, optional
+        Explicit polariser values (``rate_hz``, ``mode``, ``phase_deg``, ``extinction``, ``tau_s``: the flags
+        ``--polarizer-hz`` ... of ``reconstruct``) before the file's keys and the defaults
+        (:class:`~metafovea.measurement.PolarizerSpec`); the spec used, with each value's source and what was
+        assumed, is ``reconstruction.info['polarizer_spec']``.
+
+    Notes
+    -----
+    The pipeline reads only the recording schema (:meth:`Measurement.as_recording`: the documented metadata keys,
+    and ``truth`` for scoring): whatever else a writer put in the file changes nothing.
 
     Returns
     -------
@@ -211,6 +222,8 @@ def reconstruct_measurement(m: Measurement, method: str = "lsq", *, known_alpha:
         shows (a video truth averaged over the output's frames) and, when alpha was estimated, its error.
     """
     method = check_choice("method", method, METHODS)
+    m = m.as_recording()
+    spec = m.polarizer_spec(**(polarizer or {}))
     T = m.shape[0]
     fc = constraint if constraint is not None else m.foveal_constraint
     if method != "snapshot" and T < 2:
@@ -220,13 +233,7 @@ def reconstruct_measurement(m: Measurement, method: str = "lsq", *, known_alpha:
     if method != "snapshot" and not 2 <= window <= T:
         raise InputError("window", window, f"2 <= window <= number of frames ({T})")
     alpha = _file_alpha(m, method, known_alpha)
-    kw = {**fc.as_kwargs(), **(solver or {})}
-    if method in ("alternating", "dip") and alpha is None and kw.get("polarizer", "auto") == "auto":
-        # what the file says about its polariser (rate, mode, extinction; a free one's phase is not used)
-        from metafovea.reconstruct.polarizer import PolarizerModel
-        kw["polarizer"] = PolarizerModel.from_meta(m.meta, m.times_s)
-    elif kw.get("polarizer") == "none":
-        kw["polarizer"] = None
+    kw = _polarizer_model(m, method, alpha, spec, {**fc.as_kwargs(), **(solver or {})})
     if "regularize" in kw and method != "lsq":
         raise InputError("regularize", kw["regularize"], "only with method='lsq'")
     if method == "dip":
@@ -264,9 +271,22 @@ def reconstruct_measurement(m: Measurement, method: str = "lsq", *, known_alpha:
     if isinstance(fpn, str):  # the mode used, and why when it was chosen from the file (fpn='auto')
         finfo = {**(rec.info.get("fpn") or {}), "mode": fpn.strip().lower()}
         rec = replace(rec, info={**rec.info, "fpn": finfo if fpn_auto is None else {**finfo, "auto": fpn_auto}})
+    if isinstance(kw.get("polarizer"), PolarizerModel):
+        rec = replace(rec, info={**rec.info, "polarizer_spec": spec.summary()})
     res = PipelineResult(reconstruction=rec, spans=spans, seconds=seconds, constraint=fc, frames=T, source=m.source)
     return replace(res, metrics=_metrics(m, res, level_free) if score_truth else None,
                    alpha_mae=_alpha_mae(m, res, alpha is None))
+
+
+def _polarizer_model(m: Measurement, method: str, alpha: np.ndarray | None, spec: PolarizerSpec,
+                     kw: dict[str, Any]) -> dict[str, Any]:
+    """``kw`` with ``polarizer``: for an unknown alpha (alternating, dip) the model of the polariser the file states
+    (its keys, the caller's values, else the paper's: ``spec.assumed`` says which), unless ``polarizer='none'``."""
+    if method in ("alternating", "dip") and alpha is None and kw.get("polarizer", "auto") == "auto":
+        kw["polarizer"] = PolarizerModel.from_spec(spec, m.times_s)
+    elif kw.get("polarizer") in ("none", "auto"):
+        kw["polarizer"] = None
+    return kw
 
 
 def _solve(m: Measurement, method: str, frames: np.ndarray, alpha: np.ndarray | None, kw: dict[str, Any],

@@ -414,6 +414,7 @@ def deconvolve_result(m: Measurement, res: PipelineResult, method: str = "wiener
     Deconvolution
         As :func:`deconvolve_measurement`; ``info['alpha_from']`` says which alpha.
     """
+    m = m.as_recording()  # the recording schema only (docs/measurement_format.md)
     rec = res.reconstruction
     alpha = rec.alpha_per_frame(m.shape[0])
     if not np.all(np.isfinite(alpha)):

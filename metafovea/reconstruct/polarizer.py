@@ -32,6 +32,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from metafovea.errors import InputError, check_range
+from metafovea.measurement import PolarizerSpec
 from metafovea.polarizer import ALPHA_MEAN, RotatingPolarizer, check_mode
 
 #: alpha counts as identified when its standard error (gauge and per-frame) is below this in every frame
@@ -66,20 +67,12 @@ class PolarizerModel:
         check_range("rate_tolerance", self.rate_tolerance, 0.0, 0.5, lo_inclusive=True)
 
     @classmethod
-    def from_meta(cls, meta: dict[str, Any], times_s: ArrayLike) -> PolarizerModel | None:
-        """The model a measurement's metadata gives (``polarizer_hz``, ``polarizer``: mode, extinction, tau_s and,
-        in sync mode, phase_rad); None when the file says nothing about its polariser. A free-running polariser's
-        realised phase and rate (the simulator records them as truth) are not used."""
-        p = meta.get("polarizer")
-        if not isinstance(p, dict):
-            return None
-        mode = str(p.get("mode", "free"))
-        rate = float(meta.get("polarizer_hz", p.get("rate_hz", 2.0)))
-        phase = float(p["phase_rad"]) if mode == "sync" and p.get("phase_rad") is not None else None
-        if mode == "sync" and phase is None:
-            mode = "free"
-        return cls(times_s, rate_hz=rate, mode=mode, phase_rad=phase, extinction=float(p.get("extinction", 0.0)),
-                   tau_s=float(p.get("tau_s", 0.0)))
+    def from_spec(cls, spec: PolarizerSpec, times_s: ArrayLike) -> PolarizerModel:
+        """The model of a recording's polariser (:class:`~metafovea.measurement.PolarizerSpec`: its documented keys,
+        flags, defaults) at the frame times ``times_s``."""
+        phase = None if spec.phase_deg is None else math.radians(spec.phase_deg)
+        return cls(times_s, rate_hz=spec.rate_hz, mode=spec.mode, phase_rad=phase, extinction=spec.extinction,
+                   tau_s=spec.tau_s)
 
     def window(self, start: int, n: int) -> PolarizerModel:
         return replace(self, times_s=self.times_s[start:start + n])

@@ -268,6 +268,8 @@ class PipelineResult:
             out["polarizer"] = {"applied": pg["applied"], "reason": pg.get("reason"), "mode": fit.get("mode"),
                                 "rate_hz": fit.get("rate_hz"), "irregular": fit.get("irregular"),
                                 "warning": pg.get("warning"), "alpha_from": pg.get("alpha_from")}
+        if rec.info.get("polarizer_spec") is not None:  # the model used: each value with its source
+            out.setdefault("polarizer", {})["model"] = rec.info["polarizer_spec"]
         if "fpn" in rec.info:
             fi = rec.info["fpn"]
             out["fpn"] = fi.get("identified") or fi.get("mode")

@@ -20,7 +20,7 @@ from typing import Any
 import numpy as np
 
 from metafovea.errors import InputError, check_choice
-from metafovea.measurement import Measurement
+from metafovea.measurement import Measurement, PolarizerSpec
 from metafovea.radiometry import BAND_UM, check_band, check_filter
 from metafovea.recordings.calibration import (
     GAIN_MODES,
@@ -57,6 +57,9 @@ class ImportOptions:
     filter_um: tuple[float, float] | None = None
     foveal_gain: float | None = None
     scale: float | None = None
+    #: the polariser (:class:`~metafovea.measurement.PolarizerSpec` keywords: rate_hz, mode, phase_deg, extinction,
+    #: tau_s): written as the recording schema's keys, before what the recorded angles give
+    polarizer: dict[str, Any] | None = None
 
 
 def _polarizer(rec: Recording, kept: np.ndarray, times: np.ndarray, unit: str | None) -> tuple[dict[str, Any],
@@ -74,7 +77,7 @@ def _polarizer(rec: Recording, kept: np.ndarray, times: np.ndarray, unit: str | 
         if v.min() < -1e-9 or v.max() > 1 + 1e-9:
             raise InputError("polarizer_key", rec.polarizer_key, "mixing ratios alpha in [0, 1] (or set "
                              "polarizer_unit=rad|deg for angles)", detail=f"range {v.min():.4g} to {v.max():.4g}")
-        return {"alpha": np.clip(v, 0.0, 1.0)}, {"polarizer": {"recorded": "alpha", "key": rec.polarizer_key}}
+        return {"alpha": np.clip(v, 0.0, 1.0)}, {"polarizer_record": {"recorded": "alpha", "key": rec.polarizer_key}}
     theta = np.deg2rad(v) if unit == "deg" else v
     meta: dict[str, Any] = {"recorded": f"angle ({unit})", "key": rec.polarizer_key}
     un = np.unwrap(2 * theta) / 2  # alpha has period pi in theta
@@ -84,9 +87,10 @@ def _polarizer(rec: Recording, kept: np.ndarray, times: np.ndarray, unit: str | 
         meta.update(rate_fit_residual_rad=resid)
         if resid < 0.05 and abs(slope) > 0:
             # a uniform rotation: the model reconstruct --method alternating uses (alpha = cos^2(2 pi f t + phase))
-            meta.update(mode="sync", rate_hz=float(slope / (2 * math.pi)), phase_rad=float(phase), extinction=0.0,
-                        tau_s=0.0)
-    return {"theta_rad": theta}, {"polarizer": meta, **({"polarizer_hz": meta["rate_hz"]} if "rate_hz" in meta else {})}
+            return {"theta_rad": theta}, {"polarizer_record": meta, "polarizer_mode": "sync",
+                                          "polarizer_hz": float(slope / (2 * math.pi)),
+                                          "polarizer_phase_deg": math.degrees(float(phase))}
+    return {"theta_rad": theta}, {"polarizer_record": meta}
 
 
 def _calibration_frames(path: str, opt: ImportOptions, shape: tuple[int, int]) -> np.ndarray:
@@ -168,6 +172,12 @@ def to_measurement(rec: Recording, options: ImportOptions | None = None) -> tupl
     }
     if timing.frame_rate_hz:
         meta["frame_rate_hz"] = timing.frame_rate_hz
+    spec = None
+    if opt.polarizer:  # the user's values first, then what the recorded angles gave
+        spec = PolarizerSpec.from_meta(meta, **opt.polarizer)
+        meta.update(spec.as_meta())
+    elif "polarizer_mode" in meta:
+        spec = PolarizerSpec.from_meta(meta)
     if model is not None:
         meta.update(model.meta(r))
     if opt.foveal_gain is not None or opt.scale is not None:
@@ -190,6 +200,7 @@ def to_measurement(rec: Recording, options: ImportOptions | None = None) -> tupl
                "times_from": t_from, "frame_rate_hz": timing.frame_rate_hz, "n_dropped": timing.n_dropped,
                "duplicates_removed": len(timing.duplicates_removed), "uniform_timing": timing.uniform,
                "alpha_known": m.alpha_known, "theta_rad": "theta_rad" in extras, "units": meta["units"],
+               "polarizer": None if spec is None else spec.summary(),
                "calibration": None if model is None else {"method": model.method, "dark_dn": model.dark_dn,
                                                           **{k: v for k, v in model.info.items()
                                                              if k in ("fit_max_error_k", "bad_pixels")}},

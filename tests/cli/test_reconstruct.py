@@ -79,7 +79,10 @@ def test_cli_video_and_alternating(meas, tmp_path, capsys):
                           "--no-figures"], capsys)
     assert rc == 0
     s = json.loads(stdout)
-    assert s["alpha_identified"] and s["gauge"]["applied"] and s["metrics"]["psnr_x1"] > 40
+    # the file says nothing of its polariser: the paper's free-running 2 Hz one is assumed (and said), and fixes alpha
+    assert s["alpha_identified"] and s["alpha_gauge"] == "absolute (polariser model)" and s["metrics"]["psnr_x1"] > 40
+    assert s["polarizer"]["model"]["assumed"] and "assumed: polarizer_hz = 2.0" in _run(
+        [meas, "--method", "alternating", "--window", "10", "--out", tmp_path / "alt2.npz", "--no-figures"], capsys)[1]
     assert Reconstruction.load(out2).info["alpha_identified"]
 
 
@@ -102,14 +105,14 @@ def test_cli_foveal_constraint_from_meta(dn_scene, tmp_path, capsys):
     path = tmp_path / "meas.npz"
     atomic_save_npz(path, meta=meta, frames=frames, times_s=np.arange(10) / 12.0, alpha=a, truth_x1=x1, truth_x2=x2)
     rc, stdout, _ = _run([path, "--method", "alternating", "--window", "10", "--out", tmp_path / "alt.npz", "--json",
-                          "--no-figures"], capsys)
+                          "--no-figures", "--polarizer", "none"], capsys)  # the foveal constraint alone
     assert rc == 0
     s = json.loads(stdout)
     assert s["foveal_constraint"] == {"scale": 6.0, "foveal_gain": G, "foveal_offset": B}
     assert s["alpha_identified"] and s["gauge"]["applied"]
     # overriding the file's gain with 1 breaks the constraint: clear error, exit 2
     rc, _, err = _run([path, "--method", "alternating", "--window", "10", "--out", tmp_path / "b.npz",
-                       "--no-figures", "--foveal-gain", "1"], capsys)
+                       "--no-figures", "--foveal-gain", "1", "--polarizer", "none"], capsys)
     assert rc == 2 and "gauge" in err
 
 
@@ -293,11 +296,15 @@ def test_no_strict_gives_the_frame_mean_gauge_result_the_error_points_to(tmp_pat
     m = tmp_path / "m.npz"
     atomic_save_npz(m, meta={"scale": 6}, frames=measure(x1, x2, a, sigma=0.0, rng=0, dtype=np.float32),
                     times_s=np.arange(8) / 12.0)
-    rc, _, err = _run([m, "--method", "alternating", "--no-figures"], capsys)
+    rc, _, err = _run([m, "--method", "alternating", "--polarizer", "none", "--no-figures"], capsys)
     assert rc == 2 and "--no-strict" in err
-    rc, _, err = _run([m, "--method", "alternating", "--no-strict", "--no-figures"], capsys)
+    rc, _, err = _run([m, "--method", "alternating", "--polarizer", "none", "--no-strict", "--no-figures"], capsys)
     assert rc == 0, err
     assert Reconstruction.load(tmp_path / "m_rec.npz").info["alpha_identified"] is False
+    # with the polariser model (the paper's 2 Hz, assumed: the file says nothing), the rotation alone fixes alpha
+    rc, out, err = _run([m, "--method", "alternating", "--no-figures", "--json", "--out", tmp_path / "p.npz"], capsys)
+    assert rc == 0, err
+    assert json.loads(out)["alpha_gauge"] == "absolute (polariser model)"
 
 
 def test_the_gauge_error_is_one_message_naming_the_flags_to_use(tmp_path, capsys):
@@ -309,7 +316,7 @@ def test_the_gauge_error_is_one_message_naming_the_flags_to_use(tmp_path, capsys
     m = tmp_path / "m.npz"
     atomic_save_npz(m, meta={"scale": 6}, frames=measure(x1, x2, a, sigma=0.0, rng=0, dtype=np.float32),
                     times_s=np.arange(20) / 12.0)
-    rc, out, err = _run([m, "--method", "alternating", "--no-figures"], capsys)  # 20 frames: 8-frame windows
+    rc, out, err = _run([m, "--method", "alternating", "--polarizer", "none", "--no-figures"], capsys)
     assert rc == 2 and out == "" and err.count("\n") == 1
     assert err.count("is invalid") == 1 and "window 0 (frames 0..7)" in err
     for flag in ("--no-strict", "--polarizer auto", "--scale", "--foveal-gain", "--foveal-offset", "--method lsq"):
@@ -429,7 +436,7 @@ def test_default_fpn_is_chosen_from_the_file_and_printed(tmp_path, capsys):
     frames = measure(x1, x2, a, sigma=0.0, fpn=f, rng=0, dtype=np.float32)
     cal = measure(np.full_like(x1, 0.5), np.full_like(x1, 0.5), np.full(4, 0.5), sigma=0.0, fpn=f, rng=0)
     cases = {"cal": ({"scale": 6}, {"calibration": cal.astype(np.float32)}, "calibration, from the file's 4 shutter"),
-             "declared": ({"scale": 6, "sensor": {"fpn_rank": 3}}, {}, "prior, blind estimate"),
+             "declared": ({"scale": 6, "fpn_rank": 3}, {}, "prior, blind estimate"),
              "silent": ({"scale": 6}, {}, "none, not corrected (the file has no shutter frames")}
     for name, (meta, extra, line) in cases.items():
         m = _save(tmp_path / f"{name}.npz", T=8, meta=meta, frames=frames, alpha=a, fpn=f, **extra)

@@ -11,6 +11,7 @@ import pytest
 
 from metafovea.errors import InputError
 from metafovea.imaging.polarizer import Polarizer
+from metafovea.measurement import PolarizerSpec
 from metafovea.reconstruct import reconstruct
 from metafovea.reconstruct.metrics import psnr
 from metafovea.reconstruct.polarizer import ALPHA_SE_MAX, PolarizerModel, gauged_alpha, model_alpha, polarizer_gauge
@@ -121,11 +122,26 @@ def test_stopped_polarizer_is_reported():
     assert fit["status"] == "stopped" and "stopped" in fit["reason"]
 
 
-def test_from_meta_does_not_use_a_free_polarizers_realised_phase():
-    meta = {"polarizer_hz": 2.0, "polarizer": {"mode": "free", "rate_hz": 2.01, "phase_rad": 1.0, "extinction": 0.01,
-                                               "tau_s": 0.0}}
-    m = PolarizerModel.from_meta(meta, np.arange(8) / 12)
+def test_the_model_comes_from_the_recording_schemas_keys_only():
+    """The documented keys make the model; the simulator's realised phase and rate (its truth) are not read; a file
+    that says nothing gets the paper's free-running 2 Hz polariser, and the spec says so."""
+    meta = {"polarizer_hz": 2.0, "polarizer_mode": "free", "polarizer_extinction": 0.01,
+            "truth": {"polarizer": {"rate_hz": 2.01, "phase_rad": 1.0}}}
+    m = PolarizerModel.from_spec(PolarizerSpec.from_meta(meta), np.arange(8) / 12)
     assert m.mode == "free" and m.phase_rad is None and m.rate_hz == 2.0 and m.extinction == 0.01
-    s = PolarizerModel.from_meta({"polarizer_hz": 2.0, "polarizer": {"mode": "sync", "phase_rad": 0.3}}, np.arange(8))
-    assert s.mode == "sync" and s.phase_rad == 0.3
-    assert PolarizerModel.from_meta({}, np.arange(8)) is None
+    spec = PolarizerSpec.from_meta({"polarizer_hz": 2.0, "polarizer_mode": "sync", "polarizer_phase_deg": 30.0})
+    s = PolarizerModel.from_spec(spec, np.arange(8))
+    assert s.mode == "sync" and s.phase_rad == pytest.approx(np.pi / 6)
+    empty = PolarizerSpec.from_meta({})
+    assert (empty.rate_hz, empty.mode, empty.extinction, empty.tau_s) == (2.0, "free", 0.0, 0.0)
+    assert set(empty.sources.values()) == {"default"} and len(empty.assumed) == 4
+    assert any("polarizer_hz = 2.0" in a for a in empty.assumed)
+    given = PolarizerSpec.from_meta({"polarizer_hz": 2.0}, rate_hz=1.9, tau_s=0.01)
+    assert given.rate_hz == 1.9 and given.sources["rate_hz"] == "given" and given.tau_s == 0.01
+    assert given.as_meta() == {"polarizer_hz": 1.9, "bolometer_tau_s": 0.01}  # defaults stay unwritten
+    with pytest.raises(InputError, match="polarizer_phase_deg"):
+        PolarizerSpec.from_meta({"polarizer_mode": "sync"})
+    with pytest.raises(InputError, match="polarizer_extinction"):
+        PolarizerSpec.from_meta({"polarizer_extinction": 0.9})
+    with pytest.raises(InputError, match="tau_s"):
+        PolarizerSpec.from_meta({}, tau_s=-1.0)

@@ -32,8 +32,9 @@ def test_mat_v5_matlab_axis_order_and_angles(tmp_path, frames):
     assert rec.format == "mat" and rec.frames_key == "video" and rec.times_from == "key t"
     m, s = to_measurement(rec)
     np.testing.assert_allclose(m.extras["theta_rad"], np.deg2rad(theta_deg))
-    assert m.meta["polarizer"]["mode"] == "sync" and m.meta["polarizer_hz"] == pytest.approx(2.0)
-    assert m.meta["polarizer"]["phase_rad"] == pytest.approx(0.3) and s["theta_rad"] and not s["alpha_known"]
+    assert m.meta["polarizer_mode"] == "sync" and m.meta["polarizer_hz"] == pytest.approx(2.0)
+    assert m.meta["polarizer_phase_deg"] == pytest.approx(np.rad2deg(0.3)) and s["theta_rad"] and not s["alpha_known"]
+    assert s["polarizer"]["mode"] == "sync" and s["polarizer"]["sources"]["phase_deg"] == "file"
 
 
 def test_mat_v73_is_read_through_hdf5_in_matlab_order(tmp_path, frames):

@@ -1,0 +1,43 @@
+"""The rotating polariser's options (``--polarizer-hz``, ``--polarizer-mode``, ``--polarizer-phase-deg``,
+``--extinction``, ``--tau``; defined once in :data:`metafovea.cli.options.SHARED_OPTIONS`): what ``import`` writes to
+a file and ``reconstruct`` uses instead of the file's, as :class:`~metafovea.measurement.PolarizerSpec` keywords, and
+the lines that say which model a command used."""
+
+from __future__ import annotations
+
+import argparse
+from typing import Any
+
+#: the polariser options and the keywords of :class:`~metafovea.measurement.PolarizerSpec` they set
+POLARIZER_OPTIONS = {"--polarizer-hz": "rate_hz", "--polarizer-mode": "mode", "--polarizer-phase-deg": "phase_deg",
+                     "--extinction": "extinction", "--tau": "tau_s"}
+
+
+def polarizer_lines(spec: dict[str, Any]) -> str:
+    """The polariser model a command used (:meth:`~metafovea.measurement.PolarizerSpec.summary`): one line, with each
+    value's source, and one line per assumption."""
+    phase = "" if spec.get("phase_deg") is None else f", phase {spec['phase_deg']:g} deg"
+    src = ", ".join(f"{k} {v}" for k, v in spec["sources"].items() if not v.startswith("ignored"))
+    return "\n".join([f"  polariser model: {spec['mode']} at {spec['rate_hz']:g} Hz{phase}, extinction "
+                      f"{spec['extinction']:g}, bolometer tau {spec['tau_s']:g} s ({src})"]
+                     + [f"  assumed: {a}" for a in spec.get("assumed") or []])
+
+
+def polarizer_args(args: argparse.Namespace) -> dict[str, Any]:
+    """The polariser options the user typed, as :class:`~metafovea.measurement.PolarizerSpec` keywords (numbers
+    checked under the flag's name; the ranges are checked by the spec, whose errors name the keywords, which
+    :mod:`metafovea.cli.flags` maps back to these flags)."""
+    from metafovea.errors import as_float, check_range
+
+    out: dict[str, Any] = {}
+    ranges = {"--polarizer-hz": (0.0, 1000.0), "--extinction": (0.0, 0.5), "--tau": (0.0, 10.0),
+              "--polarizer-phase-deg": (-1e6, 1e6)}
+    for flag, name in POLARIZER_OPTIONS.items():
+        v = getattr(args, flag[2:].replace("-", "_"), None)
+        if v is None:
+            continue
+        if flag in ranges:
+            v = as_float(flag, v)
+            check_range(flag, v, *ranges[flag], lo_inclusive=flag != "--polarizer-hz")
+        out[name] = v
+    return out
