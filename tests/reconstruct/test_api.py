@@ -14,6 +14,7 @@ from metafovea.errors import InputError
 from metafovea.measurement import FovealConstraint, Measurement
 from metafovea.reconstruct import alternating, denoise, reconstruct, reconstruct_measurement, snapshot, video
 from metafovea.reconstruct.metrics import psnr, score
+from metafovea.reconstruct.polarizer import PolarizerModel
 from metafovea.reconstruct.synthetic import lowrank_fpn, measure, polariser_alpha, scene
 
 
@@ -150,7 +151,7 @@ def test_snapshot_uses_the_files_alpha():
 
 
 def _dn_measurement(T=12, n=64, clip_fraction=0.0, seed=3):
-    """A DN measurement from a 14-bit ADC (meta['sensor']), a share of its samples clipped at full scale."""
+    """A DN measurement from a 14-bit ADC (saturation_dn, floor_dn), a share of its samples clipped at full scale."""
     x1, x2 = scene(n)
     x1, x2 = 3000 + 9000 * x1, 3000 + 9000 * x2
     a = polariser_alpha(T)
@@ -161,7 +162,7 @@ def _dn_measurement(T=12, n=64, clip_fraction=0.0, seed=3):
         Y = np.where(hot, 16383.0, Y)
     Y = np.clip(Y, 0, 16383).astype(np.float32)
     return Measurement(frames=Y, times_s=np.arange(T) / 12.0, alpha=a, truth_x1=x1, truth_x2=x2,
-                       meta={"scale": 6.0, "sensor": {"adc_bits": 14, "quantize": True}})
+                       meta={"scale": 6.0, "saturation_dn": 16383.0, "floor_dn": 0.0})
 
 
 def test_saturated_and_bad_samples_are_masked_from_the_adc_range_and_the_file():
@@ -232,7 +233,7 @@ def test_fpn_from_the_file_a_given_pattern_or_the_calibration_frames():
 def test_default_fpn_is_chosen_from_the_file_and_says_why():
     """The default left a file's fixed pattern in (fpn='none'): the default `simulate` -> `reconstruct` gave a foveal
     image at -8.1 dB with no hint. The default is now 'auto': the file's shutter frames when it has them, else the
-    blind estimate when it declares a pattern (meta sensor.fpn_rank > 0), else none; the choice and its reason are
+    blind estimate when it declares a pattern (meta fpn_rank > 0), else none; the choice and its reason are
     in info['fpn'] and the summary."""
     from metafovea.reconstruct import fpn_mode
 
@@ -242,8 +243,8 @@ def test_default_fpn_is_chosen_from_the_file_and_says_why():
     cal = measure(np.full_like(x1, 0.5), np.full_like(x1, 0.5), np.full(6, 0.5), sigma=0.0, fpn=f, rng=0)
     frames = measure(x1, x2, a, sigma=0.0, fpn=f, rng=0).astype(np.float32)
     with_cal = _measurement(T=8, frames=frames, fpn=f, extras={"calibration": cal})
-    declared = _measurement(T=8, frames=frames, fpn=f, meta={"scale": 6.0, "sensor": {"fpn_rank": 3}})
-    clean = _measurement(T=8, meta={"scale": 6.0, "sensor": {"fpn_rank": 0}})
+    declared = _measurement(T=8, frames=frames, fpn=f, meta={"scale": 6.0, "fpn_rank": 3})
+    clean = _measurement(T=8, meta={"scale": 6.0, "fpn_rank": 0})
     silent = _measurement(T=8)  # a recording that says nothing about its sensor
     for m, mode in ((with_cal, "calibration"), (declared, "prior"), (clean, "none"), (silent, "none")):
         auto = reconstruct_measurement(m)
@@ -265,7 +266,9 @@ def test_denoise_inside_lsq_and_after_the_other_methods():
     lsq = reconstruct_measurement(m, denoise="tv")
     assert lsq.reconstruction.info["denoise"] == "tv" and "noise_sigma" in lsq.reconstruction.info
     alt = reconstruct_measurement(m, "alternating", denoise="tv")
-    ref = alternating(m.frames, **m.foveal_constraint.as_kwargs())
+    # the file says nothing of its polariser: the pipeline uses the paper's (free, 2 Hz), as the solver given it
+    pol = PolarizerModel.from_spec(m.polarizer_spec(), m.times_s)
+    ref = alternating(m.frames, **m.foveal_constraint.as_kwargs(), polarizer=pol)
     assert np.array_equal(alt.reconstruction.x1, denoise(ref.x1, "tv"))
     assert alt.reconstruction.info["denoise"] == "tv"
     assert alt.alpha_mae == pytest.approx(np.mean(np.abs(ref.alpha - m.alpha)))
