@@ -215,8 +215,9 @@ def from_planck(planck: PlanckConstants, frames: np.ndarray, *, band_um: tuple[f
     """``counts = dark_dn + G L(T)`` fitted to the Planck curve over the recording's range (module docstring);
     with ``scene``, ``L`` is the object's radiance (emissivity, reflections, air and window folded into the gain
     and the dark level; the fit range is the object's temperatures)."""
-    g, c = scene.affine(planck) if scene is not None else (1.0, 0.0)
-    lo, hi = temperature_range(planck, (np.asarray(frames[:: max(1, frames.shape[0] // 16)], dtype=np.float64) - c) / g)
+    g, pedestal = scene.affine(planck) if scene is not None else (1.0, 0.0)
+    sample = np.asarray(frames[:: max(1, frames.shape[0] // 16)], dtype=np.float64)
+    lo, hi = temperature_range(planck, (sample - pedestal) / g)
     band = BandRadiance.from_band(band_um, filter_um=filter_um)
     t = np.linspace(lo, hi, 96)
     c = planck.counts(t)
@@ -231,8 +232,8 @@ def from_planck(planck: PlanckConstants, frames: np.ndarray, *, band_um: tuple[f
             "fit_range_k": [lo, hi], "fit_max_error_k": float(np.nanmax(np.abs(err)))}
     if scene is not None:
         info["scene"] = {**asdict(scene), "from": source, "air_transmission": scene.transmission(),
-                         "gain": g, "offset_counts": c, "model": "counts = gain counts_obj(T) + offset_counts"}
-    return Radiometric(float(g * gain), float(g * dark + c), tuple(band_um), filter_um, "planck", info)
+                         "gain": g, "offset_counts": pedestal, "model": "counts = gain counts_obj(T) + offset_counts"}
+    return Radiometric(float(g * gain), float(g * dark + pedestal), tuple(band_um), filter_um, "planck", info)
 
 
 def parse_two_point(spec: str, name: str = "calibration") -> list[tuple[float, str]]:

@@ -11,7 +11,7 @@
   the object parameters. Three fields flirpy does not hand out as stored are read from the ``CameraInfo`` record
   it located, at ExifTool's offsets (FLIR tag table): the reflected, air and window temperatures in kelvin
   (0x28, 0x2c, 0x30; flirpy converts them to Celsius with 273.14) and the frame time's milliseconds (0x388).
-  Frames whose raw data is not plain 16-bit (PNG, or JPEG-LS as in CSQ files) are refused.
+  Frames whose raw data is not plain 16-bit (a PNG or JPEG-family stream) are refused.
 
 What a :class:`FlirFile` holds: the frames as the camera's counts (uint16, never converted: the separation mixes
 radiances), FLIR's ``R1, R2, B, F, O`` as ``planck`` and the emissivity, reflected apparent temperature, air
@@ -46,7 +46,7 @@ _STAMP_AT = 0x384
 #: how far (s) a 1 ms frame stamp may be from the frame-rate grid and still be put on it
 STAMP_SNAP_S = 1.5e-3
 #: what a raw-data record may start with that is not plain 16-bit counts (at the record's offset + 0x20)
-_COMPRESSED = {b"\x89PNG": "PNG", b"\xff\xd8": "JPEG / JPEG-LS"}
+_COMPRESSED = {b"\x89PNG": "PNG", b"\xff\xd8": "JPEG-family"}
 
 
 @dataclass
@@ -164,15 +164,16 @@ def _record(fff: Any, record_type: int) -> Any:
 
 
 def _image(fff: Any) -> np.ndarray:
-    """One frame's counts: flirpy's image, after checking that the raw data is plain 16-bit (byte-swapped when
-    the record says big-endian, subtype 1)."""
+    """One frame's counts: flirpy's image, after checking that the raw data is plain 16-bit; byte-swapped when
+    the record's byte-order flag (its first int16u, 0x0002 in the record's order) says big-endian, the flag flirpy
+    reads the image size by but not the image."""
     rec = _record(fff, 0x01)
-    head = bytes(fff.data[rec.record_offset + 0x20: rec.record_offset + 0x24])
+    head = bytes(fff.data[rec.record_offset: rec.record_offset + 0x24])
     for magic, kind in _COMPRESSED.items():
-        if head.startswith(magic):
+        if head[0x20:].startswith(magic):
             raise ValueError(f"its raw frames are {kind} compressed, which flirpy does not decode")
     img = np.asarray(fff.get_image())
-    return img.byteswap() if rec.record_subtype == 1 else img
+    return img if int.from_bytes(head[:2], "little") == 2 else img.byteswap()
 
 
 def _camera_fields(fff: Any) -> tuple[dict[str, float], dict[str, float], float]:

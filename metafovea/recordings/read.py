@@ -3,7 +3,7 @@ h5py for v7.3, which is HDF5) and FLIR's radiometric files (:mod:`metafovea.reco
 FFF and SEQ through flirpy), into one :class:`Recording`: the frames as stored plus what the file says about
 them (timestamps, polariser state, the camera's Planck constants and object parameters, its other scalar
 metadata). Formats no maintained reader serves (:data:`UNSUPPORTED`: InfraTec's IRB, FLIR's CSQ) are refused
-with the export to use instead.
+with the export to make instead.
 
 Every file is a *store* of named arrays and scalar attributes:
 
@@ -35,10 +35,8 @@ SUFFIXES = {".tif": "tiff", ".tiff": "tiff", ".h5": "hdf5", ".hdf5": "hdf5", ".h
             ".nc": "hdf5", ".mat": "mat", ".jpg": "flir", ".jpeg": "flir", ".fff": "flir", ".seq": "flir"}
 #: camera formats that no maintained Python reader serves: suffix -> what it is and why it is not read
 UNSUPPORTED = {
-    ".irb": "InfraTec IRBIS (.irb): no maintained Python reader",
-    ".csq": "FLIR CSQ (.csq): its frames are JPEG-LS compressed, which neither flirpy nor flyr decodes",
-    ".ats": "FLIR ATS (.ats): no maintained Python reader",
-    ".ptw": "FLIR/Cedip PTW (.ptw): no maintained Python reader",
+    ".irb": "InfraTec IRBIS files (.irb), which no maintained Python reader reads",
+    ".csq": "FLIR CSQ files (.csq), which neither flyr nor flirpy reads",
 }
 #: what to do with an :data:`UNSUPPORTED` file
 EXPORT_ADVICE = ("export the recording from the camera software (IRBIS, ResearchIR, Thermal Studio) as a 16-bit "
@@ -95,7 +93,8 @@ def detect_format(path: Path, fmt: str = "auto") -> str:
     """The reader for ``path``: ``fmt`` unless ``'auto'``, else from the suffix (:data:`SUFFIXES`)."""
     fmt = check_choice("format", fmt, FORMATS)
     if path.suffix.lower() in UNSUPPORTED:
-        raise InputError("recording", str(path), EXPORT_ADVICE, detail=UNSUPPORTED[path.suffix.lower()])
+        raise InputError("recording", str(path), f"a format metafovea reads; for {UNSUPPORTED[path.suffix.lower()]}, "
+                         + EXPORT_ADVICE)
     if fmt != "auto":
         return fmt
     got = SUFFIXES.get(path.suffix.lower())
