@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import importlib
 import struct
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
@@ -145,15 +146,17 @@ def _read_jpeg(path: Path) -> FlirFile:
                     times_from="one still (t = 0)", attrs=attrs)
 
 
-def _frames_of(path: Path) -> list[Any]:
-    """flirpy's frames (``Fff`` objects) of an FFF or SEQ file."""
+def _frames_of(path: Path) -> Iterator[Any]:
+    """flirpy's frames (``Fff`` objects) of an FFF or SEQ file, one at a time (each holds a copy of its bytes)."""
     from flirpy.io.fff import Fff
     from flirpy.io.seq import Seq
 
     if path.suffix.lower() == ".fff":
-        return [Fff(str(path))]
+        yield Fff(str(path))
+        return
     seq = Seq(str(path))
-    return [seq[i] for i in range(len(seq))]
+    for i in range(len(seq)):
+        yield seq[i]
 
 
 def _record(fff: Any, record_type: int) -> Any:
@@ -216,12 +219,14 @@ def _read_fff(path: Path) -> FlirFile:
         importlib.import_module("flirpy.io.seq")
     except ImportError as e:
         raise _missing(path, "flirpy", e) from None
+    images, fields, meta = [], [], {}
     try:
-        frames = _frames_of(path)
-        if not frames:
+        for f in _frames_of(path):
+            images.append(_image(f))
+            fields.append(_camera_fields(f))
+            meta = meta or dict(f.meta)
+        if not images:
             raise ValueError("no FFF frame found")
-        images = [_image(f) for f in frames]
-        fields = [_camera_fields(f) for f in frames]
     except (ValueError, KeyError, IndexError, OverflowError, OSError, struct.error, AttributeError) as e:
         raise _unreadable(path, "flirpy", e) from None
     planck, scene, _ = fields[0]
@@ -233,7 +238,6 @@ def _read_fff(path: Path) -> FlirFile:
     shapes = {im.shape for im in images}
     if len(shapes) != 1:
         raise _unreadable(path, "flirpy", ValueError(f"frames of different sizes {sorted(shapes)}"))
-    meta = frames[0].meta
     rate = float(meta.get("FrameRate") or 0) or None
     times, times_from = stamp_times(np.array([f[2] for f in fields]), rate)
     attrs: dict[str, Any] = {}
@@ -244,5 +248,5 @@ def _read_fff(path: Path) -> FlirFile:
     attrs["reader"] = _version("flirpy")
     if rate:
         attrs["frame_rate_hz"] = rate
-    return FlirFile(frames=np.stack(images).astype(np.uint16), planck=planck, scene=scene, times_s=times,
+    return FlirFile(frames=np.stack(images).astype(np.uint16, copy=False), planck=planck, scene=scene, times_s=times,
                     times_from=times_from, attrs=attrs)
