@@ -16,7 +16,7 @@ from metafovea.cli.output import out_file
 from metafovea.cli.polarizer import polarizer_args
 from metafovea.io import to_json
 
-HELP = "import a camera recording (TIFF stack, HDF5, MAT) as a measurement (.npz) for reconstruct"
+HELP = "import a camera recording (TIFF stack, HDF5, MAT, FLIR JPEG/SEQ/FFF) as a measurement (.npz) for reconstruct"
 
 
 def register(subparsers: Any) -> argparse.ArgumentParser:
@@ -24,7 +24,8 @@ def register(subparsers: Any) -> argparse.ArgumentParser:
 
     p = subparsers.add_parser("import", help=HELP, description=HELP + ". README.md, 'Reconstructing a real "
                               "recording', has the recipe and the calibration model.")
-    p.add_argument("recording", help="the recording: .tif/.tiff stack, .h5/.hdf5, .mat (v5 or v7.3)")
+    p.add_argument("recording", help="the recording: .tif/.tiff stack, .h5/.hdf5, .mat (v5 or v7.3), FLIR "
+                   ".jpg/.seq/.fff (pip install 'metafovea[flir]')")
     p.add_argument("--format", default="auto", choices=FORMATS, help="reader (default auto: from the suffix)")
     g = p.add_argument_group("what the file holds")
     g.add_argument("--frames-key", default=None, metavar="KEY", help="HDF5/MAT: the frames' array (default: "

@@ -22,6 +22,23 @@ A recording gets ``dark_dn``, ``G`` and the band in one of two ways; both keep t
   two-point non-uniformity correction (pixels whose gain is not positive or is off the median by more than 2x are
   marked in ``bad_pixels``); ``global`` keeps the frames and uses ``G`` and ``dark_dn`` alone.
 
+The object signal (FLIR's measurement model, a radiometric file's own ``Emissivity``,
+``ReflectedApparentTemperature``, ``AtmosphericTemperature``, ``ObjectDistance``, ``RelativeHumidity``,
+``IRWindowTemperature`` / ``IRWindowTransmission`` and the atmospheric constants ``Alpha1/2, Beta1/2, X``;
+:class:`SceneParameters`): what reaches the detector is the object's radiance weighted by its emissivity and the
+path's transmission plus the radiance of the reflected surroundings, the air and the window, every term on the
+Planck curve's count scale::
+
+    counts = g counts_obj + c,    g = e tau^2 t_w,
+    c = (1 - e) tau^2 t_w counts(T_refl) + (1 - tau) tau t_w counts(T_atm) + (1 - t_w) tau counts(T_win)
+        + (1 - tau) counts(T_atm)
+
+(``tau`` the air's transmission over half the object distance, the window assumed half-way, as FLIR, ExifTool's
+forum and Minkina & Dudzik, *Infrared Thermography: Errors and Uncertainties* (Wiley 2009) give it, and as flyr
+and flirpy compute it). The map is affine, so the frames stay as recorded: :func:`from_planck` fits the band
+model to the object's counts and folds ``g`` and ``c`` into the Measurement's gain and dark level
+(``G' = g G``, ``dark' = g dark + c``), and ``temperatures`` then reports the object's temperature.
+
 Both channels: a blackbody filling the field reaches the sensor through both lenses, so what either calibration
 measures is the camera's gain over a mixture. With the channels' flat-field ratio ``r = G_1 / G_2``
 (``--foveal-gain``, the foveal constraint's gain; 1 by default) and blackbody frames spanning whole turns of the
@@ -30,8 +47,9 @@ polariser (mean alpha 1/2), ``G_2 = 2 G / (1 + r)`` and ``G_1 = r G_2``; with ``
 
 from __future__ import annotations
 
+import math
 import re
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field
 from typing import Any
 
 import numpy as np
@@ -89,6 +107,58 @@ class PlanckConstants:
 
 
 @dataclass(frozen=True)
+class SceneParameters:
+    """What a FLIR radiometric file says about the object and the path to it (module docstring): emissivity,
+    reflected apparent temperature (K), air temperature (K), object distance (m), relative humidity (0-1), the
+    IR window's temperature (K) and transmission, and the camera's atmospheric constants (ExifTool's
+    ``AtmosphericTransAlpha1/2``, ``Beta1/2``, ``X``). The defaults are a black object seen through nothing."""
+
+    emissivity: float = 1.0
+    reflected_k: float = 293.15
+    atmosphere_k: float = 293.15
+    distance_m: float = 0.0
+    humidity: float = 0.5
+    window_k: float = 293.15
+    window_transmission: float = 1.0
+    alpha1: float = 0.006569
+    alpha2: float = 0.01262
+    beta1: float = -0.002276
+    beta2: float = -0.00667
+    x: float = 1.9
+
+    def __post_init__(self) -> None:
+        checks = {"emissivity": (0.0, 1.0), "window_transmission": (0.0, 1.0), "humidity": (0.0, 1.0),
+                  "reflected_k": (0.0, T_MAX_K), "atmosphere_k": (0.0, T_MAX_K), "window_k": (0.0, T_MAX_K)}
+        for k, (lo, hi) in checks.items():
+            v = getattr(self, k)
+            if not (np.isfinite(v) and lo < v <= hi) and not (k == "humidity" and v == 0.0):
+                raise InputError(k, v, f"{lo:g} < {k} <= {hi:g}")
+        for k in ("distance_m", "alpha1", "alpha2", "beta1", "beta2", "x"):
+            if not np.isfinite(getattr(self, k)) or (k == "distance_m" and self.distance_m < 0):
+                raise InputError(k, getattr(self, k), "a finite number" + (" >= 0" if k == "distance_m" else ""))
+
+    def transmission(self) -> float:
+        """The air's transmission over half the object distance (FLIR's two-band model; water vapour from the
+        humidity and the air temperature in Celsius)."""
+        t = self.atmosphere_k - 273.15
+        h2o = self.humidity * math.exp(1.5587 + 0.06939 * t - 0.00027816 * t ** 2 + 0.00000068455 * t ** 3)
+        d = -math.sqrt(self.distance_m / 2.0)
+        return (self.x * math.exp(d * (self.alpha1 + self.beta1 * math.sqrt(h2o)))
+                + (1.0 - self.x) * math.exp(d * (self.alpha2 + self.beta2 * math.sqrt(h2o))))
+
+    def affine(self, planck: PlanckConstants) -> tuple[float, float]:
+        """``(g, c)`` of ``counts = g counts_obj + c`` (module docstring), on ``planck``'s count scale."""
+        tau, tw, e = self.transmission(), self.window_transmission, self.emissivity
+        g = e * tau * tau * tw
+        if not (np.isfinite(g) and g > 0):
+            raise InputError("emissivity", e, "an object signal that reaches the camera (emissivity x "
+                             "transmission > 0)", detail=f"air transmission {tau:.4g}, window {tw:.4g}")
+        refl, atm, win = (float(planck.counts(t)) for t in (self.reflected_k, self.atmosphere_k, self.window_k))
+        c = (1 - e) * tau * tau * tw * refl + (1 - tau) * tau * tw * atm + (1 - tw) * tau * win + (1 - tau) * atm
+        return float(g), float(c)
+
+
+@dataclass(frozen=True)
 class Radiometric:
     """``DN = dark_dn + gain L(T)`` for the camera over a uniform field (module docstring): ``gain`` in DN per
     W m^-2 sr^-1, the band the radiance is integrated over, how it was found."""
@@ -140,9 +210,14 @@ def temperature_range(planck: PlanckConstants, frames: np.ndarray) -> tuple[floa
 
 
 def from_planck(planck: PlanckConstants, frames: np.ndarray, *, band_um: tuple[float, float] = BAND_UM,
-                filter_um: tuple[float, float] | None = None, source: str = "file") -> Radiometric:
-    """``counts = dark_dn + G L(T)`` fitted to the Planck curve over the recording's range (module docstring)."""
-    lo, hi = temperature_range(planck, frames)
+                filter_um: tuple[float, float] | None = None, source: str = "file",
+                scene: SceneParameters | None = None) -> Radiometric:
+    """``counts = dark_dn + G L(T)`` fitted to the Planck curve over the recording's range (module docstring);
+    with ``scene``, ``L`` is the object's radiance (emissivity, reflections, air and window folded into the gain
+    and the dark level; the fit range is the object's temperatures)."""
+    g, pedestal = scene.affine(planck) if scene is not None else (1.0, 0.0)
+    sample = np.asarray(frames[:: max(1, frames.shape[0] // 16)], dtype=np.float64)
+    lo, hi = temperature_range(planck, (sample - pedestal) / g)
     band = BandRadiance.from_band(band_um, filter_um=filter_um)
     t = np.linspace(lo, hi, 96)
     c = planck.counts(t)
@@ -155,7 +230,10 @@ def from_planck(planck: PlanckConstants, frames: np.ndarray, *, band_um: tuple[f
     info = {"planck": {"R1": planck.R1, "R2": planck.R2, "B": planck.B, "F": planck.F, "O": planck.O,
                        "from": source, "curve": "counts = R1 / (R2 (exp(B / T) - F)) - O"},
             "fit_range_k": [lo, hi], "fit_max_error_k": float(np.nanmax(np.abs(err)))}
-    return Radiometric(float(gain), float(dark), tuple(band_um), filter_um, "planck", info)
+    if scene is not None:
+        info["scene"] = {**asdict(scene), "from": source, "air_transmission": scene.transmission(),
+                         "gain": g, "offset_counts": pedestal, "model": "counts = gain counts_obj(T) + offset_counts"}
+    return Radiometric(float(g * gain), float(g * dark + pedestal), tuple(band_um), filter_um, "planck", info)
 
 
 def parse_two_point(spec: str, name: str = "calibration") -> list[tuple[float, str]]:

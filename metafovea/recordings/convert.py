@@ -7,7 +7,8 @@ scale (a 16-bit camera's 65535) become NaN, which the reconstruction leaves out;
 polariser state (``alpha`` as is, or angles into ``theta_rad`` and the rotation's rate and phase for the
 polariser model of ``reconstruct --method alternating``); the radiometric calibration
 (:mod:`metafovea.recordings.calibration`: a user's two-point blackbody frames first, then ``--planck``, then the
-file's Planck constants, else none: frames in camera counts).
+file's Planck constants, else none: frames in camera counts; a FLIR file's emissivity, reflected temperature,
+air and window go with the Planck constants, the blackbody calibration needs none of them).
 """
 
 from __future__ import annotations
@@ -26,6 +27,7 @@ from metafovea.recordings.calibration import (
     GAIN_MODES,
     PlanckConstants,
     Radiometric,
+    SceneParameters,
     correct_frames,
     from_planck,
     parse_two_point,
@@ -143,7 +145,13 @@ def _radiometry(frames: np.ndarray, rec: Recording, opt: ImportOptions) -> tuple
             raise InputError(e.parameter, e.value, e.allowed, source=rec.source) from None
     else:
         return frames, None, None
-    return frames, from_planck(pc, frames, band_um=band, filter_um=filt, source=src), None
+    try:  # a FLIR file's emissivity, reflected temperature, air and window, with whichever constants are used
+        scene = SceneParameters(**rec.scene) if rec.scene else None
+    except InputError as e:
+        raise InputError(e.parameter, e.value, e.allowed, source=rec.source) from None
+    if scene is not None:
+        src = f"{src}; object parameters from {Path(rec.source).name}" if src == "given" else src
+    return frames, from_planck(pc, frames, band_um=band, filter_um=filt, source=src, scene=scene), None
 
 
 def to_measurement(rec: Recording, options: ImportOptions | None = None) -> tuple[Measurement, dict[str, Any]]:

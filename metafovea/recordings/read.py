@@ -1,6 +1,9 @@
-"""Readers of camera recordings: 16-bit TIFF stacks (tifffile), HDF5 (h5py) and MATLAB files (scipy.io for v5,
-h5py for v7.3, which is HDF5), into one :class:`Recording`: the frames as stored plus what the file says about
-them (timestamps, polariser state, the camera's Planck constants, its other scalar metadata).
+"""Readers of camera recordings: 16-bit TIFF stacks (tifffile), HDF5 (h5py), MATLAB files (scipy.io for v5,
+h5py for v7.3, which is HDF5) and FLIR's radiometric files (:mod:`metafovea.recordings.flir`: JPEG through flyr,
+FFF and SEQ through flirpy), into one :class:`Recording`: the frames as stored plus what the file says about
+them (timestamps, polariser state, the camera's Planck constants and object parameters, its other scalar
+metadata). Formats no maintained reader serves (:data:`UNSUPPORTED`: InfraTec's IRB, FLIR's CSQ) are refused
+with the export to make instead.
 
 Every file is a *store* of named arrays and scalar attributes:
 
@@ -26,10 +29,19 @@ import numpy as np
 from metafovea.errors import InputError, check_choice
 
 #: ``--format`` choices
-FORMATS = ("auto", "tiff", "hdf5", "mat")
+FORMATS = ("auto", "tiff", "hdf5", "mat", "flir")
 #: file name suffix -> format for ``--format auto``
 SUFFIXES = {".tif": "tiff", ".tiff": "tiff", ".h5": "hdf5", ".hdf5": "hdf5", ".hdf": "hdf5", ".he5": "hdf5",
-            ".nc": "hdf5", ".mat": "mat"}
+            ".nc": "hdf5", ".mat": "mat", ".jpg": "flir", ".jpeg": "flir", ".fff": "flir", ".seq": "flir"}
+#: camera formats that no maintained Python reader serves: suffix -> what it is and why it is not read
+UNSUPPORTED = {
+    ".irb": "InfraTec IRBIS files (.irb), which no maintained Python reader reads",
+    ".csq": "FLIR CSQ files (.csq), which neither flyr nor flirpy reads",
+}
+#: what to do with an :data:`UNSUPPORTED` file
+EXPORT_ADVICE = ("export the recording from the camera software (IRBIS, ResearchIR, Thermal Studio) as a 16-bit "
+                 "TIFF stack or a MAT file of raw counts, with the Planck constants if it offers them "
+                 "(README, 'Reconstructing a real recording')")
 #: ``--time-unit`` choices and their length in seconds
 TIME_UNITS = {"s": 1.0, "ms": 1e-3, "us": 1e-6, "ns": 1e-9}
 #: ``--frame-axis`` choices: where the frame index is in a stored 3-D array
@@ -49,7 +61,9 @@ PLANCK_NAMES = ("planckr1", "planckr2", "planckb", "planckf", "plancko")
 class Recording:
     """What a reader found: ``frames`` (T, H, W) as stored (dtype kept: saturation is judged on it), ``times_s``
     (T,) or None, ``polarizer`` (T,) raw values of the polariser key or None, ``planck`` FLIR's constants
-    ``{R1, R2, B, F, O}`` or None, ``attrs`` the file's other scalar metadata (kept in the Measurement's meta)."""
+    ``{R1, R2, B, F, O}`` or None, ``scene`` a FLIR file's object parameters (the fields of
+    :class:`~metafovea.recordings.calibration.SceneParameters`) or None, ``attrs`` the file's other scalar
+    metadata (kept in the Measurement's meta)."""
 
     frames: np.ndarray
     source: str
@@ -61,6 +75,7 @@ class Recording:
     polarizer_key: str | None = None
     planck: dict[str, float] | None = None
     attrs: dict[str, Any] = field(default_factory=dict)
+    scene: dict[str, float] | None = None
 
 
 @dataclass
@@ -77,11 +92,14 @@ class _Store:
 def detect_format(path: Path, fmt: str = "auto") -> str:
     """The reader for ``path``: ``fmt`` unless ``'auto'``, else from the suffix (:data:`SUFFIXES`)."""
     fmt = check_choice("format", fmt, FORMATS)
+    if path.suffix.lower() in UNSUPPORTED:
+        raise InputError("recording", str(path), f"a format metafovea reads; for {UNSUPPORTED[path.suffix.lower()]}, "
+                         + EXPORT_ADVICE)
     if fmt != "auto":
         return fmt
     got = SUFFIXES.get(path.suffix.lower())
     if got is None:
-        raise InputError("format", "auto", "tiff, hdf5 or mat (the suffix " + repr(path.suffix) + " of "
+        raise InputError("format", "auto", "tiff, hdf5, mat or flir (the suffix " + repr(path.suffix) + " of "
                          f"{path.name} is none of {', '.join(sorted(SUFFIXES))})")
     return got
 
@@ -276,8 +294,8 @@ def read_recording(path: str | Path, *, format: str = "auto", frames_key: str | 
     ----------
     path : str or Path
         The recording file.
-    format : {'auto', 'tiff', 'hdf5', 'mat'}
-        Reader; ``'auto'`` from the suffix.
+    format : {'auto', 'tiff', 'hdf5', 'mat', 'flir'}
+        Reader; ``'auto'`` from the suffix (``.jpg``/``.jpeg``/``.fff``/``.seq``: FLIR's radiometric files).
     frames_key, times, polarizer_key : str, optional
         Keys of the frames (default: :data:`FRAME_KEYS`, else the only 3-D array), the timestamps (or a file of
         them; default :data:`TIME_KEYS`, else the file's frame interval or rate) and the polariser state.
@@ -288,9 +306,11 @@ def read_recording(path: str | Path, *, format: str = "auto", frames_key: str | 
     """
     p = Path(path)
     if not p.is_file():
-        raise InputError("recording", str(p), "an existing recording file (.tif, .h5, .mat)")
+        raise InputError("recording", str(p), "an existing recording file (.tif, .h5, .mat, FLIR .jpg/.seq/.fff)")
     fmt = detect_format(p, format)
     axis = check_choice("frame_axis", frame_axis, FRAME_AXES)
+    if fmt == "flir":
+        return _flir_recording(p, frames_key, times, time_unit, polarizer_key)
     store = open_store(p, fmt)
     frames, fkey = _frames(store, frames_key, p, axis)
     t, t_src = _times(store, times, time_unit, frames.shape[0], p)
@@ -303,3 +323,21 @@ def read_recording(path: str | Path, *, format: str = "auto", frames_key: str | 
                              detail=f"it has {pol.size}")
     return Recording(frames=frames, source=str(p), format=fmt, frames_key=fkey, times_s=t, times_from=t_src,
                      polarizer=pol, polarizer_key=polarizer_key, planck=_planck(store.attrs), attrs=dict(store.attrs))
+
+
+def _flir_recording(path: Path, frames_key: str | None, times: str | None, time_unit: str | None,
+                    polarizer_key: str | None) -> Recording:
+    """A FLIR file through :func:`metafovea.recordings.flir.read_flir`; ``times`` may name a file of times (the
+    FLIR file has no keys: a frames or polariser key is an error naming it)."""
+    from metafovea.recordings.flir import read_flir
+
+    for name, key in (("frames_key", frames_key), ("polarizer_key", polarizer_key)):
+        if key is not None:
+            raise InputError(name, key, f"nothing for a FLIR file ({path.name} holds one image per frame and no "
+                             "named arrays; a polariser state has to come from the polariser flags)")
+    f = read_flir(path)
+    t, t_from = f.times_s, f.times_from
+    if times is not None:
+        t, t_from = _times(_Store([], lambda k: np.empty(0), {}), times, time_unit, f.frames.shape[0], path)
+    return Recording(frames=f.frames, source=str(path), format="flir", times_s=t, times_from=t_from,
+                     planck=f.planck, scene=f.scene, attrs=f.attrs)
