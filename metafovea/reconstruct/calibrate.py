@@ -1,0 +1,278 @@
+"""What a real camera gets wrong, calibrated from its recording: the foveal geometry, the channels' gain ratio and
+the polariser's effective amplitude.
+
+Model
+-----
+Once the polariser model has fixed alpha's mean (1/2, whatever the extinction, lag and phase:
+:mod:`metafovea.polarizer`), the separated images are known up to one number, the ratio ``rho = s / s_0`` of the
+true amplitude of alpha to the one the stated device constants give (a polariser that leaks more, or a slower
+bolometer, than the file says):
+
+    x1 = m + u d_0 / 2,   x2 = m - u d_0 / 2,   u = 1 / rho,                                          (1)
+
+``m`` the mean image (exact: the frames' average over the rotation) and ``d_0`` the difference image in the stated
+gauge. The foveal constraint ties the two: the foveal image, scaled down by ``scale`` about its optical centre
+(``t``, in foveal pixels from the sensor's centre) and turned by ``rotation``, is the centre of the perifoveal one
+up to the channels' gain ratio ``g`` and an offset ``o``:
+
+    G_1 x1(c + t + scale R(phi) (p - c)) = g G_2 x2(p) + o                                             (2)
+
+for the perifoveal pixels ``p`` of the fovea (``c`` the sensor's centre). Both sides are low-passed by a common
+Gaussian (``G_2``: ``blur_px`` perifoveal pixels; ``G_1``: the same in foveal pixels, with the pixel box of the
+down-scaling), so that the channels' different PSFs matter little. (2) is solved for the seven parameters
+``(scale, t_y, t_x, phi, u, g, o)`` by non-linear least squares (:func:`fit_foveal`), started from the stated
+constraint; (1) makes it linear in ``(u, g u, g, o)`` at fixed geometry, which gives the start.
+
+Uncertainty: the Gauss-Newton covariance ``s_r^2 (J^T J)^-1`` of the fit, inflated by the residual's correlation area
+(the low-pass makes neighbouring samples share their error: ``4 pi blur_px^2`` samples count as one). A parameter is
+*identified* when its standard error is below its tolerance (:data:`TOLERANCES`); a fovea without texture leaves the
+geometry and ``u`` unidentified, and the caller keeps the stated values and says so.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike
+
+from metafovea.errors import InputError
+
+#: Gaussian low-pass of both sides of (2), in perifoveal pixels: the channels' PSFs (foveal F/2 at 6x, perifoveal
+#: F/1, chromatic haze) differ below this scale
+BLUR_PX = 1.5
+#: perifoveal pixels left out at the fovea's border (the low-pass and the geometry's search reach that far)
+MARGIN_PX = 3
+#: how far the geometry is searched from the stated one: relative scale, centre (foveal pixels), rotation (degrees)
+SEARCH = {"scale": 0.06, "centre_px": 8.0, "rotation_deg": 2.0}
+#: the standard error under which a fitted quantity counts as identified
+TOLERANCES = {"scale": 0.005, "centre_px": 0.3, "rotation_deg": 0.1, "amplitude": 0.004, "gain": 0.01}
+
+
+@dataclass(frozen=True)
+class FovealFit:
+    """The calibrated foveal relation (2) and the amplitude ratio (1), with standard errors.
+
+    Attributes
+    ----------
+    scale : float
+        f1 / f2 as the recording shows it.
+    centre_px : tuple of 2 float
+        The foveal image's optical centre, foveal pixels from the sensor's centre ``((H - 1) / 2, (W - 1) / 2)``.
+    rotation_deg : float
+        The foveal image's rotation against the perifoveal one, degrees.
+    amplitude : float
+        ``rho``: the true amplitude of alpha over the stated one.
+    gain, offset : float
+        ``g`` and ``o`` of (2) (the frames' units).
+    se : dict
+        Standard errors of ``scale``, ``centre_px`` (the larger axis), ``rotation_deg``, ``amplitude``, ``gain``.
+    residual_rms : float
+        Of (2), in the frames' units.
+    identified : dict
+        Per quantity: its standard error is within :data:`TOLERANCES`.
+    samples : int
+        Constraint samples used.
+    """
+
+    scale: float
+    centre_px: tuple[float, float]
+    rotation_deg: float
+    amplitude: float
+    gain: float
+    offset: float
+    se: dict[str, float] = field(default_factory=dict)
+    residual_rms: float = math.nan
+    identified: dict[str, bool] = field(default_factory=dict)
+    samples: int = 0
+
+    def summary(self) -> dict[str, Any]:
+        """JSON-ready: every field."""
+        return {"scale": self.scale, "centre_px": list(self.centre_px), "rotation_deg": self.rotation_deg,
+                "amplitude": self.amplitude, "gain": self.gain, "offset": self.offset, "se": dict(self.se),
+                "residual_rms": self.residual_rms, "identified": dict(self.identified), "samples": self.samples}
+
+
+def _rescaled_psf(psf: np.ndarray, zoom: float) -> np.ndarray:
+    """A pixel-grid PSF on a grid ``zoom`` times finer (``zoom`` < 1: coarser), odd-sized, centred, sum 1."""
+    from scipy.ndimage import map_coordinates
+
+    k = np.asarray(psf, dtype=np.float64)
+    r_in = (k.shape[0] - 1) / 2.0
+    r = max(int(math.ceil(r_in * zoom)), 0)
+    # the PSF's value at a new pixel: the old kernel's area-weighted average there (linear interpolation of the
+    # cumulative kernel would be exact; a finely supersampled bilinear read is close and simple)
+    sub = max(1, int(math.ceil(3 / zoom))) if zoom < 1 else 1
+    off = (np.arange(sub) + 0.5) / sub - 0.5
+    g = np.arange(-r, r + 1, dtype=np.float64)
+    pts = (g[:, None] + off[None, :]).ravel() / zoom + r_in
+    Y, X = np.meshgrid(pts, pts, indexing="ij")
+    v = map_coordinates(k, [Y, X], order=1, mode="constant", cval=0.0)
+    v = v.reshape(2 * r + 1, sub, 2 * r + 1, sub).mean(axis=(1, 3))
+    tot = v.sum()
+    return v / tot if tot > 0 else np.ones((1, 1))
+
+
+def _sides(mean: np.ndarray, diff: np.ndarray, scale: float, blur_px: float,
+           psfs: tuple[np.ndarray, np.ndarray] | None) -> tuple[np.ndarray, ...]:
+    """The low-passed images of (2): foveal side (mean, diff) and perifoveal side (mean, diff). With the channels'
+    PSFs each side is also blurred by the other channel's (the foveal side by the perifoveal PSF magnified
+    ``scale`` times, the perifoveal side by the foveal PSF shrunk as much): both sides then carry both blurs."""
+    from scipy.ndimage import gaussian_filter
+    from scipy.signal import fftconvolve
+
+    s1 = math.sqrt(scale ** 2 / 12.0 + (scale * blur_px) ** 2)  # the pixel box of the down-scaling, then G
+    out = []
+    for side, s in ((0, s1), (1, blur_px)):
+        for v in (mean, diff):
+            u = np.nan_to_num(v, nan=float(np.nanmean(v)))
+            if psfs is not None:
+                k = _rescaled_psf(psfs[1], scale) if side == 0 else _rescaled_psf(psfs[0], 1.0 / scale)
+                r = k.shape[0] // 2
+                u = fftconvolve(np.pad(u, r, mode="edge"), k, mode="valid")
+            out.append(gaussian_filter(u, s, mode="nearest", truncate=3.0))
+    return tuple(out)
+
+
+def _grid(shape: tuple[int, int], scale: float) -> np.ndarray:
+    """The perifoveal pixels ``p`` of the fovea, less :data:`MARGIN_PX` at its border: ``(2, N)`` (row, column)."""
+    H, W = shape
+    hy, hx = (n / (2.0 * scale) - MARGIN_PX for n in (H, W))
+    if min(hy, hx) < 3:
+        raise InputError("scale", scale, f"a fovea of at least 6 x 6 perifoveal pixels in frames of {shape}")
+    cy, cx = (H - 1) / 2.0, (W - 1) / 2.0
+    ys = np.arange(math.ceil(cy - hy), math.floor(cy + hy) + 1)
+    xs = np.arange(math.ceil(cx - hx), math.floor(cx + hx) + 1)
+    Y, X = np.meshgrid(ys, xs, indexing="ij")
+    return np.stack([Y.ravel(), X.ravel()]).astype(np.float64)
+
+
+def _foveal_points(p: np.ndarray, shape: tuple[int, int], scale: float, ty: float, tx: float,
+                   phi: float) -> np.ndarray:
+    """``c + t + scale R(phi) (p - c)``: where each perifoveal pixel ``p`` falls in the foveal image."""
+    H, W = shape
+    c = np.array([(H - 1) / 2.0, (W - 1) / 2.0])[:, None]
+    co, si = math.cos(phi), math.sin(phi)
+    R = np.array([[co, -si], [si, co]])
+    return c + np.array([ty, tx])[:, None] + scale * (R @ (p - c))
+
+
+def fit_foveal(mean: ArrayLike, diff: ArrayLike, *, scale: float = 6.0, gain: float = 1.0, offset: float = 0.0,
+               blur_px: float = BLUR_PX, fit_amplitude: bool = True,
+               psfs: tuple[ArrayLike, ArrayLike] | None = None) -> FovealFit:
+    """Fit the foveal relation (2) and the amplitude ratio (1) to a recording's separated images.
+
+    Parameters
+    ----------
+    mean : array_like, shape (H, W)
+        ``m = (x1 + x2) / 2``.
+    diff : array_like, shape (H, W)
+        ``d_0 = x1 - x2`` in the stated gauge.
+    scale, gain, offset : float
+        The stated constraint (the start).
+    blur_px : float
+        The common low-pass, perifoveal pixels.
+    fit_amplitude : bool
+        Fit ``u = 1 / rho`` (else held at 1).
+    psfs : tuple of 2 array_like, optional
+        The channels' PSFs on the pixel grid (odd-sized, centred: a recording's ``psf_x1``, ``psf_x2``): each side
+        of (2) is blurred by the other channel's, so that the relation holds however different they are (the
+        foveal channel's chromatic haze over 8-14 um).
+
+    Returns
+    -------
+    FovealFit
+    """
+    from scipy.ndimage import map_coordinates
+    from scipy.optimize import least_squares
+
+    m = np.asarray(mean, dtype=np.float64)
+    d = np.asarray(diff, dtype=np.float64)
+    if m.ndim != 2 or d.shape != m.shape:
+        raise InputError("diff", f"array of shape {d.shape}", f"the mean image's (H, W) = {m.shape}")
+    shape = m.shape
+    f1m, f1d, f2m, f2d = _sides(m, d, scale, blur_px, None if psfs is None else
+                                (np.asarray(psfs[0], np.float64), np.asarray(psfs[1], np.float64)))
+    p = _grid(shape, scale)
+    iy, ix = p.astype(int)
+    b_m, b_d = f2m[iy, ix], f2d[iy, ix]
+
+    def foveal(theta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        q = _foveal_points(p, shape, theta[0], theta[1], theta[2], math.radians(theta[3]))
+        return (map_coordinates(f1m, q, order=3, mode="nearest"), map_coordinates(f1d, q, order=3, mode="nearest"))
+
+    def residual(theta: np.ndarray) -> np.ndarray:
+        a_m, a_d = foveal(theta)
+        u = theta[4] if fit_amplitude else 1.0
+        g, o = theta[5], theta[6]
+        return (a_m + 0.5 * u * a_d) - g * (b_m - 0.5 * u * b_d) - o
+
+    # stage 1, the stated geometry: (u, g u, g, o) is linear there
+    a_m, a_d = foveal(np.array([scale, 0.0, 0.0, 0.0]))
+    def gain_offset(u: float) -> tuple[float, float, float]:
+        """``(g, o)`` of (2) at amplitude ``1 / u`` (linear least squares) and the residual's sum of squares."""
+        lhs, rhs = a_m + 0.5 * u * a_d, b_m - 0.5 * u * b_d
+        X = np.stack([rhs, np.ones_like(rhs)], axis=1)
+        (g, o), *_ = np.linalg.lstsq(X, lhs, rcond=None)
+        return float(g), float(o), float(np.sum((lhs - X @ np.array([g, o])) ** 2))
+
+    u0 = 1.0
+    if fit_amplitude:
+        from scipy.optimize import minimize_scalar
+
+        u0 = float(minimize_scalar(lambda u: gain_offset(u)[2], bounds=(0.5, 2.0), method="bounded",
+                                   options={"xatol": 1e-6}).x)
+    g0, o0, _ = gain_offset(u0)
+    theta0 = np.array([scale, 0.0, 0.0, 0.0, u0, g0, o0])
+    # stage 2, the geometry too, within the bounds a mounted camera stays in (SEARCH)
+    spread = float(np.std(b_m)) or 1.0
+    x_scale = np.array([0.01 * scale, 0.3, 0.3, 0.1, 0.01, 0.01 * max(abs(g0), 1e-3), 0.01 * spread])
+    lo = np.array([scale * (1 - SEARCH["scale"]), -SEARCH["centre_px"], -SEARCH["centre_px"],
+                   -SEARCH["rotation_deg"], 0.5, 1e-6, -np.inf])
+    hi = np.array([scale * (1 + SEARCH["scale"]), SEARCH["centre_px"], SEARCH["centre_px"], SEARCH["rotation_deg"],
+                   2.0, np.inf, np.inf])
+    if not fit_amplitude:
+        lo[4], hi[4] = 1.0 - 1e-12, 1.0 + 1e-12
+    sol = least_squares(residual, np.clip(theta0, lo, hi), x_scale=x_scale, bounds=(lo, hi), method="trf",
+                        max_nfev=200)
+    th = sol.x
+    r = sol.fun
+    n, k = r.size, (7 if fit_amplitude else 6)
+    var = float(np.sum(r ** 2)) / max(n - k, 1)
+    J = sol.jac if fit_amplitude else np.delete(sol.jac, 4, axis=1)
+    inflate = max(1.0, 4.0 * math.pi * blur_px ** 2)  # neighbouring samples share their error through the low-pass
+    try:
+        cov = np.linalg.inv(J.T @ J) * var * inflate
+        se_all = np.sqrt(np.maximum(np.diag(cov), 0.0))
+    except np.linalg.LinAlgError:
+        se_all = np.full(k, math.inf)
+    if not fit_amplitude:
+        se_all = np.insert(se_all, 4, 0.0)
+    u = float(th[4]) if fit_amplitude else 1.0
+    se = {"scale": float(se_all[0]), "centre_px": float(max(se_all[1], se_all[2])),
+          "rotation_deg": float(se_all[3]), "amplitude": float(se_all[4] / u ** 2) if fit_amplitude else 0.0,
+          "gain": float(se_all[5])}
+    ok = {key: bool(math.isfinite(v) and v <= TOLERANCES[key]) for key, v in se.items()}
+    if not (ok["scale"] and ok["centre_px"]):  # the geometry is not pinned down: keep the stated one (stage 1)
+        r = residual(theta0)
+        u0_, g0_ = theta0[4], theta0[5]
+        J = np.stack([0.5 * a_d + 0.5 * g0_ * b_d, -(b_m - 0.5 * u0_ * b_d), -np.ones_like(b_m)], axis=1)
+        J = J if fit_amplitude else J[:, 1:]
+        var = float(np.sum(r ** 2)) / max(n - J.shape[1], 1)
+        try:
+            se1 = np.sqrt(np.maximum(np.diag(np.linalg.inv(J.T @ J) * var * inflate), 0.0))
+        except np.linalg.LinAlgError:
+            se1 = np.full(J.shape[1], math.inf)
+        th = theta0
+        u = float(th[4])
+        se.update(amplitude=float(se1[0] / u ** 2) if fit_amplitude else 0.0, gain=float(se1[-2]))
+        ok.update(amplitude=bool(math.isfinite(se["amplitude"]) and se["amplitude"] <= TOLERANCES["amplitude"]),
+                  gain=bool(math.isfinite(se["gain"]) and se["gain"] <= TOLERANCES["gain"]), geometry_kept=True)
+    return FovealFit(scale=float(th[0]), centre_px=(float(th[1]), float(th[2])), rotation_deg=float(th[3]),
+                     amplitude=1.0 / u, gain=float(th[5]), offset=float(th[6]), se=se,
+                     residual_rms=math.sqrt(float(np.mean(r ** 2))), identified=ok, samples=int(n))
+
+
+__all__ = ["BLUR_PX", "MARGIN_PX", "SEARCH", "TOLERANCES", "FovealFit", "fit_foveal"]
