@@ -885,13 +885,13 @@ DOCUMENTED_META = frozenset({"kind", "schema_version", "units", "frame_rate_hz",
                              "channel_gain", "dn_per_k_300K", "radiometry", "fpn_rank", "psf_pedestal", "truth"})
 
 
-def _jsonable(obj: Any) -> Any:
+def jsonable(obj: Any) -> Any:
     if isinstance(obj, dict):
-        return {str(k): _jsonable(v) for k, v in obj.items()}
+        return {str(k): jsonable(v) for k, v in obj.items()}
     if isinstance(obj, (list, tuple)):
-        return [_jsonable(v) for v in obj]
+        return [jsonable(v) for v in obj]
     if isinstance(obj, np.ndarray):
-        return _jsonable(obj.tolist())
+        return jsonable(obj.tolist())
     if isinstance(obj, (bool, np.bool_)):
         return bool(obj)
     if isinstance(obj, (int, np.integer)):
@@ -912,7 +912,7 @@ class Recording:
         """An uncompressed ``.npz`` with the metadata as JSON bytes under ``__meta__`` (the documented format)."""
         p = Path(path)
         p.parent.mkdir(parents=True, exist_ok=True)
-        text = json.dumps(_jsonable(self.meta), indent=None, allow_nan=False)
+        text = json.dumps(jsonable(self.meta), indent=None, allow_nan=False)
         with open(p, "wb") as fh:
             np.savez(fh, **self.arrays, __meta__=np.frombuffer(text.encode(), dtype=np.uint8))
         return p
