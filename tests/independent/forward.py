@@ -32,9 +32,11 @@ order the light meets it:
 7. **Sensor defects**: fixed pattern (pixel and column offsets) with a slow linear drift, white temporal noise
    ``NETD k``, dead (stuck in range) and saturated (stuck at full scale) pixels, 14-bit quantisation and clipping.
 
-The file (:meth:`Recording.write`) carries only the documented keys (:data:`DOCUMENTED_ARRAYS`,
-:data:`DOCUMENTED_META`), the camera's *nominal* constants (never the deviated truth) and, for scoring only, the
-true effective ``alpha``, ``truth_x1``/``truth_x2`` and ``meta['truth']``.
+The file (:meth:`Recording.write`) carries only documented keys (docs/measurement_format.md and the issue's
+schema; ``test_forward.py`` holds the list), the camera's *nominal* constants (never the deviated truth) and, for
+scoring only, the true effective ``alpha``, ``truth_x1``/``truth_x2`` (the noise-free channel images in DN, so
+that ``frames = alpha truth_x1 + (1 - alpha) truth_x2 + fpn_t + noise`` away from bad pixels), ``fpn`` and
+``meta['truth']`` (every deviation and what was realised).
 
 File map: radiometry, optics, scene primitives and generators, :class:`Camera` and :class:`Deviations`, the
 polariser, rendering, the sensor, :func:`record` / :func:`write`.
@@ -537,8 +539,11 @@ class Camera:
 
     The lenses: foveal ``f1_mm``/``d1_mm`` (150/75 mm, F/2), perifoveal ``f2_mm``/``d2_mm`` (25/25 mm, F/1) on
     one sensor: ``scale = f1 / f2`` and the foveal gain ``(NA1 / NA2)^2``, ``NA = sin(atan(D / 2 f))``.
-    ``state_device`` writes the polariser's extinction and the bolometer's time constant (their nominal values)
-    into the file; a camera that does not know them leaves them out (the default)."""
+    ``extinction`` and ``tau_s`` are what the datasheet states (the camera's true ones are
+    :class:`Deviations`' fields of those names): ``state_device`` writes them into the file
+    (``polarizer_extinction``, ``bolometer_tau_s``); a camera that does not know them leaves them out (the
+    default). ``polarizer_phase_deg`` is stated in sync mode (and realised there unless ``Deviations.phase_deg``
+    says otherwise)."""
 
     shape: tuple[int, int] = (280, 290)
     f1_mm: float = 150.0
@@ -873,18 +878,6 @@ def _adc(v: np.ndarray, camera: Camera) -> np.ndarray:
 # ---------------------------------------------------------------------------------------------------------------
 # Recording and file
 # ---------------------------------------------------------------------------------------------------------------
-#: the arrays a recording may carry (docs/measurement_format.md and the issue's schema); scoring only: truth_*,
-#: scene_*, fpn*
-DOCUMENTED_ARRAYS = frozenset({"frames", "times_s", "alpha", "theta_rad", "calibration", "bad_pixels", "flat_field",
-                               "psf_x1", "psf_x2", "illumination_x1", "illumination_x2", "truth_x1", "truth_x2",
-                               "scene_x1", "scene_x2", "fpn", "fpn_u", "fpn_v", "fpn_s", "fpn_weights"})
-#: the metadata a recording may carry; ``truth`` is for scoring only
-DOCUMENTED_META = frozenset({"kind", "schema_version", "units", "frame_rate_hz", "pixel_pitch_um", "netd_k", "scale",
-                             "foveal_constraint", "polarizer_hz", "polarizer_mode", "polarizer_phase_deg",
-                             "polarizer_extinction", "bolometer_tau_s", "dark_dn", "saturation_dn", "floor_dn",
-                             "channel_gain", "dn_per_k_300K", "radiometry", "fpn_rank", "psf_pedestal", "truth"})
-
-
 def jsonable(obj: Any) -> Any:
     if isinstance(obj, dict):
         return {str(k): jsonable(v) for k, v in obj.items()}
@@ -961,7 +954,8 @@ def record(scene: str | Scene | np.ndarray = "mixed", deviations: Deviations | N
     bad_pixel_map, flat_field : bool
         Write the true ``bad_pixels`` map / the true vignetting as ``flat_field``.
     scene_truth : bool
-        Write ``scene_x1``/``scene_x2``: the scene through a perfect lens, DN (scoring only).
+        Write ``scene_x1``/``scene_x2``: the scene through perfect lenses (no PSF, no vignetting), DN, scoring only;
+        the pixel box is then the supersampling's midpoint rule (approximate above ~1 cycle per pixel).
     legacy_polarizer_block : bool
         Add the simulator's private ``polarizer`` dict (``{mode: free, rate_hz, extinction: 0, tau_s: 0}``) that
         today's reconstruction reads (NOT documented: for comparison only).

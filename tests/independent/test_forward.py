@@ -11,8 +11,6 @@ from scipy import ndimage, special
 
 from metafovea.measurement import Measurement
 from tests.independent.forward import (
-    DOCUMENTED_ARRAYS,
-    DOCUMENTED_META,
     RANGE_ENDS,
     SCENES,
     Blob,
@@ -32,6 +30,16 @@ from tests.independent.forward import (
     vignetting_map,
 )
 
+#: the arrays a recording may carry (docs/measurement_format.md and the issue's schema); scoring only: truth_*,
+#: scene_*, fpn*
+DOCUMENTED_ARRAYS = {"frames", "times_s", "alpha", "theta_rad", "calibration", "bad_pixels", "flat_field", "psf_x1",
+                     "psf_x2", "illumination_x1", "illumination_x2", "truth_x1", "truth_x2", "scene_x1", "scene_x2",
+                     "fpn", "fpn_u", "fpn_v", "fpn_s", "fpn_weights"}
+#: the metadata a recording may carry; ``truth`` is for scoring only
+DOCUMENTED_META = {"kind", "schema_version", "units", "frame_rate_hz", "pixel_pitch_um", "netd_k", "scale",
+                   "foveal_constraint", "polarizer_hz", "polarizer_mode", "polarizer_phase_deg", "polarizer_extinction",
+                   "bolometer_tau_s", "dark_dn", "saturation_dn", "floor_dn", "channel_gain", "dn_per_k_300K",
+                   "radiometry", "fpn_rank", "psf_pedestal", "truth"}
 SMALL = Camera(shape=(120, 132))  # 6 divides both: the foveal constraint's boxes tile the frame
 QUIET = Camera(shape=(120, 132), netd_k=0.0, quantize=False)
 C2 = 14387.768775039337  # um K
@@ -267,3 +275,10 @@ def test_the_file_loads_and_carries_only_documented_keys(tmp_path):
     assert Measurement.load(legacy).meta["polarizer"] == {"mode": "free", "rate_hz": 2.0, "extinction": 0.0,
                                                           "tau_s": 0.0}
     assert set(Measurement.load(legacy).meta) - DOCUMENTED_META == {"polarizer"}  # the check can fail
+    sync = Camera(shape=(120, 132), polarizer_mode="sync", polarizer_phase_deg=20.0, state_device=True,
+                  extinction=0.02, tau_s=0.01)  # a camera whose datasheet states its polariser and bolometer
+    meta = Measurement.load(record("hotspots", camera=sync, frames=3).write(tmp_path / "sync.npz")).meta
+    assert set(meta) <= DOCUMENTED_META
+    assert (meta["polarizer_mode"], meta["polarizer_phase_deg"], meta["polarizer_extinction"],
+            meta["bolometer_tau_s"]) == ("sync", 20.0, 0.02, 0.01)
+    assert meta["truth"]["polarizer"]["phase_deg"] == pytest.approx(20.0)
