@@ -59,6 +59,7 @@ class ValidateOptions:
     """What the validation runs. Defaults: the paper's 96-frame sequence (8 s at 12 frames/s)."""
 
     scene: str = "siemens-star"
+    scene_unit: str = "kelvin"  #: of a scene file's temperatures: 'kelvin' | 'celsius' (simulate's scene_unit)
     frames: int = 96
     calibration_frames: int = 16
     window: int = 8
@@ -453,7 +454,8 @@ def validate_system(system: SystemDesign, opts: ValidateOptions | None = None,
             warnings.simplefilter("ignore")
             meas = simulate(system, opts.scene, rng=opts.seed, frames=opts.frames, filter_enabled=filt,
                             psf_cache_dir=opts.cache_dir, calibration_frames=opts.calibration_frames,
-                            psf=opts.psf, posts=post_sets, polarizer_mode=opts.polarizer_mode)
+                            psf=opts.psf, posts=post_sets, polarizer_mode=opts.polarizer_mode,
+                            scene_unit=opts.scene_unit)
         t_sim = time.perf_counter() - t
         t = time.perf_counter()
         run_dip = opts.dip_cases == "all" or (opts.dip_cases == "last" and i_case == len(opts.filters) - 1)

@@ -96,7 +96,8 @@ def _render_in_chromium(page: Path, width: int, tmp: Path) -> dict:
 
     exe = shutil.which("chromium") or shutil.which("chromium-browser")
     if exe is None:
-        pytest.skip("Debian's chromium is not installed (.ci/run installs it where apt-get can)")
+        pytest.skip("the browser test needs Chromium, a system package (not a pip one): apt-get install chromium "
+                    "(Debian; chromium-browser on Ubuntu); .ci/run installs it where apt-get can")
     probe = tmp / f"probe_{width}_{page.name}"
     probe.write_text(page.read_text().replace("</body>", _BROWSER_JS + "</body>"))
     cmd = [exe, "--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",

@@ -48,9 +48,10 @@ PARAMETER_FLAGS: dict[str, dict[str, str]] = {
                  "pixel_pitch_um": "--pixel-um", "psf gaussian sigma_um": "--psf", "psf": "--psf",
                  "relay_magnification": "--relay", "fpn_rank": "--fpn-rank", "fpn_amplitude": "--fpn-amplitude",
                  "polarizer_phase_deg": "--phase-deg", "field_patches": "--field-patches", "rng": "--seed",
+                 "scene_unit": "--scene-unit",
                  "out (TIFF)": "--out (TIFF)", "out (preview)": "--out (preview)"},
     "validate": {"frames": "--frames", "seed": "--seed", "rng": "--seed", "scene": "--scene",
-                 "dip_steps": "--dip-steps"},
+                 "scene_unit": "--scene-unit", "dip_steps": "--dip-steps"},
     "import": {"format": "--format", "frames_key": "--frames-key", "frame_axis": "--frame-axis", "times": "--times",
                "time_unit": "--time-unit", "frame_rate_hz": "--frame-rate", "polarizer_key": "--polarizer-key",
                "polarizer_unit": "--polarizer-unit", "calibration": "--calibration", "planck": "--planck",
@@ -72,6 +73,7 @@ KEYWORD_ADVICE: dict[str, dict[str, str]] = {
 #: positional argument's dest) holding that file; the error then names the file (``--scene hot.npy: ...``)
 FILE_KEYS: dict[str, dict[str, str]] = {
     "simulate": {"temperature_k": "scene", "emissivity": "scene", "image": "scene"},
+    "validate": {"temperature_k": "scene", "emissivity": "scene", "image": "scene"},
 }
 
 

@@ -35,6 +35,10 @@ SHARED_OPTIONS: dict[str, dict[str, Any]] = {
     "--scene": dict(default="siemens-star", help="the scene: a built-in name (metafovea simulate --list-scenes; "
                                                  "default siemens-star), skimage:NAME, or a file (.npy/.npz in "
                                                  "kelvin, .tif, .png)"),
+    "--scene-unit": dict(default="kelvin", choices=("kelvin", "celsius"),
+                         help="the unit of a --scene file of temperatures (.npy, .npz, float TIFF): kelvin (default; a "
+                              "file whose hottest value is below 200 K is refused) or celsius (+273.15 K, stated in "
+                              "the output)"),
     "--pixel-um": dict(default=None, help="sensor pixel pitch in um (default: the system's, 17 um in the paper's "
                                           "camera)"),
     "--relay": dict(default=None, help="relay magnification between the focal plane and the sensor (default: the "
@@ -140,6 +144,9 @@ class warning_printer:  # lower case: a function to its callers (``warnings.show
         self._print(" ".join(str(message).split()), category)
 
     def _print(self, text: str, category: type) -> None:
+        from metafovea.cli.flags import in_flags
+
+        text = in_flags(text, self.flags)  # a library keyword (scene_unit='celsius') as the flag to type
         if (category, text) in self.seen:
             return
         self.seen.add((category, text))

@@ -28,7 +28,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
                     "band radiance, PSFs and haze, rotating polariser, microbolometer noise, FPN and 14-bit ADC. "
                     "Writes a Measurement .npz, a TIFF stack and a preview PNG.")
     p.add_argument("system_file", nargs="?", help="system TOML (default: the built-in paper prototype)")
-    add_shared(p, "--scene")
+    add_shared(p, "--scene", "--scene-unit")
     p.add_argument("--list-scenes", action="store_true", help="list the built-in scenes and exit")
     add_shared(p, "--frames", "--seed")
     p.add_argument("--out", default=None, help="Measurement file (default meas.npz)")
@@ -105,7 +105,7 @@ def _options(args: argparse.Namespace, frames: int) -> SimulationOptions:
                                         check_int("--fpn-rank", args.fpn_rank, 0, 10000)),
         fpn_amplitude=_num("--fpn-amplitude", args.fpn_amplitude), fpn_drift=_num("--drift", args.drift),
         noise=not args.no_noise, quantize=not args.no_quantize, progress=show_progress(args),
-        posts=args.posts, optical_train=not args.no_train,
+        posts=args.posts, optical_train=not args.no_train, scene_unit=args.scene_unit,
         calibration_frames=CALIBRATION_FRAMES if args.calibration_frames is None else
         check_int("--calibration-frames", args.calibration_frames, 0, 10000))
 
@@ -122,6 +122,7 @@ def _print_scenes(as_json: bool) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from metafovea.imaging.scene import make_scene
     from metafovea.imaging.simulate import simulate_to_files
     from metafovea.optics.train import throughput_lines
 
@@ -131,6 +132,7 @@ def run(args: argparse.Namespace) -> int:
     frames = check_int("--frames", args.frames, 1, 100_000)
     seed = seed_arg(args.seed)
     opts = _options(args, frames)
+    make_scene(args.scene, scene_unit=opts.scene_unit)  # a bad --scene is reported before the camera's posts
     result = simulate_to_files(args.system_file, args.scene, out_file(args, "meas.npz"), opts, rng=seed,
                                force=args.force, tiff=not args.no_tiff, preview=not args.no_preview)
     summary = result.summary()
@@ -140,6 +142,8 @@ def run(args: argparse.Namespace) -> int:
         T, H, W = result.measurement.shape
         print(f"scene {summary['scene']}: {T} frames {H}x{W} ({summary['units']}), "
               f"alpha {summary.get('alpha_range', 'unknown')}, PSF {summary['psf']} {summary['psf_mode']}")
+        if "scene_conversion" in summary:
+            print(f"scene values: {summary['scene_conversion']}")
         print(f"haze fraction foveal {summary['haze_fraction']['foveal']:.3f}, "
               f"perifoveal {summary['haze_fraction']['perifoveal']:.3f}; "
               f"simulated in {result.seconds['simulate']:.2f} s, total {result.seconds['total']:.2f} s")

@@ -21,7 +21,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("validate", help="end-to-end validation of a system (default: the paper's prototype)")
     p.add_argument("system_file", nargs="?", help="system TOML (default: built-in paper prototype)")
     p.add_argument("--out", help="write the report into this directory")
-    add_shared(p, "--force", "--json", "--seed", "--scene", "--frames")
+    add_shared(p, "--force", "--json", "--seed", "--scene", "--scene-unit", "--frames")
     p.add_argument("--filter", default="both", choices=("off", "on", "both"),
                    help="spectral cases: 8-14 um as designed (off), the 10 um / 0.5 um filter (on), or both")
     p.add_argument("--polarizer", default="free", choices=("free", "sync"),
@@ -42,9 +42,11 @@ def run(args: argparse.Namespace) -> int:
     frames = check_int("--frames", args.frames, 3, 100_000)  # the unknown-alpha solver needs 3 frames
     dip_steps = check_int("--dip-steps", args.dip_steps, 1, 100_000)
     system = load_system(args.system_file) if args.system_file else SystemDesign.paper()
-    make_scene(args.scene)  # a bad --scene is reported before minutes of library and PSF work
+    # a bad --scene (or a scene file in the wrong unit) is reported before minutes of library and PSF work
+    make_scene(args.scene, scene_unit=args.scene_unit)
     out = prepare_output(out_dir(args, "validate"), args.force, is_dir=True)
-    opts = ValidateOptions(seed=seed, frames=frames, scene=args.scene, dip_steps=dip_steps,
+    opts = ValidateOptions(seed=seed, frames=frames, scene=args.scene, scene_unit=args.scene_unit,
+                           dip_steps=dip_steps,
                            polarizer_mode=args.polarizer,
                            progress=show_progress(args),
                            filters=(False, True) if args.filter == "both" else (args.filter == "on",))

@@ -17,7 +17,10 @@ Built-in scenes (``make_scene(name)``, ``list_scenes()``): natural images from s
 temperatures, ``siemens-star``, ``bars``, ``hand``, ``parking-lot``, ``heater-5s``/``-10s``/``-20s``,
 ``uniform``, ``rooftop``, ``tall-buildings``, ``oven``.
 Any name that is an existing file loads it (``.npy``/``.npz`` temperatures in K,
-``.tif``/``.png``/``.jpg`` pictures mapped to temperatures, see :func:`load_scene_file`).
+``.tif``/``.png``/``.jpg`` pictures mapped to temperatures, see :func:`load_scene_file`); so does an array of
+temperatures. A file or array of temperatures is one channel in kelvin: a colour (RGB) or multi-channel image is
+refused, and so is one whose hottest value is below :data:`MIN_HOTTEST_K` (no thermal scene in kelvin: values of
+20-35 are degrees Celsius, which ``scene_unit='celsius'`` converts, +273.15 K, saying so in the scene's summary).
 """
 
 from __future__ import annotations
@@ -25,6 +28,7 @@ from __future__ import annotations
 import abc
 import logging
 import math
+import warnings
 import zipfile
 import zlib
 from collections.abc import Callable
@@ -49,6 +53,20 @@ log = logging.getLogger(__name__)
 PAPER_FOV_RAD = 2 * math.atan(PAPER_CROP_PX / 2 * PAPER_PIXEL_PITCH_UM / PAPER_RELAY_MAGNIFICATION
                               / PAPER_LENS_TO_SENSOR_UM[1])
 AMBIENT_K = 294.0
+#: the units a file or array of temperatures may be given in (``scene_unit``); kelvin is the default
+SCENE_UNITS = ("kelvin", "celsius")
+#: 0 degrees Celsius in kelvin: ``scene_unit='celsius'`` adds it
+ZERO_CELSIUS_K = 273.15
+#: the hottest value a temperature scene in kelvin reaches at least. Everything a camera on the ground looks at is
+#: warmer than the clear sky, whose 8-14 um brightness temperature is 200-250 K (at 200 K the band radiance is
+#: 11 % of 300 K's): a raster whose hottest pixel is colder is not kelvin (values of 20-35 are degrees Celsius,
+#: values in 0-1 a picture's levels). Values in kelvin are not otherwise bounded: a liquid-nitrogen target (77 K)
+#: in a room is a scene.
+MIN_HOTTEST_K = 200.0
+#: a colder value in a scene that passes :data:`MIN_HOTTEST_K` is warned about: colder than any sky, it is what
+#: degrees Celsius read as kelvin look like when the scene also holds something above 200 degrees Celsius (or a
+#: cryogenic target, which the warning names)
+COLDEST_PLAUSIBLE_K = 150.0
 
 
 @dataclass(frozen=True)
@@ -584,7 +602,8 @@ class RasterScene(Scene):
 
     ``temperature_k``: (h, w) or (T, h, w) kelvin; ``emissivity``: scalar or same spatial shape;
     ``frame_rate_hz``: the rate of a (T, h, w) raster (nearest earlier frame is used; the video
-    repeats after its end). Outside the raster: ``background_k``.
+    repeats after its end). Outside the raster: ``background_k``. ``conversion``: how the values became
+    kelvin (a picture's luminance mapped to a range, degrees Celsius converted), stated in :meth:`summary`.
     """
 
     temperature_k: np.ndarray = field(default_factory=lambda: np.full((2, 2), 300.0))
@@ -595,6 +614,11 @@ class RasterScene(Scene):
     name: str = "raster"
     description: str = "temperature raster"
     static: bool = True
+    conversion: str | None = None  #: how the values became kelvin, when they were not given in kelvin
+
+    def summary(self) -> dict[str, Any]:
+        out = super().summary()
+        return out if self.conversion is None else {**out, "conversion": self.conversion}
 
     def __post_init__(self) -> None:
         t = np.asarray(self.temperature_k, dtype=np.float64)
@@ -674,6 +698,66 @@ def _to_gray(img: np.ndarray) -> np.ndarray:
     return g
 
 
+def _scene_unit(scene_unit: str) -> str:
+    """``scene_unit`` checked: one of :data:`SCENE_UNITS`."""
+    unit = str(scene_unit).strip().lower()
+    if unit not in SCENE_UNITS:
+        raise InputError("scene_unit", scene_unit, " or ".join(SCENE_UNITS))
+    return unit
+
+
+def _picture_advice(t_range_k: tuple[float, float]) -> str:
+    return (f"save one channel of temperatures in kelvin (.npy, or a float TIFF), or the picture as an 8- or 16-bit "
+            f"PNG or TIFF, whose luminance is mapped to {t_range_k[0]:g}-{t_range_k[1]:g} K")
+
+
+def _one_channel(shape: tuple[int, ...], t_range_k: tuple[float, float], samples: str | None = None) -> None:
+    """Refuse a colour or multi-channel image where a map of temperatures is expected: ``samples`` says what a file
+    declares (a TIFF's samples or channels); else an ``(h, w, 3|4)`` array is a colour picture (a raster 3 or 4
+    pixels wide is no scene). A ``(3|4, h, w)`` array with nothing declared is a video of 3 or 4 frames."""
+    if samples is None and len(shape) == 3 and shape[-1] in (3, 4) and min(shape[:2]) > 4:
+        samples = f"{shape[-1]} samples per pixel (an RGB{'A' if shape[-1] == 4 else ''} picture)"
+    if samples is not None:
+        raise InputError("temperature_k", f"array of shape {tuple(shape)}", "one channel (a temperature map in "
+                         "kelvin): an (h, w) or (T, h, w) array", detail=f"{samples}; {_picture_advice(t_range_k)}")
+
+
+def _in_kelvin(temp: np.ndarray, scene_unit: str, source: str,
+               t_range_k: tuple[float, float]) -> tuple[np.ndarray, str | None]:
+    """A file's or an array's temperatures in kelvin, and how they were converted (None: given in kelvin).
+
+    Refuses values whose hottest is below :data:`MIN_HOTTEST_K` (in kelvin, after the conversion) with what they
+    look like: degrees Celsius (``scene_unit='celsius'`` converts them) or a picture's levels. Non-finite and
+    negative values are left to :class:`RasterScene`, which refuses them.
+    """
+    t = np.asarray(temp, dtype=np.float64)
+    conversion = None
+    if scene_unit == "celsius":
+        t = t + ZERO_CELSIUS_K
+        conversion = f"degrees Celsius converted to kelvin: T_K = T_C + {ZERO_CELSIUS_K:g}"
+    finite = t[np.isfinite(t)]
+    if finite.size == 0:
+        return t, conversion
+    if float(finite.max()) >= MIN_HOTTEST_K:
+        lo = float(finite.min())
+        if scene_unit == "kelvin" and 0.0 <= lo < COLDEST_PLAUSIBLE_K:
+            warnings.warn(f"scene {source}: its coldest value, {lo:.4g} K, is colder than any sky (a cryogenic "
+                          f"target?); if it is in degrees Celsius, scene_unit='celsius' converts it", UserWarning,
+                          stacklevel=3)
+        return t, conversion
+    lo, hi = float(finite.min()), float(finite.max())
+    allowed = f"temperatures in kelvin, a thermal scene's hottest part at {MIN_HOTTEST_K:g} K or warmer"
+    if scene_unit == "celsius":
+        value = f"values {lo - ZERO_CELSIUS_K:.4g} to {hi - ZERO_CELSIUS_K:.4g} degrees Celsius"
+        detail = f"{lo:.4g} to {hi:.4g} K"
+    else:
+        value = f"values {lo:.4g} to {hi:.4g}"
+        detail = (f"they look like a picture's levels: {_picture_advice(t_range_k)}" if lo >= 0.0 and hi <= 1.0 else
+                  f"they look like degrees Celsius: scene_unit='celsius' converts them, +{ZERO_CELSIUS_K:g} K"
+                  if lo >= -100.0 else None)
+    raise InputError("temperature_k", value, allowed, detail=detail)
+
+
 def image_scene(name: str, geometry: SceneGeometry | None = None, *,
                 t_range_k: tuple[float, float] = (288.0, 312.0), emissivity: float = 0.95,
                 fill: float = 1.0) -> RasterScene:
@@ -702,22 +786,31 @@ def image_scene(name: str, geometry: SceneGeometry | None = None, *,
 
 def load_scene_file(path: str | Path, geometry: SceneGeometry | None = None, *,
                     t_range_k: tuple[float, float] = (288.0, 312.0),
-                    frame_rate_hz: float = PAPER_FRAME_RATE_HZ) -> RasterScene:
+                    frame_rate_hz: float = PAPER_FRAME_RATE_HZ, scene_unit: str = "kelvin") -> RasterScene:
     """A scene from a file.
 
     * ``.npy``: (h, w) or (T, h, w) temperatures in kelvin.
     * ``.npz``: array ``temperature_k`` (as .npy), optional ``emissivity`` (h, w) and scalar
       ``half_width_deg`` (field half-width the raster spans; default the perifoveal field).
-    * ``.tif``/``.tiff``: float data is kelvin; integer data is a picture (mapped like below).
+    * ``.tif``/``.tiff``: float data is temperatures, as .npy; integer data is a picture (mapped like below).
     * ``.png``/``.jpg``/``.jpeg``/``.bmp``: a picture; luminance mapped to ``t_range_k``.
+
+    Temperatures (.npy, .npz, float TIFF) are one channel, in kelvin unless ``scene_unit='celsius'`` (+273.15 K,
+    stated in the scene's :meth:`~Scene.summary`). A colour or multi-channel array (``(h, w, 3|4)``, a TIFF whose
+    pixels hold several samples or channels) is refused, and so is one whose hottest value is below
+    :data:`MIN_HOTTEST_K` (degrees Celsius, a picture's levels): each with how to convert it. A picture's mapping
+    to temperatures is stated in the summary too.
     """
     p = Path(path)
     if not p.is_file():
         raise InputError("scene", str(p), "a built-in scene name (see list_scenes()) or an existing file")
+    unit = _scene_unit(scene_unit)
     g = geometry or SceneGeometry()
     suffix = p.suffix.lower()
     half = g.half
     emis: float | np.ndarray = 0.95
+    picture = suffix in (".png", ".jpg", ".jpeg", ".bmp", ".gif")
+    samples = None  # what a TIFF declares about its pixels' samples or channels
     try:
         if suffix == ".npy":
             temp = np.load(p, allow_pickle=False)
@@ -735,15 +828,18 @@ def load_scene_file(path: str | Path, geometry: SceneGeometry | None = None, *,
                                          "a real scalar (degrees)", source=str(p))
                     half = math.radians(float(hw.reshape(())))
         elif suffix in (".tif", ".tiff"):
-            import tifffile
-            arr = tifffile.imread(p)
-            temp = arr.astype(np.float64) if np.issubdtype(arr.dtype, np.floating) else \
-                gray_to_temperature(_to_gray(arr), t_range_k)
-        elif suffix in (".png", ".jpg", ".jpeg", ".bmp", ".gif"):
+            temp, samples = _read_tiff(p)
+            picture = not np.issubdtype(temp.dtype, np.floating)
+        elif picture:
             from skimage import io as skio
-            temp = gray_to_temperature(_to_gray(skio.imread(p)), t_range_k)
+            temp = skio.imread(p)
         else:
             raise InputError("scene", str(p), "a file ending in .npy, .npz, .tif, .tiff, .png, .jpg, .jpeg or .bmp")
+        if picture:
+            if unit != "kelvin":
+                raise InputError("scene_unit", scene_unit, f"kelvin for a picture ({p.name}: a .png, .jpg or integer "
+                                 f"TIFF's luminance is mapped to {t_range_k[0]:g}-{t_range_k[1]:g} K)")
+            temp = gray_to_temperature(_to_gray(temp), t_range_k)
     except InputError:
         raise
     except (OSError, ValueError, TypeError, KeyError, IndexError, EOFError, zipfile.BadZipFile, zlib.error) as e:
@@ -753,8 +849,38 @@ def load_scene_file(path: str | Path, geometry: SceneGeometry | None = None, *,
     temp = np.asarray(temp)
     if not np.issubdtype(temp.dtype, np.number) or np.iscomplexobj(temp):
         raise InputError("scene", str(p), "real-valued temperatures in kelvin")
+    if picture:
+        conversion = (f"a picture: its luminance (grey levels; colour weighted to grey) mapped linearly to "
+                      f"{t_range_k[0]:g}-{t_range_k[1]:g} K")
+    else:
+        _one_channel(temp.shape, t_range_k, samples)
+        temp, conversion = _in_kelvin(temp, unit, str(p), t_range_k)
     return RasterScene(temperature_k=temp, emissivity=emis, half_width_rad=half, frame_rate_hz=frame_rate_hz,
-                       name=p.stem, description=f"file {p.name}")
+                       name=p.stem, description=f"file {p.name}", conversion=conversion)
+
+
+def _read_tiff(p: Path) -> tuple[np.ndarray, str | None]:
+    """A TIFF's first series, and what its pixels hold when that is more than one value (None: one).
+
+    A float TIFF of 3 or 4 frames written by ``tifffile`` without ``photometric`` is stored as one RGB image with
+    separate planes (tifffile 2023-2026): it says RGB, and is refused as such, with that hint.
+    """
+    import tifffile
+
+    with tifffile.TiffFile(p) as tf:
+        series = tf.series[0]
+        arr = series.asarray()
+        axes = series.axes
+    sizes = {a: n for a, n in zip(axes, arr.shape)}
+    if sizes.get("S", 1) > 1:
+        n = sizes["S"]
+        kind = f"{n} samples per pixel" + (f" (an RGB{'A' if n == 4 else ''} image)" if n in (3, 4) else "")
+        if axes.index("S") < axes.index("Y"):
+            kind += ", stored as separate planes (a stack written with tifffile needs photometric='minisblack')"
+        return arr, kind
+    if sizes.get("C", 1) > 1:
+        return arr, f"{sizes['C']} channels"
+    return arr, None
 
 
 # ----------------------------------------------------------------------------------------------
@@ -800,15 +926,38 @@ def list_scenes() -> dict[str, str]:
     return {k: v[1] for k, v in SCENES.items()}
 
 
-def make_scene(name: str | Path | Scene, geometry: SceneGeometry | None = None, **params: Any) -> Scene:
-    """A scene by built-in name, ``skimage:NAME``, or file path (see :func:`load_scene_file`).
+def make_scene(name: str | Path | Scene | np.ndarray, geometry: SceneGeometry | None = None, *,
+               scene_unit: str = "kelvin", **params: Any) -> Scene:
+    """A scene by built-in name, ``skimage:NAME``, file path (see :func:`load_scene_file`) or array.
 
-    ``params`` are passed to the scene's constructor (e.g. ``temperature_k=310`` for ``uniform``).
+    Parameters
+    ----------
+    name : str, Path, Scene or ndarray, shape (h, w) or (T, h, w)
+        A built-in name (:func:`list_scenes`), ``skimage:NAME``, a file, a Scene (returned as it is), or
+        temperatures (one channel, spanning the perifoveal field; a video at ``frame_rate_hz``).
+    geometry : SceneGeometry, optional
+        The field of view a scene lays itself out in (default: the paper's camera).
+    scene_unit : {'kelvin', 'celsius'}
+        The unit of a file's or an array's temperatures; ``'celsius'`` adds 273.15 K and says so in the scene's
+        :meth:`~Scene.summary`. Temperatures whose hottest value is below :data:`MIN_HOTTEST_K` are refused.
+    **params
+        Passed to the scene's constructor (e.g. ``temperature_k=310`` for ``uniform``) or to
+        :func:`load_scene_file` (``t_range_k``, ``frame_rate_hz``).
+
+    Returns
+    -------
+    Scene
     """
     if isinstance(name, Scene):
         return name
+    unit = _scene_unit(scene_unit)
     g = geometry or SceneGeometry()
+    if isinstance(name, np.ndarray):
+        return _array_scene(name, g, unit, **params)
     key = str(name).strip()
+    if unit != "kelvin" and (key.lower() in SCENES or key.lower().startswith("skimage:")):
+        raise InputError("scene_unit", scene_unit, f"kelvin for the built-in scene '{key}' (a unit applies to a "
+                         "file or an array of temperatures)")
     try:
         if key.lower() in SCENES:
             return SCENES[key.lower()][0](g, **params)
@@ -820,5 +969,21 @@ def make_scene(name: str | Path | Scene, geometry: SceneGeometry | None = None, 
     p = Path(key)
     if p.suffix and (p.exists() or "/" in key or "\\" in key or p.suffix.lower() in
                      (".npy", ".npz", ".tif", ".tiff", ".png", ".jpg", ".jpeg", ".bmp")):
-        return load_scene_file(p, g, **params)
+        return load_scene_file(p, g, scene_unit=unit, **params)
     raise InputError("scene", key, "one of " + ", ".join(sorted(SCENES)) + ", skimage:NAME, or an existing file")
+
+
+def _array_scene(temp: np.ndarray, g: SceneGeometry, scene_unit: str, *,
+                 t_range_k: tuple[float, float] = (288.0, 312.0), **params: Any) -> RasterScene:
+    """An array of temperatures as a :class:`RasterScene` over the perifoveal field, checked as a file's are."""
+    source = f"array of shape {temp.shape}"
+    if not np.issubdtype(temp.dtype, np.number) or np.iscomplexobj(temp):
+        raise InputError("scene", source, "real-valued temperatures in kelvin")
+    _one_channel(temp.shape, t_range_k)
+    t, conversion = _in_kelvin(temp, scene_unit, source, t_range_k)
+    try:
+        return RasterScene(**{"half_width_rad": g.half, "name": "array", "description": f"an {source}",
+                              **params, "temperature_k": t, "conversion": conversion})
+    except TypeError as e:
+        raise InputError("scene parameters", sorted(params), "parameters accepted by RasterScene",
+                         detail=str(e)) from None

@@ -90,6 +90,7 @@ class SimulationOptions:
     quantize: bool = True
     t0_s: float = 0.0
     scene_params: dict[str, Any] = field(default_factory=dict)
+    scene_unit: str = "kelvin"  # a scene file's or array's temperatures: 'kelvin' | 'celsius' (+273.15 K, stated)
     calibration_frames: int = CALIBRATION_FRAMES  # closed-shutter frames (same FPN and noise), as 'calibration'
     progress: bool = False
     posts: Any = "rcwa"  # 'rcwa' (the fabricated lenses, library cached) | 'ideal' (simplified) | {pol: PostSet}
@@ -221,7 +222,7 @@ def _scene_for(scene: str | Path | Scene, system: SystemDesign, camera: Camera, 
     sensor, ch2 = camera.sensor, camera.channels[1]
     geom = SceneGeometry(fov_rad=2 * ch2.half_fov_rad[1], expansion=system.expansion,
                          duration_s=float(times[-1] - times[0]) + 1.0 / sensor.frame_rate_hz)
-    return make_scene(scene, geom, **opt.scene_params)
+    return make_scene(scene, geom, scene_unit=opt.scene_unit, **opt.scene_params)
 
 
 def _truth_images(renderers: list[ChannelRenderer], camera: Camera, times: np.ndarray, *, static: bool,
@@ -401,7 +402,7 @@ def _measurement_meta(system: SystemDesign, camera: Camera, sc: Scene, opt: Simu
     }
 
 
-def simulate(system: SystemDesign, scene: str | Path | Scene, options: SimulationOptions | None = None,
+def simulate(system: SystemDesign, scene: str | Path | Scene | np.ndarray, options: SimulationOptions | None = None,
              rng: np.random.Generator | int | None = 0, **overrides: Any) -> Measurement:
     """Simulate ``options.frames`` frames of ``scene`` through ``system``.
 
@@ -409,14 +410,18 @@ def simulate(system: SystemDesign, scene: str | Path | Scene, options: Simulatio
     ----------
     system : SystemDesign
         The camera (both lenses, distances, relay, polariser, sensor, band).
-    scene : str, Path or Scene
-        A bundled scene (:func:`~metafovea.imaging.list_scenes`), ``skimage:NAME``, an image file, or a Scene.
+    scene : str, Path, Scene or ndarray, shape (h, w) or (T, h, w)
+        A bundled scene (:func:`~metafovea.imaging.list_scenes`), ``skimage:NAME``, a file of temperatures or a
+        picture, a Scene, or temperatures (one channel; :func:`~metafovea.imaging.make_scene`). Temperatures are
+        kelvin unless ``scene_unit='celsius'`` (an option: +273.15 K, stated in ``meta['scene_info']``); a colour
+        or multi-channel image, or one whose hottest value is below 200 K, is an input error.
     options : SimulationOptions, optional
         Every knob (frames, PSF provider, posts, optical train, noise, FPN, polariser, ...).
     rng : int or numpy.random.Generator
         Seed (same seed -> identical frames).
     **overrides
-        Fields of ``options`` to replace (``simulate(sys, 'bars', frames=12, noise=False)``).
+        Fields of ``options`` to replace (``simulate(sys, 'bars', frames=12, noise=False)``,
+        ``simulate(sys, 'room_celsius.npy', scene_unit='celsius')``).
 
     Returns
     -------
@@ -493,7 +498,9 @@ class SimulationRun:
         """The run in numbers (the ``--json`` output of ``metafovea simulate``)."""
         m = self.measurement
         psf = m.meta["psf"]
-        return {**m.summary(), "scene": m.meta["scene"], "seed": m.meta["seed"], "psf": psf["provider"],
+        conversion = m.meta.get("scene_info", {}).get("conversion")
+        return {**m.summary(), "scene": m.meta["scene"], **({"scene_conversion": conversion} if conversion else {}),
+                "seed": m.meta["seed"], "psf": psf["provider"],
                 "psf_mode": {c: psf[c]["mode"] for c in ("foveal", "perifoveal")},
                 "haze_fraction": {c: psf[c]["haze"].get("fraction", 0.0) for c in ("foveal", "perifoveal")},
                 "foveal_constraint": m.meta["foveal_constraint"], "saturated_fraction": m.meta["saturated_fraction"],
@@ -523,9 +530,10 @@ def _refuse_to_overwrite_inputs(outputs: list[Path], inputs: list[Path]) -> None
                 raise InputError("out", str(o), f"a path other than the input {src} (it would be overwritten)")
 
 
-def simulate_to_files(system: SystemDesign | str | Path | None, scene: str | Path | Scene, out: str | Path,
-                      options: SimulationOptions | None = None, *, rng: np.random.Generator | int | None = 0,
-                      force: bool = False, tiff: bool = True, preview: bool = True) -> SimulationRun:
+def simulate_to_files(system: SystemDesign | str | Path | None, scene: str | Path | Scene | np.ndarray,
+                      out: str | Path, options: SimulationOptions | None = None, *,
+                      rng: np.random.Generator | int | None = 0, force: bool = False, tiff: bool = True,
+                      preview: bool = True) -> SimulationRun:
     """Simulate (:func:`simulate`) and write the Measurement ``out`` (``.npz``), its TIFF stack and its preview.
 
     ``system``: a design, a system TOML file, or None for the paper's prototype. Every output is checked before
@@ -537,7 +545,7 @@ def simulate_to_files(system: SystemDesign | str | Path | None, scene: str | Pat
     else:
         design, system_file = load_system(system), Path(system)
     paths = output_paths(out, tiff=tiff, preview=preview)
-    scene_file = None if isinstance(scene, Scene) else scene
+    scene_file = scene if isinstance(scene, (str, Path)) else None
     inputs = [Path(p) for p in (system_file, scene_file) if p and Path(p).is_file()]
     _refuse_to_overwrite_inputs(list(paths.values()), inputs)
     names = {"measurement": "out", "tiff": "out (TIFF)", "preview": "out (preview)"}

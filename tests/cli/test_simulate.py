@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 
 import numpy as np
+import pytest
 
 from metafovea.cli import main
 from metafovea.imaging.kernels import MAX_PSF_SIZE
@@ -136,3 +137,66 @@ def test_simulate_off_a_terminal_says_what_it_computes(tmp_path, capsys, monkeyp
     assert "metafovea: simulate: the channels' PSFs (airy;" in err
     assert main([*argv, "--out", str(tmp_path / "b.npz"), "-q"]) == 0
     assert "metafovea: simulate" not in capsys.readouterr().err
+
+
+
+def _room_celsius() -> np.ndarray:
+    """A room in degrees Celsius (20-35), as a thermal camera's software exports it."""
+    c = np.full((30, 30), 21.0, np.float32)
+    c[8:20, 10:22] = 34.5
+    return c
+
+
+def test_a_float_rgb_tiff_scene_is_one_line_naming_the_flag(tmp_path, capsys, cli_error):
+    """A float RGB TIFF was simulated as a video of 30 frames, 40 x 3 pixels each, without a word."""
+    import imageio.v3 as iio
+
+    rgb = np.random.default_rng(0).random((30, 40, 3)).astype(np.float32)
+    iio.imwrite(tmp_path / "photo.tif", rgb)
+    out = tmp_path / "m.npz"
+    assert main(["simulate", "--scene", str(tmp_path / "photo.tif"), "--out", str(out)]) == 2
+    err = cli_error(capsys)
+    assert "\n" not in err and err.startswith(f"metafovea simulate: error: --scene {tmp_path / 'photo.tif'}: ")
+    assert "one channel (a temperature map in kelvin)" in err and "(30, 40, 3)" in err and "3 samples per pixel" in err
+    assert "8- or 16-bit PNG or TIFF" in err and not out.exists()
+
+
+def test_a_celsius_scene_is_refused_and_scene_unit_celsius_converts_it(tmp_path, capsys, cli_error):
+    """A scene in degrees Celsius (20-35) was simulated as 20-35 K without a word: now one line naming --scene and
+    the unit, and --scene-unit celsius gives the frames of the same scene in kelvin, saying what it converted."""
+    import tifffile
+
+    c = _room_celsius()
+    tifffile.imwrite(tmp_path / "room_c.tif", c)
+    np.save(tmp_path / "room_c.npy", c)
+    np.save(tmp_path / "room_k.npy", c.astype(np.float64) + 273.15)
+    for name in ("room_c.tif", "room_c.npy"):
+        assert main(["simulate", "--scene", str(tmp_path / name), "--out", str(tmp_path / "m.npz")]) == 2
+        err = cli_error(capsys)
+        assert "\n" not in err and err.startswith(f"metafovea simulate: error: --scene {tmp_path / name}: ")
+        assert "temperatures in kelvin" in err and "look like degrees Celsius: --scene-unit celsius converts" in err
+    fast = ["--frames", "3", "--psf", "airy", "--posts", "ideal", "--no-train", "--no-tiff", "--no-preview"]
+    assert main(["simulate", "--scene", str(tmp_path / "room_c.npy"), "--scene-unit", "celsius",
+                 "--out", str(tmp_path / "c.npz"), *fast]) == 0
+    assert "scene values: degrees Celsius converted to kelvin: T_K = T_C + 273.15" in capsys.readouterr().out
+    assert main(["simulate", "--scene", str(tmp_path / "room_k.npy"), "--out", str(tmp_path / "k.npz"), "--json",
+                 *fast]) == 0
+    assert "scene_conversion" not in json.loads(capsys.readouterr().out)
+    with np.load(tmp_path / "c.npz") as zc, np.load(tmp_path / "k.npz") as zk:
+        np.testing.assert_array_equal(zc["frames"], zk["frames"])
+    assert main(["simulate", "--scene", "bars", "--scene-unit", "celsius", "--out", str(tmp_path / "b.npz")]) == 2
+    assert "--scene-unit = 'celsius'" in cli_error(capsys)
+    with pytest.raises(SystemExit) as e:
+        main(["simulate", "--scene", str(tmp_path / "room_c.npy"), "--scene-unit", "fahrenheit"])
+    assert e.value.code == 2 and "--scene-unit: invalid choice: 'fahrenheit'" in cli_error(capsys)
+
+
+def test_a_cold_pixel_warning_names_the_flag(tmp_path, capsys):
+    """A library warning's keyword (scene_unit='celsius') is printed as the flag to type."""
+    t = np.full((30, 30), 300.0)
+    t[0, 0] = 20.0
+    np.save(tmp_path / "cold.npy", t)
+    assert main(["simulate", "--scene", str(tmp_path / "cold.npy"), "--out", str(tmp_path / "m.npz"), "--frames", "1",
+                 "--psf", "airy", "--posts", "ideal", "--no-train", "--no-tiff", "--no-preview"]) == 0
+    err = capsys.readouterr().err
+    assert err.count("colder than any sky") == 1 and "--scene-unit celsius converts it" in err

@@ -24,3 +24,17 @@ def test_validate_bad_arguments_fail_before_any_work(tmp_path, capsys, argv, nam
     err = capsys.readouterr().err
     assert name in err and err.count("\n") == 1
     assert not out.exists()
+
+
+def test_validate_refuses_a_celsius_scene_before_any_work_and_names_the_flag(tmp_path, capsys):
+    """validate's --scene takes the same files as simulate's: a file in degrees Celsius is one line naming
+    --scene-unit, before the library and PSF work."""
+    import numpy as np
+
+    np.save(tmp_path / "room.npy", np.full((20, 20), 22.0))
+    out = tmp_path / "v"
+    assert main(["validate", "--scene", str(tmp_path / "room.npy"), "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert f"--scene {tmp_path / 'room.npy'}: " in err and "--scene-unit celsius converts them" in err
+    assert err.count("\n") == 1
+    assert not out.exists()

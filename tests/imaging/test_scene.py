@@ -167,3 +167,100 @@ def test_every_advertised_skimage_picture_loads_or_is_an_input_error(monkeypatch
     monkeypatch.setattr(data, "camera", offline)
     with pytest.raises(InputError, match="skimage:camera"):
         image_scene("camera")
+
+
+# ---------------------------------------------------------------------------------------------
+# the unit and the channels of a file or an array of temperatures
+# ---------------------------------------------------------------------------------------------
+def _room_celsius(shape=(24, 32)) -> np.ndarray:
+    """A room in degrees Celsius (20-35), as a camera's software exports it."""
+    t = np.full(shape, 21.0)
+    t[8:16, 10:22] = 34.5  # a person
+    return t
+
+
+def test_float_rgb_tiff_is_refused_as_one_channel_in_kelvin(tmp_path):
+    """A float RGB TIFF was read as a video of H frames, W pixels by 3 (a scene 3 pixels tall) without a word."""
+    import imageio.v3 as iio
+    import tifffile
+
+    rgb = np.random.default_rng(0).random((24, 32, 3)).astype(np.float32)
+    tifffile.imwrite(tmp_path / "rgb.tif", rgb, photometric="rgb")
+    iio.imwrite(tmp_path / "rgb_imageio.tif", rgb)
+    tifffile.imwrite(tmp_path / "planar.tif", np.moveaxis(rgb, -1, 0), photometric="rgb", planarconfig="separate")
+    for name in ("rgb.tif", "rgb_imageio.tif", "planar.tif"):
+        with pytest.raises(InputError, match=r"one channel \(a temperature map in kelvin\)") as e:
+            make_scene(str(tmp_path / name))
+        msg = str(e.value)
+        assert "\n" not in msg and e.value.parameter == "temperature_k" and "24, 32" in e.value.value
+        assert "3 samples per pixel (an RGB image)" in msg
+        assert "8- or 16-bit PNG or TIFF" in msg  # how to convert it
+    assert "photometric='minisblack'" in str(pytest.raises(InputError, load_scene_file, tmp_path / "planar.tif").value)
+    # an (h, w, 3) array holds colour samples too; a grey stack written as such is a video
+    np.save(tmp_path / "rgb.npy", 300.0 + rgb)
+    with pytest.raises(InputError, match=r"\(24, 32, 3\)' is invalid.*\(3 samples per pixel"):
+        make_scene(str(tmp_path / "rgb.npy"))
+    with pytest.raises(InputError, match="one channel"):
+        make_scene(300.0 + rgb)
+    tifffile.imwrite(tmp_path / "video.tif", 300.0 + rgb[..., 0][None].repeat(4, 0), photometric="minisblack")
+    assert make_scene(str(tmp_path / "video.tif")).temperature_k.shape == (4, 24, 32)
+
+
+def test_celsius_scene_is_refused_unless_its_unit_is_given(tmp_path):
+    """A scene in degrees Celsius (20-35) was simulated as 20-35 K (a scene colder than liquid nitrogen) without a
+    word; now an error naming the unit and the keyword that converts it, and with scene_unit='celsius' the same
+    scene as in kelvin, the conversion stated in its summary."""
+    import tifffile
+
+    c = _room_celsius()
+    np.save(tmp_path / "room.npy", c)
+    tifffile.imwrite(tmp_path / "room.tif", c.astype(np.float32))
+    np.savez(tmp_path / "room.npz", temperature_k=c)
+    for name in ("room.npy", "room.tif", "room.npz"):
+        with pytest.raises(InputError, match="temperatures in kelvin") as e:
+            make_scene(str(tmp_path / name))
+        assert "look like degrees Celsius: scene_unit='celsius' converts them, +273.15 K" in str(e.value)
+        assert e.value.parameter == "temperature_k" and e.value.value == "values 21 to 34.5"
+        sc = make_scene(str(tmp_path / name), scene_unit="celsius")
+        np.testing.assert_array_equal(sc.temperature_k, c + 273.15)  # 21 and 34.5: exact in float32 too
+        assert sc.summary()["conversion"] == "degrees Celsius converted to kelvin: T_K = T_C + 273.15"
+    kelvin = make_scene(c + 273.15)
+    assert "conversion" not in kelvin.summary()
+    np.testing.assert_array_equal(make_scene(c, scene_unit="celsius").temperature_k, kelvin.temperature_k)
+    with pytest.raises(InputError, match="look like degrees Celsius"):
+        make_scene(c)
+    with pytest.raises(InputError, match="values -300 to -260 degrees Celsius' is invalid.*-26.85 to 13.15 K"):
+        make_scene(np.linspace(-300, -260, 64).reshape(8, 8), scene_unit="celsius")
+
+
+def test_scene_unit_is_checked_and_applies_to_temperatures_only(tmp_path):
+    from skimage import io as skio
+
+    np.save(tmp_path / "hot.npy", np.full((8, 8), 310.0))
+    with pytest.raises(InputError, match="scene_unit = 'fahrenheit'.*kelvin or celsius"):
+        make_scene(str(tmp_path / "hot.npy"), scene_unit="fahrenheit")
+    with pytest.raises(InputError, match="scene_unit = 'celsius'.*built-in scene 'bars'"):
+        make_scene("bars", scene_unit="celsius")
+    picture = (np.random.default_rng(1).random((16, 16, 3)) * 255).astype(np.uint8)
+    skio.imsave(tmp_path / "photo.png", picture, check_contrast=False)
+    with pytest.raises(InputError, match="scene_unit = 'celsius'.*kelvin for a picture"):
+        make_scene(str(tmp_path / "photo.png"), scene_unit="celsius")
+    # a picture is mapped to temperatures as documented, and its summary says so
+    sc = make_scene(str(tmp_path / "photo.png"))
+    assert 288.0 <= sc.temperature_k.min() and sc.temperature_k.max() <= 312.0
+    assert sc.summary()["conversion"].startswith("a picture: its luminance")
+
+
+def test_a_picture_s_levels_and_a_cold_pixel_are_named(tmp_path):
+    """Float levels in 0-1 are a picture, not kelvin; a scene of room temperatures with a pixel at 20 K is warned
+    about (degrees Celsius read as kelvin, when the scene also holds something above 200 degrees Celsius)."""
+    levels = np.random.default_rng(2).random((16, 16))
+    with pytest.raises(InputError, match="look like a picture's levels: save one channel"):
+        make_scene(levels)
+    t = np.full((16, 16), 295.0)
+    t[0, 0] = 20.0
+    with pytest.warns(UserWarning, match=r"coldest value, 20 K, is colder than any sky.*scene_unit='celsius'"):
+        make_scene(t)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        make_scene(np.full((16, 16), 250.0))  # a clear sky: a scene

@@ -146,6 +146,27 @@ def test_bad_simulation_inputs(small_system, delta_psf):
         simulate(s, "bars", frames=1, psf=delta_psf, no_such_option=1)
 
 
+def test_a_scene_in_celsius_is_simulated_only_with_its_unit_given(small_system, delta_psf):
+    """mf.simulate(system, scene=array) took degrees Celsius as kelvin (an array was not even a scene: an OSError
+    'file name too long'); now a Celsius array is an input error, and with scene_unit='celsius' it gives the same
+    frames as the same scene in kelvin, the conversion stated in the metadata."""
+    import metafovea as mf
+
+    s = small_system(32)
+    c = np.full((40, 40), 22.0)
+    c[10:30, 15:25] = 34.0
+    kw = dict(frames=3, psf=delta_psf, posts="ideal", optical_train=False)
+    with pytest.raises(InputError, match="look like degrees Celsius: scene_unit='celsius'"):
+        mf.simulate(s, c, **kw)
+    celsius = mf.simulate(s, c, scene_unit="celsius", **kw)
+    kelvin = mf.simulate(s, c + 273.15, **kw)
+    np.testing.assert_array_equal(celsius.frames, kelvin.frames)
+    assert celsius.meta["scene_info"]["conversion"] == "degrees Celsius converted to kelvin: T_K = T_C + 273.15"
+    assert "conversion" not in kelvin.meta["scene_info"]
+    with pytest.raises(InputError, match=r"one channel \(a temperature map in kelvin\)"):
+        mf.simulate(s, np.stack([c + 273.15] * 3, axis=-1), **kw)
+
+
 # ---------------------------------------------------------------------------------------------
 # simulate_to_files
 # ---------------------------------------------------------------------------------------------
