@@ -53,9 +53,10 @@ def register(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
                         "below, else the paper's free-running 2 Hz polariser: auto, default) or not (none: the "
                         "foveal constraint alone)")
     add_shared(p, "--polarizer-hz", "--polarizer-mode", "--polarizer-phase-deg", "--extinction", "--tau")
-    p.add_argument("--polarizer-alpha", default="model", choices=("model", "frames"),
-                   help="alternating with the polariser model: alpha of the fitted constant-rate rotation (model, "
-                        "default) or each frame's own (frames: follows a jittering polariser)")
+    p.add_argument("--polarizer-alpha", default="auto", choices=("auto", "model", "frames"),
+                   help="alternating with the polariser model: alpha of the fitted constant-rate rotation (model), "
+                        "each frame's own (frames: follows a jittering polariser), or auto (default: frames when the "
+                        "rotation is irregular beyond the noise)")
     p.add_argument("--frame", type=int, default=0, help="frame index for --method snapshot (default 0)")
     p.add_argument("--steps", type=int, default=2000, help="DIP step budget: at most this many steps "
                    "(default 2000)")

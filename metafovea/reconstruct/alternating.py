@@ -415,9 +415,10 @@ class AlternatingOptions:
     polarizer : PolarizerModel or None
         Frame times, rate, mode, extinction (:class:`~metafovea.reconstruct.polarizer.PolarizerModel`): fixes the
         gauge from alpha's known mean and amplitude (:func:`polarizer_gauge_step`).
-    polarizer_alpha : {'model', 'frames'}
+    polarizer_alpha : {'auto', 'model', 'frames'}
         ``'model'``: alpha of the fitted constant-rate rotation (the images are then its least-squares images, no
-        alternation); ``'frames'``: each frame's own alpha in the fixed gauge, then alternation.
+        alternation); ``'frames'``: each frame's own alpha in the fixed gauge, then alternation; ``'auto'``
+        (default): ``'frames'`` when the fit finds the rotation irregular beyond the noise, else ``'model'``.
     prior : {'tv', 'nlm', 'bilateral'} or None
         The x-step's denoiser (None: plain alternating least squares).
     init : {'svd', 'means'}
@@ -448,7 +449,7 @@ class AlternatingOptions:
     foveal_psf: float | str = "fit"
     gauge: str = "auto"
     polarizer: PolarizerModel | None = None
-    polarizer_alpha: str = "model"
+    polarizer_alpha: str = "auto"
     prior: str | None = "tv"
     init: str = "svd"
     iterations: int = 10
@@ -564,8 +565,9 @@ def polarizer_gauge_step(win: _Window, x1: np.ndarray, x2: np.ndarray, alpha: np
     model : PolarizerModel
     sig : float
         The frames' noise std (alpha's data-term noise: ``sig / ||d||``).
-    use : {'model', 'frames'}
-        Return the fitted rotation's alpha (:func:`~metafovea.reconstruct.polarizer.model_alpha`) or each frame's
+    use : {'auto', 'model', 'frames'}
+        ``auto``: ``frames`` when the fit finds the rotation irregular (beyond the noise), else ``model``. Return
+        the fitted rotation's alpha (:func:`~metafovea.reconstruct.polarizer.model_alpha`) or each frame's
         own (:func:`~metafovea.reconstruct.polarizer.gauged_alpha`).
 
     Returns
@@ -598,6 +600,8 @@ def polarizer_gauge_step(win: _Window, x1: np.ndarray, x2: np.ndarray, alpha: np
         cands.append((mis, sign, al, se, n1, n2))
     cands.sort(key=lambda c: c[0])
     mis, sign, al, se, n1, n2 = cands[0]
+    if use == "auto":  # a rotation that jitters beyond the noise: each frame's own alpha follows it
+        use = "frames" if fit.get("irregular") else "model"
     if use == "model":
         al_f = al
         al, se = model_alpha(model, fit, sign)
@@ -664,7 +668,7 @@ def alternating(frames: ArrayLike, options: AlternatingOptions | None = None, **
     with tm.measure("gauge"):
         prep = None
         if opt.polarizer is not None and gauge in ("auto", "polarizer"):
-            use = check_choice("polarizer_alpha", opt.polarizer_alpha, ("model", "frames"))
+            use = check_choice("polarizer_alpha", opt.polarizer_alpha, ("auto", "model", "frames"))
             x1, x2, a, prep = polarizer_gauge_step(win, x1, x2, a, op, opt.polarizer, sig, use)
             info["polarizer_gauge"] = prep
         gain = _channel_noise_gain(a)

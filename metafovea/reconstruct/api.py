@@ -48,6 +48,8 @@ NOISE_GAIN_WARN = 10.0
 #: 89 windows: without a cap a default run never ends in a session. Ten minutes bound it; a run that hits the cap
 #: keeps each window's lowest-loss images and the summary says so
 DIP_MAX_SECONDS = 600.0
+#: frames of the calibration pass (the first ones): 24 frames are 2 s, four turns of the paper's polariser
+CALIBRATION_FRAMES = 24
 
 
 def reconstruct(frames: ArrayLike, alpha: ArrayLike | None = None, method: str = "lsq", *,
@@ -164,7 +166,8 @@ def reconstruct_measurement(m: Measurement, method: str = "lsq", *, known_alpha:
                             fpn: str | np.ndarray = "auto", denoise: str | None = None, frame: int = 0,
                             constraint: FovealConstraint | None = None, solver: dict[str, Any] | None = None,
                             level_free: bool = False, progress: bool = False,
-                            score_truth: bool = True, polarizer: dict[str, Any] | None = None) -> PipelineResult:
+                            score_truth: bool = True, polarizer: dict[str, Any] | None = None,
+                            calibrate: bool = True) -> PipelineResult:
     """Reconstruct a Measurement by the pipeline's rules and score it against its truth.
 
     Parameters
@@ -209,6 +212,10 @@ def reconstruct_measurement(m: Measurement, method: str = "lsq", *, known_alpha:
         ``--polarizer-hz`` ... of ``reconstruct``) before the file's keys and the defaults
         (:class:`~metafovea.measurement.PolarizerSpec`); the spec used, with each value's source and what was
         assumed, is ``reconstruction.info['polarizer_spec']``.
+    calibrate : bool
+        Unknown alpha with the polariser model: calibrate the recording first (:func:`_calibrated`: the foveal
+        geometry, the channels' gain ratio and alpha's amplitude from the data, :mod:`metafovea.reconstruct.calibrate`)
+        and use the amplitude where the data contradict the stated constants; ``reconstruction.info['calibration']``.
 
     Notes
     -----
@@ -244,6 +251,9 @@ def reconstruct_measurement(m: Measurement, method: str = "lsq", *, known_alpha:
         fpn, fpn_auto = fpn_mode(m)
     frames, fpn_kw = _fpn(m, fpn)
     frames, mask_info = _masked(m, frames, method)
+    calib = None
+    if isinstance(kw.get("polarizer"), PolarizerModel) and calibrate:
+        kw["polarizer"], calib = _calibrated(m, frames, kw, fpn_kw)
     video_out = method != "snapshot" and (T > window or starts is not None)
     t0 = time.perf_counter()
     from metafovea.parallel import blas_threads
@@ -272,10 +282,64 @@ def reconstruct_measurement(m: Measurement, method: str = "lsq", *, known_alpha:
         finfo = {**(rec.info.get("fpn") or {}), "mode": fpn.strip().lower()}
         rec = replace(rec, info={**rec.info, "fpn": finfo if fpn_auto is None else {**finfo, "auto": fpn_auto}})
     if isinstance(kw.get("polarizer"), PolarizerModel):
-        rec = replace(rec, info={**rec.info, "polarizer_spec": spec.summary()})
+        rec = replace(rec, info={**rec.info, "polarizer_spec": spec.summary(), "calibration": calib})
     res = PipelineResult(reconstruction=rec, spans=spans, seconds=seconds, constraint=fc, frames=T, source=m.source)
     return replace(res, metrics=_metrics(m, res, level_free) if score_truth else None,
                    alpha_mae=_alpha_mae(m, res, alpha is None))
+
+
+def _calibrated(m: Measurement, frames: np.ndarray, kw: dict[str, Any],
+                fpn_kw: dict[str, Any]) -> tuple[PolarizerModel, dict[str, Any]]:
+    """The polariser model with alpha's amplitude calibrated from the recording, and what the calibration found.
+
+    One pass of the classical solver (no prior: least-squares images) over the first :data:`CALIBRATION_FRAMES`
+    frames gives the images in the stated gauge; :func:`~metafovea.reconstruct.calibrate.fit_foveal` fits the foveal
+    relation to them (each side blurred by the other channel's PSF when the file has both). The amplitude is used
+    when it is identified and departs from the stated one by more than twice its standard error, the fit's model
+    error (:data:`~metafovea.reconstruct.calibrate.AMPLITUDE_MODEL_ERROR` times its relative misfit) and
+    :data:`~metafovea.reconstruct.calibrate.AMPLITUDE_FLOOR`."""
+    from metafovea.reconstruct.calibrate import AMPLITUDE_FLOOR, AMPLITUDE_MODEL_ERROR, fit_foveal
+
+    model: PolarizerModel = kw["polarizer"]
+    n = min(frames.shape[0], CALIBRATION_FRAMES)
+    sub = replace(model, times_s=model.times_s[:n])
+    geo = {k: kw[k] for k in ("scale", "foveal_gain", "foveal_offset") if k in kw}
+    info: dict[str, Any] = {"frames": n, "applied": False}
+    try:
+        first = reconstruct(frames[:n], None, method="alternating", polarizer=sub, prior=None, strict=False,
+                            **geo, **fpn_kw)
+    except InputError as e:
+        info["reason"] = f"the calibration pass failed: {e}"
+        return model, info
+    pg = first.info.get("polarizer_gauge") or {}
+    if not pg.get("applied"):
+        info["reason"] = f"the polariser model did not fix alpha in the calibration pass ({pg.get('reason')})"
+        return model, info
+    x1, x2 = np.asarray(first.x1, np.float64), np.asarray(first.x2, np.float64)
+    psfs = (m.extras["psf_x1"], m.extras["psf_x2"]) if {"psf_x1", "psf_x2"} <= set(m.extras) else None
+    try:
+        fit = fit_foveal(0.5 * (x1 + x2), x1 - x2, scale=geo.get("scale", 6.0), gain=geo.get("foveal_gain", 1.0),
+                         offset=geo.get("foveal_offset", 0.0), psfs=psfs)
+    except InputError as e:
+        info["reason"] = f"the foveal fit failed: {e}"
+        return model, info
+    info.update(fit.summary(), psf_cross_blur=psfs is not None)
+    rho, se = fit.amplitude, fit.se["amplitude"]
+    if not fit.identified["amplitude"]:
+        info["reason"] = (f"alpha's amplitude is not identified by the foveal constraint (standard error {se:.2g}: "
+                          "too little texture in the fovea): the stated polariser constants are used")
+        info["warning"] = info["reason"]
+    elif abs(rho - 1.0) <= (tol := max(2.0 * se, AMPLITUDE_MODEL_ERROR * fit.se["relative_residual"],
+                                       AMPLITUDE_FLOOR)):
+        info["reason"] = (f"alpha's amplitude agrees with the stated polariser constants ({rho:.4f} +- {se:.2g} of "
+                          f"it, within {tol:.2g}: twice its error or the fit's model error): they are used")
+    else:
+        info.update(applied=True, reason=f"alpha's amplitude is {rho:.4f} +- {se:.2g} of the stated constants': "
+                    "the recording's polariser leaks more (extinction) or its bolometer is slower (tau) than stated; "
+                    "the calibrated amplitude is used")
+        info["warning"] = info["reason"]
+        model = replace(model, amplitude_scale=rho)
+    return model, info
 
 
 def _polarizer_model(m: Measurement, method: str, alpha: np.ndarray | None, spec: PolarizerSpec,

@@ -53,6 +53,9 @@ class PolarizerModel:
     extinction: float = 0.0
     tau_s: float = 0.0
     rate_tolerance: float = 0.05  # free: the actual rate is searched within +- this fraction of rate_hz
+    #: the amplitude of alpha over the one the device's constants give, calibrated from the recording
+    #: (:mod:`metafovea.reconstruct.calibrate`: a polariser that leaks more, or a slower bolometer, than stated)
+    amplitude_scale: float = 1.0
 
     def __post_init__(self) -> None:
         t = np.asarray(self.times_s, dtype=np.float64).reshape(-1)
@@ -65,6 +68,7 @@ class PolarizerModel:
             raise InputError("polarizer phase_rad", None, "the rotation's phase for a synchronised polariser")
         RotatingPolarizer(self.rate_hz, self.extinction, self.tau_s)  # checks the device's constants
         check_range("rate_tolerance", self.rate_tolerance, 0.0, 0.5, lo_inclusive=True)
+        check_range("amplitude_scale", self.amplitude_scale, 0.0, 2.0)
 
     @classmethod
     def from_spec(cls, spec: PolarizerSpec, times_s: ArrayLike) -> PolarizerModel:
@@ -95,7 +99,7 @@ class PolarizerModel:
     @property
     def amplitude(self) -> float:
         """``s``: half the peak-to-peak range of the effective alpha."""
-        return self.physics.amplitude
+        return self.physics.amplitude * self.amplitude_scale
 
     def alpha(self, times_s: ArrayLike | None = None, omega: float | None = None,
               phase: float | None = None) -> np.ndarray:
@@ -103,7 +107,7 @@ class PolarizerModel:
         (default that of the rotation's phase ``phase_rad``, 0 when unknown)."""
         t = self.times_s if times_s is None else times_s
         ph = self.physics.alpha_phase(self.phase_rad or 0.0) if phase is None else phase
-        return self.physics.alpha(t, ph, omega)
+        return ALPHA_MEAN + self.amplitude_scale * (self.physics.alpha(t, ph, omega) - ALPHA_MEAN)
 
 
 def _design(t: np.ndarray, w: float) -> np.ndarray:
@@ -248,7 +252,7 @@ def model_alpha(model: PolarizerModel, fit: dict[str, Any], sign: float = 1.0) -
     t = model.times_s
     ph = fit["phase_centre"] + (math.pi if sign < 0 else 0.0)
     u = fit["omega"] * (t - fit["t_centre"]) + ph
-    al = model.physics.alpha(t - fit["t_centre"], ph, fit["omega"])
+    al = model.alpha(t - fit["t_centre"], omega=fit["omega"], phase=ph)
     var = (model.amplitude * np.sin(u)) ** 2 * (fit["var_phase_centre"] + (t - fit["t_centre"]) ** 2 * fit["var_omega"])
     return al, np.sqrt(np.maximum(var, 0.0))
 
