@@ -17,11 +17,13 @@ up to the channels' gain ratio ``g`` and an offset ``o``:
 
     G_1 x1(c + t + scale R(phi) (p - c)) = g G_2 x2(p) + o                                             (2)
 
-for the perifoveal pixels ``p`` of the fovea (``c`` the sensor's centre). Both sides are low-passed by a common
-Gaussian (``G_2``: ``blur_px`` perifoveal pixels; ``G_1``: the same in foveal pixels, with the pixel box of the
-down-scaling), so that the channels' different PSFs matter little. (2) is solved for the seven parameters
-``(scale, t_y, t_x, phi, u, g, o)`` by non-linear least squares (:func:`fit_foveal`), started from the stated
-constraint; (1) makes it linear in ``(u, g u, g, o)`` at fixed geometry, which gives the start.
+for the perifoveal pixels ``p`` of the fovea (``c`` the sensor's centre), the foveal side times ``1 + k r^2``
+(the sensor's vignetting: the foveal image samples the whole sensor, the perifoveal one only its centre).
+Both sides are low-passed by a common Gaussian (``G_2``: ``blur_px`` perifoveal pixels; ``G_1``: the same in foveal
+pixels, with the pixel box of the down-scaling), so that the channels' different PSFs matter little; with the
+channels' PSFs each side is also blurred by the other's. (2) is solved for the eight parameters
+``(scale, t_y, t_x, phi, u, g, o, k)`` by non-linear least squares (:func:`fit_foveal`), started from the stated
+constraint, where it is linear in ``(g, o, k)`` at each ``u`` (a 1-D search gives the start).
 
 Uncertainty: the Gauss-Newton covariance ``s_r^2 (J^T J)^-1`` of the fit, inflated by the residual's correlation area
 (the low-pass makes neighbouring samples share their error: ``4 pi blur_px^2`` samples count as one). A parameter is
@@ -46,7 +48,11 @@ BLUR_PX = 1.5
 #: perifoveal pixels left out at the fovea's border (the low-pass and the geometry's search reach that far)
 MARGIN_PX = 3
 #: how far the geometry is searched from the stated one: relative scale, centre (foveal pixels), rotation (degrees)
-SEARCH = {"scale": 0.06, "centre_px": 8.0, "rotation_deg": 2.0}
+SEARCH = {"scale": 0.06, "centre_px": 36.0, "rotation_deg": 2.0}
+#: the drop of chi^2 (4 geometry parameters) above which the fitted geometry replaces the stated one (p < 1e-4)
+GEOMETRY_CHI2 = 23.5
+#: the coarse search of the centre: whole perifoveal pixels either way
+COARSE_SHIFT_PX = 5
 #: the amplitude's model error per unit of the fit's relative misfit (residual rms over the perifoveal side's
 #: contrast): where the relation (2) does not hold (haze from outside the fovea, PSFs unknown) the amplitude is
 #: biased by up to this times that misfit. Measured on the simulator's paper camera (three scenes, 8-14 um and the
@@ -57,7 +63,7 @@ AMPLITUDE_MODEL_ERROR = 0.03
 AMPLITUDE_FLOOR = 0.002
 #: blocks per axis of the fovea for the amplitude's jackknife error
 JACKKNIFE_BLOCKS = 3
-#: the standard error under which a fitted quantity counts as identified
+#: the standard error under which a fitted quantity counts as identified (scale: relative)
 TOLERANCES = {"scale": 0.005, "centre_px": 0.3, "rotation_deg": 0.1, "amplitude": 0.004, "gain": 0.01}
 
 
@@ -77,6 +83,10 @@ class FovealFit:
         ``rho``: the true amplitude of alpha over the stated one.
     gain, offset : float
         ``g`` and ``o`` of (2) (the frames' units).
+    vignetting : float
+        ``k``: the foveal side's relative gain ``1 + k r^2`` over the sensor (``r`` 1 at the corner): the sensor's
+        vignetting, which the foveal image samples over the whole sensor and the perifoveal one only at its
+        centre; ``-k / (1 + k)`` is the corner's loss.
     se : dict
         Standard errors of ``scale``, ``centre_px`` (the larger axis), ``rotation_deg``, ``amplitude``, ``gain``.
     residual_rms : float
@@ -93,6 +103,7 @@ class FovealFit:
     amplitude: float
     gain: float
     offset: float
+    vignetting: float = 0.0
     se: dict[str, float] = field(default_factory=dict)
     residual_rms: float = math.nan
     identified: dict[str, bool] = field(default_factory=dict)
@@ -101,7 +112,8 @@ class FovealFit:
     def summary(self) -> dict[str, Any]:
         """JSON-ready: every field."""
         return {"scale": self.scale, "centre_px": list(self.centre_px), "rotation_deg": self.rotation_deg,
-                "amplitude": self.amplitude, "gain": self.gain, "offset": self.offset, "se": dict(self.se),
+                "amplitude": self.amplitude, "gain": self.gain, "offset": self.offset, "vignetting": self.vignetting,
+                "se": dict(self.se),
                 "residual_rms": self.residual_rms, "identified": dict(self.identified), "samples": self.samples}
 
 
@@ -169,21 +181,26 @@ def _foveal_points(p: np.ndarray, shape: tuple[int, int], scale: float, ty: floa
     return c + np.array([ty, tx])[:, None] + scale * (R @ (p - c))
 
 
-def _amplitude_u(a_m: np.ndarray, a_d: np.ndarray, b_m: np.ndarray, b_d: np.ndarray) -> float:
-    """``u`` of (1) at fixed geometry: (g, o) by linear least squares inside a bounded 1-D search."""
+def _linear_part(u: float, a_m: np.ndarray, a_d: np.ndarray, b_m: np.ndarray, b_d: np.ndarray,
+                 r2: np.ndarray) -> tuple[float, float, float, float]:
+    """``(g, o, k, rss)`` of (2) at amplitude ``1 / u`` and fixed geometry: ``lhs (1 + k r2) = g rhs + o`` is linear
+    in ``(g, o, k)`` (``k``: the radial gain, vignetting, that the foveal side sees over the sensor)."""
+    lhs, rhs = a_m + 0.5 * u * a_d, b_m - 0.5 * u * b_d
+    X = np.stack([rhs, np.ones_like(rhs), -r2 * lhs], axis=1)
+    coef, *_ = np.linalg.lstsq(X, lhs, rcond=None)
+    return float(coef[0]), float(coef[1]), float(coef[2]), float(np.sum((lhs - X @ coef) ** 2))
+
+
+def _amplitude_u(a_m: np.ndarray, a_d: np.ndarray, b_m: np.ndarray, b_d: np.ndarray, r2: np.ndarray) -> float:
+    """``u`` of (1) at fixed geometry: (g, o, k) by linear least squares inside a bounded 1-D search."""
     from scipy.optimize import minimize_scalar
 
-    def rss(u: float) -> float:
-        lhs, rhs = a_m + 0.5 * u * a_d, b_m - 0.5 * u * b_d
-        X = np.stack([rhs, np.ones_like(rhs)], axis=1)
-        coef, *_ = np.linalg.lstsq(X, lhs, rcond=None)
-        return float(np.sum((lhs - X @ coef) ** 2))
-
-    return float(minimize_scalar(rss, bounds=(0.5, 2.0), method="bounded", options={"xatol": 1e-7}).x)
+    return float(minimize_scalar(lambda u: _linear_part(u, a_m, a_d, b_m, b_d, r2)[3], bounds=(0.5, 2.0),
+                                 method="bounded", options={"xatol": 1e-7}).x)
 
 
 def _block_jackknife(p: np.ndarray, a_m: np.ndarray, a_d: np.ndarray, b_m: np.ndarray, b_d: np.ndarray,
-                     blocks: int = JACKKNIFE_BLOCKS) -> float:
+                     r2: np.ndarray, blocks: int = JACKKNIFE_BLOCKS) -> float:
     """The delete-one-block jackknife standard error of ``u`` over ``blocks x blocks`` blocks of the fovea: unlike
     the Gauss-Newton error it sees a misfit that varies across the field (the channels' PSFs, haze, vignetting)."""
     edges = [np.quantile(p[i], np.linspace(0, 1, blocks + 1)[1:-1]) for i in (0, 1)]
@@ -193,12 +210,30 @@ def _block_jackknife(p: np.ndarray, a_m: np.ndarray, a_d: np.ndarray, b_m: np.nd
         keep = label != b
         if keep.sum() < 0.5 * keep.size:
             continue
-        us.append(_amplitude_u(a_m[keep], a_d[keep], b_m[keep], b_d[keep]))
+        us.append(_amplitude_u(a_m[keep], a_d[keep], b_m[keep], b_d[keep], r2[keep]))
     n = len(us)
     if n < 3:
         return math.inf
     us_a = np.asarray(us)
     return float(math.sqrt((n - 1) / n * np.sum((us_a - us_a.mean()) ** 2)))
+
+
+def _coarse_centre(p: np.ndarray, f2m: np.ndarray, f2d: np.ndarray, a_m: np.ndarray, a_d: np.ndarray,
+                   r2: np.ndarray, u: float, scale: float) -> tuple[float, float] | None:
+    """The foveal centre ``-scale delta`` (foveal pixels) of the whole-pixel shift ``delta`` of the perifoveal
+    samples, within :data:`COARSE_SHIFT_PX`, that fits (2) best at the stated scale; None if no shift fits."""
+    H, W = f2m.shape
+    iy, ix = p.astype(int)
+    best, arg = math.inf, None
+    for dy in range(-COARSE_SHIFT_PX, COARSE_SHIFT_PX + 1):
+        for dx in range(-COARSE_SHIFT_PX, COARSE_SHIFT_PX + 1):
+            jy, jx = iy + dy, ix + dx
+            if jy.min() < 0 or jx.min() < 0 or jy.max() >= H or jx.max() >= W:
+                continue
+            rss = _linear_part(u, a_m, a_d, f2m[jy, jx], f2d[jy, jx], r2)[3]
+            if rss < best:
+                best, arg = rss, (dy, dx)
+    return None if arg is None else (-scale * arg[0], -scale * arg[1])
 
 
 def fit_foveal(mean: ArrayLike, diff: ArrayLike, *, scale: float = 6.0, gain: float = 1.0, offset: float = 0.0,
@@ -241,47 +276,53 @@ def fit_foveal(mean: ArrayLike, diff: ArrayLike, *, scale: float = 6.0, gain: fl
     iy, ix = p.astype(int)
     b_m, b_d = f2m[iy, ix], f2d[iy, ix]
 
-    def foveal(theta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    H, W = shape
+    norm = ((H - 1) / 2.0) ** 2 + ((W - 1) / 2.0) ** 2
+
+    def foveal(theta: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         q = _foveal_points(p, shape, theta[0], theta[1], theta[2], math.radians(theta[3]))
-        return (map_coordinates(f1m, q, order=3, mode="nearest"), map_coordinates(f1d, q, order=3, mode="nearest"))
+        r2 = ((q[0] - (H - 1) / 2.0) ** 2 + (q[1] - (W - 1) / 2.0) ** 2) / norm
+        return (map_coordinates(f1m, q, order=3, mode="nearest"), map_coordinates(f1d, q, order=3, mode="nearest"),
+                r2)
 
     def residual(theta: np.ndarray) -> np.ndarray:
-        a_m, a_d = foveal(theta)
+        a_m, a_d, r2 = foveal(theta)
         u = theta[4] if fit_amplitude else 1.0
-        g, o = theta[5], theta[6]
-        return (a_m + 0.5 * u * a_d) - g * (b_m - 0.5 * u * b_d) - o
+        g, o, k = theta[5], theta[6], theta[7]
+        return (a_m + 0.5 * u * a_d) * (1.0 + k * r2) - g * (b_m - 0.5 * u * b_d) - o
 
-    # stage 1, the stated geometry: (u, g u, g, o) is linear there
-    a_m, a_d = foveal(np.array([scale, 0.0, 0.0, 0.0]))
-    def gain_offset(u: float) -> tuple[float, float, float]:
-        """``(g, o)`` of (2) at amplitude ``1 / u`` (linear least squares) and the residual's sum of squares."""
-        lhs, rhs = a_m + 0.5 * u * a_d, b_m - 0.5 * u * b_d
-        X = np.stack([rhs, np.ones_like(rhs)], axis=1)
-        (g, o), *_ = np.linalg.lstsq(X, lhs, rcond=None)
-        return float(g), float(o), float(np.sum((lhs - X @ np.array([g, o])) ** 2))
-
-    u0 = 1.0
-    if fit_amplitude:
-        from scipy.optimize import minimize_scalar
-
-        u0 = float(minimize_scalar(lambda u: gain_offset(u)[2], bounds=(0.5, 2.0), method="bounded",
-                                   options={"xatol": 1e-6}).x)
-    g0, o0, _ = gain_offset(u0)
-    theta0 = np.array([scale, 0.0, 0.0, 0.0, u0, g0, o0])
+    # stage 1, the stated geometry: (g, o, k) linear there, u by a 1-D search
+    a_m, a_d, r2 = foveal(np.array([scale, 0.0, 0.0, 0.0]))
+    u0 = _amplitude_u(a_m, a_d, b_m, b_d, r2) if fit_amplitude else 1.0
+    g0, o0, k0, _ = _linear_part(u0, a_m, a_d, b_m, b_d, r2)
+    theta0 = np.array([scale, 0.0, 0.0, 0.0, u0, g0, o0, k0])
+    # stage 1b: a coarse search of the centre (whole perifoveal pixels: the perifoveal side shifted by ``delta`` is
+    # the foveal centre moved by ``-scale delta``), where a mounted camera's axis can sit far from the stated one
+    t_start = _coarse_centre(p, f2m, f2d, a_m, a_d, r2, u0, scale)
+    if t_start is not None:
+        a_m1, a_d1, r21 = foveal(np.array([scale, t_start[0], t_start[1], 0.0]))
+        u1 = _amplitude_u(a_m1, a_d1, b_m, b_d, r21) if fit_amplitude else 1.0
+        g1, o1, k1, rss1 = _linear_part(u1, a_m1, a_d1, b_m, b_d, r21)
+        if rss1 < _linear_part(u0, a_m, a_d, b_m, b_d, r2)[3]:
+            theta_s = np.array([scale, t_start[0], t_start[1], 0.0, u1, g1, o1, k1])
+        else:
+            theta_s = theta0
+    else:
+        theta_s = theta0
     # stage 2, the geometry too, within the bounds a mounted camera stays in (SEARCH)
     spread = float(np.std(b_m)) or 1.0
-    x_scale = np.array([0.01 * scale, 0.3, 0.3, 0.1, 0.01, 0.01 * max(abs(g0), 1e-3), 0.01 * spread])
+    x_scale = np.array([0.01 * scale, 0.3, 0.3, 0.1, 0.01, 0.01 * max(abs(g0), 1e-3), 0.01 * spread, 0.01])
     lo = np.array([scale * (1 - SEARCH["scale"]), -SEARCH["centre_px"], -SEARCH["centre_px"],
-                   -SEARCH["rotation_deg"], 0.5, 1e-6, -np.inf])
+                   -SEARCH["rotation_deg"], 0.5, 1e-6, -np.inf, -0.9])
     hi = np.array([scale * (1 + SEARCH["scale"]), SEARCH["centre_px"], SEARCH["centre_px"], SEARCH["rotation_deg"],
-                   2.0, np.inf, np.inf])
+                   2.0, np.inf, np.inf, 9.0])
     if not fit_amplitude:
         lo[4], hi[4] = 1.0 - 1e-12, 1.0 + 1e-12
-    sol = least_squares(residual, np.clip(theta0, lo, hi), x_scale=x_scale, bounds=(lo, hi), method="trf",
+    sol = least_squares(residual, np.clip(theta_s, lo, hi), x_scale=x_scale, bounds=(lo, hi), method="trf",
                         max_nfev=200)
     th = sol.x
     r = sol.fun
-    n, k = r.size, (7 if fit_amplitude else 6)
+    n, k = r.size, (8 if fit_amplitude else 7)
     var = float(np.sum(r ** 2)) / max(n - k, 1)
     J = sol.jac if fit_amplitude else np.delete(sol.jac, 4, axis=1)
     inflate = max(1.0, 4.0 * math.pi * blur_px ** 2)  # neighbouring samples share their error through the low-pass
@@ -296,11 +337,21 @@ def fit_foveal(mean: ArrayLike, diff: ArrayLike, *, scale: float = 6.0, gain: fl
     se = {"scale": float(se_all[0]), "centre_px": float(max(se_all[1], se_all[2])),
           "rotation_deg": float(se_all[3]), "amplitude": float(se_all[4] / u ** 2) if fit_amplitude else 0.0,
           "gain": float(se_all[5])}
-    ok = {key: bool(math.isfinite(v) and v <= TOLERANCES[key]) for key, v in se.items()}
-    if not (ok["scale"] and ok["centre_px"]):  # the geometry is not pinned down: keep the stated one (stage 1)
+    ok = {key: bool(math.isfinite(v) and v <= TOLERANCES[key] * (th[0] if key == "scale" else 1.0))
+          for key, v in se.items()}
+    stage2 = {"scale": float(th[0]), "centre_px": [float(th[1]), float(th[2])], "rotation_deg": float(th[3]),
+              "amplitude": 1.0 / float(th[4]), "rss": float(np.sum(r ** 2)),
+              "rss_stated": float(np.sum(residual(theta0) ** 2)),
+              "se": dict(se)}
+    # the fitted geometry is used when it explains the fovea significantly better than the stated one: the drop of
+    # the residual beyond what 4 more parameters fit to noise (chi^2, in units of its correlated variance)
+    gain_chi2 = (stage2["rss_stated"] - stage2["rss"]) / max(var * inflate, 1e-300)
+    stage2["chi2_drop"] = float(gain_chi2)
+    if not gain_chi2 > GEOMETRY_CHI2:  # the geometry is not pinned down: keep the stated one (stage 1)
         r = residual(theta0)
-        u0_, g0_ = theta0[4], theta0[5]
-        J = np.stack([0.5 * a_d + 0.5 * g0_ * b_d, -(b_m - 0.5 * u0_ * b_d), -np.ones_like(b_m)], axis=1)
+        u0_, g0_, k0_ = theta0[4], theta0[5], theta0[7]
+        J = np.stack([0.5 * a_d * (1 + k0_ * r2) + 0.5 * g0_ * b_d, -(b_m - 0.5 * u0_ * b_d), -np.ones_like(b_m),
+                      (a_m + 0.5 * u0_ * a_d) * r2], axis=1)
         J = J if fit_amplitude else J[:, 1:]
         var = float(np.sum(r ** 2)) / max(n - J.shape[1], 1)
         try:
@@ -309,20 +360,21 @@ def fit_foveal(mean: ArrayLike, diff: ArrayLike, *, scale: float = 6.0, gain: fl
             se1 = np.full(J.shape[1], math.inf)
         th = theta0
         u = float(th[4])
-        se.update(amplitude=float(se1[0] / u ** 2) if fit_amplitude else 0.0, gain=float(se1[-2]))
+        se.update(amplitude=float(se1[0] / u ** 2) if fit_amplitude else 0.0, gain=float(se1[-3]))
         ok.update(amplitude=bool(math.isfinite(se["amplitude"]) and se["amplitude"] <= TOLERANCES["amplitude"]),
                   gain=bool(math.isfinite(se["gain"]) and se["gain"] <= TOLERANCES["gain"]), geometry_kept=True)
     if fit_amplitude:  # the spread of the amplitude over the fovea's blocks: what a structured misfit costs
-        a_m, a_d = foveal(th)
-        se_jk = _block_jackknife(p, a_m, a_d, b_m, b_d)
+        a_m, a_d, r2 = foveal(th)
+        se_jk = _block_jackknife(p, a_m, a_d, b_m, b_d, r2)
         se["amplitude"] = max(se["amplitude"], se_jk / u ** 2)
         se["amplitude_blocks"] = se_jk / u ** 2
         ok["amplitude"] = bool(math.isfinite(se["amplitude"]) and se["amplitude"] <= TOLERANCES["amplitude"])
     x2_side = b_m - 0.5 * (float(th[4]) if fit_amplitude else 1.0) * b_d
+    se["stage2"] = stage2
     se["relative_residual"] = math.sqrt(float(np.mean(r ** 2))) / max(abs(float(th[5])) * float(np.std(x2_side)),
                                                                        1e-300)
     return FovealFit(scale=float(th[0]), centre_px=(float(th[1]), float(th[2])), rotation_deg=float(th[3]),
-                     amplitude=1.0 / u, gain=float(th[5]), offset=float(th[6]), se=se,
+                     amplitude=1.0 / u, gain=float(th[5]), offset=float(th[6]), vignetting=float(th[7]), se=se,
                      residual_rms=math.sqrt(float(np.mean(r ** 2))), identified=ok, samples=int(n))
 
 
