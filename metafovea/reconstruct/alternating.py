@@ -602,6 +602,8 @@ def polarizer_gauge_step(win: _Window, x1: np.ndarray, x2: np.ndarray, alpha: np
     mis, sign, al, se, n1, n2 = cands[0]
     if use == "auto":  # a rotation that jitters beyond the noise: each frame's own alpha follows it
         use = "frames" if fit.get("irregular") else "model"
+    if use == "frames" and dnorm > 0:  # each frame's alpha carries its data-term noise, not the jitter it follows
+        al, se = gauged_alpha(alpha, fit, sign, frame_noise=sig / dnorm)
     if use == "model":
         al_f = al
         al, se = model_alpha(model, fit, sign)

@@ -226,10 +226,12 @@ def polarizer_gauge(alpha_hat: np.ndarray, model: PolarizerModel, *,
     return out
 
 
-def gauged_alpha(alpha_hat: np.ndarray, fit: dict[str, Any], sign: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
+def gauged_alpha(alpha_hat: np.ndarray, fit: dict[str, Any], sign: float = 1.0,
+                 frame_noise: float | None = None) -> tuple[np.ndarray, np.ndarray]:
     """``alpha_t = (alpha_hat_t - b) / a`` for the fit's ``(a, b)`` (``sign`` -1: the other candidate of a
     free-running fit, ``a -> -a``, ``b -> A0 + a / 2``), and each frame's standard error: the gauge's uncertainty
-    (delta method) and the per-frame scatter (the fit's residual, conservative: it also holds any jitter)."""
+    (delta method) and the per-frame scatter (the fit's residual, conservative: it also holds any jitter; or
+    ``frame_noise``, the data-term noise of ``alpha_hat`` in its gauge, when the frames' own alpha is used)."""
     y = np.asarray(alpha_hat, dtype=np.float64)
     a, b = fit["a"], fit["b"]
     cov = np.asarray(fit["cov"])
@@ -241,6 +243,8 @@ def gauged_alpha(alpha_hat: np.ndarray, fit: dict[str, Any], sign: float = 1.0) 
     al = (y - b) / a
     var_frame = fit["residual_rms"] ** 2 * fit.get("t_inflation", 1.0) * fit["frames"] / max(
         fit["frames"] - (2 if fit["mode"] == "sync" else 4), 1)
+    if frame_noise is not None:  # each frame's own alpha, which follows a jitter: only its data-term noise
+        var_frame = frame_noise ** 2 * fit.get("t_inflation", 1.0)
     var = (var_frame + cov[1, 1] + al ** 2 * cov[0, 0] + 2 * al * cov[0, 1]) / (a * a)
     return al, np.sqrt(np.maximum(var, 0.0))
 

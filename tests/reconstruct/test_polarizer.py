@@ -103,11 +103,15 @@ def test_extinction_and_lag_are_modelled():
 
 def test_jitter_is_detected_and_frames_follow_it():
     x1, x2, al, Y, model = _case(11, jitter=0.05)
-    rec = reconstruct(Y, method="alternating", polarizer=model, scale=6.0, prior=None, strict=False)
+    rec = reconstruct(Y, method="alternating", polarizer=model, scale=6.0, prior=None, strict=False,
+                      polarizer_alpha="model")
     pg = rec.info["polarizer_gauge"]
     assert pg["fit"]["irregular"] and "irregular polariser" in pg["warning"]
     follow = reconstruct(Y, method="alternating", polarizer=model, scale=6.0, prior=None, polarizer_alpha="frames")
     assert np.mean(np.abs(follow.alpha - al)) < 0.5 * np.mean(np.abs(rec.alpha - al))
+    # the default (auto) follows the frames once the fit finds the rotation irregular
+    auto = reconstruct(Y, method="alternating", polarizer=model, scale=6.0, prior=None)
+    assert auto.info["polarizer_gauge"]["alpha_from"] == "frames" and np.array_equal(auto.alpha, follow.alpha)
 
 
 def test_stopped_polarizer_is_reported():
