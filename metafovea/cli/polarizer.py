@@ -13,14 +13,27 @@ POLARIZER_OPTIONS = {"--polarizer-hz": "rate_hz", "--polarizer-mode": "mode", "-
                      "--extinction": "extinction", "--tau": "tau_s"}
 
 
-def polarizer_lines(spec: dict[str, Any]) -> str:
+def polarizer_lines(spec: dict[str, Any], calibration: dict[str, Any] | None = None) -> str:
     """The polariser model a command used (:meth:`~metafovea.measurement.PolarizerSpec.summary`): one line, with each
-    value's source, and one line per assumption."""
+    value's source, one line per assumption, and what the recording's calibration found (geometry, gain, alpha's
+    amplitude, with standard errors: :mod:`metafovea.reconstruct.calibrate`)."""
     phase = "" if spec.get("phase_deg") is None else f", phase {spec['phase_deg']:g} deg"
     src = ", ".join(f"{k} {v}" for k, v in spec["sources"].items() if not v.startswith("ignored"))
-    return "\n".join([f"  polariser model: {spec['mode']} at {spec['rate_hz']:g} Hz{phase}, extinction "
-                      f"{spec['extinction']:g}, bolometer tau {spec['tau_s']:g} s ({src})"]
-                     + [f"  assumed: {a}" for a in spec.get("assumed") or []])
+    lines = [f"  polariser model: {spec['mode']} at {spec['rate_hz']:g} Hz{phase}, extinction {spec['extinction']:g}, "
+             f"bolometer tau {spec['tau_s']:g} s ({src})"] + [f"  assumed: {a}" for a in spec.get("assumed") or []]
+    c = calibration or {}
+    if "scale" in c:
+        se = c.get("se") or {}
+        lines.append(f"  calibrated from the recording ({c['frames']} frames): foveal scale {c['scale']:.4f} "
+                     f"+- {se.get('scale', 0):.2g}, centre ({c['centre_px'][0]:.2f}, {c['centre_px'][1]:.2f}) "
+                     f"+- {se.get('centre_px', 0):.2g} px, rotation {c['rotation_deg']:.3f} +- "
+                     f"{se.get('rotation_deg', 0):.2g} deg, channel gain ratio {c['gain']:.4g} +- "
+                     f"{se.get('gain', 0):.2g}, "
+                     f"alpha's amplitude {c['amplitude']:.4f} +- {se.get('amplitude', 0):.2g} of the stated "
+                     f"({'used' if c.get('applied') else 'stated kept'})")
+    elif c.get("reason"):
+        lines.append(f"  calibration: {c['reason']}")
+    return "\n".join(lines)
 
 
 def polarizer_args(args: argparse.Namespace) -> dict[str, Any]:

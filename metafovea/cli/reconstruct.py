@@ -166,12 +166,12 @@ def run(args: argparse.Namespace) -> int:
     if s.get("invalid_samples"):
         iv = s["invalid_samples"]
         print(f"  {iv['count']:,} samples ({100 * iv['fraction']:.2g} %) {iv['how']}: outside the ADC range "
-              f"{iv['valid_range_dn']} DN, non-finite or on bad pixels")
-    pol = s.get("polarizer") or {}
-    if pol.get("model"):
-        print(polarizer_lines(pol["model"]))
-    if pol.get("warning"):
-        print(f"  warning: {pol['warning']}")
+              f"{iv['valid_range_dn']} DN, non-finite, on the file's {iv.get('bad_pixel_map', 0)} bad pixel(s) or "
+              f"on {iv.get('stuck_pixels', 0)} stuck (dead or saturated) pixel(s) found")
+    if (s.get("polarizer") or {}).get("model"):
+        print(polarizer_lines(s["polarizer"]["model"], s.get("calibration")))
+    for w in s.get("warnings") or []:  # the polariser's, the calibration's, what could not be identified
+        print(f"  warning: {w}")
     if s.get("nonfinite_pixels"):
         print(f"  {s['nonfinite_pixels']} NaN value(s) in x1/x2: pixels without valid samples (e.g. dead pixels)")
     if isinstance(s.get("metrics"), dict):

@@ -48,6 +48,10 @@ NOISE_GAIN_WARN = 10.0
 #: 89 windows: without a cap a default run never ends in a session. Ten minutes bound it; a run that hits the cap
 #: keeps each window's lowest-loss images and the summary says so
 DIP_MAX_SECONDS = 600.0
+#: the frames a stuck pixel must keep one value over to be left out as dead or saturated
+STUCK_MIN_FRAMES = 6
+#: the share of saturated or invalid samples in the fovea above which the summary warns
+FOVEA_INVALID_MAX = 0.5
 #: frames of the calibration pass (the first ones): 24 frames are 2 s, four turns of the paper's polariser
 CALIBRATION_FRAMES = 24
 
@@ -282,10 +286,35 @@ def reconstruct_measurement(m: Measurement, method: str = "lsq", *, known_alpha:
         finfo = {**(rec.info.get("fpn") or {}), "mode": fpn.strip().lower()}
         rec = replace(rec, info={**rec.info, "fpn": finfo if fpn_auto is None else {**finfo, "auto": fpn_auto}})
     if isinstance(kw.get("polarizer"), PolarizerModel):
-        rec = replace(rec, info={**rec.info, "polarizer_spec": spec.summary(), "calibration": calib})
+        rec = replace(rec, info={**rec.info, "polarizer_spec": spec.summary(), "calibration": calib,
+                                 "warnings": list(rec.info.get("warnings") or []) + _unidentifiable(m, window, spec)})
     res = PipelineResult(reconstruction=rec, spans=spans, seconds=seconds, constraint=fc, frames=T, source=m.source)
     return replace(res, metrics=_metrics(m, res, level_free) if score_truth else None,
                    alpha_mae=_alpha_mae(m, res, alpha is None))
+
+
+def _unidentifiable(m: Measurement, window: int, spec: PolarizerSpec) -> list[str]:
+    """What the recording leaves unknown for an unknown-alpha reconstruction, one sentence each: a window shorter
+    than half a turn of the polariser (alpha's period: its phase, rate and amplitude are then not separable), and a
+    fovea whose samples are mostly saturated or invalid (the foveal relation, which chooses the channels and
+    calibrates the camera, then rests on few pixels)."""
+    out = []
+    if m.shape[0] > 1 and spec.rate_hz > 0:
+        span = float(np.median(np.diff(m.times_s))) * window
+        if span < 0.5 / spec.rate_hz:
+            out.append(f"a window of {window} frames spans {span:.3g} s, less than half a turn of the polariser "
+                       f"({0.5 / spec.rate_hz:.3g} s at {spec.rate_hz:g} Hz): alpha's phase, rate and amplitude "
+                       "are not separable in it; use a longer window (window=...)")
+    bad = m.invalid_samples()
+    if bad is not None:
+        H, W = m.shape[1:]
+        s = m.scale
+        h, w = max(int(H / (2 * s)), 1), max(int(W / (2 * s)), 1)
+        frac = float(bad[:, H // 2 - h:H // 2 + h, W // 2 - w:W // 2 + w].mean())
+        if frac > FOVEA_INVALID_MAX:
+            out.append(f"{100 * frac:.0f} % of the fovea's samples are saturated or invalid: the foveal relation, "
+                       "which chooses the channels and calibrates the camera, rests on the rest")
+    return out
 
 
 def _calibrated(m: Measurement, frames: np.ndarray, kw: dict[str, Any],
@@ -410,16 +439,35 @@ def _video_fpn(m: Measurement, method: str, frames: np.ndarray, alpha: np.ndarra
     return (np.asarray(frames, dtype=np.float64) - f[None]).astype(np.float32), (f, finfo)
 
 
+def _stuck_pixels(frames: np.ndarray) -> np.ndarray | None:
+    """(H, W) bool: pixels whose every sample is the same value (dead, or stuck at the ADC's full scale), in a
+    sequence where the other pixels change (the rotating polariser modulates every live pixel, and its noise
+    alone moves it by a level in a few frames); None when there are none or fewer than :data:`STUCK_MIN_FRAMES`."""
+    if frames.shape[0] < STUCK_MIN_FRAMES:
+        return None
+    with np.errstate(invalid="ignore"):
+        ptp = np.nanmax(frames, axis=0) - np.nanmin(frames, axis=0)
+    stuck = ptp == 0
+    if not stuck.any() or not np.nanmedian(ptp) > 0:
+        return None
+    return stuck
+
+
 def _masked(m: Measurement, frames: np.ndarray, method: str) -> tuple[np.ndarray, dict[str, Any] | None]:
     """The frames with the samples :meth:`Measurement.invalid_samples` names left out: NaN for the solvers that
     mask (lsq, alternating and their video), filled for those that cannot (dip: each pixel's mean of its valid
     samples; snapshot: the mean of the valid pixels around it, widening until found)."""
     bad = m.invalid_samples()
+    stuck = _stuck_pixels(frames) if method != "snapshot" else None
+    if stuck is not None:
+        bad = (np.zeros(frames.shape, bool) if bad is None else bad) | stuck[None]
     if bad is None:
         return frames, None
     lo, hi = m.valid_range_dn
     info = {"count": int(bad.sum()), "fraction": float(bad.mean()), "valid_range_dn": [lo, hi],
-            "how": "masked" if method in ("lsq", "alternating") else "filled"}
+            "how": "masked" if method in ("lsq", "alternating") else "filled",
+            "stuck_pixels": 0 if stuck is None else int(stuck.sum()),
+            "bad_pixel_map": int(np.asarray(m.extras["bad_pixels"]).sum()) if "bad_pixels" in m.extras else 0}
     f = np.where(bad, np.nan, frames).astype(np.float32)
     if method == "dip":
         with np.errstate(invalid="ignore"):

@@ -270,6 +270,14 @@ class PipelineResult:
                                 "warning": pg.get("warning"), "alpha_from": pg.get("alpha_from")}
         if rec.info.get("polarizer_spec") is not None:  # the model used: each value with its source
             out.setdefault("polarizer", {})["model"] = rec.info["polarizer_spec"]
+        cal = rec.info.get("calibration")
+        if cal:  # what the recording showed of its camera (geometry, gain, amplitude), with standard errors
+            out["calibration"] = {k: v for k, v in cal.items() if k != "se"}
+            out["calibration"]["se"] = {k: v for k, v in (cal.get("se") or {}).items() if not isinstance(v, dict)}
+        warns = list(rec.info.get("warnings") or [])
+        warns += [w for w in (pg.get("warning") if pg else None, (cal or {}).get("warning")) if w]
+        if warns:
+            out["warnings"] = warns
         if "fpn" in rec.info:
             fi = rec.info["fpn"]
             out["fpn"] = fi.get("identified") or fi.get("mode")
