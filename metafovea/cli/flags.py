@@ -41,7 +41,8 @@ PARAMETER_FLAGS: dict[str, dict[str, str]] = {
                     "regularize": "--regularize", "steps": "--steps", "channels": "--channels", "stride": "--stride",
                     "max_seconds": "--max-seconds", "seed": "--seed", "rng": "--seed", "scale": "--scale",
                     "gain": "--foveal-gain", "offset": "--foveal-offset", "denoise": "--denoise",
-                    "psf": "--psf", "res": "--deconvolve", "method": "--method", **_POLARIZER},
+                    "psf": "--psf", "res": "--deconvolve", "method": "--method", "refine_alpha": "--refine-alpha",
+                    **_POLARIZER},
     "simulate": {"extinction": "--extinction", "tau_s": "--tau", "bolometer_tau_s": "--tau", "fpn_drift": "--drift",
                  "netd_k": "--netd", "frames": "--frames", "calibration_frames": "--calibration-frames",
                  "supersample": "--supersample", "psf_size_px": "--psf-size", "scene": "--scene",
@@ -66,7 +67,8 @@ KEYWORD_ADVICE: dict[str, dict[str, str]] = {
                     "(scale, foveal_gain, foveal_offset)": "(--scale, --foveal-gain, --foveal-offset)",
                     "wrong scale/offset/gain?": "wrong --scale, --foveal-offset or --foveal-gain?",
                     "wrong scale?": "wrong --scale?", "method='lsq'": "--method lsq", "strict=False": "--no-strict",
-                    "fpn='auto'": "--fpn auto", "simulate(calibration_frames)": "simulate --calibration-frames"},
+                    "fpn='auto'": "--fpn auto", "simulate(calibration_frames)": "simulate --calibration-frames",
+                    "refine_alpha=True": "--refine-alpha", "window=...": "--window"},
 }
 
 #: library parameters that are a key of a file the user named, per command: parameter -> the option (or

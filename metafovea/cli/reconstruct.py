@@ -27,10 +27,12 @@ def register(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
     p = subparsers.add_parser("reconstruct", help=HELP, description=HELP)
     p.add_argument("measurement", help="Measurement .npz (frames, times_s, optional alpha / truth_x1 / truth_x2)")
     p.add_argument("--method", default="lsq", choices=METHODS, help="solver (default lsq; lsq needs the file's alpha)")
-    p.add_argument("--known-alpha", action="store_true",
-                   help="use the file's alpha (implied by --method lsq; holds alpha fixed for dip)")
-    p.add_argument("--window", type=int, default=None, help="frames per window (default 8; a sequence of fewer "
-                   "than 16 frames is one window of all of them); longer sequences are reconstructed window by window")
+    p.add_argument("--known-alpha", action="store_true", help="use the file's alpha (implied by --method lsq; holds "
+                   "alpha fixed for dip)")
+    p.add_argument("--refine-alpha", action="store_true", help="lsq: alpha from the frames (the rotation's phase "
+                   "and rate fitted) instead of the file's nominal one")
+    p.add_argument("--window", type=int, default=None, help="frames per window (default 8; fewer than 16 frames: "
+                   "one window of all)")
     p.add_argument("--stride", type=int, default=1, help="window stride in frames (default 1)")
     p.add_argument("--denoise", default=None, choices=DENOISERS, help="denoise the outputs")
     p.add_argument("--fpn", default="auto", metavar="auto|none|prior|calibration|PATTERN",
@@ -68,7 +70,7 @@ def register(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
                    "0: no cap); a window it stops keeps its lowest-loss images, and the summary says so")
     add_shared(p, "--seed")  # the DIP's weights and inputs
     p.add_argument("--deconvolve", default=None, choices=("wiener", "tv"), help="also recover the scene itself "
-                   "(PSF-aware joint separation and deconvolution, static scenes): <out>_scene.npz and .png in kelvin")
+                   "(PSF-aware, static scenes): <out>_scene.npz and .png in kelvin")
     p.add_argument("--psf", default=None, help="for --deconvolve: a PSF file (.npz: psf_x1, psf_x2) (not the file's)")
     p.add_argument("--out", default=None, help="output .npz (default: <measurement>_rec.npz); figures next to it")
     p.add_argument("--no-figures", action="store_true", help="do not write PNG figures")
@@ -91,14 +93,12 @@ def _solver_options(args: argparse.Namespace) -> dict[str, Any]:
             if reg < 0:
                 raise InputError("--regularize", args.regularize, "'difference' or a ridge weight >= 0")
         kw["regularize"] = reg
-    if args.method == "alternating" and args.no_strict:
-        kw["strict"] = False
     if args.method == "alternating":
-        kw.update(polarizer=args.polarizer, polarizer_alpha=args.polarizer_alpha)
+        kw.update(polarizer=args.polarizer, polarizer_alpha=args.polarizer_alpha, **({"strict": False}
+                                                                                    if args.no_strict else {}))
     if args.method == "dip":
         kw.update(steps=args.steps, rng=seed, init=args.init, alpha_init="classical")
-        if args.channels is not None:
-            kw["channels"] = args.channels
+        kw.update({"channels": args.channels} if args.channels is not None else {})
         if args.max_seconds is not None:
             if not args.max_seconds >= 0:
                 raise InputError("--max-seconds", args.max_seconds, "a time budget in seconds >= 0 (0: no cap)")
@@ -109,12 +109,9 @@ def _solver_options(args: argparse.Namespace) -> dict[str, Any]:
 def _fpn_arg(v: str) -> Any:
     """A mode name as is; anything else is a pattern file, loaded."""
     from metafovea.reconstruct import FPN_MODES
-
-    if v.strip().lower() in FPN_MODES or v.strip().lower() == "file":
-        return v.strip().lower()
     from metafovea.reconstruct.files import load_pattern
 
-    return load_pattern(v)
+    return v.strip().lower() if v.strip().lower() in (*FPN_MODES, "file") else load_pattern(v)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -131,7 +128,8 @@ def run(args: argparse.Namespace) -> int:
     res = reconstruct_measurement(m, args.method, known_alpha=args.known_alpha, window=args.window,
                                   stride=args.stride, fpn=_fpn_arg(args.fpn), denoise=args.denoise, frame=args.frame,
                                   constraint=fc, solver=solver, progress=show_progress(args),
-                                  score_truth=not args.no_score, polarizer=polarizer_args(args))
+                                  score_truth=not args.no_score, polarizer=polarizer_args(args),
+                                  refine_alpha=args.refine_alpha)
     files = write_outputs(res, out, figures, title=f"{res.reconstruction.method}: {Path(m.source).name}")
     dec = None
     if args.deconvolve:

@@ -708,6 +708,10 @@ def alternating(frames: ArrayLike, options: AlternatingOptions | None = None, **
                 foveal_rms=float(np.sqrt(np.mean(op.residual(x1.astype(np.float64), x2.astype(np.float64)) ** 2))))
     if win.M is not None:
         info["masked_samples"] = int(win.M.size - win.M.sum())
+        none = win.M.sum(axis=0) < 2  # pixels without two valid samples: not separable (NaN, as lsq leaves them)
+        if none.any():
+            x1, x2 = (np.where(none, np.nan, v).astype(win.dt) for v in (x1, x2))
+            info["unseparated_pixels"] = int(none.sum())
     return Reconstruction(x1=np.asarray(x1, dtype=win.dt), x2=np.asarray(x2, dtype=win.dt),
                           alpha=np.asarray(a, dtype=np.float64), fpn=None, method="alternating", timings=dict(tm),
                           info=info)

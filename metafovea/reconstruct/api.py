@@ -52,6 +52,10 @@ DIP_MAX_SECONDS = 600.0
 STUCK_MIN_FRAMES = 6
 #: the share of saturated or invalid samples in the fovea above which the summary warns
 FOVEA_INVALID_MAX = 0.5
+#: the nominal alpha disagrees with the frames when their rms difference exceeds this many times its noise plus
+#: NOMINAL_TOL (a rotation's phase off by 0.1 deg moves alpha by up to 0.0035)
+NOMINAL_FACTOR = 3.0
+NOMINAL_TOL = 2e-3
 #: frames of the calibration pass (the first ones): 24 frames are 2 s, four turns of the paper's polariser
 CALIBRATION_FRAMES = 24
 
@@ -171,7 +175,7 @@ def reconstruct_measurement(m: Measurement, method: str = "lsq", *, known_alpha:
                             constraint: FovealConstraint | None = None, solver: dict[str, Any] | None = None,
                             level_free: bool = False, progress: bool = False,
                             score_truth: bool = True, polarizer: dict[str, Any] | None = None,
-                            calibrate: bool = True) -> PipelineResult:
+                            calibrate: bool = True, refine_alpha: bool = False) -> PipelineResult:
     """Reconstruct a Measurement by the pipeline's rules and score it against its truth.
 
     Parameters
@@ -212,19 +216,17 @@ def reconstruct_measurement(m: Measurement, method: str = "lsq", *, known_alpha:
     score_truth : bool
         Score against the file's truth (default); False leaves ``metrics`` None (file-to-file speed).
     polarizer : dict, optional
-        Explicit polariser values (``rate_hz``, ``mode``, ``phase_deg``, ``extinction``, ``tau_s``: the flags
-        ``--polarizer-hz`` ... of ``reconstruct``) before the file's keys and the defaults
-        (:class:`~metafovea.measurement.PolarizerSpec`); the spec used, with each value's source and what was
-        assumed, is ``reconstruction.info['polarizer_spec']``.
+        Polariser values (:class:`~metafovea.measurement.PolarizerSpec` keywords) before the file's keys and the
+        defaults; the spec used, each value's source and what was assumed: ``info['polarizer_spec']``.
+    refine_alpha : bool
+        ``lsq``: alpha fitted from the frames (``alternating``) instead of the nominal alpha of a synchronised
+        polariser, which ``lsq`` uses without a file alpha and checks against the frames (``info['alpha_nominal']``).
     calibrate : bool
-        Unknown alpha with the polariser model: calibrate the recording first (:func:`_calibrated`: the foveal
-        geometry, the channels' gain ratio and alpha's amplitude from the data, :mod:`metafovea.reconstruct.calibrate`)
-        and use the amplitude where the data contradict the stated constants; ``reconstruction.info['calibration']``.
+        Unknown alpha: calibrate the camera from the recording first (:func:`_calibrated`; ``info['calibration']``).
 
     Notes
     -----
-    The pipeline reads only the recording schema (:meth:`Measurement.as_recording`: the documented metadata keys,
-    and ``truth`` for scoring): whatever else a writer put in the file changes nothing.
+    The pipeline reads only the recording schema (:meth:`Measurement.as_recording`).
 
     Returns
     -------
@@ -240,10 +242,10 @@ def reconstruct_measurement(m: Measurement, method: str = "lsq", *, known_alpha:
     if method != "snapshot" and T < 2:
         raise InputError("frames", f"{T} frame", "at least 2 frames (or method='snapshot' for a single frame)",
                          source=m.source)
-    window = (T if T < SHORT_SEQUENCE else DEFAULT_WINDOW) if window is None else window
-    if method != "snapshot" and not 2 <= window <= T:
-        raise InputError("window", window, f"2 <= window <= number of frames ({T})")
-    alpha = _file_alpha(m, method, known_alpha)
+    window = _window_size(T, method, window)
+    if method == "lsq" and refine_alpha:  # alpha from the frames: the rotation's phase and rate fitted
+        method, spec = "alternating", m.polarizer_spec(**{**(polarizer or {}), "mode": "free"})
+    alpha, nominal = _file_alpha(m, method, known_alpha, spec)
     kw = _polarizer_model(m, method, alpha, spec, {**fc.as_kwargs(), **(solver or {})})
     if "regularize" in kw and method != "lsq":
         raise InputError("regularize", kw["regularize"], "only with method='lsq'")
@@ -278,19 +280,49 @@ def reconstruct_measurement(m: Measurement, method: str = "lsq", *, known_alpha:
         rec = replace(rec, fpn=video_fpn[0].astype(np.float32), info={**rec.info, "fpn": video_fpn[1]})
     if method == "dip":
         rec = replace(rec, info={**rec.info, "max_seconds": cap})  # the run's cap (the solver saw what was left)
-    if mask_info:
-        rec = replace(rec, info={**rec.info, "invalid_samples": mask_info})
-    if not isinstance(fpn, str) and rec.fpn is None and not rec.is_video:  # the user's pattern, as subtracted
-        rec = replace(rec, fpn=np.asarray(fpn, dtype=np.float32), info={**rec.info, "fpn": {"identified": "given"}})
-    if isinstance(fpn, str):  # the mode used, and why when it was chosen from the file (fpn='auto')
-        finfo = {**(rec.info.get("fpn") or {}), "mode": fpn.strip().lower()}
-        rec = replace(rec, info={**rec.info, "fpn": finfo if fpn_auto is None else {**finfo, "auto": fpn_auto}})
-    if isinstance(kw.get("polarizer"), PolarizerModel):
-        rec = replace(rec, info={**rec.info, "polarizer_spec": spec.summary(), "calibration": calib,
-                                 "warnings": list(rec.info.get("warnings") or []) + _unidentifiable(m, window, spec)})
+    rec = _with_fpn_info(replace(rec, info={**rec.info, "invalid_samples": mask_info}) if mask_info else rec,
+                         fpn, fpn_auto)
+    rec = _with_polarizer_info(rec, m, frames, alpha if nominal else None, spec, calib, window,
+                               isinstance(kw.get("polarizer"), PolarizerModel))
     res = PipelineResult(reconstruction=rec, spans=spans, seconds=seconds, constraint=fc, frames=T, source=m.source)
     return replace(res, metrics=_metrics(m, res, level_free) if score_truth else None,
-                   alpha_mae=_alpha_mae(m, res, alpha is None))
+                   alpha_mae=_alpha_mae(m, res, alpha is None or nominal))
+
+
+def _window_size(T: int, method: str, window: int | None) -> int:
+    """The frames per window: as given (checked), else :data:`DEFAULT_WINDOW`, or all of a short sequence."""
+    window = (T if T < SHORT_SEQUENCE else DEFAULT_WINDOW) if window is None else window
+    if method != "snapshot" and not 2 <= window <= T:
+        raise InputError("window", window, f"2 <= window <= number of frames ({T})")
+    return window
+
+
+def _with_fpn_info(rec: Reconstruction, fpn: str | np.ndarray, fpn_auto: str | None) -> Reconstruction:
+    """``rec`` with the fixed-pattern mode used (and why, when ``fpn='auto'`` chose it), or the user's pattern as
+    subtracted."""
+    if not isinstance(fpn, str):
+        if rec.fpn is None and not rec.is_video:
+            rec = replace(rec, fpn=np.asarray(fpn, dtype=np.float32), info={**rec.info, "fpn": {"identified": "given"}})
+        return rec
+    finfo = {**(rec.info.get("fpn") or {}), "mode": fpn.strip().lower()}
+    return replace(rec, info={**rec.info, "fpn": finfo if fpn_auto is None else {**finfo, "auto": fpn_auto}})
+
+
+def _with_polarizer_info(rec: Reconstruction, m: Measurement, frames: np.ndarray, nominal: np.ndarray | None,
+                         spec: PolarizerSpec, calib: dict[str, Any] | None, window: int,
+                         modelled: bool) -> Reconstruction:
+    """``rec`` with what the pipeline knew of the polariser: a nominal alpha's check against the frames
+    (:func:`_nominal_check`), the spec with each value's source, the calibration, and the warnings for what the
+    recording leaves unknown (:func:`_unidentifiable`)."""
+    info, warns = dict(rec.info), list(rec.info.get("warnings") or [])
+    if nominal is not None and not rec.is_video:
+        chk = _nominal_check(m, frames, nominal, rec)
+        info.update(alpha_nominal=chk, polarizer_spec=spec.summary())
+        warns += [chk["warning"]] if "warning" in chk else []
+    if modelled:
+        info.update(polarizer_spec=spec.summary(), calibration=calib)
+        warns += _unidentifiable(m, window, spec)
+    return replace(rec, info={**info, "warnings": warns})
 
 
 def _unidentifiable(m: Measurement, window: int, spec: PolarizerSpec) -> list[str]:
@@ -490,20 +522,48 @@ def _masked(m: Measurement, frames: np.ndarray, method: str) -> tuple[np.ndarray
     return f, info
 
 
-def _file_alpha(m: Measurement, method: str, known_alpha: bool) -> np.ndarray | None:
-    """The file's alpha when the method uses it (lsq, or ``known_alpha``; snapshot whenever the file has it: one
-    frame cannot tell alpha, and the file knows it); None otherwise."""
+def _file_alpha(m: Measurement, method: str, known_alpha: bool,
+                spec: PolarizerSpec) -> tuple[np.ndarray | None, bool]:
+    """``(alpha, nominal)``: the file's alpha when the method uses it (lsq, or ``known_alpha``; snapshot whenever the
+    file has it: one frame cannot tell alpha, and the file knows it), else, for a polariser synchronised to the
+    frames (rate and phase stated), the model's nominal alpha (``nominal`` True); None otherwise."""
     if method == "alternating" and known_alpha:
         raise InputError("known_alpha", True, "not with method 'alternating' (it estimates alpha; use lsq)")
     if method == "snapshot" and m.alpha_known:
-        return m.alpha
+        return m.alpha, False
     if not (known_alpha or method == "lsq"):
-        return None
+        return None, False
     if m.alpha is None:
-        raise InputError("alpha", "absent", f"an 'alpha' array in the measurement for "
+        if spec.mode == "sync":
+            return PolarizerModel.from_spec(spec, m.times_s).alpha(), True
+        raise InputError("alpha", "absent", f"an 'alpha' array in the measurement, or a polariser synchronised to "
+                         f"the frames (polarizer_mode sync, with its phase), for "
                          f"{'known_alpha=True' if known_alpha else 'method=lsq'} (or method=alternating, "
                          f"method=dip or method=snapshot for unknown alpha)", source=m.source)
-    return m.alpha
+    return m.alpha, False
+
+
+def _nominal_check(m: Measurement, frames: np.ndarray, alpha: np.ndarray, rec: Reconstruction) -> dict[str, Any]:
+    """Does the nominal alpha of a synchronised polariser (its stated rate and phase) explain the frames? Each
+    frame's least-squares alpha given the separated images, against the nominal one: their rms difference and the
+    noise it would have if the nominal alpha were right (the residual over the images' difference)."""
+    x1, x2 = np.asarray(rec.x1, np.float64), np.asarray(rec.x2, np.float64)
+    d = x1 - x2
+    y = np.asarray(frames, np.float64) - x2[None]
+    ok = np.isfinite(y) & np.isfinite(d)[None]
+    dd = np.where(ok, d[None], 0.0)
+    a_hat = np.sum(np.where(ok, y, 0.0) * dd, axis=(1, 2)) / np.maximum(np.sum(dd ** 2, axis=(1, 2)), 1e-300)
+    r = np.where(ok, y - alpha[:, None, None] * d[None], 0.0)
+    sig = float(np.sqrt(np.sum(r ** 2) / max(ok.sum(), 1)))
+    noise = sig / max(float(np.sqrt(np.mean(np.sum(dd ** 2, axis=(1, 2))))), 1e-300)
+    rms = float(np.sqrt(np.mean((a_hat - alpha) ** 2)))
+    out = {"alpha_from": "nominal: the stated synchronised polariser (rate and phase)", "frames_vs_nominal_rms": rms,
+           "noise": noise}
+    if rms > NOMINAL_FACTOR * noise + NOMINAL_TOL:
+        out["warning"] = (f"the nominal alpha of the stated polariser (synchronised, its rate and phase) differs "
+                          f"from the frames' by {rms:.2g} rms (noise {noise:.2g}): the phase or rate is off; "
+                          "refine_alpha=True fits them from the data")
+    return out
 
 
 def _fpn(m: Measurement, fpn: str | np.ndarray) -> tuple[np.ndarray, dict[str, Any]]:

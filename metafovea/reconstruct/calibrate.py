@@ -218,6 +218,16 @@ def _block_jackknife(p: np.ndarray, a_m: np.ndarray, a_d: np.ndarray, b_m: np.nd
     return float(math.sqrt((n - 1) / n * np.sum((us_a - us_a.mean()) ** 2)))
 
 
+def _errors(J: np.ndarray, r: np.ndarray, inflate: float) -> tuple[np.ndarray, float]:
+    """Gauss-Newton standard errors ``sqrt(diag((J^T J)^-1) s^2 inflate)`` of a least-squares fit with Jacobian ``J``
+    and residual ``r`` (``s^2`` its variance per degree of freedom, returned too); inf where singular."""
+    var = float(np.sum(r ** 2)) / max(r.size - J.shape[1], 1)
+    try:
+        return np.sqrt(np.maximum(np.diag(np.linalg.inv(J.T @ J)) * var * inflate, 0.0)), var
+    except np.linalg.LinAlgError:
+        return np.full(J.shape[1], math.inf), var
+
+
 def _coarse_centre(p: np.ndarray, f2m: np.ndarray, f2d: np.ndarray, a_m: np.ndarray, a_d: np.ndarray,
                    r2: np.ndarray, u: float, scale: float) -> tuple[float, float] | None:
     """The foveal centre ``-scale delta`` (foveal pixels) of the whole-pixel shift ``delta`` of the perifoveal
@@ -234,6 +244,23 @@ def _coarse_centre(p: np.ndarray, f2m: np.ndarray, f2d: np.ndarray, a_m: np.ndar
             if rss < best:
                 best, arg = rss, (dy, dx)
     return None if arg is None else (-scale * arg[0], -scale * arg[1])
+
+
+def _coarse_start(foveal: Any, p: np.ndarray, f2m: np.ndarray, f2d: np.ndarray, b_m: np.ndarray, b_d: np.ndarray,
+                  theta0: np.ndarray, fit_amplitude: bool) -> np.ndarray:
+    """Stage 1b of :func:`fit_foveal`: the start moved to the best whole-pixel centre (:func:`_coarse_centre`), where
+    a mounted camera's axis can sit far from the stated one, if it fits (2) better than the stated geometry."""
+    scale = float(theta0[0])
+    a_m, a_d, r2 = foveal(theta0)
+    t = _coarse_centre(p, f2m, f2d, a_m, a_d, r2, float(theta0[4]), scale)
+    if t is None:
+        return theta0
+    a_m1, a_d1, r21 = foveal(np.array([scale, t[0], t[1], 0.0]))
+    u1 = _amplitude_u(a_m1, a_d1, b_m, b_d, r21) if fit_amplitude else 1.0
+    g1, o1, k1, rss1 = _linear_part(u1, a_m1, a_d1, b_m, b_d, r21)
+    if rss1 < _linear_part(float(theta0[4]), a_m, a_d, b_m, b_d, r2)[3]:
+        return np.array([scale, t[0], t[1], 0.0, u1, g1, o1, k1])
+    return theta0
 
 
 def fit_foveal(mean: ArrayLike, diff: ArrayLike, *, scale: float = 6.0, gain: float = 1.0, offset: float = 0.0,
@@ -254,9 +281,7 @@ def fit_foveal(mean: ArrayLike, diff: ArrayLike, *, scale: float = 6.0, gain: fl
     fit_amplitude : bool
         Fit ``u = 1 / rho`` (else held at 1).
     psfs : tuple of 2 array_like, optional
-        The channels' PSFs on the pixel grid (odd-sized, centred: a recording's ``psf_x1``, ``psf_x2``): each side
-        of (2) is blurred by the other channel's, so that the relation holds however different they are (the
-        foveal channel's chromatic haze over 8-14 um).
+        The channels' pixel-grid PSFs (a recording's ``psf_x1``, ``psf_x2``): each side of (2) blurred by the other's.
 
     Returns
     -------
@@ -296,19 +321,7 @@ def fit_foveal(mean: ArrayLike, diff: ArrayLike, *, scale: float = 6.0, gain: fl
     u0 = _amplitude_u(a_m, a_d, b_m, b_d, r2) if fit_amplitude else 1.0
     g0, o0, k0, _ = _linear_part(u0, a_m, a_d, b_m, b_d, r2)
     theta0 = np.array([scale, 0.0, 0.0, 0.0, u0, g0, o0, k0])
-    # stage 1b: a coarse search of the centre (whole perifoveal pixels: the perifoveal side shifted by ``delta`` is
-    # the foveal centre moved by ``-scale delta``), where a mounted camera's axis can sit far from the stated one
-    t_start = _coarse_centre(p, f2m, f2d, a_m, a_d, r2, u0, scale)
-    if t_start is not None:
-        a_m1, a_d1, r21 = foveal(np.array([scale, t_start[0], t_start[1], 0.0]))
-        u1 = _amplitude_u(a_m1, a_d1, b_m, b_d, r21) if fit_amplitude else 1.0
-        g1, o1, k1, rss1 = _linear_part(u1, a_m1, a_d1, b_m, b_d, r21)
-        if rss1 < _linear_part(u0, a_m, a_d, b_m, b_d, r2)[3]:
-            theta_s = np.array([scale, t_start[0], t_start[1], 0.0, u1, g1, o1, k1])
-        else:
-            theta_s = theta0
-    else:
-        theta_s = theta0
+    theta_s = _coarse_start(foveal, p, f2m, f2d, b_m, b_d, theta0, fit_amplitude)
     # stage 2, the geometry too, within the bounds a mounted camera stays in (SEARCH)
     spread = float(np.std(b_m)) or 1.0
     x_scale = np.array([0.01 * scale, 0.3, 0.3, 0.1, 0.01, 0.01 * max(abs(g0), 1e-3), 0.01 * spread, 0.01])
@@ -322,15 +335,9 @@ def fit_foveal(mean: ArrayLike, diff: ArrayLike, *, scale: float = 6.0, gain: fl
                         max_nfev=200)
     th = sol.x
     r = sol.fun
-    n, k = r.size, (8 if fit_amplitude else 7)
-    var = float(np.sum(r ** 2)) / max(n - k, 1)
-    J = sol.jac if fit_amplitude else np.delete(sol.jac, 4, axis=1)
+    n = r.size
     inflate = max(1.0, 4.0 * math.pi * blur_px ** 2)  # neighbouring samples share their error through the low-pass
-    try:
-        cov = np.linalg.inv(J.T @ J) * var * inflate
-        se_all = np.sqrt(np.maximum(np.diag(cov), 0.0))
-    except np.linalg.LinAlgError:
-        se_all = np.full(k, math.inf)
+    se_all, var = _errors(sol.jac if fit_amplitude else np.delete(sol.jac, 4, axis=1), r, inflate)
     if not fit_amplitude:
         se_all = np.insert(se_all, 4, 0.0)
     u = float(th[4]) if fit_amplitude else 1.0
@@ -340,9 +347,8 @@ def fit_foveal(mean: ArrayLike, diff: ArrayLike, *, scale: float = 6.0, gain: fl
     ok = {key: bool(math.isfinite(v) and v <= TOLERANCES[key] * (th[0] if key == "scale" else 1.0))
           for key, v in se.items()}
     stage2 = {"scale": float(th[0]), "centre_px": [float(th[1]), float(th[2])], "rotation_deg": float(th[3]),
-              "amplitude": 1.0 / float(th[4]), "rss": float(np.sum(r ** 2)),
-              "rss_stated": float(np.sum(residual(theta0) ** 2)),
-              "se": dict(se)}
+              "amplitude": 1.0 / float(th[4]), "rss": float(np.sum(r ** 2)), "se": dict(se),
+              "rss_stated": float(np.sum(residual(theta0) ** 2))}
     # the fitted geometry is used when it explains the fovea significantly better than the stated one: the drop of
     # the residual beyond what 4 more parameters fit to noise (chi^2, in units of its correlated variance)
     gain_chi2 = (stage2["rss_stated"] - stage2["rss"]) / max(var * inflate, 1e-300)
@@ -352,23 +358,15 @@ def fit_foveal(mean: ArrayLike, diff: ArrayLike, *, scale: float = 6.0, gain: fl
         u0_, g0_, k0_ = theta0[4], theta0[5], theta0[7]
         J = np.stack([0.5 * a_d * (1 + k0_ * r2) + 0.5 * g0_ * b_d, -(b_m - 0.5 * u0_ * b_d), -np.ones_like(b_m),
                       (a_m + 0.5 * u0_ * a_d) * r2], axis=1)
-        J = J if fit_amplitude else J[:, 1:]
-        var = float(np.sum(r ** 2)) / max(n - J.shape[1], 1)
-        try:
-            se1 = np.sqrt(np.maximum(np.diag(np.linalg.inv(J.T @ J) * var * inflate), 0.0))
-        except np.linalg.LinAlgError:
-            se1 = np.full(J.shape[1], math.inf)
+        se1, _ = _errors(J if fit_amplitude else J[:, 1:], r, inflate)
         th = theta0
         u = float(th[4])
         se.update(amplitude=float(se1[0] / u ** 2) if fit_amplitude else 0.0, gain=float(se1[-3]))
-        ok.update(amplitude=bool(math.isfinite(se["amplitude"]) and se["amplitude"] <= TOLERANCES["amplitude"]),
-                  gain=bool(math.isfinite(se["gain"]) and se["gain"] <= TOLERANCES["gain"]), geometry_kept=True)
+        ok.update(gain=bool(se["gain"] <= TOLERANCES["gain"]), geometry_kept=True)
     if fit_amplitude:  # the spread of the amplitude over the fovea's blocks: what a structured misfit costs
-        a_m, a_d, r2 = foveal(th)
-        se_jk = _block_jackknife(p, a_m, a_d, b_m, b_d, r2)
-        se["amplitude"] = max(se["amplitude"], se_jk / u ** 2)
-        se["amplitude_blocks"] = se_jk / u ** 2
-        ok["amplitude"] = bool(math.isfinite(se["amplitude"]) and se["amplitude"] <= TOLERANCES["amplitude"])
+        se["amplitude_blocks"] = _block_jackknife(p, *foveal(th)[:2], b_m, b_d, foveal(th)[2]) / u ** 2
+        se["amplitude"] = max(se["amplitude"], se["amplitude_blocks"])
+    ok["amplitude"] = bool(se["amplitude"] <= TOLERANCES["amplitude"])
     x2_side = b_m - 0.5 * (float(th[4]) if fit_amplitude else 1.0) * b_d
     se["stage2"] = stage2
     se["relative_residual"] = math.sqrt(float(np.mean(r ** 2))) / max(abs(float(th[5])) * float(np.std(x2_side)),
