@@ -259,7 +259,7 @@ def reconstruct_measurement(m: Measurement, method: str = "lsq", *, known_alpha:
     frames, mask_info = _masked(m, frames, method)
     calib = None
     if isinstance(kw.get("polarizer"), PolarizerModel) and calibrate:
-        kw["polarizer"], calib = _calibrated(m, frames, kw, fpn_kw)
+        kw["polarizer"], calib = _calibrated(m, frames, kw, fpn_kw, method)
     video_out = method != "snapshot" and (T > window or starts is not None)
     t0 = time.perf_counter()
     from metafovea.parallel import blas_threads
@@ -349,13 +349,15 @@ def _unidentifiable(m: Measurement, window: int, spec: PolarizerSpec) -> list[st
     return out
 
 
-def _calibrated(m: Measurement, frames: np.ndarray, kw: dict[str, Any],
-                fpn_kw: dict[str, Any]) -> tuple[PolarizerModel, dict[str, Any]]:
+def _calibrated(m: Measurement, frames: np.ndarray, kw: dict[str, Any], fpn_kw: dict[str, Any],
+                method: str) -> tuple[PolarizerModel, dict[str, Any]]:
     """The polariser model with alpha's amplitude calibrated from the recording, and what the calibration found.
 
     One pass of the classical solver (no prior: least-squares images) over the first :data:`CALIBRATION_FRAMES`
     frames gives the images in the stated gauge; :func:`~metafovea.reconstruct.calibrate.fit_foveal` fits the foveal
-    relation to them (each side blurred by the other channel's PSF when the file has both). The amplitude is used
+    relation to them (each side blurred by the other channel's PSF when the file has both), for both channel
+    assignments: the one it explains better is the recording's, and its relation (gain, offset; the geometry where
+    the fit moved it) is what the solver then tells the channels apart by (``kw`` updated). The amplitude is used
     when it is identified and departs from the stated one by more than twice its standard error, the fit's model
     error (:data:`~metafovea.reconstruct.calibrate.AMPLITUDE_MODEL_ERROR` times its relative misfit) and
     :data:`~metafovea.reconstruct.calibrate.AMPLITUDE_FLOOR`."""
@@ -378,15 +380,29 @@ def _calibrated(m: Measurement, frames: np.ndarray, kw: dict[str, Any],
         return model, info
     x1, x2 = np.asarray(first.x1, np.float64), np.asarray(first.x2, np.float64)
     psfs = (m.extras["psf_x1"], m.extras["psf_x2"]) if {"psf_x1", "psf_x2"} <= set(m.extras) else None
-    try:
-        fit = fit_foveal(0.5 * (x1 + x2), x1 - x2, scale=geo.get("scale", 6.0), gain=geo.get("foveal_gain", 1.0),
-                         offset=geo.get("foveal_offset", 0.0), psfs=psfs)
+    try:  # both channel assignments: the one the relation explains is the recording's (the stated gain can mislead)
+        fits = [fit_foveal(0.5 * (x1 + x2), sgn * (x1 - x2), scale=geo.get("scale", 6.0),
+                           gain=geo.get("foveal_gain", 1.0), offset=geo.get("foveal_offset", 0.0), psfs=psfs)
+                for sgn in (1.0, -1.0)]
     except InputError as e:
         info["reason"] = f"the foveal fit failed: {e}"
         return model, info
-    info.update(fit.summary(), psf_cross_blur=psfs is not None)
+    fit = min(fits, key=lambda f: f.residual_rms)
+    info.update(fit.summary(), psf_cross_blur=psfs is not None, channels_swapped=fit is fits[1])
+    if ((fit.identified["gain"] and method == "alternating") or fit is fits[1]) and fit.gain > 0:
+        # the solver then tells the channels apart by the calibrated relation (a swap found here is kept even where
+        # the gain is not pinned down to 1 %; the deep prior keeps its stated relation, a term of its loss)
+        kw.update(foveal_gain=fit.gain, foveal_offset=fit.offset)
+        if not fit.identified.get("geometry_kept"):
+            kw.update(scale=fit.scale, offset=(-fit.centre_px[0] / fit.scale, -fit.centre_px[1] / fit.scale))
+        info["constraint_used"] = {k: kw[k] for k in ("scale", "offset", "foveal_gain", "foveal_offset") if k in kw}
     rho, se = fit.amplitude, fit.se["amplitude"]
-    if not fit.identified["amplitude"]:
+    if fpn_kw.get("fpn") == "prior":
+        info["reason"] = ("the fixed pattern is estimated blind, from the separated images and the stated foveal "
+                          "relation: it takes a polariser that departs from the stated one for a pattern, so alpha's "
+                          "amplitude cannot be calibrated (shutter frames, fpn='calibration', let it be)")
+        info["warning"] = info["reason"]
+    elif not fit.identified["amplitude"]:
         info["reason"] = (f"alpha's amplitude is not identified by the foveal constraint (standard error {se:.2g}: "
                           "too little texture in the fovea): the stated polariser constants are used")
         info["warning"] = info["reason"]

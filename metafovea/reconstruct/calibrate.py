@@ -17,13 +17,14 @@ up to the channels' gain ratio ``g`` and an offset ``o``:
 
     G_1 x1(c + t + scale R(phi) (p - c)) = g G_2 x2(p) + o                                             (2)
 
-for the perifoveal pixels ``p`` of the fovea (``c`` the sensor's centre), the foveal side times ``1 + k r^2``
-(the sensor's vignetting: the foveal image samples the whole sensor, the perifoveal one only its centre).
+for the perifoveal pixels ``p`` of the fovea (``c`` the sensor's centre), the gain ``g + h r^2`` varying with the
+foveal sample's radius on the sensor (vignetting: the foveal image samples the whole sensor, the perifoveal one only
+its centre).
 Both sides are low-passed by a common Gaussian (``G_2``: ``blur_px`` perifoveal pixels; ``G_1``: the same in foveal
 pixels, with the pixel box of the down-scaling), so that the channels' different PSFs matter little; with the
 channels' PSFs each side is also blurred by the other's. (2) is solved for the eight parameters
-``(scale, t_y, t_x, phi, u, g, o, k)`` by non-linear least squares (:func:`fit_foveal`), started from the stated
-constraint, where it is linear in ``(g, o, k)`` at each ``u`` (a 1-D search gives the start).
+``(scale, t_y, t_x, phi, u, g, o, h)`` by non-linear least squares (:func:`fit_foveal`), started from the stated
+constraint, where it is linear in ``(g, o, h)`` at each ``u`` (a 1-D search gives the start).
 
 Uncertainty: the Gauss-Newton covariance ``s_r^2 (J^T J)^-1`` of the fit, inflated by the residual's correlation area
 (the low-pass makes neighbouring samples share their error: ``4 pi blur_px^2`` samples count as one). A parameter is
@@ -34,7 +35,7 @@ geometry and ``u`` unidentified, and the caller keeps the stated values and says
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -51,6 +52,8 @@ MARGIN_PX = 3
 SEARCH = {"scale": 0.06, "centre_px": 36.0, "rotation_deg": 2.0}
 #: the drop of chi^2 (4 geometry parameters) above which the fitted geometry replaces the stated one (p < 1e-4)
 GEOMETRY_CHI2 = 23.5
+#: the largest relative standard error of the scale with which the fitted geometry is used
+GEOMETRY_SE_MAX = 0.01
 #: the coarse search of the centre: whole perifoveal pixels either way
 COARSE_SHIFT_PX = 5
 #: the amplitude's model error per unit of the fit's relative misfit (residual rms over the perifoveal side's
@@ -84,9 +87,9 @@ class FovealFit:
     gain, offset : float
         ``g`` and ``o`` of (2) (the frames' units).
     vignetting : float
-        ``k``: the foveal side's relative gain ``1 + k r^2`` over the sensor (``r`` 1 at the corner): the sensor's
-        vignetting, which the foveal image samples over the whole sensor and the perifoveal one only at its
-        centre; ``-k / (1 + k)`` is the corner's loss.
+        ``-h / g``: the relative loss of the foveal side at the sensor's corner against its centre (the relation's
+        gain ``g + h r^2``, ``r`` 1 at the corner): the sensor's vignetting, which the foveal image samples over the
+        whole sensor and the perifoveal one only at its centre.
     se : dict
         Standard errors of ``scale``, ``centre_px`` (the larger axis), ``rotation_deg``, ``amplitude``, ``gain``.
     residual_rms : float
@@ -182,11 +185,12 @@ def _foveal_points(p: np.ndarray, shape: tuple[int, int], scale: float, ty: floa
 
 
 def _linear_part(u: float, a_m: np.ndarray, a_d: np.ndarray, b_m: np.ndarray, b_d: np.ndarray,
-                 r2: np.ndarray) -> tuple[float, float, float, float]:
-    """``(g, o, k, rss)`` of (2) at amplitude ``1 / u`` and fixed geometry: ``lhs (1 + k r2) = g rhs + o`` is linear
-    in ``(g, o, k)`` (``k``: the radial gain, vignetting, that the foveal side sees over the sensor)."""
+                 r2: np.ndarray) -> tuple[float, float, float, float]:  # r2 = 0: no radial gain
+    """``(g, o, h, rss)`` of (2) at amplitude ``1 / u`` and fixed geometry: ``lhs = (g + h r2) rhs + o`` is linear
+    in ``(g, o, h)`` (``h``: the radial gain, vignetting, that the foveal side sees over the sensor; on the right,
+    so that the foveal side keeps its unit weight and no shrinking of both sides fits better)."""
     lhs, rhs = a_m + 0.5 * u * a_d, b_m - 0.5 * u * b_d
-    X = np.stack([rhs, np.ones_like(rhs), -r2 * lhs], axis=1)
+    X = np.stack([rhs, np.ones_like(rhs), r2 * rhs], axis=1)
     coef, *_ = np.linalg.lstsq(X, lhs, rcond=None)
     return float(coef[0]), float(coef[1]), float(coef[2]), float(np.sum((lhs - X @ coef) ** 2))
 
@@ -266,7 +270,26 @@ def _coarse_start(foveal: Any, p: np.ndarray, f2m: np.ndarray, f2d: np.ndarray, 
 def fit_foveal(mean: ArrayLike, diff: ArrayLike, *, scale: float = 6.0, gain: float = 1.0, offset: float = 0.0,
                blur_px: float = BLUR_PX, fit_amplitude: bool = True,
                psfs: tuple[ArrayLike, ArrayLike] | None = None) -> FovealFit:
-    """Fit the foveal relation (2) and the amplitude ratio (1) to a recording's separated images.
+    """Fit the foveal relation (2) and the amplitude ratio (1) to a recording's separated images, with and without
+    the radial gain (vignetting): the fit with it, its amplitude's error widened by the two fits' difference
+    (``se['amplitude_model']``: how much the amplitude rests on how the relation is modelled; haze from outside the
+    fovea or an uncorrected fixed pattern move it, a clean relation does not).
+
+    Parameters and Returns: as :func:`_fit_once`.
+    """
+    kw = dict(scale=scale, gain=gain, offset=offset, blur_px=blur_px, fit_amplitude=fit_amplitude, psfs=psfs)
+    with_v, without = _fit_once(mean, diff, vignetting=True, **kw), _fit_once(mean, diff, vignetting=False, **kw)
+    delta = abs(with_v.amplitude - without.amplitude)
+    se = {**with_v.se, "amplitude_model": delta, "amplitude": max(with_v.se["amplitude"], 2.0 * delta)}
+    ok = {**with_v.identified, "amplitude": bool(se["amplitude"] <= TOLERANCES["amplitude"])}
+    return replace(with_v, se=se, identified=ok)
+
+
+def _fit_once(mean: ArrayLike, diff: ArrayLike, *, scale: float = 6.0, gain: float = 1.0, offset: float = 0.0,
+              blur_px: float = BLUR_PX, fit_amplitude: bool = True, psfs: tuple[ArrayLike, ArrayLike] | None = None,
+              vignetting: bool = True) -> FovealFit:
+    """One fit of the foveal relation (2) and the amplitude ratio (1), with the radial gain or without
+    (``vignetting``).
 
     Parameters
     ----------
@@ -306,15 +329,15 @@ def fit_foveal(mean: ArrayLike, diff: ArrayLike, *, scale: float = 6.0, gain: fl
 
     def foveal(theta: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         q = _foveal_points(p, shape, theta[0], theta[1], theta[2], math.radians(theta[3]))
-        r2 = ((q[0] - (H - 1) / 2.0) ** 2 + (q[1] - (W - 1) / 2.0) ** 2) / norm
+        r2 = ((q[0] - (H - 1) / 2.0) ** 2 + (q[1] - (W - 1) / 2.0) ** 2) / norm * float(vignetting)
         return (map_coordinates(f1m, q, order=3, mode="nearest"), map_coordinates(f1d, q, order=3, mode="nearest"),
                 r2)
 
     def residual(theta: np.ndarray) -> np.ndarray:
         a_m, a_d, r2 = foveal(theta)
         u = theta[4] if fit_amplitude else 1.0
-        g, o, k = theta[5], theta[6], theta[7]
-        return (a_m + 0.5 * u * a_d) * (1.0 + k * r2) - g * (b_m - 0.5 * u * b_d) - o
+        g, o, h = theta[5], theta[6], theta[7]
+        return (a_m + 0.5 * u * a_d) - (g + h * r2) * (b_m - 0.5 * u * b_d) - o
 
     # stage 1, the stated geometry: (g, o, k) linear there, u by a 1-D search
     a_m, a_d, r2 = foveal(np.array([scale, 0.0, 0.0, 0.0]))
@@ -324,11 +347,12 @@ def fit_foveal(mean: ArrayLike, diff: ArrayLike, *, scale: float = 6.0, gain: fl
     theta_s = _coarse_start(foveal, p, f2m, f2d, b_m, b_d, theta0, fit_amplitude)
     # stage 2, the geometry too, within the bounds a mounted camera stays in (SEARCH)
     spread = float(np.std(b_m)) or 1.0
-    x_scale = np.array([0.01 * scale, 0.3, 0.3, 0.1, 0.01, 0.01 * max(abs(g0), 1e-3), 0.01 * spread, 0.01])
+    x_scale = np.array([0.01 * scale, 0.3, 0.3, 0.1, 0.01, 0.01 * max(abs(g0), 1e-3), 0.01 * spread,
+                        0.01 * max(abs(g0), 1e-3)])
     lo = np.array([scale * (1 - SEARCH["scale"]), -SEARCH["centre_px"], -SEARCH["centre_px"],
-                   -SEARCH["rotation_deg"], 0.5, 1e-6, -np.inf, -0.9])
+                   -SEARCH["rotation_deg"], 0.5, 1e-6, -np.inf, -np.inf])
     hi = np.array([scale * (1 + SEARCH["scale"]), SEARCH["centre_px"], SEARCH["centre_px"], SEARCH["rotation_deg"],
-                   2.0, np.inf, np.inf, 9.0])
+                   2.0, np.inf, np.inf, np.inf])
     if not fit_amplitude:
         lo[4], hi[4] = 1.0 - 1e-12, 1.0 + 1e-12
     sol = least_squares(residual, np.clip(theta_s, lo, hi), x_scale=x_scale, bounds=(lo, hi), method="trf",
@@ -353,11 +377,15 @@ def fit_foveal(mean: ArrayLike, diff: ArrayLike, *, scale: float = 6.0, gain: fl
     # the residual beyond what 4 more parameters fit to noise (chi^2, in units of its correlated variance)
     gain_chi2 = (stage2["rss_stated"] - stage2["rss"]) / max(var * inflate, 1e-300)
     stage2["chi2_drop"] = float(gain_chi2)
-    if not gain_chi2 > GEOMETRY_CHI2:  # the geometry is not pinned down: keep the stated one (stage 1)
+    inside = abs(th[0] / scale - 1) < 0.95 * SEARCH["scale"] and max(abs(th[1]), abs(th[2])) < 0.95 * SEARCH[
+        "centre_px"] and abs(th[3]) < 0.95 * SEARCH["rotation_deg"]
+    if not (gain_chi2 > GEOMETRY_CHI2 and inside and se["scale"] < GEOMETRY_SE_MAX * th[0]):
+        # the geometry is not pinned down (no significant gain, a bound reached, or its scale uncertain by more
+        # than GEOMETRY_SE_MAX): keep the stated one (stage 1)
         r = residual(theta0)
-        u0_, g0_, k0_ = theta0[4], theta0[5], theta0[7]
-        J = np.stack([0.5 * a_d * (1 + k0_ * r2) + 0.5 * g0_ * b_d, -(b_m - 0.5 * u0_ * b_d), -np.ones_like(b_m),
-                      (a_m + 0.5 * u0_ * a_d) * r2], axis=1)
+        u0_, g0_, h0_ = theta0[4], theta0[5], theta0[7]
+        J = np.stack([0.5 * a_d + 0.5 * (g0_ + h0_ * r2) * b_d, -(b_m - 0.5 * u0_ * b_d), -np.ones_like(b_m),
+                      -r2 * (b_m - 0.5 * u0_ * b_d)], axis=1)
         se1, _ = _errors(J if fit_amplitude else J[:, 1:], r, inflate)
         th = theta0
         u = float(th[4])
@@ -372,7 +400,8 @@ def fit_foveal(mean: ArrayLike, diff: ArrayLike, *, scale: float = 6.0, gain: fl
     se["relative_residual"] = math.sqrt(float(np.mean(r ** 2))) / max(abs(float(th[5])) * float(np.std(x2_side)),
                                                                        1e-300)
     return FovealFit(scale=float(th[0]), centre_px=(float(th[1]), float(th[2])), rotation_deg=float(th[3]),
-                     amplitude=1.0 / u, gain=float(th[5]), offset=float(th[6]), vignetting=float(th[7]), se=se,
+                     amplitude=1.0 / u, gain=float(th[5]), offset=float(th[6]),
+                     vignetting=-float(th[7]) / float(th[5]) if th[5] else 0.0, se=se,
                      residual_rms=math.sqrt(float(np.mean(r ** 2))), identified=ok, samples=int(n))
 
 

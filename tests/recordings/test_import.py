@@ -151,3 +151,29 @@ def test_existing_output_needs_force(tmp_path, cli, linear_camera):
     rc, _, err = cli("import", rec, "--frame-rate", 30)
     assert rc == 2 and "--force" in err
     assert cli("import", rec, "--frame-rate", 30, "--force")[0] == 0
+
+
+def test_a_free_running_recording_imported_from_tiff_reconstructs_as_simulated(tmp_path, cli):
+    """The simulator's TIFF stack (frames only: no alpha, no polariser, no truth) imported with the camera's rate and
+    the polariser's (``--frame-rate 12 --polarizer-hz 2``, free-running: phase unknown) reconstructs with unknown
+    alpha to the simulated file's alpha MAE: the file's keys say what the frames need, nothing else counts."""
+    rc, out, err = cli("simulate", "--scene", "rooftop", "--frames", "24", "--polarizer", "free", "--pixel-um", "24",
+                       "--calibration-frames", "0", "--out", tmp_path / "sim.npz", "--json")
+    assert rc == 0, err
+    sim = Measurement.load(tmp_path / "sim.npz")
+    rc, out, err = cli("import", tmp_path / "sim.tif", "--frame-rate", "12", "--polarizer-hz", "2",
+                       "--polarizer-mode", "free", "--out", tmp_path / "imp.npz", "--json")
+    assert rc == 0, err
+    s = json.loads(out)
+    assert s["polarizer"]["rate_hz"] == 2.0 and s["polarizer"]["sources"]["rate_hz"] == "given"
+    imp = Measurement.load(tmp_path / "imp.npz")
+    assert imp.meta["polarizer_hz"] == 2.0 and imp.meta["polarizer_mode"] == "free" and imp.alpha is None
+    maes = []
+    for name in ("sim", "imp"):
+        rc, out, err = cli("reconstruct", tmp_path / f"{name}.npz", "--method", "alternating", "--window", "24",
+                           "--no-figures", "--json", "--no-score")
+        assert rc == 0, err
+        rec = Reconstruction.load(tmp_path / f"{name}_rec.npz")
+        maes.append(float(np.mean(np.abs(rec.alpha - sim.alpha))))
+        assert json.loads(out)["polarizer"]["model"]["sources"]["rate_hz"] == "file"
+    assert maes[0] < 2e-3 and maes[1] < 2e-3 and abs(maes[1] - maes[0]) < 2e-4, maes
