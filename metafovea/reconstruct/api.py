@@ -381,15 +381,14 @@ def _calibrated(m: Measurement, frames: np.ndarray, kw: dict[str, Any], fpn_kw: 
     x1, x2 = np.asarray(first.x1, np.float64), np.asarray(first.x2, np.float64)
     psfs = (m.extras["psf_x1"], m.extras["psf_x2"]) if {"psf_x1", "psf_x2"} <= set(m.extras) else None
     try:  # both channel assignments: the one the relation explains is the recording's (the stated gain can mislead)
-        fits = [fit_foveal(0.5 * (x1 + x2), sgn * (x1 - x2), scale=geo.get("scale", 6.0),
-                           gain=geo.get("foveal_gain", 1.0), offset=geo.get("foveal_offset", 0.0), psfs=psfs)
-                for sgn in (1.0, -1.0)]
+        fit = fit_foveal(0.5 * (x1 + x2), x1 - x2, scale=geo.get("scale", 6.0), gain=geo.get("foveal_gain", 1.0),
+                         offset=geo.get("foveal_offset", 0.0), psfs=psfs, both_assignments=True)
     except InputError as e:
         info["reason"] = f"the foveal fit failed: {e}"
         return model, info
-    fit = min(fits, key=lambda f: f.residual_rms)
-    info.update(fit.summary(), psf_cross_blur=psfs is not None, channels_swapped=fit is fits[1])
-    if ((fit.identified["gain"] and method == "alternating") or fit is fits[1]) and fit.gain > 0:
+    swapped = fit.identified["swapped"]
+    info.update(fit.summary(), psf_cross_blur=psfs is not None, channels_swapped=swapped)
+    if ((fit.identified["gain"] and method == "alternating") or swapped) and fit.gain > 0:
         # the solver then tells the channels apart by the calibrated relation (a swap found here is kept even where
         # the gain is not pinned down to 1 %; the deep prior keeps its stated relation, a term of its loss)
         kw.update(foveal_gain=fit.gain, foveal_offset=fit.offset)
@@ -397,7 +396,14 @@ def _calibrated(m: Measurement, frames: np.ndarray, kw: dict[str, Any], fpn_kw: 
             kw.update(scale=fit.scale, offset=(-fit.centre_px[0] / fit.scale, -fit.centre_px[1] / fit.scale))
         info["constraint_used"] = {k: kw[k] for k in ("scale", "offset", "foveal_gain", "foveal_offset") if k in kw}
     rho, se = fit.amplitude, fit.se["amplitude"]
-    if fpn_kw.get("fpn") == "prior":
+    if fit.se["relative_residual"] > 1.0:
+        info["reason"] = (f"the foveal relation does not hold in this recording (its misfit is "
+                          f"{fit.se['relative_residual']:.2g} times the perifoveal side's contrast): the channels' "
+                          "assignment rests on the stated relation and alpha's amplitude on the stated polariser; an "
+                          "uncorrected fixed pattern (no shutter frames: fpn='prior' if the sensor has one) or a "
+                          "wrong scale or gain are the likely causes")
+        info["warning"] = info["reason"]
+    elif fpn_kw.get("fpn") == "prior":
         info["reason"] = ("the fixed pattern is estimated blind, from the separated images and the stated foveal "
                           "relation: it takes a polariser that departs from the stated one for a pattern, so alpha's "
                           "amplitude cannot be calibrated (shutter frames, fpn='calibration', let it be)")

@@ -64,6 +64,8 @@ COARSE_SHIFT_PX = 5
 AMPLITUDE_MODEL_ERROR = 0.03
 #: and never less than this (a fit that explains the fovea exactly still rests on the PSFs given)
 AMPLITUDE_FLOOR = 0.002
+#: the swapped channels are the recording's when their relation's misfit is below this share of the other's
+SWAP_RATIO = 0.8
 #: blocks per axis of the fovea for the amplitude's jackknife error
 JACKKNIFE_BLOCKS = 3
 #: the standard error under which a fitted quantity counts as identified (scale: relative)
@@ -140,21 +142,35 @@ def _rescaled_psf(psf: np.ndarray, zoom: float) -> np.ndarray:
     return v / tot if tot > 0 else np.ones((1, 1))
 
 
+def _cropped(psf: np.ndarray, radius: int) -> np.ndarray:
+    """A centred PSF cut to ``radius`` pixels: beyond the image's size a kernel only adds a level, which the
+    relation's offset takes."""
+    k = np.asarray(psf, dtype=np.float64)
+    r0 = k.shape[0] // 2
+    r = min(r0, max(int(radius), 0))
+    return k[r0 - r:r0 + r + 1, r0 - r:r0 + r + 1]
+
+
 def _sides(mean: np.ndarray, diff: np.ndarray, scale: float, blur_px: float,
            psfs: tuple[np.ndarray, np.ndarray] | None) -> tuple[np.ndarray, ...]:
     """The low-passed images of (2): foveal side (mean, diff) and perifoveal side (mean, diff). With the channels'
     PSFs each side is also blurred by the other channel's (the foveal side by the perifoveal PSF magnified
-    ``scale`` times, the perifoveal side by the foveal PSF shrunk as much): both sides then carry both blurs."""
+    ``scale`` times, the perifoveal side by the foveal PSF shrunk as much; each cut to the image's size first):
+    both sides then carry both blurs."""
     from scipy.ndimage import gaussian_filter
     from scipy.signal import fftconvolve
 
     s1 = math.sqrt(scale ** 2 / 12.0 + (scale * blur_px) ** 2)  # the pixel box of the down-scaling, then G
+    n = max(mean.shape)
+    kernels = (None, None) if psfs is None else (
+        _rescaled_psf(_cropped(psfs[1], math.ceil(n / (2 * scale))), scale),
+        _rescaled_psf(_cropped(psfs[0], n), 1.0 / scale))
     out = []
     for side, s in ((0, s1), (1, blur_px)):
         for v in (mean, diff):
             u = np.nan_to_num(v, nan=float(np.nanmean(v)))
-            if psfs is not None:
-                k = _rescaled_psf(psfs[1], scale) if side == 0 else _rescaled_psf(psfs[0], 1.0 / scale)
+            k = kernels[side]
+            if k is not None:
                 r = k.shape[0] // 2
                 u = fftconvolve(np.pad(u, r, mode="edge"), k, mode="valid")
             out.append(gaussian_filter(u, s, mode="nearest", truncate=3.0))
@@ -268,43 +284,58 @@ def _coarse_start(foveal: Any, p: np.ndarray, f2m: np.ndarray, f2d: np.ndarray, 
 
 
 def fit_foveal(mean: ArrayLike, diff: ArrayLike, *, scale: float = 6.0, gain: float = 1.0, offset: float = 0.0,
-               blur_px: float = BLUR_PX, fit_amplitude: bool = True,
-               psfs: tuple[ArrayLike, ArrayLike] | None = None) -> FovealFit:
+               blur_px: float = BLUR_PX, fit_amplitude: bool = True, psfs: tuple[ArrayLike, ArrayLike] | None = None,
+               both_assignments: bool = False) -> FovealFit:
     """Fit the foveal relation (2) and the amplitude ratio (1) to a recording's separated images, with and without
     the radial gain (vignetting): the fit with it, its amplitude's error widened by the two fits' difference
     (``se['amplitude_model']``: how much the amplitude rests on how the relation is modelled; haze from outside the
     fovea or an uncorrected fixed pattern move it, a clean relation does not).
 
-    Parameters and Returns: as :func:`_fit_once`.
+    ``both_assignments``: also fit the channels swapped (``-diff``); the assignment the relation explains better
+    is returned (``identified['swapped']`` True when it is the swapped one). Other parameters and the result: as
+    :func:`_fit_once`.
     """
-    kw = dict(scale=scale, gain=gain, offset=offset, blur_px=blur_px, fit_amplitude=fit_amplitude, psfs=psfs)
-    with_v, without = _fit_once(mean, diff, vignetting=True, **kw), _fit_once(mean, diff, vignetting=False, **kw)
-    delta = abs(with_v.amplitude - without.amplitude)
-    se = {**with_v.se, "amplitude_model": delta, "amplitude": max(with_v.se["amplitude"], 2.0 * delta)}
-    ok = {**with_v.identified, "amplitude": bool(se["amplitude"] <= TOLERANCES["amplitude"])}
-    return replace(with_v, se=se, identified=ok)
+    m = np.asarray(mean, dtype=np.float64)
+    d = np.asarray(diff, dtype=np.float64)
+    if m.ndim != 2 or d.shape != m.shape:
+        raise InputError("diff", f"array of shape {d.shape}", f"the mean image's (H, W) = {m.shape}")
+    sides = _sides(m, d, scale, blur_px, None if psfs is None else
+                   (np.asarray(psfs[0], np.float64), np.asarray(psfs[1], np.float64)))
+    kw = dict(scale=scale, gain=gain, offset=offset, blur_px=blur_px, fit_amplitude=fit_amplitude)
+    fit = _fit_once(m.shape, sides, vignetting=True, **kw)
+    swapped = False
+    if both_assignments:  # the swapped channels: the difference image's sides negated (the sides are linear in it)
+        neg = (sides[0], -sides[1], sides[2], -sides[3])
+        other = _fit_once(m.shape, neg, vignetting=True, **kw)
+        if other.gain > 0 and other.residual_rms < SWAP_RATIO * fit.residual_rms and other.se[
+                "relative_residual"] < 1.0:  # clearly better, and a relation at all (a positive gain, a misfit
+            # below the perifoveal side's own contrast): else the solver's choice stands
+            fit, sides, swapped = other, neg, True
+    without = _fit_once(m.shape, sides, vignetting=False, **kw)
+    delta = abs(fit.amplitude - without.amplitude)
+    se = {**fit.se, "amplitude_model": delta, "amplitude": max(fit.se["amplitude"], 2.0 * delta)}
+    ok = {**fit.identified, "amplitude": bool(se["amplitude"] <= TOLERANCES["amplitude"]), "swapped": swapped}
+    return replace(fit, se=se, identified=ok)
 
 
-def _fit_once(mean: ArrayLike, diff: ArrayLike, *, scale: float = 6.0, gain: float = 1.0, offset: float = 0.0,
-              blur_px: float = BLUR_PX, fit_amplitude: bool = True, psfs: tuple[ArrayLike, ArrayLike] | None = None,
+def _fit_once(shape: tuple[int, int], sides: tuple[np.ndarray, ...], *, scale: float = 6.0, gain: float = 1.0,
+              offset: float = 0.0, blur_px: float = BLUR_PX, fit_amplitude: bool = True,
               vignetting: bool = True) -> FovealFit:
-    """One fit of the foveal relation (2) and the amplitude ratio (1), with the radial gain or without
-    (``vignetting``).
+    """One fit of the foveal relation (2) and the amplitude ratio (1) to the low-passed sides (:func:`_sides`), with
+    the radial gain or without (``vignetting``).
 
     Parameters
     ----------
-    mean : array_like, shape (H, W)
-        ``m = (x1 + x2) / 2``.
-    diff : array_like, shape (H, W)
-        ``d_0 = x1 - x2`` in the stated gauge.
+    shape : tuple of 2 int
+        The images' ``(H, W)``.
+    sides : tuple of 4 ndarray
+        Foveal side (mean, diff), perifoveal side (mean, diff), :func:`_sides`.
     scale, gain, offset : float
         The stated constraint (the start).
     blur_px : float
-        The common low-pass, perifoveal pixels.
+        The common low-pass, perifoveal pixels (the residual's correlation area).
     fit_amplitude : bool
         Fit ``u = 1 / rho`` (else held at 1).
-    psfs : tuple of 2 array_like, optional
-        The channels' pixel-grid PSFs (a recording's ``psf_x1``, ``psf_x2``): each side of (2) blurred by the other's.
 
     Returns
     -------
@@ -313,13 +344,7 @@ def _fit_once(mean: ArrayLike, diff: ArrayLike, *, scale: float = 6.0, gain: flo
     from scipy.ndimage import map_coordinates
     from scipy.optimize import least_squares
 
-    m = np.asarray(mean, dtype=np.float64)
-    d = np.asarray(diff, dtype=np.float64)
-    if m.ndim != 2 or d.shape != m.shape:
-        raise InputError("diff", f"array of shape {d.shape}", f"the mean image's (H, W) = {m.shape}")
-    shape = m.shape
-    f1m, f1d, f2m, f2d = _sides(m, d, scale, blur_px, None if psfs is None else
-                                (np.asarray(psfs[0], np.float64), np.asarray(psfs[1], np.float64)))
+    f1m, f1d, f2m, f2d = sides
     p = _grid(shape, scale)
     iy, ix = p.astype(int)
     b_m, b_d = f2m[iy, ix], f2d[iy, ix]

@@ -40,11 +40,12 @@ def test_bad_shapes_are_named():
 
 @pytest.fixture(scope="module")
 def leaky():
-    """The paper camera (10 um filter, its fixed pattern measured by the default 16 shutter frames) with a polariser
+    """The paper camera (10 um filter, diffraction-limited PSFs, its fixed pattern measured by the default 16 shutter
+    frames) with a polariser
     that leaks 5 %, recorded free-running: the file states the extinction; the copy that does not is what a camera
     with a mis-specified polariser gives."""
     m = simulate(SystemDesign.paper(), "rooftop", frames=24, polarizer_mode="free", extinction=0.05, rng=1,
-                 filter_enabled=True)
+                 filter_enabled=True, psf="airy")
     meta = {k: v for k, v in m.meta.items() if k != "polarizer_extinction"}
     return m, dataclasses.replace(m, meta=meta)
 

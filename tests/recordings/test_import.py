@@ -154,11 +154,15 @@ def test_existing_output_needs_force(tmp_path, cli, linear_camera):
 
 
 def test_a_free_running_recording_imported_from_tiff_reconstructs_as_simulated(tmp_path, cli):
-    """The simulator's TIFF stack (frames only: no alpha, no polariser, no truth) imported with the camera's rate and
-    the polariser's (``--frame-rate 12 --polarizer-hz 2``, free-running: phase unknown) reconstructs with unknown
-    alpha to the simulated file's alpha MAE: the file's keys say what the frames need, nothing else counts."""
+    """The simulator's TIFF stack (frames only: no alpha, no polariser, no truth, no foveal relation) imported with
+    the camera's rate and the polariser's (``--frame-rate 12 --polarizer-hz 2``, free-running: phase unknown)
+    reconstructs with unknown alpha to the simulated file's alpha MAE: the file's keys say what the frames need,
+    nothing else counts, and the calibration finds the channels the stated relation (gain 1) would swap. The sensor's
+    fixed pattern is off: a TIFF carries no shutter frames (with an uncorrected pattern the summary says the foveal
+    relation does not hold)."""
     rc, out, err = cli("simulate", "--scene", "rooftop", "--frames", "24", "--polarizer", "free", "--pixel-um", "24",
-                       "--calibration-frames", "0", "--out", tmp_path / "sim.npz", "--json")
+                       "--calibration-frames", "0", "--psf", "airy", "--fpn-rank", "0", "--out", tmp_path / "sim.npz",
+                       "--json")
     assert rc == 0, err
     sim = Measurement.load(tmp_path / "sim.npz")
     rc, out, err = cli("import", tmp_path / "sim.tif", "--frame-rate", "12", "--polarizer-hz", "2",
