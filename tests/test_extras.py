@@ -36,8 +36,6 @@ SKIPS = {
     "tests/cli/test_signals.py": "process groups and /proc: Linux only",
     "tests/recordings/test_flir.py": "ExifTool (the FLIR format's reference reader) runs on perl and ships with "
                                      "flirpy; the FLIR i7 image is in some flirpy releases only",
-    "tests/independent/test_grid.py": "xfail (strict): the issue-30 targets on the independent camera model that the "
-                                      "reconstruction does not meet yet; each flips to a failure when it does",
 }
 
 
