@@ -58,9 +58,9 @@ GEOMETRY_SE_MAX = 0.01
 COARSE_SHIFT_PX = 5
 #: the amplitude's model error per unit of the fit's relative misfit (residual rms over the perifoveal side's
 #: contrast): where the relation (2) does not hold (haze from outside the fovea, PSFs unknown) the amplitude is
-#: biased by up to this times that misfit. Measured on the simulator's paper camera (three scenes, 8-14 um and the
-#: 10 um filter, stated constants right): bias / misfit <= 0.027 (0.7 % at a misfit of 1.18; BENCHMARKS.md,
-#: "Real recordings"); a departure from the stated amplitude within it is not taken as evidence against them
+#: biased by up to this times that misfit (set on the simulator's paper camera, three scenes, 8-14 um and the 10 um
+#: filter, stated constants right: bias / misfit <= 0.027 without the radial gain); a departure from the stated
+#: amplitude within it is not taken as evidence against them (BENCHMARKS.md, "Real recordings": no false alarm)
 AMPLITUDE_MODEL_ERROR = 0.03
 #: and never less than this: a fit that explains the fovea closely still rests on the PSFs given (small hot sources
 #: seen through unstated PSFs: 0.4 % off at a misfit of 0.017, independent camera model), and an amplitude left
