@@ -66,8 +66,8 @@ RECORDING_META = ("units", "frame_rate_hz", "pixel_pitch_um", "netd_k", "scale",
                   "psf_pedestal")
 #: the arrays the reconstruction reads (``alpha``: the camera's logged mixing ratio, which ``lsq`` uses and the
 #: unknown-alpha methods only score against)
-RECORDING_ARRAYS = ("frames", "times_s", "alpha", "theta_rad", "calibration", "bad_pixels", "psf_x1", "psf_x2",
-                    "illumination_x1", "illumination_x2")
+RECORDING_ARRAYS = ("frames", "times_s", "alpha", "theta_rad", "calibration", "bad_pixels", "flat_field", "psf_x1",
+                    "psf_x2", "illumination_x1", "illumination_x2")
 #: truth for scoring only: arrays, and the metadata key ``truth`` (a dict of what the writer knows and a camera
 #: would not record: the simulator's realised polariser phase and rate, its noise level, ...)
 SCORING_ARRAYS = ("truth_x1", "truth_x2", "scene_x1", "scene_x2", "fpn", "fpn_u", "fpn_v", "fpn_s", "fpn_weights")
@@ -79,8 +79,8 @@ POLARIZER_DEFAULTS = {"rate_hz": 2.0, "mode": "free", "phase_deg": None, "extinc
 POLARIZER_KEYS = {"rate_hz": "polarizer_hz", "mode": "polarizer_mode", "phase_deg": "polarizer_phase_deg",
                   "extinction": "polarizer_extinction", "tau_s": "bolometer_tau_s"}
 OPTIONAL = ("alpha", "truth_x1", "truth_x2", "fpn", "fpn_u", "fpn_v", "fpn_s", "fpn_weights", "theta_rad",
-            "calibration", "bad_pixels", "psf_x1", "psf_x2", "illumination_x1", "illumination_x2", "scene_x1",
-            "scene_x2")
+            "calibration", "bad_pixels", "flat_field", "psf_x1", "psf_x2", "illumination_x1", "illumination_x2",
+            "scene_x1", "scene_x2")
 
 
 def _real(a: np.ndarray) -> bool:
@@ -365,6 +365,11 @@ class Measurement:
         bad = set(self.extras) - set(OPTIONAL)
         if bad:
             raise InputError("extras", sorted(bad), "keys among " + ", ".join(OPTIONAL[4:]), source=src)
+        ff = self.extras.get("flat_field")
+        if ff is not None and (not _real(np.asarray(ff)) or np.shape(ff) != (H, W)
+                               or not np.all(np.isfinite(ff)) or not np.all(np.asarray(ff) > 0)):
+            raise InputError("flat_field", f"array of shape {np.shape(ff)}",
+                             f"a finite, positive (H, W) = {(H, W)} relative gain", source=src)
         cal = self.extras.get("calibration")
         if cal is not None and (not _real(np.asarray(cal)) or np.ndim(cal) not in (2, 3)
                                 or np.shape(cal)[-2:] != (H, W)):

@@ -280,6 +280,7 @@ def reconstruct_measurement(m: Measurement, method: str = "lsq", *, known_alpha:
         rec = replace(rec, fpn=video_fpn[0].astype(np.float32), info={**rec.info, "fpn": video_fpn[1]})
     if method == "dip":
         rec = replace(rec, info={**rec.info, "max_seconds": cap})  # the run's cap (the solver saw what was left)
+    rec = _flat_fielded(m, rec)
     rec = _with_fpn_info(replace(rec, info={**rec.info, "invalid_samples": mask_info}) if mask_info else rec,
                          fpn, fpn_auto)
     rec = _with_polarizer_info(rec, m, frames, alpha if nominal else None, spec, calib, window,
@@ -287,6 +288,20 @@ def reconstruct_measurement(m: Measurement, method: str = "lsq", *, known_alpha:
     res = PipelineResult(reconstruction=rec, spans=spans, seconds=seconds, constraint=fc, frames=T, source=m.source)
     return replace(res, metrics=_metrics(m, res, level_free) if score_truth else None,
                    alpha_mae=_alpha_mae(m, res, alpha is None or nominal))
+
+
+def _flat_fielded(m: Measurement, rec: Reconstruction) -> Reconstruction:
+    """``rec`` with the file's flat field (``flat_field``: each pixel's relative gain, the optics' vignetting)
+    divided out of both images above the dark level: the frames are ``dark + v (alpha s1 + (1 - alpha) s2)``, so
+    the separated images are ``dark + v s_i`` whatever alpha is."""
+    v = m.extras.get("flat_field")
+    if v is None:
+        return rec
+    v = np.asarray(v, dtype=np.float64)
+    dark = m.dark_dn
+    x1, x2 = (dark + (np.asarray(x, np.float64) - dark) / v for x in (rec.x1, rec.x2))
+    return replace(rec, x1=x1.astype(np.asarray(rec.x1).dtype), x2=x2.astype(np.asarray(rec.x2).dtype),
+                   info={**rec.info, "flat_field": "divided out (the file's flat_field, above its dark level)"})
 
 
 def _window_size(T: int, method: str, window: int | None) -> int:
@@ -378,6 +393,7 @@ def _calibrated(m: Measurement, frames: np.ndarray, kw: dict[str, Any], fpn_kw: 
     if not pg.get("applied"):
         info["reason"] = f"the polariser model did not fix alpha in the calibration pass ({pg.get('reason')})"
         return model, info
+    first = _flat_fielded(m, first)
     x1, x2 = np.asarray(first.x1, np.float64), np.asarray(first.x2, np.float64)
     psfs = (m.extras["psf_x1"], m.extras["psf_x2"]) if {"psf_x1", "psf_x2"} <= set(m.extras) else None
     try:  # both channel assignments: the one the relation explains is the recording's (the stated gain can mislead)

@@ -119,3 +119,25 @@ def test_a_nominal_alpha_that_disagrees_with_the_frames_is_said_and_refined():
     ref = reconstruct_measurement(dataclasses.replace(m, alpha=a), "lsq", window=24, refine_alpha=True,
                                   solver={"strict": False})
     assert ref.reconstruction.method == "alternating" and ref.alpha_mae < 2e-3
+
+
+def test_a_flat_field_is_divided_out_of_both_images():
+    """Frames vignetted by a known gain map (20 % at the corner) above a dark level: with the map as the file's
+    ``flat_field`` both separated images are the unvignetted truth (to the noise); without it they carry the map."""
+    x1, x2 = scene(48, lo=2000.0, hi=3000.0)
+    a = polariser_alpha(12)
+    H, W = x1.shape
+    yy, xx = np.mgrid[:H, :W]
+    v = 1 - 0.2 * (((yy - (H - 1) / 2) ** 2 + (xx - (W - 1) / 2) ** 2) / ((H - 1) ** 2 / 2))
+    dark = 1000.0
+    Y = (dark + v * (measure(x1, x2, a, sigma=0.0, rng=0) - 0.0)).astype(np.float32)
+    meta = {"scale": 6.0, "dark_dn": dark}
+    kw = dict(frames=Y, times_s=np.arange(12) / 12.0, alpha=a, truth_x1=dark + x1, truth_x2=dark + x2)
+    plain = reconstruct_measurement(Measurement(**kw, meta=meta), "lsq").reconstruction
+    flat = reconstruct_measurement(Measurement(**kw, meta=meta, extras={"flat_field": v}), "lsq").reconstruction
+    for got, want in ((flat.x1, dark + x1), (flat.x2, dark + x2)):
+        assert np.max(np.abs(got - want)) < 1e-2 * np.ptp(want)
+    assert np.max(np.abs(plain.x1 - (dark + x1))) > 0.1 * np.ptp(x1)
+    assert "divided out" in flat.info["flat_field"]
+    with pytest.raises(InputError, match="flat_field"):
+        Measurement(**kw, meta=meta, extras={"flat_field": np.zeros((H, W))})
