@@ -412,9 +412,9 @@ def _calibrated(m: Measurement, frames: np.ndarray, kw: dict[str, Any], fpn_kw: 
             kw.update(scale=fit.scale, offset=(-fit.centre_px[0] / fit.scale, -fit.centre_px[1] / fit.scale))
         info["constraint_used"] = {k: kw[k] for k in ("scale", "offset", "foveal_gain", "foveal_offset") if k in kw}
     rho, se = fit.amplitude, fit.se["amplitude"]
-    if fit.se["relative_residual"] > 1.0:
+    if fit.relative_misfit > 1.0:
         info["reason"] = (f"the foveal relation does not hold in this recording (its misfit is "
-                          f"{fit.se['relative_residual']:.2g} times the perifoveal side's contrast): the channels' "
+                          f"{fit.relative_misfit:.2g} times the perifoveal side's contrast): the channels' "
                           "assignment rests on the stated relation and alpha's amplitude on the stated polariser; an "
                           "uncorrected fixed pattern (no shutter frames: fpn='prior' if the sensor has one) or a "
                           "wrong scale or gain are the likely causes")
@@ -428,7 +428,7 @@ def _calibrated(m: Measurement, frames: np.ndarray, kw: dict[str, Any], fpn_kw: 
         info["reason"] = (f"alpha's amplitude is not identified by the foveal constraint (standard error {se:.2g}: "
                           "too little texture in the fovea): the stated polariser constants are used")
         info["warning"] = info["reason"]
-    elif abs(rho - 1.0) <= (tol := max(2.0 * se, AMPLITUDE_MODEL_ERROR * fit.se["relative_residual"],
+    elif abs(rho - 1.0) <= (tol := max(2.0 * se, AMPLITUDE_MODEL_ERROR * fit.relative_misfit,
                                        AMPLITUDE_FLOOR)):
         info["reason"] = (f"alpha's amplitude agrees with the stated polariser constants ({rho:.4f} +- {se:.2g} of "
                           f"it, within {tol:.2g}: twice its error or the fit's model error): they are used")

@@ -102,6 +102,11 @@ class FovealFit:
         Per quantity: its standard error is within :data:`TOLERANCES`.
     samples : int
         Constraint samples used.
+    relative_misfit : float
+        ``residual_rms`` over the perifoveal side's contrast (times the gain): how far (2) is from holding.
+    geometry_fit : dict
+        The fit with the geometry free (scale, centre, rotation, amplitude, their errors, its residual and the
+        stated geometry's, the chi^2 drop), whether or not it was kept.
     """
 
     scale: float
@@ -115,13 +120,15 @@ class FovealFit:
     residual_rms: float = math.nan
     identified: dict[str, bool] = field(default_factory=dict)
     samples: int = 0
+    relative_misfit: float = math.nan
+    geometry_fit: dict[str, Any] = field(default_factory=dict)
 
     def summary(self) -> dict[str, Any]:
         """JSON-ready: every field."""
         return {"scale": self.scale, "centre_px": list(self.centre_px), "rotation_deg": self.rotation_deg,
                 "amplitude": self.amplitude, "gain": self.gain, "offset": self.offset, "vignetting": self.vignetting,
-                "se": dict(self.se),
-                "residual_rms": self.residual_rms, "identified": dict(self.identified), "samples": self.samples}
+                "se": dict(self.se), "residual_rms": self.residual_rms, "relative_misfit": self.relative_misfit,
+                "identified": dict(self.identified), "samples": self.samples, "geometry_fit": dict(self.geometry_fit)}
 
 
 def _rescaled_psf(psf: np.ndarray, zoom: float) -> np.ndarray:
@@ -309,9 +316,9 @@ def fit_foveal(mean: ArrayLike, diff: ArrayLike, *, scale: float = 6.0, gain: fl
     if both_assignments:  # the swapped channels: the difference image's sides negated (the sides are linear in it)
         neg = (sides[0], -sides[1], sides[2], -sides[3])
         other = _fit_once(m.shape, neg, vignetting=True, **kw)
-        if other.gain > 0 and other.residual_rms < SWAP_RATIO * fit.residual_rms and other.se[
-                "relative_residual"] < 1.0:  # clearly better, and a relation at all (a positive gain, a misfit
-            # below the perifoveal side's own contrast): else the solver's choice stands
+        # clearly better, and a relation at all (a positive gain, a misfit below the perifoveal side's own
+        # contrast): else the solver's choice stands
+        if other.gain > 0 and other.residual_rms < SWAP_RATIO * fit.residual_rms and other.relative_misfit < 1.0:
             fit, sides, swapped = other, neg, True
     without = _fit_once(m.shape, sides, vignetting=False, **kw)
     delta = abs(fit.amplitude - without.amplitude)
@@ -397,9 +404,10 @@ def _fit_once(shape: tuple[int, int], sides: tuple[np.ndarray, ...], *, scale: f
           "gain": float(se_all[5])}
     ok = {key: bool(math.isfinite(v) and v <= TOLERANCES[key] * (th[0] if key == "scale" else 1.0))
           for key, v in se.items()}
+    r_stated = residual(theta0)
     stage2 = {"scale": float(th[0]), "centre_px": [float(th[1]), float(th[2])], "rotation_deg": float(th[3]),
               "amplitude": 1.0 / float(th[4]), "rss": float(np.sum(r ** 2)), "se": dict(se),
-              "rss_stated": float(np.sum(residual(theta0) ** 2))}
+              "rss_stated": float(np.sum(r_stated ** 2))}
     # the fitted geometry is used when it explains the fovea significantly better than the stated one: the drop of
     # the residual beyond what 4 more parameters fit to noise (chi^2, in units of its correlated variance)
     gain_chi2 = (stage2["rss_stated"] - stage2["rss"]) / max(var * inflate, 1e-300)
@@ -409,7 +417,7 @@ def _fit_once(shape: tuple[int, int], sides: tuple[np.ndarray, ...], *, scale: f
     if not (gain_chi2 > GEOMETRY_CHI2 and inside and se["scale"] < GEOMETRY_SE_MAX * th[0]):
         # the geometry is not pinned down (no significant gain, a bound reached, or its scale uncertain by more
         # than GEOMETRY_SE_MAX): keep the stated one (stage 1)
-        r = residual(theta0)
+        r = r_stated
         u0_, g0_, h0_ = theta0[4], theta0[5], theta0[7]
         J = np.stack([0.5 * a_d + 0.5 * (g0_ + h0_ * r2) * b_d, -(b_m - 0.5 * u0_ * b_d), -np.ones_like(b_m),
                       -r2 * (b_m - 0.5 * u0_ * b_d)], axis=1)
@@ -419,17 +427,18 @@ def _fit_once(shape: tuple[int, int], sides: tuple[np.ndarray, ...], *, scale: f
         se.update(amplitude=float(se1[0] / u ** 2) if fit_amplitude else 0.0, gain=float(se1[-3]))
         ok.update(gain=bool(se["gain"] <= TOLERANCES["gain"]), geometry_kept=True)
     if fit_amplitude:  # the spread of the amplitude over the fovea's blocks: what a structured misfit costs
-        se["amplitude_blocks"] = _block_jackknife(p, *foveal(th)[:2], b_m, b_d, foveal(th)[2]) / u ** 2
+        a_m, a_d, r2 = foveal(th)
+        se["amplitude_blocks"] = _block_jackknife(p, a_m, a_d, b_m, b_d, r2) / u ** 2
         se["amplitude"] = max(se["amplitude"], se["amplitude_blocks"])
     ok["amplitude"] = bool(se["amplitude"] <= TOLERANCES["amplitude"])
     x2_side = b_m - 0.5 * (float(th[4]) if fit_amplitude else 1.0) * b_d
-    se["stage2"] = stage2
-    se["relative_residual"] = math.sqrt(float(np.mean(r ** 2))) / max(abs(float(th[5])) * float(np.std(x2_side)),
-                                                                       1e-300)
     return FovealFit(scale=float(th[0]), centre_px=(float(th[1]), float(th[2])), rotation_deg=float(th[3]),
                      amplitude=1.0 / u, gain=float(th[5]), offset=float(th[6]),
                      vignetting=-float(th[7]) / float(th[5]) if th[5] else 0.0, se=se,
-                     residual_rms=math.sqrt(float(np.mean(r ** 2))), identified=ok, samples=int(n))
+                     residual_rms=math.sqrt(float(np.mean(r ** 2))), identified=ok, samples=int(n),
+                     relative_misfit=math.sqrt(float(np.mean(r ** 2))) / max(abs(float(th[5])) *
+                                                                              float(np.std(x2_side)), 1e-300),
+                     geometry_fit=stage2)
 
 
 __all__ = ["AMPLITUDE_FLOOR", "AMPLITUDE_MODEL_ERROR", "BLUR_PX", "MARGIN_PX", "SEARCH", "TOLERANCES", "FovealFit",

@@ -272,8 +272,7 @@ class PipelineResult:
             out.setdefault("polarizer", {})["model"] = rec.info["polarizer_spec"]
         cal = rec.info.get("calibration")
         if cal:  # what the recording showed of its camera (geometry, gain, amplitude), with standard errors
-            out["calibration"] = {k: v for k, v in cal.items() if k != "se"}
-            out["calibration"]["se"] = {k: v for k, v in (cal.get("se") or {}).items() if not isinstance(v, dict)}
+            out["calibration"] = dict(cal)
         warns = list(rec.info.get("warnings") or [])
         warns += [w for w in (pg.get("warning") if pg else None, (cal or {}).get("warning")) if w]
         if warns:

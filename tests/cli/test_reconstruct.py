@@ -288,14 +288,20 @@ def test_snapshot_honours_denoise(tmp_path, capsys):
     assert np.std(np.diff(outs[1], axis=1)) < np.std(np.diff(outs[0], axis=1))
 
 
+def _unrelated_images(tmp_path, T):
+    """A file of ``T`` frames whose foveal image is unrelated to the perifoveal one (the foveal constraint cannot
+    fix the gauge), the paper's polariser, no polariser keys."""
+    x1 = np.random.default_rng(0).random((48, 48))
+    _, x2 = scene(48)
+    m = tmp_path / "m.npz"
+    atomic_save_npz(m, meta={"scale": 6}, frames=measure(x1, x2, polariser_alpha(T), sigma=0.0, rng=0,
+                                                         dtype=np.float32), times_s=np.arange(T) / 12.0)
+    return m
+
+
 def test_no_strict_gives_the_frame_mean_gauge_result_the_error_points_to(tmp_path, capsys):
     """The alternating solver's error told CLI users to 'pass strict=False', which the CLI had no way to do."""
-    x1 = np.random.default_rng(0).random((48, 48))  # unrelated to x2: the foveal constraint cannot fix the gauge
-    _, x2 = scene(48)
-    a = polariser_alpha(8)
-    m = tmp_path / "m.npz"
-    atomic_save_npz(m, meta={"scale": 6}, frames=measure(x1, x2, a, sigma=0.0, rng=0, dtype=np.float32),
-                    times_s=np.arange(8) / 12.0)
+    m = _unrelated_images(tmp_path, 8)
     rc, _, err = _run([m, "--method", "alternating", "--polarizer", "none", "--no-figures"], capsys)
     assert rc == 2 and "--no-strict" in err
     rc, _, err = _run([m, "--method", "alternating", "--polarizer", "none", "--no-strict", "--no-figures"], capsys)
@@ -310,12 +316,7 @@ def test_no_strict_gives_the_frame_mean_gauge_result_the_error_points_to(tmp_pat
 def test_the_gauge_error_is_one_message_naming_the_flags_to_use(tmp_path, capsys):
     """The alternating gauge error nested three messages (a window's, the solver's, its detail) and named the library
     keyword strict=False: one message now, in the window, naming the flags that fix it."""
-    x1 = np.random.default_rng(0).random((48, 48))  # unrelated to x2: the foveal constraint cannot fix the gauge
-    _, x2 = scene(48)
-    a = polariser_alpha(20)
-    m = tmp_path / "m.npz"
-    atomic_save_npz(m, meta={"scale": 6}, frames=measure(x1, x2, a, sigma=0.0, rng=0, dtype=np.float32),
-                    times_s=np.arange(20) / 12.0)
+    m = _unrelated_images(tmp_path, 20)
     rc, out, err = _run([m, "--method", "alternating", "--polarizer", "none", "--no-figures"], capsys)
     assert rc == 2 and out == "" and err.count("\n") == 1
     assert err.count("is invalid") == 1 and "window 0 (frames 0..7)" in err

@@ -170,17 +170,6 @@ def seq(frames_counts, stamps_s, frame_rate=30):
     return b"".join(frame(c, stamp_s=t, frame_rate=frame_rate) for c, t in zip(frames_counts, stamps_s))
 
 
-@pytest.fixture
-def cli(capsys):
-    from metafovea.cli import main
-
-    def run(*argv):
-        rc = main([str(a) for a in argv])
-        cap = capsys.readouterr()
-        return rc, cap.out, cap.err
-    return run
-
-
 # ---------------------------------------------------------------------------------------------------------------
 # The writer against ExifTool, the readers' own conversions against the formula
 # ---------------------------------------------------------------------------------------------------------------
