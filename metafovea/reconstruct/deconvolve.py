@@ -76,11 +76,21 @@ from metafovea.reconstruct.joint import (
     Problem,
     check_boundary,
     linear_solve,
+    mean_square,
+    periodic_filter,
     prepare_problem,
     tv_admm,
 )
 from metafovea.reconstruct.metrics import score_deconvolution, true_fpn_error_dn, wiener_bound
 from metafovea.reconstruct.spectra import BETA_RANGE, PRIORS, fitted_spectrum, inverse_prior, radial_mean
+from metafovea.reconstruct.wavelet import (
+    DEFAULT_WAVELET,
+    NOISE_SAMPLES,
+    TAUS,
+    WAVELETS,
+    shrink,
+    swt_levels,
+)
 
 if TYPE_CHECKING:
     from metafovea.measurement import Measurement
@@ -95,7 +105,10 @@ __all__ = ["BETA_RANGE", "BOUNDARIES", "DECONVOLUTION_METHODS", "PRIORS", "PRIOR
 SURROUND_SIGMA_PER_SCALE = math.sqrt(math.log(2.0) / 2.0) / (math.pi * 0.5)
 
 #: methods of :func:`separate_deconvolve`
-DECONVOLUTION_METHODS = ("tv", "wiener")
+DECONVOLUTION_METHODS = ("tv", "wavelet", "wiener")
+#: the seed of the noise draws that measure the wavelet step's subband noise (fixed: the same data give the same
+#: estimate)
+WAVELET_NOISE_SEED = 0
 #: how the crop's fitted spectrum (per pixel) becomes the padded grid's (per FFT bin) in :func:`separate_deconvolve`
 #: (``prior_scale``): ``'grid'`` as if the whole grid carried the crop's texture (n_grid x PSD), ``'crop'`` as if only
 #: the crop did (n_crop x PSD; the edge padding adds stripes along the axes only), ``'geometric'`` their geometric
@@ -229,12 +242,71 @@ def _tv_step(pb: Problem, s: np.ndarray, tv_weight: float | None, iterations: in
     return s, {"tv_weight": [float(v) for v in lam], "tv_weight_multiplier": mult, "admm_iterations": its}
 
 
+def _wavelet_step(pb: Problem, C: np.ndarray, prior_inv: np.ndarray, surround: bool,
+                  wavelet: str) -> tuple[np.ndarray, dict[str, Any]]:
+    """The Fourier-wavelet estimate (:mod:`metafovea.reconstruct.wavelet`): per channel, the ``tau`` of
+    :data:`~metafovea.reconstruct.wavelet.TAUS` whose shrunk estimate has the lowest estimated risk, eq. (2) there.
+
+    ``surround``: the foveal channel's padding is the perifoveal channel's prediction, not its own edge values, so
+    its noise draws are 0 there (the prediction's noise is the perifoveal estimate's, low-passed: neglected).
+    Returns the crop's estimates ``(2, H, W)`` (DN above the dark level) and the info entries.
+    """
+    g = pb.g
+    H, W = pb.zc.shape[1:]
+    rng = np.random.default_rng(WAVELET_NOISE_SEED)
+    chol = np.linalg.cholesky(C)
+    periodic = pb.boundary == "padded"
+    draws = []
+    for _ in range(NOISE_SAMPLES):
+        nk = np.einsum("ij,jhw->ihw", chol, rng.standard_normal((2, H, W)))
+        if periodic:
+            grid = np.stack([g.padded(nk[i], pb.pad_mode) for i in range(2)])
+            if surround:
+                grid[0] = 0.0
+                grid[0][g.crop] = nk[0]
+            draws.append(g.rfft(grid))
+        else:
+            draws.append(nk)
+    Z = g.rfft(pb.z) if periodic else None
+    levels = swt_levels((H, W))
+    best: list[tuple[float, float, np.ndarray, float, float] | None] = [None, None]
+    curve: list[list[dict[str, float]]] = [[], []]
+    for tau in TAUS:
+        G, b2 = periodic_filter(pb, prior_inv, tau)
+        bias = mean_square(g, b2)
+        if periodic:
+            x = g.irfft(np.einsum("ikpq,kpq->ipq", G, Z))
+            noise = [g.irfft(np.einsum("ikpq,kpq->ipq", G, nk))[:, g.crop[0], g.crop[1]] for nk in draws]
+        else:
+            x = linear_solve(pb, tau * prior_inv, None)[0]
+            z0 = pb.z
+            noise = []
+            for nk in draws:
+                pb.z = nk
+                noise.append(linear_solve(pb, tau * prior_inv, None)[0][:, g.crop[0], g.crop[1]])
+            pb.z = z0
+        for i in range(2):
+            est, sure = shrink(x[i][g.crop], np.stack([n[i] for n in noise]), wavelet, levels)
+            risk = float(bias[i]) + sure
+            curve[i].append({"tau": tau, "risk_dn2": risk, "bias2_dn2": float(bias[i]), "sure_dn2": sure})
+            if best[i] is None or risk < best[i][0]:
+                best[i] = (risk, tau, est, float(bias[i]), sure)
+    out = np.stack([b[2] for b in best])  # type: ignore[index]
+    info = {"wavelet": wavelet, "wavelet_levels": levels, "noise_samples": NOISE_SAMPLES,
+            "tau": [b[1] for b in best],  # type: ignore[index]
+            # the criterion at the chosen tau: a ranking, not an error bar (the prior's extrapolation and the cross
+            # term of eq. (2) of metafovea.reconstruct.wavelet make it optimistic)
+            "risk_criterion_dn2": [b[0] for b in best],  # type: ignore[index]
+            "risk_curve": {"x1": curve[0], "x2": curve[1]}}
+    return out, info
+
+
 def separate_deconvolve(frames: ArrayLike, alpha: ArrayLike, psfs: ChannelPSFs, *, method: str = "wiener",
                         offset: float = 0.0, sigma: float | None = None, iterations: int = 100,
                         tv_weight: float | None = None, meta: dict[str, Any] | RadiometricCalibration | None = None,
                         boundary: str = "padded", pad_mode: str = "edge", prior: str = "hybrid",
                         foveal_scale: float | None = None, foveal_ratio: float = 1.0, fpn_error_dn: float = 0.0,
-                        prior_scale: str = "geometric") -> Deconvolution:
+                        prior_scale: str = "geometric", wavelet: str = DEFAULT_WAVELET) -> Deconvolution:
     """The scene radiance of both channels from their mixed frames and PSFs.
 
     Parameters
@@ -294,6 +366,7 @@ def separate_deconvolve(frames: ArrayLike, alpha: ArrayLike, psfs: ChannelPSFs, 
     See the module docstring, [1]_ to [3]_.
     """
     method = check_choice("method", method, DECONVOLUTION_METHODS)
+    wavelet = check_choice("wavelet", wavelet, WAVELETS)
     prior = check_choice("prior", prior, PRIORS)
     prior_scale = check_choice("prior_scale", prior_scale, PRIOR_SCALES)
     iterations = check_int("iterations", iterations, 1, 100_000)
@@ -319,7 +392,12 @@ def separate_deconvolve(frames: ArrayLike, alpha: ArrayLike, psfs: ChannelPSFs, 
     if method == "tv":
         s, tv_info = _tv_step(pb, s, tv_weight, iterations)
         info.update(tv_info)
-    scene = (s[0][g.crop] + offset, s[1][g.crop] + offset)
+    if method == "wavelet":
+        crop, w_info = _wavelet_step(pb, C, prior_inv, "foveal_surround" in info, wavelet)
+        info.update(w_info)
+        scene = (crop[0] + offset, crop[1] + offset)
+    else:
+        scene = (s[0][g.crop] + offset, s[1][g.crop] + offset)
     info["seconds"] = time.perf_counter() - t0
     return Deconvolution(scene, temperatures(scene, offset, meta), info)
 

@@ -332,7 +332,8 @@ def linear_solve(pb: Problem, prior_inv: np.ndarray, x0: np.ndarray | None, iter
     Notes
     -----
     The preconditioner is the same system without the mask ``M`` (the data region's share of the grid in its
-    place): one 2 x 2 solve per frequency, exact for ``boundary='padded'``, where CG then stops after one step.
+    place): one 2 x 2 solve per frequency, exact for ``boundary='padded'``, where it is applied once (CG's first
+    step) and ``x0`` is not needed.
     """
     g = pb.g
     n_bins = g.shape[0] * g.shape[1]
@@ -353,6 +354,8 @@ def linear_solve(pb: Problem, prior_inv: np.ndarray, x0: np.ndarray | None, iter
         return g.irfft(_solve2(Mpre, g.rfft(r)))
 
     b = pb.data_rhs()
+    if pb.boundary == "padded":  # the preconditioner is the system itself: CG's one step, done directly
+        return pre(b), 1
     x = np.zeros_like(b) if x0 is None else x0.copy()
     r = b - op(x)
     zz = pre(r)
@@ -371,6 +374,68 @@ def linear_solve(pb: Problem, prior_inv: np.ndarray, x0: np.ndarray | None, iter
         p = zz + (rz_new / rz) * p
         rz = rz_new
     return x, iterations
+
+
+def periodic_filter(pb: Problem, prior_inv: np.ndarray, tau: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
+    """The linear estimate of eq. (3) on the periodic grid as a 2 x 2 filter per frequency, with the prior's inverse
+    weighted by ``tau``, and its squared bias per frequency as the prior predicts it.
+
+    Parameters
+    ----------
+    pb : Problem
+        With ``boundary='padded'`` (data on the whole grid) the filter is exact; with ``'unknown'`` it is the
+        periodic approximation that :func:`linear_solve` preconditions with.
+    prior_inv : ndarray, shape (2, P, Q // 2 + 1)
+        The prior's inverse spectrum per unnormalised FFT bin, 0 at DC.
+    tau : float
+        The prior's weight (1: the Wiener filter).
+
+    Returns
+    -------
+    G : ndarray, shape (2, 2, P, Q // 2 + 1)
+        ``S_i = sum_k G_ik Z_k`` for the data's FFT ``Z``: ``G = M^-1 D^H C^-1``, ``M = D^H C^-1 D + tau n P^-1``.
+    bias2 : ndarray, shape (2, P, Q // 2 + 1)
+        ``E |((I - G D) S)_i|^2 = sum_k |(M^-1 tau n P^-1)_ik|^2 P_k`` per unnormalised bin (``P = 1 / prior_inv``;
+        0 at DC, which is not shrunk).
+    """
+    g = pb.g
+    n = g.shape[0] * g.shape[1]
+    Ci = pb.Cinv
+    D = g.D
+    w = tau * n * prior_inv
+    m11 = Ci[0, 0] * np.abs(D[0]) ** 2 + w[0]
+    m22 = Ci[1, 1] * np.abs(D[1]) ** 2 + w[1]
+    m12 = Ci[0, 1] * np.conj(D[0]) * D[1]
+    det = m11 * m22 - np.abs(m12) ** 2
+    det = np.where(np.abs(det) > 0, det, np.inf)
+    Minv = np.array([[m22, -m12], [-np.conj(m12), m11]]) / det
+    DhCi = np.array([[np.conj(D[0]) * Ci[0, 0], np.conj(D[0]) * Ci[0, 1]],
+                     [np.conj(D[1]) * Ci[1, 0], np.conj(D[1]) * Ci[1, 1]]])
+    G = np.einsum("ijpq,jkpq->ikpq", Minv, DhCi)
+    P = np.where(prior_inv > 0, 1.0 / np.where(prior_inv > 0, prior_inv, 1.0), 0.0)
+    bias2 = np.stack([sum(np.abs(Minv[i, k] * w[k]) ** 2 * P[k] for k in range(2)) for i in range(2)])
+    return G, bias2
+
+
+def mean_square(g: Grid, spec: np.ndarray) -> np.ndarray:
+    """The mean over the grid's pixels of a field whose power per unnormalised rfft bin is ``spec``.
+
+    Parameters
+    ----------
+    g : Grid
+    spec : ndarray, shape (..., P, Q // 2 + 1)
+
+    Returns
+    -------
+    ndarray, shape (...)
+        ``sum_f spec(f) / n^2`` over the full plane (the half plane's inner columns counted twice; Parseval).
+    """
+    P, Q = g.shape
+    wt = np.full(spec.shape[-1], 2.0)
+    wt[0] = 1.0
+    if Q % 2 == 0:
+        wt[-1] = 1.0
+    return np.sum(spec * wt, axis=(-2, -1)) / float(P * Q) ** 2
 
 
 def _shrink(gy: np.ndarray, gx: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -1,0 +1,222 @@
+"""The non-linear step of the PSF-aware reconstruction: a regularised Fourier inverse, then wavelet shrinkage whose
+parameters minimise Stein's unbiased risk estimate (SURE).
+
+A linear deconvolution must trade noise against blur with one filter for the whole image; edges and small sources
+need little regularisation, flat regions much. Following ForWaRD [1]_, each channel is first inverted with *less*
+regularisation than the Wiener filter (the prior's inverse times ``tau <= 1``: eq. (3) of
+:mod:`metafovea.reconstruct.joint`), which leaves a sharp but noisy estimate ``x_tau = G_tau z``; its noise is
+coloured Gaussian, ``G_tau`` applied to the data's noise, and is then removed where the image is smooth by
+shrinking the coefficients of an undecimated (stationary) wavelet transform [2]_. Every coefficient ``w`` of
+subband ``j`` is mapped through the linear expansion of thresholds (SURE-LET, [3]_)
+
+    theta_j(w) = a_j1 w + a_j2 w exp(-w^2 / (12 sigma_j^2))                                         (1)
+
+with ``sigma_j^2`` the noise variance of subband ``j`` and ``(a_j1, a_j2)`` the minimisers of that subband's SURE, a
+2 x 2 linear system. The noise variances are measured, not modelled: :data:`NOISE_SAMPLES` draws of the data's noise
+(per-pixel covariance ``C``, padded as the data are) are passed through the same filter and transform
+(:meth:`StationaryFrame.noise_variances`), so the padding and the joint 2 x 2 filter are counted exactly.
+
+The regularisation ``tau`` is chosen per channel by the estimated mean squared error against the scene,
+
+    R(tau) = B(tau) + SURE(tau),    B(tau) = sum_f |[(I - G_tau D)]_i|^2 P(f) / n^2                    (2)
+
+``SURE(tau)`` the image-domain risk of the shrunk estimate against ``E[x_tau] = G_tau D s`` (Stein's lemma for
+correlated Gaussian noise: ``||f(y) - y||^2 - tr C_x + 2 sum_jk theta_j'(w_jk) sigma_j^2``) and ``B(tau)`` the squared
+bias that the Fourier step leaves, predicted by the scene prior ``P`` (:func:`metafovea.reconstruct.joint.
+filter_bias2`); the cross term between the two is neglected. Where the prior is extrapolated (no signal above the
+noise) ``G_tau D`` is near 0 for every ``tau``, so the prior's errors there move ``R`` but hardly its minimiser. The
+search runs over :data:`TAUS`.
+
+Constants: :data:`NOISE_SAMPLES`, :data:`TAUS`, :data:`MIN_COARSEST_PX` (module docstring of
+:mod:`metafovea.reconstruct.deconvolve` lists where each comes from); the wavelet (``wavelet``, default
+:data:`DEFAULT_WAVELET`) is an option.
+
+References
+----------
+.. [1] R. Neelamani, H. Choi and R. Baraniuk, "ForWaRD: Fourier-wavelet regularized deconvolution for
+   ill-conditioned systems", IEEE Trans. Signal Process. 52, 418 (2004).
+.. [2] G. P. Nason and B. W. Silverman, "The stationary wavelet transform and some statistical applications",
+   in *Wavelets and Statistics*, Lecture Notes in Statistics 103, 281 (Springer, 1995).
+.. [3] F. Luisier, T. Blu and M. Unser, "A new SURE approach to image denoising: interscale orthonormal wavelet
+   thresholding", IEEE Trans. Image Process. 16, 593 (2007).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from metafovea.errors import InputError
+
+#: wavelets :func:`shrink` accepts (PyWavelets names): Haar's piecewise-constant atoms and two smoother ones
+WAVELETS = ("haar", "db2", "sym4")
+#: the default wavelet: the lowest error of the three on the scene generator's tuning seeds (BENCHMARKS.md,
+#: "PSF-aware reconstruction on scenes never seen"); an option of :func:`metafovea.reconstruct.deconvolve.
+#: separate_deconvolve` (``wavelet``)
+DEFAULT_WAVELET = "haar"
+#: draws of the noise through the filter per channel: the subband variances' relative standard error is about
+#: ``sqrt(2 / (NOISE_SAMPLES n_eff))`` with ``n_eff`` the subband's independent coefficients (> 100 at the coarsest
+#: of :func:`swt_levels`), i.e. < 7 %, a < 0.3 dB change of the threshold
+NOISE_SAMPLES = 4
+#: the regularisation multipliers searched (eq. 2): 1 is the Wiener filter, each step halves the prior's weight,
+#: down to 1/64, where the Fourier step's noise is 64 times (at most) the Wiener filter's in the bins that the
+#: prior governs
+TAUS = tuple(2.0 ** -k for k in range(7))
+#: the coarsest subband's atoms (``2^levels`` px) fit at least this many times across the crop (:func:`swt_levels`)
+MIN_COARSEST_PX = 8
+
+
+def swt_levels(shape: tuple[int, int]) -> int:
+    """The stationary transform's depth for an image of ``shape``: the largest ``L`` with ``2^L`` at most
+    ``min(shape) / MIN_COARSEST_PX``, between 1 and 6.
+
+    Parameters
+    ----------
+    shape : tuple of 2 int
+
+    Returns
+    -------
+    int
+    """
+    n = min(shape) / MIN_COARSEST_PX
+    return int(min(6, max(1, math.floor(math.log2(max(n, 2.0))))))
+
+
+def _check_wavelet(wavelet: str) -> str:
+    if wavelet not in WAVELETS:
+        raise InputError("wavelet", wavelet, "one of " + ", ".join(WAVELETS))
+    return wavelet
+
+
+class StationaryFrame:
+    """The stationary (undecimated) 2-D wavelet transform of a ``(P, Q)`` periodic image as FFT filters.
+
+    Subband ``b`` of an image ``y`` is ``irfft2(rfft2(y) F_b)``; the filters are the separable products of the
+    wavelet's analysis filters ``h_0``, ``h_1`` (PyWavelets' ``dec_lo``, ``dec_hi``), dilated by ``2^(j-1)`` at
+    level ``j`` (the *a trous* scheme) and divided by ``sqrt 2`` per axis and level, so that
+    ``sum_b |F_b(f)|^2 = 1``: a Parseval frame, whose synthesis is its adjoint,
+    ``y = irfft2(sum_b rfft2(w_b) conj(F_b))``.
+
+    Attributes
+    ----------
+    filters : ndarray, shape (3 L + 1, P, Q // 2 + 1)
+        The approximation at level ``L`` first, then per level (coarsest first) the three details.
+    shape : tuple of 2 int
+    """
+
+    def __init__(self, shape: tuple[int, int], wavelet: str, levels: int):
+        import pywt
+
+        w = pywt.Wavelet(_check_wavelet(wavelet))
+        P, Q = shape
+        fy = np.fft.fftfreq(P)[:, None]
+        fx = np.fft.rfftfreq(Q)[None, :]
+
+        def resp(h: list[float], f: np.ndarray, j: int) -> np.ndarray:
+            n = np.arange(len(h))
+            return np.exp(-2j * np.pi * (2 ** j) * f[..., None] * n).dot(np.asarray(h)) / math.sqrt(2.0)
+
+        low = np.ones((P, Q // 2 + 1), dtype=complex)
+        details = []
+        for j in range(levels):
+            ly, hy = resp(w.dec_lo, fy, j), resp(w.dec_hi, fy, j)
+            lx, hx = resp(w.dec_lo, fx, j), resp(w.dec_hi, fx, j)
+            details.append(np.stack([low * ly * hx, low * hy * lx, low * hy * hx]))
+            low = low * ly * lx
+        self.filters = np.concatenate([low[None]] + details[::-1])
+        self.shape = (P, Q)
+
+    def analysis(self, y: np.ndarray) -> np.ndarray:
+        """All subbands of ``y`` (P, Q): shape ``(3 L + 1, P, Q)``."""
+        from scipy.fft import irfft2, rfft2
+
+        return irfft2(rfft2(y, workers=-1)[None] * self.filters, s=self.shape, axes=(-2, -1), workers=-1)
+
+    def synthesis(self, c: np.ndarray) -> np.ndarray:
+        """The image of subbands ``c`` ``(3 L + 1, P, Q)``: the frame's adjoint (its inverse on its range)."""
+        from scipy.fft import irfft2, rfft2
+
+        spec = np.sum(rfft2(c, axes=(-2, -1), workers=-1) * np.conj(self.filters), axis=0)
+        return irfft2(spec, s=self.shape, workers=-1)
+
+    def noise_variances(self, noise: np.ndarray) -> np.ndarray:
+        """Each subband's mean square over the noise draws ``(K, P, Q)`` (Parseval on their spectra): ``(3 L + 1,)``."""
+        from scipy.fft import rfft2
+
+        P, Q = self.shape
+        spec = np.mean(np.abs(rfft2(noise, axes=(-2, -1), workers=-1)) ** 2, axis=0)
+        wt = np.full(Q // 2 + 1, 2.0)
+        wt[0] = 1.0
+        if Q % 2 == 0:
+            wt[-1] = 1.0
+        return np.sum(np.abs(self.filters) ** 2 * (spec * wt)[None], axis=(-2, -1)) / float(P * Q) ** 2
+
+
+def _surelet(w: np.ndarray, var: float) -> tuple[np.ndarray, float]:
+    """Eq. (1) on one subband: the shrunk coefficients and ``sum theta'(w) var`` (the divergence term of SURE)."""
+    if not var > 0:
+        return w, 0.0
+    e = np.exp(-w * w / (12.0 * var))
+    f2 = w * e
+    d2 = e * (1.0 - w * w / (6.0 * var))
+    A = np.array([[np.sum(w * w), np.sum(w * f2)], [np.sum(w * f2), np.sum(f2 * f2)]])
+    b = np.array([np.sum(w * w) - var * w.size, np.sum(w * f2) - var * np.sum(d2)])
+    try:
+        a = np.linalg.solve(A, b)
+    except np.linalg.LinAlgError:  # a subband of zeros: nothing to shrink
+        return w, var * w.size
+    if not np.all(np.isfinite(a)):
+        return w, var * w.size
+    return a[0] * w + a[1] * f2, float(var * (a[0] * w.size + a[1] * np.sum(d2)))
+
+
+def shrink(img: np.ndarray, noise: np.ndarray, wavelet: str = DEFAULT_WAVELET,
+           levels: int | None = None) -> tuple[np.ndarray, float]:
+    """SURE-LET shrinkage of a noisy image in the stationary wavelet transform, eq. (1).
+
+    Parameters
+    ----------
+    img : ndarray, shape (H, W)
+        The noisy image (any units), transformed as periodic. Its noise must be (close to) stationary: the
+        thresholds are per subband, not per pixel (a mirror or edge extension, whose noise repeats the edge's,
+        makes the risk estimate wrong there).
+    noise : ndarray, shape (K, H, W)
+        Draws of its noise (same units): their subband variances set the thresholds.
+    wavelet : str
+        One of :data:`WAVELETS`.
+    levels : int, optional
+        Transform depth (default :func:`swt_levels` of ``img.shape``).
+
+    Returns
+    -------
+    estimate : ndarray, shape (H, W)
+    sure : float
+        Stein's unbiased estimate of the estimate's mean squared error per pixel against the noise-free image.
+
+    Notes
+    -----
+    The frame (:class:`StationaryFrame`) is Parseval, so its synthesis is its adjoint and the SURE of
+    ``f(y) = F^T theta(F y)`` under Gaussian noise of any covariance ``C`` is
+    ``(||f(y) - y||^2 - tr C + 2 sum_jk theta_j'(w_jk) sigma_j^2) / n`` (``tr C``: the noise draws' mean energy).
+    The coefficients of eq. (1) minimise each subband's own SURE, so the total is slightly optimistic (by the
+    2 x 3 L fitted parameters' share of the coefficients).
+    """
+    img = np.asarray(img, dtype=np.float64)
+    noise = np.asarray(noise, dtype=np.float64)
+    if img.ndim != 2 or noise.ndim != 3 or noise.shape[1:] != img.shape or noise.shape[0] < 1:
+        raise InputError("noise", f"array of shape {noise.shape}", f"(K, H, W) draws with (H, W) = {img.shape}")
+    levels = swt_levels(img.shape) if levels is None else int(levels)
+    frame = StationaryFrame(img.shape, wavelet, levels)
+    var = frame.noise_variances(noise)
+    c = frame.analysis(img)
+    div = float(var[0]) * c[0].size  # the approximation is kept: theta' = 1
+    out = np.empty_like(c)
+    out[0] = c[0]
+    for b in range(1, c.shape[0]):
+        out[b], d = _surelet(c[b], float(var[b]))
+        div += d
+    est = frame.synthesis(out)
+    tr = float(np.mean(np.sum(noise ** 2, axis=(1, 2))))
+    sure = (float(np.sum((est - img) ** 2)) - tr + 2.0 * div) / img.size
+    return est, sure
