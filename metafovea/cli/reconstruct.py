@@ -22,7 +22,7 @@ HELP = "separate foveal and perifoveal images from a measurement (.npz)"
 
 
 def register(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
-    from metafovea.reconstruct import DENOISERS, METHODS
+    from metafovea.reconstruct import DECONVOLUTION_METHODS, DEFAULT_DECONVOLUTION, DENOISERS, METHODS
 
     p = subparsers.add_parser("reconstruct", help=HELP, description=HELP)
     p.add_argument("measurement", help="Measurement .npz (frames, times_s, optional alpha / truth_x1 / truth_x2)")
@@ -69,8 +69,9 @@ def register(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
     p.add_argument("--max-seconds", type=float, default=None, help="DIP time budget of the whole run (default 600; "
                    "0: no cap); a window it stops keeps its lowest-loss images, and the summary says so")
     add_shared(p, "--seed")  # the DIP's weights and inputs
-    p.add_argument("--deconvolve", default=None, choices=("wiener", "tv"), help="also recover the scene itself "
-                   "(PSF-aware, static scenes): <out>_scene.npz and .png in kelvin")
+    p.add_argument("--deconvolve", nargs="?", const=DEFAULT_DECONVOLUTION, default=None,
+                   choices=DECONVOLUTION_METHODS, help="also recover the scene itself (PSF-aware, static scenes): "
+                   f"<out>_scene.npz and .png in kelvin; the method (default {DEFAULT_DECONVOLUTION})")
     p.add_argument("--psf", default=None, help="for --deconvolve: a PSF file (.npz: psf_x1, psf_x2) (not the file's)")
     p.add_argument("--out", default=None, help="output .npz (default: <measurement>_rec.npz); figures next to it")
     p.add_argument("--no-figures", action="store_true", help="do not write PNG figures")

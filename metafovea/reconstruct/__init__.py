@@ -25,6 +25,7 @@ Files:
                    deconvolution to the scene's radiance and brightness temperature
 ``joint``          its model and linear solves: :class:`ChannelPSFs`, the padded grid, CG, TV-ADMM
 ``spectra``        its scene prior: radially averaged spectra, the fitted power law
+``wavelet``        its non-linear step: the stationary wavelet frame, SURE-LET shrinkage and its risk estimate
 ``metrics``        PSNR, SSIM, :func:`~metafovea.reconstruct.metrics.score`; :func:`wiener_bound` and the
                    PSF-aware scores against the scene
 ``result``         :class:`Reconstruction` (saved as ``.npz``), :class:`PipelineResult`
@@ -47,7 +48,8 @@ from typing import Any
 _HOMES = {
     "AlternatingOptions": "alternating", "alternating": "alternating", "foveal_gauge": "alternating",
     "FPN_MODES": "api", "METHODS": "api", "fpn_mode": "api", "reconstruct": "api", "reconstruct_measurement": "api",
-    "DECONVOLUTION_METHODS": "deconvolve", "ChannelPSFs": "joint", "Deconvolution": "deconvolve",
+    "DECONVOLUTION_METHODS": "_common", "DEFAULT_DECONVOLUTION": "_common", "ChannelPSFs": "joint",
+    "Deconvolution": "deconvolve",
     "deconvolve_measurement": "deconvolve", "separate_deconvolve": "deconvolve", "wiener_bound": "metrics",
     "DipOptions": "deep_prior", "dip": "deep_prior",
     "DENOISERS": "denoise", "denoise": "denoise",
@@ -90,7 +92,8 @@ def __dir__() -> list[str]:
     return sorted(set(globals()) | set(_HOMES))
 
 
-__all__ = ["AlternatingOptions", "ChannelPSFs", "DECONVOLUTION_METHODS", "DENOISERS", "Deconvolution", "DipOptions",
+__all__ = ["AlternatingOptions", "ChannelPSFs", "DECONVOLUTION_METHODS", "DEFAULT_DECONVOLUTION", "DENOISERS",
+           "Deconvolution", "DipOptions",
            "FPN_MODES", "FovealOperator", "METHODS", "PipelineResult", "Reconstruction", "SlidingLSQ", "alternating",
            "centre_crop", "condition_number", "deconvolve_measurement", "denoise", "dip", "downsample",
            "downsample_adjoint", "estimate_fpn", "figure_paths", "foveal_gauge", "fpn_mode", "lsq_known_alpha",

@@ -13,6 +13,15 @@ from numpy.typing import ArrayLike
 
 from metafovea.errors import InputError
 
+#: methods of the PSF-aware step (:func:`metafovea.reconstruct.deconvolve.separate_deconvolve`), named here so that
+#: the command line lists them without loading that step
+DECONVOLUTION_METHODS = ("tv", "wavelet", "wiener")
+#: the method :func:`~metafovea.reconstruct.deconvolve.separate_deconvolve` (and ``metafovea reconstruct
+#: --deconvolve`` without a name) runs: the Fourier-wavelet estimate, chosen over the linear one on the scene
+#: generator's tuning seeds (BENCHMARKS.md, "PSF-aware reconstruction on scenes never seen"); ``'wiener'`` is the
+#: fast linear alternative
+DEFAULT_DECONVOLUTION = "wavelet"
+
 O = TypeVar("O")
 
 

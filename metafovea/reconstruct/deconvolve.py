@@ -13,7 +13,7 @@ covariance ``C = sigma^2 N^-1`` correlated between the channels (plus ``e^2 [[1,
 fixed pattern of rms error ``e``, the same in every frame). With ``z_i = (u_hat_i - offset) / r_i`` and ``D_i`` the
 OTFs, both channels are solved jointly on a grid padded by the kernels' radius:
 
-* ``method='wiener'`` (default): the linear minimum-mean-square-error estimate [1]_
+* ``method='wiener'``: the linear minimum-mean-square-error estimate [1]_
 
       s_hat = (D^H C^-1 D + P^-1)^-1 D^H C^-1 z                                                         (2)
 
@@ -21,6 +21,10 @@ OTFs, both channels are solved jointly on a grid padded by the kernels' radius:
   fitted_spectrum`, ``prior``) as a density per pixel and spread over the grid's ``n_grid`` bins as
   ``n_grid^(1 - k) n_crop^k x PSD`` (``prior_scale``: ``'grid'`` k = 0, ``'geometric'`` k = 1/2, ``'crop'``
   k = 1: the padding carries the crop's edge values, no texture); the mean is not shrunk;
+* ``method='wavelet'`` (default): the Fourier-wavelet estimate (:mod:`metafovea.reconstruct.wavelet`): (2) with the
+  prior's weight ``tau <= 1`` (sharper, noisier), then each channel's noise shrunk in a stationary wavelet frame by
+  SURE-LET, ``tau`` per channel the one whose estimated risk (the prior's predicted bias plus Stein's unbiased risk
+  estimate of the shrinkage) is lowest: non-linear, so not bound by the best linear estimate;
 * ``method='tv'``: total variation [2]_, started from the Wiener estimate and solved by ADMM [3]_,
 
       min_s 1/2 ||z - D s||^2_{C^-1} + sum_i lambda_i TV(s_i),    lambda_i = 1 / mean |grad s_i|          (3)
@@ -70,14 +74,14 @@ from numpy.typing import ArrayLike
 
 from metafovea.errors import InputError, check_choice, check_int
 from metafovea.measurement import RadiometricCalibration
+from metafovea.reconstruct._common import DECONVOLUTION_METHODS, DEFAULT_DECONVOLUTION
 from metafovea.reconstruct.joint import (
     BOUNDARIES,
     ChannelPSFs,
+    PeriodicFilter,
     Problem,
     check_boundary,
     linear_solve,
-    mean_square,
-    periodic_filter,
     prepare_problem,
     tv_admm,
 )
@@ -96,16 +100,14 @@ if TYPE_CHECKING:
     from metafovea.measurement import Measurement
     from metafovea.reconstruct.result import PipelineResult
 
-__all__ = ["BETA_RANGE", "BOUNDARIES", "DECONVOLUTION_METHODS", "PRIORS", "PRIOR_SCALES", "SURROUND_SIGMA_PER_SCALE",
-           "ChannelPSFs", "Deconvolution", "deconvolve_measurement", "deconvolve_result", "separate_deconvolve",
-           "temperatures", "true_fpn_error_dn", "wiener_bound"]
+__all__ = ["BETA_RANGE", "BOUNDARIES", "DECONVOLUTION_METHODS", "DEFAULT_DECONVOLUTION", "PRIORS", "PRIOR_SCALES",
+           "SURROUND_SIGMA_PER_SCALE", "ChannelPSFs", "Deconvolution", "deconvolve_measurement", "deconvolve_result",
+           "separate_deconvolve", "temperatures", "true_fpn_error_dn", "wiener_bound"]
 
 #: the foveal surround's low-pass (Gaussian sigma, px per unit of the channels' scale): half power at the perifoveal
 #: channel's Nyquist frequency 0.5 / scale cycles per foveal pixel (sigma = sqrt(ln 2 / 2) / (pi f))
 SURROUND_SIGMA_PER_SCALE = math.sqrt(math.log(2.0) / 2.0) / (math.pi * 0.5)
 
-#: methods of :func:`separate_deconvolve`
-DECONVOLUTION_METHODS = ("tv", "wavelet", "wiener")
 #: the seed of the noise draws that measure the wavelet step's subband noise (fixed: the same data give the same
 #: estimate)
 WAVELET_NOISE_SEED = 0
@@ -256,6 +258,7 @@ def _wavelet_step(pb: Problem, C: np.ndarray, prior_inv: np.ndarray, surround: b
     rng = np.random.default_rng(WAVELET_NOISE_SEED)
     chol = np.linalg.cholesky(C)
     periodic = pb.boundary == "padded"
+    filt = PeriodicFilter(pb, prior_inv)
     draws = []
     for _ in range(NOISE_SAMPLES):
         nk = np.einsum("ij,jhw->ihw", chol, rng.standard_normal((2, H, W)))
@@ -264,29 +267,30 @@ def _wavelet_step(pb: Problem, C: np.ndarray, prior_inv: np.ndarray, surround: b
             if surround:
                 grid[0] = 0.0
                 grid[0][g.crop] = nk[0]
-            draws.append(g.rfft(grid))
+            draws.append(grid)
         else:
             draws.append(nk)
-    Z = g.rfft(pb.z) if periodic else None
+    # the data and the noise draws through the filter: one right-hand side each, the same for every tau
+    B = filt.rhs(g.rfft(np.stack([pb.z] + draws))) if periodic else None
     levels = swt_levels((H, W))
     best: list[tuple[float, float, np.ndarray, float, float] | None] = [None, None]
     curve: list[list[dict[str, float]]] = [[], []]
     for tau in TAUS:
-        G, b2 = periodic_filter(pb, prior_inv, tau)
-        bias = mean_square(g, b2)
+        bias = filt.bias2(tau)
         if periodic:
-            x = g.irfft(np.einsum("ikpq,kpq->ipq", G, Z))
-            noise = [g.irfft(np.einsum("ikpq,kpq->ipq", G, nk))[:, g.crop[0], g.crop[1]] for nk in draws]
+            sol = g.irfft(filt.solve(tau, B))[..., g.crop[0], g.crop[1]]
+            x, noise = sol[0], sol[1:]
         else:
-            x = linear_solve(pb, tau * prior_inv, None)[0]
+            x = linear_solve(pb, tau * prior_inv, None)[0][:, g.crop[0], g.crop[1]]
             z0 = pb.z
-            noise = []
+            noise_list = []
             for nk in draws:
                 pb.z = nk
-                noise.append(linear_solve(pb, tau * prior_inv, None)[0][:, g.crop[0], g.crop[1]])
+                noise_list.append(linear_solve(pb, tau * prior_inv, None)[0][:, g.crop[0], g.crop[1]])
             pb.z = z0
+            noise = np.stack(noise_list)
         for i in range(2):
-            est, sure = shrink(x[i][g.crop], np.stack([n[i] for n in noise]), wavelet, levels)
+            est, sure = shrink(x[i], noise[:, i], wavelet, levels)
             risk = float(bias[i]) + sure
             curve[i].append({"tau": tau, "risk_dn2": risk, "bias2_dn2": float(bias[i]), "sure_dn2": sure})
             if best[i] is None or risk < best[i][0]:
@@ -301,7 +305,7 @@ def _wavelet_step(pb: Problem, C: np.ndarray, prior_inv: np.ndarray, surround: b
     return out, info
 
 
-def separate_deconvolve(frames: ArrayLike, alpha: ArrayLike, psfs: ChannelPSFs, *, method: str = "wiener",
+def separate_deconvolve(frames: ArrayLike, alpha: ArrayLike, psfs: ChannelPSFs, *, method: str = DEFAULT_DECONVOLUTION,
                         offset: float = 0.0, sigma: float | None = None, iterations: int = 100,
                         tv_weight: float | None = None, meta: dict[str, Any] | RadiometricCalibration | None = None,
                         boundary: str = "padded", pad_mode: str = "edge", prior: str = "hybrid",
@@ -317,8 +321,9 @@ def separate_deconvolve(frames: ArrayLike, alpha: ArrayLike, psfs: ChannelPSFs, 
         Mixing ratios (known, or a solver's estimate).
     psfs : ChannelPSFs
         Both channels' PSFs on the pixel grid, pedestals and relative illumination.
-    method : {'wiener', 'tv'}
-        Eq. (2), or eq. (3) started from it.
+    method : {'wavelet', 'wiener', 'tv'}
+        The Fourier-wavelet estimate (:mod:`metafovea.reconstruct.wavelet`), eq. (2), or eq. (3) started from
+        eq. (2); default :data:`DEFAULT_DECONVOLUTION`.
     offset : float
         The frames' dark level, DN.
     sigma : float, optional
@@ -346,6 +351,8 @@ def separate_deconvolve(frames: ArrayLike, alpha: ArrayLike, psfs: ChannelPSFs, 
         do not average, counted in the noise model.
     prior_scale : {'geometric', 'grid', 'crop'}
         How the crop's per-pixel spectrum is spread over the padded grid (:data:`PRIOR_SCALES`).
+    wavelet : {'haar', 'db2', 'sym4'}
+        The wavelet of ``method='wavelet'`` (:data:`metafovea.reconstruct.wavelet.WAVELETS`).
 
     Returns
     -------
@@ -355,7 +362,9 @@ def separate_deconvolve(frames: ArrayLike, alpha: ArrayLike, psfs: ChannelPSFs, 
         the prior radially averaged (``prior_radial``: per unnormalised bin of the padded grid, 64 rings of
         ``cycles_per_px``), the foveal surround (``foveal_surround``: scale, gain ratio, form and residuals;
         ``foveal_surround_join``, ``foveal_surround_surface_rms_dn``), ``tv_weight`` and ``admm_iterations`` for
-        TV, ``cg_iterations`` and ``seconds``.
+        TV, for ``'wavelet'`` ``wavelet``, ``wavelet_levels``, ``noise_samples``, ``tau`` (per channel),
+        ``risk_criterion_dn2`` and ``risk_curve`` (per channel: ``tau``, ``risk_dn2``, ``bias2_dn2``,
+        ``sure_dn2``), ``cg_iterations`` and ``seconds``.
 
     Notes
     -----
@@ -421,8 +430,8 @@ def _frames_for(m: Measurement, fpn: ArrayLike | None) -> np.ndarray:
 
 
 def deconvolve_measurement(m: Measurement, *, alpha: ArrayLike | None = None, fpn: ArrayLike | None = None,
-                           method: str = "wiener", psfs: ChannelPSFs | None = None, score_truth: bool = True,
-                           **kw: Any) -> Deconvolution:
+                           method: str = DEFAULT_DECONVOLUTION, psfs: ChannelPSFs | None = None,
+                           score_truth: bool = True, **kw: Any) -> Deconvolution:
     """:func:`separate_deconvolve` of a static Measurement, scored against its scene truth when it has one.
 
     Parameters
@@ -435,7 +444,7 @@ def deconvolve_measurement(m: Measurement, *, alpha: ArrayLike | None = None, fp
         Mixing ratios (default: the file's).
     fpn : array_like, shape (H, W), optional
         Fixed pattern to subtract, DN.
-    method : {'wiener', 'tv'}
+    method : {'wavelet', 'wiener', 'tv'}
     psfs : ChannelPSFs, optional
         Each channel's PSF on the pixel grid and relative illumination (default:
         :meth:`ChannelPSFs.from_measurement`).
@@ -471,8 +480,8 @@ def deconvolve_measurement(m: Measurement, *, alpha: ArrayLike | None = None, fp
     return res
 
 
-def deconvolve_result(m: Measurement, res: PipelineResult, method: str = "wiener", psf: str | Path | None = None,
-                      **kw: Any) -> Deconvolution:
+def deconvolve_result(m: Measurement, res: PipelineResult, method: str = DEFAULT_DECONVOLUTION,
+                      psf: str | Path | None = None, **kw: Any) -> Deconvolution:
     """The PSF-aware step after a reconstruction of ``m``.
 
     Parameters
@@ -481,7 +490,7 @@ def deconvolve_result(m: Measurement, res: PipelineResult, method: str = "wiener
     res : PipelineResult
         The reconstruction: its alpha (the file's when it used them, else its estimate over the sequence, which
         must cover every frame) and its fixed pattern (and that pattern's estimated error) are used.
-    method : {'wiener', 'tv'}
+    method : {'wavelet', 'wiener', 'tv'}
     psf : str or Path, optional
         A PSF file (:meth:`ChannelPSFs.from_file`; default: the file's PSFs).
     **kw

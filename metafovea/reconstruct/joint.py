@@ -376,45 +376,60 @@ def linear_solve(pb: Problem, prior_inv: np.ndarray, x0: np.ndarray | None, iter
     return x, iterations
 
 
-def periodic_filter(pb: Problem, prior_inv: np.ndarray, tau: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
-    """The linear estimate of eq. (3) on the periodic grid as a 2 x 2 filter per frequency, with the prior's inverse
-    weighted by ``tau``, and its squared bias per frequency as the prior predicts it.
+class PeriodicFilter:
+    """The linear estimate of eq. (3) on the periodic grid, one 2 x 2 solve per frequency, with the prior's inverse
+    weighted by ``tau``: ``S = M_tau^-1 B``, ``B = D^H C^-1 Z`` (:meth:`rhs`, independent of ``tau``) and
+    ``M_tau = D^H C^-1 D + tau n prior_inv``; and its squared bias as the prior predicts it (:meth:`bias2`).
+
+    With ``boundary='padded'`` (data on the whole grid) the filter is the exact solve of eq. (3); with
+    ``'unknown'`` it is the periodic approximation that :func:`linear_solve` preconditions with.
 
     Parameters
     ----------
     pb : Problem
-        With ``boundary='padded'`` (data on the whole grid) the filter is exact; with ``'unknown'`` it is the
-        periodic approximation that :func:`linear_solve` preconditions with.
     prior_inv : ndarray, shape (2, P, Q // 2 + 1)
         The prior's inverse spectrum per unnormalised FFT bin, 0 at DC.
-    tau : float
-        The prior's weight (1: the Wiener filter).
-
-    Returns
-    -------
-    G : ndarray, shape (2, 2, P, Q // 2 + 1)
-        ``S_i = sum_k G_ik Z_k`` for the data's FFT ``Z``: ``G = M^-1 D^H C^-1``, ``M = D^H C^-1 D + tau n P^-1``.
-    bias2 : ndarray, shape (2, P, Q // 2 + 1)
-        ``E |((I - G D) S)_i|^2 = sum_k |(M^-1 tau n P^-1)_ik|^2 P_k`` per unnormalised bin (``P = 1 / prior_inv``;
-        0 at DC, which is not shrunk).
     """
-    g = pb.g
-    n = g.shape[0] * g.shape[1]
-    Ci = pb.Cinv
-    D = g.D
-    w = tau * n * prior_inv
-    m11 = Ci[0, 0] * np.abs(D[0]) ** 2 + w[0]
-    m22 = Ci[1, 1] * np.abs(D[1]) ** 2 + w[1]
-    m12 = Ci[0, 1] * np.conj(D[0]) * D[1]
-    det = m11 * m22 - np.abs(m12) ** 2
-    det = np.where(np.abs(det) > 0, det, np.inf)
-    Minv = np.array([[m22, -m12], [-np.conj(m12), m11]]) / det
-    DhCi = np.array([[np.conj(D[0]) * Ci[0, 0], np.conj(D[0]) * Ci[0, 1]],
-                     [np.conj(D[1]) * Ci[1, 0], np.conj(D[1]) * Ci[1, 1]]])
-    G = np.einsum("ijpq,jkpq->ikpq", Minv, DhCi)
-    P = np.where(prior_inv > 0, 1.0 / np.where(prior_inv > 0, prior_inv, 1.0), 0.0)
-    bias2 = np.stack([sum(np.abs(Minv[i, k] * w[k]) ** 2 * P[k] for k in range(2)) for i in range(2)])
-    return G, bias2
+
+    def __init__(self, pb: Problem, prior_inv: np.ndarray):
+        g = pb.g
+        self.g, self.n = g, g.shape[0] * g.shape[1]
+        Ci, D = pb.Cinv, g.D
+        self.Ci, self.D, self.prior_inv = Ci, D, prior_inv
+        self.d11 = Ci[0, 0] * np.abs(D[0]) ** 2
+        self.d22 = Ci[1, 1] * np.abs(D[1]) ** 2
+        self.d12 = Ci[0, 1] * np.conj(D[0]) * D[1]
+        #: the prior's power per bin (0 at DC, which is not shrunk)
+        self.P = np.where(prior_inv > 0, 1.0 / np.where(prior_inv > 0, prior_inv, 1.0), 0.0)
+
+    def rhs(self, Z: np.ndarray) -> np.ndarray:
+        """``D^H C^-1 Z`` for data spectra ``Z`` ``(..., 2, P, Q // 2 + 1)``."""
+        Ci, D = self.Ci, self.D
+        return np.stack([np.conj(D[0]) * (Ci[0, 0] * Z[..., 0, :, :] + Ci[0, 1] * Z[..., 1, :, :]),
+                         np.conj(D[1]) * (Ci[1, 0] * Z[..., 0, :, :] + Ci[1, 1] * Z[..., 1, :, :])], axis=-3)
+
+    def _m(self, tau: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        w = tau * self.n * self.prior_inv
+        return self.d11 + w[0], self.d12, self.d22 + w[1]
+
+    def solve(self, tau: float, B: np.ndarray) -> np.ndarray:
+        """``M_tau^-1 B`` for right-hand sides ``B`` ``(..., 2, P, Q // 2 + 1)`` (:meth:`rhs`)."""
+        m11, m12, m22 = self._m(tau)
+        det = m11 * m22 - np.abs(m12) ** 2
+        det = np.where(np.abs(det) > 0, det, np.inf)
+        return np.stack([(m22 * B[..., 0, :, :] - m12 * B[..., 1, :, :]) / det,
+                         (m11 * B[..., 1, :, :] - np.conj(m12) * B[..., 0, :, :]) / det], axis=-3)
+
+    def bias2(self, tau: float) -> np.ndarray:
+        """The mean squared bias per pixel of each channel, ``(2,)``: ``E |((I - G D) S)_i|^2`` per bin, ``(I - G D) =
+        M_tau^-1 tau n prior_inv``, with ``E |S_k|^2`` the prior's power, summed over the grid (Parseval)."""
+        m11, m12, m22 = self._m(tau)
+        det = m11 * m22 - np.abs(m12) ** 2
+        det = np.where(np.abs(det) > 0, det, np.inf)
+        w = tau * self.n * self.prior_inv
+        minv = ((m22, -m12), (-np.conj(m12), m11))
+        b2 = np.stack([sum(np.abs(minv[i][k] * w[k] / det) ** 2 * self.P[k] for k in range(2)) for i in range(2)])
+        return mean_square(self.g, b2)
 
 
 def mean_square(g: Grid, spec: np.ndarray) -> np.ndarray:
