@@ -34,7 +34,8 @@ CHANNELS = ("foveal", "perifoveal")
 @dataclass(frozen=True)
 class HeldOutCase:
     """One case: ``scene`` (a name, ``gen:KIND:SEED``), the band (``filter_enabled``), the NETD (K; None: the
-    system's), the frames and the simulation's seed."""
+    system's), the frames, the simulation's seed and its PSF provider (``'auto'``: the lenses' optics, as a user's
+    ``metafovea simulate``; ``'airy'`` for a fast check)."""
 
     scene: str
     filter_enabled: bool
@@ -42,6 +43,7 @@ class HeldOutCase:
     frames: int = CASE_FRAMES
     calibration_frames: int = CASE_CALIBRATION_FRAMES
     seed: int = 0
+    psf: str = "auto"
 
 
 def simulate_case(system: SystemDesign, case: HeldOutCase) -> Measurement:
@@ -60,7 +62,7 @@ def simulate_case(system: SystemDesign, case: HeldOutCase) -> Measurement:
     from metafovea.imaging.simulate import simulate
 
     return simulate(system, case.scene, frames=case.frames, calibration_frames=case.calibration_frames,
-                    filter_enabled=case.filter_enabled, netd_k=case.netd_k, rng=case.seed)
+                    filter_enabled=case.filter_enabled, netd_k=case.netd_k, psf=case.psf, rng=case.seed)
 
 
 def score_psf_aware(m: Measurement, methods: Sequence[str] | None = None) -> dict[str, Any]:
