@@ -32,12 +32,12 @@ than a channel's samples is averaged, as a pixel does, instead of aliased; scatt
 
 Temperatures: every draw keeps the scene inside [:data:`MIN_TEMPERATURE_K`, :data:`MAX_TEMPERATURE_K`] =
 250-340 K; where textures and overlapping sources add up beyond it, the sum is clipped to it. Contrasts are
-drawn log-uniformly (steps and objects 0.5-40 K: about a third below 2 K), so low-contrast cases come as often as
-hot ones.
+drawn log-uniformly (objects 0.5-40 K, steps 0.5-30 K: about a third below 2 K; textures 0.1-8 K rms, sources
+1 K up to the hottest), so low-contrast cases come as often as hot ones.
 
 Seeds and determinism: scene ``(kind, seed)`` draws everything from ``numpy.random.Generator(PCG64(SeedSequence(
-[seed, crc32(kind)])))``: the same name gives the same scene on every machine and numpy version that keeps PCG64's
-stream. Seeds :data:`TEST_SEEDS` (0-9999) are for tests and benchmarks (:func:`held_out_scenes`); seeds from
+[seed, crc32(kind)])))``: the same name gives the same scene (to rounding) on every machine and numpy version that
+keeps the Generator's streams. Seeds :data:`TEST_SEEDS` (0-9999) are for tests and benchmarks (:func:`held_out_scenes`); seeds from
 :data:`TUNING_SEED_START` (10000) up are for choosing a default (:func:`tuning_scenes`): a default chosen on the
 second set is judged on the first.
 
