@@ -37,9 +37,9 @@ drawn log-uniformly (objects 0.5-40 K, steps 0.5-30 K: about a third below 2 K; 
 
 Seeds and determinism: scene ``(kind, seed)`` draws everything from ``numpy.random.Generator(PCG64(SeedSequence(
 [seed, crc32(kind)])))``: the same name gives the same scene (to rounding) on every machine and numpy version that
-keeps the Generator's streams. Seeds :data:`TEST_SEEDS` (0-9999) are for tests and benchmarks (:func:`held_out_scenes`); seeds from
-:data:`TUNING_SEED_START` (10000) up are for choosing a default (:func:`tuning_scenes`): a default chosen on the
-second set is judged on the first.
+keeps the Generator's streams. Seeds :data:`TEST_SEEDS` (0-9999) are for tests and benchmarks
+(:func:`held_out_scenes`); seeds from :data:`TUNING_SEED_START` (10000) up are for choosing a default
+(:func:`tuning_scenes`): a default chosen on the second set is judged on the first.
 
 Names: ``gen:KIND:SEED`` works wherever a scene name does (:func:`~metafovea.imaging.scene.make_scene`,
 ``metafovea simulate --scene gen:horizon:17``). Sizes are in units of the geometry's perifoveal half field and the
