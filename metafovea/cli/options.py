@@ -33,8 +33,8 @@ SHARED_OPTIONS: dict[str, dict[str, Any]] = {
     "--json": dict(action="store_true", help="print the result as JSON instead of a summary"),
     "--frames": dict(default="96", help="frames to simulate (default 96: 8 s at 12 frames/s)"),
     "--scene": dict(default="siemens-star", help="the scene: a built-in name (metafovea simulate --list-scenes; "
-                                                 "default siemens-star), skimage:NAME, or a file (.npy/.npz in "
-                                                 "kelvin, .tif, .png)"),
+                                                 "default siemens-star), skimage:NAME, gen:KIND:SEED (a generated "
+                                                 "held-out scene), or a file (.npy/.npz in kelvin, .tif, .png)"),
     "--scene-unit": dict(default="kelvin", choices=("kelvin", "celsius"),
                          help="the unit of a --scene file of temperatures (.npy, .npz, float TIFF): kelvin (default; a "
                               "file whose hottest value is below 200 K is refused) or celsius (+273.15 K, stated in "

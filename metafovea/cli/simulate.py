@@ -111,13 +111,13 @@ def _options(args: argparse.Namespace, frames: int) -> SimulationOptions:
 
 
 def _print_scenes(as_json: bool) -> None:
-    from metafovea.imaging.scene import list_scenes
+    from metafovea.imaging.scene import list_scene_families, list_scenes
 
     scenes = list_scenes()
     if as_json:
         print(to_json(scenes))
     else:
-        for k, v in scenes.items():
+        for k, v in {**scenes, "skimage:NAME": "a scikit-image picture, 288-312 K", **list_scene_families()}.items():
             print(f"{k:14s} {v}")
 
 

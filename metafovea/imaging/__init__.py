@@ -4,6 +4,7 @@ microbolometer frames (a :class:`~metafovea.measurement.Measurement`).
 Modules, in the order of the flow:
 
 * :mod:`~metafovea.imaging.scene`: scenes over field angle and time (built-in, scikit-image pictures, files).
+* :mod:`~metafovea.imaging.generator`: seeded random thermal scenes (``gen:KIND:SEED``) held out from tuning.
 * :mod:`~metafovea.imaging.channel`: the foveal and perifoveal channels on the sensor crop (focal-plane pitch,
   field angles, ``cos^4`` relative illumination).
 * :mod:`~metafovea.imaging.kernels`: PSF kernels per channel (providers: optics with its disk cache, Airy,
@@ -18,13 +19,14 @@ Modules, in the order of the flow:
 
 
 from metafovea.imaging.channel import Channel, channels_for
+from metafovea.imaging.generator import GENERATOR_KINDS, generated_scene, held_out_scenes, tuning_scenes
 from metafovea.imaging.kernels import ExplicitPSF, Kernel
 from metafovea.imaging.polarizer import Polarizer
 from metafovea.imaging.scene import Scene, SceneGeometry, list_scenes, make_scene
 from metafovea.imaging.sensor import FixedPattern, SensorModel
 from metafovea.imaging.simulate import SimulationOptions, simulate, simulate_to_files, write_preview, write_tiff
 
-__all__ = ["Scene", "SceneGeometry",
+__all__ = ["Scene", "SceneGeometry", "GENERATOR_KINDS", "generated_scene", "held_out_scenes", "tuning_scenes",
            "list_scenes", "make_scene", "FixedPattern", "SensorModel", "SimulationOptions", "simulate",
            "simulate_to_files", "write_preview", "write_tiff", "Channel", "ExplicitPSF", "Kernel", "Polarizer",
            "channels_for"]

@@ -15,7 +15,8 @@ Every scene also returns an emissivity per region; the radiometry adds the refle
 
 Built-in scenes (``make_scene(name)``, ``list_scenes()``): natural images from scikit-image mapped to
 temperatures, ``siemens-star``, ``bars``, ``hand``, ``parking-lot``, ``heater-5s``/``-10s``/``-20s``,
-``uniform``, ``rooftop``, ``tall-buildings``, ``oven``.
+``uniform``, ``rooftop``, ``tall-buildings``, ``oven``; and generated held-out scenes ``gen:KIND:SEED``
+(:mod:`metafovea.imaging.generator`, a family registered in :data:`SCENE_FAMILIES`).
 Any name that is an existing file loads it (``.npy``/``.npz`` temperatures in K,
 ``.tif``/``.png``/``.jpg`` pictures mapped to temperatures, see :func:`load_scene_file`); so does an array of
 temperatures. A file or array of temperatures is one channel in kelvin: a colour (RGB) or multi-channel image is
@@ -920,6 +921,36 @@ for _n in ("astronaut", "camera", "coffee", "chelsea", "rocket", "coins", "moon"
     SCENES[_n] = (lambda g, _n=_n, **kw: image_scene(_n, g, **kw), f"scikit-image '{_n}' picture, 288-312 K")
 
 
+#: families of scenes named ``PREFIX:SPEC`` that a module registers (:func:`register_scene_family`): prefix ->
+#: (builder ``(spec, geometry, **params) -> Scene``, the names' pattern, a description). ``gen``
+#: (:mod:`metafovea.imaging.generator`, registered when :mod:`metafovea.imaging` is imported): ``gen:KIND:SEED``.
+SCENE_FAMILIES: dict[str, tuple[Callable[..., Scene], str, str]] = {}
+
+
+def register_scene_family(prefix: str, builder: Callable[..., Scene], pattern: str, description: str) -> None:
+    """Make names ``PREFIX:SPEC`` scenes for :func:`make_scene`: ``builder(spec, geometry, **params)``.
+
+    Parameters
+    ----------
+    prefix : str
+        Lower case, no ``:``; not a built-in scene's name nor ``skimage``.
+    builder : callable
+        ``(spec: str, geometry: SceneGeometry, **params) -> Scene``; raises :class:`InputError` for a bad spec.
+    pattern : str
+        How the names look (``gen:KIND:SEED``), for listings and errors.
+    description : str
+        One line.
+    """
+    if not prefix or prefix != prefix.lower() or ":" in prefix or prefix in SCENES or prefix == "skimage":
+        raise InputError("prefix", prefix, "a new lower-case scene family prefix without ':'")
+    SCENE_FAMILIES[prefix] = (builder, pattern, description)
+
+
+def list_scene_families() -> dict[str, str]:
+    """The patterns of the registered scene families (``gen:KIND:SEED``) and their one-line descriptions."""
+    return {pattern: description for _, pattern, description in SCENE_FAMILIES.values()}
+
+
 def list_scenes() -> dict[str, str]:
     """Built-in scene names and one-line descriptions (any of SKIMAGE_IMAGES also works as
     ``skimage:NAME``)."""
@@ -933,7 +964,8 @@ def make_scene(name: str | Path | Scene | np.ndarray, geometry: SceneGeometry | 
     Parameters
     ----------
     name : str, Path, Scene or ndarray, shape (h, w) or (T, h, w)
-        A built-in name (:func:`list_scenes`), ``skimage:NAME``, a file, a Scene (returned as it is), or
+        A built-in name (:func:`list_scenes`), ``skimage:NAME``, a registered family's name
+        (:func:`list_scene_families`: ``gen:KIND:SEED``, a generated scene), a file, a Scene (returned as it is), or
         temperatures (one channel, spanning the perifoveal field; a video at ``frame_rate_hz``).
     geometry : SceneGeometry, optional
         The field of view a scene lays itself out in (default: the paper's camera).
@@ -955,7 +987,9 @@ def make_scene(name: str | Path | Scene | np.ndarray, geometry: SceneGeometry | 
     if isinstance(name, np.ndarray):
         return _array_scene(name, g, unit, **params)
     key = str(name).strip()
-    if unit != "kelvin" and (key.lower() in SCENES or key.lower().startswith("skimage:")):
+    prefix, colon, spec = key.partition(":")
+    family = SCENE_FAMILIES.get(prefix.lower()) if colon else None
+    if unit != "kelvin" and (key.lower() in SCENES or key.lower().startswith("skimage:") or family):
         raise InputError("scene_unit", scene_unit, f"kelvin for the built-in scene '{key}' (a unit applies to a "
                          "file or an array of temperatures)")
     try:
@@ -963,6 +997,8 @@ def make_scene(name: str | Path | Scene | np.ndarray, geometry: SceneGeometry | 
             return SCENES[key.lower()][0](g, **params)
         if key.lower().startswith("skimage:"):
             return image_scene(key.split(":", 1)[1], g, **params)
+        if family is not None:
+            return family[0](spec, g, **params)
     except TypeError as e:
         raise InputError("scene parameters", sorted(params), f"parameters accepted by scene '{key}'",
                          detail=str(e)) from None
@@ -970,7 +1006,8 @@ def make_scene(name: str | Path | Scene | np.ndarray, geometry: SceneGeometry | 
     if p.suffix and (p.exists() or "/" in key or "\\" in key or p.suffix.lower() in
                      (".npy", ".npz", ".tif", ".tiff", ".png", ".jpg", ".jpeg", ".bmp")):
         return load_scene_file(p, g, scene_unit=unit, **params)
-    raise InputError("scene", key, "one of " + ", ".join(sorted(SCENES)) + ", skimage:NAME, or an existing file")
+    raise InputError("scene", key, "one of " + ", ".join([*sorted(SCENES), "skimage:NAME", *list_scene_families()])
+                     + ", or an existing file")
 
 
 def _array_scene(temp: np.ndarray, g: SceneGeometry, scene_unit: str, *,

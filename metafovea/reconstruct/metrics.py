@@ -1,6 +1,7 @@
 """Scores against truth: image-quality metrics (PSNR, SSIM) on top of scikit-image, :func:`score` (the one scorer
 of a reconstruction against the noise-free images: the CLI, ``validate`` and the benchmarks use it), and the
-PSF-aware reconstruction against the scene with its reference, :func:`wiener_bound` (:func:`score_deconvolution`).
+PSF-aware reconstruction against the scene with its reference, :func:`wiener_bound` (:func:`score_deconvolution`),
+and the spread of a method's margins over that reference across cases (:func:`margin_summary`).
 
     PSNR = 10 log10(R^2 / mean((est - ref)^2)),    R = max(ref) - min(ref) unless given
 
@@ -319,3 +320,23 @@ def score_deconvolution(m: Measurement, scene: tuple[np.ndarray, np.ndarray],
         out.update(wiener_bound_psnr_x1=best[0], wiener_bound_psnr_x2=best[1],
                    wiener_bound_seconds=time.perf_counter() - t0, wiener_bound_fpn_error_dn=fe)
     return out
+
+
+def margin_summary(margins_db: ArrayLike) -> dict[str, float]:
+    """How a method's PSNR margins over a reference (the Wiener bound) are spread over a set of cases.
+
+    Parameters
+    ----------
+    margins_db : array_like, shape (N,)
+        ``PSNR(method) - PSNR(reference)`` per case, dB; at least one, all finite.
+
+    Returns
+    -------
+    dict
+        ``cases`` (N), ``at_or_above`` (the fraction of cases with a margin >= 0), ``worst_db``, ``median_db``.
+    """
+    m = np.asarray(margins_db, dtype=np.float64).ravel()
+    if m.size == 0 or not np.all(np.isfinite(m)):
+        raise InputError("margins_db", f"{m.size} values" if m.size else "none", "at least one, all finite")
+    return {"cases": int(m.size), "at_or_above": float(np.mean(m >= 0)), "worst_db": float(m.min()),
+            "median_db": float(np.median(m))}

@@ -12,6 +12,8 @@ Files:
 - ``resolution``: Siemens star at 9:1: contrast against line pairs per pixel, intensity along circles.
 - ``gallery``: the paper's scene types, with and without the 10 um filter.
 - ``ablation``: each component of the multi-frame and snapshot reconstructions removed in turn (one measurement).
+- ``heldout``: one case of the held-out generated scenes (``benchmarks/bench_generalise.py``): simulated as a user
+  records it, the PSF-aware methods scored against the scene and the Wiener bound (not a ``metafovea study``).
 
 Use :func:`run_study` (``run_study('frames', StudyOptions(fast=True), out_dir)``); :data:`STUDIES` names them.
 """
