@@ -77,6 +77,10 @@ class ValidateOptions:
     library_harmonics: int = 10
     cache_dir: str | None = None
     psf: str = "auto"  #: PSF provider of the simulator ('auto' = metafovea.optics, cached; 'airy' for quick checks)
+    #: scenes of the generator's held-out set (the first ones, test seeds: metafovea.imaging.generator) that the
+    #: PSF-aware check also runs, in every spectral case, as a user records them (48 frames, the shutter frames)
+    heldout_scenes: int = 4
+    heldout_frames: int = 48
     progress: bool = False
 
 
@@ -256,6 +260,28 @@ def deconvolution_rows(meas: Measurement, fpn: np.ndarray, label: str,
         rows.append({"case": label, "method": f"psf-aware {method}", "seconds": d.info["seconds"],
                      **{k: v for k, v in sc.items() if isinstance(v, float)},
                      "prior_fit": d.info.get("prior_fit"), "tv_weight": d.info.get("tv_weight")})
+    return rows
+
+
+def _heldout_rows(system: SystemDesign, opts: ValidateOptions, say: Callable[[str], None]) -> list[dict[str, Any]]:
+    """The PSF-aware rows of the generator's first ``opts.heldout_scenes`` held-out scenes in every spectral case:
+    simulated as a user records them, the fixed pattern from their shutter frames (:func:`deconvolution_rows`)."""
+    from metafovea.imaging.generator import held_out_scenes
+    from metafovea.reconstruct.fpn import estimate_fpn
+    from metafovea.studies.heldout import HeldOutCase, simulate_case
+
+    rows: list[dict[str, Any]] = []
+    for name, _ in held_out_scenes(opts.heldout_scenes) if opts.heldout_scenes > 0 else []:
+        for filt in opts.filters:
+            label = f"{name}, 10 um filter" if filt else f"{name}, 8-14 um"
+            say(f"psf-aware on a held-out scene: {label}, {opts.heldout_frames} frames")
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")
+                meas = simulate_case(system, HeldOutCase(name, filt, frames=opts.heldout_frames,
+                                                         calibration_frames=opts.calibration_frames,
+                                                         seed=opts.seed, psf=opts.psf))
+                fpn, info = estimate_fpn(calibration=meas.extras["calibration"])
+                rows.extend(deconvolution_rows(meas, fpn, label, fpn_error_dn=info.get("error_rms_dn") or 0.0))
     return rows
 
 
@@ -475,6 +501,7 @@ def validate_system(system: SystemDesign, opts: ValidateOptions | None = None,
         figs[label] = {"montage": _figure(label, res), "frames": _frames_figure(meas),
                        "alpha": _alpha_figure(meas, alt_alpha)}
     report["stages"]["simulate_reconstruct"] = cases
+    scene_rows.extend(_heldout_rows(system, opts, say))
     report["table"] = rows
     report["scene_table"] = scene_rows
     report["seconds_total"] = time.perf_counter() - t_all
@@ -532,16 +559,23 @@ def verdict(report: dict[str, Any]) -> list[dict[str, Any]]:
     for sr in report.get("scene_table", []):
         if sr["method"] != f"psf-aware {DEFAULT_DECONVOLUTION}":  # the linear rows are shown, not judged
             continue
+        # a held-out scene may fall short of the bound by the issue's floor (the bound is a reference, not a
+        # limit: a linear estimate knowing the scene's true spectrum)
+        floor = HELDOUT_FLOOR_DB if sr["case"].startswith("gen:") else 0.0
         for i in (1, 2):
             got, bound = sr.get(f"psnr_x{i}"), sr.get(f"wiener_bound_psnr_x{i}")
             if isinstance(got, float) and isinstance(bound, float):
                 items.append({"stage": "psf-aware",
                               "check": f"{sr['case']}: x{i} scene PSNR ({DEFAULT_DECONVOLUTION}) against the "
                                        "Wiener bound",
-                              "value": f"{got:.2f} dB ({got - bound:+.2f})", "reference": f">= {bound:.2f} dB",
-                              "passed": bool(got >= bound)})
+                              "value": f"{got:.2f} dB ({got - bound:+.2f})",
+                              "reference": f">= {bound - floor:.2f} dB" + (f" (bound - {floor} dB)" if floor else ""),
+                              "passed": bool(got >= bound - floor)})
     return items
 
+
+#: how far below the Wiener bound a held-out scene's PSF-aware row may fall and pass (dB): issue 31's floor
+HELDOUT_FLOOR_DB = 0.3
 
 #: the HTML table's columns: (key, header with unit)
 HTML_COLUMNS = (("method", "method"), ("time", "time"), ("psnr_x1", "PSNR x1 (dB)"),

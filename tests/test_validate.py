@@ -30,7 +30,8 @@ def small_system():
 def test_validate_small_runs_every_stage(tmp_path, monkeypatch, small_system, browser_check):
     monkeypatch.setenv("METAFOVEA_CACHE", str(tmp_path / "cache"))
     opts = ValidateOptions(scene="bars", frames=16, calibration_frames=8, filters=(True,), alternating_windows=2,
-                           dip_steps=2, dip_channels=4, snapshot_iterations=20, psf="airy",
+                           dip_steps=2, dip_channels=4, snapshot_iterations=20, psf="airy", heldout_scenes=1,
+                           heldout_frames=8,
                            cache_dir=str(tmp_path / "psf"))  # the default library: shipped, as are its posts off axis
     out = tmp_path / "report"
     out.mkdir()
@@ -65,6 +66,8 @@ def test_validate_small_runs_every_stage(tmp_path, monkeypatch, small_system, br
 
     checks = verdict(rep)
     assert any("FPN estimate's error" in i["check"] for i in checks)
+    # the PSF-aware check also runs the generator's first held-out scene, judged with the default method
+    assert any(i["check"].startswith("gen:texture:0, 10 um filter: x1 scene PSNR (wavelet)") for i in checks)
     assert any("unknown alpha, mean abs error" in i["check"] for i in checks)
     assert all(i["passed"] for i in checks), [i for i in checks if not i["passed"]]
     # the PSF stage agrees with the design-stage efficiency estimate and the Airy reference where it applies

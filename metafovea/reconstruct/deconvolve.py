@@ -271,14 +271,15 @@ def _wavelet_step(pb: Problem, C: np.ndarray, prior_inv: np.ndarray, surround: b
         else:
             draws.append(nk)
     # the data and the noise draws through the filter: one right-hand side each, the same for every tau
-    B = filt.rhs(g.rfft(np.stack([pb.z] + draws))) if periodic else None
+    # (single precision from here: the estimate's rounding, ~1e-7 of its range, is far below its noise)
+    B = filt.rhs(g.rfft(np.stack([pb.z] + draws).astype(np.float32))) if periodic else None
     levels = swt_levels((H, W))
     best: list[tuple[float, float, np.ndarray, float, float] | None] = [None, None]
     curve: list[list[dict[str, float]]] = [[], []]
     for tau in TAUS:
         bias = filt.bias2(tau)
         if periodic:
-            sol = g.irfft(filt.solve(tau, B))[..., g.crop[0], g.crop[1]]
+            sol = g.irfft_crop(filt.solve(tau, B)).astype(np.float64)
             x, noise = sol[0], sol[1:]
         else:
             x = linear_solve(pb, tau * prior_inv, None)[0][:, g.crop[0], g.crop[1]]

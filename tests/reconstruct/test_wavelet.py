@@ -73,7 +73,7 @@ def test_a_flat_image_is_returned_flat_and_bad_input_is_refused():
     rng = np.random.default_rng(3)
     y = 5.0 + rng.standard_normal((64, 64))
     est, _ = shrink(y, rng.standard_normal((4, 64, 64)))
-    assert np.std(est) < 0.3 and abs(np.mean(est) - np.mean(y)) < 1e-9
+    assert np.std(est) < 0.3 and abs(np.mean(est) - np.mean(y)) < 1e-6 * abs(np.mean(y))  # single-precision subbands
     with pytest.raises(InputError, match="wavelet"):
         shrink(y, rng.standard_normal((2, 64, 64)), "morlet")
     with pytest.raises(InputError, match="noise"):
