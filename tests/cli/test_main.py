@@ -88,3 +88,17 @@ def test_library_parameters_are_reported_as_the_flag_typed():
 def test_module_entry_point():
     r = subprocess.run([sys.executable, "-m", "metafovea", "--version"], capture_output=True, text=True, timeout=120)
     assert r.returncode == 0 and r.stdout.startswith("metafovea ")
+
+
+def test_deconvolve_without_a_name_runs_the_default_method():
+    from metafovea.cli import build_parser
+    from metafovea.reconstruct import DECONVOLUTION_METHODS, DEFAULT_DECONVOLUTION
+
+    def parsed(*argv: str):
+        return build_parser(["reconstruct"]).parse_args(["reconstruct", "x.npz", *argv])
+
+    assert parsed("--deconvolve").deconvolve == DEFAULT_DECONVOLUTION == "wavelet"
+    assert parsed("--deconvolve", "wiener", "--psf", "p.npz").deconvolve == "wiener"
+    assert parsed("--deconvolve", "--psf", "p.npz").deconvolve == "wavelet"
+    assert parsed().deconvolve is None
+    assert set(DECONVOLUTION_METHODS) == {"wavelet", "wiener", "tv"}
