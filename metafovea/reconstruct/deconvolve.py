@@ -50,7 +50,38 @@ Files: this module (:func:`separate_deconvolve`, :func:`deconvolve_measurement`,
 :mod:`~metafovea.reconstruct.spectra` (the scene prior); :mod:`~metafovea.reconstruct.metrics`
 (:func:`~metafovea.reconstruct.metrics.wiener_bound`, the scores against the scene).
 
-Measured figures: BENCHMARKS.md, section "PSF-aware reconstruction against the scene".
+Constants of the PSF-aware step and where each comes from (none is tuned to a named scene; "tuning seeds": the
+scene generator's, :data:`metafovea.imaging.generator.TUNING_SEED_START` and up, disjoint from the held-out set the
+benchmarks judge on):
+
+=====================================  =======================================================================
+``SURROUND_SIGMA_PER_SCALE`` (here)    derived: half power at the perifoveal Nyquist frequency
+``PRIOR_SCALES`` (``prior_scale``)     an option; with the default method on the tuning seeds its default
+                                       ``'geometric'`` left the fewest channel cases more than 0.3 dB below the
+                                       bound (7 %, ``'grid'`` 36 %, ``'crop'`` 57 %; BENCHMARKS.md)
+``WAVELET_NOISE_SEED`` (here)          any fixed seed: the same data give the same estimate
+``joint.MAX_CONDITION``                numerical: alpha that cannot separate the channels
+``spectra.RADIAL_BINS``,               derived from the crop's and the grid's frequency steps (several
+``spectra.TRUTH_RADIAL_BINS``          periodogram samples per ring)
+``spectra.BETA_RANGE``,                natural scenes' power spectra, ``|f|^-2`` (Field 1987), the fit clipped
+``spectra.DEFAULT_BETA``               to 1-4
+``spectra.DETECTION_SNR``              derived: a ring whose periodogram is twice the noise
+``spectra.MIN_FIT_BINS``               derived: two parameters and one degree of freedom
+``spectra.MEASURED_SNR``,              the hybrid prior's: where the measured spectrum replaces the law (4x
+``spectra.MIN_HYBRID_BINS``            the noise) and when the tail alone is fitted (6 rings); set with the
+                                       prior on built-in scenes (issue 13), kept because the default method
+                                       picks its regularisation by its risk on top of it; not re-swept
+``spectra.PRIOR_FLOOR``                numerical: a bin without signal gets the largest penalty, not none
+``wavelet.WAVELETS``,                  an option; the three are within 0.05 dB in median and mean margin on the
+``wavelet.DEFAULT_WAVELET``            tuning seeds (BENCHMARKS.md): Haar, the shortest filters, is the default
+``wavelet.NOISE_SAMPLES``              derived: the subband variances to < 7 % (a < 0.3 dB threshold change)
+``wavelet.TAUS``                       a search range: the Wiener filter down to 1/64 of its prior weight
+                                       (the chosen tau reached 1/64 on the tuning seeds, never above 1)
+``wavelet.MIN_COARSEST_PX``            the coarsest atoms fit 8 times across the crop
+=====================================  =======================================================================
+
+Measured figures: BENCHMARKS.md, sections "PSF-aware reconstruction against the scene" and "PSF-aware
+reconstruction on scenes never seen".
 
 References
 ----------

@@ -27,7 +27,7 @@ filter_bias2`); the cross term between the two is neglected. Where the prior is 
 noise) ``G_tau D`` is near 0 for every ``tau``, so the prior's errors there move ``R`` but hardly its minimiser. The
 search runs over :data:`TAUS`.
 
-Constants: :data:`NOISE_SAMPLES`, :data:`TAUS`, :data:`MIN_COARSEST_PX` (module docstring of
+Constants: :data:`NOISE_SAMPLES`, :data:`TAUS`, :data:`MIN_COARSEST_PX` (the module docstring of
 :mod:`metafovea.reconstruct.deconvolve` lists where each comes from); the wavelet (``wavelet``, default
 :data:`DEFAULT_WAVELET`) is an option.
 
@@ -52,9 +52,9 @@ from metafovea.errors import InputError
 
 #: wavelets :func:`shrink` accepts (PyWavelets names): Haar's piecewise-constant atoms and two smoother ones
 WAVELETS = ("haar", "db2", "sym4")
-#: the default wavelet: the lowest error of the three on the scene generator's tuning seeds (BENCHMARKS.md,
-#: "PSF-aware reconstruction on scenes never seen"); an option of :func:`metafovea.reconstruct.deconvolve.
-#: separate_deconvolve` (``wavelet``)
+#: the default wavelet: the three are within 0.05 dB in median and mean margin to the Wiener bound on the scene
+#: generator's tuning seeds (BENCHMARKS.md, "PSF-aware reconstruction on scenes never seen"); Haar has the shortest
+#: filters; an option of :func:`metafovea.reconstruct.deconvolve.separate_deconvolve` (``wavelet``)
 DEFAULT_WAVELET = "haar"
 #: draws of the noise through the filter per channel: the subband variances' relative standard error is about
 #: ``sqrt(2 / (NOISE_SAMPLES n_eff))`` with ``n_eff`` the subband's independent coefficients (> 100 at the coarsest
