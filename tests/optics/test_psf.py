@@ -85,7 +85,9 @@ def test_on_axis_energy_within_one_pixel_radius(lens, mono, filt, band):
 
 
 def test_off_axis_coma_references():
-    P = psf(F1, field_deg=5.0, pitch_um=5.0, error=1e-5)
+    # the engine's error 1e-4 of the peak (1e-5 took 2.5x as long): the figures below move by < 1e-4 of their
+    # tolerances between the two
+    P = psf(F1, field_deg=5.0, pitch_um=5.0, error=1e-4)
     on = _airy_peak(F1) * 0.7967 * 25.0 / (math.pi * F1.radius_um ** 2)  # on-axis peak per 5 um cell
     assert 0.015 < P.intensity.max() / on < 0.025  # ~2 %
     c = P.info["chief_ray_um"]
