@@ -72,20 +72,23 @@ def planck_radiance(wavelength_um: ArrayLike, temperature_k: ArrayLike) -> np.nd
     if t.size and (np.any(t < 0) or not np.all(np.isfinite(t))):
         raise InputError("temperature_k", float(np.nanmin(t)) if np.any(t < 0) else "non-finite",
                          "finite temperatures >= 0 K")
-    lam_b, t_b = np.broadcast_arrays(lam, t)
+    lam_b, _ = np.broadcast_arrays(lam, t)
     if lam_b.size and (not np.all(np.isfinite(lam_b)) or np.any(lam_b <= 0)):
         raise InputError("wavelength_um", float(np.nanmin(lam_b)), "finite wavelengths > 0 um")
+    if not lam_b.size:
+        return np.zeros(lam_b.shape)
     # colour's planck_law returns the outer product (wavelengths x temperatures): evaluate it on the unique
-    # values and pick the broadcast pairs
-    ul, il = np.unique(lam_b, return_inverse=True)
-    ut, it = np.unique(t_b, return_inverse=True)
+    # values and pick the broadcast pairs (the unique values of the inputs, not of their broadcast: a table's
+    # (n_lambda, n_T) grid would sort n_lambda x n_T values for n_lambda + n_T distinct ones)
+    ul, il = np.unique(lam, return_inverse=True)
+    ut, it = np.unique(t, return_inverse=True)
     table = np.zeros((ul.size, ut.size))
     pos = ut > 0
-    if np.any(pos) and ul.size:
+    if np.any(pos):
         with np.errstate(over="ignore"):
             vals = np.asarray(planck_law(ul * 1e-6, ut[pos]), dtype=np.float64) * 1e-6  # per m -> per um
         table[:, pos] = vals.reshape(ul.size, int(pos.sum()))
-    return table[il.reshape(-1), it.reshape(-1)].reshape(lam_b.shape)
+    return table[il.reshape(lam.shape), it.reshape(t.shape)]
 
 
 def check_band(band_um: Sequence[float], name: str = "band_um") -> tuple[float, float]:

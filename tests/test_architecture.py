@@ -7,6 +7,7 @@ allow-list entry carries its reason.
 from __future__ import annotations
 
 import ast
+import functools
 import re
 from pathlib import Path
 
@@ -34,13 +35,28 @@ LONG_FUNCTIONS: dict[str, str] = {}
 MAX_CLI_LINES = 200
 
 
-def modules():
-    for path in sorted(PKG.rglob("*.py")):
+def modules() -> tuple[tuple[Path, str, ast.Module], ...]:
+    """``(path, module name, tree)`` of every module of the package, parsed once per test process (the rules only
+    read the trees)."""
+    return _parsed(tuple((p, p.stat().st_mtime_ns) for p in sorted(PKG.rglob("*.py"))))
+
+
+@functools.cache
+def _parsed(files: tuple[tuple[Path, int], ...]) -> tuple[tuple[Path, str, ast.Module], ...]:
+    out = []
+    for path, _ in files:
         rel = path.relative_to(PKG.parent).with_suffix("")
         modname = ".".join(rel.parts)
         if modname.endswith(".__init__"):
             modname = modname[: -len(".__init__")]
-        yield path, modname, ast.parse(path.read_text(), str(path))
+        out.append((path, modname, ast.parse(path.read_text(), str(path))))
+    return tuple(out)
+
+
+@functools.cache
+def walk(tree: ast.AST) -> tuple[ast.AST, ...]:
+    """``ast.walk(tree)``, listed once per tree: every rule walks every module."""
+    return tuple(ast.walk(tree))
 
 
 def stage_of(module: str) -> str | None:
@@ -52,11 +68,14 @@ def stage_of(module: str) -> str | None:
     return "cli" if parts[1] == "__main__" else parts[1]
 
 
-def imports(tree: ast.AST, path: Path, modname: str) -> list[tuple[str, str | None]]:
-    """``(module, name)`` for every import (``name`` None for ``import module``)."""
+def imports(tree: ast.AST, path: Path, modname: str, skip: set[int] = frozenset()) -> list[tuple[str, str | None]]:
+    """``(module, name)`` for every import (``name`` None for ``import module``), but those whose node's ``id`` is in
+    ``skip``."""
     out = []
     pkg_parts = modname.split(".")[:-1] if path.name != "__init__.py" else modname.split(".")
-    for node in ast.walk(tree):
+    for node in walk(tree):
+        if id(node) in skip:
+            continue
         if isinstance(node, ast.Import):
             out += [(a.name, None) for a in node.names]
         elif isinstance(node, ast.ImportFrom):
@@ -124,7 +143,7 @@ def test_commands_are_thin():
         for mod, _name in imports(tree, path, modname):
             if mod.split(".")[0] in ("matplotlib", "scipy", "jax", "skimage"):
                 problems.append(f"{modname} imports {mod} (figures and numerics belong to the library)")
-        for node in ast.walk(tree):
+        for node in walk(tree):
             if isinstance(node, ast.Attribute) and node.attr in ("savefig", "subplots", "imshow", "figure"):
                 problems.append(f"{modname}:{node.lineno} uses .{node.attr} (figures belong to the library)")
     assert not problems, "\n".join(problems)
@@ -149,7 +168,7 @@ def test_only_report_saves_figures():
 def test_functions_are_short():
     problems = []
     for _, modname, tree in modules():
-        for node in ast.walk(tree):
+        for node in walk(tree):
             if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):
                 n = node.end_lineno - node.lineno + 1
                 key = f"{modname}.{node.name}"
@@ -176,7 +195,7 @@ def test_tests_use_public_names_only():
     for path in sorted((PKG.parent / "tests").rglob("*.py")):
         tree = ast.parse(path.read_text(), str(path))
         aliases = set()
-        for node in ast.walk(tree):
+        for node in walk(tree):
             if isinstance(node, ast.ImportFrom) and (node.module or "").startswith("metafovea"):
                 if any(p.startswith("_") for p in node.module.split(".")):
                     problems.append(f"{path.name}:{node.lineno} imports {node.module}")
@@ -188,7 +207,7 @@ def test_tests_use_public_names_only():
                 for a in node.names:
                     if a.name.startswith("metafovea"):
                         aliases.add(a.asname or a.name.split(".")[0])
-        for node in ast.walk(tree):
+        for node in walk(tree):
             if isinstance(node, ast.Attribute) and node.attr.startswith("_") and not node.attr.startswith("__") \
                     and isinstance(node.value, ast.Name) and node.value.id in aliases:
                 problems.append(f"{path.name}:{node.lineno} uses {node.value.id}.{node.attr}")
@@ -232,7 +251,7 @@ def _numbers(node: ast.AST):
 def _named_values(tree: ast.AST):
     """``(name, value)`` for every value given a name: parameter defaults, fields and assignments, keyword arguments,
     ``mapping.get('name', default)`` fallbacks and dict entries."""
-    for node in ast.walk(tree):
+    for node in walk(tree):
         if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef, ast.Lambda)):
             a = node.args
             pos = a.posonlyargs + a.args
@@ -266,7 +285,7 @@ def platform_literals(tree: ast.AST) -> list[tuple[int, str, float]]:
             for number, pattern in PLATFORM_LITERALS.items():
                 if c.value == number and (pattern is None or re.search(pattern, name.lower())):
                     found.setdefault((c.lineno, c.col_offset), (c.lineno, name, c.value))
-    for c in ast.walk(tree):
+    for c in walk(tree):
         if isinstance(c, ast.Constant) and type(c.value) in (int, float):
             for number, pattern in PLATFORM_LITERALS.items():
                 if pattern is None and c.value == number:
@@ -326,7 +345,7 @@ def _meta_reads(tree: ast.AST) -> list[int]:
         return (isinstance(node, ast.Name) and node.id == "meta") or (isinstance(node, ast.Attribute)
                                                                        and node.attr == "meta")
     lines = []
-    for node in ast.walk(tree):
+    for node in walk(tree):
         if isinstance(node, ast.Subscript) and is_meta(node.value):
             lines.append(node.lineno)
         elif (isinstance(node, ast.Call) and isinstance(node.func, ast.Attribute) and node.func.attr == "get"
@@ -349,7 +368,7 @@ def test_the_reconstruction_reads_a_measurements_metadata_through_measurement_py
 def _polarizer_formulas(tree: ast.AST) -> list[str]:
     """The polariser's physics written out: Malus's ``cos(x) ** 2`` or a lag ``atan(... tau ...)``."""
     found = []
-    for node in ast.walk(tree):
+    for node in walk(tree):
         if isinstance(node, ast.BinOp) and isinstance(node.op, ast.Pow) and isinstance(node.left, ast.Call) \
                 and getattr(node.left.func, "attr", getattr(node.left.func, "id", None)) == "cos" \
                 and isinstance(node.right, ast.Constant) and node.right.value == 2:
@@ -387,7 +406,7 @@ def docstring_history(tree: ast.AST) -> list[str]:
     found = []
     module_doc = (ast.get_docstring(tree) or "") if isinstance(tree, ast.Module) else ""
     found += [f"module docstring: {m.group(0)!r}" for m in _HISTORY.finditer(module_doc)]
-    for node in ast.walk(tree):
+    for node in walk(tree):
         if isinstance(node, (ast.Module, ast.FunctionDef, ast.AsyncFunctionDef, ast.ClassDef)):
             doc = ast.get_docstring(node) or ""
             found += [f"{getattr(node, 'name', 'module')} docstring: date {m.group(0)}" for m in _DATE.finditer(doc)]
@@ -426,7 +445,7 @@ def flag_named_raises(tree: ast.AST) -> list[tuple[int, str]]:
     and validators ``check_*("--x", ...)`` / ``as_*("--x", ...)``; a ``name=`` / ``parameter=`` keyword ``"--x"``
     (the name an error will carry); a function parameter defaulting to ``"--x"``."""
     out = []
-    for node in ast.walk(tree):
+    for node in walk(tree):
         if isinstance(node, ast.Call):
             f = node.func
             fname = f.id if isinstance(f, ast.Name) else f.attr if isinstance(f, ast.Attribute) else ""
@@ -479,12 +498,10 @@ def import_graph(sources) -> dict[str, set[str]]:
     names = {modname for _, modname, _ in sources}
     graph: dict[str, set[str]] = {}
     for path, modname, tree in sources:
-        tree = ast.parse(ast.unparse(tree))  # a copy, pruned of the type-checking blocks below
-        for node in ast.walk(tree):
-            if _type_checking_only(node):
-                node.body = [ast.Pass()]
+        # the imports inside type-checking blocks (their bodies; the tests and the else branches run) are left out
+        skip = {id(n) for node in walk(tree) if _type_checking_only(node) for b in node.body for n in ast.walk(b)}
         deps = set()
-        for mod, name in imports(tree, path, modname):
+        for mod, name in imports(tree, path, modname, skip):
             if name is not None and f"{mod}.{name}" in names:
                 deps.add(f"{mod}.{name}")
             elif mod in names:

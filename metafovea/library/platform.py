@@ -8,6 +8,7 @@ posts (``'rcwa'``, ``'ideal'`` or given: :data:`POST_SOURCES`); :func:`rcwa_post
 
 from __future__ import annotations
 
+import copy
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field, replace
 from typing import Any
@@ -110,8 +111,36 @@ class PlatformSweep:
                              f"at most the {n_ok} of {lib.wx_um.size} x {lib.wy_um.size} posts converged at {wl:g} um "
                              "(convergence estimate <= 0.05): use more harmonics=..., a finer grid_step_um=... or "
                              f"fewer levels=...{diffracts}")
-        return {pol: select_posts(lib, pol, self.levels, wavelength_um=wl, platform=self.platform,
-                                  bias_weight=self.bias_weight) for pol in POLARIZATIONS}
+        key = (_library_digest(lib), self.platform, self.levels, wl, self.bias_weight)
+        if key not in _SELECTED:
+            if len(_SELECTED) >= _SELECTED_MAX:
+                _SELECTED.pop(next(iter(_SELECTED)))
+            _SELECTED[key] = {pol: select_posts(lib, pol, self.levels, wavelength_um=wl, platform=self.platform,
+                                                bias_weight=self.bias_weight) for pol in POLARIZATIONS}
+        return copy.deepcopy(_SELECTED[key])
+
+
+#: the post sets :meth:`PlatformSweep.select` chose in this process, by the library's content and the selection's
+#: inputs (a deterministic function of them: every simulation, report and study case asks for the same sets, and the
+#: grid search takes ~0.2 s); callers get copies
+_SELECTED: dict[tuple, dict[str, PostSet]] = {}
+_SELECTED_MAX = 16
+
+
+def _library_digest(lib: Library) -> str:
+    """A digest of a library's content: its grid, wavelengths, every array and its metadata."""
+    import hashlib
+
+    from metafovea.io import to_json
+
+    h = hashlib.sha1()
+    named = [("wx_um", lib.wx_um), ("wy_um", lib.wy_um), ("wavelengths_um", lib.wavelengths_um)]
+    for name, a in named + sorted(lib.arrays.items()):
+        a = np.ascontiguousarray(a)
+        h.update(f"{name} {a.dtype} {a.shape}".encode())
+        h.update(a.tobytes())
+    h.update(to_json(lib.meta, indent=None).encode())
+    return h.hexdigest()
 
 
 def platform_post_sets(platform: PlatformDesign | None = None, levels: int = 8, *, grid_step_um: float = 0.1,

@@ -199,6 +199,11 @@ def _grid(shape: tuple[int, int], scale: float) -> np.ndarray:
     return np.stack([Y.ravel(), X.ravel()]).astype(np.float64)
 
 
+#: the edge padding scipy's ``map_coordinates`` gives an image before its spline filter in mode 'nearest' (scipy
+#: 1.6+): :func:`_fit_once` filters the foveal sides once with the same padding
+_SPLINE_PAD = 12
+
+
 def _foveal_points(p: np.ndarray, shape: tuple[int, int], scale: float, ty: float, tx: float,
                    phi: float) -> np.ndarray:
     """``c + t + scale R(phi) (p - c)``: where each perifoveal pixel ``p`` falls in the foveal image."""
@@ -350,7 +355,7 @@ def _fit_once(shape: tuple[int, int], sides: tuple[np.ndarray, ...], *, scale: f
     -------
     FovealFit
     """
-    from scipy.ndimage import map_coordinates
+    from scipy.ndimage import map_coordinates, spline_filter
     from scipy.optimize import least_squares
 
     f1m, f1d, f2m, f2d = sides
@@ -360,12 +365,18 @@ def _fit_once(shape: tuple[int, int], sides: tuple[np.ndarray, ...], *, scale: f
 
     H, W = shape
     norm = ((H - 1) / 2.0) ** 2 + ((W - 1) / 2.0) ** 2
+    # the foveal sides' cubic-spline coefficients, once: map_coordinates' own prefilter (edge padding of
+    # _SPLINE_PAD, the spline filter) on each of the fit's hundreds of evaluations filtered the whole images again;
+    # the same coefficients at the same shifted points give the same values bit for bit
+    c1m, c1d = (spline_filter(np.pad(f, _SPLINE_PAD, mode="edge"), 3, output=np.float64, mode="nearest")
+                for f in (f1m, f1d))
 
     def foveal(theta: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         q = _foveal_points(p, shape, theta[0], theta[1], theta[2], math.radians(theta[3]))
         r2 = ((q[0] - (H - 1) / 2.0) ** 2 + (q[1] - (W - 1) / 2.0) ** 2) / norm * float(vignetting)
-        return (map_coordinates(f1m, q, order=3, mode="nearest"), map_coordinates(f1d, q, order=3, mode="nearest"),
-                r2)
+        qp = q + _SPLINE_PAD
+        return (map_coordinates(c1m, qp, order=3, mode="nearest", prefilter=False),
+                map_coordinates(c1d, qp, order=3, mode="nearest", prefilter=False), r2)
 
     def residual(theta: np.ndarray) -> np.ndarray:
         a_m, a_d, r2 = foveal(theta)

@@ -85,7 +85,9 @@ def test_on_axis_energy_within_one_pixel_radius(lens, mono, filt, band):
 
 
 def test_off_axis_coma_references():
-    P = psf(F1, field_deg=5.0, pitch_um=5.0, error=1e-5)
+    # the engine's error 1e-4 of the peak (1e-5 took 2.5x as long): the figures below move by < 1e-4 of their
+    # tolerances between the two
+    P = psf(F1, field_deg=5.0, pitch_um=5.0, error=1e-4)
     on = _airy_peak(F1) * 0.7967 * 25.0 / (math.pi * F1.radius_um ** 2)  # on-axis peak per 5 um cell
     assert 0.015 < P.intensity.max() / on < 0.025  # ~2 %
     c = P.info["chief_ray_um"]
@@ -149,8 +151,8 @@ def test_psf_save_load(tmp_path):
 
 
 def test_window_too_small_and_undersampled():
-    with pytest.raises(SamplingError, match="window_um"):
-        psf(F1, field_deg=5.0, window_um=600, pitch_um=5.0, error=1e-4)
+    with pytest.raises(SamplingError, match="window_um"):  # the edge at 0.92 of the peak: any error refuses it
+        psf(F1, field_deg=5.0, window_um=600, pitch_um=5.0, error=1e-2)
     with pytest.raises(SamplingError, match="window_um"):
         psf(F1, window_um=10)
     with pytest.raises(SamplingError, match="pitch_um"):

@@ -61,10 +61,12 @@ def test_psf_error_estimate_bounds_the_true_error_off_axis(f, d, field, fab, wl)
     assert P.error_estimate <= 1e-4  # the engine met the requested error by its own account
     xs, ys = P.coords()
     pu = build_pupils(lens, wl, field_deg=field, quantize=fab, lattice=fab).focus
-    # the reference on every 3rd sample and on the 9 x 9 samples around the peak
+    # the reference (its cost: sources x points) on every 6th sample over the whole window and on the 9 x 9 samples
+    # around the peak, where the engine's error is largest: on every 3rd sample the largest error was the same in six
+    # of the seven cases and 3 % larger in the seventh (4000/2000 um at 2 deg), each below half the estimate
     j, i = np.unravel_index(int(np.argmax(P.intensity)), P.shape)
-    rows = sorted(set(range(0, P.shape[0], 3)) | set(range(max(0, j - 4), min(P.shape[0], j + 5))))
-    cols = sorted(set(range(0, P.shape[1], 3)) | set(range(max(0, i - 4), min(P.shape[1], i + 5))))
+    rows = sorted(set(range(0, P.shape[0], 6)) | set(range(max(0, j - 4), min(P.shape[0], j + 5))))
+    cols = sorted(set(range(0, P.shape[1], 6)) | set(range(max(0, i - 4), min(P.shape[1], i + 5))))
     U = rs_reference(pu, xs[cols], ys[rows])
     ref = np.abs(U) ** 2 * P.pitch_um ** 2 / (math.pi * lens.radius_um ** 2)
     true = float(np.abs(P.intensity[np.ix_(rows, cols)] - ref).max() / ref.max())

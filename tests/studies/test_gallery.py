@@ -35,7 +35,7 @@ def test_new_scene_temperatures(name, lo, hi, fovea_lo, fovea_hi):
 @pytest.mark.slow  # a study, at its --fast size
 def test_gallery_fast(tmp_path, capsys):
     out = tmp_path / "gal"
-    assert main(["study", "gallery", "--fast", "--out", str(out), "-q"]) == 0
+    assert main(["study", "gallery", "--fast", "--out", str(out), "-q", "--workers", "1"]) == 0
     printed = capsys.readouterr().out
     assert "study gallery" in printed and "paper:" in printed
     for suffix in ("json", "png", "html"):

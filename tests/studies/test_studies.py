@@ -12,9 +12,14 @@ import pytest
 from metafovea.cli import main
 from metafovea.studies import STUDIES, StudyOptions, run_study
 
+#: a study's cases in the test's own process (``--workers 1``): at the fast sizes cheaper than worker processes that
+#: each import and compile the solvers again (the same JSON either way: tests/parallel/test_dask.py). The frames
+#: study keeps the command's default (a process per core), so that path still runs
+IN_PROCESS = ("--workers", "1")
 
-def _run_cli(name: str, out, capsys) -> dict:
-    rc = main(["study", name, "--fast", "--out", str(out), "-q"])
+
+def _run_cli(name: str, out, capsys, *flags: str) -> dict:
+    rc = main(["study", name, "--fast", "--out", str(out), "-q", *flags])
     assert rc == 0
     printed = capsys.readouterr().out
     assert f"study {name}" in printed and "paper:" in printed
@@ -33,7 +38,7 @@ def _run_cli(name: str, out, capsys) -> dict:
 def test_focal_ratio_fast(tmp_path, capsys):
     """Foveal PSNR nearly flat over the expansion (the paper's trend); the perifoveal one falls in the paper and, in
     this classical per-pixel model, does not: then the note says why and the texture per pixel it names grows."""
-    rep = _run_cli("focal-ratio", tmp_path / "fr", capsys)
+    rep = _run_cli("focal-ratio", tmp_path / "fr", capsys, *IN_PROCESS)
     by_k = rep["results"]["by_expansion"]
     ks = sorted(by_k, key=float)
     p1 = [by_k[k]["alternating"]["psnr_x1"] for k in ks]
