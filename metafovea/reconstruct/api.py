@@ -371,8 +371,9 @@ def _calibrated(m: Measurement, frames: np.ndarray, kw: dict[str, Any], fpn_kw: 
     One pass of the classical solver (no prior: least-squares images) over the first :data:`CALIBRATION_FRAMES`
     frames gives the images in the stated gauge; :func:`~metafovea.reconstruct.calibrate.fit_foveal` fits the foveal
     relation to them (each side blurred by the other channel's PSF when the file has both), for both channel
-    assignments: the one it explains better is the recording's, and its relation (gain, offset; the geometry where
-    the fit moved it) is what the solver then tells the channels apart by (``kw`` updated). The amplitude is used
+    assignments: the one it explains better is the recording's, and its relation (gain, offset; for the alternating
+    solver the geometry, scale, centre and rotation, where the fit moved it) is what the solver then tells the
+    channels apart by (``kw`` updated). The amplitude is used
     when it is identified and departs from the stated one by more than twice its standard error, the fit's model
     error (:data:`~metafovea.reconstruct.calibrate.AMPLITUDE_MODEL_ERROR` times its relative misfit) and
     :data:`~metafovea.reconstruct.calibrate.AMPLITUDE_FLOOR`."""
@@ -408,9 +409,12 @@ def _calibrated(m: Measurement, frames: np.ndarray, kw: dict[str, Any], fpn_kw: 
         # the solver then tells the channels apart by the calibrated relation (a swap found here is kept even where
         # the gain is not pinned down to 1 %; the deep prior keeps its stated relation, a term of its loss)
         kw.update(foveal_gain=fit.gain, foveal_offset=fit.offset)
-        if not fit.identified.get("geometry_kept"):
-            kw.update(scale=fit.scale, offset=(-fit.centre_px[0] / fit.scale, -fit.centre_px[1] / fit.scale))
-        info["constraint_used"] = {k: kw[k] for k in ("scale", "offset", "foveal_gain", "foveal_offset") if k in kw}
+        if not fit.identified.get("geometry_kept") and method == "alternating":
+            # the fit's geometry is the operator's: the same convention (docs/measurement_format.md, "The foveal
+            # geometry"); the deep prior's foveal term has no registration
+            kw.update(scale=fit.scale, offset=tuple(fit.centre_px), rotation_deg=fit.rotation_deg)
+        info["constraint_used"] = {k: kw[k] for k in ("scale", "offset", "rotation_deg", "foveal_gain",
+                                                       "foveal_offset") if k in kw}
     rho, se = fit.amplitude, fit.se["amplitude"]
     if fit.relative_misfit > 1.0:
         info["reason"] = (f"the foveal relation does not hold in this recording (its misfit is "

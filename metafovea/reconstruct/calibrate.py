@@ -11,13 +11,18 @@ bolometer, than the file says):
     x1 = m + u d_0 / 2,   x2 = m - u d_0 / 2,   u = 1 / rho,                                          (1)
 
 ``m`` the mean image (exact: the frames' average over the rotation) and ``d_0`` the difference image in the stated
-gauge. The foveal constraint ties the two: the foveal image, scaled down by ``scale`` about its optical centre
-(``t``, in foveal pixels from the sensor's centre) and turned by ``rotation``, is the centre of the perifoveal one
-up to the channels' gain ratio ``g`` and an offset ``o``:
+gauge. The foveal constraint ties the two: the foveal image, scaled down by ``scale``, turned back by ``rotation``
+and centred on the foveal centre ``c``, is the centre of the perifoveal one up to the channels' gain ratio ``g`` and
+an offset ``o``:
 
-    G_1 x1(c + t + scale R(phi) (p - c)) = g G_2 x2(p) + o                                             (2)
+    G_1 x1(c_s + scale R(-phi) (p - c_s - c)) = g G_2 x2(p) + o                                        (2)
 
-for the perifoveal pixels ``p`` of the fovea (``c`` the sensor's centre), the gain ``g + h r^2`` varying with the
+for the perifoveal pixels ``p`` of the fovea (``(row, column)`` vectors, ``c_s`` the sensor's centre,
+``R(phi) = [[cos, -sin], [sin, cos]]``), in the geometry convention of docs/measurement_format.md ("The foveal
+geometry"): ``c`` in perifoveal pixels from the sensor's centre (the point of the perifoveal image that the foveal
+image's centre shows), ``phi = rotation_deg`` positive from ``+x`` (columns) towards ``+y`` (rows); the
+reconstruction's :class:`~metafovea.reconstruct.operators.FovealOperator` takes the same ``(scale, c, phi)`` as its
+``(scale, offset, rotation_deg)``. The gain ``g + h r^2`` varies with the
 foveal sample's radius on the sensor (vignetting: the foveal image samples the whole sensor, the perifoveal one only
 its centre).
 Both sides are low-passed by a common Gaussian (``G_2``: ``blur_px`` perifoveal pixels; ``G_1``: the same in foveal
@@ -48,8 +53,8 @@ from metafovea.errors import InputError
 BLUR_PX = 1.5
 #: perifoveal pixels left out at the fovea's border (the low-pass and the geometry's search reach that far)
 MARGIN_PX = 3
-#: how far the geometry is searched from the stated one: relative scale, centre (foveal pixels), rotation (degrees)
-SEARCH = {"scale": 0.06, "centre_px": 36.0, "rotation_deg": 2.0}
+#: how far the geometry is searched from the stated one: relative scale, centre (perifoveal pixels), rotation (degrees)
+SEARCH = {"scale": 0.06, "centre_px": 6.0, "rotation_deg": 2.0}
 #: the drop of chi^2 (4 geometry parameters) above which the fitted geometry replaces the stated one (p < 1e-4)
 GEOMETRY_CHI2 = 23.5
 #: the largest relative standard error of the scale with which the fitted geometry is used
@@ -70,7 +75,8 @@ AMPLITUDE_FLOOR = 0.005
 SWAP_RATIO = 0.8
 #: blocks per axis of the fovea for the amplitude's jackknife error
 JACKKNIFE_BLOCKS = 3
-#: the standard error under which a fitted quantity counts as identified (scale: relative)
+#: the standard error under which a fitted quantity counts as identified (scale: relative; centre: perifoveal
+#: pixels)
 TOLERANCES = {"scale": 0.005, "centre_px": 0.3, "rotation_deg": 0.1, "amplitude": 0.004, "gain": 0.01}
 
 
@@ -83,9 +89,12 @@ class FovealFit:
     scale : float
         f1 / f2 as the recording shows it.
     centre_px : tuple of 2 float
-        The foveal image's optical centre, foveal pixels from the sensor's centre ``((H - 1) / 2, (W - 1) / 2)``.
+        The foveal centre ``(dy, dx)``: the point of the perifoveal image that the foveal image's centre shows,
+        perifoveal pixels from the sensor's centre ``((H - 1) / 2, (W - 1) / 2)`` (docs/measurement_format.md, "The
+        foveal geometry"; the ``offset`` of :class:`~metafovea.reconstruct.operators.FovealOperator`).
     rotation_deg : float
-        The foveal image's rotation against the perifoveal one, degrees.
+        The foveal image's rotation against the perifoveal one, degrees, positive from ``+x`` (columns) towards
+        ``+y`` (rows): a scene point ``q`` lands in the foveal image at ``scale R(-rotation) (q - centre)``.
     amplitude : float
         ``rho``: the true amplitude of alpha over the stated one.
     gain, offset : float
@@ -199,14 +208,15 @@ def _grid(shape: tuple[int, int], scale: float) -> np.ndarray:
     return np.stack([Y.ravel(), X.ravel()]).astype(np.float64)
 
 
-def _foveal_points(p: np.ndarray, shape: tuple[int, int], scale: float, ty: float, tx: float,
+def _foveal_points(p: np.ndarray, shape: tuple[int, int], scale: float, cy: float, cx: float,
                    phi: float) -> np.ndarray:
-    """``c + t + scale R(phi) (p - c)``: where each perifoveal pixel ``p`` falls in the foveal image."""
+    """``c_s + scale R(-phi) (p - c_s - c)``: where each perifoveal pixel ``p`` falls in the foveal image (``c_s``
+    the sensor's centre, ``c = (cy, cx)`` the foveal centre)."""
     H, W = shape
-    c = np.array([(H - 1) / 2.0, (W - 1) / 2.0])[:, None]
+    cs = np.array([(H - 1) / 2.0, (W - 1) / 2.0])[:, None]
     co, si = math.cos(phi), math.sin(phi)
-    R = np.array([[co, -si], [si, co]])
-    return c + np.array([ty, tx])[:, None] + scale * (R @ (p - c))
+    R = np.array([[co, si], [-si, co]])
+    return cs + scale * (R @ (p - cs - np.array([cy, cx])[:, None]))
 
 
 def _linear_part(u: float, a_m: np.ndarray, a_d: np.ndarray, b_m: np.ndarray, b_d: np.ndarray,
@@ -258,9 +268,9 @@ def _errors(J: np.ndarray, r: np.ndarray, inflate: float) -> tuple[np.ndarray, f
 
 
 def _coarse_centre(p: np.ndarray, f2m: np.ndarray, f2d: np.ndarray, a_m: np.ndarray, a_d: np.ndarray,
-                   r2: np.ndarray, u: float, scale: float) -> tuple[float, float] | None:
-    """The foveal centre ``-scale delta`` (foveal pixels) of the whole-pixel shift ``delta`` of the perifoveal
-    samples, within :data:`COARSE_SHIFT_PX`, that fits (2) best at the stated scale; None if no shift fits."""
+                   r2: np.ndarray, u: float) -> tuple[float, float] | None:
+    """The foveal centre (perifoveal pixels): the whole-pixel shift ``delta`` of the perifoveal samples, within
+    :data:`COARSE_SHIFT_PX`, that fits (2) best at the stated scale; None if no shift fits."""
     H, W = f2m.shape
     iy, ix = p.astype(int)
     best, arg = math.inf, None
@@ -272,7 +282,7 @@ def _coarse_centre(p: np.ndarray, f2m: np.ndarray, f2d: np.ndarray, a_m: np.ndar
             rss = _linear_part(u, a_m, a_d, f2m[jy, jx], f2d[jy, jx], r2)[3]
             if rss < best:
                 best, arg = rss, (dy, dx)
-    return None if arg is None else (-scale * arg[0], -scale * arg[1])
+    return None if arg is None else (float(arg[0]), float(arg[1]))
 
 
 def _coarse_start(foveal: Any, p: np.ndarray, f2m: np.ndarray, f2d: np.ndarray, b_m: np.ndarray, b_d: np.ndarray,
@@ -281,7 +291,7 @@ def _coarse_start(foveal: Any, p: np.ndarray, f2m: np.ndarray, f2d: np.ndarray, 
     a mounted camera's axis can sit far from the stated one, if it fits (2) better than the stated geometry."""
     scale = float(theta0[0])
     a_m, a_d, r2 = foveal(theta0)
-    t = _coarse_centre(p, f2m, f2d, a_m, a_d, r2, float(theta0[4]), scale)
+    t = _coarse_centre(p, f2m, f2d, a_m, a_d, r2, float(theta0[4]))
     if t is None:
         return theta0
     a_m1, a_d1, r21 = foveal(np.array([scale, t[0], t[1], 0.0]))
@@ -381,7 +391,7 @@ def _fit_once(shape: tuple[int, int], sides: tuple[np.ndarray, ...], *, scale: f
     theta_s = _coarse_start(foveal, p, f2m, f2d, b_m, b_d, theta0, fit_amplitude)
     # stage 2, the geometry too, within the bounds a mounted camera stays in (SEARCH)
     spread = float(np.std(b_m)) or 1.0
-    x_scale = np.array([0.01 * scale, 0.3, 0.3, 0.1, 0.01, 0.01 * max(abs(g0), 1e-3), 0.01 * spread,
+    x_scale = np.array([0.01 * scale, 0.3 / scale, 0.3 / scale, 0.1, 0.01, 0.01 * max(abs(g0), 1e-3), 0.01 * spread,
                         0.01 * max(abs(g0), 1e-3)])
     lo = np.array([scale * (1 - SEARCH["scale"]), -SEARCH["centre_px"], -SEARCH["centre_px"],
                    -SEARCH["rotation_deg"], 0.5, 1e-6, -np.inf, -np.inf])
