@@ -376,8 +376,10 @@ def _calibrated(m: Measurement, frames: np.ndarray, kw: dict[str, Any], fpn_kw: 
     channels apart by (``kw`` updated). The amplitude is used
     when it is identified and departs from the stated one by more than twice its standard error, the fit's model
     error (:data:`~metafovea.reconstruct.calibrate.AMPLITUDE_MODEL_ERROR` times its relative misfit) and
-    :data:`~metafovea.reconstruct.calibrate.AMPLITUDE_FLOOR`."""
-    from metafovea.reconstruct.calibrate import AMPLITUDE_FLOOR, AMPLITUDE_MODEL_ERROR, fit_foveal
+    :data:`~metafovea.reconstruct.calibrate.AMPLITUDE_FLOOR`; its standard error includes the calibration pass's own
+    (the polariser fit's uncertainty in alpha's amplitude, which a jittering rotation makes large: then the amplitude
+    is not calibrated, and the summary says why)."""
+    from metafovea.reconstruct.calibrate import AMPLITUDE_FLOOR, AMPLITUDE_MODEL_ERROR, TOLERANCES, fit_foveal
 
     model: PolarizerModel = kw["polarizer"]
     n = min(frames.shape[0], CALIBRATION_FRAMES)
@@ -416,6 +418,12 @@ def _calibrated(m: Measurement, frames: np.ndarray, kw: dict[str, Any], fpn_kw: 
         info["constraint_used"] = {k: kw[k] for k in ("scale", "offset", "rotation_deg", "foveal_gain",
                                                        "foveal_offset") if k in kw}
     rho, se = fit.amplitude, fit.se["amplitude"]
+    # the amplitude is measured against the calibration pass's images, whose gauge the polariser fit fixed: that
+    # fit's own uncertainty in alpha's amplitude (a jittering rotation's, mostly) is the amplitude's too
+    pfit = pg.get("fit") or {}
+    se_gauge = float(pfit.get("a_se", 0.0)) / max(abs(float(pfit.get("a", 1.0))), 1e-300)
+    info["se"]["amplitude_gauge"] = se_gauge
+    se = float(np.hypot(se, se_gauge))
     if fit.relative_misfit > 1.0:
         info["reason"] = (f"the foveal relation does not hold in this recording (its misfit is "
                           f"{fit.relative_misfit:.2g} times the perifoveal side's contrast): the channels' "
@@ -428,7 +436,12 @@ def _calibrated(m: Measurement, frames: np.ndarray, kw: dict[str, Any], fpn_kw: 
                           "relation: it takes a polariser that departs from the stated one for a pattern, so alpha's "
                           "amplitude cannot be calibrated (shutter frames, fpn='calibration', let it be)")
         info["warning"] = info["reason"]
-    elif not fit.identified["amplitude"]:
+    elif se_gauge > TOLERANCES["amplitude"]:
+        info["reason"] = (f"alpha's amplitude cannot be calibrated: the calibration pass's alpha gauge is uncertain "
+                          f"by {se_gauge:.2g} of its amplitude (the polariser's rotation is irregular, or the frames "
+                          "too few): the stated polariser constants are used")
+        info["warning"] = info["reason"]
+    elif not (fit.identified["amplitude"] and se <= TOLERANCES["amplitude"]):
         info["reason"] = (f"alpha's amplitude is not identified by the foveal constraint (standard error {se:.2g}: "
                           "too little texture in the fovea): the stated polariser constants are used")
         info["warning"] = info["reason"]
