@@ -203,6 +203,30 @@ def _pooled_gauge(aw: list, reports: list, starts: np.ndarray,
     return maps, se_w, rep
 
 
+def _apply_pooled_gauge(x1: np.ndarray, x2: np.ndarray, aw: list, se_w: list, identified: list, infos: list,
+                        starts: np.ndarray, model: Any, info: dict[str, Any]) -> None:
+    """The windows' alphas, images, standard errors and identification mapped, in place, to the gauge that
+    :func:`_pooled_gauge` finds (when it finds one: ``model``, the polariser, given; ``infos``, the windows'
+    solver reports); its report in ``info['gauge_pooled']``."""
+    from metafovea.reconstruct.polarizer import ALPHA_SE_MAX
+
+    pooled = None if model is None else _pooled_gauge(aw, [i.get("polarizer_gauge") for i in infos], starts, model)
+    if pooled is None:
+        return
+    maps, se_p, info["gauge_pooled"] = pooled
+    if "warning" in info["gauge_pooled"]:
+        info["warnings"] = [info["gauge_pooled"]["warning"]]
+    for k, (P, Q) in enumerate(maps):
+        if P is None:
+            continue
+        d = (x1[k].astype(np.float64) - x2[k]) / P  # y = x2 + alpha d = x2' + (P alpha + Q) d'
+        n2 = x2[k] - Q * d
+        x1[k], x2[k] = (n2 + d).astype(x1.dtype), n2.astype(x2.dtype)
+        aw[k] = (P * np.asarray(aw[k]) + Q).tolist()
+        se_w[k] = se_p[k]
+        identified[k] = bool(se_p[k] <= ALPHA_SE_MAX)
+
+
 def video(frames: ArrayLike, alpha: ArrayLike | None = None, *, window: int = 8, stride: int = 1,
           starts: Sequence[int] | None = None, method: str = "lsq", denoise: str | None = None,
           max_condition: float = MAX_CONDITION, regularize: str | float | None = None, saturation: float | None = None,
@@ -269,7 +293,7 @@ def video(frames: ArrayLike, alpha: ArrayLike | None = None, *, window: int = 8,
 
         x1 = np.empty((K, H, W), dtype=dt)
         x2 = np.empty((K, H, W), dtype=dt)
-        aw, identified, se_w, gauges, runs, reports = [], [], [], [], [], []
+        aw, runs, infos = [], [], []
         kw = dict(kw)
         budget = kw.pop("max_seconds", None) if method == "dip" else None  # the whole sequence's
         t_run = time.perf_counter()
@@ -283,10 +307,7 @@ def video(frames: ArrayLike, alpha: ArrayLike | None = None, *, window: int = 8,
                         r = alternating(Y[s:s + window], saturation=saturation, **wkw)
                     except InputError as e:  # the same error, placed in its window (one message, not nested)
                         raise _in_window(e, k, s, window) from None
-                    identified.append(bool(r.info["alpha_identified"]))
-                    se_w.append(r.info.get("alpha_se_max"))
-                    gauges.append(r.info.get("alpha_gauge"))
-                    reports.append(r.info.get("polarizer_gauge"))
+                    infos.append(r.info)
                 else:
                     left = None if budget is None else budget - (time.perf_counter() - t_run)
                     if k and left is not None and left <= 0:  # the time cap: stop, keep the windows done
@@ -296,29 +317,14 @@ def video(frames: ArrayLike, alpha: ArrayLike | None = None, *, window: int = 8,
                                                                 "max_seconds")})
                 x1[k], x2[k] = r.x1, r.x2
                 aw.append(np.asarray(r.alpha).tolist())
-        if method == "alternating" and kw.get("polarizer") is not None:
-            pooled = _pooled_gauge(aw, reports, starts, kw["polarizer"])
-            if pooled is not None:
-                maps, se_p, info["gauge_pooled"] = pooled
-                if "warning" in info["gauge_pooled"]:
-                    info["warnings"] = [info["gauge_pooled"]["warning"]]
-                from metafovea.reconstruct.polarizer import ALPHA_SE_MAX
-
-                for k, (P, Q) in enumerate(maps):
-                    if P is None:
-                        continue
-                    d = (x1[k].astype(np.float64) - x2[k]) / P  # y = x2 + alpha d = x2' + (P alpha + Q) d'
-                    n2 = x2[k] - Q * d
-                    x1[k], x2[k] = (n2 + d).astype(dt), n2.astype(dt)
-                    aw[k] = (P * np.asarray(aw[k]) + Q).tolist()
-                    se_w[k] = se_p[k]
-                    identified[k] = bool(se_p[k] <= ALPHA_SE_MAX)
-        info["alpha_windows"] = aw
+        info["alpha_windows"] = aw  # (the pooled gauge maps its entries in place)
         if method == "alternating":
-            info["window_alpha_identified"] = identified
+            identified, se_w = ([i.get(n) for i in infos] for n in ("alpha_identified", "alpha_se_max"))
+            _apply_pooled_gauge(x1, x2, aw, se_w, identified, infos, starts, kw.get("polarizer"), info)
+            info["window_alpha_identified"] = [bool(v) for v in identified]
             info["window_alpha_se_max"] = se_w
             info["alpha_identified"] = bool(all(identified))
-            info["alpha_gauge"] = sorted({str(g) for g in gauges})
+            info["alpha_gauge"] = sorted({str(i.get("alpha_gauge")) for i in infos})
             if all(v is not None for v in se_w):
                 info["alpha_se_max"] = float(max(se_w))
         else:
