@@ -27,8 +27,12 @@ foveal sample's radius on the sensor (vignetting: the foveal image samples the w
 its centre).
 Both sides are low-passed by a common Gaussian (``G_2``: ``blur_px`` perifoveal pixels; ``G_1``: the same in foveal
 pixels, with the pixel box of the down-scaling), so that the channels' different PSFs matter little; with the
-channels' PSFs each side is also blurred by the other's. (2) is solved for the eight parameters
-``(scale, t_y, t_x, phi, u, g, o, h)`` by non-linear least squares (:func:`fit_foveal`), started from the stated
+channels' PSFs each side is also blurred by the other's. What PSF difference is left (the perifoveal F/1 lens' blur
+is about half a perifoveal pixel, the foveal one's a twelfth of it; PSFs the file does not give, or a defocus) still
+biases the fit, the amplitude most: a relative blur ``b_r`` is fitted too, a Gaussian of ``b_r`` perifoveal pixels
+added to the foveal side (``b_r > 0``) or to the perifoveal side (``b_r < 0``), the one that explains (2) best at
+the fitted geometry, and the relation is fitted again with it. (2) is solved for the eight parameters
+``(scale, c_y, c_x, phi, u, g, o, h)`` by non-linear least squares (:func:`fit_foveal`), started from the stated
 constraint, where it is linear in ``(g, o, h)`` at each ``u`` (a 1-D search gives the start).
 
 Uncertainty: the Gauss-Newton covariance ``s_r^2 (J^T J)^-1`` of the fit, inflated by the residual's correlation area
@@ -71,6 +75,9 @@ AMPLITUDE_MODEL_ERROR = 0.03
 #: seen through unstated PSFs: 0.4 % off at a misfit of 0.017, independent camera model), and an amplitude left
 #: this far off costs alpha at most 2/pi x 1/2 x 0.005 = 1.6e-3 mean absolute error
 AMPLITUDE_FLOOR = 0.005
+#: the largest relative blur of the two sides searched (perifoveal pixels): the F/1 lens' blur is about half a
+#: pixel, a quarter-wave defocus adds as much
+RELATIVE_BLUR_MAX = 2.0
 #: the swapped channels are the recording's when their relation's misfit is below this share of the other's
 SWAP_RATIO = 0.8
 #: blocks per axis of the fovea for the amplitude's jackknife error
@@ -116,6 +123,9 @@ class FovealFit:
     geometry_fit : dict
         The fit with the geometry free (scale, centre, rotation, amplitude, their errors, its residual and the
         stated geometry's, the chi^2 drop), whether or not it was kept.
+    relative_blur_px : float
+        The Gaussian blur (perifoveal pixels) added to the foveal side (> 0) or to the perifoveal side (< 0) that
+        explains (2) best: the channels' PSF difference the sides' common low-pass leaves.
     """
 
     scale: float
@@ -131,13 +141,15 @@ class FovealFit:
     samples: int = 0
     relative_misfit: float = math.nan
     geometry_fit: dict[str, Any] = field(default_factory=dict)
+    relative_blur_px: float = 0.0
 
     def summary(self) -> dict[str, Any]:
         """JSON-ready: every field."""
         return {"scale": self.scale, "centre_px": list(self.centre_px), "rotation_deg": self.rotation_deg,
                 "amplitude": self.amplitude, "gain": self.gain, "offset": self.offset, "vignetting": self.vignetting,
                 "se": dict(self.se), "residual_rms": self.residual_rms, "relative_misfit": self.relative_misfit,
-                "identified": dict(self.identified), "samples": self.samples, "geometry_fit": dict(self.geometry_fit)}
+                "identified": dict(self.identified), "samples": self.samples, "geometry_fit": dict(self.geometry_fit),
+                "relative_blur_px": self.relative_blur_px}
 
 
 def _rescaled_psf(psf: np.ndarray, zoom: float) -> np.ndarray:
@@ -170,21 +182,23 @@ def _cropped(psf: np.ndarray, radius: int) -> np.ndarray:
 
 
 def _sides(mean: np.ndarray, diff: np.ndarray, scale: float, blur_px: float,
-           psfs: tuple[np.ndarray, np.ndarray] | None) -> tuple[np.ndarray, ...]:
+           psfs: tuple[np.ndarray, np.ndarray] | None, relative_px: float = 0.0) -> tuple[np.ndarray, ...]:
     """The low-passed images of (2): foveal side (mean, diff) and perifoveal side (mean, diff). With the channels'
     PSFs each side is also blurred by the other channel's (the foveal side by the perifoveal PSF magnified
     ``scale`` times, the perifoveal side by the foveal PSF shrunk as much; each cut to the image's size first):
-    both sides then carry both blurs."""
+    both sides then carry both blurs. ``relative_px``: the relative blur ``b_r`` (module docstring)."""
     from scipy.ndimage import gaussian_filter
     from scipy.signal import fftconvolve
 
-    s1 = math.sqrt(scale ** 2 / 12.0 + (scale * blur_px) ** 2)  # the pixel box of the down-scaling, then G
+    # the pixel box of the down-scaling, then G (and the relative blur, on its side)
+    s1 = scale * math.sqrt(1.0 / 12.0 + blur_px ** 2 + max(relative_px, 0.0) ** 2)
+    s2 = math.hypot(blur_px, min(relative_px, 0.0))
     n = max(mean.shape)
     kernels = (None, None) if psfs is None else (
         _rescaled_psf(_cropped(psfs[1], math.ceil(n / (2 * scale))), scale),
         _rescaled_psf(_cropped(psfs[0], n), 1.0 / scale))
     out = []
-    for side, s in ((0, s1), (1, blur_px)):
+    for side, s in ((0, s1), (1, s2)):
         for v in (mean, diff):
             u = np.nan_to_num(v, nan=float(np.nanmean(v)))
             k = kernels[side]
@@ -302,13 +316,38 @@ def _coarse_start(foveal: Any, p: np.ndarray, f2m: np.ndarray, f2d: np.ndarray, 
     return theta0
 
 
+def _relative_blur(m: np.ndarray, d: np.ndarray, fit: FovealFit, *, scale: float, blur_px: float,
+                   psfs: tuple[np.ndarray, np.ndarray] | None, fit_amplitude: bool) -> float:
+    """The relative blur ``b_r`` (module docstring) that explains (2) best at ``fit``'s geometry, within
+    :data:`RELATIVE_BLUR_MAX`: the residual sum of squares with ``u`` (a 1-D search) and ``(g, o, h)`` (linear)
+    fitted at each trial, minimised by a bounded 1-D search."""
+    from scipy.ndimage import map_coordinates
+    from scipy.optimize import minimize_scalar
+
+    H, W = m.shape
+    p = _grid(m.shape, scale)
+    iy, ix = p.astype(int)
+    q = _foveal_points(p, m.shape, fit.scale, fit.centre_px[0], fit.centre_px[1], math.radians(fit.rotation_deg))
+    r2 = ((q[0] - (H - 1) / 2.0) ** 2 + (q[1] - (W - 1) / 2.0) ** 2) / (((H - 1) / 2.0) ** 2 + ((W - 1) / 2.0) ** 2)
+
+    def rss(b: float) -> float:
+        f1m, f1d, f2m, f2d = _sides(m, d, scale, blur_px, psfs, b)
+        a_m, a_d = (map_coordinates(v, q, order=3, mode="nearest") for v in (f1m, f1d))
+        u = _amplitude_u(a_m, a_d, f2m[iy, ix], f2d[iy, ix], r2) if fit_amplitude else 1.0
+        return _linear_part(u, a_m, a_d, f2m[iy, ix], f2d[iy, ix], r2)[3]
+
+    return float(minimize_scalar(rss, bounds=(-RELATIVE_BLUR_MAX, RELATIVE_BLUR_MAX), method="bounded",
+                                 options={"xatol": 0.01}).x)
+
+
 def fit_foveal(mean: ArrayLike, diff: ArrayLike, *, scale: float = 6.0, gain: float = 1.0, offset: float = 0.0,
                blur_px: float = BLUR_PX, fit_amplitude: bool = True, psfs: tuple[ArrayLike, ArrayLike] | None = None,
                both_assignments: bool = False) -> FovealFit:
     """Fit the foveal relation (2) and the amplitude ratio (1) to a recording's separated images, with and without
     the radial gain (vignetting): the fit with it, its amplitude's error widened by the two fits' difference
     (``se['amplitude_model']``: how much the amplitude rests on how the relation is modelled; haze from outside the
-    fovea or an uncorrected fixed pattern move it, a clean relation does not).
+    fovea or an uncorrected fixed pattern move it, a clean relation does not). Both are fitted with the relative
+    blur that explains the first fit best (:func:`_relative_blur`).
 
     ``both_assignments``: also fit the channels swapped (``-diff``); the assignment the relation explains better
     is returned (``identified['swapped']`` True when it is the swapped one). Other parameters and the result: as
@@ -318,8 +357,8 @@ def fit_foveal(mean: ArrayLike, diff: ArrayLike, *, scale: float = 6.0, gain: fl
     d = np.asarray(diff, dtype=np.float64)
     if m.ndim != 2 or d.shape != m.shape:
         raise InputError("diff", f"array of shape {d.shape}", f"the mean image's (H, W) = {m.shape}")
-    sides = _sides(m, d, scale, blur_px, None if psfs is None else
-                   (np.asarray(psfs[0], np.float64), np.asarray(psfs[1], np.float64)))
+    pair = None if psfs is None else (np.asarray(psfs[0], np.float64), np.asarray(psfs[1], np.float64))
+    sides = _sides(m, d, scale, blur_px, pair)
     kw = dict(scale=scale, gain=gain, offset=offset, blur_px=blur_px, fit_amplitude=fit_amplitude)
     fit = _fit_once(m.shape, sides, vignetting=True, **kw)
     swapped = False
@@ -330,6 +369,11 @@ def fit_foveal(mean: ArrayLike, diff: ArrayLike, *, scale: float = 6.0, gain: fl
         # contrast): else the solver's choice stands
         if other.gain > 0 and other.residual_rms < SWAP_RATIO * fit.residual_rms and other.relative_misfit < 1.0:
             fit, sides, swapped = other, neg, True
+    if swapped:
+        d = -d
+    b_r = _relative_blur(m, d, fit, scale=scale, blur_px=blur_px, psfs=pair, fit_amplitude=fit_amplitude)
+    sides = _sides(m, d, scale, blur_px, pair, b_r)
+    fit = replace(_fit_once(m.shape, sides, vignetting=True, **kw), relative_blur_px=b_r)
     without = _fit_once(m.shape, sides, vignetting=False, **kw)
     delta = abs(fit.amplitude - without.amplitude)
     se = {**fit.se, "amplitude_model": delta, "amplitude": max(fit.se["amplitude"], 2.0 * delta)}
@@ -451,5 +495,5 @@ def _fit_once(shape: tuple[int, int], sides: tuple[np.ndarray, ...], *, scale: f
                      geometry_fit=stage2)
 
 
-__all__ = ["AMPLITUDE_FLOOR", "AMPLITUDE_MODEL_ERROR", "BLUR_PX", "MARGIN_PX", "SEARCH", "TOLERANCES", "FovealFit",
-           "fit_foveal"]
+__all__ = ["AMPLITUDE_FLOOR", "AMPLITUDE_MODEL_ERROR", "BLUR_PX", "MARGIN_PX", "RELATIVE_BLUR_MAX", "SEARCH",
+           "TOLERANCES", "FovealFit", "fit_foveal"]
