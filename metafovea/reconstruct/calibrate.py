@@ -319,8 +319,10 @@ def _coarse_start(foveal: Any, p: np.ndarray, f2m: np.ndarray, f2d: np.ndarray, 
 def _relative_blur(m: np.ndarray, d: np.ndarray, fit: FovealFit, *, scale: float, blur_px: float,
                    psfs: tuple[np.ndarray, np.ndarray] | None, fit_amplitude: bool) -> float:
     """The relative blur ``b_r`` (module docstring) that explains (2) best at ``fit``'s geometry, within
-    :data:`RELATIVE_BLUR_MAX`: the residual sum of squares with ``u`` (a 1-D search) and ``(g, o, h)`` (linear)
-    fitted at each trial, minimised by a bounded 1-D search."""
+    :data:`RELATIVE_BLUR_MAX`: the relative misfit (:attr:`FovealFit.relative_misfit`: the residual over the
+    perifoveal side's contrast times the gain), with ``u`` (a 1-D search) and ``(g, o, h)`` (linear) fitted at each
+    trial, minimised by a bounded 1-D search. (Not the residual itself: blurring the foveal side lowers it with the
+    side's contrast, and the gain follows it down.)"""
     from scipy.ndimage import map_coordinates
     from scipy.optimize import minimize_scalar
 
@@ -330,13 +332,15 @@ def _relative_blur(m: np.ndarray, d: np.ndarray, fit: FovealFit, *, scale: float
     q = _foveal_points(p, m.shape, fit.scale, fit.centre_px[0], fit.centre_px[1], math.radians(fit.rotation_deg))
     r2 = ((q[0] - (H - 1) / 2.0) ** 2 + (q[1] - (W - 1) / 2.0) ** 2) / (((H - 1) / 2.0) ** 2 + ((W - 1) / 2.0) ** 2)
 
-    def rss(b: float) -> float:
+    def misfit(b: float) -> float:  # FovealFit.relative_misfit at this blur
         f1m, f1d, f2m, f2d = _sides(m, d, scale, blur_px, psfs, b)
         a_m, a_d = (map_coordinates(v, q, order=3, mode="nearest") for v in (f1m, f1d))
-        u = _amplitude_u(a_m, a_d, f2m[iy, ix], f2d[iy, ix], r2) if fit_amplitude else 1.0
-        return _linear_part(u, a_m, a_d, f2m[iy, ix], f2d[iy, ix], r2)[3]
+        b_m, b_d = f2m[iy, ix], f2d[iy, ix]
+        u = _amplitude_u(a_m, a_d, b_m, b_d, r2) if fit_amplitude else 1.0
+        g, _, _, rss = _linear_part(u, a_m, a_d, b_m, b_d, r2)
+        return math.sqrt(rss / b_m.size) / max(abs(g) * float(np.std(b_m - 0.5 * u * b_d)), 1e-300)
 
-    return float(minimize_scalar(rss, bounds=(-RELATIVE_BLUR_MAX, RELATIVE_BLUR_MAX), method="bounded",
+    return float(minimize_scalar(misfit, bounds=(-RELATIVE_BLUR_MAX, RELATIVE_BLUR_MAX), method="bounded",
                                  options={"xatol": 0.01}).x)
 
 
