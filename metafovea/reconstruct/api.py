@@ -445,17 +445,41 @@ def _calibrated(m: Measurement, frames: np.ndarray, kw: dict[str, Any], fpn_kw: 
         info["reason"] = (f"alpha's amplitude is not identified by the foveal constraint (standard error {se:.2g}: "
                           "too little texture in the fovea): the stated polariser constants are used")
         info["warning"] = info["reason"]
-    elif abs(rho - 1.0) <= (tol := max(2.0 * se, AMPLITUDE_MODEL_ERROR * fit.relative_misfit,
-                                       AMPLITUDE_FLOOR)):
-        info["reason"] = (f"alpha's amplitude agrees with the stated polariser constants ({rho:.4f} +- {se:.2g} of "
-                          f"it, within {tol:.2g}: twice its error or the fit's model error): they are used")
     else:
-        info.update(applied=True, reason=f"alpha's amplitude is {rho:.4f} +- {se:.2g} of the stated constants': "
-                    "the recording's polariser leaks more (extinction) or its bolometer is slower (tau) than stated; "
-                    "the calibrated amplitude is used")
-        info["warning"] = info["reason"]
-        model = replace(model, amplitude_scale=rho)
+        model, info = _amplitude_verdict(model, info, rho, se, max(2.0 * se, AMPLITUDE_MODEL_ERROR *
+                                                                   fit.relative_misfit, AMPLITUDE_FLOOR))
     return model, info
+
+
+def _amplitude_verdict(model: PolarizerModel, info: dict[str, Any], rho: float, se: float,
+                       tol: float) -> tuple[PolarizerModel, dict[str, Any]]:
+    """The calibrated amplitude ``rho`` (of the stated constants', standard error ``se``) used, or not, by
+    :func:`_calibrated`: used where it departs from 1 by more than ``tol``. No polariser leaks less than an ideal one
+    and no bolometer lags less than an instantaneous one, so alpha's amplitude is at most the ideal device's,
+    ``rho_max`` times the stated one: a fit beyond it by more than ``tol`` is the foveal relation's bias (an
+    uncorrected fixed pattern, haze), not the polariser's, and is said so; ``min(rho, rho_max)`` is what is used."""
+    from metafovea.polarizer import RotatingPolarizer
+
+    rho_max = RotatingPolarizer(model.rate_hz).amplitude / model.physics.amplitude
+    info["amplitude_max"] = rho_max
+    above = rho > rho_max + tol
+    beyond = (f"alpha's amplitude comes out {rho:.4f} +- {se:.2g} of the stated constants', above the {rho_max:.4f} "
+              "of an ideal polariser and an instantaneous bolometer: not the polariser's doing, the foveal relation "
+              "is biased (an uncorrected fixed pattern, stray light); ") if above else ""
+    rho_used = min(rho, rho_max)
+    if abs(rho_used - 1.0) <= tol:
+        info["reason"] = (beyond + "the stated polariser constants are used" if above else
+                          f"alpha's amplitude agrees with the stated polariser constants ({rho:.4f} +- {se:.2g} of "
+                          f"it, within {tol:.2g}: twice its error or the fit's model error): they are used")
+        if above:
+            info["warning"] = info["reason"]
+        return model, info
+    info.update(applied=True, amplitude_used=rho_used, reason=beyond + (
+        f"alpha's amplitude is {rho_used:.4f} of the stated constants' ({rho:.4f} +- {se:.2g} fitted): the "
+        "recording's polariser leaks more (extinction) or its bolometer is slower (tau) than stated; the calibrated "
+        "amplitude is used"))
+    info["warning"] = info["reason"]
+    return replace(model, amplitude_scale=rho_used), info
 
 
 def _polarizer_model(m: Measurement, method: str, alpha: np.ndarray | None, spec: PolarizerSpec,
