@@ -377,9 +377,9 @@ def _calibrated(m: Measurement, frames: np.ndarray, kw: dict[str, Any], fpn_kw: 
     when it is identified and departs from the stated one by more than twice its standard error, the fit's model
     error (:data:`~metafovea.reconstruct.calibrate.AMPLITUDE_MODEL_ERROR` times its relative misfit) and
     :data:`~metafovea.reconstruct.calibrate.AMPLITUDE_FLOOR`; its standard error includes the calibration pass's own
-    (the polariser fit's uncertainty in alpha's amplitude, which a jittering rotation makes large: then the amplitude
-    is not calibrated, and the summary says why)."""
-    from metafovea.reconstruct.calibrate import AMPLITUDE_FLOOR, AMPLITUDE_MODEL_ERROR, TOLERANCES, fit_foveal
+    (the polariser fit's uncertainty in alpha's amplitude, which a jittering rotation makes large: only a departure
+    beyond it is then taken for a leak or a lag)."""
+    from metafovea.reconstruct.calibrate import AMPLITUDE_FLOOR, AMPLITUDE_MODEL_ERROR, fit_foveal
 
     model: PolarizerModel = kw["polarizer"]
     n = min(frames.shape[0], CALIBRATION_FRAMES)
@@ -436,12 +436,7 @@ def _calibrated(m: Measurement, frames: np.ndarray, kw: dict[str, Any], fpn_kw: 
                           "relation: it takes a polariser that departs from the stated one for a pattern, so alpha's "
                           "amplitude cannot be calibrated (shutter frames, fpn='calibration', let it be)")
         info["warning"] = info["reason"]
-    elif se_gauge > TOLERANCES["amplitude"]:
-        info["reason"] = (f"alpha's amplitude cannot be calibrated: the calibration pass's alpha gauge is uncertain "
-                          f"by {se_gauge:.2g} of its amplitude (the polariser's rotation is irregular, or the frames "
-                          "too few): the stated polariser constants are used")
-        info["warning"] = info["reason"]
-    elif not (fit.identified["amplitude"] and se <= TOLERANCES["amplitude"]):
+    elif not fit.identified["amplitude"]:
         info["reason"] = (f"alpha's amplitude is not identified by the foveal constraint (standard error {se:.2g}: "
                           "too little texture in the fovea): the stated polariser constants are used")
         info["warning"] = info["reason"]
@@ -470,7 +465,9 @@ def _amplitude_verdict(model: PolarizerModel, info: dict[str, Any], rho: float, 
     if abs(rho_used - 1.0) <= tol:
         info["reason"] = (beyond + "the stated polariser constants are used" if above else
                           f"alpha's amplitude agrees with the stated polariser constants ({rho:.4f} +- {se:.2g} of "
-                          f"it, within {tol:.2g}: twice its error or the fit's model error): they are used")
+                          f"it, within {tol:.2g}: twice its error or the fit's model error; the error includes the "
+                          f"calibration pass's own gauge, +- {info['se'].get('amplitude_gauge', 0.0):.2g}): they are "
+                          "used")
         if above:
             info["warning"] = info["reason"]
         return model, info

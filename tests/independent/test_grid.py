@@ -139,7 +139,7 @@ def test_a_jittering_polariser_is_not_taken_for_a_leaky_one(tmp_path):
     """The calibration measures alpha's amplitude against its first pass, whose gauge a 2 deg jitter leaves uncertain
     by ~1.5 % of the amplitude (this draw of the jitter: 2.4 % off): that uncertainty is the amplitude's too, so an
     ideal polariser is not calibrated as a leaky one (the foveal fit's own error, 0.0016, would take the 2.4 % for a
-    leak), and the summary says why."""
+    leak), and the reason says so."""
     m = Measurement.load(record("mixed", RANGE_ENDS["jitter 2 deg"], frames=FRAMES, seed=1).write(tmp_path / "j.npz"))
     cal = reconstruct_measurement(m, "alternating", window=FRAMES).reconstruction.info["calibration"]
-    assert not cal["applied"] and cal["se"]["amplitude_gauge"] > 0.004 and "gauge is uncertain" in cal["reason"]
+    assert not cal["applied"] and cal["se"]["amplitude_gauge"] > 0.004 and "pass's own gauge" in cal["reason"]
