@@ -27,13 +27,13 @@ foveal sample's radius on the sensor (vignetting: the foveal image samples the w
 its centre).
 Both sides are low-passed by a common Gaussian (``G_2``: ``blur_px`` perifoveal pixels; ``G_1``: the same in foveal
 pixels, with the pixel box of the down-scaling), so that the channels' different PSFs matter little; with the
-channels' PSFs each side is also blurred by the other's. What PSF difference is left (the perifoveal F/1 lens' blur
-is about half a perifoveal pixel, the foveal one's a twelfth of it; PSFs the file does not give, or a defocus) still
-biases the fit, the amplitude most: a relative blur ``b_r`` is fitted too, a Gaussian of ``b_r`` perifoveal pixels
-added to the foveal side (``b_r > 0``) or to the perifoveal side (``b_r < 0``), the one that explains (2) best at
-the fitted geometry, and the relation is fitted again with it. (2) is solved for the eight parameters
-``(scale, c_y, c_x, phi, u, g, o, h)`` by non-linear least squares (:func:`fit_foveal`), started from the stated
-constraint, where it is linear in ``(g, o, h)`` at each ``u`` (a 1-D search gives the start).
+channels' PSFs each side is also blurred by the other's. What PSF difference is left (in perifoveal pixels the F/1
+perifoveal lens blurs several times more than the F/2 foveal lens seen 6x reduced; PSFs the file does not give, a
+defocus) still biases the fit, the amplitude most: a relative blur ``b_r`` is fitted too, a Gaussian of ``b_r``
+perifoveal pixels added to the foveal side (``b_r > 0``) or to the perifoveal side (``b_r < 0``), the one that
+explains (2) best at the fitted geometry, and the relation is fitted again with it. (2) is solved for the eight
+parameters ``(scale, c_y, c_x, phi, u, g, o, h)`` by non-linear least squares (:func:`fit_foveal`), started from the
+stated constraint, where it is linear in ``(g, o, h)`` at each ``u`` (a 1-D search gives the start).
 
 Uncertainty: the Gauss-Newton covariance ``s_r^2 (J^T J)^-1`` of the fit, inflated by the residual's correlation area
 (the low-pass makes neighbouring samples share their error: ``4 pi blur_px^2`` samples count as one). A parameter is
@@ -75,8 +75,8 @@ AMPLITUDE_MODEL_ERROR = 0.03
 #: seen through unstated PSFs: 0.4 % off at a misfit of 0.017, independent camera model), and an amplitude left
 #: this far off costs alpha at most 2/pi x 1/2 x 0.005 = 1.6e-3 mean absolute error
 AMPLITUDE_FLOOR = 0.005
-#: the largest relative blur of the two sides searched (perifoveal pixels): the F/1 lens' blur is about half a
-#: pixel, a quarter-wave defocus adds as much
+#: the largest relative blur of the two sides searched (perifoveal pixels): several times the F/1 lens' Airy core
+#: (0.42 lambda N = 0.25-0.35 px over 8-14 um at 17 um pixels), room for a defocus or haze
 RELATIVE_BLUR_MAX = 2.0
 #: the swapped channels are the recording's when their relation's misfit is below this share of the other's
 SWAP_RATIO = 0.8
