@@ -26,7 +26,7 @@ def polarizer_lines(spec: dict[str, Any], calibration: dict[str, Any] | None = N
         se = c.get("se") or {}
         lines.append(f"  calibrated from the recording ({c['frames']} frames): foveal scale {c['scale']:.4f} "
                      f"+- {se.get('scale', 0):.2g}, centre ({c['centre_px'][0]:.2f}, {c['centre_px'][1]:.2f}) "
-                     f"+- {se.get('centre_px', 0):.2g} px, rotation {c['rotation_deg']:.3f} +- "
+                     f"+- {se.get('centre_px', 0):.2g} perifoveal px, rotation {c['rotation_deg']:.3f} +- "
                      f"{se.get('rotation_deg', 0):.2g} deg, channel gain ratio {c['gain']:.4g} +- "
                      f"{se.get('gain', 0):.2g}, "
                      f"alpha's amplitude {c['amplitude']:.4f} +- {se.get('amplitude', 0):.2g} of the stated "

@@ -371,7 +371,8 @@ def _guard(rep: dict[str, Any], band: _GaugeBand, op: FovealOperator, old: tuple
     # (periodic scenes such as bar targets have flat misfit-vs-scale curves, hence "halves")
     for f_s in SCALE_PROBES:
         try:
-            o2 = FovealOperator(op.shape, op.scale * f_s, op.offset, low=op.low_shape, gain=op.gain, bias=op.bias)
+            o2 = FovealOperator(op.shape, op.scale * f_s, op.offset, low=op.low_shape, gain=op.gain, bias=op.bias,
+                                rotation_deg=op.rotation_deg)
         except InputError:
             continue
         if o2.low_shape != op.low_shape:
@@ -399,7 +400,10 @@ class AlternatingOptions:
     scale : float
         The foveal constraint's scale f1 / f2.
     offset : tuple of 2 float
-        Registration offset of the crop in x2 pixels.
+        Registration offset of the crop in x2 pixels: the foveal centre (docs/measurement_format.md, "The foveal
+        geometry").
+    rotation_deg : float
+        The foveal image's rotation against the perifoveal one, degrees (the same convention).
     foveal_gain, foveal_offset : float
         The constraint's radiometry ``D x1 = foveal_gain C x2 + foveal_offset`` (a Measurement's
         :class:`~metafovea.measurement.FovealConstraint`).
@@ -441,6 +445,7 @@ class AlternatingOptions:
 
     scale: float = 6.0
     offset: tuple[float, float] = (0.0, 0.0)
+    rotation_deg: float = 0.0
     foveal_gain: float = 1.0
     foveal_offset: float = 0.0
     foveal_blur: float = FOVEAL_BLUR
@@ -652,13 +657,14 @@ def alternating(frames: ArrayLike, options: AlternatingOptions | None = None, **
     with tm.measure("init"):
         win = _window(frames, opt.saturation)
         T, H, W = win.Y.shape
-        op = FovealOperator((H, W), opt.scale, opt.offset, gain=opt.foveal_gain, bias=opt.foveal_offset)
+        op = FovealOperator((H, W), opt.scale, opt.offset, gain=opt.foveal_gain, bias=opt.foveal_offset,
+                            rotation_deg=opt.rotation_deg)
         foveal_blur = as_float("foveal_blur", opt.foveal_blur)
         if not 0.0 <= foveal_blur <= 0.25 * min(op.low_shape):
             raise InputError("foveal_blur", foveal_blur, f"0 <= foveal_blur <= {0.25 * min(op.low_shape):g} "
                              f"(Gaussian sigma in constraint pixels; the constraint is {op.low_shape})")
         info: dict[str, Any] = {"init": init, "prior": prior, "scale": op.scale, "offset": list(op.offset),
-                                "foveal_gain": op.gain, "foveal_offset": op.bias}
+                                "rotation_deg": op.rotation_deg, "foveal_gain": op.gain, "foveal_offset": op.bias}
         a = _initial_alpha(win, init, info)
         x1, x2, cond = _lsq(win.Yf, a, win.M, win.dt, opt.max_condition)
     sig = opt.noise_sigma

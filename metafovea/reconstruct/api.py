@@ -371,11 +371,14 @@ def _calibrated(m: Measurement, frames: np.ndarray, kw: dict[str, Any], fpn_kw: 
     One pass of the classical solver (no prior: least-squares images) over the first :data:`CALIBRATION_FRAMES`
     frames gives the images in the stated gauge; :func:`~metafovea.reconstruct.calibrate.fit_foveal` fits the foveal
     relation to them (each side blurred by the other channel's PSF when the file has both), for both channel
-    assignments: the one it explains better is the recording's, and its relation (gain, offset; the geometry where
-    the fit moved it) is what the solver then tells the channels apart by (``kw`` updated). The amplitude is used
+    assignments: the one it explains better is the recording's, and its relation (gain, offset; for the alternating
+    solver the geometry, scale, centre and rotation, where the fit moved it) is what the solver then tells the
+    channels apart by (``kw`` updated). The amplitude is used
     when it is identified and departs from the stated one by more than twice its standard error, the fit's model
     error (:data:`~metafovea.reconstruct.calibrate.AMPLITUDE_MODEL_ERROR` times its relative misfit) and
-    :data:`~metafovea.reconstruct.calibrate.AMPLITUDE_FLOOR`."""
+    :data:`~metafovea.reconstruct.calibrate.AMPLITUDE_FLOOR`; its standard error includes the calibration pass's own
+    (the polariser fit's uncertainty in alpha's amplitude, which a jittering rotation makes large: only a departure
+    beyond it is then taken for a leak or a lag)."""
     from metafovea.reconstruct.calibrate import AMPLITUDE_FLOOR, AMPLITUDE_MODEL_ERROR, fit_foveal
 
     model: PolarizerModel = kw["polarizer"]
@@ -408,10 +411,19 @@ def _calibrated(m: Measurement, frames: np.ndarray, kw: dict[str, Any], fpn_kw: 
         # the solver then tells the channels apart by the calibrated relation (a swap found here is kept even where
         # the gain is not pinned down to 1 %; the deep prior keeps its stated relation, a term of its loss)
         kw.update(foveal_gain=fit.gain, foveal_offset=fit.offset)
-        if not fit.identified.get("geometry_kept"):
-            kw.update(scale=fit.scale, offset=(-fit.centre_px[0] / fit.scale, -fit.centre_px[1] / fit.scale))
-        info["constraint_used"] = {k: kw[k] for k in ("scale", "offset", "foveal_gain", "foveal_offset") if k in kw}
+        if not fit.identified.get("geometry_kept") and method == "alternating":
+            # the fit's geometry is the operator's: the same convention (docs/measurement_format.md, "The foveal
+            # geometry"); the deep prior's foveal term has no registration
+            kw.update(scale=fit.scale, offset=tuple(fit.centre_px), rotation_deg=fit.rotation_deg)
+        info["constraint_used"] = {k: kw[k] for k in ("scale", "offset", "rotation_deg", "foveal_gain",
+                                                       "foveal_offset") if k in kw}
     rho, se = fit.amplitude, fit.se["amplitude"]
+    # the amplitude is measured against the calibration pass's images, whose gauge the polariser fit fixed: that
+    # fit's own uncertainty in alpha's amplitude (a jittering rotation's, mostly) is the amplitude's too
+    pfit = pg.get("fit") or {}
+    se_gauge = float(pfit.get("a_se", 0.0)) / max(abs(float(pfit.get("a", 1.0))), 1e-300)
+    info["se"]["amplitude_gauge"] = se_gauge
+    se = float(np.hypot(se, se_gauge))
     if fit.relative_misfit > 1.0:
         info["reason"] = (f"the foveal relation does not hold in this recording (its misfit is "
                           f"{fit.relative_misfit:.2g} times the perifoveal side's contrast): the channels' "
@@ -428,17 +440,43 @@ def _calibrated(m: Measurement, frames: np.ndarray, kw: dict[str, Any], fpn_kw: 
         info["reason"] = (f"alpha's amplitude is not identified by the foveal constraint (standard error {se:.2g}: "
                           "too little texture in the fovea): the stated polariser constants are used")
         info["warning"] = info["reason"]
-    elif abs(rho - 1.0) <= (tol := max(2.0 * se, AMPLITUDE_MODEL_ERROR * fit.relative_misfit,
-                                       AMPLITUDE_FLOOR)):
-        info["reason"] = (f"alpha's amplitude agrees with the stated polariser constants ({rho:.4f} +- {se:.2g} of "
-                          f"it, within {tol:.2g}: twice its error or the fit's model error): they are used")
     else:
-        info.update(applied=True, reason=f"alpha's amplitude is {rho:.4f} +- {se:.2g} of the stated constants': "
-                    "the recording's polariser leaks more (extinction) or its bolometer is slower (tau) than stated; "
-                    "the calibrated amplitude is used")
-        info["warning"] = info["reason"]
-        model = replace(model, amplitude_scale=rho)
+        model, info = _amplitude_verdict(model, info, rho, se, max(2.0 * se, AMPLITUDE_MODEL_ERROR *
+                                                                   fit.relative_misfit, AMPLITUDE_FLOOR))
     return model, info
+
+
+def _amplitude_verdict(model: PolarizerModel, info: dict[str, Any], rho: float, se: float,
+                       tol: float) -> tuple[PolarizerModel, dict[str, Any]]:
+    """The calibrated amplitude ``rho`` (of the stated constants', standard error ``se``) used, or not, by
+    :func:`_calibrated`: used where it departs from 1 by more than ``tol``. No polariser leaks less than an ideal one
+    and no bolometer lags less than an instantaneous one, so alpha's amplitude is at most the ideal device's,
+    ``rho_max`` times the stated one: a fit beyond it by more than ``tol`` is the foveal relation's bias (an
+    uncorrected fixed pattern, haze), not the polariser's, and is said so; ``min(rho, rho_max)`` is what is used."""
+    from metafovea.polarizer import RotatingPolarizer
+
+    rho_max = RotatingPolarizer(model.rate_hz).amplitude / model.physics.amplitude
+    info["amplitude_max"] = rho_max
+    above = rho > rho_max + tol
+    beyond = (f"alpha's amplitude comes out {rho:.4f} +- {se:.2g} of the stated constants', above the {rho_max:.4f} "
+              "of an ideal polariser and an instantaneous bolometer: not the polariser's doing, the foveal relation "
+              "is biased (an uncorrected fixed pattern, stray light); ") if above else ""
+    rho_used = min(rho, rho_max)
+    if abs(rho_used - 1.0) <= tol:
+        info["reason"] = (beyond + "the stated polariser constants are used" if above else
+                          f"alpha's amplitude agrees with the stated polariser constants ({rho:.4f} +- {se:.2g} of "
+                          f"it, within {tol:.2g}: twice its error or the fit's model error; the error includes the "
+                          f"calibration pass's own gauge, +- {info['se'].get('amplitude_gauge', 0.0):.2g}): they are "
+                          "used")
+        if above:
+            info["warning"] = info["reason"]
+        return model, info
+    info.update(applied=True, amplitude_used=rho_used, reason=beyond + (
+        f"alpha's amplitude is {rho_used:.4f} of the stated constants' ({rho:.4f} +- {se:.2g} fitted): the "
+        "recording's polariser leaks more (extinction) or its bolometer is slower (tau) than stated; the calibrated "
+        "amplitude is used"))
+    info["warning"] = info["reason"]
+    return replace(model, amplitude_scale=rho_used), info
 
 
 def _polarizer_model(m: Measurement, method: str, alpha: np.ndarray | None, spec: PolarizerSpec,

@@ -11,20 +11,29 @@ bolometer, than the file says):
     x1 = m + u d_0 / 2,   x2 = m - u d_0 / 2,   u = 1 / rho,                                          (1)
 
 ``m`` the mean image (exact: the frames' average over the rotation) and ``d_0`` the difference image in the stated
-gauge. The foveal constraint ties the two: the foveal image, scaled down by ``scale`` about its optical centre
-(``t``, in foveal pixels from the sensor's centre) and turned by ``rotation``, is the centre of the perifoveal one
-up to the channels' gain ratio ``g`` and an offset ``o``:
+gauge. The foveal constraint ties the two: the foveal image, scaled down by ``scale``, turned back by ``rotation``
+and centred on the foveal centre ``c``, is the centre of the perifoveal one up to the channels' gain ratio ``g`` and
+an offset ``o``:
 
-    G_1 x1(c + t + scale R(phi) (p - c)) = g G_2 x2(p) + o                                             (2)
+    G_1 x1(c_s + scale R(-phi) (p - c_s - c)) = g G_2 x2(p) + o                                        (2)
 
-for the perifoveal pixels ``p`` of the fovea (``c`` the sensor's centre), the gain ``g + h r^2`` varying with the
+for the perifoveal pixels ``p`` of the fovea (``(row, column)`` vectors, ``c_s`` the sensor's centre,
+``R(phi) = [[cos, -sin], [sin, cos]]``), in the geometry convention of docs/measurement_format.md ("The foveal
+geometry"): ``c`` in perifoveal pixels from the sensor's centre (the point of the perifoveal image that the foveal
+image's centre shows), ``phi = rotation_deg`` positive from ``+x`` (columns) towards ``+y`` (rows); the
+reconstruction's :class:`~metafovea.reconstruct.operators.FovealOperator` takes the same ``(scale, c, phi)`` as its
+``(scale, offset, rotation_deg)``. The gain ``g + h r^2`` varies with the
 foveal sample's radius on the sensor (vignetting: the foveal image samples the whole sensor, the perifoveal one only
 its centre).
 Both sides are low-passed by a common Gaussian (``G_2``: ``blur_px`` perifoveal pixels; ``G_1``: the same in foveal
 pixels, with the pixel box of the down-scaling), so that the channels' different PSFs matter little; with the
-channels' PSFs each side is also blurred by the other's. (2) is solved for the eight parameters
-``(scale, t_y, t_x, phi, u, g, o, h)`` by non-linear least squares (:func:`fit_foveal`), started from the stated
-constraint, where it is linear in ``(g, o, h)`` at each ``u`` (a 1-D search gives the start).
+channels' PSFs each side is also blurred by the other's. What PSF difference is left (in perifoveal pixels the F/1
+perifoveal lens blurs several times more than the F/2 foveal lens seen 6x reduced; PSFs the file does not give, a
+defocus) still biases the fit, the amplitude most: a relative blur ``b_r`` is fitted too, a Gaussian of ``b_r``
+perifoveal pixels added to the foveal side (``b_r > 0``) or to the perifoveal side (``b_r < 0``), the one that
+explains (2) best at the fitted geometry, and the relation is fitted again with it. (2) is solved for the eight
+parameters ``(scale, c_y, c_x, phi, u, g, o, h)`` by non-linear least squares (:func:`fit_foveal`), started from the
+stated constraint, where it is linear in ``(g, o, h)`` at each ``u`` (a 1-D search gives the start).
 
 Uncertainty: the Gauss-Newton covariance ``s_r^2 (J^T J)^-1`` of the fit, inflated by the residual's correlation area
 (the low-pass makes neighbouring samples share their error: ``4 pi blur_px^2`` samples count as one). A parameter is
@@ -48,8 +57,8 @@ from metafovea.errors import InputError
 BLUR_PX = 1.5
 #: perifoveal pixels left out at the fovea's border (the low-pass and the geometry's search reach that far)
 MARGIN_PX = 3
-#: how far the geometry is searched from the stated one: relative scale, centre (foveal pixels), rotation (degrees)
-SEARCH = {"scale": 0.06, "centre_px": 36.0, "rotation_deg": 2.0}
+#: how far the geometry is searched from the stated one: relative scale, centre (perifoveal pixels), rotation (degrees)
+SEARCH = {"scale": 0.06, "centre_px": 6.0, "rotation_deg": 2.0}
 #: the drop of chi^2 (4 geometry parameters) above which the fitted geometry replaces the stated one (p < 1e-4)
 GEOMETRY_CHI2 = 23.5
 #: the largest relative standard error of the scale with which the fitted geometry is used
@@ -66,11 +75,15 @@ AMPLITUDE_MODEL_ERROR = 0.03
 #: seen through unstated PSFs: 0.4 % off at a misfit of 0.017, independent camera model), and an amplitude left
 #: this far off costs alpha at most 2/pi x 1/2 x 0.005 = 1.6e-3 mean absolute error
 AMPLITUDE_FLOOR = 0.005
+#: the largest relative blur of the two sides searched (perifoveal pixels): several times the F/1 lens' Airy core
+#: (0.42 lambda N = 0.25-0.35 px over 8-14 um at 17 um pixels), room for a defocus or haze
+RELATIVE_BLUR_MAX = 2.0
 #: the swapped channels are the recording's when their relation's misfit is below this share of the other's
 SWAP_RATIO = 0.8
 #: blocks per axis of the fovea for the amplitude's jackknife error
 JACKKNIFE_BLOCKS = 3
-#: the standard error under which a fitted quantity counts as identified (scale: relative)
+#: the standard error under which a fitted quantity counts as identified (scale: relative; centre: perifoveal
+#: pixels)
 TOLERANCES = {"scale": 0.005, "centre_px": 0.3, "rotation_deg": 0.1, "amplitude": 0.004, "gain": 0.01}
 
 
@@ -83,9 +96,12 @@ class FovealFit:
     scale : float
         f1 / f2 as the recording shows it.
     centre_px : tuple of 2 float
-        The foveal image's optical centre, foveal pixels from the sensor's centre ``((H - 1) / 2, (W - 1) / 2)``.
+        The foveal centre ``(dy, dx)``: the point of the perifoveal image that the foveal image's centre shows,
+        perifoveal pixels from the sensor's centre ``((H - 1) / 2, (W - 1) / 2)`` (docs/measurement_format.md, "The
+        foveal geometry"; the ``offset`` of :class:`~metafovea.reconstruct.operators.FovealOperator`).
     rotation_deg : float
-        The foveal image's rotation against the perifoveal one, degrees.
+        The foveal image's rotation against the perifoveal one, degrees, positive from ``+x`` (columns) towards
+        ``+y`` (rows): a scene point ``q`` lands in the foveal image at ``scale R(-rotation) (q - centre)``.
     amplitude : float
         ``rho``: the true amplitude of alpha over the stated one.
     gain, offset : float
@@ -107,6 +123,9 @@ class FovealFit:
     geometry_fit : dict
         The fit with the geometry free (scale, centre, rotation, amplitude, their errors, its residual and the
         stated geometry's, the chi^2 drop), whether or not it was kept.
+    relative_blur_px : float
+        The Gaussian blur (perifoveal pixels) added to the foveal side (> 0) or to the perifoveal side (< 0) that
+        explains (2) best: the channels' PSF difference the sides' common low-pass leaves.
     """
 
     scale: float
@@ -122,13 +141,15 @@ class FovealFit:
     samples: int = 0
     relative_misfit: float = math.nan
     geometry_fit: dict[str, Any] = field(default_factory=dict)
+    relative_blur_px: float = 0.0
 
     def summary(self) -> dict[str, Any]:
         """JSON-ready: every field."""
         return {"scale": self.scale, "centre_px": list(self.centre_px), "rotation_deg": self.rotation_deg,
                 "amplitude": self.amplitude, "gain": self.gain, "offset": self.offset, "vignetting": self.vignetting,
                 "se": dict(self.se), "residual_rms": self.residual_rms, "relative_misfit": self.relative_misfit,
-                "identified": dict(self.identified), "samples": self.samples, "geometry_fit": dict(self.geometry_fit)}
+                "identified": dict(self.identified), "samples": self.samples, "geometry_fit": dict(self.geometry_fit),
+                "relative_blur_px": self.relative_blur_px}
 
 
 def _rescaled_psf(psf: np.ndarray, zoom: float) -> np.ndarray:
@@ -161,21 +182,23 @@ def _cropped(psf: np.ndarray, radius: int) -> np.ndarray:
 
 
 def _sides(mean: np.ndarray, diff: np.ndarray, scale: float, blur_px: float,
-           psfs: tuple[np.ndarray, np.ndarray] | None) -> tuple[np.ndarray, ...]:
+           psfs: tuple[np.ndarray, np.ndarray] | None, relative_px: float = 0.0) -> tuple[np.ndarray, ...]:
     """The low-passed images of (2): foveal side (mean, diff) and perifoveal side (mean, diff). With the channels'
     PSFs each side is also blurred by the other channel's (the foveal side by the perifoveal PSF magnified
     ``scale`` times, the perifoveal side by the foveal PSF shrunk as much; each cut to the image's size first):
-    both sides then carry both blurs."""
+    both sides then carry both blurs. ``relative_px``: the relative blur ``b_r`` (module docstring)."""
     from scipy.ndimage import gaussian_filter
     from scipy.signal import fftconvolve
 
-    s1 = math.sqrt(scale ** 2 / 12.0 + (scale * blur_px) ** 2)  # the pixel box of the down-scaling, then G
+    # the pixel box of the down-scaling, then G (and the relative blur, on its side)
+    s1 = scale * math.sqrt(1.0 / 12.0 + blur_px ** 2 + max(relative_px, 0.0) ** 2)
+    s2 = math.hypot(blur_px, min(relative_px, 0.0))
     n = max(mean.shape)
     kernels = (None, None) if psfs is None else (
         _rescaled_psf(_cropped(psfs[1], math.ceil(n / (2 * scale))), scale),
         _rescaled_psf(_cropped(psfs[0], n), 1.0 / scale))
     out = []
-    for side, s in ((0, s1), (1, blur_px)):
+    for side, s in ((0, s1), (1, s2)):
         for v in (mean, diff):
             u = np.nan_to_num(v, nan=float(np.nanmean(v)))
             k = kernels[side]
@@ -204,14 +227,15 @@ def _grid(shape: tuple[int, int], scale: float) -> np.ndarray:
 _SPLINE_PAD = 12
 
 
-def _foveal_points(p: np.ndarray, shape: tuple[int, int], scale: float, ty: float, tx: float,
+def _foveal_points(p: np.ndarray, shape: tuple[int, int], scale: float, cy: float, cx: float,
                    phi: float) -> np.ndarray:
-    """``c + t + scale R(phi) (p - c)``: where each perifoveal pixel ``p`` falls in the foveal image."""
+    """``c_s + scale R(-phi) (p - c_s - c)``: where each perifoveal pixel ``p`` falls in the foveal image (``c_s``
+    the sensor's centre, ``c = (cy, cx)`` the foveal centre)."""
     H, W = shape
-    c = np.array([(H - 1) / 2.0, (W - 1) / 2.0])[:, None]
+    cs = np.array([(H - 1) / 2.0, (W - 1) / 2.0])[:, None]
     co, si = math.cos(phi), math.sin(phi)
-    R = np.array([[co, -si], [si, co]])
-    return c + np.array([ty, tx])[:, None] + scale * (R @ (p - c))
+    R = np.array([[co, si], [-si, co]])
+    return cs + scale * (R @ (p - cs - np.array([cy, cx])[:, None]))
 
 
 def _linear_part(u: float, a_m: np.ndarray, a_d: np.ndarray, b_m: np.ndarray, b_d: np.ndarray,
@@ -263,9 +287,9 @@ def _errors(J: np.ndarray, r: np.ndarray, inflate: float) -> tuple[np.ndarray, f
 
 
 def _coarse_centre(p: np.ndarray, f2m: np.ndarray, f2d: np.ndarray, a_m: np.ndarray, a_d: np.ndarray,
-                   r2: np.ndarray, u: float, scale: float) -> tuple[float, float] | None:
-    """The foveal centre ``-scale delta`` (foveal pixels) of the whole-pixel shift ``delta`` of the perifoveal
-    samples, within :data:`COARSE_SHIFT_PX`, that fits (2) best at the stated scale; None if no shift fits."""
+                   r2: np.ndarray, u: float) -> tuple[float, float] | None:
+    """The foveal centre (perifoveal pixels): the whole-pixel shift ``delta`` of the perifoveal samples, within
+    :data:`COARSE_SHIFT_PX`, that fits (2) best at the stated scale; None if no shift fits."""
     H, W = f2m.shape
     iy, ix = p.astype(int)
     best, arg = math.inf, None
@@ -277,7 +301,7 @@ def _coarse_centre(p: np.ndarray, f2m: np.ndarray, f2d: np.ndarray, a_m: np.ndar
             rss = _linear_part(u, a_m, a_d, f2m[jy, jx], f2d[jy, jx], r2)[3]
             if rss < best:
                 best, arg = rss, (dy, dx)
-    return None if arg is None else (-scale * arg[0], -scale * arg[1])
+    return None if arg is None else (float(arg[0]), float(arg[1]))
 
 
 def _coarse_start(foveal: Any, p: np.ndarray, f2m: np.ndarray, f2d: np.ndarray, b_m: np.ndarray, b_d: np.ndarray,
@@ -286,7 +310,7 @@ def _coarse_start(foveal: Any, p: np.ndarray, f2m: np.ndarray, f2d: np.ndarray, 
     a mounted camera's axis can sit far from the stated one, if it fits (2) better than the stated geometry."""
     scale = float(theta0[0])
     a_m, a_d, r2 = foveal(theta0)
-    t = _coarse_centre(p, f2m, f2d, a_m, a_d, r2, float(theta0[4]), scale)
+    t = _coarse_centre(p, f2m, f2d, a_m, a_d, r2, float(theta0[4]))
     if t is None:
         return theta0
     a_m1, a_d1, r21 = foveal(np.array([scale, t[0], t[1], 0.0]))
@@ -297,13 +321,42 @@ def _coarse_start(foveal: Any, p: np.ndarray, f2m: np.ndarray, f2d: np.ndarray, 
     return theta0
 
 
+def _relative_blur(m: np.ndarray, d: np.ndarray, fit: FovealFit, *, scale: float, blur_px: float,
+                   psfs: tuple[np.ndarray, np.ndarray] | None, fit_amplitude: bool) -> float:
+    """The relative blur ``b_r`` (module docstring) that explains (2) best at ``fit``'s geometry, within
+    :data:`RELATIVE_BLUR_MAX`: the relative misfit (:attr:`FovealFit.relative_misfit`: the residual over the
+    perifoveal side's contrast times the gain), with ``u`` (a 1-D search) and ``(g, o, h)`` (linear) fitted at each
+    trial, minimised by a bounded 1-D search. (Not the residual itself: blurring the foveal side lowers it with the
+    side's contrast, and the gain follows it down.)"""
+    from scipy.ndimage import map_coordinates
+    from scipy.optimize import minimize_scalar
+
+    H, W = m.shape
+    p = _grid(m.shape, scale)
+    iy, ix = p.astype(int)
+    q = _foveal_points(p, m.shape, fit.scale, fit.centre_px[0], fit.centre_px[1], math.radians(fit.rotation_deg))
+    r2 = ((q[0] - (H - 1) / 2.0) ** 2 + (q[1] - (W - 1) / 2.0) ** 2) / (((H - 1) / 2.0) ** 2 + ((W - 1) / 2.0) ** 2)
+
+    def misfit(b: float) -> float:  # FovealFit.relative_misfit at this blur
+        f1m, f1d, f2m, f2d = _sides(m, d, scale, blur_px, psfs, b)
+        a_m, a_d = (map_coordinates(v, q, order=3, mode="nearest") for v in (f1m, f1d))
+        b_m, b_d = f2m[iy, ix], f2d[iy, ix]
+        u = _amplitude_u(a_m, a_d, b_m, b_d, r2) if fit_amplitude else 1.0
+        g, _, _, rss = _linear_part(u, a_m, a_d, b_m, b_d, r2)
+        return math.sqrt(rss / b_m.size) / max(abs(g) * float(np.std(b_m - 0.5 * u * b_d)), 1e-300)
+
+    return float(minimize_scalar(misfit, bounds=(-RELATIVE_BLUR_MAX, RELATIVE_BLUR_MAX), method="bounded",
+                                 options={"xatol": 0.01}).x)
+
+
 def fit_foveal(mean: ArrayLike, diff: ArrayLike, *, scale: float = 6.0, gain: float = 1.0, offset: float = 0.0,
                blur_px: float = BLUR_PX, fit_amplitude: bool = True, psfs: tuple[ArrayLike, ArrayLike] | None = None,
                both_assignments: bool = False) -> FovealFit:
     """Fit the foveal relation (2) and the amplitude ratio (1) to a recording's separated images, with and without
     the radial gain (vignetting): the fit with it, its amplitude's error widened by the two fits' difference
     (``se['amplitude_model']``: how much the amplitude rests on how the relation is modelled; haze from outside the
-    fovea or an uncorrected fixed pattern move it, a clean relation does not).
+    fovea or an uncorrected fixed pattern move it, a clean relation does not). Both are fitted with the relative
+    blur that explains the first fit best (:func:`_relative_blur`).
 
     ``both_assignments``: also fit the channels swapped (``-diff``); the assignment the relation explains better
     is returned (``identified['swapped']`` True when it is the swapped one). Other parameters and the result: as
@@ -313,8 +366,8 @@ def fit_foveal(mean: ArrayLike, diff: ArrayLike, *, scale: float = 6.0, gain: fl
     d = np.asarray(diff, dtype=np.float64)
     if m.ndim != 2 or d.shape != m.shape:
         raise InputError("diff", f"array of shape {d.shape}", f"the mean image's (H, W) = {m.shape}")
-    sides = _sides(m, d, scale, blur_px, None if psfs is None else
-                   (np.asarray(psfs[0], np.float64), np.asarray(psfs[1], np.float64)))
+    pair = None if psfs is None else (np.asarray(psfs[0], np.float64), np.asarray(psfs[1], np.float64))
+    sides = _sides(m, d, scale, blur_px, pair)
     kw = dict(scale=scale, gain=gain, offset=offset, blur_px=blur_px, fit_amplitude=fit_amplitude)
     fit = _fit_once(m.shape, sides, vignetting=True, **kw)
     swapped = False
@@ -325,6 +378,11 @@ def fit_foveal(mean: ArrayLike, diff: ArrayLike, *, scale: float = 6.0, gain: fl
         # contrast): else the solver's choice stands
         if other.gain > 0 and other.residual_rms < SWAP_RATIO * fit.residual_rms and other.relative_misfit < 1.0:
             fit, sides, swapped = other, neg, True
+    if swapped:
+        d = -d
+    b_r = _relative_blur(m, d, fit, scale=scale, blur_px=blur_px, psfs=pair, fit_amplitude=fit_amplitude)
+    sides = _sides(m, d, scale, blur_px, pair, b_r)
+    fit = replace(_fit_once(m.shape, sides, vignetting=True, **kw), relative_blur_px=b_r)
     without = _fit_once(m.shape, sides, vignetting=False, **kw)
     delta = abs(fit.amplitude - without.amplitude)
     se = {**fit.se, "amplitude_model": delta, "amplitude": max(fit.se["amplitude"], 2.0 * delta)}
@@ -392,7 +450,7 @@ def _fit_once(shape: tuple[int, int], sides: tuple[np.ndarray, ...], *, scale: f
     theta_s = _coarse_start(foveal, p, f2m, f2d, b_m, b_d, theta0, fit_amplitude)
     # stage 2, the geometry too, within the bounds a mounted camera stays in (SEARCH)
     spread = float(np.std(b_m)) or 1.0
-    x_scale = np.array([0.01 * scale, 0.3, 0.3, 0.1, 0.01, 0.01 * max(abs(g0), 1e-3), 0.01 * spread,
+    x_scale = np.array([0.01 * scale, 0.3 / scale, 0.3 / scale, 0.1, 0.01, 0.01 * max(abs(g0), 1e-3), 0.01 * spread,
                         0.01 * max(abs(g0), 1e-3)])
     lo = np.array([scale * (1 - SEARCH["scale"]), -SEARCH["centre_px"], -SEARCH["centre_px"],
                    -SEARCH["rotation_deg"], 0.5, 1e-6, -np.inf, -np.inf])
@@ -452,5 +510,5 @@ def _fit_once(shape: tuple[int, int], sides: tuple[np.ndarray, ...], *, scale: f
                      geometry_fit=stage2)
 
 
-__all__ = ["AMPLITUDE_FLOOR", "AMPLITUDE_MODEL_ERROR", "BLUR_PX", "MARGIN_PX", "SEARCH", "TOLERANCES", "FovealFit",
-           "fit_foveal"]
+__all__ = ["AMPLITUDE_FLOOR", "AMPLITUDE_MODEL_ERROR", "BLUR_PX", "MARGIN_PX", "RELATIVE_BLUR_MAX", "SEARCH",
+           "TOLERANCES", "FovealFit", "fit_foveal"]

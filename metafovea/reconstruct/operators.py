@@ -19,10 +19,20 @@ difference on real data: :func:`lowpass` compares both sides at a common, coarse
   pixel that straddles two boxes is split by area.
 * ``C`` (crop): the centred ``(h, w)`` window of ``x2``, optionally displaced by a (sub-pixel)
   ``offset`` in ``x2`` pixels (registration); a fractional offset interpolates linearly (box
-  overlap weights).
+  overlap weights). With a ``rotation_deg``, the window turns with the foveal image: constraint pixel ``k``,
+  the box of ``D`` centred ``F_k`` from the sensor's centre, reads ``x2`` at ``offset + R(rotation) F_k / scale``
+  (``(row, column)`` vectors, ``R(phi) = [[cos, -sin], [sin, cos]]``) by bilinear interpolation, which is the
+  box-overlap weighting above when the rotation is 0.
 
-Both operators are separable, ``D x = Dy @ x @ Dx.T``, so their adjoints are exact and cheap. They act
-on any leading batch axes ``(..., H, W)``. The TV helpers at the end (:func:`grad2d`, :func:`tv_charbonnier`) are
+The geometry ``(scale, offset, rotation_deg)`` is the foveal relation's, in the convention of
+docs/measurement_format.md ("The foveal geometry"): ``offset`` is the foveal centre, the point of the perifoveal
+image (``x2`` pixels from the sensor's centre) that the foveal image's centre shows, and a scene point ``q`` lands in
+the foveal image at ``scale R(-rotation) (q - offset)``: a positive rotation turns the foveal image's scene from
+``+x`` (columns) towards ``+y`` (rows, down).
+
+Both operators are separable without rotation, ``D x = Dy @ x @ Dx.T``, so their adjoints are exact and cheap; the
+rotated crop is a sparse matrix of four weights per constraint pixel. They act on any leading batch axes
+``(..., H, W)``. The TV helpers at the end (:func:`grad2d`, :func:`tv_charbonnier`) are
 shared by the solvers that regularise with total variation.
 """
 
@@ -45,6 +55,43 @@ def _box_weights(n_out: int, n_in: int, starts: np.ndarray, width: float) -> np.
     return np.clip(hi - lo, 0.0, None) / width
 
 
+def _rotated_crop(shape: tuple[int, int], low: tuple[int, int], scale: float, offset: tuple[float, float],
+                  phi: float) -> object:
+    """The rotated crop as a sparse ``(h w, H W)`` matrix: constraint pixel ``k`` reads ``x2`` by bilinear
+    interpolation at ``offset + R(phi) F_k / scale`` from the sensor's centre, ``F_k`` the centre of its box of
+    ``D`` (module docstring); every read point must lie inside the frame's pixel centres."""
+    from scipy.sparse import csr_matrix
+
+    (H, W), (h, w) = shape, low
+    fy = ((np.arange(h) - h / 2.0 + 0.5) * scale)[:, None] * np.ones((1, w))
+    fx = np.ones((h, 1)) * ((np.arange(w) - w / 2.0 + 0.5) * scale)[None, :]
+    co, si = math.cos(phi), math.sin(phi)
+    # pixel-index coordinates of the read points (pixel j's centre is j + 1/2 from the frame's edge)
+    ry = (H / 2.0 - 0.5 + offset[0] + (co * fy - si * fx) / scale).ravel()
+    rx = (W / 2.0 - 0.5 + offset[1] + (si * fy + co * fx) / scale).ravel()
+    if ry.min() < -1e-9 or rx.min() < -1e-9 or ry.max() > H - 1 + 1e-9 or rx.max() > W - 1 + 1e-9:
+        raise InputError("offset", offset, f"a foveal centre and rotation that keep the {h} x {w} rotated crop inside "
+                         f"the {H} x {W} frame")
+    y0 = np.clip(np.floor(ry).astype(int), 0, H - 2)
+    x0 = np.clip(np.floor(rx).astype(int), 0, W - 2)
+    ty, tx = ry - y0, rx - x0
+    rows = np.repeat(np.arange(h * w), 4)
+    cols = np.stack([y0 * W + x0, y0 * W + x0 + 1, (y0 + 1) * W + x0, (y0 + 1) * W + x0 + 1], axis=1).ravel()
+    vals = np.stack([(1 - ty) * (1 - tx), (1 - ty) * tx, ty * (1 - tx), ty * tx], axis=1).ravel()
+    return csr_matrix((vals, (rows, cols)), shape=(h * w, H * W))
+
+
+def _sparse_apply(A: object, x: np.ndarray, out_shape: tuple[int, int]) -> np.ndarray:
+    """``A`` (sparse, ``(n_out, n_in)``) applied to the last two axes of ``x``, flattened, with its leading axes and
+    float32 kept."""
+    x = np.asarray(x)
+    lead = x.shape[:-2]
+    flat = x.reshape(-1, x.shape[-2] * x.shape[-1])
+    out = (A @ flat.T).T  # type: ignore[operator]
+    dt = np.float32 if x.dtype == np.float32 else np.float64
+    return np.asarray(out, dtype=dt).reshape(*lead, *out_shape)
+
+
 def _check_scale(scale: float) -> float:
     s = as_float("scale", scale)
     if not (1.0 <= s <= 1000.0):
@@ -54,7 +101,7 @@ def _check_scale(scale: float) -> float:
 
 @dataclass(frozen=True)
 class FovealOperator:
-    """``D`` (downsample x1) and ``C`` (centred crop of x2) of eq. (1) for one sensor shape, scale and offset.
+    """``D`` (downsample x1) and ``C`` (centred crop of x2) of eq. (1) for one sensor shape and foveal geometry.
 
     Attributes
     ----------
@@ -63,13 +110,17 @@ class FovealOperator:
     scale : float
         f1 / f2, in [1, 1000].
     offset : tuple of 2 float
-        The crop's registration offset in x2 pixels.
+        The crop's registration offset in x2 pixels: the foveal centre (module docstring).
     low : tuple of 2 int, optional
         Fix the constraint's size ``(h, w)`` (registration refines the scale at fixed size).
     gain, bias : float
         The constraint's radiometric gain and offset.
+    rotation_deg : float
+        The foveal image's rotation against the perifoveal one, degrees (module docstring); at most 45.
     Dy, Dx, Cy, Cx : ndarray
-        The separable factors, ``(h, H)``, ``(w, W)``.
+        The separable factors, ``(h, H)``, ``(w, W)`` (``Cy``, ``Cx``: the crop without rotation).
+    Cs : scipy.sparse matrix or None
+        The rotated crop, ``(h w, H W)``; None without rotation.
     """
 
     shape: tuple[int, int]
@@ -78,10 +129,12 @@ class FovealOperator:
     low: tuple[int, int] | None = None
     gain: float = 1.0
     bias: float = 0.0
+    rotation_deg: float = 0.0
     Dy: np.ndarray = field(init=False, repr=False, compare=False)
     Dx: np.ndarray = field(init=False, repr=False, compare=False)
     Cy: np.ndarray = field(init=False, repr=False, compare=False)
     Cx: np.ndarray = field(init=False, repr=False, compare=False)
+    Cs: object = field(init=False, repr=False, compare=False, default=None)
 
     def __post_init__(self) -> None:
         H, W = (int(v) for v in self.shape)
@@ -91,6 +144,10 @@ class FovealOperator:
         if not 0.0 < g < 1e6:
             raise InputError("foveal_gain", self.gain, "a positive radiometric gain (NA1^2/NA2^2; 1 for equal units)")
         b = as_float("foveal_offset", self.bias)
+        rot = as_float("rotation_deg", self.rotation_deg)
+        if not abs(rot) <= 45.0:
+            raise InputError("rotation_deg", self.rotation_deg, "-45 <= rotation_deg <= 45 (the foveal image's "
+                             "rotation against the perifoveal one, degrees)")
         h, w = int(math.floor(H / s + 1e-9)), int(math.floor(W / s + 1e-9))
         if self.low is not None:  # fixed constraint size (registration refines scale at fixed size)
             h, w = min(h, int(self.low[0])), min(w, int(self.low[1]))
@@ -112,8 +169,11 @@ class FovealOperator:
         object.__setattr__(self, "offset", (oy, ox))
         object.__setattr__(self, "gain", g)
         object.__setattr__(self, "bias", b)
+        object.__setattr__(self, "rotation_deg", rot)
         for k2, v in mats.items():
             object.__setattr__(self, k2, v)
+        if rot:
+            object.__setattr__(self, "Cs", _rotated_crop((H, W), (h, w), s, (oy, ox), math.radians(rot)))
 
     @property
     def low_shape(self) -> tuple[int, int]:
@@ -135,12 +195,16 @@ class FovealOperator:
         return my.T @ u @ mx
 
     def C(self, x2: np.ndarray) -> np.ndarray:
-        """Centred (offset) crop of ``x2 (..., H, W) -> (..., h, w)``."""
+        """Centred (offset, rotated) crop of ``x2 (..., H, W) -> (..., h, w)``."""
+        if self.Cs is not None:
+            return _sparse_apply(self.Cs, x2, self.low_shape)
         my, mx = self._mats(x2, self.Cy, self.Cx)
         return my @ x2 @ mx.T
 
     def CT(self, u: np.ndarray) -> np.ndarray:
         """Adjoint of :meth:`C`: zero-padded embedding ``(..., h, w) -> (..., H, W)``."""
+        if self.Cs is not None:
+            return _sparse_apply(self.Cs.T.tocsr(), u, self.shape)
         my, mx = self._mats(u, self.Cy, self.Cx)
         return my.T @ u @ mx
 

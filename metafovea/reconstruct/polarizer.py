@@ -144,7 +144,8 @@ def _free_omega(t: np.ndarray, y: np.ndarray, model: PolarizerModel) -> tuple[fl
 def polarizer_gauge(alpha_hat: np.ndarray, model: PolarizerModel, *,
                     alpha_noise: float | None = None) -> dict[str, Any]:
     """Fit the model to the data-term ``alpha_hat`` (any affine gauge): returns ``a``, ``b`` (``alpha_hat = a alpha
-    + b``; free mode: the ``a > 0`` candidate, ``swap_ambiguous`` True), their covariance, the residual rms, the
+    + b``; free mode: the ``a > 0`` candidate, ``swap_ambiguous`` True), their covariance (and standard errors
+    ``a_se``, ``b_se``), the residual rms, the
     fitted frequency and phase, ``status`` ('ok', 'stopped', 'too few frames') and, with ``alpha_noise`` (the
     data-term noise std of ``alpha_hat`` in its gauge), the rotation's irregularity (``jitter_rms``, in the
     absolute gauge) and ``irregular`` when the residual exceeds :data:`JITTER_FACTOR` times that noise."""
@@ -211,7 +212,9 @@ def polarizer_gauge(alpha_hat: np.ndarray, model: PolarizerModel, *,
     for k in ("var_phase_centre", "var_omega"):
         out[k] = out[k] * infl
     out["t_inflation"] = infl
-    out.update(a=a, b=b, cov=cov.tolist(), residual_rms=rms, residual_rms_absolute=rms / abs(a) if a else math.inf)
+    out.update(a=a, b=b, cov=cov.tolist(), a_se=math.sqrt(max(float(cov[0][0]), 0.0)),
+               b_se=math.sqrt(max(float(cov[1][1]), 0.0)), residual_rms=rms,
+               residual_rms_absolute=rms / abs(a) if a else math.inf)
     sa = math.sqrt(max(cov[0][0], 0.0))
     if not abs(a) > 0 or sa > 0.2 * abs(a):
         out.update(status="stopped", reason=f"alpha's variation at the noise level (amplitude {a * s:.3g} of the "

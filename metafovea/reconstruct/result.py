@@ -270,6 +270,8 @@ class PipelineResult:
                                 "warning": pg.get("warning"), "alpha_from": pg.get("alpha_from")}
         if rec.info.get("polarizer_spec") is not None:  # the model used: each value with its source
             out.setdefault("polarizer", {})["model"] = rec.info["polarizer_spec"]
+        if rec.info.get("gauge_pooled"):  # windows whose gauges were chained into one polariser fit
+            out["gauge_pooled"] = rec.info["gauge_pooled"]
         cal = rec.info.get("calibration")
         if cal:  # what the recording showed of its camera (geometry, gain, amplitude), with standard errors
             out["calibration"] = dict(cal)

@@ -6,6 +6,15 @@ contiguous ``x1`` and ``x2`` stacks (the per-window weights ``N^-1 A^T`` are com
 scalars), which is the throughput path. For a live camera use :class:`~metafovea.reconstruct.lsq.SlidingLSQ`, which
 updates running sums frame by frame.
 
+Unknown alpha with a polariser model (``method='alternating'``): each window fixes alpha's gauge (the affine map
+from its data-term alpha to the absolute one) by fitting the polariser model to its own frames. Where the rotation
+is irregular (a jittering polariser: each window follows its frames' own alpha), a short window's fit rests on a few
+frames whose jitter it cannot average out (an 8-frame window at 12 frames/s and 2 Hz samples alpha at three phases
+only). The gauge belongs to the recording, not to the window: windows that share frames must give those frames the
+same alpha, so their gauges are chained through the shared frames (an affine map fitted on them, at least
+:data:`POOL_MIN_SHARED`) into one common gauge, the polariser model is fitted once to every frame of the chain, and
+each window's alpha and images are mapped to that fit (:func:`_pooled_gauge`; ``info['gauge_pooled']``).
+
 Measured figures: BENCHMARKS.md, sections "Reconstruction" and "`metafovea reconstruct` file to file".
 """
 
@@ -27,6 +36,10 @@ from metafovea.reconstruct.lsq import MAX_CONDITION, lsq_known_alpha, residual_s
 from metafovea.reconstruct.result import Reconstruction
 
 log = logging.getLogger(__name__)
+
+#: the frames two windows must share for their gauges to be chained: two fix the affine map between them, one more
+#: checks it
+POOL_MIN_SHARED = 3
 
 
 def window_starts(n_frames: int, window: int, stride: int, starts: Sequence[int] | None = None) -> np.ndarray:
@@ -111,6 +124,109 @@ def _dip_window(dip: Callable[..., Reconstruction], Y: np.ndarray, alpha: ArrayL
     return dip(Y[s:s + window], alpha=None if alpha is None else np.asarray(alpha)[s:s + window], **wkw)
 
 
+def _chain(aw: list, starts: np.ndarray) -> list[tuple[list[int], np.ndarray, list[tuple[float, float]]]]:
+    """The windows' alphas in one gauge per chain of windows that share at least :data:`POOL_MIN_SHARED` frames:
+    ``(windows, z, maps)`` per chain, ``z`` each frame's alpha in the chain's gauge (its first window's; NaN outside
+    the chain), ``maps[i] = (A, B)`` with ``alpha_window = A z + B`` on the window's frames."""
+    T = max(int(s) + len(a) for s, a in zip(starts, aw))
+    order = np.argsort(starts, kind="stable")
+    chains: list[tuple[list[int], np.ndarray, list[tuple[float, float]]]] = []
+    acc = cnt = None
+    for k in order:
+        a = np.asarray(aw[k], dtype=np.float64)
+        idx = np.arange(int(starts[k]), int(starts[k]) + a.size)
+        shared = np.zeros(a.size, bool) if cnt is None else cnt[idx] > 0
+        if shared.sum() >= POOL_MIN_SHARED:
+            z = acc[idx][shared] / cnt[idx][shared]
+            (A, B), *_ = np.linalg.lstsq(np.stack([z, np.ones_like(z)], axis=1), a[shared], rcond=None)
+        else:  # a new chain, in this window's gauge
+            acc, cnt = np.zeros(T), np.zeros(T)
+            chains.append(([], acc, []))
+            A, B = 1.0, 0.0
+        if not abs(A) > 1e-6:
+            return []
+        chains[-1][0].append(int(k))
+        chains[-1][2].append((float(A), float(B)))
+        acc[idx] += (a - B) / A
+        cnt[idx] += 1
+    out = []
+    for ks, acc_c, maps in chains:
+        c = np.zeros(T)
+        for k in ks:
+            c[int(starts[k]):int(starts[k]) + len(aw[k])] += 1
+        out.append((ks, np.where(c > 0, acc_c / np.maximum(c, 1), np.nan), maps))
+    return out
+
+
+def _pooled_gauge(aw: list, reports: list, starts: np.ndarray,
+                  model: Any) -> tuple[list[tuple[float | None, float]], list[float | None], dict[str, Any]] | None:
+    """One alpha gauge for the windows of a jittering rotation (module docstring): None unless every window's gauge
+    was fixed by the polariser model following its frames' own alpha (an irregular rotation) and some windows
+    share frames. Returns per window the map ``(P, Q)`` of its alpha to the pooled gauge's (``alpha' = P alpha +
+    Q``; ``(None, 0)``: left as it is), its largest standard error there, and the report."""
+    from metafovea.reconstruct.polarizer import gauged_alpha, polarizer_gauge
+
+    if len(aw) < 2 or not all(isinstance(r, dict) and r.get("applied") and r.get("alpha_from") == "frames"
+                              for r in reports):
+        return None
+    noise = float(np.median([r["fit"].get("alpha_noise_absolute", 0.0) for r in reports]))
+    maps: list[tuple[float | None, float]] = [(None, 0.0)] * len(aw)
+    se_w: list[float | None] = [None] * len(aw)
+    rep: dict[str, Any] = {"chains": [], "why": "an irregular rotation: the windows' gauges chained through their "
+                           "shared frames and fixed by one polariser fit to all their frames"}
+    for ks, z, chain_maps in _chain(aw, starts):
+        if len(ks) < 2:
+            continue
+        span = np.flatnonzero(np.isfinite(z))
+        lo, hi = int(span[0]), int(span[-1]) + 1
+        if span.size != hi - lo:  # a chain's frames are contiguous (windows are); guard anyway
+            continue
+        fit = polarizer_gauge(z[lo:hi], model.window(lo, hi - lo), alpha_noise=noise)
+        if fit.get("status") != "ok" or not fit["a"] > 0:  # the windows' channel assignment stands: a > 0
+            rep["chains"].append({"windows": len(ks), "frames": [lo, hi], "applied": False,
+                                  "reason": fit.get("reason", "the pooled fit swaps the channels")})
+            continue
+        al, se = gauged_alpha(z[lo:hi], fit, 1.0, frame_noise=noise)
+        a, b = fit["a"], fit["b"]
+        for k, (A, B) in zip(ks, chain_maps):  # alpha_k = A z + B, z = a alpha' + b
+            maps[k] = (1.0 / (A * a), -(B + A * b) / (A * a))
+            s0 = int(starts[k]) - lo
+            se_w[k] = float(np.max(se[s0:s0 + len(aw[k])]))
+        rep["chains"].append({"windows": len(ks), "frames": [lo, hi], "applied": True, "a": a, "b": b,
+                              "jitter_rms": fit.get("jitter_rms"), "alpha_se_max": float(se.max())})
+        if fit.get("irregular"):
+            rep["warning"] = (f"alpha deviates from a constant-rate rotation by {fit['jitter_rms']:.2g} rms beyond the "
+                              f"noise over frames {lo}..{hi - 1}: an irregular polariser (or scene motion); each "
+                              f"frame's own alpha is followed, its gauge uncertain by up to {float(se.max()):.2g}")
+    if not any(P is not None for P, _ in maps):
+        return None
+    return maps, se_w, rep
+
+
+def _apply_pooled_gauge(x1: np.ndarray, x2: np.ndarray, aw: list, se_w: list, identified: list, infos: list,
+                        starts: np.ndarray, model: Any, info: dict[str, Any]) -> None:
+    """The windows' alphas, images, standard errors and identification mapped, in place, to the gauge that
+    :func:`_pooled_gauge` finds (when it finds one: ``model``, the polariser, given; ``infos``, the windows'
+    solver reports); its report in ``info['gauge_pooled']``."""
+    from metafovea.reconstruct.polarizer import ALPHA_SE_MAX
+
+    pooled = None if model is None else _pooled_gauge(aw, [i.get("polarizer_gauge") for i in infos], starts, model)
+    if pooled is None:
+        return
+    maps, se_p, info["gauge_pooled"] = pooled
+    if "warning" in info["gauge_pooled"]:
+        info["warnings"] = [info["gauge_pooled"]["warning"]]
+    for k, (P, Q) in enumerate(maps):
+        if P is None:
+            continue
+        d = (x1[k].astype(np.float64) - x2[k]) / P  # y = x2 + alpha d = x2' + (P alpha + Q) d'
+        n2 = x2[k] - Q * d
+        x1[k], x2[k] = (n2 + d).astype(x1.dtype), n2.astype(x2.dtype)
+        aw[k] = (P * np.asarray(aw[k]) + Q).tolist()
+        se_w[k] = se_p[k]
+        identified[k] = bool(se_p[k] <= ALPHA_SE_MAX)
+
+
 def video(frames: ArrayLike, alpha: ArrayLike | None = None, *, window: int = 8, stride: int = 1,
           starts: Sequence[int] | None = None, method: str = "lsq", denoise: str | None = None,
           max_condition: float = MAX_CONDITION, regularize: str | float | None = None, saturation: float | None = None,
@@ -177,7 +293,7 @@ def video(frames: ArrayLike, alpha: ArrayLike | None = None, *, window: int = 8,
 
         x1 = np.empty((K, H, W), dtype=dt)
         x2 = np.empty((K, H, W), dtype=dt)
-        aw, identified, se_w, gauges, runs = [], [], [], [], []
+        aw, runs, infos = [], [], []
         kw = dict(kw)
         budget = kw.pop("max_seconds", None) if method == "dip" else None  # the whole sequence's
         t_run = time.perf_counter()
@@ -191,9 +307,7 @@ def video(frames: ArrayLike, alpha: ArrayLike | None = None, *, window: int = 8,
                         r = alternating(Y[s:s + window], saturation=saturation, **wkw)
                     except InputError as e:  # the same error, placed in its window (one message, not nested)
                         raise _in_window(e, k, s, window) from None
-                    identified.append(bool(r.info["alpha_identified"]))
-                    se_w.append(r.info.get("alpha_se_max"))
-                    gauges.append(r.info.get("alpha_gauge"))
+                    infos.append(r.info)
                 else:
                     left = None if budget is None else budget - (time.perf_counter() - t_run)
                     if k and left is not None and left <= 0:  # the time cap: stop, keep the windows done
@@ -203,12 +317,14 @@ def video(frames: ArrayLike, alpha: ArrayLike | None = None, *, window: int = 8,
                                                                 "max_seconds")})
                 x1[k], x2[k] = r.x1, r.x2
                 aw.append(np.asarray(r.alpha).tolist())
-        info["alpha_windows"] = aw
+        info["alpha_windows"] = aw  # (the pooled gauge maps its entries in place)
         if method == "alternating":
-            info["window_alpha_identified"] = identified
+            identified, se_w = ([i.get(n) for i in infos] for n in ("alpha_identified", "alpha_se_max"))
+            _apply_pooled_gauge(x1, x2, aw, se_w, identified, infos, starts, kw.get("polarizer"), info)
+            info["window_alpha_identified"] = [bool(v) for v in identified]
             info["window_alpha_se_max"] = se_w
             info["alpha_identified"] = bool(all(identified))
-            info["alpha_gauge"] = sorted({str(g) for g in gauges})
+            info["alpha_gauge"] = sorted({str(i.get("alpha_gauge")) for i in infos})
             if all(v is not None for v in se_w):
                 info["alpha_se_max"] = float(max(se_w))
         else:

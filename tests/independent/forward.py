@@ -18,9 +18,10 @@ order the light meets it:
 4. **Geometry**: the perifoveal image sees the scene at one sensor pixel per scene unit, centred; the foveal image
    sees it magnified ``s`` times about the centre ``c`` and rotated by ``rho``: the scene point ``q`` lands on the
    sensor at ``p = s R(rho) (q - c)`` (``(x, y)`` vectors, ``R`` the rotation matrix, ``p`` from the sensor
-   centre). Each pixel value is the scene's radiance convolved with the pixel-integrated PSF, computed on a
-   supersampled grid (``Camera.supersample_x*`` samples per pixel) and read at the pixel centres
-   (:func:`render_channels`).
+   centre; the convention of docs/measurement_format.md, "The foveal geometry", which the reconstruction's
+   calibration and foveal operator share). Each pixel value is the scene's radiance convolved with the
+   pixel-integrated PSF, computed on a supersampled grid (``Camera.supersample_x*`` samples per pixel) and read at
+   the pixel centres (:func:`render_channels`).
 5. **Sensor signal** of channel i: ``X_i = dark + (1 + e) k g_i V (L_i / L'(300 K))``: ``k`` DN per kelvin at 300 K
    (perifoveal), ``g_1 = (NA1/NA2)^2 (1 + gain_ratio_error)``, ``g_2 = 1``, ``V`` the vignetting
    (``(1 + (r/r0)^2)^-2``, a cos^4 law, ``1 - vignetting`` at the corner), ``1 + e`` the polariser's leak gain.
@@ -1055,7 +1056,8 @@ def _meta(cam: Camera, dev: Deviations, pol: dict, geo: Geometry, g1: float, dld
         "polarizer": pol,
         "foveal": {"scale": geo.scale, "centre_px": list(geo.centre_px), "rotation_deg": geo.rotation_deg,
                    "convention": "scene point q lands on the sensor at p = scale R(rotation) (q - centre); (x, y), "
-                                 "y down, perifoveal px from the optical axis; centre is (dy, dx)",
+                                 "y down, perifoveal px from the optical axis; centre is (dy, dx) "
+                                 "(docs/measurement_format.md, 'The foveal geometry')",
                    "gain": g1, "gain_nominal": g, "offset_dn": (1 - g1) * cam.dark_dn},
         "vignetting_corner": dev.vignetting, "defocus_waves": dev.defocus_waves,
         "bad_pixels": {"dead": [[int(i) // W, int(i) % W] for i in dead],

@@ -10,6 +10,7 @@ import pytest
 from scipy import ndimage, special
 
 from metafovea.measurement import Measurement
+from metafovea.reconstruct import FovealOperator
 from tests.independent.forward import (
     RANGE_ENDS,
     SCENES,
@@ -224,6 +225,30 @@ def test_the_nominal_camera_satisfies_the_foveal_constraint_and_a_gain_error_bre
     assert residual(Deviations()) < 0.003
     assert residual(Deviations(), "truth") < 0.06
     assert residual(Deviations(gain_ratio_error=0.1)) > 0.05
+
+
+def test_the_solvers_foveal_operator_reads_the_models_geometry_as_it_is():
+    """One geometry convention (docs/measurement_format.md, "The foveal geometry") for the model and the
+    reconstruction: the classical solver's foveal operator, given the model's true scale, centre (perifoveal px) and
+    rotation as they are, explains the model's perfect-lens images (``D x1 = g C x2 + (1 - g) dark``); the opposite
+    rotation, no rotation, and the centre's opposite sign (planted cases) explain them worse (a rotation beyond the
+    issue's range, so that it shows on this small sensor)."""
+    dev = Deviations(scale_error=0.02, centre_px=(1.5, -2.0), rotation_deg=3.0)
+    r = record("mixed", dev, QUIET, frames=2, scene_truth=True)
+    x1, x2 = r.arrays["scene_x1"].astype(float), r.arrays["scene_x2"].astype(float)
+    g = r.meta["foveal_constraint"]["gain"]
+    geo = r.meta["truth"]["foveal"]
+
+    def misfit(centre, rotation_deg):
+        op = FovealOperator(x1.shape, geo["scale"], tuple(centre), gain=g, bias=(1 - g) * 1000.0,
+                            rotation_deg=rotation_deg)
+        res = ndimage.gaussian_filter(op.residual(x1, x2), 1.0)[3:-3, 3:-3]
+        return np.sqrt(np.mean(res ** 2)) / np.std(g * op.C(x2))
+
+    right = misfit(geo["centre_px"], geo["rotation_deg"])
+    assert right < 0.06
+    assert misfit(geo["centre_px"], 0.0) > 1.5 * right and misfit(geo["centre_px"], -geo["rotation_deg"]) > 3 * right
+    assert misfit([-v for v in geo["centre_px"]], geo["rotation_deg"]) > 10 * right
 
 
 def test_vignetting_bad_pixels_and_gain():

@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 
 from metafovea.measurement import Measurement
-from metafovea.reconstruct import reconstruct_measurement
+from metafovea.reconstruct import FovealOperator, reconstruct_measurement
+from metafovea.reconstruct.operators import lowpass
 from tests.independent.forward import RANGE_ENDS, Camera, Deviations, record
 
 FRAMES = 24
@@ -41,14 +42,15 @@ def test_the_oracle_reaches_the_noise_floor(tmp_path):
 
 
 #: deviations at their range's end where both targets hold: alpha MAE <= 2e-3 and both images within 1 dB of the
-#: oracle (the foveal geometry, the channels' gain ratio, the sensor's vignetting and bad pixels are calibrated or
-#: left out, and the polariser model fixes alpha whatever they are)
+#: oracle (the foveal geometry, the channels' gain ratio and PSF difference, the sensor's vignetting and bad pixels
+#: are calibrated or left out; a leaky polariser's or a slow bolometer's amplitude is calibrated from the foveal
+#: relation; an uncorrected fixed pattern that biases that relation beyond an ideal polariser's amplitude is not
+#: taken for one; and the polariser model fixes alpha whatever they are)
 FULL = ("nominal", "vignetting 20 %", "bad pixels 0.1 %", "scale -3 %", "centre (3, -3) px", "rotation 0.5 deg",
-        "gain ratio +10 %", "defocus 1/4 wave")
-#: deviations of the polariser and the bolometer: alpha MAE <= 2e-3 (its amplitude calibrated from the foveal
-#: relation, a jittering rotation followed frame by frame), the images within LOOSE_DB: at this camera's noise
-#: (the oracle's PSNR ~57 dB over 24 frames) the amplitude's 0.1 % calibration error alone costs ~1.7 dB
-ALPHA = ("extinction 5 %", "tau 12 ms", "jitter 2 deg")
+        "gain ratio +10 %", "defocus 1/4 wave", "extinction 5 %", "tau 12 ms", "fpn 8 DN + drift 4 DN")
+#: a jittering polariser: alpha MAE <= 2e-3 on this draw of the jitter (followed frame by frame), the images within
+#: LOOSE_DB: at this camera's noise (the oracle's PSNR ~57 dB over 24 frames) the gauge's 5e-4 error costs ~8 dB
+ALPHA = ("jitter 2 deg",)
 LOOSE_DB = 8.0
 
 
@@ -67,21 +69,77 @@ def test_unknown_alpha_meets_the_issue_targets(tmp_path, name):
     assert rec.info["alpha_gauge"] == "absolute (polariser model)"
     if name in FULL:  # (a jittering rotation leaves the gauge's standard error above 0.005: flagged, conservatively)
         assert rec.info["alpha_identified"]
+    cal = rec.info["calibration"]
+    if name.startswith(("extinction", "tau")):  # the amplitude the stated (ideal) polariser misses is calibrated
+        assert cal["applied"] and cal["amplitude_used"] < 1.0
+    if name.startswith("fpn"):  # the pattern biases the relation to an amplitude above an ideal polariser's: not used
+        assert not cal["applied"] and cal["amplitude"] > cal["amplitude_max"] and "warning" in cal
 
 
 def test_the_calibrated_geometry_is_the_recordings(tmp_path):
     """Scale, centre and rotation of the foveal image, estimated from a recording whose camera is off in all three
-    (the combined geometry case), within the issue's 0.5 %, 0.3 px and 0.1 deg; the stated geometry is kept where
+    (the combined geometry case), within the issue's 0.5 %, 0.3 px and 0.1 deg, in the model's own convention
+    (docs/measurement_format.md, "The foveal geometry": the centre in perifoveal pixels, the rotation's sign as the
+    model turns the scene), and given to the solver's foveal operator as they are; the stated geometry is kept where
     the recording is nominal."""
     dev = Deviations(scale_error=0.02, centre_px=(1.5, 2.0), rotation_deg=0.3)
-    cal = reconstruct_measurement(recording(tmp_path, dev), "alternating", window=FRAMES).reconstruction.info
-    cal = cal["calibration"]
+    info = reconstruct_measurement(recording(tmp_path, dev), "alternating", window=FRAMES).reconstruction.info
+    cal = info["calibration"]
     s = 6.0 * (1 + dev.scale_error)
     assert abs(cal["scale"] / s - 1) < 0.005
-    # the model's centre is the perifoveal pixel the fovea's centre falls on; the fit's, the foveal image's shift
-    # (foveal pixels): -scale times it; the model turns the scene, the fit the foveal image back
-    want = [-s * v for v in dev.centre_px]
-    assert max(abs(c - w) for c, w in zip(cal["centre_px"], want)) < 0.3 * s
-    assert abs(cal["rotation_deg"] + dev.rotation_deg) < 0.1
+    assert max(abs(c - w) for c, w in zip(cal["centre_px"], dev.centre_px)) < 0.3
+    assert abs(cal["rotation_deg"] - dev.rotation_deg) < 0.1
+    assert info["scale"] == cal["scale"] and info["offset"] == cal["centre_px"]
+    assert info["rotation_deg"] == cal["rotation_deg"]
     nominal = reconstruct_measurement(recording(tmp_path, Deviations()), "alternating", window=FRAMES)
     assert nominal.reconstruction.info["calibration"]["scale"] == 6.0
+    assert nominal.reconstruction.info["rotation_deg"] == 0.0
+
+
+def test_a_rotated_fovea_is_calibrated_and_solved_with_its_rotation(tmp_path):
+    """The range's end of the rotation, 0.5 deg: found within 0.1 deg, used by the solver's foveal operator (whose
+    relation it then explains better than the unrotated one), and alpha within 2e-3 (whole recording and 8-frame
+    windows)."""
+    m = recording(tmp_path, RANGE_ENDS["rotation 0.5 deg"])
+    res = reconstruct_measurement(m, "alternating", window=FRAMES)
+    info = res.reconstruction.info
+    assert abs(info["calibration"]["rotation_deg"] - 0.5) < 0.1
+    assert abs(info["rotation_deg"] - 0.5) < 0.1 and info["calibration"]["constraint_used"]["rotation_deg"] == \
+        info["rotation_deg"]
+    assert res.alpha_mae <= MAE_MAX
+    used = info["calibration"]["constraint_used"]
+    geo = dict(scale=used["scale"], offset=used["offset"], gain=used["foveal_gain"], bias=used["foveal_offset"])
+    x1, x2 = (np.asarray(v, np.float64) for v in (m.truth_x1, m.truth_x2))
+
+    def misfit(rotation_deg: float) -> float:  # of the noise-free images, low-passed below the channels' PSFs
+        r = lowpass(FovealOperator(x1.shape, rotation_deg=rotation_deg, **geo).residual(x1, x2), 2.0)[4:-4, 4:-4]
+        return float(np.std(r))
+
+    assert misfit(used["rotation_deg"]) < misfit(0.0) < misfit(-used["rotation_deg"])
+    windows = reconstruct_measurement(m, "alternating", window=8, stride=8)
+    assert windows.alpha_mae <= MAE_MAX
+
+
+def test_a_jittering_polariser_gives_8_frame_windows_the_whole_recordings_gauge(tmp_path):
+    """A 2 deg rms jitter: 8-frame windows (stride 1) chain their gauges through their shared frames into one
+    polariser fit over the recording, so their alpha is the whole recording's (within 5 % of its error, here
+    within 2e-3), flagged as not identified to ALPHA_SE_MAX with a standard error that covers the error made, and
+    the summary says why."""
+    m = recording(tmp_path, RANGE_ENDS["jitter 2 deg"])
+    whole = reconstruct_measurement(m, "alternating", window=FRAMES)
+    win = reconstruct_measurement(m, "alternating", window=8)
+    info = win.reconstruction.info
+    assert abs(win.alpha_mae - whole.alpha_mae) <= 0.05 * whole.alpha_mae and win.alpha_mae <= MAE_MAX
+    assert info["gauge_pooled"]["chains"][0]["windows"] == FRAMES - 8 + 1
+    assert not info["alpha_identified"] and info["alpha_se_max"] >= win.alpha_mae
+    assert any("irregular" in w for w in win.summary()["warnings"])
+
+
+def test_a_jittering_polariser_is_not_taken_for_a_leaky_one(tmp_path):
+    """The calibration measures alpha's amplitude against its first pass, whose gauge a 2 deg jitter leaves uncertain
+    by ~1.5 % of the amplitude (this draw of the jitter: 2.4 % off): that uncertainty is the amplitude's too, so an
+    ideal polariser is not calibrated as a leaky one (the foveal fit's own error, 0.0016, would take the 2.4 % for a
+    leak), and the reason says so."""
+    m = Measurement.load(record("mixed", RANGE_ENDS["jitter 2 deg"], frames=FRAMES, seed=1).write(tmp_path / "j.npz"))
+    cal = reconstruct_measurement(m, "alternating", window=FRAMES).reconstruction.info["calibration"]
+    assert not cal["applied"] and cal["se"]["amplitude_gauge"] > 0.004 and "pass's own gauge" in cal["reason"]

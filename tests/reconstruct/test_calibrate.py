@@ -28,7 +28,26 @@ def test_the_amplitude_and_the_stated_geometry_from_exact_images(rho):
     f = fit_foveal((x1 + x2) / 2, (x1 - x2) * rho, scale=6.0, gain=0.3, offset=700.0)
     assert f.amplitude == pytest.approx(rho, abs=3 * f.se["amplitude"] + 1e-3)
     assert f.gain == pytest.approx(0.3, rel=0.01) and abs(f.scale - 6.0) < 0.005 * 6
-    assert f.identified["amplitude"] and max(abs(c) for c in f.centre_px) < 0.3
+    # the centre in perifoveal pixels (docs/measurement_format.md, "The foveal geometry"): 0.05 is 0.3 foveal px
+    assert f.identified["amplitude"] and max(abs(c) for c in f.centre_px) < 0.05 and abs(f.rotation_deg) < 0.1
+
+
+@pytest.mark.parametrize("side", ["x2", "x1"])
+def test_the_channels_psf_difference_is_fitted_as_a_relative_blur(side):
+    """The exact images with one channel blurred by a Gaussian of 0.6 perifoveal pixels (the perifoveal image, as
+    its F/1 lens does; or the foveal one by as much, 3.6 foveal pixels): the fit finds the relative blur on the
+    other side (+0.6: the foveal side blurred to match; -0.6: the perifoveal side) within 0.1 px, and alpha's
+    amplitude within 1e-3."""
+    from scipy.ndimage import gaussian_filter
+
+    x1, x2 = scene(288, lo=1700.0, hi=1760.0, foveal_gain=0.3, foveal_offset=700.0)
+    if side == "x2":
+        x2 = gaussian_filter(x2, 0.6)
+    else:
+        x1 = gaussian_filter(x1, 6 * 0.6)
+    f = fit_foveal((x1 + x2) / 2, (x1 - x2) * 0.9, scale=6.0, gain=0.3, offset=700.0)
+    assert f.relative_blur_px == pytest.approx(0.6 if side == "x2" else -0.6, abs=0.1)
+    assert f.amplitude == pytest.approx(0.9, abs=1e-3)
 
 
 def test_bad_shapes_are_named():

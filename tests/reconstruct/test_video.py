@@ -93,3 +93,45 @@ def test_float32_fast_path_equals_the_float64_per_window_solve_incl_masked_pixel
                 assert np.array_equal(np.isnan(got), np.isnan(want))
                 ok = ~np.isnan(want)
                 assert np.max(np.abs(got[ok] - want[ok])) <= 1e-5 * np.ptp(Y64), (masked, k)
+
+
+def test_a_jittering_rotation_gives_every_window_the_sequences_gauge(truth):
+    """A polariser whose angle jitters 2 deg rms from frame to frame: each 8-frame window alone fixes alpha's gauge
+    from three phases of alpha only; windows that share frames are chained into one gauge, which the polariser fit
+    over all 24 frames fixes: every window's alpha is then the whole sequence's (one-window solve) to the data-term
+    noise (1e-5), its images still explain its frames, and over eight jitter draws the windows' alpha error is half
+    what the windows alone make (stride = window: no shared frames, a planted case). A regular rotation is left to
+    each window's own fit."""
+    from metafovea.reconstruct.polarizer import PolarizerModel
+
+    x1, x2 = truth
+    T = 24
+    t = np.arange(T) / 12.0
+    kw = dict(window=8, method="alternating", polarizer=PolarizerModel(t, rate_hz=2.0), scale=6.0)
+
+    def mae(v, a):
+        return np.mean([np.mean(np.abs(np.asarray(w) - a[s:s + 8]))
+                        for w, s in zip(v.info["alpha_windows"], v.info["window_starts"])])
+
+    errors = []
+    for seed in range(8):
+        rng = np.random.default_rng(seed)
+        a = np.cos(2 * np.pi * 2.0 * t + 0.3 + np.radians(2.0) * rng.standard_normal(T)) ** 2
+        Y = measure(x1, x2, a, sigma=0.002, rng=seed)
+        pooled, alone = video(Y, stride=1, **kw), video(Y, stride=8, **kw)
+        assert pooled.info["gauge_pooled"]["chains"][0]["windows"] == 17 and "gauge_pooled" not in alone.info
+        errors.append((mae(pooled, a), mae(alone, a)))
+        if seed:
+            continue
+        whole = alternating(Y, polarizer=PolarizerModel(t, rate_hz=2.0), scale=6.0)
+        assert whole.info["polarizer_gauge"]["alpha_from"] == "frames" and "irregular" in pooled.info["warnings"][0]
+        for w, s in zip(pooled.info["alpha_windows"], pooled.info["window_starts"]):
+            np.testing.assert_allclose(w, whole.alpha[s:s + 8], atol=1e-5)
+        k = 8  # the window at frame 8: its images solve its frames with its alpha
+        w8 = np.asarray(pooled.info["alpha_windows"][k])
+        model = w8[:, None, None] * pooled.x1[k][None] + (1 - w8)[:, None, None] * pooled.x2[k][None]
+        assert np.sqrt(np.mean((model - Y[k:k + 8]) ** 2)) < 0.0021  # the noise, 0.002 (an alpha 5e-3 off: 0.0026)
+    e = np.mean(errors, axis=0)
+    assert e[1] > 1.5 * e[0], errors
+    steady = measure(x1, x2, polariser_alpha(T), sigma=0.002, rng=1)
+    assert "gauge_pooled" not in video(steady, stride=1, **kw).info
