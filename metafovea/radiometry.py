@@ -76,9 +76,12 @@ def planck_radiance(wavelength_um: ArrayLike, temperature_k: ArrayLike) -> np.nd
     if lam_b.size and (not np.all(np.isfinite(lam_b)) or np.any(lam_b <= 0)):
         raise InputError("wavelength_um", float(np.nanmin(lam_b)), "finite wavelengths > 0 um")
     # colour's planck_law returns the outer product (wavelengths x temperatures): evaluate it on the unique
-    # values and pick the broadcast pairs
-    ul, il = np.unique(lam_b, return_inverse=True)
-    ut, it = np.unique(t_b, return_inverse=True)
+    # values and pick the broadcast pairs (the unique values of the arrays as given: sorting the broadcast grid of an
+    # outer product, 241 x 3001 for a radiance table, took most of the table's time)
+    ul, il = np.unique(lam, return_inverse=True)
+    ut, it = np.unique(t, return_inverse=True)
+    il = np.broadcast_to(np.reshape(il, lam.shape), lam_b.shape)
+    it = np.broadcast_to(np.reshape(it, t.shape), t_b.shape)
     table = np.zeros((ul.size, ut.size))
     pos = ut > 0
     if np.any(pos) and ul.size:
