@@ -193,6 +193,22 @@ class Plan:
     seconds: float
     scene_temperature_k: float
     notes: tuple[str, ...] = ()
+    #: per channel, the pilot's parts a reduced model at its sampling reuses (a static scene): ``fine`` the kernel
+    #: image at 1 sample per pixel, ``samples`` its fine samples, ``haze`` the far haze at 1 sample per coarse sample
+    pilot: tuple[dict[str, Any], ...] | None = field(default=None, compare=False, repr=False)
+
+    def reusable(self, i: int) -> dict[str, Any]:
+        """Keywords of :meth:`~metafovea.imaging.render.ChannelRenderer.render_static` for channel ``i`` of the model
+        this plan chose: the pilot's fine image where the model samples 1 per pixel with the pilot's kernels, its far
+        haze where the model samples the far components as the pilot and spreads the glare as a uniform level."""
+        if self.pilot is None:
+            return {}
+        p, out = self.pilot[i], {}
+        if "supersample" in self.reduce and "field_patches" not in self.reduce:
+            out.update(fine=p["fine"], samples=p["samples"])
+        if "far_sampling" in self.reduce and "glare" in self.reduce:
+            out["far"] = [p["haze"]] if p["haze"] is not None else []
+        return out
 
     def row(self, effect: str) -> PlanRow:
         return next(r for r in self.rows if r.effect == effect)
@@ -280,18 +296,20 @@ def _pilot(scene: Scene, optics: ChannelOptics, radiance: Any, ri_on: bool, fiel
     p = ch.focal_pitch_um
     n_haze = 1 if optics.far_kernel is not None and optics.far_weight > 0 else 0
     glare = list(o1.extra_far)
-    rd = ChannelRenderer(scene, replace(o1, extra_far=()), radiance, ri_on, field_factor, sub=1)
     bounded = 0.0
     if glare:
+        f = ch.focal_length_um
         grids = ([(o1.far_kernel.shape[0] // 2, o1.far_coarse)] if n_haze else []) + \
             [max(((k.shape[0] // 2, q) for _, k, q in glare), key=lambda g: g[0] * g[1])]
-        samples = [rd.radiance_at(ch.positions_um(H, 1, km, coarse=q), ch.positions_um(W, 1, km, coarse=q), t)
-                   for km, q in grids]
-        r = max(float(x.max()) for x in samples) - min(float(x.min()) for x in samples)
-        kept = [g for g in glare if 2 * g[0] * r > small]
-        bounded = sum(2 * g[0] * r for g in glare if 2 * g[0] * r <= small)
-        if kept:
-            rd = ChannelRenderer(scene, replace(o1, extra_far=tuple(kept)), radiance, ri_on, field_factor, sub=1)
+        r_lo, r_hi = math.inf, -math.inf
+        for km, q in grids:
+            x = _scene_radiance(scene, radiance, ch.positions_um(H, 1, km, coarse=q) / f,
+                                ch.positions_um(W, 1, km, coarse=q) / f, t)
+            r_lo, r_hi = min(r_lo, float(x.min())), max(r_hi, float(x.max()))
+        kept = tuple(g for g in glare if 2 * g[0] * (r_hi - r_lo) > small)
+        bounded = sum(2 * g[0] * (r_hi - r_lo) for g in glare if 2 * g[0] * (r_hi - r_lo) <= small)
+        o1 = replace(o1, extra_far=kept)
+    rd = ChannelRenderer(scene, o1, radiance, ri_on, field_factor, sub=1)
     comps = rd.components(t)
     ri = rd.ri if rd.ri is not None else np.ones((H, W))
     cos4 = relative_illumination_map(ch) if ri_on else np.ones((H, W))
@@ -314,6 +332,13 @@ def _pilot(scene: Scene, optics: ChannelOptics, radiance: Any, ri_on: bool, fiel
             acc += float(np.mean(np.square(_conv(e, part["kernel"])))) / len(OFFSETS)
         pilot.far_err.append(part["weight"] * math.sqrt(acc))
     return pilot
+
+
+def _scene_radiance(scene: Scene, radiance: Any, tan_y: np.ndarray, tan_x: np.ndarray, t: float) -> np.ndarray:
+    """The scene's in-band radiance on the grid ``tan_y`` x ``tan_x`` (tangents of the field angles) at ``t``."""
+    ay, ax = np.meshgrid(np.arctan(tan_y), np.arctan(tan_x), indexing="ij")
+    temp, eps = scene.sample(ax, ay, t)
+    return radiance.apparent(temp, eps, scene.reflected_k)
 
 
 def _envelope(kernels: Sequence[np.ndarray]) -> np.ndarray:
@@ -456,7 +481,7 @@ def _spectral_far(optics: ChannelOptics, p: _Pilot, scene: Scene, radiance: Any,
                                                                                    optics.far_kernel)
             return _rms(d)
     o1 = resample_optics(optics, 1) if optics.ss > 1 else optics
-    far = ChannelRenderer(scene, o1, radiance, False, sub=1).components(t)["far"]
+    far = ChannelRenderer(scene, replace(o1, extra_far=()), radiance, False, sub=1).far_images(t)
     return _rms((far[0] if n_h else 0.0) - (p.comps["far"][0] if p.n_haze else 0.0))
 
 
@@ -620,6 +645,7 @@ def plan_model(inp: PlanInputs, tolerance_k: float, ss_full: int) -> Plan:
     ff = [None if cam.trains is None else tr.field_factor for tr in (cam.trains or (None, None))]
     per_channel: list[dict[str, list[float]]] = [{}, {}]
     pilots: list[_Pilot] = []
+    reuse: list[dict[str, Any]] = []
     dn, fid_dn = [], []
     for t in ts:
         for i in range(2):
@@ -629,6 +655,8 @@ def plan_model(inp: PlanInputs, tolerance_k: float, ss_full: int) -> Plan:
                 per_channel[i].setdefault(e, []).append(v)
             if t == ts[0]:
                 pilots.append(p)
+                reuse.append({"fine": p.comps["fine"], "samples": p.comps["L"],
+                              "haze": p.comps["far"][0] if p.n_haze else None})
                 scale = sensor.counts_per_k * cam.gains[i] / dldt300
                 dn.append(sensor.to_dn(p.image, cam.gains[i], dldt300))
                 fid_dn.append(_fidelity(p) * scale)
@@ -657,4 +685,4 @@ def plan_model(inp: PlanInputs, tolerance_k: float, ss_full: int) -> Plan:
              "a replaced effect's estimate is a bound for scenes without structure smaller than one sample of the "
              "reduced model")
     return Plan(tol, tuple(rows), chosen, budget, spent, works[chosen] / full_work, time.perf_counter() - t_start,
-                float(inp.scene_temperature_k), notes)
+                float(inp.scene_temperature_k), notes, tuple(reuse) if scene.static else None)

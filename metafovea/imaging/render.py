@@ -151,13 +151,38 @@ class ChannelRenderer:
         ch, ss = self.optics.channel, self.optics.ss
         H, W = ch.shape
         img = fine.reshape(H, ss, W, ss).mean(axis=(1, 3)) if ss > 1 else fine.copy()
+        return self._assemble(img, [part["weight"] * self.to_pixels(part, h) for part, h in zip(self.parts, hz)],
+                              pedestal)
+
+    def _assemble(self, img: np.ndarray, far: list[np.ndarray], pedestal: float) -> np.ndarray:
+        """``(img + pedestal_weight * pedestal + sum(far)) * ri``, in place on ``img``."""
         if self.optics.pedestal_weight:
             img += self.optics.pedestal_weight * pedestal
-        for part, h in zip(self.parts, hz):
-            img += part["weight"] * self.to_pixels(part, h)
+        for f in far:
+            img += f
         if self.ri is not None:
             img *= self.ri
         return img
+
+    def render_static(self, t: float = 0.0, *, fine: np.ndarray | None = None, samples: np.ndarray | None = None,
+                      far: list[np.ndarray] | None = None) -> np.ndarray:
+        """:meth:`render`'s image at ``t`` from parts already computed with this renderer's optics and sampling (a
+        plan's pilot): ``fine`` the kernel image on the pixels with ``samples`` the fine grid's samples it came from,
+        ``far`` the far components' weighted images; the missing ones are computed."""
+        if fine is None or samples is None:
+            samples = self._radiance(self.ya, self.xa, t)
+            fine = self.kernel_image(samples)
+        far = self.far_images(t) if far is None else far
+        return self._assemble(fine.copy(), far, self._crop_mean(samples) if self.optics.pedestal_weight else 0.0)
+
+    def far_images(self, t: float = 0.0) -> list[np.ndarray]:
+        """Each far component's weighted image on the pixels at time ``t`` (its coarse grid alone is sampled)."""
+        S = self.SUB
+        out = []
+        for part in self.parts:
+            Lc = self._coarse_radiance(part, 0, part["yc"].size // S, 0, part["xc"].size // S, t)
+            out.append(part["weight"] * self.to_pixels(part, _conv_valid(Lc, part["kernel"])))
+        return out
 
     def components(self, t: float = 0.0) -> dict[str, object]:
         """The image at time ``t`` in its parts (a static evaluation, never incremental): ``fine`` the kernel's

@@ -294,8 +294,9 @@ def _scene_for(scene: str | Path | Scene, system: SystemDesign, camera: Camera, 
 
 
 def _truth_images(renderers: list[ChannelRenderer], camera: Camera, times: np.ndarray, *, static: bool,
-                  progress: bool, name: str) -> tuple[np.ndarray, np.ndarray]:
-    """Noise-free DN images ``(x1, x2)`` float32: ``(H, W)`` each for a static scene, ``(T, H, W)`` for a video."""
+                  progress: bool, name: str, plan: Plan | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Noise-free DN images ``(x1, x2)`` float32: ``(H, W)`` each for a static scene, ``(T, H, W)`` for a video (a
+    static scene's parts that ``plan``'s pilot computed at the model's sampling are reused)."""
     sensor = camera.sensor
     dl_dt = camera.radiance.derivative(300.0)
     gains = camera.gains
@@ -304,6 +305,11 @@ def _truth_images(renderers: list[ChannelRenderer], camera: Camera, times: np.nd
         out = [sensor.to_dn(rd.render(t), gi, dl_dt).astype(np.float32) for rd, gi in zip(renderers, gains)]
         return out[0], out[1]
 
+    if static and plan is not None:
+        t0 = float(times[0])
+        out = [sensor.to_dn(rd.render_static(t0, **plan.reusable(i)), gi, dl_dt).astype(np.float32)
+               for i, (rd, gi) in enumerate(zip(renderers, gains))]
+        return out[0], out[1]
     if static:
         return truth_at(float(times[0]))
     n_frames = times.size
@@ -578,7 +584,8 @@ def _simulate_with(system: SystemDesign, camera: Camera, scene: str | Path | Sce
     renderers = [ChannelRenderer(sc, o, camera.radiance, opt.relative_illumination,
                                  None if tr is None or "train_field" in reduce else tr.field_factor,
                                  sub=1 if "far_sampling" in reduce else None) for o, tr in zip(optics, trains)]
-    x1, x2 = _truth_images(renderers, camera, times, static=sc.static, progress=opt.progress, name=sc.name)
+    x1, x2 = _truth_images(renderers, camera, times, static=sc.static, progress=opt.progress, name=sc.name,
+                           plan=plan)
     t_render = time.perf_counter() - t_render
 
     theta, pol_info = pol.angles(times, r_pol)
@@ -633,7 +640,17 @@ class SimulationRun:
                 "haze_fraction": {c: psf[c]["haze"].get("fraction", 0.0) for c in ("foveal", "perifoveal")},
                 "foveal_constraint": m.meta["foveal_constraint"], "saturated_fraction": m.meta["saturated_fraction"],
                 "seconds": {k: round(v, 3) for k, v in self.seconds.items()},
-                "files": {k: str(v) for k, v in self.files.items()}}
+                "files": {k: str(v) for k, v in self.files.items()}, **_model_summary(m.meta.get("model"))}
+
+
+def _model_summary(model: dict[str, Any] | None) -> dict[str, Any]:
+    """The run summary's ``model`` (full or REDUCED, what was replaced) and ``plan`` (when a tolerance was given)."""
+    if not model:
+        return {}
+    out: dict[str, Any] = {"model": {"reduced": model["reduced"], "reduce": model["reduce"], "note": model["note"]}}
+    if "plan" in model:
+        out["plan"] = model["plan"]
+    return out
 
 
 def output_paths(out: str | Path, *, tiff: bool = True, preview: bool = True) -> dict[str, Path]:
@@ -771,6 +788,26 @@ def write_preview(m: Measurement, path: str | Path, force: bool = False, dpi: in
     a.set_xlabel("t (s)")
     a.set_ylabel("mean " + m.meta.get("units", "DN"))
     a.set_title("frame mean", fontsize=9)
+    model = m.meta.get("model") or {}
     fig.suptitle(f"metafovea simulate: scene '{m.meta.get('scene', '?')}', {T} frames "
-                 f"{m.frames.shape[1]}x{m.frames.shape[2]}, seed {m.meta.get('seed')}", fontsize=11)
+                 f"{m.frames.shape[1]}x{m.frames.shape[2]}, seed {m.meta.get('seed')}"
+                 + ("   [REDUCED MODEL: " + ", ".join(model["reduce"]) + " replaced]" if model.get("reduced") else ""),
+                 fontsize=11, color="darkred" if model.get("reduced") else "black")
+    if "plan" in model:
+        _plan_panel(fig, model["plan"])
     return atomic_write_bytes(p, fig_to_png(fig, dpi=dpi))
+
+
+def _plan_panel(fig: Any, plan: dict[str, Any]) -> None:
+    """The plan table as a text panel under the preview's images (the figure grows to hold it)."""
+    from metafovea.imaging.plan import plan_lines
+
+    lines = plan_lines(plan)
+    w, h = fig.get_size_inches()
+    extra = 0.17 * (len(lines) + 1)
+    fig.set_size_inches(w, h + extra)
+    for ax in fig.axes:  # keep the image panels where they were, in the upper part
+        x0, y0, bw, bh = ax.get_position().bounds
+        ax.set_position([x0, (y0 * h + extra) / (h + extra), bw, bh * h / (h + extra)])
+    fig.text(0.01, (extra - 0.1) / (h + extra), "\n".join(lines), family="monospace", fontsize=6.5, va="top",
+             color="darkred" if plan["reduce"] else "black")
