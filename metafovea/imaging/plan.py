@@ -260,8 +260,13 @@ def _conv(img: np.ndarray, k: np.ndarray, mode: str = "valid") -> np.ndarray:
     return img * k[0, 0] if k.shape == (1, 1) else fftconvolve(img, k, mode=mode)
 
 
-#: the two shifted samplings of the sampling estimates, as (row, column) signs of the offset
-OFFSETS = ((1, -1), (-1, 1))
+#: the symmetric pairs of shifted samplings of the sampling estimates, as (row, column) signs of the offset: the fine
+#: grid's pair along one diagonal, the coarse grids' pairs along both
+FINE_PAIRS = (((1, -1), (-1, 1)),)
+COARSE_PAIRS = (((1, -1), (-1, 1)), ((1, 1), (-1, -1)))
+#: the factor on the sampling estimates (a symmetric pair's second difference against the full model's 3 x 3 mean:
+#: 1.3x on white texture, more on smooth scenes and edges; the factor covers the kernel's shape within a pixel)
+SAMPLING_SAFETY = 1.5
 
 
 @dataclass
@@ -286,10 +291,13 @@ class _Pilot:
 
 def _pilot(scene: Scene, optics: ChannelOptics, radiance: Any, ri_on: bool, field_factor: Any, t: float,
            small: float) -> _Pilot:
-    """The channel at 1 sample per pixel and per coarse sample, and the changes of its image with the scene sampled
-    at :data:`OFFSETS` (``(s - 1) / s`` of a pixel, ``s`` the full model's samples per pixel; ``2/3`` of a coarse
-    sample). A glare component whose bound ``2 w R`` (``R``: the scene's radiance range over the haze's and the widest
-    glare's coarse grids) is below ``small`` (radiance) is not rendered: its bound stands for it."""
+    """The channel at 1 sample per pixel and per coarse sample, and the estimated changes of its image with the full
+    model's sampling: the mean of a symmetric pair of samplings shifted by ``(s - 1) / s`` of a pixel along a diagonal
+    (``s`` the full model's samples per pixel; :data:`FINE_PAIRS`) minus the centre sampling, through the kernel; the
+    same with ``2/3`` of a coarse sample for each far component (:data:`COARSE_PAIRS`), through its kernel, plus the
+    difference of two linear interpolations of its coarse grid. A glare component whose bound ``2 w R`` (``R``: the
+    scene's radiance range over the haze's and the widest glare's coarse grids) is below ``small`` (radiance) is not
+    rendered: its bound stands for it."""
     o1 = resample_optics(optics, 1) if optics.ss > 1 else optics
     ch = optics.channel
     H, W = ch.shape
@@ -318,20 +326,31 @@ def _pilot(scene: Scene, optics: ChannelOptics, radiance: Any, ri_on: bool, fiel
     ms = np.zeros((H, W))
     if d > 0:
         py, px = ch.positions_um(H, 1, m), ch.positions_um(W, 1, m)
-        for sy, sx in OFFSETS:
-            e = rd.radiance_at(py + sy * d * p, px + sx * d * p, t) - comps["L"]
-            ms += np.square(rd.kernel_image(e) * ri) / len(OFFSETS)
-    pilot = _Pilot(rd, comps, ri, cos4, n_haze, np.sqrt(ms), bounded=bounded)
+        for pair in FINE_PAIRS:
+            e = 0.5 * sum(rd.radiance_at(py + sy * d * p, px + sx * d * p, t) for sy, sx in pair) - comps["L"]
+            ms += np.square(rd.kernel_image(e) * ri) / len(FINE_PAIRS)
+    pilot = _Pilot(rd, comps, ri, cos4, n_haze, SAMPLING_SAFETY * np.sqrt(ms), bounded=bounded)
     dc = (ChannelRenderer.SUB - 1) / ChannelRenderer.SUB  # the full model's 3 x 3 samples per coarse sample
-    for part, Lc in zip(rd.parts, comps["Lc"]):
+    for part, Lc, hz in zip(rd.parts, comps["Lc"], comps["hz"]):
         km, q = part["kernel"].shape[0] // 2, part["q"]
         py, px = ch.positions_um(H, 1, km, coarse=q), ch.positions_um(W, 1, km, coarse=q)
         acc = 0.0
-        for sy, sx in OFFSETS:
-            e = rd.radiance_at(py + sy * dc * q * p, px + sx * dc * q * p, t) - Lc
-            acc += float(np.mean(np.square(_conv(e, part["kernel"])))) / len(OFFSETS)
-        pilot.far_err.append(part["weight"] * math.sqrt(acc))
+        for pair in COARSE_PAIRS:
+            e = 0.5 * sum(rd.radiance_at(py + sy * dc * q * p, px + sx * dc * q * p, t) for sy, sx in pair) - Lc
+            acc += float(np.mean(np.square(_conv(e, part["kernel"])))) / len(COARSE_PAIRS)
+        pilot.far_err.append(part["weight"] * (SAMPLING_SAFETY * math.sqrt(acc) + 2 * _interpolation_error(hz)))
     return pilot
+
+
+def _interpolation_error(c: np.ndarray) -> float:
+    """The rms error of a coarse grid's linear interpolation between its samples, ``(|d2/dy2| + |d2/dx2|) / 8``
+    (second differences): the reduced model's coarse grid lies elsewhere (its sample count is rounded), so the two
+    interpolations differ by at most twice this."""
+    if min(c.shape) < 3:
+        return 0.0
+    dy = np.abs(c[2:, 1:-1] - 2 * c[1:-1, 1:-1] + c[:-2, 1:-1])
+    dx = np.abs(c[1:-1, 2:] - 2 * c[1:-1, 1:-1] + c[1:-1, :-2])
+    return _rms((dy + dx) / 8.0)
 
 
 def _scene_radiance(scene: Scene, radiance: Any, tan_y: np.ndarray, tan_x: np.ndarray, t: float) -> np.ndarray:
@@ -373,8 +392,8 @@ def _estimates_optics(p: _Pilot, extra: dict[str, Any]) -> dict[str, float]:
     k = 1.0 + SAFETY
     fid = _fidelity(p)
     img = p.image
-    est: dict[str, float] = {"supersample": k * _rms(p.fine_err), "far_sampling_haze": k * _far_err(p, "haze"),
-                             "far_sampling_glare": k * _far_err(p, "glare")}
+    est: dict[str, float] = {"supersample": _rms(p.fine_err), "far_sampling_haze": _far_err(p, "haze"),
+                             "far_sampling_glare": _far_err(p, "glare")}
     glare = sum(c["far"][p.n_haze:], np.zeros_like(img))
     w_glare = float(sum(part["weight"] for part in p.rd.parts[p.n_haze:]))
     if w_glare > 0 or p.bounded:

@@ -189,14 +189,15 @@ class ChannelRenderer:
         image box-averaged to pixels ``(H, W)``; ``far`` each far component's weighted image on the pixels (the
         chromatic haze first, then the glare bands: :meth:`~metafovea.imaging.kernels.ChannelOptics.far_parts`);
         ``pedestal`` the crop's mean radiance (what a pedestal weight multiplies); ``L`` the scene's samples on the
-        fine grid (margin included); ``Lc`` each far component's coarse samples; ``ri`` the relative illumination
+        fine grid (margin included); ``Lc`` each far component's coarse samples and ``hz`` their convolution with its
+        (normalised) kernel; ``ri`` the relative illumination
         (None when off). ``(fine + sum(far) + pedestal_weight * pedestal) * ri`` is :meth:`render`'s image."""
         fine, hz, L, Lc = self._full(t)
         ch, ss = self.optics.channel, self.optics.ss
         H, W = ch.shape
         box = fine.reshape(H, ss, W, ss).mean(axis=(1, 3)) if ss > 1 else fine
         far = [part["weight"] * self.to_pixels(part, h) for part, h in zip(self.parts, hz)]
-        return {"fine": box, "far": far, "pedestal": self._crop_mean(L), "L": L, "Lc": Lc, "ri": self.ri}
+        return {"fine": box, "far": far, "pedestal": self._crop_mean(L), "L": L, "Lc": Lc, "hz": hz, "ri": self.ri}
 
     def _full(self, t: float | None) -> tuple[np.ndarray, list[np.ndarray], np.ndarray, list[np.ndarray]]:
         L = self._radiance(self.ya, self.xa, t)
