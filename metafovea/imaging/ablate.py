@@ -18,7 +18,7 @@ from typing import Any
 import numpy as np
 
 from metafovea.config import SystemDesign
-from metafovea.imaging.plan import EFFECTS, check_effects
+from metafovea.imaging.plan import EFFECTS, check_effects, check_tolerance
 from metafovea.imaging.scene import Scene
 from metafovea.imaging.simulate import SimulationOptions, _options, _simulate_with, _with_effects_replaced, camera_for
 from metafovea.measurement import Measurement
@@ -75,16 +75,31 @@ def _camera_variant(camera: Any, effect: str) -> Any:
 @dataclass(frozen=True)
 class EffectErrors:
     """:func:`effect_errors`' result: the full model's Measurement, each effect's measured contribution (K rms;
-    image or frame measure by the effect's kind) and the seconds each run took."""
+    image or frame measure by the effect's kind), the seconds each run took, and with a tolerance the plan's reduced
+    Measurement and its realised error (K rms, :func:`model_error_k`)."""
 
     full: Measurement
     errors: dict[str, float]
     seconds: dict[str, float]
+    reduced: Measurement | None = None
+
+    @property
+    def plan(self) -> dict[str, Any] | None:
+        return None if self.reduced is None else self.reduced.meta["model"]["plan"]
+
+    @property
+    def realised_error_k(self) -> float | None:
+        return None if self.reduced is None else model_error_k(self.reduced, self.full)
+
+    def estimates(self) -> dict[str, float | None]:
+        """The plan's estimate of each effect (None where the full model does not have it)."""
+        return {} if self.plan is None else {r["effect"]: r["estimate_k_rms"] for r in self.plan["rows"]}
 
 
 def effect_errors(system: SystemDesign, scene: str | Path | Scene | np.ndarray,
                   options: SimulationOptions | None = None, *, effects: tuple[str, ...] | None = None,
-                  rng: int = 0, **overrides: Any) -> EffectErrors:
+                  tolerance_k: float | None = None, camera: Any = None, rng: int = 0,
+                  **overrides: Any) -> EffectErrors:
     """Each effect's measured contribution: the full model against the full model with that effect replaced.
 
     Parameters
@@ -97,6 +112,10 @@ def effect_errors(system: SystemDesign, scene: str | Path | Scene | np.ndarray,
     effects : tuple of str, optional
         Names of :data:`~metafovea.imaging.plan.EFFECTS` (default: all); an effect the full model does not have
         measures 0.
+    tolerance_k : float, K, optional
+        Also run the plan for this tolerance (``simulate(..., tolerance_k=...)``): :attr:`EffectErrors.reduced`.
+    camera : Camera, optional
+        ``camera_for(system, options)``, when a sweep builds it once for many scenes.
     rng : int
         The seed of every run.
     **overrides
@@ -109,14 +128,20 @@ def effect_errors(system: SystemDesign, scene: str | Path | Scene | np.ndarray,
     opt = _options(options, overrides)
     names = check_effects(EFFECTS if effects is None else effects)
     t0 = time.perf_counter()
-    camera = camera_for(system, opt)
-    full = _simulate_with(system, camera, scene, opt, (), None, rng, t0)
+    camera = camera_for(system, opt) if camera is None else camera
+    cache: dict = {}  # optics and renders that several of the models share (the same numbers, computed once)
+    full = _simulate_with(system, camera, scene, opt, (), None, rng, t0, cache)
     seconds = {"full": time.perf_counter() - t0}
     errors = {}
     for e in names:
         t0 = time.perf_counter()
         m = _simulate_with(system, _camera_variant(camera, e), scene, _with_effects_replaced(opt, (e,)), (e,), None,
-                           rng, t0)
+                           rng, t0, cache)
         seconds[e] = time.perf_counter() - t0
         errors[e] = frame_error_k(m, full) if EFFECTS[e].kind != "optics" else image_error_k(m, full)
-    return EffectErrors(full, errors, seconds)
+    reduced = None
+    if tolerance_k is not None:
+        t0 = time.perf_counter()
+        reduced = _simulate_with(system, camera, scene, opt, (), check_tolerance(tolerance_k), rng, t0, cache)
+        seconds["reduced"] = time.perf_counter() - t0
+    return EffectErrors(full, errors, seconds, reduced)

@@ -281,6 +281,7 @@ class _Pilot:
     fine_err: np.ndarray  # (H, W) estimated supersampling error of the image (radiance, ri included, rms of offsets)
     far_err: list[float] = field(default_factory=list)  # per far component: the estimated rms of its sampling error
     bounded: float = 0.0  # the bound (radiance) of the glare components not rendered
+    has_glare: bool = False  # the full model's optics have far glare components
 
     @property
     def image(self) -> np.ndarray:
@@ -329,7 +330,8 @@ def _pilot(scene: Scene, optics: ChannelOptics, radiance: Any, ri_on: bool, fiel
         for pair in FINE_PAIRS:
             e = 0.5 * sum(rd.radiance_at(py + sy * d * p, px + sx * d * p, t) for sy, sx in pair) - comps["L"]
             ms += np.square(rd.kernel_image(e) * ri) / len(FINE_PAIRS)
-    pilot = _Pilot(rd, comps, ri, cos4, n_haze, SAMPLING_SAFETY * np.sqrt(ms), bounded=bounded)
+    pilot = _Pilot(rd, comps, ri, cos4, n_haze, SAMPLING_SAFETY * np.sqrt(ms), bounded=bounded,
+                   has_glare=bool(glare))
     dc = (ChannelRenderer.SUB - 1) / ChannelRenderer.SUB  # the full model's 3 x 3 samples per coarse sample
     for part, Lc, hz in zip(rd.parts, comps["Lc"], comps["hz"]):
         km, q = part["kernel"].shape[0] // 2, part["q"]
@@ -338,7 +340,9 @@ def _pilot(scene: Scene, optics: ChannelOptics, radiance: Any, ri_on: bool, fiel
         for pair in COARSE_PAIRS:
             e = 0.5 * sum(rd.radiance_at(py + sy * dc * q * p, px + sx * dc * q * p, t) for sy, sx in pair) - Lc
             acc += float(np.mean(np.square(_conv(e, part["kernel"])))) / len(COARSE_PAIRS)
-        pilot.far_err.append(part["weight"] * (SAMPLING_SAFETY * math.sqrt(acc) + 2 * _interpolation_error(hz)))
+        edge = _edge_error(comps["far"][len(pilot.far_err)], (H, W), km, q)
+        pilot.far_err.append(part["weight"] * (SAMPLING_SAFETY * math.sqrt(acc) + 2 * _interpolation_error(hz))
+                             + SAMPLING_SAFETY * edge)
     return pilot
 
 
@@ -351,6 +355,28 @@ def _interpolation_error(c: np.ndarray) -> float:
     dy = np.abs(c[2:, 1:-1] - 2 * c[1:-1, 1:-1] + c[:-2, 1:-1])
     dx = np.abs(c[1:-1, 2:] - 2 * c[1:-1, 1:-1] + c[1:-1, :-2])
     return _rms((dy + dx) / 8.0)
+
+
+def _clamped_cells(n: int, km: int, q: int, sub: int) -> np.ndarray:
+    """Per pixel along an axis of ``n`` pixels: how many coarse samples beyond the last one of its grid (``sub``
+    samples per coarse sample; the renderer's geometry) the pixel's interpolation is clamped."""
+    m = round(n * sub / q)
+    cells = (m + 2 * km * sub) // sub - 2 * km
+    r = (np.arange(n) + 0.5 - n / 2.0) / q + m / (2.0 * sub) - 0.5
+    return np.maximum(np.maximum(-r, r - (cells - 1)), 0.0)
+
+
+def _edge_error(far: np.ndarray, shape: tuple[int, int], km: int, q: int) -> float:
+    """The rms difference (radiance) between the full model's and the reduced model's clamping of a far
+    component's image ``far`` (weighted, on the pixels) at the crop's edges, where one grid ends before the crop
+    does: the clamped distance's difference (pixels) times the image's gradient."""
+    H, W = shape
+    dy = np.abs(_clamped_cells(H, km, q, ChannelRenderer.SUB) - _clamped_cells(H, km, q, 1)) * q
+    dx = np.abs(_clamped_cells(W, km, q, ChannelRenderer.SUB) - _clamped_cells(W, km, q, 1)) * q
+    if not (dy.any() or dx.any()):
+        return 0.0
+    gy, gx = np.gradient(far)
+    return _rms(np.abs(gy) * dy[:, None] + np.abs(gx) * dx[None, :])
 
 
 def _scene_radiance(scene: Scene, radiance: Any, tan_y: np.ndarray, tan_x: np.ndarray, t: float) -> np.ndarray:
@@ -396,7 +422,7 @@ def _estimates_optics(p: _Pilot, extra: dict[str, Any]) -> dict[str, float]:
                              "far_sampling_glare": _far_err(p, "glare")}
     glare = sum(c["far"][p.n_haze:], np.zeros_like(img))
     w_glare = float(sum(part["weight"] for part in p.rd.parts[p.n_haze:]))
-    if w_glare > 0 or p.bounded:
+    if p.has_glare:
         est["glare"] = k * (_rms((glare - w_glare * c["pedestal"]) * p.ri) + _far_err(p, "glare"))
     # relative illumination and the train's field factor: the image times (1 / r - 1)
     for name, r in (("relative_illumination", p.ri), ("train_field", p.ri / p.cos4)):
@@ -407,7 +433,8 @@ def _estimates_optics(p: _Pilot, extra: dict[str, Any]) -> dict[str, float]:
         far_h = c["far"][0] if p.n_haze else 0.0
         est["haze"] = k * (_rms((c["fine"] - extra["nohaze_fine"] + far_h) * p.ri) + _rms(fid))
     if extra.get("patch0_fine") is not None:
-        est["field_patches"] = k * (_rms((c["fine"] - extra["patch0_fine"]) * p.ri) + _rms(p.fine_err))
+        est["field_patches"] = k * (_rms((c["fine"] - extra["patch0_fine"]) * p.ri)
+                                    + extra["patch_ratio"] * _rms(p.fine_err))
     if extra.get("throughput") is not None:
         # train off: gain / throughput, no field factor, no glare (the kernel/haze split's change is in SAFETY)
         t = extra["throughput"]
@@ -511,6 +538,11 @@ def _pilot_extras(p: _Pilot, ex: dict[str, Any], scene: Scene, radiance: Any, t:
         out["nohaze_fine"] = _fine_with(ex["nohaze"], p, scene, radiance, t)
     if ex.get("patch0") is not None:
         out["patch0_fine"] = _fine_with(ex["patch0"], p, scene, radiance, t)
+        # the supersampling error of the difference kernel: the pilot's, scaled by |K_p - K_0| / |K_0|
+        k0 = _envelope([(resample_optics(ex["patch0"], 1) if ex["patch0"].ss > 1 else ex["patch0"]).kernels[0]])
+        n = max([k0.shape[0]] + [k.shape[0] for k in p.rd.optics.kernels])
+        pad = [np.pad(k, (n - k.shape[0]) // 2) for k in [k0, *p.rd.optics.kernels]]
+        out["patch_ratio"] = max(float(np.abs(k - pad[0]).sum()) for k in pad[1:]) / max(float(pad[0].sum()), 1e-300)
     if ex.get("spectral") is not None:
         out["spectral_far"] = _spectral_far(ex["spectral"], p, scene, radiance, t)
     return out

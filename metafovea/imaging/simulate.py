@@ -294,15 +294,20 @@ def _scene_for(scene: str | Path | Scene, system: SystemDesign, camera: Camera, 
 
 
 def _truth_images(renderers: list[ChannelRenderer], camera: Camera, times: np.ndarray, *, static: bool,
-                  progress: bool, name: str, plan: Plan | None = None) -> tuple[np.ndarray, np.ndarray]:
+                  progress: bool, name: str, plan: Plan | None = None,
+                  rendered: dict | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Noise-free DN images ``(x1, x2)`` float32: ``(H, W)`` each for a static scene, ``(T, H, W)`` for a video (a
-    static scene's parts that ``plan``'s pilot computed at the model's sampling are reused)."""
+    static scene's parts that ``plan``'s pilot computed at the model's sampling are reused; ``rendered``: the
+    renderers' images by time, filled and reused across models of one sweep that render alike)."""
     sensor = camera.sensor
     dl_dt = camera.radiance.derivative(300.0)
     gains = camera.gains
 
     def truth_at(t: float) -> tuple[np.ndarray, np.ndarray]:
-        out = [sensor.to_dn(rd.render(t), gi, dl_dt).astype(np.float32) for rd, gi in zip(renderers, gains)]
+        if rendered is not None and t not in rendered:
+            rendered[t] = [rd.render(t) for rd in renderers]
+        images = rendered[t] if rendered is not None else [rd.render(t) for rd in renderers]
+        out = [sensor.to_dn(im, gi, dl_dt).astype(np.float32) for im, gi in zip(images, gains)]
         return out[0], out[1]
 
     if static and plan is not None:
@@ -519,16 +524,25 @@ def simulate(system: SystemDesign, scene: str | Path | Scene | np.ndarray, optio
 
 
 def _model_optics(system: SystemDesign, camera: Camera, sc: Scene, times: np.ndarray, opt: SimulationOptions,
-                  ss: int, reduce: tuple[str, ...], tol: float | None, r_pol: np.random.Generator
+                  ss: int, reduce: tuple[str, ...], tol: float | None, r_pol: np.random.Generator,
+                  cache: dict | None = None
                   ) -> tuple[str, list[ChannelOptics], Plan | None, tuple[str, ...], SimulationOptions]:
     """The channels' optics of the model: the full model's, then the plan's (``tol``) or ``reduce``'s replacements.
     Returns the provider's name, the optics, the plan (None without ``tol``), the replaced effects and the
-    options (with a plan's replacements)."""
+    options (with a plan's replacements). ``cache``: optics already built for the same camera (a sweep of models,
+    :mod:`metafovea.imaging.ablate`), keyed by what they depend on."""
     provider, provider_name = resolve_provider(opt.psf, opt.psf_cache_dir, camera.post_sets)
     trains = camera.trains or (None, None)
 
     def optics_for(o: SimulationOptions = opt, **changes: Any) -> list[ChannelOptics]:
-        return _channel_optics(system, camera, provider, provider_name, trains, ss, o, **changes)
+        key = ("optics", ss, o.haze, o.field_patches, o.psf_size_px, o.patch_threshold, id(o.psf),
+               camera.trains is None, tuple(sorted(changes.items())))
+        if cache is not None and key in cache:
+            return cache[key]
+        out = _channel_optics(system, camera, provider, provider_name, trains, ss, o, **changes)
+        if cache is not None:
+            cache[key] = out
+        return out
 
     with heartbeat(f"simulate: the channels' PSFs ({provider_name}; computed on a first run, then cached)",
                    enabled=opt.progress):
@@ -561,8 +575,10 @@ def _model_meta(reduce: tuple[str, ...], plan: Plan | None) -> dict[str, Any]:
 
 def _simulate_with(system: SystemDesign, camera: Camera, scene: str | Path | Scene | np.ndarray,
                    opt: SimulationOptions, reduce: tuple[str, ...], tol: float | None,
-                   rng: np.random.Generator | int | None, t_start: float) -> Measurement:
-    """:func:`simulate` with its camera built (``opt``: the options with ``reduce``'s option effects replaced)."""
+                   rng: np.random.Generator | int | None, t_start: float, cache: dict | None = None) -> Measurement:
+    """:func:`simulate` with its camera built (``opt``: the options with ``reduce``'s option effects replaced).
+    ``cache``: what a sweep of models of one camera and scene shares (:mod:`metafovea.imaging.ablate`): the optics
+    by what they depend on, the rendered images by the optics and the rendering's switches."""
     n_frames = opt.frames
     r_pol, r_fpn, r_noise = _child_rngs(rng, 3)
     sensor, pol = camera.sensor, camera.polarizer
@@ -574,7 +590,8 @@ def _simulate_with(system: SystemDesign, camera: Camera, scene: str | Path | Sce
     check_memory(n_frames, sensor.shape, video=not sc.static, calibration_frames=n_cal)
 
     t_psf = time.perf_counter()
-    provider_name, optics, plan, reduce, opt = _model_optics(system, camera, sc, times, opt, ss, reduce, tol, r_pol)
+    provider_name, optics, plan, reduce, opt = _model_optics(system, camera, sc, times, opt, ss, reduce, tol, r_pol,
+                                                             cache)
     t_psf = time.perf_counter() - t_psf
     for o in optics:
         log.info("%s channel PSF: %s", o.channel.name, o.info)
@@ -584,8 +601,14 @@ def _simulate_with(system: SystemDesign, camera: Camera, scene: str | Path | Sce
     renderers = [ChannelRenderer(sc, o, camera.radiance, opt.relative_illumination,
                                  None if tr is None or "train_field" in reduce else tr.field_factor,
                                  sub=1 if "far_sampling" in reduce else None) for o, tr in zip(optics, trains)]
+    rendered = None
+    if cache is not None and plan is None:
+        key = ("render", ss, opt.haze, opt.field_patches, opt.psf_size_px, opt.patch_threshold, id(opt.psf),
+               opt.relative_illumination, camera.trains is None,
+               tuple(e for e in reduce if e in ("supersample", "far_sampling", "glare", "train_field", "spectral")))
+        rendered = cache.setdefault(key, {})
     x1, x2 = _truth_images(renderers, camera, times, static=sc.static, progress=opt.progress, name=sc.name,
-                           plan=plan)
+                           plan=plan, rendered=rendered)
     t_render = time.perf_counter() - t_render
 
     theta, pol_info = pol.angles(times, r_pol)
