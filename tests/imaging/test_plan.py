@@ -102,8 +102,9 @@ def test_a_field_dependent_psf_is_estimated_and_its_patches_replaced_when_they_f
            "perifoveal": lambda fd: gaussian_kernel(0.7 + 0.4 * fd)}
     opt = SimulationOptions(frames=2, psf=psf, field_patches=3, noise=False, fpn_rank=0, quantize=False,
                             calibration_frames=0)
+    cam = camera_for(system, opt)
     for scene in ("siemens-star", _scene_arrays()["smooth"]):
-        r = effect_errors(system, scene, opt, effects=("field_patches", "supersample"), tolerance_k=0.05)
+        r = effect_errors(system, scene, opt, effects=("field_patches", "supersample"), tolerance_k=0.05, camera=cam)
         est = r.estimates()
         assert r.errors["field_patches"] > 0.05
         assert est["field_patches"] >= r.errors["field_patches"]
