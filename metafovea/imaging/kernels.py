@@ -25,6 +25,10 @@ Field dependence: by default each channel is shift-invariant (the on-axis kernel
 differs from the on-axis one by more than ``patch_threshold`` (total-variation distance of the
 normalised kernels), the image is computed in ``n x n`` patches with kernels at the patch centres,
 blended with bilinear (partition-of-unity) weights. The decision and distance are reported.
+
+Cheaper optics for a reduced model (:mod:`~metafovea.imaging.plan`): :func:`resample_optics` bins every kernel to fewer
+samples per pixel (:func:`bin_kernel`: the same PSF and haze, the scene sampled more coarsely), and
+:func:`glare_as_pedestal` spreads the far glare's power as a uniform level over the crop.
 """
 
 from __future__ import annotations

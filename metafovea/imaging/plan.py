@@ -12,7 +12,7 @@ the system design (``SystemDesign.scene_temperature_k``)::
 (``g_i`` the full model's channel gain, so ``D_i`` is the ``dn_per_k_300K`` of the metadata at a 300 K scene); the
 larger of the two channels' values counts (a frame is a mixture of the two images, so its error in its own DN per
 kelvin is no larger). Effects that act on the frames only (polariser extinction and lag, the sensor's noise terms)
-are measured on the frames with the frame's DN per kelvin, ``counts_per_k (a' G_1 + (1 - a') G_2)`` times the same
+are counted on the frames with the frame's DN per kelvin, ``counts_per_k (a' G_1 + (1 - a') G_2)`` times the same
 ratio (``G_i`` the gains with the extinction's ``1 + e``, ``a'`` the frame's effective mixing ratio).
 
 The effects (:data:`EFFECTS`) and what a reduced model puts in their place
@@ -217,7 +217,7 @@ class Plan:
         return {r.effect: r.estimate_k for r in self.rows}
 
     def summary(self) -> dict[str, Any]:
-        """The plan as JSON (the Measurement's ``meta['plan']``, the ``--json`` summary)."""
+        """The plan as JSON (the Measurement's ``meta['model']['plan']``, the ``--json`` summary)."""
         return {"model": "REDUCED" if self.reduce else "full (every effect matters within the tolerance)",
                 "tolerance_k_rms": self.tolerance_k, "budget_k_rms": self.budget_k, "reduce": list(self.reduce),
                 "estimated_error_k_rms": self.estimated_error_k, "render_work_fraction": self.work_fraction,
@@ -556,10 +556,9 @@ def _frame_estimates(inp: PlanInputs, dn: list[np.ndarray], fid_dn: list[np.ndar
     cam = inp.camera
     pol, sensor = cam.polarizer, cam.sensor
     theta, _ = pol.angles(inp.times, inp.polarizer_rng)
-    a_nom, a_eff, gain = pol.mixing(theta)
+    _, a_eff, gain = pol.mixing(theta)
     inv_d = 1.0 / d_k(a_eff)  # (T,)
     x1, x2 = dn
-    diff = x1 - x2
     k = 1.0 + SAFETY
     out: dict[str, float | None] = {}
     for name, other in (("extinction", replace(pol, extinction=0.0)), ("bolometer_lag", replace(pol, tau_s=0.0))):
@@ -590,7 +589,6 @@ def _frame_estimates(inp: PlanInputs, dn: list[np.ndarray], fid_dn: list[np.ndar
         out["quantisation"] = (1.0 / math.sqrt(12.0) * k + _rms(clip) + 3 * sig * float(np.mean(clip > 0))) * rms_inv
     else:
         out["quantisation"] = None
-    _ = a_nom, diff
     return out
 
 

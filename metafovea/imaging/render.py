@@ -4,7 +4,10 @@ integration and relative illumination (the model is in :mod:`~metafovea.imaging.
 The scene is sampled on the channel's own supersampled grid of field angles (plus the kernel's margin), in
 in-band radiance; the image is the valid convolution with the channel's kernel(s), box-averaged to pixels, plus the
 far haze convolved on a coarse grid and interpolated back, times ``cos^4`` relative illumination. Video scenes that
-declare their changing boxes are rendered incrementally (:class:`ChannelRenderer`).
+declare their changing boxes are rendered incrementally (:class:`ChannelRenderer`). A reduced model
+(:mod:`~metafovea.imaging.plan`) may sample each coarse sample once instead of ``SUB x SUB`` times (``sub=1``) and
+spread the glare as a uniform level (the optics' ``pedestal_weight`` times the crop's mean radiance); the image's
+parts (:meth:`ChannelRenderer.components`) are what the planner's estimates recombine.
 """
 
 from __future__ import annotations

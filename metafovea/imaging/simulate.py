@@ -12,6 +12,12 @@ the fixed pattern, the mixed frames, noise and ADC, closed-shutter calibration f
 streams (polariser, FPN, noise; calibration from the noise stream after the frames) are drawn from ``rng`` in a
 fixed order, so the same seed gives identical frames.
 
+The full model is the default. ``tolerance_k`` (an error budget, K rms of the sensor image referred to the scene) asks
+the planner (:mod:`metafovea.imaging.plan`) for the cheapest model within it, after the full model's optics are built:
+the replaced effects (``reduce``, also an option) change the optics, the renderers' sampling or the options; the
+metadata's ``model`` says REDUCED and holds the plan. The random streams are the same, so a reduced model's frames
+differ from the full model's only through the replaced effects.
+
 :func:`simulate_to_files` is what ``metafovea simulate`` runs: simulate, then write the Measurement ``.npz``,
 the TIFF stack (:func:`write_tiff`) and the preview PNG (:func:`write_preview`, the "iron" palette), never over
 a file the run reads.

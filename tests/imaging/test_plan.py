@@ -82,6 +82,14 @@ def test_estimates_hold_and_the_reduced_model_meets_its_budget():
     least its measured contribution in >= 95 % of the cases, and the reduced model's realised error against the full
     model is within the tolerance in every case; the planner replaces something on smooth scenes."""
     pairs, cases = _study()
+    for name, band, err, reduce in cases:  # the study's table (pytest -s), for BENCHMARKS.md
+        rows = [f"{e} {est:.3g}/{true:.3g}" for n, b, e, est, true in pairs if (n, b) == (name, band)]
+        print(f"{name:13s} {band:12s} realised {err:.4f} K, replaced {','.join(reduce) or '-'}; est/true K: "
+              + "; ".join(rows))
+    for e in EFFECTS:
+        r = [p[3] / p[4] for p in pairs if p[2] == e and p[4] > 1e-4]
+        if r:
+            print(f"{e}: estimate/measured median {np.median(r):.2f}, least {min(r):.2f}, {len(r)} cases")
     under = [p for p in pairs if p[3] < p[4]]
     assert len(pairs) >= 10 * 2 * 8
     assert _conservative(pairs) >= 0.95, under
