@@ -45,18 +45,23 @@ quantisation
 The planner (:func:`plan_model`)
 --------------------------------
 1. A pilot: the full model's camera and optics, rendered at 1 sample per pixel (the kernels binned) and 1 sample per
-   coarse sample of the far components (the cheapest sampling), once (a video: at its first, middle and last frame).
+   coarse sample of the far components (the cheapest sampling), once (a video: at its first, middle and last frame,
+   each estimate the largest of the three).
    Its parts (kernel image, each far component, relative illumination; :meth:`ChannelRenderer.components`) give
    each effect's change of the image by recombination, without another render.
 2. Estimates. Effects whose change the pilot computes (haze, glare, train, train_field, relative illumination,
-   field patches, the polariser's) get ``(1 + SAFETY)`` times the pilot's rms change, plus a bound on the pilot's own
-   sampling error carried through the effect. Sampling effects get bounds: each sample the reduced model leaves out
-   lies within one sample of a kept one, so for a scene without structure smaller than a sample its value differs
-   from the kept one by at most the 3 x 3 local range ``M`` of the kept samples; the image's change is at most the
-   kernel (or far component) applied to ``M``: ``|K| * M``. Spectral sampling: the far haze with 11 bins computed,
-   the kernel's own change bounded by ``(|K| + |K'|) * |L - L_haze|`` with ``sum K' <= (1 + SAFETY) sum K``. The
-   sensor's terms are analytic (NETD, the fixed pattern's largest value, the ADC's step; the rms of a rounding
-   difference with noise, ``1/sqrt(6)`` DN, included).
+   field patches, the polariser's) get ``(1 + SAFETY)`` times the pilot's rms change plus the pilot's own sampling
+   error carried through the effect. Sampling effects are estimated from a symmetric pair of shifted samplings: the
+   scene sampled at ``+-(s - 1) / s`` of a pixel along a diagonal (``s`` the full model's samples per pixel), the
+   pair's mean minus the centre sample through the kernel, times ``SAMPLING_SAFETY``: for a white texture 1.3 times
+   the full model's 3 x 3 mean minus its centre, for a smooth scene several times (the first-order terms cancel in
+   both), for an edge at any phase more (the pair crosses every edge the 3 x 3 samples cross); the far components
+   the same with two pairs at ``+-2/3`` of a coarse sample, plus the difference of the two grids' linear
+   interpolations and edge clamping. Glare components whose bound (twice their weight times the scene's range) is
+   below ``SMALL_SHARE`` of the tolerance are bounded, not rendered. Spectral sampling: the far haze with 11 bins
+   computed, the kernel's own change bounded by ``(|K| + |K'|) * |L - L_haze|`` with
+   ``sum K' <= (1 + SAFETY) sum K``. The sensor's terms are analytic (NETD, the fixed pattern's largest value, the
+   ADC's step; the rounding difference of two quantised frames, ``1/sqrt(6)`` DN rms, included).
 3. Budget: an effect may be replaced only where its alternative saves work; the planner keeps the set of
    replacements that saves most work with the sum of their estimates (by the triangle inequality, the rms of a sum
    of changes is at most the sum of their rms) at most ``BUDGET_SHARE * T``; the rest of ``T`` is the margin for
@@ -576,10 +581,9 @@ def _frame_estimates(inp: PlanInputs, dn: list[np.ndarray], fid_dn: list[np.ndar
         fid = max(_rms(fid_dn[0]), _rms(fid_dn[1])) * (float(np.max(np.abs(a_eff - b_eff))) + abs(1 - s))
         out[name] = k * math.sqrt(float(np.mean(ms))) + fid * float(np.max(inv_d))
     rms_inv = math.sqrt(float(np.mean(inv_d ** 2)))
-    n = inp.times.size * x1.size
     q = 1.0 / 6.0 if inp.quantize else 0.0  # the rms^2 of the difference of two roundings
     sig = sensor.netd_k * sensor.counts_per_k
-    out["noise"] = math.sqrt(sig ** 2 + q) * rms_inv * (1 + 4 / math.sqrt(2 * n)) if inp.noise and sig > 0 else None
+    out["noise"] = k * math.sqrt(sig ** 2 + q) * rms_inv if inp.noise and sig > 0 else None
     rng_dn = max(float(np.ptp(x1)), float(np.ptp(x2))) * k
     fmax = sensor.fpn_amplitude * max(rng_dn, sensor.counts_per_k) * (1 + sensor.fpn_drift)
     out["fpn"] = math.sqrt(fmax ** 2 + q) * rms_inv if sensor.fpn_rank and sensor.fpn_amplitude > 0 else None
@@ -711,7 +715,8 @@ def plan_model(inp: PlanInputs, tolerance_k: float, ss_full: int) -> Plan:
                 fid_dn.append(_fidelity(p) * scale)
     est: dict[str, float | None] = {}
     for e in set(per_channel[0]) | set(per_channel[1]):
-        est[e] = max(math.sqrt(float(np.mean(np.square(per_channel[i].get(e, [0.0]))))) for i in range(2)) / dldt
+        # a video: the largest of its pilot times (the frames between them may change more than the rms of three)
+        est[e] = max(float(np.max(per_channel[i].get(e, [0.0]))) for i in range(2)) / dldt
     g1, g2 = (sensor.counts_per_k * g * dldt / dldt300 for g in cam.gains)
     est.update(_frame_estimates(inp, dn, fid_dn, lambda a: a * g1 + (1 - a) * g2))
     present = _present(inp, est, ss_full)
