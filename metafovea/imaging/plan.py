@@ -55,7 +55,8 @@ The planner (:func:`plan_model`)
    scene sampled at ``+-(s - 1) / s`` of a pixel along a diagonal (``s`` the full model's samples per pixel), the
    pair's mean minus the centre sample through the kernel, times ``SAMPLING_SAFETY``: for a white texture 1.3 times
    the full model's 3 x 3 mean minus its centre, for a smooth scene several times (the first-order terms cancel in
-   both), for an edge at any phase more (the pair crosses every edge the 3 x 3 samples cross); the far components
+   both), for an edge at any phase more (the pair crosses every edge the 3 x 3 samples cross; a pair at whole
+   samples would be blind to structure periodic at the sample spacing: bars, window grids); the far components
    the same with two pairs at ``+-2/3`` of a coarse sample, plus the difference of the two grids' linear
    interpolations and edge clamping. Glare components whose bound (twice their weight times the scene's range) is
    below ``SMALL_SHARE`` of the tolerance are bounded, not rendered. Spectral sampling: the far haze with 11 bins
