@@ -72,8 +72,8 @@ The planner (:func:`plan_model`)
    component's coarse grid, the glare's interpolation into the PSF that the file stores), as a share of the full
    model's.
 
-Structure smaller than one sample of the reduced model that falls between its samples (a sub-pixel hot wire) is not
-seen by the bounds; such a scene needs the full model.
+Structure smaller than one sample of the reduced model that falls between the pilot's samplings (a sub-pixel hot wire)
+is not seen by the sampling estimates; such a scene needs the full model.
 """
 
 from __future__ import annotations
@@ -86,7 +86,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from metafovea.errors import check_range
+from metafovea.errors import InputError, check_range
 from metafovea.imaging.channel import relative_illumination_map
 from metafovea.imaging.kernels import resample_optics
 from metafovea.imaging.render import ChannelRenderer
@@ -145,8 +145,6 @@ MAX_TOLERANCE_K = 100.0
 
 def check_effects(reduce: Sequence[str] | str | None) -> tuple[str, ...]:
     """``reduce`` as a tuple of effect names (:data:`EFFECTS`), each once, in the table's order."""
-    from metafovea.errors import InputError
-
     if reduce is None:
         return ()
     names = (reduce,) if isinstance(reduce, str) else tuple(reduce)
@@ -600,7 +598,8 @@ def _frame_estimates(inp: PlanInputs, dn: list[np.ndarray], fid_dn: list[np.ndar
 def _work(optics: Sequence[ChannelOptics], reduce: Sequence[str]) -> float:
     """The rendering work (scene samples and interpolated pixels) of a model, both channels: the fine grid, the scene
     seen through a perfect lens (the file's ``scene_x``), each far component's coarse grid and its interpolation to
-    the pixels, the glare's disks interpolated into the file's pixel PSF."""
+    the pixels, the glare's disks interpolated into the file's pixel PSF (without the haze's or the train's, the
+    work of their far components)."""
     w = 0.0
     for o in optics:
         H, W = o.channel.shape
@@ -611,7 +610,7 @@ def _work(optics: Sequence[ChannelOptics], reduce: Sequence[str]) -> float:
         w += H * W * ss * ss
         for j, (_, kernel, q) in enumerate(o.far_parts()):
             glare = j >= (1 if o.far_kernel is not None and o.far_weight > 0 else 0)
-            if glare and "glare" in reduce:
+            if (glare and ("glare" in reduce or "train" in reduce)) or (not glare and "haze" in reduce):
                 continue
             km = kernel.shape[0] // 2
             w += (round(H * sub / q) + 2 * km * sub) * (round(W * sub / q) + 2 * km * sub) + H * W
@@ -651,19 +650,23 @@ def _present(inp: PlanInputs, est: dict[str, float | None], ss_full: int) -> dic
             **{e: est.get(e) is not None for e in ("extinction", "bolometer_lag", "noise", "fpn", "quantisation")}}
 
 
-def _why(effect: str, included: bool | None, est: float | None, budget_left: float, reducible: bool) -> str:
+def _why(effect: str, included: bool | None, est: float | None, budget_left: float, reducible: bool,
+         budget: float) -> str:
+    """The plan table's reason for an effect's row."""
     e = EFFECTS[effect]
     if included is None:
         return "not in the full model (its options)"
     if not included:
-        return f"replaced by: {e.alternative} (estimate within the budget)"
+        return f"replaced by: {e.alternative} (its estimate fits the budget)"
     if e.kind == "sensor":
         return "kept: the camera's own noise, not a model approximation (costs little)"
     if effect == "spectral":
         return "kept: the PSFs are computed once at 31 bins and cached; fewer bins would not reuse them"
     if reducible:
         return f"kept: {est:.3g} K rms exceeds what the budget leaves ({max(budget_left, 0.0):.3g} K)"
-    return f"kept: its alternative ({e.alternative}) saves no rendering work"
+    if est is not None and est > budget:
+        return f"kept: {est:.3g} K rms, beyond the budget (a plan does not replace it: {e.alternative})"
+    return f"kept: a plan does not replace it ({e.alternative} saves little)"
 
 
 def plan_model(inp: PlanInputs, tolerance_k: float, ss_full: int) -> Plan:
@@ -724,7 +727,7 @@ def plan_model(inp: PlanInputs, tolerance_k: float, ss_full: int) -> Plan:
     est["far_sampling"] = est.get("far_sampling_haze", 0.0) + est.get("far_sampling_glare", 0.0)
     candidates = [e for e in REDUCIBLE if present[e]]
     combos = [c for k in range(len(candidates) + 1) for c in itertools.combinations(candidates, k)]
-    works = {c: _work(inp.optics, c) for c in combos}
+    works = {c: _work(inp.optics, c) for c in combos + [("haze",), ("train",)]}
     budget = BUDGET_SHARE * tol
     chosen = _choose({k: v for k, v in est.items() if v is not None}, works, candidates, budget)
     spent = sum(_combo_estimate(est, chosen, c) for c in chosen)
@@ -732,12 +735,12 @@ def plan_model(inp: PlanInputs, tolerance_k: float, ss_full: int) -> Plan:
     rows = []
     for e in EFFECTS:
         inc = None if not present[e] else e not in chosen
-        saved = (full_work - works[(e,)]) / full_work if (e,) in works else 0.0
+        saved = (full_work - works[(e,)]) / full_work if present[e] and (e,) in works else 0.0
         value = est.get(e) if present[e] else None
-        rows.append(PlanRow(e, value, inc, saved, _why(e, inc, value, budget - spent, e in candidates)))
+        rows.append(PlanRow(e, value, inc, saved, _why(e, inc, value, budget - spent, e in candidates, budget)))
     notes = (f"pilot: 1 sample per pixel and per coarse sample, at {len(ts)} time(s); estimates in K at the "
              f"design's scene temperature {inp.scene_temperature_k:g} K",
-             "a replaced effect's estimate is a bound for scenes without structure smaller than one sample of the "
-             "reduced model")
+             "the sampling estimates see the scene at the pilot's and two shifted samplings: structure smaller than a "
+             "pixel that falls between them (a sub-pixel hot wire) is not seen; such a scene needs the full model")
     return Plan(tol, tuple(rows), chosen, budget, spent, works[chosen] / full_work, time.perf_counter() - t_start,
                 float(inp.scene_temperature_k), notes, tuple(reuse) if scene.static else None)
