@@ -62,8 +62,10 @@ class ChannelRenderer:
 
     def __init__(self, scene: Scene, optics: ChannelOptics, radiance: BandRadiance,
                  relative_illumination: bool = True,
-                 field_factor: Callable[[np.ndarray, np.ndarray], np.ndarray] | None = None, *, sub: int | None = None):
+                 field_factor: Callable[[np.ndarray, np.ndarray], np.ndarray] | None = None, *, sub: int | None = None,
+                 far_cache: dict | None = None):
         self.scene, self.optics, self.radiance = scene, optics, radiance
+        self.far_cache = far_cache  # far components computed by other renderers of the same scene and camera
         if sub is not None:  # samples per coarse sample and axis of the far components (a reduced model: 1)
             self.SUB = int(sub)
         ch, ss = optics.channel, optics.ss
@@ -180,12 +182,7 @@ class ChannelRenderer:
 
     def far_images(self, t: float = 0.0) -> list[np.ndarray]:
         """Each far component's weighted image on the pixels at time ``t`` (its coarse grid alone is sampled)."""
-        S = self.SUB
-        out = []
-        for part in self.parts:
-            Lc = self._coarse_radiance(part, 0, part["yc"].size // S, 0, part["xc"].size // S, t)
-            out.append(part["weight"] * self.to_pixels(part, _conv_valid(Lc, part["kernel"])))
-        return out
+        return [part["weight"] * self.to_pixels(part, self._far_part(part, t)[1]) for part in self.parts]
 
     def components(self, t: float = 0.0) -> dict[str, object]:
         """The image at time ``t`` in its parts (a static evaluation, never incremental): ``fine`` the kernel's
@@ -206,11 +203,27 @@ class ChannelRenderer:
         L = self._radiance(self.ya, self.xa, t)
         fine = self._fine_image(L)
         hz, Lc = [], []
-        S = self.SUB
         for part in self.parts:
-            Lc.append(self._coarse_radiance(part, 0, part["yc"].size // S, 0, part["xc"].size // S, t))
-            hz.append(_conv_valid(Lc[-1], part["kernel"]))
+            lc, h = self._far_part(part, t)
+            Lc.append(lc)
+            hz.append(h)
         return fine, hz, L, Lc
+
+    def _far_part(self, part: dict, t: float | None) -> tuple[np.ndarray, np.ndarray]:
+        """A far component's coarse samples and their convolution with its normalised kernel (shared through
+        :attr:`far_cache` by the renderers of a sweep of models of one scene and camera)."""
+        S = self.SUB
+        key = None
+        if self.far_cache is not None:
+            k = part["kernel"]
+            key = (self.optics.channel.name, part["q"], S, t, k.shape, hash(k.tobytes()))
+            if key in self.far_cache:
+                return self.far_cache[key]
+        lc = self._coarse_radiance(part, 0, part["yc"].size // S, 0, part["xc"].size // S, t)
+        out = (lc, _conv_valid(lc, part["kernel"]))
+        if key is not None:
+            self.far_cache[key] = out
+        return out
 
     @staticmethod
     def _range(axis: np.ndarray, lo: float, hi: float, group: int = 1) -> tuple[int, int]:
