@@ -157,6 +157,7 @@ def test_the_default_is_the_full_model_and_a_tolerance_says_it_is_reduced(small_
     assert plan["estimated_error_k_rms"] <= plan["budget_k_rms"] < plan["tolerance_k_rms"]
     lines = plan_lines(plan)
     assert lines[0].startswith("REDUCED MODEL for a tolerance of 1 K rms") and len(lines) == 2 + len(EFFECTS) + 2
+    assert "REDUCED" in red._repr_html_() and "REDUCED" not in full._repr_html_()  # the notebook view says so
     # the same images as the full model with the plan's effects replaced, and within the tolerance of the full one
     again = simulate(s, "bars", frames=2, psf="airy", reduce=tuple(model["reduce"]), **quiet)
     np.testing.assert_array_equal(red.truth_x1, again.truth_x1)
