@@ -461,6 +461,12 @@ def measurement_html(m: Measurement) -> str:
     if isinstance(m.meta.get("scene"), str):
         rows.append(("scene", m.meta["scene"]))
     rows.append(("ground truth", "stored" if m.truth_x1 is not None else "none"))
+    model = m.meta.get("model")
+    if isinstance(model, dict) and model.get("reduced"):
+        plan = model.get("plan") or {}
+        rows.append(("model", "REDUCED: " + ", ".join(model.get("reduce", [])) + " replaced"
+                     + (f" (tolerance {plan['tolerance_k_rms']:g} K rms; plan in meta['model']['plan'])"
+                        if "tolerance_k_rms" in plan else "")))
     rows.append(("foveal expansion f1 / f2", fmt(m.scale)))
     if m.source:
         rows.append(("file", m.source))

@@ -49,7 +49,7 @@ PARAMETER_FLAGS: dict[str, dict[str, str]] = {
                  "pixel_pitch_um": "--pixel-um", "psf gaussian sigma_um": "--psf", "psf": "--psf",
                  "relay_magnification": "--relay", "fpn_rank": "--fpn-rank", "fpn_amplitude": "--fpn-amplitude",
                  "polarizer_phase_deg": "--phase-deg", "field_patches": "--field-patches", "rng": "--seed",
-                 "scene_unit": "--scene-unit",
+                 "scene_unit": "--scene-unit", "tolerance_k": "--tolerance-k",
                  "out (TIFF)": "--out (TIFF)", "out (preview)": "--out (preview)"},
     "validate": {"frames": "--frames", "seed": "--seed", "rng": "--seed", "scene": "--scene",
                  "scene_unit": "--scene-unit", "dip_steps": "--dip-steps"},

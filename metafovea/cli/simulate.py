@@ -68,6 +68,11 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
     s.add_argument("--no-noise", action="store_true", help="no temporal noise")
     s.add_argument("--no-fpn", action="store_true", help="no fixed-pattern noise")
     s.add_argument("--no-quantize", action="store_true", help="no ADC rounding/clipping")
+    b = p.add_argument_group("error budget")
+    b.add_argument("--tolerance-k", default=None,
+                   help="accuracy asked, K rms of the sensor image referred to the scene (0 < T <= 100): a planner "
+                        "replaces the effects that fit the budget by cheaper ones (a REDUCED model) and prints its "
+                        "plan; default: the full model")
     p.set_defaults(func=run)
     return p
 
@@ -86,6 +91,7 @@ def _odd(name: str, v: Any, hi: int) -> int:
 def _options(args: argparse.Namespace, frames: int) -> SimulationOptions:
     """The flags as :class:`~metafovea.imaging.simulate.SimulationOptions`, each checked under its flag."""
     from metafovea.imaging.kernels import MAX_PSF_SIZE
+    from metafovea.imaging.plan import check_tolerance
     from metafovea.imaging.simulate import CALIBRATION_FRAMES, SimulationOptions
 
     fp = args.field_patches
@@ -107,7 +113,8 @@ def _options(args: argparse.Namespace, frames: int) -> SimulationOptions:
         noise=not args.no_noise, quantize=not args.no_quantize, progress=show_progress(args),
         posts=args.posts, optical_train=not args.no_train, scene_unit=args.scene_unit,
         calibration_frames=CALIBRATION_FRAMES if args.calibration_frames is None else
-        check_int("--calibration-frames", args.calibration_frames, 0, 10000))
+        check_int("--calibration-frames", args.calibration_frames, 0, 10000),
+        tolerance_k=None if args.tolerance_k is None else check_tolerance(args.tolerance_k))
 
 
 def _print_scenes(as_json: bool) -> None:
@@ -122,6 +129,7 @@ def _print_scenes(as_json: bool) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from metafovea.imaging.plan import plan_lines
     from metafovea.imaging.scene import make_scene
     from metafovea.imaging.simulate import simulate_to_files
     from metafovea.optics.train import throughput_lines
@@ -140,6 +148,8 @@ def run(args: argparse.Namespace) -> int:
         print(to_json(summary))
     else:
         T, H, W = result.measurement.shape
+        if "plan" in summary:
+            print("\n".join(plan_lines(summary["plan"])))
         print(f"scene {summary['scene']}: {T} frames {H}x{W} ({summary['units']}), "
               f"alpha {summary.get('alpha_range', 'unknown')}, PSF {summary['psf']} {summary['psf_mode']}")
         if "scene_conversion" in summary:

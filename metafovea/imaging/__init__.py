@@ -13,8 +13,12 @@ Modules, in the order of the flow:
 * :mod:`~metafovea.imaging.polarizer`: the simulated rotation (drawn phase and rate) of the polariser whose mixing
   ratio alpha :mod:`metafovea.polarizer` models.
 * :mod:`~metafovea.imaging.sensor`: radiance to DN, temporal noise, low-rank FPN, ADC.
+* :mod:`~metafovea.imaging.plan`: the error-budgeted simulation's planner (``simulate(..., tolerance_k=T)``): each
+  effect's estimated contribution for a scene, the cheapest model within the budget, the plan table.
 * :mod:`~metafovea.imaging.simulate`: end to end (:func:`simulate`), and the files of ``metafovea simulate``
   (:func:`simulate_to_files`: Measurement, TIFF stack, preview).
+* :mod:`~metafovea.imaging.ablate`: the truth a plan's estimates are tested against (the full model with and without
+  each effect) and a model's realised error against the full one.
 """
 
 

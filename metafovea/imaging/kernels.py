@@ -25,6 +25,10 @@ Field dependence: by default each channel is shift-invariant (the on-axis kernel
 differs from the on-axis one by more than ``patch_threshold`` (total-variation distance of the
 normalised kernels), the image is computed in ``n x n`` patches with kernels at the patch centres,
 blended with bilinear (partition-of-unity) weights. The decision and distance are reported.
+
+Cheaper optics for a reduced model (:mod:`~metafovea.imaging.plan`): :func:`resample_optics` bins every kernel to fewer
+samples per pixel (:func:`bin_kernel`: the same PSF and haze, the scene sampled more coarsely), and
+:func:`glare_as_pedestal` spreads the far glare's power as a uniform level over the crop.
 """
 
 from __future__ import annotations
@@ -32,7 +36,7 @@ from __future__ import annotations
 import logging
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, Protocol
 
@@ -305,6 +309,9 @@ class ChannelOptics:
     #: further far components on their own coarse grids, ``(weight, kernel, coarse)``: the glare of the other
     #: lens' pass-through (disks of mm, which on the haze's grid would blur the haze)
     extra_far: tuple[tuple[float, np.ndarray, int], ...] = ()
+    #: power spread as a uniform level over the crop (the scene's mean radiance over the crop times this weight):
+    #: the glare of a reduced model (:func:`glare_as_pedestal`); 0 in the full model
+    pedestal_weight: float = 0.0
 
     def far_parts(self) -> list[tuple[float, np.ndarray, int]]:
         """Every far component ``(weight, normalised kernel on its coarse grid, coarse sample in pixels)``."""
@@ -501,7 +508,7 @@ def pixel_psf(optics: ChannelOptics, max_radius_px: int | None = None) -> tuple[
     core = kt[c - n_half * s:c + n_half * s + 1:s, c - n_half * s:c + n_half * s + 1:s] / s ** 2
     r = check_int("max_radius_px", max(H, W) if max_radius_px is None else max_radius_px, 1, 100_000)
     out = core
-    total = float(core.sum())
+    total = float(core.sum()) + optics.pedestal_weight
     for weight, kf, q in optics.far_parts():
         far = np.asarray(kf, dtype=np.float64)
         total += weight
@@ -532,3 +539,49 @@ def pixel_psf(optics: ChannelOptics, max_radius_px: int | None = None) -> tuple[
         out = out[h - r:h + r + 1, h - r:h + r + 1]
     # the power beyond the cut (0 when every component fits: never a rounding residue below 0)
     return out, max(0.0, total - float(out.sum()))
+
+
+# ----------------------------------------------------------------------------------------------
+# cheaper versions of a channel's optics (the reduced models of metafovea.imaging.plan)
+# ----------------------------------------------------------------------------------------------
+def bin_kernel(k: np.ndarray, factor: int) -> np.ndarray:
+    """A centred kernel at sample pitch ``p`` integrated over samples of pitch ``factor p``, centred on the same
+    point: ``B K B^T`` with ``B[j, i]`` the overlap of sample ``i`` (``[i - 1/2, i + 1/2]`` about the centre) with the
+    coarse sample ``j`` (``[j f - f/2, j f + f/2]``). Exact for a kernel uniform within its samples; the sum is kept.
+    For an odd ``factor`` the coarse samples are unions of whole samples (no interpolation)."""
+    k = np.asarray(k, dtype=np.float64)
+    f = check_int("factor", factor, 1, 64)
+    if f == 1:
+        return k
+    n = k.shape[0]
+    c = (n - 1) // 2
+    h = int(math.ceil((c + 0.5) / f - 0.5))  # coarse half-width that holds every sample
+    i = np.arange(n) - c
+    j = np.arange(-h, h + 1)
+    lo = np.maximum(i[None, :] - 0.5, j[:, None] * f - 0.5 * f)
+    hi = np.minimum(i[None, :] + 0.5, j[:, None] * f + 0.5 * f)
+    b = np.clip(hi - lo, 0.0, None)
+    return b @ k @ b.T
+
+
+def resample_optics(optics: ChannelOptics, ss: int) -> ChannelOptics:
+    """``optics`` at ``ss`` samples per pixel (a divisor of ``optics.ss``): every kernel (near haze and glare
+    included) binned by :func:`bin_kernel`; the far components, which do not depend on the sampling, unchanged. The
+    PSF and haze model is the same: only the scene's sampling within a pixel changes."""
+    ss = check_int("supersample", ss, 1, optics.ss)
+    if optics.ss % ss:
+        raise InputError("supersample", ss, f"a divisor of the full model's {optics.ss} samples per pixel")
+    f = optics.ss // ss
+    info = {**optics.info, "sample_pitch_um": optics.channel.focal_pitch_um / ss,
+            "resampled": f"kernels of {optics.ss} samples per pixel binned {f} x {f}"}
+    return replace(optics, ss=ss, kernels=[bin_kernel(k, f) for k in optics.kernels], info=info)
+
+
+def glare_as_pedestal(optics: ChannelOptics) -> ChannelOptics:
+    """``optics`` with its far glare components (:attr:`ChannelOptics.extra_far`: disks of mm) replaced by a uniform
+    level of the same power over the crop (:attr:`ChannelOptics.pedestal_weight`); the haze and the near glare
+    folded into the kernel are kept."""
+    w = float(sum(p[0] for p in optics.extra_far))
+    info = {**optics.info, "glare_pedestal": w}
+    return replace(optics, extra_far=(), pedestal_weight=optics.pedestal_weight + w, info=info)
+

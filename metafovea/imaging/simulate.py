@@ -12,6 +12,12 @@ the fixed pattern, the mixed frames, noise and ADC, closed-shutter calibration f
 streams (polariser, FPN, noise; calibration from the noise stream after the frames) are drawn from ``rng`` in a
 fixed order, so the same seed gives identical frames.
 
+The full model is the default. ``tolerance_k`` (an error budget, K rms of the sensor image referred to the scene) asks
+the planner (:mod:`metafovea.imaging.plan`) for the cheapest model within it, after the full model's optics are built:
+the replaced effects (``reduce``, also an option) change the optics, the renderers' sampling or the options; the
+metadata's ``model`` says REDUCED and holds the plan. The random streams are the same, so a reduced model's frames
+differ from the full model's only through the replaced effects.
+
 :func:`simulate_to_files` is what ``metafovea simulate`` runs: simulate, then write the Measurement ``.npz``,
 the TIFF stack (:func:`write_tiff`) and the preview PNG (:func:`write_preview`, the "iron" palette), never over
 a file the run reads.
@@ -19,6 +25,7 @@ a file the run reads.
 
 from __future__ import annotations
 
+import copy
 import io as _io
 import json
 import logging
@@ -35,7 +42,22 @@ import numpy as np
 from metafovea.config import SystemDesign, load_system
 from metafovea.errors import InputError, as_rng, check_int
 from metafovea.imaging.channel import Channel, channels_for
-from metafovea.imaging.kernels import ChannelOptics, build_channel_optics, pixel_psf, resolve_provider
+from metafovea.imaging.kernels import (
+    ChannelOptics,
+    build_channel_optics,
+    glare_as_pedestal,
+    pixel_psf,
+    resample_optics,
+    resolve_provider,
+)
+from metafovea.imaging.plan import (
+    REDUCED_PSF_WAVELENGTHS,
+    Plan,
+    PlanInputs,
+    check_effects,
+    check_tolerance,
+    plan_model,
+)
 from metafovea.imaging.polarizer import Polarizer
 from metafovea.imaging.render import ChannelRenderer
 from metafovea.imaging.scene import Scene, SceneGeometry, make_scene
@@ -95,6 +117,11 @@ class SimulationOptions:
     progress: bool = False
     posts: Any = "rcwa"  # 'rcwa' (the fabricated lenses, library cached) | 'ideal' (simplified) | {pol: PostSet}
     optical_train: bool = True  # False: each lens alone (no wafers, other lens or ring): a simplified model
+    #: an error budget (K rms of the sensor image referred to the scene): the planner (metafovea.imaging.plan)
+    #: replaces the effects that fit it by cheaper alternatives: a REDUCED model. None: the full model
+    tolerance_k: float | None = None
+    #: effects to replace by their cheaper alternative (names of metafovea.imaging.plan.EFFECTS; what a plan sets)
+    reduce: tuple[str, ...] = ()
 
 
 def _child_rngs(rng: np.random.Generator | int | None, n: int) -> list[np.random.Generator]:
@@ -194,16 +221,63 @@ def camera_for(system: SystemDesign, opt: SimulationOptions) -> Camera:
 
 
 def _channel_optics(system: SystemDesign, camera: Camera, provider: Any, provider_name: str, trains: Any, ss: int,
-                    opt: SimulationOptions) -> list[ChannelOptics]:
-    """Each channel's optics (PSF kernels and haze; the metasurface transmission and glare leaks of its train)."""
+                    opt: SimulationOptions, **changes: Any) -> list[ChannelOptics]:
+    """Each channel's optics (PSF kernels and haze; the metasurface transmission and glare leaks of its train).
+
+    ``changes``: ``haze``, ``field_patches``, ``n_psf_wavelengths`` in place of the options'; ``kernel_from_full``:
+    the provider's kernel of the full model's wavelengths whatever ``n_psf_wavelengths`` (the haze's bins alone
+    change: what the planner's spectral estimate computes without a new PSF); ``no_glare``: without the train's
+    glare (variants whose kernel or haze alone the planner needs)."""
+    if changes.pop("kernel_from_full", False):
+        provider = _kernel_at_full_spectrum(provider, camera.radiance, system.scene_temperature_k)
+    glare = not changes.pop("no_glare", False)
+    kw = {"haze": opt.haze, "field_patches": opt.field_patches, **changes}
     return [build_channel_optics(ch, provider, camera.radiance, ss=ss, psf_size_px=opt.psf_size_px,
-                                 field_patches=opt.field_patches, patch_threshold=opt.patch_threshold,
-                                 scene_temperature_k=system.scene_temperature_k, haze=opt.haze,
+                                 patch_threshold=opt.patch_threshold,
+                                 scene_temperature_k=system.scene_temperature_k,
                                  transmitted=1.0 if tr is None or provider_name != "optics"
                                  else tr.metasurface_transmission,
-                                 leaks=() if tr is None else [(lk.power_fraction / tr.throughput, lk.radius_um)
-                                                              for lk in tr.leaks])
+                                 leaks=() if tr is None or not glare else [(lk.power_fraction / tr.throughput,
+                                                                            lk.radius_um) for lk in tr.leaks], **kw)
             for ch, tr in zip(camera.channels, trains)]
+
+
+def _kernel_at_full_spectrum(provider: Any, radiance: BandRadiance, temperature_k: float) -> Any:
+    """``provider`` asked for the full model's wavelength bins whatever bins it is given."""
+    def call(channel: Channel, *, pitch_um: float, field_deg: float, wavelengths_um: np.ndarray, weights: np.ndarray,
+             size_px: int) -> Any:
+        lam, w = radiance.psf_wavelengths(channel.lens.wavelength_um, temperature_k)
+        return provider(channel, pitch_um=pitch_um, field_deg=field_deg, wavelengths_um=lam, weights=w,
+                        size_px=size_px)
+    return call
+
+
+#: the options each replaced effect of a reduced model sets (the others act on the optics and the renderers)
+_EFFECT_OPTIONS: dict[str, dict[str, Any]] = {
+    "haze": {"haze": False}, "train": {"optical_train": False},
+    "relative_illumination": {"relative_illumination": False}, "field_patches": {"field_patches": 1},
+    "extinction": {"extinction": 0.0}, "bolometer_lag": {"bolometer_tau_s": 0.0},
+    "noise": {"noise": False}, "fpn": {"fpn_rank": 0}, "quantisation": {"quantize": False}}
+
+
+def _with_effects_replaced(opt: SimulationOptions, reduce: tuple[str, ...]) -> SimulationOptions:
+    """The options of the model with ``reduce``'s effects replaced (those that are options)."""
+    changes: dict[str, Any] = {}
+    for e in reduce:
+        changes.update(_EFFECT_OPTIONS.get(e, {}))
+    return replace(opt, **changes) if changes else opt
+
+
+def _reduced_optics(optics: list[ChannelOptics], reduce: tuple[str, ...]) -> list[ChannelOptics]:
+    """The optics with the glare as a uniform level and the kernels binned to 1 sample per pixel, as asked."""
+    out = []
+    for o in optics:
+        if "glare" in reduce:
+            o = glare_as_pedestal(o)
+        if "supersample" in reduce and o.ss > 1:
+            o = resample_optics(o, 1)
+        out.append(o)
+    return out
 
 
 def _options(options: SimulationOptions | None, overrides: dict[str, Any]) -> SimulationOptions:
@@ -226,16 +300,27 @@ def _scene_for(scene: str | Path | Scene, system: SystemDesign, camera: Camera, 
 
 
 def _truth_images(renderers: list[ChannelRenderer], camera: Camera, times: np.ndarray, *, static: bool,
-                  progress: bool, name: str) -> tuple[np.ndarray, np.ndarray]:
-    """Noise-free DN images ``(x1, x2)`` float32: ``(H, W)`` each for a static scene, ``(T, H, W)`` for a video."""
+                  progress: bool, name: str, plan: Plan | None = None,
+                  rendered: dict | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Noise-free DN images ``(x1, x2)`` float32: ``(H, W)`` each for a static scene, ``(T, H, W)`` for a video (a
+    static scene's parts that ``plan``'s pilot computed at the model's sampling are reused; ``rendered``: the
+    renderers' images by time, filled and reused across models of one sweep that render alike)."""
     sensor = camera.sensor
     dl_dt = camera.radiance.derivative(300.0)
     gains = camera.gains
 
     def truth_at(t: float) -> tuple[np.ndarray, np.ndarray]:
-        out = [sensor.to_dn(rd.render(t), gi, dl_dt).astype(np.float32) for rd, gi in zip(renderers, gains)]
+        if rendered is not None and t not in rendered:
+            rendered[t] = [rd.render(t) for rd in renderers]
+        images = rendered[t] if rendered is not None else [rd.render(t) for rd in renderers]
+        out = [sensor.to_dn(im, gi, dl_dt).astype(np.float32) for im, gi in zip(images, gains)]
         return out[0], out[1]
 
+    if static and plan is not None:
+        t0 = float(times[0])
+        out = [sensor.to_dn(rd.render_static(t0, **plan.reusable(i)), gi, dl_dt).astype(np.float32)
+               for i, (rd, gi) in enumerate(zip(renderers, gains))]
+        return out[0], out[1]
     if static:
         return truth_at(float(times[0]))
     n_frames = times.size
@@ -432,11 +517,76 @@ def simulate(system: SystemDesign, scene: str | Path | Scene | np.ndarray, optio
     """
     t_start = time.perf_counter()
     opt = _options(options, overrides)
-    n_frames = check_int("frames", opt.frames, 1, 100_000)
-    r_pol, r_fpn, r_noise = _child_rngs(rng, 3)
+    check_int("frames", opt.frames, 1, 100_000)
+    tol = None if opt.tolerance_k is None else check_tolerance(opt.tolerance_k)
+    reduce = check_effects(opt.reduce)
+    if tol is not None and reduce:
+        raise InputError("reduce", list(reduce), "no effects when tolerance_k is given (the plan chooses them)")
+    opt = _with_effects_replaced(opt, reduce)
     with heartbeat("simulate: the lenses' posts and optical train (the RCWA library and the posts at oblique "
                    "incidence: computed on a first run, then cached)", enabled=opt.progress):
         camera = camera_for(system, opt)
+    return _simulate_with(system, camera, scene, opt, reduce, tol, rng, t_start)
+
+
+def _model_optics(system: SystemDesign, camera: Camera, sc: Scene, times: np.ndarray, opt: SimulationOptions,
+                  ss: int, reduce: tuple[str, ...], tol: float | None, r_pol: np.random.Generator,
+                  cache: dict | None = None
+                  ) -> tuple[str, list[ChannelOptics], Plan | None, tuple[str, ...], SimulationOptions]:
+    """The channels' optics of the model: the full model's, then the plan's (``tol``) or ``reduce``'s replacements.
+    Returns the provider's name, the optics, the plan (None without ``tol``), the replaced effects and the
+    options (with a plan's replacements). ``cache``: optics already built for the same camera (a sweep of models,
+    :mod:`metafovea.imaging.ablate`), keyed by what they depend on."""
+    provider, provider_name = resolve_provider(opt.psf, opt.psf_cache_dir, camera.post_sets)
+    trains = camera.trains or (None, None)
+
+    def optics_for(o: SimulationOptions = opt, **changes: Any) -> list[ChannelOptics]:
+        key = ("optics", ss, o.haze, o.field_patches, o.psf_size_px, o.patch_threshold, id(o.psf),
+               camera.trains is None, tuple(sorted(changes.items())))
+        if cache is not None and key in cache:
+            return cache[key]
+        out = _channel_optics(system, camera, provider, provider_name, trains, ss, o, **changes)
+        if cache is not None:
+            cache[key] = out
+        return out
+
+    with heartbeat(f"simulate: the channels' PSFs ({provider_name}; computed on a first run, then cached)",
+                   enabled=opt.progress):
+        optics = optics_for(**({"n_psf_wavelengths": REDUCED_PSF_WAVELENGTHS} if "spectral" in reduce else {}))
+    plan = None
+    if tol is not None:
+        inputs = PlanInputs(camera, sc, times, optics, opt.relative_illumination, optics_for, copy.deepcopy(r_pol),
+                            system.scene_temperature_k, noise=camera.sensor.noise, quantize=camera.sensor.quantize)
+        plan = plan_model(inputs, tol, ss)
+        log.info("plan: %s", "; ".join(plan.lines()))
+        reduce = plan.reduce
+        if "field_patches" in reduce:
+            opt = _with_effects_replaced(opt, ("field_patches",))
+            optics = optics_for(opt)
+    return provider_name, _reduced_optics(optics, reduce), plan, reduce, opt
+
+
+def _model_meta(reduce: tuple[str, ...], plan: Plan | None) -> dict[str, Any]:
+    """The Measurement's ``meta['model']``: full or REDUCED, the replaced effects and the plan."""
+    if not reduce:
+        return {"reduced": False, "reduce": [], "note": "the full model" + (
+            " (the plan kept every effect)" if plan is not None else ""),
+                **({"plan": plan.summary()} if plan is not None else {})}
+    return {"reduced": True, "reduce": list(reduce),
+            "note": "REDUCED MODEL: " + ", ".join(reduce) + " replaced by cheaper alternatives "
+                    "(metafovea.imaging.plan.EFFECTS)" + (f", within {plan.tolerance_k:g} K rms of the full model "
+                                                          "by the plan's estimates" if plan is not None else ""),
+            **({"plan": plan.summary()} if plan is not None else {})}
+
+
+def _simulate_with(system: SystemDesign, camera: Camera, scene: str | Path | Scene | np.ndarray,
+                   opt: SimulationOptions, reduce: tuple[str, ...], tol: float | None,
+                   rng: np.random.Generator | int | None, t_start: float, cache: dict | None = None) -> Measurement:
+    """:func:`simulate` with its camera built (``opt``: the options with ``reduce``'s option effects replaced).
+    ``cache``: what a sweep of models of one camera and scene shares (:mod:`metafovea.imaging.ablate`): the optics
+    by what they depend on, the rendered images by the optics and the rendering's switches."""
+    n_frames = opt.frames
+    r_pol, r_fpn, r_noise = _child_rngs(rng, 3)
     sensor, pol = camera.sensor, camera.polarizer
 
     times = sensor.frame_times(n_frames, opt.t0_s)
@@ -446,19 +596,27 @@ def simulate(system: SystemDesign, scene: str | Path | Scene | np.ndarray, optio
     check_memory(n_frames, sensor.shape, video=not sc.static, calibration_frames=n_cal)
 
     t_psf = time.perf_counter()
-    provider, provider_name = resolve_provider(opt.psf, opt.psf_cache_dir, camera.post_sets)
-    trains = camera.trains or (None, None)
-    with heartbeat(f"simulate: the channels' PSFs ({provider_name}; computed on a first run, then cached)",
-                   enabled=opt.progress):
-        optics = _channel_optics(system, camera, provider, provider_name, trains, ss, opt)
+    provider_name, optics, plan, reduce, opt = _model_optics(system, camera, sc, times, opt, ss, reduce, tol, r_pol,
+                                                             cache)
     t_psf = time.perf_counter() - t_psf
     for o in optics:
         log.info("%s channel PSF: %s", o.channel.name, o.info)
 
     t_render = time.perf_counter()
+    trains = camera.trains or (None, None)
     renderers = [ChannelRenderer(sc, o, camera.radiance, opt.relative_illumination,
-                                 None if tr is None else tr.field_factor) for o, tr in zip(optics, trains)]
-    x1, x2 = _truth_images(renderers, camera, times, static=sc.static, progress=opt.progress, name=sc.name)
+                                 None if tr is None or "train_field" in reduce else tr.field_factor,
+                                 sub=1 if "far_sampling" in reduce else None,
+                                 far_cache=None if cache is None else cache.setdefault("far", {}))
+                 for o, tr in zip(optics, trains)]
+    rendered = None
+    if cache is not None and plan is None:
+        key = ("render", ss, opt.haze, opt.field_patches, opt.psf_size_px, opt.patch_threshold, id(opt.psf),
+               opt.relative_illumination, camera.trains is None,
+               tuple(e for e in reduce if e in ("supersample", "far_sampling", "glare", "train_field", "spectral")))
+        rendered = cache.setdefault(key, {})
+    x1, x2 = _truth_images(renderers, camera, times, static=sc.static, progress=opt.progress, name=sc.name,
+                           plan=plan, rendered=rendered)
     t_render = time.perf_counter() - t_render
 
     theta, pol_info = pol.angles(times, r_pol)
@@ -473,8 +631,16 @@ def simulate(system: SystemDesign, scene: str | Path | Scene | np.ndarray, optio
 
     saturated = _saturated_fraction(frames, sensor)
     timing = {"psf": t_psf, "render": t_render, "mix_noise": t_mix, "total": time.perf_counter() - t_start}
-    meta = _measurement_meta(system, camera, sc, opt, rng=rng, ss=ss, provider_name=provider_name, optics=optics,
-                             pol_info=pol_info, alpha_nominal=alpha_nominal, saturated=saturated, timing_s=timing)
+    if plan is not None:
+        timing["plan"] = plan.seconds
+    meta = _measurement_meta(system, camera, sc, opt, rng=rng, ss=optics[0].ss, provider_name=provider_name,
+                             optics=optics, pol_info=pol_info, alpha_nominal=alpha_nominal, saturated=saturated,
+                             timing_s=timing)
+    meta["model"] = _model_meta(reduce, plan)
+    ratio = camera.radiance.derivative(system.scene_temperature_k) / camera.radiance.derivative(300.0)
+    meta["model"]["dn_per_k"] = {"x1": sensor.counts_per_k * camera.gains[0] * ratio,
+                                 "x2": sensor.counts_per_k * camera.gains[1] * ratio,
+                                 "scene_temperature_k": float(system.scene_temperature_k)}
     psf_arrays, meta["psf"]["pixel"] = _psf_extras(renderers, camera, times, static=sc.static)
     meta["psf_pedestal"] = {c: float((meta["psf"]["pixel"].get(c) or {}).get("pedestal", 0.0)) for c in ("x1", "x2")}
     extras = {**_extras(theta, calibration, fpn, n_frames), **psf_arrays}
@@ -505,7 +671,17 @@ class SimulationRun:
                 "haze_fraction": {c: psf[c]["haze"].get("fraction", 0.0) for c in ("foveal", "perifoveal")},
                 "foveal_constraint": m.meta["foveal_constraint"], "saturated_fraction": m.meta["saturated_fraction"],
                 "seconds": {k: round(v, 3) for k, v in self.seconds.items()},
-                "files": {k: str(v) for k, v in self.files.items()}}
+                "files": {k: str(v) for k, v in self.files.items()}, **_model_summary(m.meta.get("model"))}
+
+
+def _model_summary(model: dict[str, Any] | None) -> dict[str, Any]:
+    """The run summary's ``model`` (full or REDUCED, what was replaced) and ``plan`` (when a tolerance was given)."""
+    if not model:
+        return {}
+    out: dict[str, Any] = {"model": {"reduced": model["reduced"], "reduce": model["reduce"], "note": model["note"]}}
+    if "plan" in model:
+        out["plan"] = model["plan"]
+    return out
 
 
 def output_paths(out: str | Path, *, tiff: bool = True, preview: bool = True) -> dict[str, Path]:
@@ -643,6 +819,26 @@ def write_preview(m: Measurement, path: str | Path, force: bool = False, dpi: in
     a.set_xlabel("t (s)")
     a.set_ylabel("mean " + m.meta.get("units", "DN"))
     a.set_title("frame mean", fontsize=9)
+    model = m.meta.get("model") or {}
     fig.suptitle(f"metafovea simulate: scene '{m.meta.get('scene', '?')}', {T} frames "
-                 f"{m.frames.shape[1]}x{m.frames.shape[2]}, seed {m.meta.get('seed')}", fontsize=11)
+                 f"{m.frames.shape[1]}x{m.frames.shape[2]}, seed {m.meta.get('seed')}"
+                 + ("   [REDUCED MODEL: " + ", ".join(model["reduce"]) + " replaced]" if model.get("reduced") else ""),
+                 fontsize=11, color="darkred" if model.get("reduced") else "black")
+    if "plan" in model:
+        _plan_panel(fig, model["plan"])
     return atomic_write_bytes(p, fig_to_png(fig, dpi=dpi))
+
+
+def _plan_panel(fig: Any, plan: dict[str, Any]) -> None:
+    """The plan table as a text panel under the preview's images (the figure grows to hold it)."""
+    from metafovea.imaging.plan import plan_lines
+
+    lines = plan_lines(plan)
+    w, h = fig.get_size_inches()
+    extra = 0.17 * (len(lines) + 1)
+    fig.set_size_inches(w, h + extra)
+    for ax in fig.axes:  # keep the image panels where they were, in the upper part
+        x0, y0, bw, bh = ax.get_position().bounds
+        ax.set_position([x0, (y0 * h + extra) / (h + extra), bw, bh * h / (h + extra)])
+    fig.text(0.01, (extra - 0.1) / (h + extra), "\n".join(lines), family="monospace", fontsize=6.5, va="top",
+             color="darkred" if plan["reduce"] else "black")

@@ -200,3 +200,36 @@ def test_a_cold_pixel_warning_names_the_flag(tmp_path, capsys):
                  "--psf", "airy", "--posts", "ideal", "--no-train", "--no-tiff", "--no-preview"]) == 0
     err = capsys.readouterr().err
     assert err.count("colder than any sky") == 1 and "--scene-unit celsius converts it" in err
+
+
+def test_cli_tolerance_prints_the_plan_and_writes_it_to_the_json_and_the_file(tmp_path, capsys):
+    """--tolerance-k: the plan table printed before the summary, in the --json summary and the Measurement's
+    metadata (``model``), saying the model is REDUCED."""
+    from metafovea.measurement import Measurement
+
+    out = tmp_path / "m.npz"
+    base = ["simulate", "--scene", "uniform", "--frames", "2", "--psf", "airy", "--no-tiff"]
+    assert main(base + ["--tolerance-k", "0.5", "--out", str(out)]) == 0
+    text = capsys.readouterr().out
+    assert text.startswith("REDUCED MODEL for a tolerance of 0.5 K rms")
+    assert "supersampling" in text and "temporal noise" in text and "scene uniform:" in text
+    assert (tmp_path / "m_preview.png").is_file()
+    model = Measurement.load(out).meta["model"]
+    assert model["reduced"] and model["plan"]["tolerance_k_rms"] == 0.5
+    assert main(base + ["--tolerance-k", "0.5", "--out", str(tmp_path / "j.npz"), "--json"]) == 0
+    summary = json.loads(capsys.readouterr().out)
+    assert summary["model"]["reduced"] and summary["plan"]["reduce"] == model["reduce"]
+    assert main(base + ["--out", str(tmp_path / "f.npz"), "--json"]) == 0
+    summary = json.loads(capsys.readouterr().out)
+    assert summary["model"]["reduced"] is False and "plan" not in summary
+
+
+@pytest.mark.parametrize("bad", ["0", "-1", "200", "abc"])
+def test_cli_a_bad_tolerance_is_one_line_naming_the_flag(bad, tmp_path, capsys, cli_error):
+    assert main(["simulate", "--scene", "uniform", "--frames", "1", "--psf", "airy", f"--tolerance-k={bad}",
+                 "--out", str(tmp_path / "m.npz")]) == 2
+    err = cli_error(capsys)
+    assert len(err.splitlines()) == 1 and err.count("--tolerance-k") >= 1
+    if bad != "abc":
+        assert "0 K < --tolerance-k <= 100 K" in err
+    assert not (tmp_path / "m.npz").exists()
