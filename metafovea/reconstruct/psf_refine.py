@@ -354,8 +354,9 @@ def _build_family(system: SystemDesign, ci: int, kind: str, values: np.ndarray, 
 def families_for(m: Measurement, system: SystemDesign | None = None, *, kind: str = "defocus",
                  channels: Sequence[int | str] = ("foveal", "perifoveal"), values: ArrayLike | None = None,
                  cache: bool = True) -> list[PSFFamily]:
-    """The families of :func:`psf_family` for a Measurement: its filter (from its radiometric calibration) and
-    the system that made it (default: the paper's prototype).
+    """The families of :func:`psf_family` for a Measurement: the system that made it (default: the paper's
+    prototype) with the sensor's working crop set to the frames' size, and the filter its radiometric calibration
+    states.
 
     Parameters
     ----------
@@ -371,6 +372,10 @@ def families_for(m: Measurement, system: SystemDesign | None = None, *, kind: st
     -------
     list of PSFFamily
     """
+    from metafovea.config import SystemDesign
+
+    system = system or SystemDesign.paper()
+    system = replace(system, sensor=replace(system.sensor, crop=(int(m.shape[1]), int(m.shape[2]))))
     cal = m.radiometric_calibration
     filt = None if cal is None else cal.filter_um is not None
     return [psf_family(system, channel=c, kind=kind, values=values, filter_enabled=filt, cache=cache)
