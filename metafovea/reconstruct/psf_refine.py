@@ -121,6 +121,12 @@ FAMILY_ALPHA = 0.05
 MIN_FREQUENCY_CELLS = 3
 #: knots of the spectrum's spline, eq. (1), per octave of ``|f|``
 KNOTS_PER_OCTAVE = 1.0
+#: the spectrum's curvature, eq. (1): the slope of ``ln S`` against octaves of ``|f|`` changes by this much per octave
+#: (one standard deviation of a Gaussian prior on the second differences): a slope that wanders like natural scenes'
+#: exponents between scenes (+-0.43 about 1.88: van der Schaaf and van Hateren, Vision Res. 36, 2759 (1996)) within
+#: each octave. 0 would be a power law, which a scene of a few objects bends beyond; no limit lets the spectrum follow
+#: a smooth blur's attenuation and the PSF go unidentified
+CURVATURE_PER_OCTAVE = 0.5
 #: Fisher-scoring steps of the spline's knots (each step halved up to 12 times until it lowers eq. 3)
 SCORING_STEPS = 60
 #: version of the cached families' format (part of the cache key)
@@ -396,16 +402,26 @@ def _otf_on(shape: tuple[int, int], k: np.ndarray) -> np.ndarray:
     return rfft2(kk)
 
 
+def _hann(n: int) -> np.ndarray:
+    """The taper along one axis: ``sin^2`` over ``n + 2`` points without its zero ends."""
+    return np.hanning(n + 2)[1:-1]
+
+
+#: the Hann taper's spectral window per axis, ``|W(k)|^2`` at DFT offsets -1, 0, +1 over their sum (its coefficients
+#: are -1/4, 1/2, -1/4: powers 1/16, 1/4, 1/16): the tapered periodogram's expectation is the spectrum smoothed by it
+TAPER_WINDOW = (1.0 / 6.0, 2.0 / 3.0, 1.0 / 6.0)
+
+
 @dataclass
 class _Periodogram:
-    """Eq. (3)'s data: the tapered periodogram per pixel on the frequencies used, their weights, ``ln |f|``, the
-    noise variance and the taper's variance inflation ``rho``; the spline's knots and each frequency's two."""
+    """Eq. (3)'s data on the crop's rfft grid ``(P, Q // 2 + 1)``: the tapered periodogram per pixel, each frequency's
+    weight (0 where unused), ``ln |f|`` (clipped to the knots' span), the noise variance and the taper's variance
+    inflation ``rho``; the spline's knots and each frequency's lower knot ``i0`` and upper knot's weight ``w1``."""
 
     shape: tuple[int, int]
     used: np.ndarray
     power: np.ndarray
     weight: np.ndarray
-    log_f: np.ndarray
     noise_var: float
     rho: float
     knots: np.ndarray
@@ -417,66 +433,81 @@ class _Periodogram:
         from scipy.fft import rfft2
 
         H, W = z.shape
-        w = np.outer(np.hanning(H + 2)[1:-1], np.hanning(W + 2)[1:-1])
+        w = np.outer(_hann(H), _hann(W))
         s2 = float(np.sum(w ** 2))
         power = np.abs(rfft2((z - np.mean(z)) * w)) ** 2 / s2
         f = rfft_frequencies((H, W))
         used = f >= MIN_FREQUENCY_CELLS / min(H, W)
-        wt = np.ones(f.shape)
-        wt[:, 0] = 0.5  # the self-conjugate columns hold each frequency twice
+        wt = np.where(used, 1.0, 0.0)
+        wt[:, 0] *= 0.5  # the self-conjugate columns hold each frequency twice
         if W % 2 == 0:
-            wt[:, -1] = 0.5
+            wt[:, -1] *= 0.5
         rho = H * W * float(np.sum(w ** 4)) / s2 ** 2
-        log_f = np.log(f[used])
         # the spline: knots 1 / knots_per_octave octaves apart from the lowest frequency used to the highest
-        lo, hi = float(log_f.min()), float(log_f.max())
+        lo, hi = float(np.log(f[used].min())), float(np.log(f.max()))
         n = max(2, int(math.ceil((hi - lo) / math.log(2.0) * knots_per_octave)) + 1)
         knots = np.linspace(lo, hi, n)
-        t = (log_f - lo) / (knots[1] - knots[0])
+        t = (np.clip(np.log(np.maximum(f, 1e-300)), lo, hi) - lo) / (knots[1] - knots[0])
         i0 = np.clip(np.floor(t).astype(int), 0, n - 2)
-        return cls((H, W), used, power[used], wt[used], log_f, float(noise_var), rho, knots, i0, t - i0)
+        return cls((H, W), used, power, wt, float(noise_var), rho, knots, i0, t - i0)
+
+    def smooth(self, x: np.ndarray) -> np.ndarray:
+        """``x`` (rfft grid) convolved with :data:`TAPER_WINDOW` along both axes; beyond the half plane's first and
+        last columns the values are their mirror images (``x(-f) = x(f)`` for the symmetric fields here)."""
+        a, b, _ = TAPER_WINDOW
+        y = b * x + a * (np.roll(x, 1, axis=0) + np.roll(x, -1, axis=0))
+        P, Q = self.shape
+        neg = (-np.arange(P)) % P
+        left = np.concatenate([y[neg, 1][:, None], y[:, :-1]], axis=1)
+        # beyond the last column: the column of frequency -(last + 1), i.e. the mirror of Q/2 - 1 (Q even) or of
+        # (Q - 1)/2 itself (Q odd)
+        right = np.concatenate([y[:, 1:], y[neg, -2 if Q % 2 == 0 else -1][:, None]], axis=1)
+        return b * y + a * (left + right)
 
     def _log_spectrum(self, theta: np.ndarray) -> np.ndarray:
         return (1.0 - self.w1) * theta[self.i0] + self.w1 * theta[self.i0 + 1]
 
     def terms(self, d2: np.ndarray, theta: np.ndarray) -> np.ndarray:
-        """Eq. (3)'s term at each used frequency (before the division by ``rho``)."""
-        s = np.maximum(d2, 1e-300) * np.exp(self._log_spectrum(theta)) + self.noise_var
-        return self.weight * (np.log(s) + self.power / s)
+        """Eq. (3)'s term at each frequency of the grid (0 where unused; before the division by ``rho``): the
+        expectation ``|D|^2 S`` smoothed by the taper's window, plus the noise."""
+        m = self.smooth(d2 * np.exp(self._log_spectrum(theta))) + self.noise_var
+        return self.weight * (np.log(m) + self.power / m)
 
     def fit(self, d2: np.ndarray) -> tuple[float, np.ndarray]:
-        """Eq. (3) (before the division by ``rho``) minimised over the spline's knots for the squared transfer
-        function ``d2`` on the used frequencies: ``(value, ln S at the knots)``. Fisher scoring (the expected Hessian,
-        positive semi-definite), each step halved until it lowers the value."""
-        K, i0, i1, w1 = self.knots.size, self.i0, self.i0 + 1, self.w1
-        w0 = 1.0 - w1
+        """Eq. (3) (before the division by ``rho``), plus the spectrum's curvature penalty, minimised over the
+        spline's knots for the squared transfer function ``d2`` (rfft grid): ``(value, ln S at the knots)``. Fisher
+        scoring (the expected Hessian, positive semi-definite), each step halved until it lowers the value."""
+        K, i0, w1 = self.knots.size, self.i0, self.w1
+        basis = [np.where(i0 == k, 1.0 - w1, 0.0) + np.where(i0 + 1 == k, w1, 0.0) for k in range(K)]
         P, wt, nv = self.power, self.weight, self.noise_var
+        h = (self.knots[1] - self.knots[0]) / math.log(2.0)  # octaves between knots
+        L = np.diff(np.eye(K), 2, axis=0)
+        # the curvature penalty in the same units as eq. (3)'s sum: rho (sum_k (second difference / h^2)^2 h) / 2 tau^2
+        R = (self.rho / (2.0 * CURVATURE_PER_OCTAVE ** 2 * h ** 3)) * (L.T @ L)
         dd = np.maximum(d2, 1e-300)
-
-        def per_knot(v: np.ndarray) -> np.ndarray:
-            return np.bincount(i0, v * w0, K) + np.bincount(i1, v * w1, K)
-
         # start: each knot's detected signal over the transfer function (a floor where nothing is detected)
-        count = per_knot(wt)
-        theta = np.log(np.maximum(per_knot(wt * np.maximum(P - nv, 0.0)), 1e-3 * nv * np.maximum(count, 1e-30))
-                       / np.maximum(per_knot(wt * dd), 1e-300))
-        v = float(np.sum(self.terms(d2, theta)))
+        num = np.array([np.sum(wt * b * np.maximum(P - nv, 0.0)) for b in basis])
+        den = np.array([np.sum(wt * b * dd) for b in basis])
+        cnt = np.array([np.sum(wt * b) for b in basis])
+        theta = np.log(np.maximum(num, 1e-3 * nv * np.maximum(cnt, 1e-30)) / np.maximum(den, 1e-300))
+
+        def total(th: np.ndarray) -> float:
+            return float(np.sum(self.terms(dd, th))) + float(th @ R @ th)
+
+        v = total(theta)
         for _ in range(SCORING_STEPS):
             x = dd * np.exp(self._log_spectrum(theta))
-            sf = x + nv
-            q = x / sf
-            grad = per_knot(wt * q * (1.0 - P / sf))
-            f_f = wt * q * q
-            F = np.zeros((K, K))
-            np.add.at(F, (i0, i0), f_f * w0 * w0)
-            np.add.at(F, (i1, i1), f_f * w1 * w1)
-            np.add.at(F, (i0, i1), f_f * w0 * w1)
-            F = F + np.triu(F, 1).T
+            m = self.smooth(x) + nv
+            r = wt * (1.0 / m - P / m ** 2)
+            J = [self.smooth(x * b) for b in basis]  # d m / d theta_k
+            grad = np.array([np.sum(r * j) for j in J]) + 2.0 * R @ theta
+            g2 = wt / m ** 2
+            F = np.array([[np.sum(g2 * ja * jb) for jb in J] for ja in J]) + 2.0 * R
             # a knot the data do not reach (no signal through the OTF) is held by a vanishing ridge
             F[np.diag_indices(K)] += 1e-9 * max(float(np.trace(F)), 1e-30) + 1e-12
             step = np.clip(-np.linalg.solve(F, grad), -3.0, 3.0)
             for _ in range(12):
-                v_new = float(np.sum(self.terms(d2, theta + step)))
+                v_new = total(theta + step)
                 if v_new <= v:
                     break
                 step *= 0.5
@@ -522,13 +553,13 @@ def psf_evidence(z: ArrayLike, noise_var: float, kernels: Sequence[np.ndarray], 
     if not 0 <= reference < len(kernels):
         raise InputError("reference", reference, f"an index of the {len(kernels)} kernels")
     pg = _Periodogram.of(zz, noise_var, knots_per_octave)
-    d2s = [np.abs(_otf_on(pg.shape, np.asarray(k, np.float64)))[pg.used] ** 2 for k in kernels]
+    d2s = [np.abs(_otf_on(pg.shape, np.asarray(k, np.float64))) ** 2 for k in kernels]
     fits = [pg.fit(d2) for d2 in d2s]
     nle = np.array([v for v, _ in fits]) / pg.rho
     ref_terms = pg.terms(d2s[reference], fits[reference][1])
     zs = np.zeros(len(fits))
     for j, (d2, (_, th)) in enumerate(zip(d2s, fits)):
-        d = ref_terms - pg.terms(d2, th)
+        d = (ref_terms - pg.terms(d2, th))[pg.used]
         sd = math.sqrt(pg.rho * float(np.sum((d - d.mean()) ** 2)))
         zs[j] = float(d.sum()) / sd if sd > 0 else 0.0
     return {"neg_log_evidence": nle, "two_ln_b": 2.0 * (nle[reference] - nle), "z": zs,
