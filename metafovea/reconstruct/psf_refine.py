@@ -130,7 +130,7 @@ CURVATURE_PER_OCTAVE = 0.5
 #: Fisher-scoring steps of the spline's knots (each step halved up to 12 times until it lowers eq. 3)
 SCORING_STEPS = 60
 #: version of the cached families' format (part of the cache key)
-FAMILY_CACHE_VERSION = 1
+FAMILY_CACHE_VERSION = 2
 
 
 def defocus_shift_um(na: float, wavelength_um: float, waves: float) -> float:
@@ -303,16 +303,16 @@ def psf_family(system: SystemDesign | None = None, *, channel: int | str = "fove
     unit = UNITS[kind]
     if cache and path.is_file():
         try:
-            arrays, meta = load_npz(path)
+            arrays, stored = load_npz(path)  # the cache file's own record (not a Measurement's metadata)
             ks = tuple(arrays[f"k{j}"] for j in range(v.size))
-            return PSFFamily(ci, kind, v, ks, tuple(meta["pedestals"]), 0.0, unit, meta["source"])
+            return PSFFamily(ci, kind, v, ks, tuple(arrays["pedestals"].tolist()), 0.0, unit, stored["source"])
         except Exception as e:  # noqa: BLE001 - a corrupt cache entry is recomputed
             log.warning("ignoring unreadable PSF family cache %s: %s", path, e)
     kernels, pedestals, source = _build_family(system, ci, kind, v, fe, supersample, posts, optical_train)
     if cache:
         try:
-            atomic_save_npz(path, {"kind": "psf-family", "key": key, "pedestals": pedestals, "source": source},
-                            **{f"k{j}": k for j, k in enumerate(kernels)})
+            atomic_save_npz(path, {"kind": "psf-family", "key": key, "source": source},
+                            pedestals=np.asarray(pedestals), **{f"k{j}": k for j, k in enumerate(kernels)})
         except OSError as e:
             log.warning("could not cache the PSF family in %s: %s", path, e)
     return PSFFamily(ci, kind, v, tuple(kernels), tuple(pedestals), 0.0, unit, source)
