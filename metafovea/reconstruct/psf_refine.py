@@ -579,6 +579,7 @@ class PSFRefinement:
         Per family: ``channel`` (``'x1'``/``'x2'``), ``kind``, ``unit``, ``nominal``, ``best`` (the member of largest
         evidence), ``chosen`` (``best`` where it passes both tests, else ``nominal``), ``refined`` (bool),
         ``two_ln_b`` and ``z`` (eq. 4 of ``best`` against the nominal), ``z_min`` (the corrected one-sided level),
+        ``kernel_change`` (the total-variation distance of ``best``'s kernel from the nominal one, each normalised),
         ``interval`` (the members within ``2 ln B`` = 1 of ``best``), ``at_edge`` (``best`` is the family's first or
         last member), ``nominal_matches_file`` (the family's nominal kernel is the file's, within 1 % of its power),
         ``curve`` (``values``, ``two_ln_b``, ``z``), ``warning`` (a line, or None) and ``source``.
@@ -640,12 +641,13 @@ def _channel_choice(fam: PSFFamily, ev: dict[str, Any], file_kernel: np.ndarray,
     near = np.flatnonzero(two_ln_b >= ratio - 1.0)
     refined = jb != j0 and ratio >= min_evidence and float(z[jb]) >= z_min
     tv = _tv_distance(fam.kernels[j0], file_kernel)
+    moved = _tv_distance(fam.kernels[j0], fam.kernels[jb])
     at_edge = jb in (0, fam.values.size - 1)
     notes = []
     if refined:
         notes.append(f"the x{fam.channel} PSF differs from the file's ({fam.kind} {fam.values[jb]:+g} {fam.unit}, "
-                     f"2 ln B = {ratio:.0f}, Z = {z[jb]:.1f}): with the file's PSF the reconstruction would lose "
-                     "accuracy")
+                     f"2 ln B = {ratio:.0f}, Z = {z[jb]:.1f}; the kernel moves by a total-variation distance of "
+                     f"{moved:.2f}): with the file's PSF the reconstruction would lose accuracy")
     elif jb != j0 and ratio >= min_evidence:
         notes.append(f"the x{fam.channel} evidence favours {fam.kind} {fam.values[jb]:+g} {fam.unit} (2 ln B = "
                      f"{ratio:.0f}) but not beyond the scene model's error (Z = {z[jb]:.1f} < {z_min:.2f}): a PSF "
@@ -657,7 +659,7 @@ def _channel_choice(fam: PSFFamily, ev: dict[str, Any], file_kernel: np.ndarray,
                      f"{tv:.3f}): the family may not describe this camera")
     return {"channel": f"x{fam.channel}", "kind": fam.kind, "unit": fam.unit, "nominal": float(fam.values[j0]),
             "best": float(fam.values[jb]), "chosen": float(fam.values[jb if refined else j0]), "refined": bool(refined),
-            "two_ln_b": ratio, "z": float(z[jb]), "z_min": z_min,
+            "two_ln_b": ratio, "z": float(z[jb]), "z_min": z_min, "kernel_change": moved,
             "interval": [float(fam.values[near.min()]), float(fam.values[near.max()])], "at_edge": bool(at_edge),
             "nominal_matches_file": bool(tv <= 0.01),
             "curve": {"values": fam.values.tolist(), "two_ln_b": two_ln_b.tolist(), "z": z.tolist()},
