@@ -22,7 +22,13 @@ HELP = "separate foveal and perifoveal images from a measurement (.npz)"
 
 
 def register(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
-    from metafovea.reconstruct import DECONVOLUTION_METHODS, DEFAULT_DECONVOLUTION, DENOISERS, METHODS
+    from metafovea.reconstruct import (
+        DECONVOLUTION_METHODS,
+        DEFAULT_DECONVOLUTION,
+        DENOISERS,
+        FAMILY_KINDS,
+        METHODS,
+    )
 
     p = subparsers.add_parser("reconstruct", help=HELP, description=HELP)
     p.add_argument("measurement", help="Measurement .npz (frames, times_s, optional alpha / truth_x1 / truth_x2)")
@@ -73,6 +79,7 @@ def register(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
                    choices=DECONVOLUTION_METHODS, help="also recover the scene itself (PSF-aware, static scenes): "
                    f"<out>_scene.npz and .png in kelvin; the method (default {DEFAULT_DECONVOLUTION})")
     p.add_argument("--psf", default=None, help="for --deconvolve: a PSF file (.npz: psf_x1, psf_x2) (not the file's)")
+    p.add_argument("--refine-psf", choices=FAMILY_KINDS, help="for --deconvolve: refine the PSFs from the data")
     p.add_argument("--out", default=None, help="output .npz (default: <measurement>_rec.npz); figures next to it")
     p.add_argument("--no-figures", action="store_true", help="do not write PNG figures")
     p.add_argument("--no-score", action="store_true", help="do not score against the file's truth (faster)")
@@ -136,13 +143,12 @@ def run(args: argparse.Namespace) -> int:
     if args.deconvolve:
         from metafovea.reconstruct.deconvolve import deconvolve_result  # only here: a plain run starts faster
 
-        dec = deconvolve_result(m, res, args.deconvolve, args.psf, score_truth=not args.no_score)
-    if dec is not None:
+        dec = deconvolve_result(m, res, args.deconvolve, args.psf, score_truth=not args.no_score,
+                                refine_psf=args.refine_psf)
         files += write_scene(dec, scene_out)
     s = res.summary(files)
     if dec is not None:
-        s["scene"] = {k: v for k, v in dec.info.items() if k in ("method", "alpha_from", "sigma_dn", "scores",
-                                                                   "foveal_surround", "seconds", "psf_source")}
+        s["scene"] = dec.summary()
     if args.json:
         print(to_json(s))
         return 0
@@ -180,6 +186,7 @@ def run(args: argparse.Namespace) -> int:
         print(f"  scene ({dec.info['method']}, alpha from {dec.info['alpha_from']}, {dec.info['seconds']:.1f} s)"
               + ("" if not sc else ": against the scene " + ", ".join(f"{k} {v:.4g}" for k, v in sc.items()
                                                                        if isinstance(v, float) and "second" not in k)))
+        print("".join(f"  {line}\n" for line in (dec.info.get("psf_refinement") or {}).get("lines", [])), end="")
     print("  wrote " + ", ".join(s["files"]))
     return 0
 

@@ -10,7 +10,8 @@ Image formation per channel (linear in radiance, not temperature)::
   (:mod:`~metafovea.imaging.render`).
 * ``H_i``: the haze. A metalens focuses wavelength ``lambda`` at ``f lambda0 / lambda``, so at the
   design focal plane it spreads it over a disk of radius ``a |lambda / lambda0 - 1|`` (``a`` = lens
-  radius): 7.5 mm for the foveal lens at 8 um, hundreds of pixels. ``H_i`` is the band-weighted
+  radius; on a plane at ``z != f``: ``a |z lambda / (f lambda0) - 1|``): 7.5 mm for the foveal lens at 8 um,
+  hundreds of pixels. ``H_i`` is the band-weighted
   mixture of those disks for the wavelengths blurred beyond the kernel's window, ``h_i = 1 - sum(K_i)``.
   Disks up to ``NEAR_HAZE_PX`` pixels are folded into the kernel; larger ones are convolved on a coarse
   grid over a field extended by the haze radius and interpolated back. With the 0.5 um filter the haze
@@ -133,8 +134,12 @@ def airy_kernel(f_number: float, wavelength_um: float, pitch_um: float, size: in
 
 
 def chromatic_blur_radius_um(channel: Channel, wavelengths_um: np.ndarray) -> np.ndarray:
-    """Geometric blur radius at the design focal plane: ``a |lambda / lambda0 - 1|``."""
-    return channel.radius_um * np.abs(np.asarray(wavelengths_um) / channel.lens.wavelength_um - 1.0)
+    """Geometric blur radius on the channel's focal plane, at ``z`` (``channel.focal_length_um``) behind the lens:
+    ``a |z lambda / (f0 lambda0) - 1|`` (order 1 focuses ``lambda`` at ``f0 lambda0 / lambda``); at the design
+    focal plane ``z = f0`` this is ``a |lambda / lambda0 - 1|``."""
+    lens = channel.lens
+    z_over_f = channel.focal_length_um / lens.f_um
+    return channel.radius_um * np.abs(z_over_f * np.asarray(wavelengths_um) / lens.wavelength_um - 1.0)
 
 
 def airy_provider(channel: Channel, *, pitch_um: float, field_deg: float, wavelengths_um: np.ndarray,

@@ -24,6 +24,8 @@ Files:
 ``deconvolve``     PSF-aware: :func:`deconvolve_measurement`, :func:`separate_deconvolve`: joint separation and
                    deconvolution to the scene's radiance and brightness temperature
 ``joint``          its model and linear solves: :class:`ChannelPSFs`, the padded grid, CG, TV-ADMM
+``psf_refine``     its PSFs refined from the data: :func:`psf_family` (one-parameter families from the optics
+                   engine), :func:`refine_psf` (the member of largest evidence, where it beats the nominal)
 ``spectra``        its scene prior: radially averaged spectra, the fitted power law
 ``wavelet``        its non-linear step: the stationary wavelet frame, SURE-LET shrinkage and its risk estimate
 ``metrics``        PSNR, SSIM, :func:`~metafovea.reconstruct.metrics.score`; :func:`wiener_bound` and the
@@ -51,6 +53,7 @@ _HOMES = {
     "DECONVOLUTION_METHODS": "_common", "DEFAULT_DECONVOLUTION": "_common", "ChannelPSFs": "joint",
     "Deconvolution": "deconvolve",
     "deconvolve_measurement": "deconvolve", "separate_deconvolve": "deconvolve", "wiener_bound": "metrics",
+    "FAMILY_KINDS": "psf_refine", "PSFFamily": "psf_refine", "psf_family": "psf_refine", "refine_psf": "psf_refine",
     "DipOptions": "deep_prior", "dip": "deep_prior",
     "DENOISERS": "denoise", "denoise": "denoise",
     "figure_paths": "files", "prepare_outputs": "files", "write_outputs": "files",
@@ -93,9 +96,9 @@ def __dir__() -> list[str]:
 
 
 __all__ = ["AlternatingOptions", "ChannelPSFs", "DECONVOLUTION_METHODS", "DEFAULT_DECONVOLUTION", "DENOISERS",
-           "Deconvolution", "DipOptions",
-           "FPN_MODES", "FovealOperator", "METHODS", "PipelineResult", "Reconstruction", "SlidingLSQ", "alternating",
-           "centre_crop", "condition_number", "deconvolve_measurement", "denoise", "dip", "downsample",
-           "downsample_adjoint", "estimate_fpn", "figure_paths", "foveal_gauge", "fpn_mode", "lsq_known_alpha",
-           "prepare_outputs", "reconstruct", "reconstruct_measurement", "register", "separate_deconvolve", "snapshot",
+           "Deconvolution", "DipOptions", "FAMILY_KINDS", "FPN_MODES", "FovealOperator", "METHODS", "PSFFamily",
+           "PipelineResult", "Reconstruction", "SlidingLSQ", "alternating", "centre_crop", "condition_number",
+           "deconvolve_measurement", "denoise", "dip", "downsample", "downsample_adjoint", "estimate_fpn",
+           "figure_paths", "foveal_gauge", "fpn_mode", "lsq_known_alpha", "prepare_outputs", "psf_family",
+           "reconstruct", "reconstruct_measurement", "refine_psf", "register", "separate_deconvolve", "snapshot",
            "video", "wiener_bound", "write_outputs"]

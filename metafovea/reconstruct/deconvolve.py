@@ -48,7 +48,8 @@ its brightness temperature (:class:`metafovea.measurement.RadiometricCalibration
 Files: this module (:func:`separate_deconvolve`, :func:`deconvolve_measurement`, :func:`deconvolve_result`,
 :func:`temperatures`); :mod:`~metafovea.reconstruct.joint` (:class:`ChannelPSFs`, the grid, the linear solves);
 :mod:`~metafovea.reconstruct.spectra` (the scene prior); :mod:`~metafovea.reconstruct.metrics`
-(:func:`~metafovea.reconstruct.metrics.wiener_bound`, the scores against the scene).
+(:func:`~metafovea.reconstruct.metrics.wiener_bound`, the scores against the scene); :mod:`~metafovea.reconstruct.
+psf_refine` (the PSFs refined from the data, ``refine_psf``).
 
 Constants of the PSF-aware step and where each comes from (none is tuned to a named scene; "tuning seeds": the
 scene generator's, :data:`metafovea.imaging.generator.TUNING_SEED_START` and up, disjoint from the held-out set the
@@ -128,7 +129,10 @@ from metafovea.reconstruct.wavelet import (
 )
 
 if TYPE_CHECKING:
+    from collections.abc import Sequence
+
     from metafovea.measurement import Measurement
+    from metafovea.reconstruct.psf_refine import PSFFamily
     from metafovea.reconstruct.result import PipelineResult
 
 __all__ = ["BETA_RANGE", "BOUNDARIES", "DECONVOLUTION_METHODS", "DEFAULT_DECONVOLUTION", "PRIORS", "PRIOR_SCALES",
@@ -166,6 +170,14 @@ class Deconvolution:
     scene: tuple[np.ndarray, np.ndarray]
     temperature_k: tuple[np.ndarray, np.ndarray] | None
     info: dict[str, Any] = field(default_factory=dict)
+
+    #: the entries of ``info`` a summary (``metafovea reconstruct --json``'s ``scene``) carries
+    SUMMARY_KEYS = ("method", "alpha_from", "sigma_dn", "scores", "foveal_surround", "seconds", "psf_source",
+                    "psf_refinement")
+
+    def summary(self) -> dict[str, Any]:
+        """The entries of ``info`` named in :attr:`SUMMARY_KEYS` that it has."""
+        return {k: v for k, v in self.info.items() if k in self.SUMMARY_KEYS}
 
 
 def temperatures(scene_dn: tuple[ArrayLike, ArrayLike], offset: float,
@@ -463,7 +475,8 @@ def _frames_for(m: Measurement, fpn: ArrayLike | None) -> np.ndarray:
 
 def deconvolve_measurement(m: Measurement, *, alpha: ArrayLike | None = None, fpn: ArrayLike | None = None,
                            method: str = DEFAULT_DECONVOLUTION, psfs: ChannelPSFs | None = None,
-                           score_truth: bool = True, **kw: Any) -> Deconvolution:
+                           score_truth: bool = True, refine_psf: str | Sequence[PSFFamily] | None = None,
+                           **kw: Any) -> Deconvolution:
     """:func:`separate_deconvolve` of a static Measurement, scored against its scene truth when it has one.
 
     Parameters
@@ -484,6 +497,10 @@ def deconvolve_measurement(m: Measurement, *, alpha: ArrayLike | None = None, fp
         With the file's scene truth (``scene_x1``, ``scene_x2``), ``info['scores']``:
         :func:`metafovea.reconstruct.metrics.score_deconvolution` (PSNR against the scene, the hazy images' and
         the Wiener bound's, brightness-temperature error).
+    refine_psf : {'defocus', 'focal-length'} or sequence of PSFFamily, optional
+        Refine the PSFs from the data first (:func:`metafovea.reconstruct.psf_refine.refine_measurement`: a family
+        kind built for the paper's camera, or the families); ``info['psf_refinement']`` says what was chosen, by
+        how much, and when a mismatch is likely. The Wiener bound is then computed with the refined PSFs.
     **kw
         Keywords of :func:`separate_deconvolve`.
 
@@ -500,11 +517,20 @@ def deconvolve_measurement(m: Measurement, *, alpha: ArrayLike | None = None, fp
     psfs = psfs or ChannelPSFs.from_measurement(m)
     offset = m.dark_dn
     frames = _frames_for(m, fpn)
+    refined = None
+    if refine_psf is not None:
+        from metafovea.reconstruct.psf_refine import refine_measurement
+
+        refined = refine_measurement(m, frames, a, psfs, refine_psf, offset=offset, sigma=kw.get("sigma"),
+                                     fpn_error_dn=kw.get("fpn_error_dn", 0.0))
+        psfs = refined.psfs
     kw["boundary"] = check_boundary(kw.get("boundary", "padded"))
     if "foveal_scale" not in kw and m.recorded_scale:
         g1, g2 = m.channel_gains
         kw.update(foveal_scale=m.recorded_scale, foveal_ratio=g1 / g2)
     res = separate_deconvolve(frames, a, psfs, method=method, offset=offset, meta=m.radiometric_calibration, **kw)
+    if refined is not None:
+        res.info["psf_refinement"] = refined.summary()
     if score_truth and m.scene_truth is not None:
         res.info["scores"] = score_deconvolution(m, res.scene, res.temperature_k, frames=frames,
                                                  alpha=np.asarray(a, dtype=np.float64), psfs=psfs, offset=offset,
