@@ -1,0 +1,188 @@
+"""The snapshot (one-frame) mode judged on held-out generated scenes: what ``benchmarks/bench_snapshot.py`` runs per
+case.
+
+A case is a :class:`~metafovea.studies.heldout.HeldOutCase` (a scene ``gen:KIND:SEED`` of test seeds, one band),
+simulated as a user records it (:func:`~metafovea.studies.heldout.simulate_case`: the recording, known alpha and the
+closed-shutter frames). :func:`score_snapshot` then runs, on that one measurement and through
+:func:`~metafovea.reconstruct.api.reconstruct_measurement` (the fixed pattern from the shutter frames, as
+``fpn='auto'`` chooses):
+
+* ``snapshot``: the one-frame mode on the frame whose alpha is nearest 0.5 (the snapshot's design point, the
+  polariser at 45 degrees; the file's alpha for that frame is used);
+* ``frame``: the same frame (fixed pattern subtracted) taken as both images: no separation at all;
+* ``lsq``: the multi-frame result, known alpha, the whole recording as one window.
+
+Each is scored against the truth the multi-frame pipeline is scored against: the noise-free sensor images
+``truth_x1`` / ``truth_x2`` (through the lenses, haze included; not the perfect-lens ``scene_x*``, which no method
+here deconvolves towards), PSNR with the truth's own range.
+
+Residual overlap (one number per channel and method): in a frame the two images overlap pixel by pixel, ``y = a x1 +
+(1 - a) x2`` on one sensor grid, so what a separation fails to remove from the foveal estimate is the perifoveal
+image at the same pixels. With ``e1 = x1_hat - truth_x1`` the foveal estimate's error,
+
+    overlap_x1 = corr(e1, truth_x2) = <e1 - mean e1, t2 - mean t2> / (||e1 - mean e1|| ||t2 - mean t2||)
+
+over every pixel, and ``overlap_x2 = corr(x2_hat - truth_x2, truth_x1)`` likewise: 0 when the error holds no trace
+of the other channel (noise, a blur of its own channel), near 1 for the unseparated frame, whose foveal error is
+``(1 - a) (t2 - t1)``. (The perifoveal image's centre crop, resampled onto the foveal grid, is the same part of the
+scene as the foveal image at 1/6 of its resolution: its correlation with ``e1`` measures a level or contrast error of
+``x1_hat``'s own low frequencies, not the other channel's content, so it is not the overlap.)
+
+Registration error: :func:`~metafovea.reconstruct.snapshot.register`'s scale, crop offset (the crop's centre, x2
+pixels, relative to the centred crop) and rotation against the true geometry: the file's ``meta['truth']['geometry']``
+(``scale``, ``offset``, ``rotation_deg``) when the simulator realised one, else the nominal geometry it renders (the
+design's ``scale`` = f1 / f2, offset (0, 0), rotation 0), reported with its source.
+
+:func:`run_case` is :func:`~metafovea.studies.heldout.simulate_case` then :func:`score_snapshot`, for a process pool.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import asdict
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from metafovea.config import SystemDesign, load_system
+from metafovea.measurement import Measurement
+from metafovea.studies.heldout import HeldOutCase, simulate_case
+
+#: the rows of a case, in order: the one-frame mode, the unseparated frame, the multi-frame result
+METHODS = ("snapshot", "frame", "lsq")
+#: what every PSNR here is scored against (the multi-frame pipeline's truth: ``reconstruct_measurement``'s metrics)
+TRUTH = "truth_x1/truth_x2: the noise-free sensor images (through the lenses, haze included)"
+
+
+def overlap(err: np.ndarray, other: np.ndarray) -> float:
+    """The residual overlap: Pearson correlation of an estimate's error with the other channel's true image
+    (module docstring).
+
+    Parameters
+    ----------
+    err : array_like, shape (H, W)
+        ``x_hat - truth`` of one channel.
+    other : array_like, shape (H, W)
+        The other channel's true image on the same sensor grid.
+
+    Returns
+    -------
+    float
+        In [-1, 1]; 0 when either is flat.
+    """
+    e = np.asarray(err, np.float64).ravel()
+    o = np.asarray(other, np.float64).ravel()
+    e = e - e.mean()
+    o = o - o.mean()
+    den = math.sqrt(float(e @ e) * float(o @ o))
+    return float(e @ o / den) if den > 0 else 0.0
+
+
+def true_geometry(m: Measurement) -> dict[str, Any]:
+    """The geometry the file's foveal view was rendered with: ``scale``, ``offset`` ``(dy, dx)`` (x2 pixels),
+    ``rotation_deg`` and ``source`` (``'truth'``: the simulator's realised geometry; ``'nominal'``: none realised,
+    the design's)."""
+    g = (m.meta.get("truth") or {}).get("geometry")
+    if g:
+        return {"scale": float(g.get("scale", m.scale)), "offset": tuple(float(v) for v in g.get("offset", (0, 0))),
+                "rotation_deg": float(g.get("rotation_deg", 0.0)), "source": "truth"}
+    return {"scale": float(m.scale), "offset": (0.0, 0.0), "rotation_deg": 0.0, "source": "nominal"}
+
+
+def snapshot_frame(m: Measurement) -> int:
+    """The frame the study separates: the first whose alpha is nearest 0.5 (the polariser at 45 degrees)."""
+    a = np.asarray(m.alpha, np.float64)
+    return int(np.argmin(np.abs(a - 0.5)))
+
+
+def registration_error(reg: dict[str, Any], truth: dict[str, Any]) -> dict[str, Any]:
+    """The registration's error against ``truth`` (:func:`true_geometry`): ``scale_error`` (relative),
+    ``offset_error_px`` (Euclidean, x2 pixels), ``rotation_error_deg`` (None when the registration gave none), and
+    the estimates themselves."""
+    off = tuple(float(v) for v in reg["offset"])
+    rot = reg.get("rotation_deg")
+    return {"scale": float(reg["scale"]), "offset": off, "rotation_deg": rot,
+            "scale_error": float(reg["scale"]) / truth["scale"] - 1.0,
+            "offset_error_px": math.hypot(off[0] - truth["offset"][0], off[1] - truth["offset"][1]),
+            "rotation_error_deg": None if rot is None else float(rot) - truth["rotation_deg"]}
+
+
+def score_snapshot(m: Measurement, *, frame: int | None = None, solver: dict[str, Any] | None = None) -> dict[str, Any]:
+    """The snapshot mode, the unseparated frame and the multi-frame result on one measurement (module docstring).
+
+    Parameters
+    ----------
+    m : Measurement
+        Static, known alpha, with the noise-free truth (``truth_x1``, ``truth_x2``); shutter frames when it has a
+        fixed pattern.
+    frame : int, optional
+        The frame to separate; default :func:`snapshot_frame`.
+    solver : dict, optional
+        Keywords of :func:`~metafovea.reconstruct.snapshot.snapshot`.
+
+    Returns
+    -------
+    dict
+        ``frame``, ``alpha`` (the frame's), ``truth`` (:data:`TRUTH`), ``geometry`` (:func:`true_geometry`),
+        ``registration`` (:func:`registration_error`) and ``rows``: per method (:data:`METHODS`) ``method``,
+        ``psnr_x1``, ``psnr_x2`` (dB against the truth), ``overlap_x1``, ``overlap_x2`` (:func:`overlap`) and
+        ``seconds``.
+    """
+    from metafovea.reconstruct.api import reconstruct_measurement
+    from metafovea.reconstruct.metrics import psnr
+
+    k = snapshot_frame(m) if frame is None else int(frame)
+    t1, t2 = (np.asarray(t, np.float64) for t in (m.truth_x1, m.truth_x2))
+    t0 = time.perf_counter()
+    snap = reconstruct_measurement(m, "snapshot", known_alpha=True, frame=k, solver=solver)
+    s_snap = time.perf_counter() - t0
+    rec = snap.reconstruction
+    f = np.zeros(m.shape[1:]) if rec.fpn is None else np.asarray(rec.fpn, np.float64)
+    y = np.asarray(m.frames[k], np.float64) - f  # the frame the snapshot separated
+    t0 = time.perf_counter()
+    multi = reconstruct_measurement(m, "lsq", window=m.shape[0])
+    s_multi = time.perf_counter() - t0
+    rows = []
+    for name, (e1, e2), secs in (("snapshot", (rec.x1, rec.x2), s_snap), ("frame", (y, y), 0.0),
+                                 ("lsq", (multi.reconstruction.x1, multi.reconstruction.x2), s_multi)):
+        e1, e2 = np.asarray(e1, np.float64), np.asarray(e2, np.float64)
+        rows.append({"method": name, "psnr_x1": psnr(e1, t1), "psnr_x2": psnr(e2, t2),
+                     "overlap_x1": overlap(e1 - t1, t2), "overlap_x2": overlap(e2 - t2, t1), "seconds": secs})
+    geo = true_geometry(m)
+    return {"frame": k, "alpha": float(m.alpha[k]), "truth": TRUTH, "geometry": geo,
+            "registration": registration_error(rec.info["registration"], geo), "rows": rows,
+            "snapshot_info": {key: rec.info[key] for key in ("iterations", "foveal_rms") if key in rec.info}}
+
+
+def run_case(system: SystemDesign | str | Path, case: HeldOutCase, *, solver: dict[str, Any] | None = None,
+             threads: int | None = None) -> dict[str, Any]:
+    """:func:`~metafovea.studies.heldout.simulate_case` then :func:`score_snapshot`: a process pool's task.
+
+    Parameters
+    ----------
+    system : SystemDesign, str or Path
+        A design or its TOML file.
+    case : HeldOutCase
+    solver : dict, optional
+        As :func:`score_snapshot`.
+    threads : int, optional
+        BLAS threads inside the case (1 when the cases run one per core); None: the library's.
+
+    Returns
+    -------
+    dict
+        The case's fields, ``simulate_seconds`` and :func:`score_snapshot`'s result.
+    """
+    import contextlib
+
+    from metafovea.parallel import blas_threads
+
+    design = system if isinstance(system, SystemDesign) else load_system(system)
+    with blas_threads(threads) if threads else contextlib.nullcontext():
+        t0 = time.perf_counter()
+        m = simulate_case(design, case)
+        sim_s = time.perf_counter() - t0
+        res = score_snapshot(m, solver=solver)
+    return {**asdict(case), "simulate_seconds": sim_s, **res}
