@@ -22,13 +22,7 @@ HELP = "separate foveal and perifoveal images from a measurement (.npz)"
 
 
 def register(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
-    from metafovea.reconstruct import (
-        DECONVOLUTION_METHODS,
-        DEFAULT_DECONVOLUTION,
-        DENOISERS,
-        FAMILY_KINDS,
-        METHODS,
-    )
+    from metafovea.reconstruct import DECONVOLUTION_METHODS, DEFAULT_DECONVOLUTION, DENOISERS, FAMILY_KINDS, METHODS
 
     p = subparsers.add_parser("reconstruct", help=HELP, description=HELP)
     p.add_argument("measurement", help="Measurement .npz (frames, times_s, optional alpha / truth_x1 / truth_x2)")
@@ -75,9 +69,8 @@ def register(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
     p.add_argument("--max-seconds", type=float, default=None, help="DIP time budget of the whole run (default 600; "
                    "0: no cap); a window it stops keeps its lowest-loss images, and the summary says so")
     add_shared(p, "--seed")  # the DIP's weights and inputs
-    p.add_argument("--deconvolve", nargs="?", const=DEFAULT_DECONVOLUTION, default=None,
-                   choices=DECONVOLUTION_METHODS, help="also recover the scene itself (PSF-aware, static scenes): "
-                   f"<out>_scene.npz and .png in kelvin; the method (default {DEFAULT_DECONVOLUTION})")
+    p.add_argument("--deconvolve", nargs="?", const=DEFAULT_DECONVOLUTION, default=None, choices=DECONVOLUTION_METHODS,
+                   help=f"also the scene (PSF-aware, static): <out>_scene.npz, .png in K ({DEFAULT_DECONVOLUTION})")
     p.add_argument("--psf", default=None, help="for --deconvolve: a PSF file (.npz: psf_x1, psf_x2) (not the file's)")
     p.add_argument("--refine-psf", choices=FAMILY_KINDS, help="for --deconvolve: refine the PSFs from the data")
     p.add_argument("--out", default=None, help="output .npz (default: <measurement>_rec.npz); figures next to it")
@@ -199,8 +192,8 @@ def _print_dip(d: dict[str, Any] | None, args: argparse.Namespace) -> None:
     line = (f"  dip: {d['windows']} window(s), {d['steps_run_mean']:.0f} of {d['steps']} steps on average "
             f"(stopped: {how})")
     if d["stopped"].get("time") or d["windows"] < d["windows_planned"]:
-        done = (f"after {d['windows']} of {d['windows_planned']} windows (the output holds those), "
-                if d["windows"] < d["windows_planned"] else "")
+        short = d["windows"] < d["windows_planned"]
+        done = f"after {d['windows']} of {d['windows_planned']} windows (the output holds those), " if short else ""
         line += (f"\n  warning: the time cap (--max-seconds {d['max_seconds']:g}) stopped the run {done}"
                  f"{d['stopped'].get('time', 0)} window(s) before their steps were done (each keeps its lowest-loss "
                  "images); --max-seconds 0 for no cap, or fewer windows (--window, --stride)")

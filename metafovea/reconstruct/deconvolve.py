@@ -58,8 +58,8 @@ benchmarks judge on):
 =====================================  =======================================================================
 ``SURROUND_SIGMA_PER_SCALE`` (here)    derived: half power at the perifoveal Nyquist frequency
 ``PRIOR_SCALES`` (``prior_scale``)     an option; with the default method on the tuning seeds its default
-                                       ``'geometric'`` left the fewest channel cases more than 0.3 dB below the
-                                       bound (7 %, ``'grid'`` 36 %, ``'crop'`` 57 %; BENCHMARKS.md)
+                                       ``'geometric'`` left the fewest channel cases far below the bound
+                                       (BENCHMARKS.md, the tuning sweep)
 ``WAVELET_NOISE_SEED`` (here)          any fixed seed: the same data give the same estimate
 ``joint.MAX_CONDITION``                numerical: alpha that cannot separate the channels
 ``spectra.RADIAL_BINS``,               derived from the crop's and the grid's frequency steps (several
@@ -68,14 +68,14 @@ benchmarks judge on):
 ``spectra.DEFAULT_BETA``               to 1-4
 ``spectra.DETECTION_SNR``              derived: a ring whose periodogram is twice the noise
 ``spectra.MIN_FIT_BINS``               derived: two parameters and one degree of freedom
-``spectra.MEASURED_SNR``,              the hybrid prior's: where the measured spectrum replaces the law (4x
-``spectra.MIN_HYBRID_BINS``            the noise) and when the tail alone is fitted (6 rings); set with the
+``spectra.MEASURED_SNR``,              the hybrid prior's: where the measured spectrum replaces the power law
+``spectra.MIN_HYBRID_BINS``            and when the tail alone is fitted; set with the
                                        prior on built-in scenes (issue 13), kept because the default method
                                        picks its regularisation by its risk on top of it; not re-swept
 ``spectra.PRIOR_FLOOR``                numerical: a bin without signal gets the largest penalty, not none
-``wavelet.WAVELETS``,                  an option; the three are within 0.05 dB in median and mean margin on the
-``wavelet.DEFAULT_WAVELET``            tuning seeds (BENCHMARKS.md): Haar, the shortest filters, is the default
-``wavelet.NOISE_SAMPLES``              derived: the subband variances to < 7 % (a < 0.3 dB threshold change)
+``wavelet.WAVELETS``,                  an option; the three tie in median and mean margin on the tuning seeds
+``wavelet.DEFAULT_WAVELET``            (BENCHMARKS.md): Haar, the shortest filters, is the default
+``wavelet.NOISE_SAMPLES``              derived: the subband variances' standard error (its comment)
 ``wavelet.TAUS``                       a search range: the Wiener filter down to 1/64 of its prior weight
                                        (the chosen tau reached 1/64 on the tuning seeds, never above 1)
 ``wavelet.MIN_COARSEST_PX``            the coarsest atoms fit 8 times across the crop
