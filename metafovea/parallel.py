@@ -204,10 +204,25 @@ def blas_threads(n: int = 1) -> Iterator[None]:
     unknowns) run slower with OpenBLAS' threads than without on a loaded 2-core machine (measured here:
     a 0.4 ms product took 94 ms), and process-parallel sweeps already use every core.
     """
-    from threadpoolctl import threadpool_limits
-
-    with threadpool_limits(limits=n):
+    with _blas_controller().limit(limits=n):  # what threadpool_limits(limits=n) does, on a kept controller
         yield
+
+
+#: a threadpoolctl controller of the libraries loaded when it was made, and ``len(sys.modules)`` then
+_BLAS_CONTROLLER: list[Any] = [None, -1]
+
+
+def _blas_controller() -> Any:
+    """The loaded BLAS/OpenMP libraries (a ``threadpoolctl.ThreadpoolController``). Finding them costs ~1 ms (each
+    loaded library is inspected) and loops enter :func:`blas_threads` thousands of times (a Hankel profile per
+    focal distance): they are looked for again only when a module was imported since (a BLAS comes with an
+    extension module)."""
+    n = len(sys.modules)
+    if _BLAS_CONTROLLER[0] is None or _BLAS_CONTROLLER[1] != n:
+        from threadpoolctl import ThreadpoolController
+
+        _BLAS_CONTROLLER[:] = [ThreadpoolController(), len(sys.modules)]
+    return _BLAS_CONTROLLER[0]
 
 
 def default_workers() -> int:

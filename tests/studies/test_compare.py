@@ -8,10 +8,13 @@ from __future__ import annotations
 
 import json
 
+import pytest
+
 from metafovea.studies import StudyOptions, compare
 from metafovea.studies.common import write_study
 
 
+@pytest.mark.slow  # a study, at its --fast size
 def test_compare_fast(tmp_path):
     res = compare.run(StudyOptions(fast=True, seed=0))
     files = write_study(res, tmp_path / "cmp")

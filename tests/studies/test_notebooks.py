@@ -17,6 +17,7 @@ def test_there_are_notebooks():
     assert {"01_whole_chain.py", "02_study_frames.py", "03_recording.py"} <= set(names)
 
 
+@pytest.mark.slow  # each notebook runs its study at a small size (METAFOVEA_NOTEBOOK_SMALL)
 @pytest.mark.parametrize("path", NOTEBOOKS, ids=lambda p: p.stem)
 def test_notebook_runs(path, tmp_path, monkeypatch):
     monkeypatch.setenv("METAFOVEA_NOTEBOOK_SMALL", "1")

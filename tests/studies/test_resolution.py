@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 
 import numpy as np
+import pytest
 
 from metafovea.cli import main
 from metafovea.studies.resolution import spoke_contrast
@@ -16,6 +17,7 @@ def test_spoke_contrast_reads_the_fundamental():
     assert spoke_contrast(np.full(720, 5.0), 36) < 1e-12
 
 
+@pytest.mark.slow  # a study, at its --fast size, run twice (the same seed, the same JSON)
 def test_resolution_fast(tmp_path, capsys):
     """The foveal image keeps the spokes' modulation to finer line pairs than the perifoveal one upsampled x9,
     which inside its own Nyquist radius (36 x 9 / pi = 103 foveal px) carries almost none."""

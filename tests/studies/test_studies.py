@@ -35,6 +35,7 @@ def _run_cli(name: str, out, capsys, *flags: str) -> dict:
     return rep
 
 
+@pytest.mark.slow  # a study, at its --fast size
 def test_focal_ratio_fast(tmp_path, capsys):
     """Foveal PSNR nearly flat over the expansion (the paper's trend); the perifoveal one falls in the paper and, in
     this classical per-pixel model, does not: then the note says why and the texture per pixel it names grows."""
@@ -49,6 +50,7 @@ def test_focal_ratio_fast(tmp_path, capsys):
         assert "deep-prior" in rep["trend"]["note"]
 
 
+@pytest.mark.slow  # a study, at its --fast size
 def test_frames_fast(tmp_path, capsys):
     """4 frames leave alpha unidentified (channels mixed), the best window is 8-12 frames, longer ones blur."""
     rep = _run_cli("frames", tmp_path / "fm", capsys)
@@ -58,6 +60,7 @@ def test_frames_fast(tmp_path, capsys):
     assert rows[24]["alternating"]["psnr_x2"] < rows[8]["alternating"]["psnr_x2"] - 1.0  # motion blur
 
 
+@pytest.mark.slow  # a study, at its --fast size
 def test_realtime_fast_and_same_seed_same_json(tmp_path, capsys):
     """Least squares is far faster than the unknown-alpha solver at a similar error; a second run with the same
     seed gives the same JSON apart from its 'timing' key."""

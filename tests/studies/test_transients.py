@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 
 import numpy as np
+import pytest
 
 from metafovea.studies import STUDIES, StudyOptions, write_study
 from metafovea.studies.transients import compare_series, pick_points, run
@@ -31,6 +32,7 @@ def test_compare_series_against_a_known_error():
     assert compare_series(truth[:1].repeat(50) + 0.1 * t, truth[:1].repeat(50))["peak_ratio"] is None
 
 
+@pytest.mark.slow  # a study, at its --fast size
 def test_transients_fast(tmp_path):
     """Both reconstructions follow the heating and cooling of the coil (correlation > 0.9, peak within 5 %); the
     foveal grid samples the wire finer; where the foveal peak is not closer to its truth, the note says why."""
