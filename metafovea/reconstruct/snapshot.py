@@ -54,6 +54,15 @@ log = logging.getLogger(__name__)
 
 #: starts of :func:`snapshot`'s separation: the paper's ``n1 = D^T y`` (registered crop), or the unseparated frame
 INITS = ("crop", "frame")
+#: the largest crop offset :func:`register` searches (x2 pixels either way): the two lenses share one axis to within
+#: a few pixels (the multi-frame calibration's coarse search, ``COARSE_SHIFT_PX`` of
+#: :mod:`~metafovea.reconstruct.calibrate`, is the same); a wider search only adds chances of a false peak
+REGISTER_SEARCH_PX = 5
+#: the probability that :func:`register` accepts a crop in a frame without foveal content (over the whole search)
+REGISTER_FALSE_ALARM = 0.01
+#: scales :func:`register` tries either side of the nominal one (steps of ``max_scale_change / 2``: 1.5 %, which
+#: moves the constraint's edge by a third of a pixel at 48 x 48)
+REGISTER_SCALE_STEPS = 2
 
 
 def _ncc(a: np.ndarray, b: np.ndarray) -> float:
@@ -74,8 +83,22 @@ def _as_frame(frame: ArrayLike) -> np.ndarray:
     return y if y.dtype in (np.float32, np.float64) else y.astype(np.float64)
 
 
+def _grad_pair(z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Forward differences of ``z`` along y and x, both ``(H - 1, W - 1)`` and anchored at the same pixel: the
+    whitening of :func:`register` (a scene whose amplitude spectrum falls as 1/f has a flat gradient spectrum)."""
+    return z[1:, :-1] - z[:-1, :-1], z[:-1, 1:] - z[:-1, :-1]
+
+
+def _parabola_peak(vm: float, v0: float, vp: float) -> float:
+    """The offset in (-0.5, 0.5) of the vertex of the parabola through (-1, vm), (0, v0), (1, vp) (0 if not a
+    maximum)."""
+    den = vm - 2.0 * v0 + vp
+    return float(np.clip(0.5 * (vm - vp) / den, -0.5, 0.5)) if den < 0 else 0.0
+
+
 def register(frame: ArrayLike, *, scale: float = 6.0, search: int | None = None, refine: bool = True,
-             refine_scale: bool = True, max_scale_change: float = 0.03, min_gain: float = 0.02) -> dict[str, Any]:
+             refine_scale: bool = False, max_scale_change: float = 0.03,
+             false_alarm: float = REGISTER_FALSE_ALARM) -> dict[str, Any]:
     """Locate the foveal content in the frame's centre (Registration, module docstring).
 
     Parameters
@@ -85,65 +108,101 @@ def register(frame: ArrayLike, *, scale: float = 6.0, search: int | None = None,
     scale : float
         The nominal scale f1 / f2.
     search : int, optional
-        The largest integer shift (x2 pixels) searched by NCC; default half the constraint size.
-    refine, refine_scale : bool
-        Refine the offset (and the scale) by maximising the NCC (Powell).
+        The largest integer shift (x2 pixels) searched, either way: default :data:`REGISTER_SEARCH_PX` (at most
+        what the frame allows).
+    refine : bool
+        Sub-pixel offset of an identified crop: the vertex of a parabola through the whitened NCC at the peak and
+        its neighbours.
+    refine_scale : bool
+        Search the scale too, on :data:`REGISTER_SCALE_STEPS` steps either way up to ``max_scale_change``, and
+        refine it by a parabola through the peaks. Off by default: in one mixed frame of the simulated camera (tuning
+        scenes) the whitened NCC prefers the smoother template of a scale off the grid of whole pixels, so the scale
+        found is biased towards the range's ends; the stated scale is better kept.
     max_scale_change : float
-        The refinement's bound on the scale, relative, around the nominal one (the offset's: +-1 px around the
-        NCC shift).
-    min_gain : float
-        The refinement is accepted only when it raises the NCC by more than this: in a single mixed frame the
-        two views share only part of their content, which biases the intensity optimum.
+        The scale's search range, relative, around the nominal one.
+    false_alarm : float
+        The test's probability of accepting a crop in a frame without foveal content, over the whole search.
 
     Returns
     -------
     dict
-        ``offset`` ``(dy, dx)``, ``scale``, ``ncc``, ``low_shape``; ``offset_ncc`` and ``ncc_coarse`` of the
-        integer search, ``refine_evaluations``.
+        ``identified`` (the test passed; else the nominal geometry is returned and ``reason`` says why),
+        ``moved`` (the peak beats the nominal geometry by the same margin: only then is the geometry found returned),
+        ``offset`` ``(dy, dx)``, ``scale``, ``rotation_deg`` (0: the constraint has no rotation, none is
+        estimated), ``ncc`` (intensity NCC of ``D y`` and ``C y`` at the returned geometry), ``low_shape``; the
+        test's ``z`` (the whitened NCC's peak over its null spread), ``z_critical``, ``null_sd``, ``tests`` (shifts
+        x scales searched), ``search``; ``offset_ncc`` and ``ncc_coarse``: the integer peak and its whitened NCC.
     """
-    from scipy.optimize import minimize
+    from scipy.stats import norm
     from skimage.feature import match_template
 
     y = _as_frame(frame).astype(np.float64)
     H, W = y.shape
     op0 = FovealOperator((H, W), scale)
     h, w = op0.low_shape
-    tmpl = op0.D(y)
-    if search is None:
-        search = max(2, min(h, w) // 2)
-    search = check_int("search", search, 0, 100000)
+    lim = max(0, min((H - h) // 2, (W - w) // 2))
+    search = min(check_int("search", REGISTER_SEARCH_PX if search is None else search, 0, 100000), lim)
+    false_alarm = as_float("false_alarm", false_alarm)
+    if not 0.0 < false_alarm < 1.0:
+        raise InputError("false_alarm", false_alarm, "a probability in (0, 1)")
+    dscale = as_float("max_scale_change", max_scale_change)
+    steps = REGISTER_SCALE_STEPS if refine_scale and dscale > 0 else 0
+    scales = [op0.scale * (1.0 + dscale * k / max(steps, 1)) for k in range(-steps, steps + 1)]
+    # the whitened NCC over a wide region (half the constraint either way): its spread at the nominal scale is the
+    # statistic's null distribution (nearly every shift there is a wrong one); the peak is taken within +-search
+    wide = max(search, min(max(2, min(h, w) // 2), lim))
     y0, x0 = (H - h) // 2, (W - w) // 2
-    sy0, sy1 = max(0, y0 - search), min(H, y0 + h + search)
-    sx0, sx1 = max(0, x0 - search), min(W, x0 + w + search)
-    ncc_map = match_template(y[sy0:sy1, sx0:sx1], tmpl)
-    iy, ix = np.unravel_index(int(np.argmax(ncc_map)), ncc_map.shape)
+    sy0, sy1 = max(0, y0 - wide), min(H, y0 + h + wide)
+    sx0, sx1 = max(0, x0 - wide), min(W, x0 + w + wide)
+    region = _grad_pair(y[sy0:sy1, sx0:sx1])
+    oy, ox = y0 - sy0, x0 - sx0  # the nominal crop's index in the maps
+    ly, lx = max(0, oy - search), max(0, ox - search)
+    maps, peaks = [], []
+    for s in scales:
+        tmpl = FovealOperator((H, W), s, low=(h, w)).D(y)
+        mp = 0.5 * sum(match_template(r, t) for r, t in zip(region, _grad_pair(tmpl)))
+        local = mp[ly:oy + search + 1, lx:ox + search + 1]
+        iy, ix = np.unravel_index(int(np.argmax(local)), local.shape)
+        maps.append(mp)
+        peaks.append((float(local[iy, ix]), iy + ly, ix + lx))
+    null_map = maps[steps]
+    med = float(np.median(null_map))
+    null_sd = 1.4826 * float(np.median(np.abs(null_map - med)))
+    k = int(np.argmax([p[0] for p in peaks]))
+    peak, iy, ix = peaks[k]
+    tests = (min(oy + search, null_map.shape[0] - 1) - ly + 1) * (min(ox + search, null_map.shape[1] - 1) - lx + 1)
+    tests *= len(scales)
+    z = (peak - med) / null_sd if null_sd > 0 else 0.0
+    z_crit = float(norm.isf(false_alarm / tests))
     # offset of the crop relative to the centred crop (FovealOperator's convention)
     c_y = H / 2.0 - h / 2.0
     c_x = W / 2.0 - w / 2.0
     off = (float(sy0 + iy - c_y), float(sx0 + ix - c_x))
-    res: dict[str, Any] = {"offset_ncc": off, "ncc_coarse": float(ncc_map[iy, ix]), "scale": float(op0.scale)}
-    off = tuple(float(np.clip(o, -(n - m) / 2.0, (n - m) / 2.0)) for o, n, m in ((off[0], H, h), (off[1], W, w)))
-    best = {"offset": off, "scale": float(op0.scale)}
-    if refine:
-        def cost(p: np.ndarray) -> float:
-            s = p[2] if refine_scale else op0.scale
-            try:
-                op = FovealOperator((H, W), s, (p[0], p[1]), low=(h, w))
-            except InputError:
-                return 1.0
-            if op.low_shape != (h, w):
-                return 1.0
-            return -_ncc(op.D(y), op.C(y))
-
-        p0 = np.array([off[0], off[1], op0.scale])
-        bounds = [(off[0] - 1.0, off[0] + 1.0), (off[1] - 1.0, off[1] + 1.0),
-                  (op0.scale * (1 - max_scale_change), op0.scale * (1 + max_scale_change))]
-        r = minimize(cost, p0, method="Powell", bounds=bounds, options={"xtol": 1e-3, "ftol": 1e-7, "maxfev": 600})
-        # accept only a clear improvement: the mixture's other content biases the NCC optimum a little
-        if r.fun < cost(p0) - min_gain:
-            best = {"offset": (float(r.x[0]), float(r.x[1])),
-                    "scale": float(r.x[2]) if refine_scale else float(op0.scale)}
-        res["refine_evaluations"] = int(r.nfev)
+    # the nominal geometry is left only for a peak that beats it by the test's margin too
+    z_move = (peak - float(null_map[oy, ox])) / null_sd if null_sd > 0 else 0.0
+    res: dict[str, Any] = {"offset_ncc": off, "ncc_coarse": peak, "z": z, "z_move": z_move, "z_critical": z_crit,
+                           "null_sd": null_sd, "tests": tests, "search": search, "identified": bool(z >= z_crit),
+                           "moved": bool(z >= z_crit and z_move >= z_crit)}
+    best: dict[str, Any] = {"offset": (0.0, 0.0), "scale": float(op0.scale), "rotation_deg": 0.0}
+    if not res["identified"]:
+        res["reason"] = (f"no significant foveal content in the frame (whitened NCC peak z = {z:.2f} < {z_crit:.2f}, "
+                         f"false-alarm probability {false_alarm:g} over {tests} shifts and scales): the nominal "
+                         "geometry is kept")
+    elif not res["moved"]:
+        res["reason"] = (f"the peak does not beat the nominal geometry significantly (by {z_move:.2f} null spreads < "
+                         f"{z_crit:.2f}): the nominal geometry is kept")
+    else:
+        mp = maps[k]
+        if refine:  # sub-pixel: the parabola's vertex along each axis (a shift at the map's edge stays whole)
+            if 0 < iy < mp.shape[0] - 1:
+                off = (off[0] + _parabola_peak(mp[iy - 1, ix], mp[iy, ix], mp[iy + 1, ix]), off[1])
+            if 0 < ix < mp.shape[1] - 1:
+                off = (off[0], off[1] + _parabola_peak(mp[iy, ix - 1], mp[iy, ix], mp[iy, ix + 1]))
+        s_best = scales[k]
+        if 0 < k < len(scales) - 1:
+            s_best += _parabola_peak(peaks[k - 1][0], peak, peaks[k + 1][0]) * (scales[1] - scales[0])
+        off = tuple(float(np.clip(o, -(n - m) / 2.0, (n - m) / 2.0)) for o, n, m in ((off[0], H, h), (off[1], W, w)))
+        best.update(offset=off, scale=float(s_best))
     op = FovealOperator((H, W), best["scale"], best["offset"], low=(h, w))
     res.update(best, ncc=_ncc(op.D(y), op.C(y)), low_shape=(h, w))
     return res
