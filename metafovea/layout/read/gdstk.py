@@ -108,32 +108,14 @@ def read_gdstk(path: Path, lattice: tuple[int, int, int] | None, posts_layer: tu
             if sb is not None:
                 pbb = union_bbox(pbb, (sb[0] + int(pos[:, 0].min()), sb[1] + int(pos[:, 1].min()),
                                        sb[2] + int(pos[:, 0].max()), sb[3] + int(pos[:, 1].max())))
-        for nm in {**origins, **placed}:
-            pos = np.concatenate(([np.rint(np.array(origins[nm], dtype=np.float64) * s).astype(np.int64)]
-                                  if nm in origins else []) + placed.get(nm, []))
-            nrefs += len(pos)
-            refs[nm] += len(pos)
-            if lattice is not None:
-                cx, oP, P = lattice
-                off += int(np.count_nonzero(((pos - cx - oP) % P != 0).any(axis=1)))
-            for (l_, d_, w, h, ccx, ccy) in ob.cell_rects.get(nm, []):
-                layers.add((l_, d_))
-                if (l_, d_) == posts_layer:
-                    bb = (int(pos[:, 0].min()) + ccx - w // 2, int(pos[:, 1].min()) + ccy - h // 2,
-                          int(pos[:, 0].max()) + ccx + w // 2, int(pos[:, 1].max()) + ccy + h // 2)
-                    pbb = union_bbox(pbb, bb)
+        n, o_, pbb = _count_post_refs(origins, placed, s, lattice, ob.cell_rects, posts_layer, refs, layers, pbb)
+        nrefs += n
+        off += o_
         ob.max_refs = max(ob.max_refs, nrefs + len(cell.polygons) + len(cell.labels))
         ob.max_references = max(ob.max_references, len(cell.references))
-        b = _post_boxes([p for p in cell.polygons if (p.layer, p.datatype) == posts_layer], s)
-        if len(b):
-            x0, y0, x1, y1 = b.T
-            flatc.update(zip((x1 - x0).tolist(), (y1 - y0).tolist()))
-            pbb = union_bbox(pbb, (int(x0.min()), int(y0.min()), int(x1.max()), int(y1.max())))
-            if lattice is not None:
-                cx, oP, P = lattice
-                off += int(np.count_nonzero((((x0 + x1) // 2 - cx - oP) % P != 0)
-                                            | (((y0 + y1) // 2 - cx - oP) % P != 0)))
-        memo[cell.name] = (refs, flatc, int(off), pbb, layers, frame)
+        o_, pbb = _count_post_polygons([p for p in cell.polygons if (p.layer, p.datatype) == posts_layer], s, lattice,
+                                       flatc, pbb)
+        memo[cell.name] = (refs, flatc, int(off + o_), pbb, layers, frame)
         return memo[cell.name]
 
     if sink is not None:
@@ -171,6 +153,44 @@ def _add_placed(frame: dict, child: dict, pos: np.ndarray) -> None:
         e[0] += len(pos) * fn
         e[1] = union_bbox(e[1], (fb[0] + int(pos[:, 0].min()), fb[1] + int(pos[:, 1].min()),
                                  fb[2] + int(pos[:, 0].max()), fb[3] + int(pos[:, 1].max())))
+
+
+def _count_post_refs(origins: dict, placed: dict, s: float, lattice: tuple[int, int, int] | None, cell_rects: dict,
+                     posts_layer: tuple[int, int], refs: Counter, layers: set, pbb: Any) -> tuple[int, int, Any]:
+    """A cell's references to post cells (``origins``: name -> single references' origins, um; ``placed``: name ->
+    positions of those with a repetition, nm) counted into ``refs`` and ``layers``: ``(references, off the lattice,
+    posts bbox)``."""
+    nrefs = off = 0
+    for nm in {**origins, **placed}:
+        pos = np.concatenate(([np.rint(np.array(origins[nm], dtype=np.float64) * s).astype(np.int64)]
+                              if nm in origins else []) + placed.get(nm, []))
+        nrefs += len(pos)
+        refs[nm] += len(pos)
+        if lattice is not None:
+            cx, oP, P = lattice
+            off += int(np.count_nonzero(((pos - cx - oP) % P != 0).any(axis=1)))
+        for (l_, d_, w, h, ccx, ccy) in cell_rects.get(nm, []):
+            layers.add((l_, d_))
+            if (l_, d_) == posts_layer:
+                bb = (int(pos[:, 0].min()) + ccx - w // 2, int(pos[:, 1].min()) + ccy - h // 2,
+                      int(pos[:, 0].max()) + ccx + w // 2, int(pos[:, 1].max()) + ccy + h // 2)
+                pbb = union_bbox(pbb, bb)
+    return nrefs, off, pbb
+
+
+def _count_post_polygons(polygons: list, s: float, lattice: tuple[int, int, int] | None, flatc: Counter,
+                         pbb: Any) -> tuple[int, Any]:
+    """A cell's own posts-layer polygons counted per size into ``flatc``: ``(off the lattice, posts bbox)``."""
+    b = _post_boxes(polygons, s)
+    if not len(b):
+        return 0, pbb
+    x0, y0, x1, y1 = b.T
+    flatc.update(zip((x1 - x0).tolist(), (y1 - y0).tolist()))
+    pbb = union_bbox(pbb, (int(x0.min()), int(y0.min()), int(x1.max()), int(y1.max())))
+    if lattice is None:
+        return 0, pbb
+    cx, oP, P = lattice
+    return int(np.count_nonzero((((x0 + x1) // 2 - cx - oP) % P != 0) | (((y0 + y1) // 2 - cx - oP) % P != 0))), pbb
 
 
 def _post_boxes(polygons: list, scale: float) -> np.ndarray:
