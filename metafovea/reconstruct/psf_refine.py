@@ -39,8 +39,13 @@ deconvolution per candidate and would score the noise model rather than the PSF.
 A member replaces the nominal PSF only where both ``2 ln B >= min_evidence`` (:data:`MIN_EVIDENCE`, "strong" on
 Kass and Raftery's scale [6]_) and ``Z`` exceeds the one-sided 5 % level corrected for the family's ``K - 1``
 comparisons (Bonferroni, :data:`FAMILY_ALPHA`): the fitted spectrum is an approximation of a real scene's, and its
-error alone produces evidence ratios of tens over tens of thousands of frequencies, which ``Z`` discounts. A member
-at the family's edge, and a family whose nominal member is not the file's PSF, are stated.
+error alone produces evidence ratios of tens over tens of thousands of frequencies, which ``Z`` discounts. Where the
+channels' scale is known, the camera's own redundancy checks the choice without any scene model: the foveal image,
+scaled down ``f1 / f2`` times, is the perifoveal image's centre up to a gain and an offset, and a member is taken only
+where the two channels' Wiener estimates satisfy that relation at least as well with it as with the nominal PSF
+(a scene whose spectrum the model misreads, a periodic texture, a horizon, can make a wrong member look likely; it
+does not make the two channels agree better). A member at the family's edge, and a family whose nominal member is
+not the file's PSF, are stated.
 
 Families (:func:`psf_family`) are built with the project's optics engine as the simulator builds the file's PSFs
 (:func:`metafovea.imaging.kernels.build_channel_optics`, :func:`metafovea.imaging.kernels.pixel_psf`):
@@ -666,9 +671,24 @@ def _channel_choice(fam: PSFFamily, ev: dict[str, Any], file_kernel: np.ndarray,
             "warning": "; ".join(notes) or None, "source": fam.source}
 
 
+def _relation_misfit(frames: np.ndarray, alpha: ArrayLike, psfs: ChannelPSFs, scale: float, offset: float,
+                     sigma: float | None, fpn_error_dn: float) -> float:
+    """The foveal relation's misfit of the Wiener estimates through ``psfs``: the rms of ``D s_1 - g C s_2 - o``
+    (:mod:`metafovea.reconstruct.operators`; ``g``, ``o`` fitted), over the perifoveal side's standard deviation."""
+    from metafovea.reconstruct.deconvolve import separate_deconvolve
+    from metafovea.reconstruct.operators import centre_crop, downsample
+
+    d = separate_deconvolve(frames, alpha, psfs, offset=offset, sigma=sigma, fpn_error_dn=fpn_error_dn)
+    lo, c2 = downsample(d.scene[0], scale), centre_crop(d.scene[1], scale)
+    A = np.stack([c2.ravel(), np.ones(c2.size)], axis=1)
+    r = lo.ravel() - A @ np.linalg.lstsq(A, lo.ravel(), rcond=None)[0]
+    return float(np.sqrt(np.mean(r ** 2)) / max(float(np.std(lo)), 1e-300))
+
+
 def refine_psf(frames: ArrayLike, alpha: ArrayLike, psfs: ChannelPSFs, families: Sequence[PSFFamily], *,
                offset: float = 0.0, sigma: float | None = None, fpn_error_dn: float = 0.0,
-               min_evidence: float = MIN_EVIDENCE, knots_per_octave: float = KNOTS_PER_OCTAVE) -> PSFRefinement:
+               min_evidence: float = MIN_EVIDENCE, knots_per_octave: float = KNOTS_PER_OCTAVE,
+               foveal_scale: float | None = None) -> PSFRefinement:
     """Each family's member of largest evidence, eq. (3), where it beats the nominal PSF by both tests of eq. (4).
 
     Parameters
@@ -692,6 +712,11 @@ def refine_psf(frames: ArrayLike, alpha: ArrayLike, psfs: ChannelPSFs, families:
         The ``2 ln B`` of eq. (4) a member needs over the nominal (:data:`MIN_EVIDENCE`).
     knots_per_octave : float
         The scene spectrum's knots per octave (:data:`KNOTS_PER_OCTAVE`).
+    foveal_scale : float, optional
+        The channels' scale f1 / f2: a member that passes both tests replaces the nominal one only where the
+        foveal relation of the two channels' Wiener estimates (the foveal image scaled down against the
+        perifoveal centre) holds at least as well with it as with the nominal PSF: a check that needs no scene
+        model (``relation_misfit`` in the output: nominal, refined).
 
     Returns
     -------
@@ -713,14 +738,27 @@ def refine_psf(frames: ArrayLike, alpha: ArrayLike, psfs: ChannelPSFs, families:
     chans = [f.channel for f in families]
     if len(set(chans)) != len(chans):
         raise InputError("families", [f"x{c}" for c in chans], "at most one family per channel")
-    pb, C, _ = prepare_problem(frames, alpha, psfs, offset, sigma, "padded", "edge", fpn_error_dn)
+    fr = np.asarray(frames, dtype=np.float64)
+    pb, C, _ = prepare_problem(fr, alpha, psfs, offset, sigma, "padded", "edge", fpn_error_dn)
     out = PSFRefinement(psfs, [], float(min_evidence))
     refined = psfs
+    base = None
     for fam in families:
         i = fam.channel - 1
         ev = psf_evidence(pb.zc[i], float(C[i, i]), fam.kernels, reference=fam.nominal_index,
                           knots_per_octave=knots_per_octave)
         choice = _channel_choice(fam, ev, psfs.kernels[i], float(min_evidence))
+        if choice["refined"] and foveal_scale is not None:
+            if base is None:
+                base = _relation_misfit(fr, alpha, psfs, float(foveal_scale), offset, sigma, fpn_error_dn)
+            cand = _relation_misfit(fr, alpha, fam.member(psfs, int(np.argmax(ev["two_ln_b"]))),
+                                    float(foveal_scale), offset, sigma, fpn_error_dn)
+            choice["relation_misfit"] = [base, cand]
+            if cand > base:
+                choice.update(refined=False, chosen=choice["nominal"], warning=(
+                    f"the x{fam.channel} evidence favours {fam.kind} {choice['best']:+g} {fam.unit} (2 ln B = "
+                    f"{choice['two_ln_b']:.0f}, Z = {choice['z']:.1f}) but the foveal relation holds worse with it "
+                    f"(misfit {cand:.3g} against {base:.3g}): the nominal PSF is kept; a PSF mismatch is possible"))
         out.channels.append(choice)
         if choice["refined"]:
             refined = fam.member(refined, int(np.argmax(ev["two_ln_b"])))
@@ -757,4 +795,5 @@ def refine_measurement(m: Measurement, frames: ArrayLike, alpha: ArrayLike, psfs
     PSFRefinement
     """
     fams = families_for(m, system, kind=families) if isinstance(families, str) else list(families)
-    return refine_psf(frames, alpha, psfs, fams, offset=offset, sigma=sigma, fpn_error_dn=fpn_error_dn)
+    return refine_psf(frames, alpha, psfs, fams, offset=offset, sigma=sigma, fpn_error_dn=fpn_error_dn,
+                      foveal_scale=m.recorded_scale)

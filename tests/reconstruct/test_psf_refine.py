@@ -211,3 +211,21 @@ def test_the_engines_family_is_the_simulators_psf():
         assert np.max(np.abs(fam.kernels[j] - k)) < 1e-6 * float(np.max(k))
         assert fam.pedestals[j] == pytest.approx(m.psf_pedestals[0], abs=1e-9)
     assert np.max(np.abs(fam.kernels[1] - fam.kernels[0])) > 0.1 * float(np.max(fam.kernels[0]))
+
+
+def test_the_foveal_relation_confirms_a_refinement():
+    """With the channels' scale, a refinement must also leave the foveal relation (the foveal estimate scaled down
+    against the perifoveal centre) no worse: on a pair that satisfies it exactly, the true member improves it."""
+    from metafovea.reconstruct.synthetic import scene
+
+    f2 = PSFFamily(2, "defocus", np.array(WAVES), tuple(_airy(w) for w in WAVES), (0.0,) * len(WAVES), unit="waves")
+    x1, x2 = (200.0 + 100.0 * x for x in scene(N))
+    k1, k2 = _gauss(1.0, 9), f2.kernels[WAVES.index(1.0)]
+    u = [fftconvolve(np.pad(x, k.shape[0] // 2, mode="reflect"), k, mode="valid") for x, k in ((x1, k1), (x2, k2))]
+    rng = np.random.default_rng(0)
+    a = np.cos(np.linspace(0, 2 * np.pi, 24, endpoint=False) + 0.3) ** 2
+    frames = a[:, None, None] * u[0] + (1 - a[:, None, None]) * u[1] + rng.normal(0, 0.5, (24, N, N))
+    r = refine_psf(frames, a, ChannelPSFs((k1, f2.kernels[0])), [f2], sigma=0.5, foveal_scale=6.0)
+    (c,) = r.channels
+    base, cand = c["relation_misfit"]
+    assert c["refined"] and c["chosen"] == pytest.approx(1.0, abs=0.25) and cand < base, c
