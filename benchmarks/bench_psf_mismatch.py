@@ -141,7 +141,8 @@ def main() -> None:
                         if key not in families:
                             families[key] = psf_family(system, channel=ch, kind=kind, filter_enabled=filt)
                         fams.append(families[key])
-                    r = refine_psf(frames, m.alpha, nominal, fams, offset=m.dark_dn, fpn_error_dn=fe)
+                    r = refine_psf(frames, m.alpha, nominal, fams, offset=m.dark_dn, fpn_error_dn=fe,
+                                   foveal_scale=m.recorded_scale)
                     for me in args.methods:
                         ref = _scores(m, r.psfs, me, fpn, fe) if r.refined else plain[me]
                         for i, c in enumerate(r.channels):
