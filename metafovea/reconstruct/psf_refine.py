@@ -7,22 +7,26 @@ divided out) is a stationary Gaussian field
 
     z_i = K_i * s_i + n_i,    ln S_i(f) piecewise linear in ln |f|,    n_i white of variance C_ii             (1)
 
-(``S_i``: the scene's spectrum, its values at knots one octave apart free: natural scenes' spectra are close to a
-power law [1]_, one straight line in these coordinates, but a scene of a few objects, a pattern of one period or a
-horizon bends it, and a fixed law would then lend its error to the PSF; ``C``: the separated channels' noise
-covariance, known from the frames' residuals and the fixed pattern's error). Its Hann-tapered periodogram
-``I_i(f)`` (per pixel) is, frequency by frequency, an exponential variable of mean
+(``S_i``: the scene's spectrum, its values ``theta_k`` at knots one octave apart: natural scenes' spectra are close
+to a power law [1]_, one straight line in these coordinates, but a scene of a few objects, a pattern of one period or
+a horizon bends it, and a fixed law would then lend its error to the PSF; a Gaussian prior on the bends, of
+:data:`CURVATURE_PER_OCTAVE` per octave, keeps the spectrum from following a smooth blur's attenuation instead. ``C``:
+the separated channels' noise covariance, known from the frames' residuals and the fixed pattern's error). Its
+Hann-tapered periodogram ``I_i(f)`` (per pixel) is, frequency by frequency, an exponential variable of mean
 
-    E I_i(f) = |D_i(f)|^2 S_i(f) + C_ii,     D_i the candidate kernel's OTF on the crop's grid                 (2)
+    E I_i(f) = W * (|D_i|^2 S_i)(f) + C_ii,    D_i the candidate kernel's OTF on the crop's grid                (2)
 
-so the Gaussian marginal likelihood of a candidate PSF (the evidence: the scene integrated out) is in closed form per
-frequency (Whittle's approximation [2]_), its spectrum's knots fitted (type-II maximum likelihood):
+(``W``: the taper's spectral window, :data:`TAPER_WINDOW`), so the Gaussian marginal likelihood of a candidate PSF
+(the evidence: the scene integrated out) is in closed form per frequency (Whittle's approximation [2]_), its
+spectrum's knots fitted (type-II maximum likelihood, the bends' prior added):
 
-    -ln p(z_i | K) = min_S sum_f w_f [ln E I_i(f) + I_i(f) / E I_i(f)] / rho + const                            (3)
+    -ln p(z_i | K) = min_theta {sum_f w_f [ln E I_i(f) + I_i(f) / E I_i(f)] / rho
+                                + sum_k (theta_k+1 - 2 theta_k + theta_k-1)^2 / (2 tau^2)} + const              (3)
 
 with ``w_f`` 1/2 on the half plane's self-conjugate columns and 1 elsewhere, over ``|f|`` beyond the taper's main
-lobe (:data:`MIN_FREQUENCY_CELLS`), and ``rho = N sum w^4 / (sum w^2)^2`` the taper's variance inflation (it
-correlates neighbouring frequencies, so the sum counts each one ``rho`` times). A member's evidence ratio against
+lobe (:data:`MIN_FREQUENCY_CELLS`), ``rho = N sum w^4 / (sum w^2)^2`` the taper's variance inflation (it
+correlates neighbouring frequencies, so the sum counts each one ``rho`` times) and ``tau`` the bends' prior (per
+octave, for knots one octave apart). A member's evidence ratio against
 the nominal PSF and its significance are
 
     2 ln B_k = 2 [ln p(z | K_k) - ln p(z | K_0)],    Z_k = sum_f d_f / sqrt(rho sum_f (d_f - mean d)^2)         (4)
@@ -30,9 +34,9 @@ the nominal PSF and its significance are
 ``d_f`` the per-frequency difference of (3)'s terms: ``Z`` is Vuong's statistic [3]_, which stays a standard normal
 under the null (neither model closer to the truth) when, as here, both models are approximations.
 
-Why the evidence: it needs neither the scene nor a tuning constant; the scene is integrated out under the same
-stationary Gaussian model whose posterior mean the Wiener step computes, and the spectrum is fitted for each
-candidate, so a blurrier PSF cannot win by claiming a sharper scene. Maximising jointly over scene and PSF (MAP)
+Why the evidence: it needs no knowledge of the scene; the scene is integrated out under the same stationary Gaussian
+model whose posterior mean the Wiener step computes, and the spectrum is fitted for each candidate, so a blurrier PSF
+cannot win by claiming a sharper scene. Maximising jointly over scene and PSF (MAP)
 favours the sharpest PSF; the marginal likelihood does not [4]_ [5]_. A prediction-error criterion (GCV) would need a
 deconvolution per candidate and would score the noise model rather than the PSF.
 
