@@ -87,7 +87,7 @@ from __future__ import annotations
 
 import logging
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING, Any
 
@@ -675,15 +675,12 @@ def _channel_choice(fam: PSFFamily, ev: dict[str, Any], file_kernel: np.ndarray,
             "warning": "; ".join(notes) or None, "source": fam.source}
 
 
-def _relation_misfit(frames: np.ndarray, alpha: ArrayLike, psfs: ChannelPSFs, scale: float, offset: float,
-                     sigma: float | None, fpn_error_dn: float) -> float:
-    """The foveal relation's misfit of the Wiener estimates through ``psfs``: the rms of ``D s_1 - g C s_2 - o``
-    (:mod:`metafovea.reconstruct.operators`; ``g``, ``o`` fitted), over the perifoveal side's standard deviation."""
-    from metafovea.reconstruct.deconvolve import separate_deconvolve
+def _relation_misfit(scene: tuple[np.ndarray, np.ndarray], scale: float) -> float:
+    """The foveal relation's misfit of both channels' estimates ``scene``: the rms of ``D s_1 - g C s_2 - o``
+    (:mod:`metafovea.reconstruct.operators`; ``g``, ``o`` fitted), over the foveal side's standard deviation."""
     from metafovea.reconstruct.operators import centre_crop, downsample
 
-    d = separate_deconvolve(frames, alpha, psfs, offset=offset, sigma=sigma, fpn_error_dn=fpn_error_dn)
-    lo, c2 = downsample(d.scene[0], scale), centre_crop(d.scene[1], scale)
+    lo, c2 = downsample(np.asarray(scene[0], np.float64), scale), centre_crop(np.asarray(scene[1], np.float64), scale)
     A = np.stack([c2.ravel(), np.ones(c2.size)], axis=1)
     r = lo.ravel() - A @ np.linalg.lstsq(A, lo.ravel(), rcond=None)[0]
     return float(np.sqrt(np.mean(r ** 2)) / max(float(np.std(lo)), 1e-300))
@@ -692,7 +689,8 @@ def _relation_misfit(frames: np.ndarray, alpha: ArrayLike, psfs: ChannelPSFs, sc
 def refine_psf(frames: ArrayLike, alpha: ArrayLike, psfs: ChannelPSFs, families: Sequence[PSFFamily], *,
                offset: float = 0.0, sigma: float | None = None, fpn_error_dn: float = 0.0,
                min_evidence: float = MIN_EVIDENCE, knots_per_octave: float = KNOTS_PER_OCTAVE,
-               foveal_scale: float | None = None) -> PSFRefinement:
+               foveal_scale: float | None = None,
+               estimate: Callable[[ChannelPSFs], tuple[np.ndarray, np.ndarray]] | None = None) -> PSFRefinement:
     """Each family's member of largest evidence, eq. (3), where it beats the nominal PSF by both tests of eq. (4).
 
     Parameters
@@ -717,10 +715,13 @@ def refine_psf(frames: ArrayLike, alpha: ArrayLike, psfs: ChannelPSFs, families:
     knots_per_octave : float
         The scene spectrum's knots per octave (:data:`KNOTS_PER_OCTAVE`).
     foveal_scale : float, optional
-        The channels' scale f1 / f2: a member that passes both tests replaces the nominal one only where the
-        foveal relation of the two channels' Wiener estimates (the foveal image scaled down against the
+        The channels' scale f1 / f2. With ``estimate``, a member that passes both tests replaces the nominal one
+        only where the foveal relation of the two channels' estimates (the foveal image scaled down against the
         perifoveal centre) holds at least as well with it as with the nominal PSF: a check that needs no scene
         model (``relation_misfit`` in the output: nominal, refined).
+    estimate : callable, optional
+        ``estimate(psfs) -> (s_1, s_2)``: both channels' scene estimates (H, W) from these frames through ``psfs``
+        (:func:`~metafovea.reconstruct.deconvolve.deconvolve_measurement` passes its Wiener solve).
 
     Returns
     -------
@@ -742,8 +743,7 @@ def refine_psf(frames: ArrayLike, alpha: ArrayLike, psfs: ChannelPSFs, families:
     chans = [f.channel for f in families]
     if len(set(chans)) != len(chans):
         raise InputError("families", [f"x{c}" for c in chans], "at most one family per channel")
-    fr = np.asarray(frames, dtype=np.float64)
-    pb, C, _ = prepare_problem(fr, alpha, psfs, offset, sigma, "padded", "edge", fpn_error_dn)
+    pb, C, _ = prepare_problem(frames, alpha, psfs, offset, sigma, "padded", "edge", fpn_error_dn)
     out = PSFRefinement(psfs, [], float(min_evidence))
     refined = psfs
     base = None
@@ -752,11 +752,10 @@ def refine_psf(frames: ArrayLike, alpha: ArrayLike, psfs: ChannelPSFs, families:
         ev = psf_evidence(pb.zc[i], float(C[i, i]), fam.kernels, reference=fam.nominal_index,
                           knots_per_octave=knots_per_octave)
         choice = _channel_choice(fam, ev, psfs.kernels[i], float(min_evidence))
-        if choice["refined"] and foveal_scale is not None:
+        if choice["refined"] and foveal_scale is not None and estimate is not None:
             if base is None:
-                base = _relation_misfit(fr, alpha, psfs, float(foveal_scale), offset, sigma, fpn_error_dn)
-            cand = _relation_misfit(fr, alpha, fam.member(psfs, int(np.argmax(ev["two_ln_b"]))),
-                                    float(foveal_scale), offset, sigma, fpn_error_dn)
+                base = _relation_misfit(estimate(psfs), float(foveal_scale))
+            cand = _relation_misfit(estimate(fam.member(psfs, int(np.argmax(ev["two_ln_b"])))), float(foveal_scale))
             choice["relation_misfit"] = [base, cand]
             if cand > base:
                 choice.update(refined=False, chosen=choice["nominal"], warning=(
@@ -773,7 +772,8 @@ def refine_psf(frames: ArrayLike, alpha: ArrayLike, psfs: ChannelPSFs, families:
 
 def refine_measurement(m: Measurement, frames: ArrayLike, alpha: ArrayLike, psfs: ChannelPSFs,
                        families: str | Sequence[PSFFamily], *, offset: float, sigma: float | None = None,
-                       fpn_error_dn: float = 0.0, system: SystemDesign | None = None) -> PSFRefinement:
+                       fpn_error_dn: float = 0.0, system: SystemDesign | None = None,
+                       estimate: Callable[[ChannelPSFs], tuple[np.ndarray, np.ndarray]] | None = None) -> PSFRefinement:
     """:func:`refine_psf` of a Measurement's frames, with a family kind built for it (:func:`families_for`).
 
     Parameters
@@ -793,6 +793,9 @@ def refine_measurement(m: Measurement, frames: ArrayLike, alpha: ArrayLike, psfs
     fpn_error_dn : float
     system : SystemDesign, optional
         The camera a family kind is built for (default: the paper's prototype).
+    estimate : callable, optional
+        Both channels' estimates through given PSFs, for the foveal relation's check at the file's scale
+        (:func:`refine_psf`).
 
     Returns
     -------
@@ -800,4 +803,4 @@ def refine_measurement(m: Measurement, frames: ArrayLike, alpha: ArrayLike, psfs
     """
     fams = families_for(m, system, kind=families) if isinstance(families, str) else list(families)
     return refine_psf(frames, alpha, psfs, fams, offset=offset, sigma=sigma, fpn_error_dn=fpn_error_dn,
-                      foveal_scale=m.recorded_scale)
+                      foveal_scale=m.recorded_scale, estimate=estimate)

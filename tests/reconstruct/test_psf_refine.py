@@ -225,7 +225,8 @@ def test_the_foveal_relation_confirms_a_refinement():
     rng = np.random.default_rng(0)
     a = np.cos(np.linspace(0, 2 * np.pi, 24, endpoint=False) + 0.3) ** 2
     frames = a[:, None, None] * u[0] + (1 - a[:, None, None]) * u[1] + rng.normal(0, 0.5, (24, N, N))
-    r = refine_psf(frames, a, ChannelPSFs((k1, f2.kernels[0])), [f2], sigma=0.5, foveal_scale=6.0)
+    r = refine_psf(frames, a, ChannelPSFs((k1, f2.kernels[0])), [f2], sigma=0.5, foveal_scale=6.0,
+                   estimate=lambda p: separate_deconvolve(frames, a, p, sigma=0.5).scene)
     (c,) = r.channels
     base, cand = c["relation_misfit"]
     assert c["refined"] and c["chosen"] == pytest.approx(1.0, abs=0.25) and cand < base, c
