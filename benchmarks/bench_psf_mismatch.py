@@ -146,7 +146,7 @@ def main() -> None:
                     r = refine_psf(frames, m.alpha, nominal, fams, offset=m.dark_dn, fpn_error_dn=fe,
                                    foveal_scale=m.recorded_scale,  # the check deconvolve_measurement runs:
                                    estimate=lambda p, fr=frames, m=m, fe=fe: separate_deconvolve(
-                                       fr, m.alpha, p, offset=m.dark_dn, fpn_error_dn=fe).scene)
+                                       fr, m.alpha, p, method="wiener", offset=m.dark_dn, fpn_error_dn=fe).scene)
                     for me in args.methods:
                         ref = _scores(m, r.psfs, me, fpn, fe) if r.refined else plain[me]
                         for i, c in enumerate(r.channels):

@@ -76,7 +76,7 @@ def _data(k1: np.ndarray, k2: np.ndarray, seed: int, sigma: float = 1.0, T: int 
 
 
 def _psnr(frames, a, psfs: ChannelPSFs, truth, i: int) -> float:
-    return psnr(separate_deconvolve(frames, a, psfs, sigma=1.0).scene[i], truth[i])
+    return psnr(separate_deconvolve(frames, a, psfs, method="wiener", sigma=1.0).scene[i], truth[i])
 
 
 @pytest.mark.parametrize("seed", [2, 7])
@@ -157,8 +157,8 @@ def test_deconvolve_measurement_refines_and_says_so(families):
     frames, a, truth = _data(f1.kernels[f1.nominal_index], f2.kernels[WAVES.index(1.0)], 9)
     m = Measurement(frames=frames.astype(np.float32), times_s=np.arange(frames.shape[0]) / 12.0, alpha=a,
                     meta={"dark_dn": 0.0}, extras={"psf_x1": f1.kernels[f1.nominal_index], "psf_x2": f2.kernels[0]})
-    plain = deconvolve_measurement(m, sigma=1.0)
-    d = deconvolve_measurement(m, sigma=1.0, refine_psf=[f2])
+    plain = deconvolve_measurement(m, method="wiener", sigma=1.0)
+    d = deconvolve_measurement(m, method="wiener", sigma=1.0, refine_psf=[f2])
     info = d.info["psf_refinement"]
     assert info["refined"] and info["channels"][0]["chosen"] == pytest.approx(1.0)
     assert "x2 defocus: refined to +1 waves" in info["lines"][0] and d.summary()["psf_refinement"] is info
@@ -226,7 +226,7 @@ def test_the_foveal_relation_confirms_a_refinement():
     a = np.cos(np.linspace(0, 2 * np.pi, 24, endpoint=False) + 0.3) ** 2
     frames = a[:, None, None] * u[0] + (1 - a[:, None, None]) * u[1] + rng.normal(0, 0.5, (24, N, N))
     r = refine_psf(frames, a, ChannelPSFs((k1, f2.kernels[0])), [f2], sigma=0.5, foveal_scale=6.0,
-                   estimate=lambda p: separate_deconvolve(frames, a, p, sigma=0.5).scene)
+                   estimate=lambda p: separate_deconvolve(frames, a, p, method="wiener", sigma=0.5).scene)
     (c,) = r.channels
     base, cand = c["relation_misfit"]
     assert c["refined"] and c["chosen"] == pytest.approx(1.0, abs=0.25) and cand < base, c
