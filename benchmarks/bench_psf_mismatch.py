@@ -19,7 +19,9 @@ the nominal PSF, the loss (dB), and with the PSF refined from the data (the ``de
 defocus and the field cases, the ``focal-length`` family for the focal cases and for ``none`` again), the member
 chosen and its evidence (``2 ln B``, Vuong's ``Z``). The FPN is estimated from 16 shutter frames and its error counted,
 as ``metafovea reconstruct --fpn calibration`` does; the true PSFs' illumination is used throughout (only the kernels
-and pedestals differ). The last lines summarise the loss and what the refinement recovers per case, band and method.
+and pedestals differ). The refinement runs as ``deconvolve_measurement(refine_psf=...)`` does: the evidence, Vuong's
+test and the foveal relation's check of both channels' Wiener estimates. The last lines summarise the loss and what
+the refinement recovers per case, band and method.
 """
 
 from __future__ import annotations
@@ -36,7 +38,7 @@ import numpy as np
 from metafovea.config import load_system
 from metafovea.imaging.kernels import resolve_provider
 from metafovea.imaging.simulate import SimulationOptions, camera_for, simulate
-from metafovea.reconstruct.deconvolve import deconvolve_measurement
+from metafovea.reconstruct.deconvolve import deconvolve_measurement, separate_deconvolve
 from metafovea.reconstruct.fpn import estimate_fpn
 from metafovea.reconstruct.joint import ChannelPSFs
 from metafovea.reconstruct.metrics import psnr
@@ -141,7 +143,10 @@ def main() -> None:
                         if key not in families:
                             families[key] = psf_family(system, channel=ch, kind=kind, filter_enabled=filt)
                         fams.append(families[key])
-                    r = refine_psf(frames, m.alpha, nominal, fams, offset=m.dark_dn, fpn_error_dn=fe)
+                    r = refine_psf(frames, m.alpha, nominal, fams, offset=m.dark_dn, fpn_error_dn=fe,
+                                   foveal_scale=m.recorded_scale,  # the check deconvolve_measurement runs:
+                                   estimate=lambda p, fr=frames, m=m, fe=fe: separate_deconvolve(
+                                       fr, m.alpha, p, method="wiener", offset=m.dark_dn, fpn_error_dn=fe).scene)
                     for me in args.methods:
                         ref = _scores(m, r.psfs, me, fpn, fe) if r.refined else plain[me]
                         for i, c in enumerate(r.channels):

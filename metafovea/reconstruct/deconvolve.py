@@ -521,8 +521,12 @@ def deconvolve_measurement(m: Measurement, *, alpha: ArrayLike | None = None, fp
     if refine_psf is not None:
         from metafovea.reconstruct.psf_refine import refine_measurement
 
+        def wiener(p: ChannelPSFs) -> tuple[np.ndarray, np.ndarray]:  # the refinement's foveal-relation check
+            return separate_deconvolve(frames, a, p, method="wiener", offset=offset, sigma=kw.get("sigma"),
+                                       fpn_error_dn=kw.get("fpn_error_dn", 0.0)).scene
+
         refined = refine_measurement(m, frames, a, psfs, refine_psf, offset=offset, sigma=kw.get("sigma"),
-                                     fpn_error_dn=kw.get("fpn_error_dn", 0.0))
+                                     fpn_error_dn=kw.get("fpn_error_dn", 0.0), estimate=wiener)
         psfs = refined.psfs
     kw["boundary"] = check_boundary(kw.get("boundary", "padded"))
     if "foveal_scale" not in kw and m.recorded_scale:

@@ -7,22 +7,26 @@ divided out) is a stationary Gaussian field
 
     z_i = K_i * s_i + n_i,    ln S_i(f) piecewise linear in ln |f|,    n_i white of variance C_ii             (1)
 
-(``S_i``: the scene's spectrum, its values at knots one octave apart free: natural scenes' spectra are close to a
-power law [1]_, one straight line in these coordinates, but a scene of a few objects, a pattern of one period or a
-horizon bends it, and a fixed law would then lend its error to the PSF; ``C``: the separated channels' noise
-covariance, known from the frames' residuals and the fixed pattern's error). Its Hann-tapered periodogram
-``I_i(f)`` (per pixel) is, frequency by frequency, an exponential variable of mean
+(``S_i``: the scene's spectrum, its values ``theta_k`` at knots one octave apart: natural scenes' spectra are close
+to a power law [1]_, one straight line in these coordinates, but a scene of a few objects, a pattern of one period or
+a horizon bends it, and a fixed law would then lend its error to the PSF; a Gaussian prior on the bends, of
+:data:`CURVATURE_PER_OCTAVE` per octave, keeps the spectrum from following a smooth blur's attenuation instead. ``C``:
+the separated channels' noise covariance, known from the frames' residuals and the fixed pattern's error). Its
+Hann-tapered periodogram ``I_i(f)`` (per pixel) is, frequency by frequency, an exponential variable of mean
 
-    E I_i(f) = |D_i(f)|^2 S_i(f) + C_ii,     D_i the candidate kernel's OTF on the crop's grid                 (2)
+    E I_i(f) = W * (|D_i|^2 S_i)(f) + C_ii,    D_i the candidate kernel's OTF on the crop's grid                (2)
 
-so the Gaussian marginal likelihood of a candidate PSF (the evidence: the scene integrated out) is in closed form per
-frequency (Whittle's approximation [2]_), its spectrum's knots fitted (type-II maximum likelihood):
+(``W``: the taper's spectral window, :data:`TAPER_WINDOW`), so the Gaussian marginal likelihood of a candidate PSF
+(the evidence: the scene integrated out) is in closed form per frequency (Whittle's approximation [2]_), its
+spectrum's knots fitted (type-II maximum likelihood, the bends' prior added):
 
-    -ln p(z_i | K) = min_S sum_f w_f [ln E I_i(f) + I_i(f) / E I_i(f)] / rho + const                            (3)
+    -ln p(z_i | K) = min_theta {sum_f w_f [ln E I_i(f) + I_i(f) / E I_i(f)] / rho
+                                + sum_k (theta_k+1 - 2 theta_k + theta_k-1)^2 / (2 tau^2)} + const              (3)
 
 with ``w_f`` 1/2 on the half plane's self-conjugate columns and 1 elsewhere, over ``|f|`` beyond the taper's main
-lobe (:data:`MIN_FREQUENCY_CELLS`), and ``rho = N sum w^4 / (sum w^2)^2`` the taper's variance inflation (it
-correlates neighbouring frequencies, so the sum counts each one ``rho`` times). A member's evidence ratio against
+lobe (:data:`MIN_FREQUENCY_CELLS`), ``rho = N sum w^4 / (sum w^2)^2`` the taper's variance inflation (it
+correlates neighbouring frequencies, so the sum counts each one ``rho`` times) and ``tau`` the bends' prior (per
+octave, for knots one octave apart). A member's evidence ratio against
 the nominal PSF and its significance are
 
     2 ln B_k = 2 [ln p(z | K_k) - ln p(z | K_0)],    Z_k = sum_f d_f / sqrt(rho sum_f (d_f - mean d)^2)         (4)
@@ -30,17 +34,22 @@ the nominal PSF and its significance are
 ``d_f`` the per-frequency difference of (3)'s terms: ``Z`` is Vuong's statistic [3]_, which stays a standard normal
 under the null (neither model closer to the truth) when, as here, both models are approximations.
 
-Why the evidence: it needs neither the scene nor a tuning constant; the scene is integrated out under the same
-stationary Gaussian model whose posterior mean the Wiener step computes, and the spectrum is fitted for each
-candidate, so a blurrier PSF cannot win by claiming a sharper scene. Maximising jointly over scene and PSF (MAP)
+Why the evidence: it needs no knowledge of the scene; the scene is integrated out under the same stationary Gaussian
+model whose posterior mean the Wiener step computes, and the spectrum is fitted for each candidate, so a blurrier PSF
+cannot win by claiming a sharper scene. Maximising jointly over scene and PSF (MAP)
 favours the sharpest PSF; the marginal likelihood does not [4]_ [5]_. A prediction-error criterion (GCV) would need a
 deconvolution per candidate and would score the noise model rather than the PSF.
 
 A member replaces the nominal PSF only where both ``2 ln B >= min_evidence`` (:data:`MIN_EVIDENCE`, "strong" on
 Kass and Raftery's scale [6]_) and ``Z`` exceeds the one-sided 5 % level corrected for the family's ``K - 1``
 comparisons (Bonferroni, :data:`FAMILY_ALPHA`): the fitted spectrum is an approximation of a real scene's, and its
-error alone produces evidence ratios of tens over tens of thousands of frequencies, which ``Z`` discounts. A member
-at the family's edge, and a family whose nominal member is not the file's PSF, are stated.
+error alone produces evidence ratios of tens over tens of thousands of frequencies, which ``Z`` discounts. Where the
+channels' scale is known, the camera's own redundancy checks the choice without any scene model: the foveal image,
+scaled down ``f1 / f2`` times, is the perifoveal image's centre up to a gain and an offset, and a member is taken only
+where the two channels' Wiener estimates satisfy that relation at least as well with it as with the nominal PSF
+(a scene whose spectrum the model misreads, a periodic texture, a horizon, can make a wrong member look likely; it
+does not make the two channels agree better). A member at the family's edge, and a family whose nominal member is
+not the file's PSF, are stated.
 
 Families (:func:`psf_family`) are built with the project's optics engine as the simulator builds the file's PSFs
 (:func:`metafovea.imaging.kernels.build_channel_optics`, :func:`metafovea.imaging.kernels.pixel_psf`):
@@ -78,7 +87,7 @@ from __future__ import annotations
 
 import logging
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING, Any
 
@@ -666,9 +675,22 @@ def _channel_choice(fam: PSFFamily, ev: dict[str, Any], file_kernel: np.ndarray,
             "warning": "; ".join(notes) or None, "source": fam.source}
 
 
+def _relation_misfit(scene: tuple[np.ndarray, np.ndarray], scale: float) -> float:
+    """The foveal relation's misfit of both channels' estimates ``scene``: the rms of ``D s_1 - g C s_2 - o``
+    (:mod:`metafovea.reconstruct.operators`; ``g``, ``o`` fitted), over the foveal side's standard deviation."""
+    from metafovea.reconstruct.operators import centre_crop, downsample
+
+    lo, c2 = downsample(np.asarray(scene[0], np.float64), scale), centre_crop(np.asarray(scene[1], np.float64), scale)
+    A = np.stack([c2.ravel(), np.ones(c2.size)], axis=1)
+    r = lo.ravel() - A @ np.linalg.lstsq(A, lo.ravel(), rcond=None)[0]
+    return float(np.sqrt(np.mean(r ** 2)) / max(float(np.std(lo)), 1e-300))
+
+
 def refine_psf(frames: ArrayLike, alpha: ArrayLike, psfs: ChannelPSFs, families: Sequence[PSFFamily], *,
                offset: float = 0.0, sigma: float | None = None, fpn_error_dn: float = 0.0,
-               min_evidence: float = MIN_EVIDENCE, knots_per_octave: float = KNOTS_PER_OCTAVE) -> PSFRefinement:
+               min_evidence: float = MIN_EVIDENCE, knots_per_octave: float = KNOTS_PER_OCTAVE,
+               foveal_scale: float | None = None,
+               estimate: Callable[[ChannelPSFs], tuple[np.ndarray, np.ndarray]] | None = None) -> PSFRefinement:
     """Each family's member of largest evidence, eq. (3), where it beats the nominal PSF by both tests of eq. (4).
 
     Parameters
@@ -692,6 +714,14 @@ def refine_psf(frames: ArrayLike, alpha: ArrayLike, psfs: ChannelPSFs, families:
         The ``2 ln B`` of eq. (4) a member needs over the nominal (:data:`MIN_EVIDENCE`).
     knots_per_octave : float
         The scene spectrum's knots per octave (:data:`KNOTS_PER_OCTAVE`).
+    foveal_scale : float, optional
+        The channels' scale f1 / f2. With ``estimate``, a member that passes both tests replaces the nominal one
+        only where the foveal relation of the two channels' estimates (the foveal image scaled down against the
+        perifoveal centre) holds at least as well with it as with the nominal PSF: a check that needs no scene
+        model (``relation_misfit`` in the output: nominal, refined).
+    estimate : callable, optional
+        ``estimate(psfs) -> (s_1, s_2)``: both channels' scene estimates (H, W) from these frames through ``psfs``
+        (:func:`~metafovea.reconstruct.deconvolve.deconvolve_measurement` passes its Wiener solve).
 
     Returns
     -------
@@ -716,11 +746,22 @@ def refine_psf(frames: ArrayLike, alpha: ArrayLike, psfs: ChannelPSFs, families:
     pb, C, _ = prepare_problem(frames, alpha, psfs, offset, sigma, "padded", "edge", fpn_error_dn)
     out = PSFRefinement(psfs, [], float(min_evidence))
     refined = psfs
+    base = None
     for fam in families:
         i = fam.channel - 1
         ev = psf_evidence(pb.zc[i], float(C[i, i]), fam.kernels, reference=fam.nominal_index,
                           knots_per_octave=knots_per_octave)
         choice = _channel_choice(fam, ev, psfs.kernels[i], float(min_evidence))
+        if choice["refined"] and foveal_scale is not None and estimate is not None:
+            if base is None:
+                base = _relation_misfit(estimate(psfs), float(foveal_scale))
+            cand = _relation_misfit(estimate(fam.member(psfs, int(np.argmax(ev["two_ln_b"])))), float(foveal_scale))
+            choice["relation_misfit"] = [base, cand]
+            if cand > base:
+                choice.update(refined=False, chosen=choice["nominal"], warning=(
+                    f"the x{fam.channel} evidence favours {fam.kind} {choice['best']:+g} {fam.unit} (2 ln B = "
+                    f"{choice['two_ln_b']:.0f}, Z = {choice['z']:.1f}) but the foveal relation holds worse with it "
+                    f"(misfit {cand:.3g} against {base:.3g}): the nominal PSF is kept; a PSF mismatch is possible"))
         out.channels.append(choice)
         if choice["refined"]:
             refined = fam.member(refined, int(np.argmax(ev["two_ln_b"])))
@@ -731,7 +772,8 @@ def refine_psf(frames: ArrayLike, alpha: ArrayLike, psfs: ChannelPSFs, families:
 
 def refine_measurement(m: Measurement, frames: ArrayLike, alpha: ArrayLike, psfs: ChannelPSFs,
                        families: str | Sequence[PSFFamily], *, offset: float, sigma: float | None = None,
-                       fpn_error_dn: float = 0.0, system: SystemDesign | None = None) -> PSFRefinement:
+                       fpn_error_dn: float = 0.0, system: SystemDesign | None = None,
+                       estimate: Callable[[ChannelPSFs], tuple[np.ndarray, np.ndarray]] | None = None) -> PSFRefinement:
     """:func:`refine_psf` of a Measurement's frames, with a family kind built for it (:func:`families_for`).
 
     Parameters
@@ -751,10 +793,14 @@ def refine_measurement(m: Measurement, frames: ArrayLike, alpha: ArrayLike, psfs
     fpn_error_dn : float
     system : SystemDesign, optional
         The camera a family kind is built for (default: the paper's prototype).
+    estimate : callable, optional
+        Both channels' estimates through given PSFs, for the foveal relation's check at the file's scale
+        (:func:`refine_psf`).
 
     Returns
     -------
     PSFRefinement
     """
     fams = families_for(m, system, kind=families) if isinstance(families, str) else list(families)
-    return refine_psf(frames, alpha, psfs, fams, offset=offset, sigma=sigma, fpn_error_dn=fpn_error_dn)
+    return refine_psf(frames, alpha, psfs, fams, offset=offset, sigma=sigma, fpn_error_dn=fpn_error_dn,
+                      foveal_scale=m.recorded_scale, estimate=estimate)

@@ -76,7 +76,7 @@ def _data(k1: np.ndarray, k2: np.ndarray, seed: int, sigma: float = 1.0, T: int 
 
 
 def _psnr(frames, a, psfs: ChannelPSFs, truth, i: int) -> float:
-    return psnr(separate_deconvolve(frames, a, psfs, sigma=1.0).scene[i], truth[i])
+    return psnr(separate_deconvolve(frames, a, psfs, method="wiener", sigma=1.0).scene[i], truth[i])
 
 
 @pytest.mark.parametrize("seed", [2, 7])
@@ -157,8 +157,8 @@ def test_deconvolve_measurement_refines_and_says_so(families):
     frames, a, truth = _data(f1.kernels[f1.nominal_index], f2.kernels[WAVES.index(1.0)], 9)
     m = Measurement(frames=frames.astype(np.float32), times_s=np.arange(frames.shape[0]) / 12.0, alpha=a,
                     meta={"dark_dn": 0.0}, extras={"psf_x1": f1.kernels[f1.nominal_index], "psf_x2": f2.kernels[0]})
-    plain = deconvolve_measurement(m, sigma=1.0)
-    d = deconvolve_measurement(m, sigma=1.0, refine_psf=[f2])
+    plain = deconvolve_measurement(m, method="wiener", sigma=1.0)
+    d = deconvolve_measurement(m, method="wiener", sigma=1.0, refine_psf=[f2])
     info = d.info["psf_refinement"]
     assert info["refined"] and info["channels"][0]["chosen"] == pytest.approx(1.0)
     assert "x2 defocus: refined to +1 waves" in info["lines"][0] and d.summary()["psf_refinement"] is info
@@ -211,3 +211,22 @@ def test_the_engines_family_is_the_simulators_psf():
         assert np.max(np.abs(fam.kernels[j] - k)) < 1e-6 * float(np.max(k))
         assert fam.pedestals[j] == pytest.approx(m.psf_pedestals[0], abs=1e-9)
     assert np.max(np.abs(fam.kernels[1] - fam.kernels[0])) > 0.1 * float(np.max(fam.kernels[0]))
+
+
+def test_the_foveal_relation_confirms_a_refinement():
+    """With the channels' scale, a refinement must also leave the foveal relation (the foveal estimate scaled down
+    against the perifoveal centre) no worse: on a pair that satisfies it exactly, the true member improves it."""
+    from metafovea.reconstruct.synthetic import scene
+
+    f2 = PSFFamily(2, "defocus", np.array(WAVES), tuple(_airy(w) for w in WAVES), (0.0,) * len(WAVES), unit="waves")
+    x1, x2 = (200.0 + 100.0 * x for x in scene(N))
+    k1, k2 = _gauss(1.0, 9), f2.kernels[WAVES.index(1.0)]
+    u = [fftconvolve(np.pad(x, k.shape[0] // 2, mode="reflect"), k, mode="valid") for x, k in ((x1, k1), (x2, k2))]
+    rng = np.random.default_rng(0)
+    a = np.cos(np.linspace(0, 2 * np.pi, 24, endpoint=False) + 0.3) ** 2
+    frames = a[:, None, None] * u[0] + (1 - a[:, None, None]) * u[1] + rng.normal(0, 0.5, (24, N, N))
+    r = refine_psf(frames, a, ChannelPSFs((k1, f2.kernels[0])), [f2], sigma=0.5, foveal_scale=6.0,
+                   estimate=lambda p: separate_deconvolve(frames, a, p, method="wiener", sigma=0.5).scene)
+    (c,) = r.channels
+    base, cand = c["relation_misfit"]
+    assert c["refined"] and c["chosen"] == pytest.approx(1.0, abs=0.25) and cand < base, c
