@@ -88,10 +88,13 @@ def overlap(err: np.ndarray, other: np.ndarray, own: np.ndarray | None = None) -
         if np.ptp(t) > 0:
             basis.append(t - t.mean())
     q, _ = np.linalg.qr(np.stack(basis, axis=1))
+    e0, o0 = float(e @ e), float(o @ o)
     e = e - q @ (q.T @ e)
     o = o - q @ (q.T @ o)
-    den = math.sqrt(float(e @ e) * float(o @ o))
-    return float(e @ o / den) if den > 0 else 0.0
+    ee, oo = float(e @ e), float(o @ o)
+    if ee <= 1e-20 * e0 or oo <= 1e-20 * o0 or ee * oo == 0.0:  # nothing left but rounding
+        return 0.0
+    return float(e @ o / math.sqrt(ee * oo))
 
 
 def true_geometry(m: Measurement) -> dict[str, Any]:
