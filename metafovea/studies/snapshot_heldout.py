@@ -10,6 +10,7 @@ closed-shutter frames). :func:`score_snapshot` then runs, on that one measuremen
 * ``snapshot``: the one-frame mode on the frame whose alpha is nearest 0.5 (the snapshot's design point, the
   polariser at 45 degrees; the file's alpha for that frame is used);
 * ``frame``: the same frame (fixed pattern subtracted) taken as both images: no separation at all;
+* ``frame_level``: that frame moved to each truth's mean (an oracle: the level a separation must find, given);
 * ``lsq``: the multi-frame result, known alpha, the whole recording as one window.
 
 Each is scored against the truth the multi-frame pipeline is scored against: the noise-free sensor images
@@ -20,13 +21,17 @@ Residual overlap (one number per channel and method): in a frame the two images 
 (1 - a) x2`` on one sensor grid, so what a separation fails to remove from the foveal estimate is the perifoveal
 image at the same pixels. With ``e1 = x1_hat - truth_x1`` the foveal estimate's error,
 
-    overlap_x1 = corr(e1, truth_x2) = <e1 - mean e1, t2 - mean t2> / (||e1 - mean e1|| ||t2 - mean t2||)
+    overlap_x1 = corr(e1 - P e1, t2 - P t2),   P the projection onto (1, t1 - mean t1)
 
-over every pixel, and ``overlap_x2 = corr(x2_hat - truth_x2, truth_x1)`` likewise: 0 when the error holds no trace
-of the other channel (noise, a blur of its own channel), near 1 for the unseparated frame, whose foveal error is
-``(1 - a) (t2 - t1)``. (The perifoveal image's centre crop, resampled onto the foveal grid, is the same part of the
-scene as the foveal image at 1/6 of its resolution: its correlation with ``e1`` measures a level or contrast error of
-``x1_hat``'s own low frequencies, not the other channel's content, so it is not the overlap.)
+over every pixel: the correlation of the error with the perifoveal truth ``t2``, both with the foveal truth ``t1``
+(and the mean) regressed out, so that an error which is only the foveal image's own loss of detail or contrast (a
+blur, a gain) counts 0 even where ``t1`` and ``t2`` share structure (an edge through the centre of the field looks
+the same at both magnifications). ``overlap_x2 = corr(e2 - P' e2, t1 - P' t1)`` likewise, ``P'`` onto ``(1, t2)``.
+0: the error holds no trace of the other channel (noise, its own blur); 1: the unseparated frame, whose foveal error
+is ``(1 - a) (t2 - t1)``; negative: the other channel over-subtracted. (The perifoveal image's centre crop, resampled
+onto the foveal grid, is the same part of the scene as the foveal image at 1/6 of its resolution: its correlation
+with ``e1`` measures a level or contrast error of ``x1_hat``'s own low frequencies, not the other channel's content,
+so it is not the overlap.)
 
 Registration error: :func:`~metafovea.reconstruct.snapshot.register`'s scale, crop offset (the crop's centre, x2
 pixels, relative to the centred crop) and rotation against the true geometry: the file's ``meta['truth']['geometry']``
@@ -50,15 +55,16 @@ from metafovea.config import SystemDesign, load_system
 from metafovea.measurement import Measurement
 from metafovea.studies.heldout import HeldOutCase, simulate_case
 
-#: the rows of a case, in order: the one-frame mode, the unseparated frame, the multi-frame result
-METHODS = ("snapshot", "frame", "lsq")
+#: the rows of a case, in order: the one-frame mode, the unseparated frame, the same frame moved to each truth's mean
+#: (an oracle baseline: it knows the truth's level), the multi-frame result
+METHODS = ("snapshot", "frame", "frame_level", "lsq")
 #: what every PSNR here is scored against (the multi-frame pipeline's truth: ``reconstruct_measurement``'s metrics)
 TRUTH = "truth_x1/truth_x2: the noise-free sensor images (through the lenses, haze included)"
 
 
-def overlap(err: np.ndarray, other: np.ndarray) -> float:
-    """The residual overlap: Pearson correlation of an estimate's error with the other channel's true image
-    (module docstring).
+def overlap(err: np.ndarray, other: np.ndarray, own: np.ndarray | None = None) -> float:
+    """The residual overlap: the correlation of an estimate's error with the other channel's true image, both with
+    the estimated channel's own truth regressed out (module docstring).
 
     Parameters
     ----------
@@ -66,18 +72,29 @@ def overlap(err: np.ndarray, other: np.ndarray) -> float:
         ``x_hat - truth`` of one channel.
     other : array_like, shape (H, W)
         The other channel's true image on the same sensor grid.
+    own : array_like, shape (H, W), optional
+        The estimated channel's true image; None: the plain correlation.
 
     Returns
     -------
     float
-        In [-1, 1]; 0 when either is flat.
+        In [-1, 1]; 0 when either is flat (after the regression).
     """
     e = np.asarray(err, np.float64).ravel()
     o = np.asarray(other, np.float64).ravel()
-    e = e - e.mean()
-    o = o - o.mean()
-    den = math.sqrt(float(e @ e) * float(o @ o))
-    return float(e @ o / den) if den > 0 else 0.0
+    basis = [np.ones_like(e)]
+    if own is not None:
+        t = np.asarray(own, np.float64).ravel()
+        if np.ptp(t) > 0:
+            basis.append(t - t.mean())
+    q, _ = np.linalg.qr(np.stack(basis, axis=1))
+    e0, o0 = float(e @ e), float(o @ o)
+    e = e - q @ (q.T @ e)
+    o = o - q @ (q.T @ o)
+    ee, oo = float(e @ e), float(o @ o)
+    if ee <= 1e-20 * e0 or oo <= 1e-20 * o0 or ee * oo == 0.0:  # nothing left but rounding
+        return 0.0
+    return float(e @ o / math.sqrt(ee * oo))
 
 
 def true_geometry(m: Measurement) -> dict[str, Any]:
@@ -145,11 +162,14 @@ def score_snapshot(m: Measurement, *, frame: int | None = None, solver: dict[str
     multi = reconstruct_measurement(m, "lsq", window=m.shape[0])
     s_multi = time.perf_counter() - t0
     rows = []
+    level = (y - float(np.mean(y - t1)), y - float(np.mean(y - t2)))  # the frame at each truth's mean: an oracle
     for name, (e1, e2), secs in (("snapshot", (rec.x1, rec.x2), s_snap), ("frame", (y, y), 0.0),
+                                 ("frame_level", level, 0.0),
                                  ("lsq", (multi.reconstruction.x1, multi.reconstruction.x2), s_multi)):
         e1, e2 = np.asarray(e1, np.float64), np.asarray(e2, np.float64)
         rows.append({"method": name, "psnr_x1": psnr(e1, t1), "psnr_x2": psnr(e2, t2),
-                     "overlap_x1": overlap(e1 - t1, t2), "overlap_x2": overlap(e2 - t2, t1), "seconds": secs})
+                     "overlap_x1": overlap(e1 - t1, t2, t1), "overlap_x2": overlap(e2 - t2, t1, t2),
+                     "seconds": secs})
     geo = true_geometry(m)
     return {"frame": k, "alpha": float(m.alpha[k]), "truth": TRUTH, "geometry": geo,
             "registration": registration_error(rec.info["registration"], geo), "rows": rows,
