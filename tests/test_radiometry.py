@@ -84,6 +84,33 @@ def test_psf_wavelength_planck_weight_converges_with_the_bins(filter_enabled):
     assert abs(means[481] - ref) < 1e-5 and abs(means[61] - ref) < 1e-3
 
 
+def test_planck_matches_colour_science_planck_law():
+    """The hand-written law against colour-science's ``planck_law`` (its reference) over 0.3-100 um and 1-3000 K,
+    tiny and huge exponents included, in the broadcast shapes the tables use. colour's defaults are the CIE's
+    rounded radiation constants (c2 = 1.4388e-2 m K); the SI-exact ones (h, c and k are exact since 2019) are
+    passed to it here, and the CIE's rounding is shown to be what the defaults' difference is."""
+    from colour.colorimetry import planck_law
+    from scipy import constants as sc
+
+    c1 = 2 * math.pi * sc.h * sc.c**2  # colour's c1 is the exitance constant: radiance = c1 / pi ...
+    c2 = sc.h * sc.c / sc.k
+
+    lam = np.geomspace(0.3, 100.0, 41)
+    t = np.array([1.0, 20.0, 77.0, 250.0, 300.0, 340.0, 1000.0, 3000.0])
+    with np.errstate(over="ignore"):
+        ref = np.asarray(planck_law(lam * 1e-6, t, c1=c1, c2=c2), dtype=np.float64).reshape(lam.size, t.size) * 1e-6
+        cie = float(planck_law(10e-6, 300.0)) * 1e-6
+    got = planck_radiance(lam[:, None], t[None, :])
+    assert got.shape == (lam.size, t.size)
+    big = ref > 1e-250
+    np.testing.assert_allclose(got[big], ref[big], rtol=1e-12)
+    assert np.all(got[~big] < 1e-240) and np.all(got >= 0)
+    # at 10 um, 300 K: d ln B / d ln c2 = x e^x / (e^x - 1), x = c2 / (lambda T) = 4.80, times the CIE rounding
+    x = c2 / (10e-6 * 300.0)
+    rel = x * math.exp(x) / math.expm1(x) * (1.4388e-2 - c2) / c2
+    assert float(planck_radiance(10.0, 300.0)) * (1 - rel) == pytest.approx(cie, rel=2e-6)
+
+
 def test_planck_value_and_band_checks():
     """B(10 um, 300 K) = 9.923 W m^-2 sr^-1 um^-1; a reversed band is refused with a reason."""
     b = planck_radiance([10.0], 300.0)
