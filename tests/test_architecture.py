@@ -22,7 +22,7 @@ SHARED = {"units", "errors", "io", "parallel", "config", "materials", "radiometr
 RANK = {
     "rcwa": 1, "library": 2, "lens": 3, "design_report": 3,
     "layout": 4, "optics": 4,
-    "imaging": 5, "recordings": 5, "reconstruct": 6, "validate": 7, "studies": 7, "cli": 8,
+    "imaging": 5, "recordings": 5, "reconstruct": 6, "validate": 7, "studies": 7, "codesign": 7, "cli": 8,
 }
 SIBLINGS = {("layout", "optics"), ("optics", "layout")}
 #: ideas that must have exactly one home (the issue that cut them found each written two or three times)
