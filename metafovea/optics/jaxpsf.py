@@ -179,6 +179,20 @@ def _added(a: jnp.ndarray, rho: jnp.ndarray, R: float) -> tuple[jnp.ndarray, jnp
     return A, Ap_r, App
 
 
+def ray_map_is_monotonic(lens: LensDesign, phase_poly_rad: ArrayLike, n: int = 4001) -> bool:
+    """True when the lens point -> direction map of the phase is one to one over the aperture (``phi''`` and
+    ``phi' / rho`` negative on a grid of ``n`` radii): the condition of the debye engine's stationary phase."""
+    a = -lens.phase_sign * np.asarray(phase_poly_rad, dtype=float).reshape(-1)
+    R, f = lens.radius_um, lens.f_um
+    k0 = 2 * math.pi / lens.wavelength_um
+    rho = np.linspace(0.0, R, n)
+    L = np.sqrt(rho * rho + f * f)
+    u = (rho / R) ** 2
+    ap_r = sum(2 * (j + 1) * c * u ** j for j, c in enumerate(a)) / (R * R)
+    app = sum(2 * (j + 1) * (2 * j + 1) * c * u ** j for j, c in enumerate(a)) / (R * R)
+    return bool(np.all(-k0 / L + ap_r < 0) and np.all(-k0 * (f / L) ** 3 / f + app < 0))
+
+
 def order_coefficient(tau: jnp.ndarray, levels: int, order: int) -> jnp.ndarray:
     """c_m of :func:`metafovea.optics.pupil.order_coefficients` in JAX: ``tau`` (..., N) -> (...)."""
     k = np.arange(levels)
@@ -331,6 +345,11 @@ class ImagingModel:
             if big.any():
                 raise InputError("phase_poly_rad", np.asarray(a).tolist(),
                                  f"|a_j| <= phase_bound_rad = {self.phase_bound_rad.tolist()} (the nodes' bound)")
+            if self.engine == "debye" and self.n_coefficients and not ray_map_is_monotonic(self.lens, np.asarray(a)):
+                raise InputError("phase_poly_rad", np.asarray(a).tolist(),
+                                 "coefficients whose rays do not cross inside the aperture (phi'' < 0 and "
+                                 "phi' / rho < 0 everywhere): the debye engine's stationary phase; use engine 'rs'")
+        a = a * float(-self.lens.phase_sign)  # phase_sign = +1: the conjugate convention (module docstring)
         K, N = self.wavelengths_um.size, self.lens.levels
         tf = None if t_focus is None else jnp.asarray(t_focus, dtype=jnp.complex128)
         if tf is not None and tf.shape != (K, N):

@@ -5,6 +5,7 @@ gradients against finite differences of itself and of the brute-force reference.
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -354,3 +355,26 @@ def _paper_system():
     root = Path(__file__).resolve().parents[2]
     return load_system(root / "designs" / "system.toml")
 
+
+
+def test_debye_engine_refuses_a_phase_whose_rays_cross():
+    """A strong negative-curvature term folds the ray map (a caustic inside the aperture): the stationary phase of
+    the debye engine does not hold, the rs engine does."""
+    lens = LensDesign("s", 2000.0, 1000.0)
+    assert J.ray_map_is_monotonic(lens, [6.0, -4.0])
+    fold = [60.0]  # phi'/rho = -k0 / L + 2 a_1 / R^2 > 0 near the centre
+    assert not J.ray_map_is_monotonic(lens, fold)
+    m = J.imaging_model(lens, pitch_um=4.0, size=5, n_coefficients=1, phase_bound_rad=100.0)
+    with pytest.raises(InputError, match="rays do not cross"):
+        m.band_psf(np.array(fold))
+
+
+def test_phase_sign_plus_one_is_the_conjugate_convention():
+    """phase_sign = +1 flips the hyperbola and the time convention together: the same PSF with -a_j."""
+    lens = LensDesign("s", 2000.0, 1000.0)
+    plus = replace(lens, phase_sign=1)
+    a = np.array([3.0, -2.0])
+    m = J.imaging_model(lens, pitch_um=4.0, size=9, n_coefficients=2, phase_bound_rad=5.0, lattice=False)
+    mp = J.imaging_model(plus, pitch_um=4.0, size=9, n_coefficients=2, phase_bound_rad=5.0, lattice=False)
+    np.testing.assert_allclose(np.asarray(mp.band_psf(-a)), np.asarray(m.band_psf(a)), rtol=1e-12)
+    assert _rel(mp.band_psf(a), m.band_psf(a)) > 0.01
