@@ -38,9 +38,9 @@ Methods (chosen per field point by :func:`imaging_model`; float64 throughout, se
 ``rs``     any field: the first Rayleigh-Sommerfeld integral over the hard-edged aperture, exact kernel at every
            (node, output) pair, Gauss nodes over the disk (rows ``v = R sin t``, ``u`` between the row's ends:
            the edge costs nothing) sized from the largest slope of the lens-plus-kernel phase towards the window
-           (plus the bound on the added phase's slope). Cost ~ nodes x outputs: small lenses and windows
-           (tests, and the paper's lenses near focus on a GPU); the output is chunked and rematerialised so that
-           gradients do not store the kernel.
+           (plus the bound on the added phase's slope), per wavelength. Cost ~ nodes x outputs: small lenses,
+           and the paper's lenses near focus on small windows (the nodes grow with the wavelength's defocus);
+           the output is chunked and rematerialised so that gradients do not store the kernel.
 
 On the sensor grid the fine samples (``n_sub`` per pixel, below the intensity Nyquist pitch) are integrated
 over the pixels by production's band-limited box filter (:func:`metafovea.optics.sensor.box_integrate`, here in
@@ -410,51 +410,46 @@ class ImagingModel:
         return U.real ** 2 + U.imag ** 2
 
     def _rs_field(self, a: jnp.ndarray, c1: jnp.ndarray, xs: np.ndarray, ys: np.ndarray) -> jnp.ndarray:
-        """(K, M) field at the points (xs, ys) (flattened), exact RS engine."""
-        st = self.static
+        """(K, M) field at the points (xs, ys) (flattened), exact RS engine (each wavelength its own nodes)."""
         lens = self.lens
         R, f, z = lens.radius_um, lens.f_um, self.z_um
         k0 = 2 * math.pi / lens.wavelength_um
-        px, py, W = (jnp.asarray(st[n]) for n in ("px", "py", "pw"))
-        rho2 = px * px + py * py
-        rho = jnp.sqrt(rho2)
-        Lh = jnp.sqrt(rho2 + f * f)
-        A, Ap_r, _ = _added(a, rho, R)
-        theta_lens = -k0 * rho2 / (Lh + f) + A
-        amp = W.astype(jnp.complex128)
-        if self.lattice:
-            dphi_r = -k0 / Lh + Ap_r
-            q = lens.period_um / (2 * math.pi) * dphi_r
-            amp = amp * jnp.sinc(q * px) * jnp.sinc(q * py)
         s0 = field_direction(self.field_deg)
-        lam = jnp.asarray(self.wavelengths_um)
-        k = 2 * math.pi / lam
-        src = c1[:, None] * amp[None, :] * jnp.exp(1j * (theta_lens[None, :] + k[:, None] * (s0[0] * px + s0[1] * py)))
         M = xs.size
-        J = px.shape[0]
-        mc = max(1, min(M, RS_CHUNK // max(J, 1)))
-        nc = -(-M // mc)
-        pad = nc * mc - M
-        ox = jnp.asarray(np.concatenate([xs, np.full(pad, xs[0])]).reshape(nc, mc))
-        oy = jnp.asarray(np.concatenate([ys, np.full(pad, ys[0])]).reshape(nc, mc))
+        out = []
+        for i, (lam, nodes) in enumerate(zip(self.wavelengths_um, self.static["rs_nodes"])):
+            px, py, W = (jnp.asarray(v) for v in nodes)
+            rho2 = px * px + py * py
+            Lh = jnp.sqrt(rho2 + f * f)
+            A, Ap_r, _ = _added(a, jnp.sqrt(rho2), R)
+            amp = W.astype(jnp.complex128)
+            if self.lattice:
+                q = lens.period_um / (2 * math.pi) * (-k0 / Lh + Ap_r)
+                amp = amp * jnp.sinc(q * px) * jnp.sinc(q * py)
+            k = 2 * math.pi / float(lam)
+            src = c1[i] * amp * jnp.exp(1j * (-k0 * rho2 / (Lh + f) + A + k * (s0[0] * px + s0[1] * py)))
+            J = px.shape[0]
+            mc = max(1, min(M, RS_CHUNK // max(J, 1)))
+            nc = -(-M // mc)
+            pad = nc * mc - M
+            ox = jnp.asarray(np.concatenate([xs, np.full(pad, xs[0])]).reshape(nc, mc))
+            oy = jnp.asarray(np.concatenate([ys, np.full(pad, ys[0])]).reshape(nc, mc))
+            pre = z / (1j * float(lam))
 
-        @jax.checkpoint
-        def chunk(o: tuple[jnp.ndarray, jnp.ndarray]) -> jnp.ndarray:
-            x, y = o
-            dx = x[:, None] - px[None, :]
-            dy = y[:, None] - py[None, :]
-            d2 = dx * dx + dy * dy
-            r = jnp.sqrt(d2 + z * z)
-            rz = d2 / (r + z)  # r - z without cancellation
-            out = []
-            for i in range(lam.shape[0]):
-                kk = k[i]
-                K = (z / (1j * lam[i])) * (1.0 - 1.0 / (1j * kk * r)) * jnp.exp(1j * kk * rz) / (r * r)
-                out.append(K @ src[i])
-            return jnp.stack(out)  # (K, mc)
+            @jax.checkpoint
+            def chunk(o: tuple[jnp.ndarray, jnp.ndarray], px: jnp.ndarray = px, py: jnp.ndarray = py,
+                      src: jnp.ndarray = src, k: float = k, pre: complex = pre) -> jnp.ndarray:
+                x, y = o
+                dx = x[:, None] - px[None, :]
+                dy = y[:, None] - py[None, :]
+                d2 = dx * dx + dy * dy
+                r = jnp.sqrt(d2 + z * z)
+                rz = d2 / (r + z)  # r - z without cancellation
+                K = pre * (1.0 - 1.0 / (1j * k * r)) * jnp.exp(1j * k * rz) / (r * r)
+                return K @ src
 
-        U = jax.lax.map(chunk, (ox, oy))  # (nc, K, mc)
-        return jnp.transpose(U, (1, 0, 2)).reshape(lam.shape[0], nc * mc)[:, :M]
+            out.append(jax.lax.map(chunk, (ox, oy)).reshape(nc * mc)[:M])
+        return jnp.stack(out)
 
     # -- public functions -------------------------------------------------------------------------
     def psf_per_wavelength(self, phase_poly_rad: ArrayLike, t_focus: ArrayLike | None = None,
@@ -608,23 +603,27 @@ def _rs_static(lens: LensDesign, wl: np.ndarray, z: float, s0: np.ndarray, xs: n
     qx, qy = np.concatenate([qx, rim[:, 0]]), np.concatenate([qy, rim[:, 1]])
     Lh = np.sqrt(qx * qx + qy * qy + f * f)
     probes = [(x, y) for x in (xs.min(), xs.mean(), xs.max()) for y in (ys.min(), ys.mean(), ys.max())]
-    gx_max = gy_max = 0.0
+    q = error * 1e-3
+    out = []
+    counts = []
     for lam in wl:
         k = 2 * math.pi / lam
+        gx_max = gy_max = 0.0
         for ox, oy in probes:
             r = np.sqrt((ox - qx) ** 2 + (oy - qy) ** 2 + z * z)
             gx = -k0 * qx / Lh + k * s0[0] + k * (qx - ox) / r
             gy = -k0 * qy / Lh + k * s0[1] + k * (qy - oy) / r
             gx_max = max(gx_max, float(np.abs(gx).max()))
             gy_max = max(gy_max, float(np.abs(gy).max()))
-    q = error * 1e-3
-    n_r = nodes_for_phase((1.1 * gx_max + slope_a) * R, q, 4)
-    n_t = nodes_for_phase((1.1 * gy_max + slope_a) * R * 0.5 * np.pi, q, 4)
-    if nodes is not None:
-        n_t, n_r = (check_int("nodes", int(v), 2, 100000) for v in np.broadcast_to(np.asarray(nodes), (2,)))
-    u, v, w = disk_nodes(np.zeros(2), R, n_t, n_r)
-    vv = np.broadcast_to(v[:, None], u.shape)
-    return {"px": u.ravel().copy(), "py": vv.ravel().copy(), "pw": w.ravel().copy(), "nodes": [n_t, n_r]}
+        n_r = nodes_for_phase((1.1 * gx_max + slope_a) * R, q, 4)
+        n_t = nodes_for_phase((1.1 * gy_max + slope_a) * R * 0.5 * np.pi, q, 4)
+        if nodes is not None:
+            n_t, n_r = (check_int("nodes", int(v), 2, 100000) for v in np.broadcast_to(np.asarray(nodes), (2,)))
+        u, v, w = disk_nodes(np.zeros(2), R, n_t, n_r)
+        vv = np.broadcast_to(v[:, None], u.shape)
+        out.append((u.ravel().copy(), vv.ravel().copy(), w.ravel().copy()))
+        counts.append([n_t, n_r])
+    return {"rs_nodes": out, "nodes": counts}
 
 
 def _haze_static(lens: LensDesign, wl: np.ndarray, z: float, chief: np.ndarray, x0: float, y0: float, pitch: float,
