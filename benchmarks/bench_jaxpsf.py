@@ -9,7 +9,7 @@ pixels: 17 um behind the 0.5x relay; 4 fine samples per pixel), 4 added-phase co
    state;
 3. production ``sensor_psf`` (engine hankel, same grid) for scale, and the largest difference / peak (a_j = 0).
 
-Usage: python benchmarks/bench_jaxpsf.py [--size 255] [--repeat 3] [--lens foveal|perifoveal]
+Usage: python benchmarks/bench_jaxpsf.py [--size 255] [--repeat 3] [--lens foveal|perifoveal] [--uniform]
 (prints nproc and the load average before and after)
 """
 import argparse
@@ -28,6 +28,8 @@ def main() -> None:
     ap.add_argument("--repeat", type=int, default=3)
     ap.add_argument("--lens", default="foveal", choices=("foveal", "perifoveal"))
     ap.add_argument("--wavelengths", type=int, default=13)
+    ap.add_argument("--uniform", action="store_true", help="equal weights on a uniform 8-14 um grid instead of "
+                    "the Planck-weighted bins")
     args = ap.parse_args()
     print(f"nproc {os.cpu_count()}, load average before: {open('/proc/loadavg').read().split()[:3]}")
 
@@ -43,7 +45,12 @@ def main() -> None:
     system = load_system(os.path.join(root, "designs", "system.toml"))
     lens = system.foveal if args.lens == "foveal" else system.perifoveal
     pitch = system.sensor.pixel_pitch_um / system.relay_magnification
-    wl, w = psf_wavelengths(system.band_um, design_um=lens.wavelength_um, temperature_k=300.0, n=args.wavelengths)
+    if args.uniform:
+        wl = np.linspace(*system.band_um, args.wavelengths)
+        w = np.full(wl.size, 1.0 / wl.size)
+    else:
+        wl, w = psf_wavelengths(system.band_um, design_um=lens.wavelength_um, temperature_k=300.0,
+                                n=args.wavelengths)
     print(f"lens {lens.name}: f {lens.f_mm:g} mm, D {lens.diameter_mm:g} mm; {wl.size} wavelengths "
           f"{wl.min():.2f}-{wl.max():.2f} um; {args.size} px of {pitch:g} um; device {jax.devices()[0]}")
 
@@ -84,7 +91,10 @@ def main() -> None:
         got = np.asarray(m.band_psf(jnp.zeros(4), tf))
         d = float(np.abs(got - S.intensity).max() / S.intensity.max())
         print(f"production sensor_psf (hankel): {t_prod:.2f} s; jaxpsf (a = 0) against it: {d:.2e} of the peak")
-    print(f"load average after: {open('/proc/loadavg').read().split()[:3]}")
+    import resource
+
+    print(f"peak resident memory {resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1e6:.2f} GB; "
+          f"load average after: {open('/proc/loadavg').read().split()[:3]}")
 
 
 if __name__ == "__main__":

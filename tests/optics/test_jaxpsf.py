@@ -18,7 +18,7 @@ from metafovea.config import LensDesign, SystemDesign, load_system  # noqa: E402
 from metafovea.errors import InputError  # noqa: E402
 from metafovea.library import PostSet  # noqa: E402
 from metafovea.optics import jaxpsf as J  # noqa: E402
-from metafovea.optics import max_field_deg, psf, sensor_psf  # noqa: E402
+from metafovea.optics import max_field_deg, mtf_2d, psf, sensor_psf  # noqa: E402
 from metafovea.optics.train import channel_train  # noqa: E402
 
 TOL = 1e-3  # of the peak: the target
@@ -327,6 +327,15 @@ def test_mtf_area_of_a_point_is_one_and_a_blur_lowers_it():
     q = np.zeros((15, 15))
     q[6:9, 6:9] = blur
     assert float(J.mtf_area(q, 17.0, 1 / 34.0)) < 0.7
+
+
+def test_mtf_area_is_the_mean_of_production_mtf_2d_over_the_disk():
+    lens = LensDesign("s", 4000.0, 2000.0)
+    S = sensor_psf(lens, pixel_pitch_um=17.0, wavelengths_um=[9.0, 10.0, 11.0], size_px=15, error=1e-3)
+    fx, fy, M = mtf_2d(S)  # cycles/mm, normalised at zero frequency
+    f_max = 0.999 / 34.0  # cycles/um (off the frequency grid: no sample on the rim)
+    inside = (fx[None, :] ** 2 + fy[:, None] ** 2) <= (f_max * 1000) ** 2
+    assert float(J.mtf_area(S.intensity, 17.0, f_max)) == pytest.approx(M[inside].mean(), rel=1e-9)
 
 
 def test_defocus_lowers_the_in_focus_mtf_area():
