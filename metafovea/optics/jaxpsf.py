@@ -54,8 +54,9 @@ Hankel's asymptotic series above; 1e-12 absolute).
 
 File map: :func:`x64` (scoped float64), :func:`level_table` (production's per-wavelength level transmissions),
 :func:`train_gains` (the train's static factors per wavelength), :func:`imaging_model` (builds an
-:class:`ImagingModel`: ``band_psf``, ``psf_per_wavelength``, ``mtf_area``), :func:`mtf_area` (the co-design
-objective on any PSF array).
+:class:`ImagingModel`: ``band_psf``, ``psf_per_wavelength``, ``mtf_area``), :func:`channel_model` and
+:func:`channel_level_tables` (a camera channel: its lens, distance, pixel grid and train), :func:`mtf_area` (the
+co-design objective on any PSF array), :func:`ray_map_is_monotonic` (the debye engine's condition).
 """
 
 from __future__ import annotations
@@ -261,6 +262,40 @@ def train_gains(system: SystemDesign, channel: str, post_sets: dict[str, PostSet
                       float(t_msL))
 
 
+def channel_lenses(system: SystemDesign, channel: str) -> tuple[LensDesign, LensDesign, float]:
+    """(focusing lens, other lens, focusing lens-to-sensor distance in um) of ``channel``."""
+    check_choice("channel", channel, ("foveal", "perifoveal"))
+    if channel == "foveal":
+        return system.foveal, system.perifoveal, float(system.lens_to_sensor_um[0])
+    return system.perifoveal, system.foveal, float(system.lens_to_sensor_um[1])
+
+
+def channel_level_tables(system: SystemDesign, channel: str, post_sets: dict[str, PostSet],
+                         wavelengths_um: ArrayLike) -> tuple[np.ndarray, np.ndarray]:
+    """(t_focus, t_pass), each (K, N) complex: production's level transmissions of ``channel`` per wavelength
+    (:func:`level_table` of the focusing lens' post set in its own polarisation, and of the other lens' set in the
+    channel's polarisation): the inputs of a channel model for these post sets."""
+    L, O, _ = channel_lenses(system, channel)
+    return (level_table(L, post_sets[L.polarization], L.polarization, wavelengths_um),
+            level_table(O, post_sets[O.polarization], L.polarization, wavelengths_um))
+
+
+def channel_model(system: SystemDesign, channel: str, post_sets: dict[str, PostSet], *,
+                  wavelengths_um: ArrayLike, weights: ArrayLike | None = None,
+                  field_deg: float | tuple[float, float] = 0.0, size_px: int = 63, n_coefficients: int = 0,
+                  phase_bound_rad: ArrayLike | float = 0.0, engine: str = "auto", error: float = 1e-4) -> ImagingModel:
+    """The differentiable sensor PSF of ``channel`` ('foveal' | 'perifoveal') of ``system``: its focusing lens at
+    its lens-to-sensor distance, on the focal-plane pixel grid (sensor pitch / relay magnification, ``size_px``
+    pixels), through the train (:func:`train_gains` of ``post_sets``, ``{'x': foveal set, 'y': perifoveal set}``).
+    Evaluate it with ``channel_level_tables`` (or a surrogate's transmissions of the same shape)."""
+    L, _, z = channel_lenses(system, channel)
+    wl, w = check_wavelengths(L, wavelengths_um, weights)
+    pitch = system.sensor.pixel_pitch_um / system.relay_magnification
+    return imaging_model(L, wavelengths_um=wl, weights=w, field_deg=field_deg, pitch_um=pitch, size=size_px,
+                         sensor=True, z_um=z, n_coefficients=n_coefficients, phase_bound_rad=phase_bound_rad,
+                         train=train_gains(system, channel, post_sets, wl), engine=engine, error=error)
+
+
 # ----------------------------------------------------------------------------------------------
 # grids
 # ----------------------------------------------------------------------------------------------
@@ -463,11 +498,17 @@ class ImagingModel:
         return self._evaluate(phase_poly_rad, t_focus, t_pass, per_wavelength=False)
 
     def mtf_area(self, phase_poly_rad: ArrayLike, t_focus: ArrayLike | None = None, t_pass: ArrayLike | None = None,
-                 *, f_max_cyc_per_um: float | None = None) -> jnp.ndarray:
-        """Band MTF area to ``f_max_cyc_per_um`` (default: the grid's Nyquist 1 / (2 pitch)): :func:`mtf_area` of
-        :meth:`band_psf` (the MTF of the band-integrated PSF, as the sensor sees it)."""
+                 *, f_max_cyc_per_um: float | None = None, per_wavelength: bool = False) -> jnp.ndarray:
+        """The co-design objective: MTF area to ``f_max_cyc_per_um`` (default: the grid's Nyquist 1 / (2 pitch)).
+
+        ``per_wavelength=False``: :func:`mtf_area` of :meth:`band_psf` (the MTF of the band-integrated PSF, what the
+        sensor sees); True: the band-weighted mean of each wavelength's MTF area."""
         f_max = 0.5 / self.pitch_um if f_max_cyc_per_um is None else f_max_cyc_per_um
-        return mtf_area(self.band_psf(phase_poly_rad, t_focus, t_pass), self.pitch_um, f_max)
+        if not per_wavelength:
+            return mtf_area(self.band_psf(phase_poly_rad, t_focus, t_pass), self.pitch_um, f_max)
+        each = self.psf_per_wavelength(phase_poly_rad, t_focus, t_pass)
+        areas = jnp.stack([mtf_area(each[i], self.pitch_um, f_max) for i in range(each.shape[0])])
+        return jnp.asarray(self.weights) @ areas
 
     def _evaluate(self, a: ArrayLike, t_focus: ArrayLike | None, t_pass: ArrayLike | None,
                   per_wavelength: bool) -> jnp.ndarray:
@@ -743,8 +784,13 @@ def imaging_model(lens: LensDesign, *, wavelengths_um: ArrayLike | None = None, 
         static["haze_orders"], static["haze_maps"] = orders, maps
     else:
         static["haze_maps"] = np.zeros((wl.size, 0, size, size))
+    nf = lens.radius_um ** 2 / (lens.wavelength_um * lens.f_um)
     info.update({"engine": engine, "fine_pitch_um": p / nsub, "n_sub": nsub, "chief_ray_um": chief.tolist(),
-                 "diffraction_radius_um": diffraction_radius_um(lens)})
+                 "diffraction_radius_um": diffraction_radius_um(lens), "fresnel_number": nf})
+    if engine == "debye":
+        info["model_note"] = (f"direction-sine (Debye) model, production's on-axis model: against the exact "
+                              f"(Rayleigh-Sommerfeld) propagation its error is ~1.6 W / N_F of the peak for W waves "
+                              f"of aberration or defocus (N_F = {nf:.0f}); engine 'rs' is exact")
     if train is not None and train.gain.shape != wl.shape:
         raise InputError("train", train.gain.shape, f"gains for the {wl.size} wavelengths")
     return ImagingModel(lens, engine, wl, w, _field_pair(field_deg), z, p, size,

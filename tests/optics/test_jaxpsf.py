@@ -406,3 +406,24 @@ def test_paper_lenses_at_the_channel_corner_match_production_rs(channel):
             pitch_um=pitch, center_um=c, allow_truncation=True, error=1e-4)
     m = J.imaging_model(lens, wavelengths_um=wl, field_deg=fld, pitch_um=pitch, size=P.shape[0], center_um=c)
     assert _rel(m.band_psf(np.zeros(0), J.level_table(lens, None, None, wl)), P.intensity) < TOL * 0.1
+
+
+@pytest.mark.filterwarnings("ignore::metafovea.errors.NotConvergedWarning")
+def test_channel_model_is_the_production_kernel_times_the_throughput():
+    """One wavelength: the channel's PSF is sensor_psf of its lens at its distance times the train's throughput over
+    T_ms (the convention of imaging.kernels: kernels divided by T_ms, gains times the throughput)."""
+    rng = np.random.default_rng(11)
+    fov = LensDesign("foveal", 4000.0, 2000.0, polarization="x")
+    per = LensDesign("perifoveal", 1000.0, 1000.0, polarization="y")
+    system = SystemDesign(foveal=fov, perifoveal=per, lens_to_sensor_um=(4000.0, 1000.0))
+    posts = {"x": _posts(rng, "x"), "y": _posts(rng, "y")}
+    pitch = system.sensor.pixel_pitch_um / system.relay_magnification
+    for channel, lens, z in (("foveal", fov, 4000.0), ("perifoveal", per, 1000.0)):
+        m = J.channel_model(system, channel, posts, wavelengths_um=[10.5], size_px=9)
+        tf, tp = J.channel_level_tables(system, channel, posts, [10.5])
+        S = sensor_psf(lens, pixel_pitch_um=pitch, wavelengths_um=[10.5], post_set=posts[lens.polarization],
+                       size_px=9, z_um=z, error=1e-5)
+        tr = channel_train(system, channel, posts, [10.5], [1.0], posts="test")
+        want = S.intensity * tr.throughput / tr.metasurface_transmission
+        assert _rel(m.band_psf(np.zeros(0), tf, tp), want) < TOL * 1e-2
+        assert 0 < float(m.mtf_area(np.zeros(0), tf, tp, per_wavelength=True)) <= 1.0
