@@ -194,6 +194,12 @@ def ray_map_is_monotonic(lens: LensDesign, phase_poly_rad: ArrayLike, n: int = 4
     return bool(np.all(-k0 / L + ap_r < 0) and np.all(-k0 * (f / L) ** 3 / f + app < 0))
 
 
+def lens_coefficients(lens: LensDesign) -> np.ndarray:
+    """The lens' own added-phase coefficients (``LensDesign.phase_poly_rad`` where the design has them, else none):
+    the default of the model's ``phase_poly_rad``."""
+    return np.asarray(getattr(lens, "phase_poly_rad", ()), dtype=float).reshape(-1)
+
+
 def order_coefficient(tau: jnp.ndarray, levels: int, order: int) -> jnp.ndarray:
     """c_m of :func:`metafovea.optics.pupil.order_coefficients` in JAX: ``tau`` (..., N) -> (...)."""
     k = np.arange(levels)
@@ -282,8 +288,9 @@ def channel_level_tables(system: SystemDesign, channel: str, post_sets: dict[str
 
 def channel_model(system: SystemDesign, channel: str, post_sets: dict[str, PostSet], *,
                   wavelengths_um: ArrayLike, weights: ArrayLike | None = None,
-                  field_deg: float | tuple[float, float] = 0.0, size_px: int = 63, n_coefficients: int = 0,
-                  phase_bound_rad: ArrayLike | float = 0.0, engine: str = "auto", error: float = 1e-4) -> ImagingModel:
+                  field_deg: float | tuple[float, float] = 0.0, size_px: int = 63, n_coefficients: int | None = None,
+                  phase_bound_rad: ArrayLike | float | None = None, engine: str = "auto",
+                  error: float = 1e-4) -> ImagingModel:
     """The differentiable sensor PSF of ``channel`` ('foveal' | 'perifoveal') of ``system``: its focusing lens at
     its lens-to-sensor distance, on the focal-plane pixel grid (sensor pitch / relay magnification, ``size_px``
     pixels), through the train (:func:`train_gains` of ``post_sets``, ``{'x': foveal set, 'y': perifoveal set}``).
@@ -353,7 +360,8 @@ def _lagrange(r_query: np.ndarray, h: float, n: int, points: int = LAGRANGE_POIN
 class ImagingModel:
     """A channel's band PSF at one field point as pure JAX functions (built by :func:`imaging_model`).
 
-    Call ``band_psf(phase_poly_rad, t_focus, t_pass)``: ``phase_poly_rad`` (n,) float (the a_j), ``t_focus``
+    Call ``band_psf(phase_poly_rad, t_focus, t_pass)``: ``phase_poly_rad`` (n,) float (the a_j; None: the lens'
+    own, :func:`lens_coefficients`), ``t_focus``
     (K, N) complex level transmissions of the focusing lens per wavelength (None: continuous phase, c_1 = 1
     and no haze), ``t_pass`` (K, N) those of the other lens in this polarisation (needed with a train, ignored
     without). All static data are numpy arrays fixed at build time.
@@ -378,9 +386,11 @@ class ImagingModel:
     info: dict[str, Any] = field(default_factory=dict)
 
     # -- inputs ---------------------------------------------------------------------------------
-    def _inputs(self, a: ArrayLike, t_focus: ArrayLike | None, t_pass: ArrayLike | None
+    def _inputs(self, a: ArrayLike | None, t_focus: ArrayLike | None, t_pass: ArrayLike | None
                 ) -> tuple[jnp.ndarray, jnp.ndarray | None, jnp.ndarray | None]:
         _require_x64()
+        if a is None:
+            a = lens_coefficients(self.lens)
         a = jnp.asarray(a, dtype=jnp.float64).reshape(-1)
         if a.shape[0] != self.n_coefficients:
             raise InputError("phase_poly_rad", tuple(a.shape), f"{self.n_coefficients} coefficients (as built)")
@@ -496,18 +506,19 @@ class ImagingModel:
         return jnp.stack(out)
 
     # -- public functions -------------------------------------------------------------------------
-    def psf_per_wavelength(self, phase_poly_rad: ArrayLike, t_focus: ArrayLike | None = None,
+    def psf_per_wavelength(self, phase_poly_rad: ArrayLike | None = None, t_focus: ArrayLike | None = None,
                            t_pass: ArrayLike | None = None) -> jnp.ndarray:
         """(K, size, size): each wavelength's PSF (unweighted; the train's factor included when set)."""
         return self._evaluate(phase_poly_rad, t_focus, t_pass, per_wavelength=True)
 
-    def band_psf(self, phase_poly_rad: ArrayLike, t_focus: ArrayLike | None = None,
+    def band_psf(self, phase_poly_rad: ArrayLike | None = None, t_focus: ArrayLike | None = None,
                  t_pass: ArrayLike | None = None) -> jnp.ndarray:
         """(size, size): the weighted band PSF (see the module docstring for the normalisation)."""
         return self._evaluate(phase_poly_rad, t_focus, t_pass, per_wavelength=False)
 
-    def mtf_area(self, phase_poly_rad: ArrayLike, t_focus: ArrayLike | None = None, t_pass: ArrayLike | None = None,
-                 *, f_max_cyc_per_um: float | None = None, per_wavelength: bool = False) -> jnp.ndarray:
+    def mtf_area(self, phase_poly_rad: ArrayLike | None = None, t_focus: ArrayLike | None = None,
+                 t_pass: ArrayLike | None = None, *, f_max_cyc_per_um: float | None = None,
+                 per_wavelength: bool = False) -> jnp.ndarray:
         """The co-design objective: MTF area to ``f_max_cyc_per_um`` (default: the grid's Nyquist 1 / (2 pitch)).
 
         ``per_wavelength=False``: :func:`mtf_area` of :meth:`band_psf` (the MTF of the band-integrated PSF, what the
@@ -519,7 +530,7 @@ class ImagingModel:
         areas = jnp.stack([mtf_area(each[i], self.pitch_um, f_max) for i in range(each.shape[0])])
         return jnp.asarray(self.weights) @ areas
 
-    def _evaluate(self, a: ArrayLike, t_focus: ArrayLike | None, t_pass: ArrayLike | None,
+    def _evaluate(self, a: ArrayLike | None, t_focus: ArrayLike | None, t_pass: ArrayLike | None,
                   per_wavelength: bool) -> jnp.ndarray:
         a, tf, tp = self._inputs(a, t_focus, t_pass)
         cache = self.static.setdefault("_jit", {})
@@ -695,7 +706,8 @@ def _haze_static(lens: LensDesign, wl: np.ndarray, z: float, chief: np.ndarray, 
 def imaging_model(lens: LensDesign, *, wavelengths_um: ArrayLike | None = None, weights: ArrayLike | None = None,
                   field_deg: float | tuple[float, float] = 0.0, pitch_um: float, size: int, sensor: bool = False,
                   center_um: tuple[float, float] | None = None, n_sub: int | None = None, z_um: float | None = None,
-                  lattice: bool = True, n_coefficients: int = 0, phase_bound_rad: ArrayLike | float = 0.0,
+                  lattice: bool = True, n_coefficients: int | None = None,
+                  phase_bound_rad: ArrayLike | float | None = None,
                   train: TrainGains | None = None, engine: str = "auto", error: float = 1e-4,
                   nodes: int | tuple[int, int] | None = None) -> ImagingModel:
     """Build the differentiable band PSF of one channel at one field point (see the module docstring).
@@ -725,10 +737,11 @@ def imaging_model(lens: LensDesign, *, wavelengths_um: ArrayLike | None = None, 
         Lens-to-plane distance (default f).
     lattice : bool
         Lattice-sampling factor of the posts (production's default: False for psf, True for sensor_psf).
-    n_coefficients : int
-        Number of added-phase coefficients a_j the functions take (0: the hyperbola).
-    phase_bound_rad : float or array_like, shape (n,), rad
-        Bound on |a_j| the quadrature is sized for (checked on concrete inputs).
+    n_coefficients : int, optional
+        Number of added-phase coefficients a_j the functions take (default: as many as the lens' own
+        ``phase_poly_rad``, 0 for the hyperbola).
+    phase_bound_rad : float or array_like, shape (n,), rad, optional
+        Bound on |a_j| the quadrature is sized for (checked on concrete inputs; default twice the lens' own).
     train : TrainGains, optional
         The channel's train (:func:`train_gains`); the functions then need ``t_pass``.
     engine : {'auto', 'debye', 'rs'}
@@ -750,7 +763,10 @@ def imaging_model(lens: LensDesign, *, wavelengths_um: ArrayLike | None = None, 
     size = check_int("size", size, 1, 4096)
     engine = check_choice("engine", engine, JAX_ENGINES)
     error = check_range("error", error, 1e-12, 0.5)
-    nc = check_int("n_coefficients", n_coefficients, 0, 16)
+    own = lens_coefficients(lens)
+    nc = check_int("n_coefficients", own.size if n_coefficients is None else n_coefficients, 0, 16)
+    if phase_bound_rad is None:
+        phase_bound_rad = 2.0 * np.abs(own) if own.size == nc else 0.0
     bound = np.broadcast_to(np.abs(np.asarray(phase_bound_rad, dtype=float)), (nc,)).astype(float).copy()
     s0 = field_direction(field_deg)
     lim = max_field_deg(lens, float(wl.max()))

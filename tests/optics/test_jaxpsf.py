@@ -427,3 +427,25 @@ def test_channel_model_is_the_production_kernel_times_the_throughput():
         want = S.intensity * tr.throughput / tr.metasurface_transmission
         assert _rel(m.band_psf(np.zeros(0), tf, tp), want) < TOL * 1e-2
         assert 0 < float(m.mtf_area(np.zeros(0), tf, tp, per_wavelength=True)) <= 1.0
+
+
+def test_the_lens_coefficients_are_the_default():
+    """Without coefficients the model is the plain hyperbola (n = 0); a design carrying ``phase_poly_rad`` (issue 33's
+    LensDesign field, when present) is the default of the functions."""
+    lens = LensDesign("s", 2000.0, 1000.0)
+    m = J.imaging_model(lens, pitch_um=4.0, size=9, lattice=False)
+    assert m.n_coefficients == 0
+    np.testing.assert_array_equal(np.asarray(m.band_psf()), np.asarray(m.band_psf(np.zeros(0))))
+
+    class WithPhase:  # stands for a LensDesign with phase_poly_rad, whatever else it carries
+        def __init__(self, base, coeffs):
+            self._base, self.phase_poly_rad = base, coeffs
+
+        def __getattr__(self, name):
+            return getattr(self._base, name)
+
+    lp = WithPhase(lens, (2.0, -1.0))
+    assert J.lens_coefficients(lp).tolist() == [2.0, -1.0]
+    mp = J.imaging_model(lp, pitch_um=4.0, size=9, lattice=False)
+    assert mp.n_coefficients == 2 and mp.phase_bound_rad.tolist() == [4.0, 2.0]
+    np.testing.assert_array_equal(np.asarray(mp.band_psf()), np.asarray(mp.band_psf(np.array([2.0, -1.0]))))
