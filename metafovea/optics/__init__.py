@@ -21,6 +21,9 @@ Files, in the order light meets them::
                metafovea.parallel.run_tasks (local threads or processes, or a Dask cluster: psf --scheduler)
     mtf        metrics of a PSF or a lens: mtf_2d, mtf_radial, mtf_slices, pupil_mtf (exact pupil
                autocorrelation), diffraction_mtf, pixel_mtf, encircled_energy, strehl, fwhm_um
+    jaxpsf     the differentiable imaging model (JAX, float64): imaging_model() -> ImagingModel (band PSF of a
+               channel per field point on a fine or sensor grid, its MTF area; differentiable in the added radial
+               phase and the posts' level transmissions), train_gains; loaded on first use (JAX takes seconds)
     report     psf_report (one lens: PNG figures, JSON, HTML page) and psf_reports (several lenses, the
                ``metafovea psf`` pipeline); lens_lines, timing_line (what the command prints)
 """
@@ -55,3 +58,14 @@ __all__ = ["PSF", "AliasingWarning", "Pupil", "SamplingError", "asm_propagate", 
            "field_direction", "fwhm_um", "hankel_field", "hankel_profiles", "max_field_deg", "mft_field",
            "mft_intensity_multi", "mtf_2d", "mtf_radial", "mtf_slices", "nyquist_pitch_um", "pixel_mtf",
            "psf", "pupil_mtf", "rs_field", "rs_reference", "sensor_psf", "strehl"]
+
+#: names of the JAX model, imported on first use (``import jax`` takes ~3 s; nothing else here needs it)
+_JAX_NAMES = frozenset({"ImagingModel", "TrainGains", "imaging_model", "train_gains"})
+
+
+def __getattr__(name: str) -> object:
+    if name in _JAX_NAMES:
+        from . import jaxpsf
+
+        return getattr(jaxpsf, name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
