@@ -60,6 +60,12 @@ MFT_OFF_AXIS_NOTE = ("direction-sine (Debye) model off axis: part of the apertur
                      "(0.6-5 % of the peak at 1-5 deg for the paper's lenses); error not bounded - use engine 'rs'")
 
 
+#: What the direction-sine engines leave out for a lens with a phase beyond the hyperbola (said instead of a bound).
+POLY_NOTE = ("direction-sine (Debye) model of a lens with phase_poly_rad: its defocused zones' fine structure is not "
+             "modelled (the Debye defocus phase misses the (f/z) scaling of the exact one; tens of % of the peak for "
+             "+-10 % of local focal length on a 1-2 mm lens); error not bounded - use engine 'rs' (what 'auto' picks)")
+
+
 @dataclass(frozen=True)
 class PSF:
     """A sampled PSF (see the module docstring for the normalisation)."""
@@ -259,6 +265,8 @@ def nyquist_pitch_um(lens: LensDesign) -> float:
 def _wave_engine(pupil: Pupil, xs: np.ndarray, ys: np.ndarray, error: float, engine: str) -> tuple[str, float]:
     """(engine, cost) for a wave-optical evaluation at this pupil and grid."""
     on_axis = float(np.hypot(*pupil.s0)) == 0.0
+    if engine == "auto" and pupil.lens.phase_poly_rad:  # the direction-sine model is not bounded for such lenses
+        return "rs", float(xs.size * ys.size)
     aniso = pupil.lattice_anisotropy()
     if engine == "hankel" or (engine == "auto" and on_axis and aniso * 0.1 <= error):
         if not on_axis:
@@ -288,6 +296,8 @@ def focus_intensity(pupil: Pupil, xs: np.ndarray, ys: np.ndarray, *, error: floa
     else:
         U = prop.mft_field(pupil, xs, ys, error=error * 1e-3)
         est = error * 1e-3 if float(np.hypot(*pupil.s0)) == 0.0 else math.inf
+    if eng != "rs" and pupil.lens.phase_poly_rad:
+        est = math.inf  # the Debye model of an aberrated lens: POLY_NOTE
     return np.abs(U) ** 2, eng, est
 
 
@@ -433,7 +443,7 @@ def psf(lens: LensDesign, *, wavelengths_um: ArrayLike | None = None, weights: A
             "error_definition": "max abs intensity error / PSF peak against the exact (Rayleigh-Sommerfeld) "
                                 "propagation of the thin-element lens field"}
     if math.isinf(est_rel):
-        info["model_note"] = MFT_OFF_AXIS_NOTE
+        info["model_note"] = POLY_NOTE if lens.phase_poly_rad and "rs" not in engines else MFT_OFF_AXIS_NOTE
     log.info("psf %s: %s, %d^2 samples at %.3g um, %.3f s", lens.name, eng_name, n, pitch, info["seconds"])
     return PSF(inten, pitch, (float(c[0]), float(c[1])), wl, w, fpair, sets[0].info["polarization"],
                eng_name, float(max(est_rel, 1e-16)), float(inten.sum()), info)
