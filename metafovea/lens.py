@@ -4,8 +4,9 @@ Phase convention (see :mod:`metafovea.units`): a lens multiplies the field by ``
 focusing hyperbolic profile is ``phi(r) = sign * (2 pi / lambda0) * (sqrt(r^2 + f^2) - f)`` with
 ``sign = -1`` under ``exp(-i omega t)``; a design may add a radial polynomial ``sum_j a_j (r / R)^(2 j)``
 (``LensDesign.phase_poly_rad``, :func:`design_phase`), and the quantities that depend on the local phase slope
-(zone widths, posts per zone, the lattice factor) then use the actual gradient. Wrapped phases are in ``[0, 2 pi)``; level ``k`` of an
-N-level design carries phase ``2 pi k / N`` and site levels are ``round(wrapped / (2 pi / N)) mod N``.
+(zone widths, posts per zone, the lattice factor) then use the actual gradient. Wrapped phases are in
+``[0, 2 pi)``; level ``k`` of an N-level design carries phase ``2 pi k / N`` and site levels are
+``round(wrapped / (2 pi / N)) mod N``.
 
 Lattice: posts sit at ``x = (ix + o) * p``, ``y = (iy + o) * p`` with ``o = 0`` (``lattice='integer'``,
 a post at the centre) or ``o = 0.5`` (``'half'``); a site is inside the aperture when its centre has

@@ -42,7 +42,7 @@ from metafovea.library.postset import PostSet
 
 from . import propagate as prop
 from . import rayleigh
-from .pupil import Pupil, PupilSet, build_pupils, field_direction, max_field_deg
+from .pupil import Pupil, PupilSet, build_pupils, design_na, field_direction, max_field_deg
 
 if TYPE_CHECKING:
     from collections.abc import Sequence
@@ -255,8 +255,9 @@ def defocus_note(lens: LensDesign, z_um: float) -> str | None:
 
 
 def nyquist_pitch_um(lens: LensDesign) -> float:
-    """Largest sample pitch that samples the intensity without aliasing: lambda0 / (4 NA)."""
-    return lens.wavelength_um / (4.0 * lens.na)
+    """Largest sample pitch that samples the intensity without aliasing: lambda0 / (4 NA) (with ``phase_poly_rad``
+    the pupil's radius in design direction sines, :func:`metafovea.optics.pupil.design_na`, instead of the NA)."""
+    return lens.wavelength_um / (4.0 * design_na(lens))
 
 
 # ----------------------------------------------------------------------------------------------
@@ -304,8 +305,17 @@ def focus_intensity(pupil: Pupil, xs: np.ndarray, ys: np.ndarray, *, error: floa
 def _ideal_peak(pupil: Pupil) -> float:
     """In-focus on-axis peak intensity of an aberration-free pupil with this support (upper bound)."""
     lens = pupil.lens
-    # |int P d^2s| with |P| = f0 alpha / (lambda c_w^2) over |w| <= NA: (pi f0 / (lambda alpha)) (-ln(1-NA^2))
     a = pupil.alpha
+    if lens.phase_poly_rad:
+        # int |P| d^2 s = (2 pi / (lambda alpha)) int_0^R sqrt(rho g g') d rho (pupil.py's amplitude and Jacobian)
+        from metafovea.lens import direction_sine_over_r, direction_sine_slope  # lens stage (rank 3): allowed
+
+        x, wq = prop._gl(256)
+        rho = 0.5 * lens.radius_um * (x + 1.0)
+        dens = rho * np.sqrt(np.abs(direction_sine_over_r(lens, rho) * direction_sine_slope(lens, rho)))
+        val = 2 * math.pi / (pupil.wavelength_um * a) * 0.5 * lens.radius_um * float(wq @ dens)
+        return (abs(pupil.amplitude_factor) * val) ** 2
+    # |int P d^2s| with |P| = f0 alpha / (lambda c_w^2) over |w| <= NA: (pi f0 / (lambda alpha)) (-ln(1-NA^2))
     val = math.pi * lens.f_um / (pupil.wavelength_um * a) * (-math.log(1.0 - lens.na ** 2))
     return (abs(pupil.amplitude_factor) * val) ** 2
 
