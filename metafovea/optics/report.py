@@ -101,6 +101,8 @@ def psf_report(lens: LensDesign, out_dir: str | Path, *, fields_deg: list[float]
                            "sensor_pixel_um": sensor_pixel_um, "relay_magnification": relay,
                            "posts": "ideal" if post_set is None else post_set.source,
                            "optical_train": trains}
+    if lens.phase_poly_rad:
+        res["phase_poly_rad"] = list(lens.phase_poly_rad)  # the phase beyond the hyperbola (rad)
     if post_set is None:
         res["warnings"].append(f"{POSTS_NOTE_IDEAL} (the PSFs of a lens the platform's RCWA post set was not "
                                "chosen for, or posts=ideal)")
@@ -247,7 +249,7 @@ def _on_the_result(w: warnings.WarningMessage) -> bool:
 
 def _wavefront(plt: ModuleType, lens: LensDesign, res: dict[str, Any], post_set: PostSet | None) -> bytes:
     """Phase error of the fabricated lens (posts on the lattice, N levels, the post set's phases) against the
-    continuous hyperbolic phase, on 120 um patches at the centre and at the rim, sampled at a sixteenth of the
+    continuous design phase (hyperbola plus ``phase_poly_rad``), on 120 um patches at the centre and at the rim, sampled at a sixteenth of the
     period (so the hold over each 4 um cell shows): ``res['wavefront']`` (rms and max after the common phase is
     removed). Ideal posts (no post set): quantisation and lattice only, rms ~ pi / (N sqrt 3)."""
     from metafovea.lens import design_phase, quantize_phase  # lens stage (above optics): allowed
