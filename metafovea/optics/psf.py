@@ -42,7 +42,7 @@ from metafovea.library.postset import PostSet
 
 from . import propagate as prop
 from . import rayleigh
-from .pupil import Pupil, PupilSet, build_pupils, design_na, field_direction, max_field_deg
+from .pupil import Pupil, PupilSet, build_pupils, design_na, field_direction, max_field_deg, ray_map_monotone
 
 if TYPE_CHECKING:
     from collections.abc import Sequence
@@ -322,7 +322,10 @@ def _ideal_peak(pupil: Pupil) -> float:
 
 def _diffraction_limited_peak(pupil: Pupil) -> float:
     """Peak intensity of the aberration-free pupil with this pupil's amplitude (lattice factor included):
-    ``|int |P| d^2 s|^2`` by Gauss quadrature over the disk (the Strehl ratio's denominator)."""
+    ``|int |P| d^2 s|^2`` by Gauss quadrature over the disk (the Strehl ratio's denominator). For a lens whose ray
+    map is not monotone (no pupil amplitude in direction sines) the ideal peak without the lattice factor."""
+    if not ray_map_monotone(pupil.lens):
+        return _ideal_peak(pupil)
     u, v, wq = prop.disk_nodes(np.zeros(2), pupil.radius, 48, 48)
     vv = np.broadcast_to(v[:, None], u.shape)
     return float(np.sum(wq * np.abs(pupil.amplitude(pupil.s0[0] + u, pupil.s0[1] + vv)))) ** 2

@@ -90,6 +90,12 @@ def _ray_table(lens: LensDesign) -> tuple[np.ndarray, np.ndarray, float, bool, s
     return r, g, gmax, ok, reason
 
 
+def ray_map_monotone(lens: LensDesign) -> bool:
+    """Whether the direction-sine engines apply: always for the hyperbola; with ``phase_poly_rad`` when the design
+    direction sine increases with radius (:func:`metafovea.lens.ray_map_check`)."""
+    return not lens.phase_poly_rad or _ray_table(lens)[3]
+
+
 def check_ray_map(lens: LensDesign) -> None:
     """Raise an :class:`InputError` on ``phase_poly_rad`` when the lens' ray map is not monotone (the
     direction-sine engines need one radius per direction: :func:`metafovea.lens.ray_map_check`)."""
@@ -300,6 +306,17 @@ class Pupil:
         # -(1/k) grad Phi; the factor m k0 f0 alpha / k equals f0 exactly
         f0 = self.lens.f_um
         return (-f0 * wx / cw + self.z_um * sx / cs, -f0 * wy / cw + self.z_um * sy / cs)
+
+    def lens_ray_landing(self, rx: np.ndarray, ry: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Where the ray from the lens point (rx, ry) (um) meets the plane z (um): traced forwards, the point plus
+        ``z s / c_s`` with ``s = s0 + w(rho) / alpha`` (no inverse map: any ``phase_poly_rad``, monotone or not)."""
+        from metafovea.lens import direction_sine_over_r  # lens stage (rank 3): allowed
+
+        h = direction_sine_over_r(self.lens, np.hypot(rx, ry))
+        sx = self.s0[0] - rx * h / self.alpha
+        sy = self.s0[1] - ry * h / self.alpha
+        cs = np.sqrt(np.maximum(1.0 - sx * sx - sy * sy, 1e-12))
+        return rx + self.z_um * sx / cs, ry + self.z_um * sy / cs
 
     def chief_ray_um(self) -> np.ndarray:
         s = self.s0

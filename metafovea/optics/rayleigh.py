@@ -49,7 +49,7 @@ from scipy import special
 from metafovea.parallel import StoppableThreadPool, blas_threads
 
 from .propagate import _gl, mft_field, nodes_for_phase
-from .pupil import Pupil
+from .pupil import Pupil, ray_map_monotone
 
 #: Safety factor on the evaluated Taylor remainder (it is a smooth, mostly cubic function of the offset: its
 #: largest value between the probes exceeds the largest probe by well under this).
@@ -275,6 +275,8 @@ def _plan(pupil: Pupil, xs: np.ndarray, ys: np.ndarray, error: float, q: float, 
              for j0 in range(0, ys.size, size) for i0 in range(0, xs.size, size)]
     if block_px is not None or xs.size * ys.size <= 64 * 64:
         return boxes
+    if pupil.lens.phase_poly_rad and not ray_map_monotone(pupil.lens):
+        return boxes  # no direction-sine preview of such a lens: the blocks are split by their evaluated errors
     A = np.abs(mft_field(pupil, xs[::2], ys[::2], error=1e-3))
     jp, ip = (2 * int(v) for v in np.unravel_index(int(np.argmax(A)), A.shape))
     c0 = min(max(0, ip - 32), max(0, xs.size - 64))

@@ -249,9 +249,10 @@ def _on_the_result(w: warnings.WarningMessage) -> bool:
 
 def _wavefront(plt: ModuleType, lens: LensDesign, res: dict[str, Any], post_set: PostSet | None) -> bytes:
     """Phase error of the fabricated lens (posts on the lattice, N levels, the post set's phases) against the
-    continuous design phase (hyperbola plus ``phase_poly_rad``), on 120 um patches at the centre and at the rim, sampled at a sixteenth of the
-    period (so the hold over each 4 um cell shows): ``res['wavefront']`` (rms and max after the common phase is
-    removed). Ideal posts (no post set): quantisation and lattice only, rms ~ pi / (N sqrt 3)."""
+    continuous design phase (hyperbola plus ``phase_poly_rad``), on 120 um patches at the centre and at the rim,
+    sampled at a sixteenth of the period (so the hold over each 4 um cell shows): ``res['wavefront']`` (rms and max
+    after the common phase is removed). Ideal posts (no post set): quantisation and lattice only, rms ~ pi / (N
+    sqrt 3)."""
     from metafovea.lens import design_phase, quantize_phase  # lens stage (above optics): allowed
 
     p, n = lens.period_um, lens.levels
