@@ -61,9 +61,10 @@ MFT_OFF_AXIS_NOTE = ("direction-sine (Debye) model off axis: part of the apertur
 
 
 #: What the direction-sine engines leave out for a lens with a phase beyond the hyperbola (said instead of a bound).
-POLY_NOTE = ("direction-sine (Debye) model of a lens with phase_poly_rad: its defocused zones' fine structure is not "
-             "modelled (the Debye defocus phase misses the (f/z) scaling of the exact one; tens of % of the peak for "
-             "+-10 % of local focal length on a 1-2 mm lens); error not bounded - use engine 'rs' (what 'auto' picks)")
+POLY_NOTE = ("direction-sine (Debye) or ray model of a lens with phase_poly_rad: the fine structure of its "
+             "defocused zones is not modelled (against the exact Rayleigh-Sommerfeld integral: tens of % of the fine-"
+             "grid peak for +-10 % of local focal length on a 1-2 mm lens); error not bounded - use engine 'rs' "
+             "(what 'auto' picks)")
 
 
 @dataclass(frozen=True)

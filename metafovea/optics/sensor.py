@@ -52,7 +52,7 @@ from .psf import (
     focus_intensity,
     nyquist_pitch_um,
 )
-from .pupil import Pupil, PupilSet, check_ray_map, design_na, field_direction
+from .pupil import Pupil, PupilSet, design_na, field_direction
 
 log = logging.getLogger(__name__)
 
@@ -164,10 +164,9 @@ def geometric_pixels_multi(pupils: list[Pupil], weights: np.ndarray, x_edges0: f
     R = lens.radius_um
     px, py = _sunflower_cached(int(n_rays))
     rx, ry = R * px, R * py
-    if lens.phase_poly_rad:  # the direction sine of the full phase (g / rho: metafovea.lens)
+    if lens.phase_poly_rad:  # the direction sine of the full phase (g / rho), traced forwards: any ray map
         from metafovea.lens import direction_sine_over_r  # lens stage (rank 3): allowed
 
-        check_ray_map(lens)
         hr = direction_sine_over_r(lens, np.hypot(rx, ry))
         wx, wy = -rx * hr, -ry * hr
     else:
@@ -588,9 +587,10 @@ def sensor_psf(lens: LensDesign, *, pixel_pitch_um: float, field_deg: float | tu
         traced = None
         wave_engine = engine
         rs_cost = sum(_wave_cost(sets[k].focus, g.xs, g.ys, r_diff, p, error) for k in active) if poly else 0.0
-        if engine == "auto" and poly and rs_cost <= budget:
-            # every wavelength by the exact engine (the direction-sine model of an aberrated lens is not bounded)
-            geo_k, wave_k, wave_engine = [], list(active), "rs"
+        if engine == "auto" and poly:
+            # every wavelength by the exact engine (the direction-sine model of an aberrated lens is not bounded);
+            # over the cost budget, every wavelength traced as rays (any ray map; not bounded either: POLY_NOTE)
+            geo_k, wave_k, wave_engine = ([], list(active), "rs") if rs_cost <= budget else (list(active), [], engine)
         elif engine in ("hankel", "mft"):
             geo_k, wave_k = [], list(active)
         elif engine == "geometric":
