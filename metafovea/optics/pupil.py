@@ -264,11 +264,17 @@ class Pupil:
         cs = np.sqrt(np.maximum(1.0 - s2, 0.0))
         if self.lens.phase_poly_rad:
             # stationary value of the full radial phase: m [k0 f0 rho^2 / (L (L + f0)) + psi - rho psi']
+            from metafovea.lens import direction_sine_over_r  # lens stage (rank 3): allowed
+
             f0 = self.lens.f_um
-            rho = radius_of_direction_sine(self.lens, np.sqrt(w2))
+            wa = np.sqrt(w2)
+            rho = radius_of_direction_sine(self.lens, wa)
             L = np.sqrt(rho * rho + f0 * f0)
             psi, rpsi = _focus_added_phase(self.lens, rho)
-            lens_part = k0m * f0 * rho * rho / (L * (L + f0)) + self.order * (psi - rpsi)
+            # + k0 rho (|w| - g(rho)): zero at the stationary point, and it makes the value stationary in rho (a
+            # rounding error of the inverse map enters at second order)
+            miss = k0m * rho * (wa - rho * direction_sine_over_r(self.lens, rho))
+            lens_part = k0m * f0 * rho * rho / (L * (L + f0)) + self.order * (psi - rpsi) + miss
             return lens_part - self.k * self.z_um * s2 / (1.0 + cs)
         cw = np.sqrt(1.0 - w2)
         # m k0 f0 (1 - c_w) + k z (c_s - 1), each written without cancellation; the constant k z is dropped
