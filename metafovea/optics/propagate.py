@@ -38,7 +38,7 @@ from scipy import special
 from metafovea.errors import InputError, check_positive, check_range
 from metafovea.parallel import blas_threads
 
-from .pupil import Pupil
+from .pupil import Pupil, design_na
 
 log = logging.getLogger(__name__)
 
@@ -203,7 +203,7 @@ def mft_intensity_multi(pupils: list[Pupil], weights: ArrayLike, xs: ArrayLike, 
     for pu in pupils:
         a, b = mft_nodes(pu, xs, ys, error)
         nt, nr = max(nt, a), max(nr, b)
-    uw, vw, wq = disk_nodes(np.zeros(2), lens.na / order, nt, nr)
+    uw, vw, wq = disk_nodes(np.zeros(2), design_na(lens) / order, nt, nr)
     vvw = np.broadcast_to(vw[:, None], uw.shape)
     kap = 2 * np.pi * order / lens.wavelength_um
     xc = 0.5 * (xs.min() + xs.max())

@@ -37,7 +37,7 @@ from .mtf import (
 )
 from .propagate import SamplingError
 from .psf import PSF, defocus_note, depth_of_focus_um, diffraction_radius_um, encircled_energy_on_axis, psf
-from .pupil import EVANESCENT_MARGIN, max_field_deg
+from .pupil import EVANESCENT_MARGIN, design_na, max_field_deg
 from .sensor import sensor_psf
 from .sweep import sensor_psf_sweep
 from .train import POSTS_NOTE_IDEAL, system_trains, throughput_lines
@@ -712,7 +712,7 @@ def _check_wavelengths_and_fields(lens: LensDesign, band: tuple[float, float], f
     one at which the rim's first order turns evanescent even on axis (the error names the option that sets it)."""
     wl_max = max(band[1] if filt is None else min(band[1], filt[0] + 1.5 * filt[1]),
                  wavelength_um or lens.wavelength_um)
-    wl_lim = lens.wavelength_um * (1.0 - EVANESCENT_MARGIN) / lens.na
+    wl_lim = lens.wavelength_um * (1.0 - EVANESCENT_MARGIN) / design_na(lens)
     if not wl_max < wl_lim:
         if wavelength_um is not None and wavelength_um >= wl_max:
             opt, val = "wavelength_um", wavelength_um
