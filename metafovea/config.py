@@ -20,7 +20,7 @@ from __future__ import annotations
 import math
 import tomllib
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -608,3 +608,54 @@ def load_design(path: str | Path) -> LensDesign | SystemDesign | PlatformDesign:
         return load_platform(path)
     raise InputError("design file", str(path), "a lens (f_mm, diameter_mm, ...), platform or system ([files]) TOML")
 
+
+
+# ----------------------------------------------------------------------------------------------
+# TOML writing (the loaders' inverse: load_system(written) == the design)
+# ----------------------------------------------------------------------------------------------
+def _toml_value(v: Any) -> str:
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, str):
+        return '"' + v.replace("\\", "\\\\").replace('"', '\\"') + '"'
+    if isinstance(v, (int, np.integer)):
+        return str(int(v))
+    if isinstance(v, (float, np.floating)):
+        return repr(float(v))
+    if isinstance(v, (tuple, list)):
+        return "[" + ", ".join(_toml_value(x) for x in v) + "]"
+    raise TypeError(f"no TOML form for {type(v).__name__}")
+
+
+def platform_toml(platform: PlatformDesign, name: str = "platform") -> str:
+    """The text of a ``platform.toml`` that :func:`load_platform` reads back as ``platform`` (unset options, such as
+    ``min_gap_um = None``, are left out: the loader's defaults)."""
+    lines = [f"name = {_toml_value(name)}"]
+    for f in fields(platform):
+        v = getattr(platform, f.name)
+        if v is not None:
+            lines.append(f"{f.name} = {_toml_value(v)}")
+    return "\n".join(lines) + "\n"
+
+
+def system_toml(system: SystemDesign, *, platform_file: str = "platform.toml", foveal_file: str = "foveal.toml",
+                perifoveal_file: str = "perifoveal.toml", name: str = "system") -> str:
+    """The text of a ``system.toml`` naming the given platform and lens files (relative to it), with every camera
+    value of ``system``: :func:`load_system` of it (with those files) returns ``system``."""
+    s, d = system.sensor, system.lens_to_sensor_um
+    tables = {
+        "files": {"platform": platform_file, "foveal": foveal_file, "perifoveal": perifoveal_file},
+        "distances": {"foveal_lens_to_sensor_mm": d[0] / UM_PER_MM, "perifoveal_lens_to_sensor_mm": d[1] / UM_PER_MM},
+        "relay": {"magnification": system.relay_magnification, "variants": system.relay_variants},
+        "polarizer": {"rotation_hz": system.polarizer_hz, "extinction_leak": system.polarizer_extinction},
+        "sensor": {"pixel_pitch_um": s.pixel_pitch_um, "pitch_variants_um": s.pitch_variants_um, "pixels": s.pixels,
+                   "crop": s.crop, "frame_rate_hz": s.frame_rate_hz, "netd_k": s.netd_k, "fpn_rank": s.fpn_rank,
+                   "fpn_amplitude": s.fpn_amplitude, "adc_bits": s.adc_bits},
+        "spectral": {"band_um": system.band_um, "filter_enabled": system.filter_enabled,
+                     "filter_center_um": system.filter_center_um, "filter_bandwidth_um": system.filter_bandwidth_um,
+                     "scene_temperature_k": system.scene_temperature_k},
+    }
+    lines = [f"name = {_toml_value(name)}"]
+    for table, kv in tables.items():
+        lines += ["", f"[{table}]"] + [f"{k} = {_toml_value(v)}" for k, v in kv.items()]
+    return "\n".join(lines) + "\n"

@@ -192,3 +192,26 @@ def test_phase_poly_rad_is_validated(tmp_path, value):
         assert str(p) in str(e.value)
     ok = LensDesign("x", 1000.0, 300.0, phase_poly_rad=[1, 2.5])
     assert ok.phase_poly_rad == (1.0, 2.5) and hash(ok) == hash(ok.with_(phase_poly_rad=(1.0, 2.5)))
+
+
+def test_written_system_files_load_back_as_the_design(tmp_path):
+    """platform_toml / system_toml / design_toml are the loaders' inverse, for the paper's camera with a corrected
+    foveal lens and every camera value moved off its default."""
+    from dataclasses import replace as _replace
+
+    from metafovea.config import PlatformDesign, SensorDesign, load_system, platform_toml, system_toml
+    from metafovea.design_report import design_toml
+
+    plat = PlatformDesign(min_gap_um=0.6, substrate_dopant="n", wafer_flat_mm=30.0)
+    base = SystemDesign(platform=plat)
+    fov = _replace(base.foveal, phase_poly_rad=(12.5, -3.25), n_substrate=plat.n_substrate)
+    system = _replace(base, foveal=fov, lens_to_sensor_um=(151_000.0, 24_500.0), relay_magnification=0.3,
+                      polarizer_hz=2.5, polarizer_extinction=0.01, band_um=(7.5, 13.5), filter_enabled=True,
+                      filter_bandwidth_um=0.75, scene_temperature_k=290.0,
+                      sensor=SensorDesign(pixel_pitch_um=24.0, netd_k=0.04, fpn_rank=5, adc_bits=12))
+    (tmp_path / "p.toml").write_text(platform_toml(plat))
+    (tmp_path / "f.toml").write_text(design_toml(system.foveal))
+    (tmp_path / "q.toml").write_text(design_toml(system.perifoveal))
+    (tmp_path / "s.toml").write_text(system_toml(system, platform_file="p.toml", foveal_file="f.toml",
+                                                 perifoveal_file="q.toml"))
+    assert load_system(tmp_path / "s.toml") == system
