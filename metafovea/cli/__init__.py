@@ -28,7 +28,7 @@ from metafovea.errors import InputError
 log = logging.getLogger("metafovea")
 
 #: command modules under ``metafovea.cli``, in the order ``--help`` lists them
-COMMAND_MODULES = ("validate", "design", "library", "layout", "psf", "simulate", "import_", "reconstruct", "study")
+COMMAND_MODULES = ("validate", "design", "library", "layout", "psf", "simulate", "import_", "reconstruct", "codesign", "study")
 
 class Parser(argparse.ArgumentParser):
     """argparse with one-line errors (no usage dump) and exit status 2."""
@@ -40,7 +40,8 @@ class Parser(argparse.ArgumentParser):
 
 #: each command's module (``layout`` holds two): :func:`build_parser` imports only the one a command line names
 COMMANDS = {"validate": "validate", "design": "design", "library": "library", "export": "layout", "verify": "layout",
-            "psf": "psf", "simulate": "simulate", "import": "import_", "reconstruct": "reconstruct", "study": "study"}
+            "psf": "psf", "simulate": "simulate", "import": "import_", "reconstruct": "reconstruct",
+            "codesign": "codesign", "study": "study"}
 
 
 def _command_in(argv: Sequence[str] | None) -> str | None:

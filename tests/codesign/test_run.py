@@ -1,0 +1,83 @@
+"""The co-design run on a small camera: it improves the band MTF, never past the line bound, its files load as a
+design, the production engine agrees with it, the full-size lens is refused with the count it needs, and the
+command's bad input and existing output are refused in one line."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from metafovea.cli import main
+from metafovea.codesign import CodesignOptions, OptimizeOptions, codesign, run_codesign, spectral_sampling
+from metafovea.config import LensDesign, SystemDesign, load_system, platform_toml, system_toml
+from metafovea.design_report import design_toml
+from metafovea.errors import InputError
+
+FOV = LensDesign("foveal", 2000.0, 1000.0, polarization="x")  # F/2, ~13 depths of focus over 8-14 um
+PER = LensDesign("perifoveal", 1000.0, 1000.0, polarization="y")
+SYSTEM = SystemDesign(foveal=FOV, perifoveal=PER, lens_to_sensor_um=(2000.0, 1000.0))
+OPTS = CodesignOptions(n_coefficients=1, size_px=15, optimize=OptimizeOptions(steps=10, learning_rate=0.1,
+                                                                              progress=False))
+
+
+@pytest.fixture(scope="module")
+def small_system_file(tmp_path_factory):
+    d = tmp_path_factory.mktemp("small")
+    (d / "platform.toml").write_text(platform_toml(SYSTEM.platform))
+    (d / "foveal.toml").write_text(design_toml(FOV))
+    (d / "perifoveal.toml").write_text(design_toml(PER))
+    (d / "system.toml").write_text(system_toml(SYSTEM))
+    return d / "system.toml"
+
+
+@pytest.fixture(scope="module")
+def result(small_system_file, tmp_path_factory):
+    out = tmp_path_factory.mktemp("run") / "cd"
+    return run_codesign(small_system_file, OPTS, out), out
+
+
+def test_the_run_gains_within_the_line_bound_and_production_agrees(result):
+    summary, _ = result
+    d = summary["lenses"]["foveal"]
+    assert d["mtf_area"] > d["mtf_area_hyperbolic"]
+    assert 1.0 < d["gain"] <= d["line_bound_gain_limit"] * 1.02
+    pc = d["production_check"]
+    assert pc["codesigned"]["engine"] == "rs"  # an added phase goes to the exact engine
+    assert pc["gain_production"] == pytest.approx(d["gain"], abs=0.03)
+    assert pc["hyperbolic"]["max_difference_of_peak"] < 1e-3
+    assert any("short" in line for line in d["bandwidth_limit"])
+
+
+def test_the_written_files_are_a_design(result):
+    summary, out = result
+    s = load_system(out / "system.toml")
+    assert s.foveal.phase_poly_rad == pytest.approx(summary["lenses"]["foveal"]["phase_poly_rad"])
+    assert s.perifoveal == PER and s.lens_to_sensor_um == SYSTEM.lens_to_sensor_um
+    assert "line bound" in (out / "report.html").read_text()
+    assert json.loads((out / "codesign.json").read_text())["objective"] == "mtf"
+
+
+def test_the_paper_lens_is_refused_with_what_it_needs():
+    n, why = spectral_sampling(SystemDesign.paper().foveal, 150_000.0, (8.0, 14.0))
+    assert n > 1000 and "quarter wave" in why
+    with pytest.raises(InputError, match="line bound"):
+        codesign(SystemDesign.paper(), CodesignOptions(max_wavelengths=400, optimize=OptimizeOptions(steps=1)))
+
+
+@pytest.mark.parametrize("flags, word", [(["--coefficients", "0"], "--coefficients"),
+                                         (["--lenses", "middle"], "lenses"),
+                                         (["--band", "14", "8"], "band"),
+                                         (["--objective", "psnr"], "objective"),
+                                         (["--size-px", "20"], "size_px")])
+def test_bad_flags_give_one_line_and_exit_2(flags, word, small_system_file, tmp_path, capsys):
+    rc = main(["codesign", str(small_system_file), "--out", str(tmp_path / "o"), *flags])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert rc == 2 and len(err) == 1 and word in err[0]
+
+
+def test_a_finished_run_is_not_overwritten_without_force(result, small_system_file, capsys):
+    _, out = result
+    rc = main(["codesign", str(small_system_file), "--out", str(out), "--steps", "1"])
+    err = capsys.readouterr().err
+    assert rc == 2 and "--force" in err
