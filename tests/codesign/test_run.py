@@ -17,7 +17,7 @@ from metafovea.errors import InputError
 FOV = LensDesign("foveal", 2000.0, 1000.0, polarization="x")  # F/2, ~13 depths of focus over 8-14 um
 PER = LensDesign("perifoveal", 1000.0, 1000.0, polarization="y")
 SYSTEM = SystemDesign(foveal=FOV, perifoveal=PER, lens_to_sensor_um=(2000.0, 1000.0))
-OPTS = CodesignOptions(n_coefficients=1, size_px=15, optimize=OptimizeOptions(steps=10, learning_rate=0.1,
+OPTS = CodesignOptions(n_coefficients=1, size_px=9, optimize=OptimizeOptions(steps=10, learning_rate=0.1,
                                                                               progress=False))
 
 
