@@ -216,8 +216,9 @@ def post_response(wx_um, wy_um, wavelength_um=PAPER_WAVELENGTH_UM, *, period_um:
     ``(M_along, M_across)``: orders up to M_along along the incident E-field and M_across across it (x then y
     for x-polarised light, y then x for y-polarised light; (M_along + 1)(M_across + 1) + M_along M_across
     unknowns). The field along E jumps across the post's side walls normal to it (the inverse rule's
-    direction) and converges slowest, so a pair such as (10, 5) reaches the accuracy of M = 8 at about half its
-    cost (BENCHMARKS.md); the default, an integer, is the square truncation.
+    direction) and converges slowest, so for most posts a pair such as (10, 5) reaches the accuracy of M = 8
+    with fewer unknowns; the worst post of a library does not gain (its error is not set by that direction
+    alone), so the square truncation stays the default and the library's (figures in BENCHMARKS.md).
     ``estimate`` also solves at M - 2 (both entries of a pair) and returns ``err = |t(M) - t(M-2)|``, the step
     between truncations (not a bound on the error: convergence is not monotone, see :func:`convergence_bound`);
     with ``tol`` a :class:`NotConvergedWarning` names the posts whose step exceeds it.

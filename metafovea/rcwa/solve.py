@@ -380,8 +380,13 @@ def solve(stack: Stack, wavelength_um, *, harmonics=8, theta_deg: float = 0.0, p
         ``theta_deg`` is measured in (the in-plane wave vector is ``n_inc sin(theta)``, shared by both).
     factorization: 'li' (Li's crossed-grating rules, default) or 'laurent' (plain Laurent rule,
         for comparison only: it converges slowly for Si/air).
-    symmetry: 'auto' (parity-adapted bases when theta = 0 and all inclusions are centred at the
-        origin: two 4x smaller eigenproblems), 'none' (full basis).
+    symmetry: 'auto' picks the parity-adapted bases exactly where they are valid: normal incidence
+        (theta = 0, phi = 0) on a stack whose inclusions are all centred at the origin
+        (:attr:`Stack.mirror_symmetric`, mirror planes x = 0 and y = 0). There x- and y-polarised light
+        never mix and each is solved in a basis of even/odd harmonics about 4x smaller than the full one
+        (two eigenproblems ~64x cheaper each; the same result to rounding). Every other case (oblique
+        incidence, phi != 0, off-centre inclusions) takes the full basis. 'none' forces the full basis.
+        ``Result.info['symmetric']`` says which path ran.
     check_energy: for lossless stacks, warn (:class:`NotConvergedWarning`) if R + T deviates from 1
         by more than 1e-6, which flags numerical breakdown.
     """
