@@ -5,7 +5,15 @@ same process against ONE common reference.
 
     taskset -c 0 python benchmarks/bench_rcwa.py [--quick] [--fmmax-M 4 6 8 10]
         [--fmmax-formulations FFT JONES_DIRECT POL] [--fmmax-extra-M 12]
-        [--fmmax-truncation PARALLELOGRAMIC|CIRCULAR] [--fmmax-grid 400] [--library] [--out BENCH.json]
+        [--fmmax-truncation PARALLELOGRAMIC|CIRCULAR] [--fmmax-grid 400] [--library]
+        [--pairs 9 5 --pairs 10 5 ...] [--broadband-wavelengths 13] [--out BENCH.json]
+
+Ours runs the parity-adapted path of ``post_response`` (the post is centred, light at normal incidence: x and y
+polarisations solved separately in bases of even/odd harmonics). Rows ``metafovea li AxB`` use
+``harmonics=(A, B)``: orders up to A along the incident E-field, B across it. The broadband lines time one
+batched call on 8 random rectangles x 13 wavelengths over 8-14 um (both polarisations) per post and wavelength,
+what a broadband library pays; compare them with fmmax's time per solve (fmmax's cost per wavelength is that of
+a single solve: nothing carries over between wavelengths).
 
 Fairness: one BLAS/OpenMP thread for numpy and one XLA thread for fmmax (env vars below, set before
 numpy/jax load); run it under ``taskset -c 0`` to pin the whole process (both solvers) to one core.
