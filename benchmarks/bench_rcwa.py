@@ -130,19 +130,28 @@ def fmmax_t00(M: int, formulation: str, *, width=W, grid: int = 400, truncation:
     return t_x, best, best_cpu, n, t_compile
 
 
-def broadband(M, n_posts: int = 8, n_wl: int = 13, repeat: int = 2) -> tuple[float, float]:
+def broadband(M, n_posts: int = 8, n_wl: int = 13, repeat: int = 2, grid: bool = False) -> tuple[float, float]:
     """Best (wall, CPU) seconds per post and wavelength, both polarisations, of one batched call on ``n_posts``
-    random rectangles (0.5-3.5 um sides) at ``n_wl`` wavelengths over 8-14 um (what a broadband library does)."""
+    random rectangles (0.5-3.5 um sides) at ``n_wl`` wavelengths over 8-14 um (what a broadband library does).
+
+    ``grid``: the library's way instead: a square grid of ``n_posts`` x ``n_posts`` widths, x-polarised light only,
+    since ``t_y(wx, wy) = t_x(wy, wx)`` is another point of the same grid (one solve per post and wavelength)."""
     rng = np.random.default_rng(0)
-    wx, wy = rng.uniform(0.5, 3.5, (2, n_posts, 1))
+    if grid:
+        wx = np.linspace(0.5, 3.5, n_posts)[:, None, None]
+        wy = wx[None, :, 0]
+        pols, count = ("x",), n_posts * n_posts * n_wl
+    else:
+        wx, wy = rng.uniform(0.5, 3.5, (2, n_posts, 1))
+        pols, count = ("x", "y"), n_posts * n_wl
     wl = np.linspace(8.0, 14.0, n_wl)
     best = best_cpu = np.inf
     for _ in range(repeat):
         t0, c0 = time.perf_counter(), time.process_time()
-        post_response(wx, wy, wl, harmonics=M)
+        post_response(wx, wy, wl, harmonics=M, polarizations=pols)
         best = min(best, time.perf_counter() - t0)
         best_cpu = min(best_cpu, time.process_time() - c0)
-    return best / (n_posts * n_wl), best_cpu / (n_posts * n_wl)
+    return best / count, best_cpu / count
 
 
 def _row(rows, solver, nh, t, dt, cpu, ph_ref, **extra):
@@ -218,6 +227,12 @@ def main() -> None:
         bb[str(M)] = dict(wall_s=dt, time_s=cpu)
         print(f"# broadband sweep, harmonics {M}: 8 random posts x {a.broadband_wavelengths} wavelengths 8-14 um in "
               f"one call: {cpu:.4f} s CPU ({dt:.4f} s wall) per post and wavelength, both polarisations", flush=True)
+    for M in ([8, 10] if not a.quick else [4]):
+        dt, cpu = broadband(M, n_posts=5, n_wl=a.broadband_wavelengths, repeat=1, grid=True)
+        bb[f"grid {M}"] = dict(wall_s=dt, time_s=cpu)
+        print(f"# broadband library grid, harmonics {M}: 5 x 5 widths x {a.broadband_wavelengths} wavelengths, x only "
+              f"(y from the transposed grid point): {cpu:.4f} s CPU ({dt:.4f} s wall) per post and wavelength, both "
+              f"polarisations", flush=True)
     # before fmmax/jax is imported: the library forks worker processes
     lib_time = lib_cpu = None
     if a.library:
