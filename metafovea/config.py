@@ -140,9 +140,39 @@ class PlatformDesign:
         return out
 
 
+#: the most coefficients ``LensDesign.phase_poly_rad`` may hold (terms up to (rho / R)^32): more than any smooth
+#: radial correction of a lens needs, and few enough that the polynomial stays well conditioned in float64
+MAX_PHASE_POLY_TERMS = 16
+
+
+def check_phase_poly(key: str, value: Any, source: str | None = None) -> tuple[float, ...]:
+    """``phase_poly_rad`` as a tuple of finite floats (rad), at most :data:`MAX_PHASE_POLY_TERMS` of them."""
+    allowed = (f"a list of at most {MAX_PHASE_POLY_TERMS} finite numbers (rad): a_j of sum_j a_j (rho / R)^(2 j) "
+               "added to the hyperbolic phase")
+    if isinstance(value, (str, bytes, dict)) or not isinstance(value, (list, tuple, np.ndarray)):
+        raise InputError(key, value, allowed, source)
+    vals = list(np.asarray(value, dtype=object).reshape(-1)) if isinstance(value, np.ndarray) else list(value)
+    if len(vals) > MAX_PHASE_POLY_TERMS:
+        raise InputError(key, f"{len(vals)} coefficients", allowed, source)
+    out = []
+    for v in vals:
+        if isinstance(v, bool) or not isinstance(v, (int, float, np.integer, np.floating)) or not math.isfinite(v):
+            raise InputError(key, value if len(vals) < 10 else f"{len(vals)} coefficients", allowed, source)
+        out.append(float(v))
+    return tuple(out)
+
+
 @dataclass(frozen=True)
 class LensDesign:
-    """One metalens: hyperbolic phase, square lattice, N phase levels, acting on one polarisation."""
+    """One metalens: hyperbolic phase (plus an optional radial polynomial), square lattice, N phase levels, acting
+    on one polarisation.
+
+    ``phase_poly_rad`` (rad, at the design wavelength): coefficients ``a_j`` of the phase added to the hyperbola,
+    ``phi(rho) = hyperbolic_phase(rho) + sum_{j=1..n} a_j (rho / R)^(2 j)`` with ``R = diameter_um / 2``
+    (:func:`metafovea.lens.design_phase`); added as is, whatever ``phase_sign``. Like the hyperbola it is a
+    structural phase: the focusing order carries ``exp(i phi)`` at every wavelength. The empty tuple (default) is the
+    plain hyperbola.
+    """
 
     name: str
     f_um: float
@@ -155,9 +185,11 @@ class LensDesign:
     phase_sign: int = PHASE_SIGN
     lattice: str = "integer"  # sites at integer multiples of the period ('integer') or half-integer ('half')
     n_substrate: float = N_SI_10UM
+    phase_poly_rad: tuple[float, ...] = ()
 
     def __post_init__(self) -> None:
         check_name("name", self.name)
+        object.__setattr__(self, "phase_poly_rad", check_phase_poly("phase_poly_rad", self.phase_poly_rad))
         validate_lens_numbers(self.f_um, self.diameter_um, self.wavelength_um, self.period_um,
                               self.levels, self.polarization)
         check_positive("post_height_um", self.post_height_um, "um")
@@ -463,7 +495,8 @@ def load_lens(path: str | Path, platform: PlatformDesign | None = None) -> LensD
     """Load a lens TOML (``foveal.toml``/``perifoveal.toml``).
 
     Keys: name, f_mm, diameter_mm, wavelength_um, polarization ('x'|'y'), levels, lattice, and
-    optionally period_um / post_height_um (default: the platform's).
+    optionally period_um / post_height_um (default: the platform's) and phase_poly_rad (a list of radians: the
+    phase added to the hyperbola, :class:`LensDesign`; default none).
     """
     t = _read_toml(path)
     src = str(path)
@@ -478,11 +511,12 @@ def load_lens(path: str | Path, platform: PlatformDesign | None = None) -> LensD
     height = r.num("post_height_um", p.post_height_um, hi=1e4, unit="um")
     levels = r.int("levels", 8, 2, 256)
     lattice = r.choice("lattice", "integer", LATTICES)
+    poly = r.get("phase_poly_rad", (), lambda k, v: check_phase_poly(k, v, src))
     r.done()
     validate_lens_numbers(f_mm, d_mm, wl, period, levels, pol, source=src,
                           names=("f_mm", "diameter_mm", "wavelength_um", "period_um", "levels", "polarization"))
     return LensDesign(name, f_mm * UM_PER_MM, d_mm * UM_PER_MM, wl, pol, period, height, levels,
-                      lattice=lattice, n_substrate=p.n_substrate)
+                      lattice=lattice, n_substrate=p.n_substrate, phase_poly_rad=poly)
 
 
 def load_system(path: str | Path) -> SystemDesign:

@@ -19,8 +19,8 @@ from metafovea.errors import InputError
 from metafovea.io import atomic_write_bytes, atomic_write_json, atomic_write_text
 from metafovea.lens import (
     LensSummary,
+    design_phase,
     evaluate_tile,
-    hyperbolic_phase,
     paraxial_phase,
     posts_per_2pi,
     quantize_phase,
@@ -86,6 +86,11 @@ def write_design_bundles(lenses: Sequence[LensDesign], summaries: Sequence[LensS
 
 def summary_dict(s: LensSummary) -> dict[str, Any]:
     d = asdict(s)
+    if not s.phase_poly_rad:  # the plain hyperbola: the same keys as before the added phase existed
+        for k in ("phase_poly_rad", "narrowest_posts_per_2pi", "narrowest_zone_radius_um"):
+            d.pop(k)
+    else:
+        d["phase_poly_rad"] = list(s.phase_poly_rad)
     d["warnings"] = list(s.warnings)
     d["posts"] = list(s.posts)
     return d
@@ -105,6 +110,10 @@ def summary_rows(s: LensSummary) -> list[tuple[str, str]]:
         ("posts in aperture (exact)", f"{s.posts_in_aperture:,}"),
         ("2 pi zones", f"{s.zones_2pi:.2f}  (rim phase {s.rim_phase_rad:.1f} rad)"),
         ("zone width at rim", f"{s.rim_zone_width_um:.2f} um = {s.rim_posts_per_2pi:.2f} posts per 2 pi"),
+        *([("phase beyond the hyperbola", "sum_j a_j (r/R)^(2j), a = ["
+            + ", ".join(f"{a:.6g}" for a in s.phase_poly_rad) + "] rad"),
+           ("narrowest zone", f"{s.narrowest_posts_per_2pi:.2f} posts per 2 pi at r = "
+                              f"{s.narrowest_zone_radius_um / UM_PER_MM:.4g} mm")] if s.phase_poly_rad else []),
         ("Airy first zero", f"{s.airy_first_zero_paraxial_um:.4g} um (1.22 lambda F#), "
                             f"{s.airy_first_zero_na_um:.4g} um (0.61 lambda/NA)"),
         ("PSF FWHM (0.514 lambda/NA)", f"{s.fwhm_um:.4g} um"),
@@ -147,13 +156,16 @@ def design_toml(design: LensDesign) -> str:
     return (f'# written by metafovea design\nname = "{design.name}"\nf_mm = {design.f_mm!r}\n'
             f'diameter_mm = {design.diameter_mm!r}\nwavelength_um = {design.wavelength_um!r}\n'
             f'polarization = "{design.polarization}"\nperiod_um = {design.period_um!r}\n'
-            f'post_height_um = {design.post_height_um!r}\nlevels = {design.levels}\nlattice = "{design.lattice}"\n')
+            f'post_height_um = {design.post_height_um!r}\nlevels = {design.levels}\nlattice = "{design.lattice}"\n'
+            + (f"phase_poly_rad = [{', '.join(repr(float(a)) for a in design.phase_poly_rad)}]\n"
+               if design.phase_poly_rad else ""))
 
 
 def radial_profile(design: LensDesign, n: int = 2001) -> dict[str, np.ndarray]:
-    """Radial samples (um) of the phase, its wrapped value, level, zone width and posts per 2 pi."""
+    """Radial samples (um) of the design phase (``phase_poly_rad`` included), its wrapped value, level, zone width
+    and posts per 2 pi (from the actual local gradient)."""
     r = np.linspace(0.0, design.radius_um, n)
-    phi = hyperbolic_phase(r, design.f_um, design.wavelength_um, design.phase_sign)
+    phi = design_phase(design, r, 0.0)
     return {"r_um": r, "phase_rad": phi,
             "paraxial_phase_rad": paraxial_phase(r, design.f_um, design.wavelength_um, design.phase_sign),
             "wrapped_rad": wrap_phase(phi), "level": quantize_phase(phi, design.levels),
@@ -198,7 +210,8 @@ def write_design_bundle(design: LensDesign, summary: LensSummary, out_dir: Path,
 
     r_mm = prof["r_um"] / UM_PER_MM
     fig, ax = plt.subplots(figsize=(6.5, 4))
-    ax.plot(r_mm, prof["phase_rad"] / TWO_PI, label="hyperbolic")
+    ax.plot(r_mm, prof["phase_rad"] / TWO_PI, label="design (hyperbola + phase_poly_rad)" if design.phase_poly_rad
+            else "hyperbolic")
     ax.plot(r_mm, prof["paraxial_phase_rad"] / TWO_PI, "--", label="paraxial (quadratic)")
     ax.set_xlabel("radius (mm)")
     ax.set_ylabel("phase / 2 pi (zones)")

@@ -2,8 +2,11 @@
 
 Phase convention (see :mod:`metafovea.units`): a lens multiplies the field by ``exp(i phi)``; the
 focusing hyperbolic profile is ``phi(r) = sign * (2 pi / lambda0) * (sqrt(r^2 + f^2) - f)`` with
-``sign = -1`` under ``exp(-i omega t)``. Wrapped phases are in ``[0, 2 pi)``; level ``k`` of an
-N-level design carries phase ``2 pi k / N`` and site levels are ``round(wrapped / (2 pi / N)) mod N``.
+``sign = -1`` under ``exp(-i omega t)``; a design may add a radial polynomial ``sum_j a_j (r / R)^(2 j)``
+(``LensDesign.phase_poly_rad``, :func:`design_phase`), and the quantities that depend on the local phase slope
+(zone widths, posts per zone, the lattice factor) then use the actual gradient. Wrapped phases are in
+``[0, 2 pi)``; level ``k`` of an N-level design carries phase ``2 pi k / N`` and site levels are
+``round(wrapped / (2 pi / N)) mod N``.
 
 Lattice: posts sit at ``x = (ix + o) * p``, ``y = (iy + o) * p`` with ``o = 0`` (``lattice='integer'``,
 a post at the centre) or ``o = 0.5`` (``'half'``); a site is inside the aperture when its centre has
@@ -18,7 +21,7 @@ from __future__ import annotations
 import math
 import warnings
 from collections.abc import Iterator
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from fractions import Fraction
 from typing import TYPE_CHECKING, Any
 
@@ -71,22 +74,134 @@ def level_phase(k: ArrayLike, levels: int) -> np.ndarray:
     return TWO_PI * np.asarray(k, dtype=float) / levels
 
 
+def added_phase(design: LensDesign, r_um: ArrayLike) -> np.ndarray:
+    """The phase beyond the hyperbola (rad): ``sum_j a_j (r / R)^(2 j)``, ``a_j = design.phase_poly_rad[j-1]``.
+
+    Zero for the plain hyperbola (``phase_poly_rad = ()``). Evaluated by Horner's rule in ``u = (r / R)^2``.
+    """
+    r = np.asarray(r_um, dtype=float)
+    u = np.square(r / design.radius_um)
+    acc = np.zeros_like(u)
+    for a in reversed(design.phase_poly_rad):
+        acc = (acc + a) * u
+    return acc
+
+
+def _added_slope_over_r(design: LensDesign, r: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``(psi'(r) / r, d/dr (psi'(r) / r))`` of the added phase psi (rad / um^2, rad / um^3); no singularity at 0."""
+    R2 = design.radius_um ** 2
+    u = np.square(r) / R2
+    s = np.zeros_like(u)
+    ds = np.zeros_like(u)
+    n = len(design.phase_poly_rad)
+    for j in range(n, 0, -1):  # S(u) = sum 2 j a_j u^(j-1), S'(u) = sum 2 j (j-1) a_j u^(j-2)
+        a = design.phase_poly_rad[j - 1]
+        s = s * u + 2 * j * a
+        if j >= 2:
+            ds = ds * u + 2 * j * (j - 1) * a
+    return s / R2, ds * 2 * r / (R2 * R2)
+
+
 def design_phase(design: LensDesign, x_um: ArrayLike, y_um: ArrayLike) -> np.ndarray:
-    """Unwrapped design phase at positions (um); broadcasting."""
-    return hyperbolic_phase(np.hypot(x_um, y_um), design.f_um, design.wavelength_um, design.phase_sign)
+    """Unwrapped design phase at positions (um); broadcasting.
+
+    ``hyperbolic_phase(r, f, lambda0, phase_sign) + added_phase(r)`` (:class:`metafovea.config.LensDesign`); the
+    plain hyperbola when ``phase_poly_rad`` is empty (the same numbers, bit for bit).
+    """
+    r = np.hypot(x_um, y_um)
+    phi = hyperbolic_phase(r, design.f_um, design.wavelength_um, design.phase_sign)
+    if design.phase_poly_rad:
+        phi = phi + added_phase(design, r)
+    return phi
+
+
+def phase_gradient_over_r(design: LensDesign, r_um: ArrayLike) -> np.ndarray:
+    """``(d phi / d r) / r`` of the design phase (rad / um^2): the local gradient is this times ``(x, y)``.
+
+    ``phase_sign k0 / sqrt(r^2 + f^2)`` for the hyperbola, plus the added phase's ``psi'(r) / r``.
+    """
+    r = np.asarray(r_um, dtype=float)
+    k0 = TWO_PI / design.wavelength_um
+    out = design.phase_sign * k0 / np.sqrt(r * r + design.f_um ** 2)
+    if design.phase_poly_rad:
+        out = out + _added_slope_over_r(design, r)[0]
+    return out
+
+
+def direction_sine_over_r(design: LensDesign, r_um: ArrayLike) -> np.ndarray:
+    """``g(r) / r`` (1/um): ``g(r)`` is the design direction sine (magnitude, towards the axis) into which the lens
+    point at radius r sends the focusing order at the design wavelength, ``g = -(d phi_focus / d r) / k0``.
+
+    ``1 / sqrt(r^2 + f^2)`` for the hyperbola (``g = r / sqrt(r^2 + f^2)``); the local focal length is
+    ``r sqrt(1 - g^2) / g``. Independent of ``phase_sign`` (the optics engines work with the focusing lens).
+    """
+    return design.phase_sign * phase_gradient_over_r(design, r_um) * (design.wavelength_um / TWO_PI)
+
+
+def direction_sine_slope(design: LensDesign, r_um: ArrayLike) -> np.ndarray:
+    """``d g / d r`` (1/um) of :func:`direction_sine_over_r`'s ``g``: positive everywhere for a lens whose ray
+    directions are monotone in radius (the direction-sine engines' condition); ``f^2 / (r^2 + f^2)^(3/2)`` for the
+    hyperbola."""
+    r = np.asarray(r_um, dtype=float)
+    L = np.sqrt(r * r + design.f_um ** 2)
+    h = direction_sine_over_r(design, r)
+    dh = -r / L ** 3
+    if design.phase_poly_rad:
+        dh = dh + design.phase_sign * _added_slope_over_r(design, r)[1] * (design.wavelength_um / TWO_PI)
+    return h + r * dh
+
+
+def ray_map_check(design: LensDesign, n: int = 4097) -> tuple[bool, float, str]:
+    """``(monotone, largest design direction sine, reason)`` of the lens' ray map r -> g(r) over the aperture.
+
+    Monotone: ``dg/dr > 0`` on ``[0, R]`` (sampled at ``n`` radii), so each direction is reached from one radius
+    (no caustic inside the lens' directions) and the local focal length stays positive; and ``g < 1`` (no
+    evanescent design direction). Always true for the plain hyperbola. ``reason`` is empty when monotone.
+    """
+    r = np.linspace(0.0, design.radius_um, n)
+    g = r * direction_sine_over_r(design, r)
+    dg = direction_sine_slope(design, r)
+    gmax = float(np.max(np.abs(g)))
+    bad = np.flatnonzero(~(dg > 0))
+    if bad.size:
+        return False, gmax, (f"the ray direction is not monotone in radius (dg/dr = {dg[bad[0]]:.3g} / um at "
+                             f"r = {r[bad[0]] / UM_PER_MM:.4g} mm): the local focal length changes sign or two radii "
+                             "send light into one direction")
+    if gmax >= 1.0:
+        return False, gmax, f"the design direction sine reaches {gmax:.4f} >= 1 at the rim (evanescent light)"
+    return True, gmax, ""
 
 
 def posts_per_2pi(design: LensDesign, r_um: ArrayLike) -> np.ndarray:
-    """Local zone width divided by the lattice period at radius r (inf at the centre)."""
+    """Local zone width divided by the lattice period at radius r (inf at the centre).
+
+    From the actual local phase gradient (``phase_poly_rad`` included): ``2 pi / |d phi / d r| / period``.
+    """
     r = np.asarray(r_um, dtype=float)
+    if design.phase_poly_rad:
+        with np.errstate(divide="ignore"):
+            zone = TWO_PI / np.abs(phase_gradient_over_r(design, r) * r)
+        return zone / design.period_um
     with np.errstate(divide="ignore"):
         zone = design.wavelength_um * np.sqrt(r * r + design.f_um ** 2) / r
     return zone / design.period_um
 
 
 def zone_width_um(design: LensDesign, r_um: ArrayLike) -> np.ndarray:
-    """Local 2 pi zone width (um) = 2 pi / |d phi / d r| = lambda sqrt(r^2+f^2) / r."""
+    """Local 2 pi zone width (um) = 2 pi / |d phi / d r| (= lambda sqrt(r^2+f^2) / r for the hyperbola)."""
     return posts_per_2pi(design, r_um) * design.period_um
+
+
+def narrowest_zone(design: LensDesign, n: int = 4097) -> tuple[float, float]:
+    """``(posts per 2 pi, radius um)`` of the narrowest 2 pi zone in the aperture: the rim for the hyperbola; for a
+    lens with ``phase_poly_rad`` the smallest of ``n`` radii sampled over ``[0, R]``."""
+    R = design.radius_um
+    if not design.phase_poly_rad:
+        return float(posts_per_2pi(design, R)), R
+    r = np.linspace(0.0, R, n)
+    p = posts_per_2pi(design, r)
+    i = int(np.argmin(p))
+    return float(p[i]), float(r[i])
 
 
 # ----------------------------------------------------------------------------------------------
@@ -227,12 +342,15 @@ def _site_terms(design: LensDesign, x: np.ndarray, y: np.ndarray, levels: int | 
     phase at its centre times ``sinc`` of the local phase gradient across the cell, and the post's
     phase differs from the ideal by the quantisation error.
     """
-    r2 = x * x + y * y
-    rr = np.sqrt(r2 + design.f_um ** 2)
-    k = TWO_PI / design.wavelength_um
     phi = design_phase(design, x, y)
     err = 0.0 if levels is None else level_phase(quantize_phase(phi, levels), levels) - wrap_phase(phi)
     p = design.period_um
+    if design.phase_poly_rad:  # the actual local gradient (cycles per period)
+        gr = phase_gradient_over_r(design, np.hypot(x, y)) * (p / TWO_PI)
+        return np.exp(1j * err) * np.sinc(gr * x) * np.sinc(gr * y)
+    r2 = x * x + y * y
+    rr = np.sqrt(r2 + design.f_um ** 2)
+    k = TWO_PI / design.wavelength_um
     gx = k * x / rr * p / TWO_PI
     gy = k * y / rr * p / TWO_PI
     return np.exp(1j * err) * np.sinc(gx) * np.sinc(gy)
@@ -292,7 +410,12 @@ def lattice_efficiency(design: LensDesign, levels: int | None = None, *, samples
 # ----------------------------------------------------------------------------------------------
 @dataclass(frozen=True)
 class LensSummary:
-    """The numbers a designer checks (lengths in um unless the name says otherwise)."""
+    """The numbers a designer checks (lengths in um unless the name says otherwise).
+
+    With ``phase_poly_rad``: the rim phase, zones, zone widths, posts per zone and the lattice efficiencies are the
+    full design phase's (its actual local gradient); the NA, F-number, Airy radius, FWHM and MTF cutoff describe the
+    aperture at the focal length f (the hyperbolic part), not the corrected lens' PSF (:mod:`metafovea.optics`).
+    """
 
     name: str
     f_mm: float
@@ -323,13 +446,18 @@ class LensSummary:
     warnings: tuple[str, ...] = field(default_factory=tuple)
     posts: tuple[dict[str, Any], ...] = field(default_factory=tuple)
     post_set: dict[str, Any] | None = None  #: source and figures of merit of the post set used, if any
+    phase_poly_rad: tuple[float, ...] = ()  #: the phase added to the hyperbola (LensDesign), rad
+    narrowest_posts_per_2pi: float | None = None  #: with phase_poly_rad: the narrowest zone anywhere (posts per 2 pi)
+    narrowest_zone_radius_um: float | None = None  #: ... and its radius (um)
 
 
 def design_warnings(design: LensDesign, n_superstrate: float = 1.0) -> list[str]:
     """Physics warnings for a design (also emitted as :class:`PhysicsWarning` by :func:`summarize`)."""
     out = []
     rim = float(posts_per_2pi(design, design.radius_um))
-    if rim < 4.0:
+    if design.phase_poly_rad:
+        out += added_phase_warnings(design)
+    elif rim < 4.0:
         r4_mm = radius_below_posts(design, 4.0) / UM_PER_MM
         out.append(f"only {rim:.2f} posts per 2 pi at the rim (< 4): the outer zones are undersampled; "
                    f"expect lower efficiency and stray orders beyond r = {r4_mm:.3g} mm")
@@ -342,6 +470,31 @@ def design_warnings(design: LensDesign, n_superstrate: float = 1.0) -> list[str]
     if design.period_um > design.wavelength_um / n_superstrate:
         out.append(f"lattice period {design.period_um:g} um > lambda = {design.wavelength_um:g} um: "
                    "diffraction orders propagate in air (not a metasurface regime)")
+    return out
+
+
+def added_phase_warnings(design: LensDesign) -> list[str]:
+    """Warnings of a lens with ``phase_poly_rad``: zones narrower than 4 posts anywhere in the aperture (fewer
+    than 2: the lattice cannot represent the local phase slope at all), saying when the added phase is what makes
+    them so, and a ray map that is not monotone (the direction-sine PSF engines do not apply)."""
+    out = []
+    hyp = replace(design, phase_poly_rad=())
+    p_min, r_min = narrowest_zone(design)
+    p_hyp = float(posts_per_2pi(hyp, max(r_min, 1e-300)))
+    if p_min < 4.0:
+        r4_mm = radius_below_posts(design, 4.0) / UM_PER_MM
+        why = (f"the added phase (phase_poly_rad) makes the zones narrower than the posts allow (the hyperbola alone "
+               f"has {p_hyp:.2f} posts per 2 pi there)" if p_hyp >= 4.0 or p_min < 0.999 * p_hyp else
+               "as the hyperbola alone")
+        out.append(f"only {p_min:.2f} posts per 2 pi at r = {r_min / UM_PER_MM:.4g} mm (< 4): {why}; the zones "
+                   f"beyond r = {r4_mm:.4g} mm are undersampled: expect lower efficiency and stray orders")
+        if p_min < 2.0:
+            out.append(f"fewer than 2 posts per 2 pi zone ({p_min:.2f}): the lattice cannot represent the local phase "
+                       "slope (it aliases into another direction); the lens will not focus as designed there")
+    ok, _, reason = ray_map_check(design)
+    if not ok:
+        out.append(f"phase_poly_rad: {reason}; the direction-sine PSF engines (hankel, mft, geometric) do not apply "
+                   "to this lens, psf() uses the exact Rayleigh-Sommerfeld engine")
     return out
 
 
@@ -365,7 +518,24 @@ def aperture_warnings(design: LensDesign) -> list[str]:
 
 
 def radius_below_posts(design: LensDesign, n_posts: float) -> float:
-    """Radius (um) beyond which a 2 pi zone spans fewer than ``n_posts`` posts (inf if never)."""
+    """Radius (um) beyond which a 2 pi zone spans fewer than ``n_posts`` posts (inf if never).
+
+    For the hyperbola in closed form (it may lie beyond the rim); with ``phase_poly_rad`` the smallest radius in
+    the aperture where the zone is first narrower (inf if nowhere in the aperture).
+    """
+    if design.phase_poly_rad:
+        r = np.linspace(0.0, design.radius_um, 4097)
+        below = np.flatnonzero(posts_per_2pi(design, r) < n_posts)
+        if below.size == 0:
+            return math.inf
+        i = int(below[0])
+        if i == 0:
+            return 0.0
+        lo, hi = float(r[i - 1]), float(r[i])
+        for _ in range(60):
+            mid = 0.5 * (lo + hi)
+            lo, hi = (lo, mid) if posts_per_2pi(design, mid) < n_posts else (mid, hi)
+        return hi
     # lambda sqrt(r^2+f^2)/r = n p  ->  r = f / sqrt((n p / lambda)^2 - 1)
     q = n_posts * design.period_um / design.wavelength_um
     if q <= 1.0:
@@ -399,10 +569,11 @@ def summarize(design: LensDesign, *, post_set: PostSet | None = None, samples: i
     R = design.radius_um
     wl = design.wavelength_um
     na = design.na
-    rim_phase = float(hyperbolic_phase(R, design.f_um, wl, design.phase_sign))
+    rim_phase = float(design_phase(design, R, 0.0))
     eff = lattice_efficiency(design, samples=samples, rng=rng)
     eff0 = lattice_efficiency(design, levels=0, samples=samples, rng=rng)
     r4 = radius_below_posts(design, 4.0)
+    narrow = narrowest_zone(design)
     warn = design_warnings(design)
     if emit_warnings:
         for w in warn:
@@ -442,4 +613,6 @@ def summarize(design: LensDesign, *, post_set: PostSet | None = None, samples: i
         lattice_sampling_efficiency=eff0.value,
         radius_below_4_posts_um=None if math.isinf(r4) or r4 >= R else r4,
         substrate_orders=design.period_um > wl / design.n_substrate, warnings=tuple(warn), posts=posts,
-        post_set=ps_info)
+        post_set=ps_info, phase_poly_rad=design.phase_poly_rad,
+        narrowest_posts_per_2pi=narrow[0] if design.phase_poly_rad else None,
+        narrowest_zone_radius_um=narrow[1] if design.phase_poly_rad else None)

@@ -1,5 +1,6 @@
 """Design files load, match the built-in defaults, and bad values name file, key, value and range."""
 
+import math
 import shutil
 from pathlib import Path
 
@@ -153,3 +154,41 @@ def test_fabrication_rules_name_the_post_and_the_rule(tmp_path):
     assert q.max_aspect_ratio == 12.0 and q.min_gap_um == 1.0
     assert any("aspect ratio 16.7" in s for s in q.fabrication_violations([[0.6, 2.0]]))
     assert any("gap" in s for s in q.fabrication_violations([[3.2, 1.0]]))
+
+
+def test_phase_poly_rad_round_trips_through_the_lens_file_and_loads_in_a_system(tmp_path, designs_dir):
+    """A corrected lens written by design_toml reads back equal (every coefficient to the last bit); a system file
+    naming it loads it; the plain lens' file has no such key (the same file as before the field existed)."""
+    from metafovea.design_report import design_toml
+
+    lens = LensDesign("corr", 2000.0, 2000.0, phase_poly_rad=(-14.137, 42.41234567891234, -1e-7, 3e5))
+    p = tmp_path / "corr.toml"
+    p.write_text(design_toml(lens))
+    back = load_lens(p)
+    assert back == lens and back.phase_poly_rad == lens.phase_poly_rad
+    assert "phase_poly_rad" not in design_toml(lens.with_(phase_poly_rad=()))
+    for f in ("platform.toml", "perifoveal.toml", "system.toml"):
+        shutil.copy(designs_dir / f, tmp_path / f)
+    fov = LensDesign.foveal().with_(phase_poly_rad=(120.0, -35.5))
+    (tmp_path / "foveal.toml").write_text(design_toml(fov))
+    sysd = load_system(tmp_path / "system.toml")
+    assert sysd.foveal.phase_poly_rad == (120.0, -35.5) and sysd.perifoveal.phase_poly_rad == ()
+
+
+@pytest.mark.parametrize("value", [[1.0] * 17, [float("nan")], [1.0, "2"], [True], "1.0", 3.0, [[1.0]]])
+def test_phase_poly_rad_is_validated(tmp_path, value):
+    from metafovea.config import MAX_PHASE_POLY_TERMS
+
+    assert MAX_PHASE_POLY_TERMS == 16
+    with pytest.raises(InputError, match="phase_poly_rad"):
+        LensDesign("x", 1000.0, 300.0, phase_poly_rad=value)
+    if isinstance(value, list) and not any(isinstance(v, float) and math.isnan(v) for v in value):
+        import json
+
+        p = tmp_path / "bad.toml"
+        p.write_text('f_mm = 1.0\ndiameter_mm = 0.3\npolarization = "x"\nphase_poly_rad = ' + json.dumps(value) + "\n")
+        with pytest.raises(InputError, match="phase_poly_rad") as e:
+            load_design(p)
+        assert str(p) in str(e.value)
+    ok = LensDesign("x", 1000.0, 300.0, phase_poly_rad=[1, 2.5])
+    assert ok.phase_poly_rad == (1.0, 2.5) and hash(ok) == hash(ok.with_(phase_poly_rad=(1.0, 2.5)))

@@ -57,3 +57,25 @@ def test_write_design_bundles_one_folder_per_lens(tmp_path):
             assert p.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     (one,) = design_lenses([FOV], samples=5000)
     assert {p.parent for p in write_design_bundles([FOV], [one], tmp_path / "one")} == {tmp_path / "one"}
+
+
+def test_a_corrected_lens_shows_its_added_phase_and_the_plain_lens_keeps_its_keys(tmp_path):
+    """phase_poly_rad shows in the summary (table, JSON, design.toml, radial profile from the full phase); a plain
+    lens' summary JSON has exactly the keys it had before the field existed."""
+    from metafovea.config import load_lens
+    from metafovea.lens import design_phase
+
+    plain = summary_dict(summarize(FOV, samples=4096, emit_warnings=False))
+    assert not {"phase_poly_rad", "narrowest_posts_per_2pi", "narrowest_zone_radius_um"} & set(plain)
+    lens = FOV.with_(phase_poly_rad=(-3.0, 1.5))
+    s = summarize(lens, samples=4096, emit_warnings=False)
+    d = summary_dict(s)
+    assert d["phase_poly_rad"] == [-3.0, 1.5] and d["narrowest_posts_per_2pi"] > 0
+    assert "phase beyond the hyperbola" in format_summary(s) and "-3, 1.5" in format_summary(s)
+    write_design_bundles([lens], [s], tmp_path)
+    assert load_lens(tmp_path / "design.toml") == lens
+    assert json.loads((tmp_path / "summary.json").read_text())["phase_poly_rad"] == [-3.0, 1.5]
+    import numpy as np
+
+    prof = np.genfromtxt(tmp_path / "radial_profile.csv", delimiter=",", names=True)
+    assert np.allclose(prof["phase_rad"], design_phase(lens, prof["r_um"], 0.0), rtol=0, atol=1e-6)

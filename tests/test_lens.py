@@ -207,3 +207,65 @@ def test_lens_without_lattice_sites_is_a_clear_error():
     assert count_posts(d) == 0
     with pytest.raises(InputError, match="diameter_um"):
         summarize(d, samples=1000, emit_warnings=False)
+
+
+# ----------------------------------------------------------------------------------------------
+# the phase beyond the hyperbola (LensDesign.phase_poly_rad)
+# ----------------------------------------------------------------------------------------------
+def test_design_phase_adds_the_polynomial_and_the_empty_tuple_is_the_hyperbola():
+    from metafovea.lens import added_phase, design_phase
+
+    lens = small()
+    x, y = np.meshgrid(np.linspace(-150, 150, 31), np.linspace(-150, 150, 31))
+    r = np.hypot(x, y)
+    hyp = hyperbolic_phase(r, lens.f_um, lens.wavelength_um, lens.phase_sign)
+    assert np.array_equal(design_phase(lens, x, y), hyp)  # bit for bit
+    a = (3.0, -120.0, 40.5)
+    c = lens.with_(phase_poly_rad=a)
+    u = (r / c.radius_um) ** 2
+    want = hyp + a[0] * u + a[1] * u ** 2 + a[2] * u ** 3  # added as is, whatever the sign convention
+    assert np.allclose(design_phase(c, x, y), want, rtol=0, atol=1e-11)
+    assert np.allclose(added_phase(c.with_(phase_sign=1), r), want - hyp, rtol=0, atol=1e-11)
+
+
+def test_zone_widths_follow_the_actual_phase_gradient():
+    from metafovea.lens import design_phase
+
+    c = small(phase_poly_rad=(-25.0, -2.0))
+    r = np.linspace(5.0, c.radius_um, 40)
+    h = 1e-4
+    slope = (design_phase(c, r + h, 0.0) - design_phase(c, r - h, 0.0)) / (2 * h)
+    assert np.allclose(zone_width_um(c, r), 2 * np.pi / np.abs(slope), rtol=1e-6)
+    assert np.allclose(posts_per_2pi(c, r) * c.period_um, zone_width_um(c, r))
+    r4 = radius_below_posts(c, 4.0)
+    assert r4 < c.radius_um and float(posts_per_2pi(c, r4)) == pytest.approx(4.0, rel=1e-6)
+    assert math.isinf(radius_below_posts(small(phase_poly_rad=(-1.0,)), 4.0))  # 16.8 posts at the rim
+
+
+def test_a_correction_that_narrows_zones_below_the_posts_is_warned_about():
+    """The plain lens has 16.8 posts per 2 pi at its rim (no warning); added phases that steepen the rim's slope
+    to 3.6 and to 1.8 posts per zone are warned about, naming phase_poly_rad (and the aliasing below 2); one that
+    bends the rim's rays outwards (ray directions not monotone) is warned about too."""
+    assert not any("posts per 2 pi" in w for w in design_warnings(small()))
+    w1 = design_warnings(small(phase_poly_rad=(-25.0,)))
+    assert any("phase_poly_rad" in w and "narrower than the posts allow" in w for w in w1)
+    assert not any("fewer than 2 posts" in w for w in w1)
+    w2 = design_warnings(small(phase_poly_rad=(-60.0,)))
+    assert any("fewer than 2 posts" in w for w in w2)
+    w3 = design_warnings(small(phase_poly_rad=(60.0,)))
+    assert any("not monotone" in w for w in w3)
+    assert not any("not monotone" in w for w in w1)
+
+
+def test_summary_and_lattice_efficiency_of_a_corrected_lens():
+    plain = small()
+    zero = small(phase_poly_rad=(0.0,))
+    a, b = lattice_efficiency(plain, exact=True), lattice_efficiency(zero, exact=True)
+    assert b.value == pytest.approx(a.value, rel=1e-12)
+    steep = small(phase_poly_rad=(-25.0,))  # 3.6 posts per zone at the rim: the lattice samples it worse
+    assert lattice_efficiency(steep, levels=0, exact=True).value < lattice_efficiency(plain, levels=0, exact=True).value
+    s = summarize(steep, samples=4096, emit_warnings=False)
+    assert s.phase_poly_rad == (-25.0,)
+    assert s.rim_phase_rad == pytest.approx(float(hyperbolic_phase(150.0, 1000.0, 10.0)) - 25.0)
+    assert s.narrowest_posts_per_2pi == pytest.approx(s.rim_posts_per_2pi) and s.narrowest_posts_per_2pi < 4
+    assert summarize(plain, samples=4096, emit_warnings=False).narrowest_posts_per_2pi is None

@@ -36,7 +36,7 @@ from numpy.typing import ArrayLike
 
 from metafovea.config import LensDesign, PlatformDesign, load_design
 from metafovea.errors import InputError, check_choice, check_int, check_range
-from metafovea.lens import EMPTY, row_half_counts, site_index_range
+from metafovea.lens import EMPTY, added_phase, row_half_counts, site_index_range
 from metafovea.library.postset import PostSet
 from metafovea.units import NM_PER_UM, TWO_PI
 
@@ -245,7 +245,10 @@ class LayoutSpec:
         """JSON-able description of everything that determines the file content (the date is kept apart:
         :func:`metafovea.layout.frame.content_hash` leaves it out, the export journal stores it)."""
         from dataclasses import asdict
-        return {"design": asdict(self.design), "widths_um": self.post_set.widths_um.tolist(),
+        design = asdict(self.design)
+        if not design["phase_poly_rad"]:
+            del design["phase_poly_rad"]  # the plain hyperbola: the same key (and content hash) as before the field
+        return {"design": design, "widths_um": self.post_set.widths_um.tolist(),
                 "levels": self.levels, "grid_nm": self.grid_nm, "layers": asdict(self.layers),
                 "ring": [self.ring_inner_um, self.ring_outer_um], "marks": [self.mark_offset_um,
                 self.mark_size_um, self.mark_width_um, self.mark_clearance_um],
@@ -274,6 +277,8 @@ class LayoutSpec:
              f"grid={self.grid_nm}nm dbu=1nm centre=({self.centre_nm},{self.centre_nm})nm "
              f"posts={self.post_set.source} write_bias={self.write_bias_um:g}um "
              f"wafer={self.wafer_diameter_mm:g}mm date={self.date or 'none'} hash={content_hash(self)}")
+        if d.phase_poly_rad:
+            s += " phase_poly_rad=(" + ",".join(f"{a:.9g}" for a in d.phase_poly_rad) + ")rad"
         if self.patch_um is not None:
             s += " patch=({:g},{:g},{:g})um".format(*self.patch_um)
         return s + f" | {self.tone_text()} | {ex}"
@@ -448,12 +453,15 @@ def _levels_inplace(design: LensDesign, iy0: int, rows: int, ix0: int, cols: int
     x = (np.arange(ix0, ix0 + cols, dtype=float) + o) * p
     y = (np.arange(iy0, iy0 + rows, dtype=float) + o) * p
     a = np.hypot(x[None, :], y[:, None])  # r
+    extra = added_phase(design, a) if design.phase_poly_rad else None  # the phase beyond the hyperbola
     np.square(a, out=a)  # r2
     b = a + design.f_um * design.f_um
     np.sqrt(b, out=b)
     b += design.f_um
     a *= design.phase_sign * (TWO_PI / design.wavelength_um)
     a /= b  # phi
+    if extra is not None:
+        a += extra
     np.mod(a, TWO_PI, out=a)
     a[a >= TWO_PI] = 0.0  # wrap_phase
     a *= n / TWO_PI

@@ -38,7 +38,7 @@ from scipy import special
 from metafovea.errors import InputError, check_positive, check_range
 from metafovea.parallel import blas_threads
 
-from .pupil import Pupil
+from .pupil import Pupil, design_na
 
 log = logging.getLogger(__name__)
 
@@ -100,7 +100,19 @@ def disk_nodes(center: np.ndarray, radius: float, n_t: int, n_r: int) -> tuple[n
 # ray extents -> node counts
 # ----------------------------------------------------------------------------------------------
 def ray_extent(pupil: Pupil, n: int = 24) -> tuple[float, float, float, float]:
-    """(xmin, xmax, ymin, ymax) of the geometric ray landing points over the pupil disk (um)."""
+    """(xmin, xmax, ymin, ymax) of the geometric ray landing points over the pupil disk (um).
+
+    For a lens with ``phase_poly_rad`` the rays are traced forwards from lens points (Gauss nodes of the aperture
+    and its rim: :meth:`Pupil.lens_ray_landing`), which needs no inverse ray map.
+    """
+    if pupil.lens.phase_poly_rad:
+        R = pupil.lens.radius_um
+        u, v, _ = disk_nodes(np.zeros(2), R, 2 * n, 2 * n)
+        th = np.linspace(0, 2 * np.pi, 8 * n, endpoint=False)
+        rx = np.concatenate([u.ravel(), R * np.cos(th), [0.0]])
+        ry = np.concatenate([np.broadcast_to(v[:, None], u.shape).ravel(), R * np.sin(th), [0.0]])
+        x, y = pupil.lens_ray_landing(rx, ry)
+        return float(x.min()), float(x.max()), float(y.min()), float(y.max())
     u, v, _ = disk_nodes(pupil.center, pupil.radius, n, n)
     vv = np.broadcast_to(v[:, None], u.shape)
     th = np.linspace(0, 2 * np.pi, 4 * n, endpoint=False)
@@ -191,7 +203,7 @@ def mft_intensity_multi(pupils: list[Pupil], weights: ArrayLike, xs: ArrayLike, 
     for pu in pupils:
         a, b = mft_nodes(pu, xs, ys, error)
         nt, nr = max(nt, a), max(nr, b)
-    uw, vw, wq = disk_nodes(np.zeros(2), lens.na / order, nt, nr)
+    uw, vw, wq = disk_nodes(np.zeros(2), design_na(lens) / order, nt, nr)
     vvw = np.broadcast_to(vw[:, None], uw.shape)
     kap = 2 * np.pi * order / lens.wavelength_um
     xc = 0.5 * (xs.min() + xs.max())

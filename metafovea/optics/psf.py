@@ -18,6 +18,12 @@ Engine choice (``engine='auto'``), per wavelength:
   lenses): its ``error_estimate`` is then ``inf`` (not bounded) and ``info['model_note']`` says why;
 * ``geometric`` (sensor PSFs only, :mod:`metafovea.optics.sensor`).
 
+A lens with a phase beyond the hyperbola (``LensDesign.phase_poly_rad``) goes to ``rs`` on and off axis: the
+direction-sine model of such a lens (the stationary point of the full radial phase, :mod:`pupil`) misses the fine
+structure of its defocused zones by tens of % of the peak (tests/optics/test_rayleigh.py), so ``hankel`` and ``mft``
+asked for by name say so (``error_estimate`` ``inf``, ``info['model_note']``); a lens whose rays cross (ray
+directions not monotone in radius) has no direction-sine pupil at all, and only ``rs`` takes it.
+
 ``error_estimate`` is the largest absolute intensity error relative to the PSF's peak, against the scalar
 thin-element lens field propagated exactly (first Rayleigh-Sommerfeld integral over the aperture): quadrature,
 Taylor remainders and the model of the engine. Not in it: vector (polarisation) effects at the rim, post
@@ -42,7 +48,7 @@ from metafovea.library.postset import PostSet
 
 from . import propagate as prop
 from . import rayleigh
-from .pupil import Pupil, PupilSet, build_pupils, field_direction, max_field_deg
+from .pupil import Pupil, PupilSet, build_pupils, design_na, field_direction, max_field_deg, ray_map_monotone
 
 if TYPE_CHECKING:
     from collections.abc import Sequence
@@ -58,6 +64,13 @@ ENGINES = ("auto", "hankel", "mft", "rs", "geometric")
 #: What the direction-sine engine leaves out off axis (said in the result instead of a bound).
 MFT_OFF_AXIS_NOTE = ("direction-sine (Debye) model off axis: part of the aperture edge's diffraction is not modelled "
                      "(0.6-5 % of the peak at 1-5 deg for the paper's lenses); error not bounded - use engine 'rs'")
+
+
+#: What the direction-sine engines leave out for a lens with a phase beyond the hyperbola (said instead of a bound).
+POLY_NOTE = ("direction-sine (Debye) or ray model of a lens with phase_poly_rad: the fine structure of its "
+             "defocused zones is not modelled (against the exact Rayleigh-Sommerfeld integral: tens of % of the fine-"
+             "grid peak for +-10 % of local focal length on a 1-2 mm lens); error not bounded - use engine 'rs' "
+             "(what 'auto' picks)")
 
 
 @dataclass(frozen=True)
@@ -249,8 +262,9 @@ def defocus_note(lens: LensDesign, z_um: float) -> str | None:
 
 
 def nyquist_pitch_um(lens: LensDesign) -> float:
-    """Largest sample pitch that samples the intensity without aliasing: lambda0 / (4 NA)."""
-    return lens.wavelength_um / (4.0 * lens.na)
+    """Largest sample pitch that samples the intensity without aliasing: lambda0 / (4 NA) (with ``phase_poly_rad``
+    the pupil's radius in design direction sines, :func:`metafovea.optics.pupil.design_na`, instead of the NA)."""
+    return lens.wavelength_um / (4.0 * design_na(lens))
 
 
 # ----------------------------------------------------------------------------------------------
@@ -259,6 +273,8 @@ def nyquist_pitch_um(lens: LensDesign) -> float:
 def _wave_engine(pupil: Pupil, xs: np.ndarray, ys: np.ndarray, error: float, engine: str) -> tuple[str, float]:
     """(engine, cost) for a wave-optical evaluation at this pupil and grid."""
     on_axis = float(np.hypot(*pupil.s0)) == 0.0
+    if engine == "auto" and pupil.lens.phase_poly_rad:  # the direction-sine model is not bounded for such lenses
+        return "rs", float(xs.size * ys.size)
     aniso = pupil.lattice_anisotropy()
     if engine == "hankel" or (engine == "auto" and on_axis and aniso * 0.1 <= error):
         if not on_axis:
@@ -288,21 +304,35 @@ def focus_intensity(pupil: Pupil, xs: np.ndarray, ys: np.ndarray, *, error: floa
     else:
         U = prop.mft_field(pupil, xs, ys, error=error * 1e-3)
         est = error * 1e-3 if float(np.hypot(*pupil.s0)) == 0.0 else math.inf
+    if eng != "rs" and pupil.lens.phase_poly_rad:
+        est = math.inf  # the Debye model of an aberrated lens: POLY_NOTE
     return np.abs(U) ** 2, eng, est
 
 
 def _ideal_peak(pupil: Pupil) -> float:
     """In-focus on-axis peak intensity of an aberration-free pupil with this support (upper bound)."""
     lens = pupil.lens
-    # |int P d^2s| with |P| = f0 alpha / (lambda c_w^2) over |w| <= NA: (pi f0 / (lambda alpha)) (-ln(1-NA^2))
     a = pupil.alpha
+    if lens.phase_poly_rad:
+        # int |P| d^2 s = (2 pi / (lambda alpha)) int_0^R sqrt(rho g g') d rho (pupil.py's amplitude and Jacobian)
+        from metafovea.lens import direction_sine_over_r, direction_sine_slope  # lens stage (rank 3): allowed
+
+        x, wq = prop._gl(256)
+        rho = 0.5 * lens.radius_um * (x + 1.0)
+        dens = rho * np.sqrt(np.abs(direction_sine_over_r(lens, rho) * direction_sine_slope(lens, rho)))
+        val = 2 * math.pi / (pupil.wavelength_um * a) * 0.5 * lens.radius_um * float(wq @ dens)
+        return (abs(pupil.amplitude_factor) * val) ** 2
+    # |int P d^2s| with |P| = f0 alpha / (lambda c_w^2) over |w| <= NA: (pi f0 / (lambda alpha)) (-ln(1-NA^2))
     val = math.pi * lens.f_um / (pupil.wavelength_um * a) * (-math.log(1.0 - lens.na ** 2))
     return (abs(pupil.amplitude_factor) * val) ** 2
 
 
 def _diffraction_limited_peak(pupil: Pupil) -> float:
     """Peak intensity of the aberration-free pupil with this pupil's amplitude (lattice factor included):
-    ``|int |P| d^2 s|^2`` by Gauss quadrature over the disk (the Strehl ratio's denominator)."""
+    ``|int |P| d^2 s|^2`` by Gauss quadrature over the disk (the Strehl ratio's denominator). For a lens whose ray
+    map is not monotone (no pupil amplitude in direction sines) the ideal peak without the lattice factor."""
+    if not ray_map_monotone(pupil.lens):
+        return _ideal_peak(pupil)
     u, v, wq = prop.disk_nodes(np.zeros(2), pupil.radius, 48, 48)
     vv = np.broadcast_to(v[:, None], u.shape)
     return float(np.sum(wq * np.abs(pupil.amplitude(pupil.s0[0] + u, pupil.s0[1] + vv)))) ** 2
@@ -433,7 +463,7 @@ def psf(lens: LensDesign, *, wavelengths_um: ArrayLike | None = None, weights: A
             "error_definition": "max abs intensity error / PSF peak against the exact (Rayleigh-Sommerfeld) "
                                 "propagation of the thin-element lens field"}
     if math.isinf(est_rel):
-        info["model_note"] = MFT_OFF_AXIS_NOTE
+        info["model_note"] = POLY_NOTE if lens.phase_poly_rad and "rs" not in engines else MFT_OFF_AXIS_NOTE
     log.info("psf %s: %s, %d^2 samples at %.3g um, %.3f s", lens.name, eng_name, n, pitch, info["seconds"])
     return PSF(inten, pitch, (float(c[0]), float(c[1])), wl, w, fpair, sets[0].info["polarization"],
                eng_name, float(max(est_rel, 1e-16)), float(inten.sum()), info)

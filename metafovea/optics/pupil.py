@@ -30,6 +30,19 @@ The ideal spherical term is therefore handled analytically: for lambda = lambda0
 phase Phi is constant and the PSF is the Fourier transform of a smooth amplitude over a disk. The disk is
 ``|w| <= NA``; directions with ``|s| >= 1`` are evanescent and lost.
 
+A lens with a phase beyond the hyperbola (``LensDesign.phase_poly_rad``, a radial polynomial psi) keeps the same
+model with the hyperbola's analytic mapping replaced by the stationary point of the full radial phase: the lens
+point at radius rho sends its light into the design direction sine ``|w| = g(rho) = -phi'(rho) / k0``
+(:func:`metafovea.lens.direction_sine_over_r`), inverted numerically (:func:`radius_of_direction_sine`; one radius
+per direction as long as ``g`` increases with rho, :func:`metafovea.lens.ray_map_check`), and
+
+    Phi(s)  = m [k0 f0 rho^2 / (L (L + f0)) + psi(rho) - rho psi'(rho)] + k z sqrt(1 - |s|^2),  L = sqrt(rho^2+f0^2)
+    |P(s)|  = |a| alpha / (lambda sqrt((g / rho) g'(rho)))      (energy: d^2 rho = d^2 w / ((g / rho) g'))
+
+which reduce to the formulas above for psi = 0 (the plain hyperbola takes the analytic code path, bit for bit).
+The pupil disk's radius is ``g(R)`` (:func:`design_na`) instead of the NA. A ray leaves the lens at
+``rho(w) = -w / (g / rho)`` and lands at ``rho(w) + z s / sqrt(1 - |s|^2)``.
+
 Lattice sampling (posts on a square lattice of period p, each post carrying its own phase) multiplies the
 local zero-order amplitude by ``sinc(p w_x / lambda0) sinc(p w_y / lambda0)`` (lens.py's site model). With
 the design's quantisation the focal peak relative to a continuous phase is then ~0.935 (F/2) and ~0.90
@@ -40,6 +53,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from functools import lru_cache
 from typing import Any
 
 import numpy as np
@@ -51,6 +65,75 @@ from metafovea.library.postset import PostSet
 
 #: Smallest distance of the pupil disk from the evanescent circle |s| = 1 that is accepted.
 EVANESCENT_MARGIN = 1e-3
+#: Radii of the table the inverse ray map starts its Newton steps from (linear interpolation: ~1e-8 R).
+RAY_MAP_SAMPLES = 4097
+
+
+def design_na(lens: LensDesign) -> float:
+    """Radius of the focusing order's pupil disk in design direction sines: the NA for the plain hyperbola, the
+    largest ``g(rho)`` over the aperture (:func:`metafovea.lens.direction_sine_over_r`) with ``phase_poly_rad``."""
+    if not lens.phase_poly_rad:
+        return lens.na
+    return _ray_table(lens)[2]
+
+
+@lru_cache(maxsize=64)
+def _ray_table(lens: LensDesign) -> tuple[np.ndarray, np.ndarray, float, bool, str]:
+    """(radii, g at those radii, largest |g|, monotone, reason) of a lens with phase_poly_rad."""
+    from metafovea.lens import direction_sine_over_r, ray_map_check  # lens stage (rank 3): allowed
+
+    ok, gmax, reason = ray_map_check(lens, RAY_MAP_SAMPLES)
+    r = np.linspace(0.0, lens.radius_um, RAY_MAP_SAMPLES)
+    g = r * direction_sine_over_r(lens, r)
+    r.setflags(write=False)
+    g.setflags(write=False)
+    return r, g, gmax, ok, reason
+
+
+def ray_map_monotone(lens: LensDesign) -> bool:
+    """Whether the direction-sine engines apply: always for the hyperbola; with ``phase_poly_rad`` when the design
+    direction sine increases with radius (:func:`metafovea.lens.ray_map_check`)."""
+    return not lens.phase_poly_rad or _ray_table(lens)[3]
+
+
+def check_ray_map(lens: LensDesign) -> None:
+    """Raise an :class:`InputError` on ``phase_poly_rad`` when the lens' ray map is not monotone (the
+    direction-sine engines need one radius per direction: :func:`metafovea.lens.ray_map_check`)."""
+    if lens.phase_poly_rad and not _ray_table(lens)[3]:
+        raise InputError("phase_poly_rad", list(lens.phase_poly_rad),
+                         "a phase whose ray directions increase with radius for the direction-sine engines "
+                         "(hankel, mft, geometric); psf(engine='rs') propagates any lens", detail=_ray_table(lens)[4])
+
+
+def radius_of_direction_sine(lens: LensDesign, w_abs: ArrayLike) -> np.ndarray:
+    """The lens radius rho (um) whose focusing ray leaves in the design direction sine ``|w| = w_abs``: the
+    stationary point of the full radial phase, ``g(rho) = w_abs`` (table, then Newton steps to rounding error).
+
+    ``f |w| / sqrt(1 - |w|^2)`` for the hyperbola. Needs a monotone ray map (:func:`check_ray_map`).
+    """
+    from metafovea.lens import direction_sine_over_r, direction_sine_slope  # lens stage (rank 3): allowed
+
+    w = np.asarray(w_abs, dtype=float)
+    if not lens.phase_poly_rad:
+        return lens.f_um * w / np.sqrt(1.0 - w * w)
+    check_ray_map(lens)
+    r_tab, g_tab, _, _, _ = _ray_table(lens)
+    rho = np.interp(w, g_tab, r_tab)
+    for _ in range(3):
+        rho = rho - (rho * direction_sine_over_r(lens, rho) - w) / direction_sine_slope(lens, rho)
+    return rho
+
+
+def _focus_added_phase(lens: LensDesign, rho: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(psi, rho psi') of the added phase as the focusing order sees it (rad): the engines' lens is the focusing
+    one, ``-phase_sign`` times the design phase (the added phase's sign follows)."""
+    from metafovea.lens import added_phase, direction_sine_over_r  # lens stage (rank 3): allowed
+
+    sgn = -lens.phase_sign
+    k0 = 2 * np.pi / lens.wavelength_um
+    L = np.sqrt(rho * rho + lens.f_um ** 2)
+    # rho psi'_focus = -k0 rho (g - rho / L) = -k0 rho^2 (g / rho - 1 / L)
+    return sgn * added_phase(lens, rho), -k0 * rho * rho * (direction_sine_over_r(lens, rho) - 1.0 / L)
 
 
 def field_direction(field_deg: ArrayLike) -> np.ndarray:
@@ -82,7 +165,7 @@ def max_field_deg(lens: LensDesign, wavelength_um: float | None = None) -> float
     the hyperbolic lens is far outside its useful field long before). This is the lens' field.
     """
     wl = lens.wavelength_um if wavelength_um is None else wavelength_um
-    r = 1.0 - lens.na * wl / lens.wavelength_um - EVANESCENT_MARGIN
+    r = 1.0 - design_na(lens) * wl / lens.wavelength_um - EVANESCENT_MARGIN
     if r <= 0:
         return 0.0
     return math.degrees(math.asin(min(r, 1.0)))
@@ -166,7 +249,7 @@ class Pupil:
 
     @property
     def radius(self) -> float:
-        return self.lens.na / self.alpha
+        return design_na(self.lens) / self.alpha
 
     def w_of(self, sx: np.ndarray, sy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         a = self.alpha
@@ -179,6 +262,20 @@ class Pupil:
         k0m = 2 * np.pi / self.lens.wavelength_um * self.order
         s2 = sx * sx + sy * sy
         cs = np.sqrt(np.maximum(1.0 - s2, 0.0))
+        if self.lens.phase_poly_rad:
+            # stationary value of the full radial phase: m [k0 f0 rho^2 / (L (L + f0)) + psi - rho psi']
+            from metafovea.lens import direction_sine_over_r  # lens stage (rank 3): allowed
+
+            f0 = self.lens.f_um
+            wa = np.sqrt(w2)
+            rho = radius_of_direction_sine(self.lens, wa)
+            L = np.sqrt(rho * rho + f0 * f0)
+            psi, rpsi = _focus_added_phase(self.lens, rho)
+            # + k0 rho (|w| - g(rho)): zero at the stationary point, and it makes the value stationary in rho (a
+            # rounding error of the inverse map enters at second order)
+            miss = k0m * rho * (wa - rho * direction_sine_over_r(self.lens, rho))
+            lens_part = k0m * f0 * rho * rho / (L * (L + f0)) + self.order * (psi - rpsi) + miss
+            return lens_part - self.k * self.z_um * s2 / (1.0 + cs)
         cw = np.sqrt(1.0 - w2)
         # m k0 f0 (1 - c_w) + k z (c_s - 1), each written without cancellation; the constant k z is dropped
         return k0m * self.lens.f_um * w2 / (1.0 + cw) - self.k * self.z_um * s2 / (1.0 + cs)
@@ -187,8 +284,15 @@ class Pupil:
         """Complex amplitude P(s) inside the support disk (caller restricts to the disk)."""
         wx, wy = self.w_of(sx, sy)
         w2 = wx * wx + wy * wy
-        cw2 = 1.0 - w2
-        amp = self.lens.f_um * self.alpha / (self.wavelength_um * cw2)
+        if self.lens.phase_poly_rad:
+            from metafovea.lens import direction_sine_over_r, direction_sine_slope  # lens stage: allowed
+
+            rho = radius_of_direction_sine(self.lens, np.sqrt(w2))
+            jac = direction_sine_over_r(self.lens, rho) * direction_sine_slope(self.lens, rho)  # d^2 w / d^2 rho
+            amp = self.alpha / (self.wavelength_um * np.sqrt(jac))
+        else:
+            cw2 = 1.0 - w2
+            amp = self.lens.f_um * self.alpha / (self.wavelength_um * cw2)
         if self.lattice:
             q = self.lens.period_um / self.lens.wavelength_um
             amp = amp * _sinc(q * self.order * wx) * _sinc(q * self.order * wy)
@@ -197,11 +301,28 @@ class Pupil:
     def ray_landing(self, sx: np.ndarray, sy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Where the geometric ray of direction s meets the plane z (um): -(1/k) grad Phi."""
         wx, wy = self.w_of(sx, sy)
-        cw = np.sqrt(1.0 - wx * wx - wy * wy)
         cs = np.sqrt(1.0 - sx * sx - sy * sy)
+        if self.lens.phase_poly_rad:
+            from metafovea.lens import direction_sine_over_r  # lens stage (rank 3): allowed
+
+            # the ray leaves the lens point rho(w) = -w / (g / rho) (the stationary point)
+            h = direction_sine_over_r(self.lens, radius_of_direction_sine(self.lens, np.hypot(wx, wy)))
+            return (-wx / h + self.z_um * sx / cs, -wy / h + self.z_um * sy / cs)
+        cw = np.sqrt(1.0 - wx * wx - wy * wy)
         # -(1/k) grad Phi; the factor m k0 f0 alpha / k equals f0 exactly
         f0 = self.lens.f_um
         return (-f0 * wx / cw + self.z_um * sx / cs, -f0 * wy / cw + self.z_um * sy / cs)
+
+    def lens_ray_landing(self, rx: np.ndarray, ry: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Where the ray from the lens point (rx, ry) (um) meets the plane z (um): traced forwards, the point plus
+        ``z s / c_s`` with ``s = s0 + w(rho) / alpha`` (no inverse map: any ``phase_poly_rad``, monotone or not)."""
+        from metafovea.lens import direction_sine_over_r  # lens stage (rank 3): allowed
+
+        h = direction_sine_over_r(self.lens, np.hypot(rx, ry))
+        sx = self.s0[0] - rx * h / self.alpha
+        sy = self.s0[1] - ry * h / self.alpha
+        cs = np.sqrt(np.maximum(1.0 - sx * sx - sy * sy, 1e-12))
+        return rx + self.z_um * sx / cs, ry + self.z_um * sy / cs
 
     def chief_ray_um(self) -> np.ndarray:
         s = self.s0
@@ -217,7 +338,7 @@ class Pupil:
         if not self.lattice:
             return 0.0
         q = self.lens.period_um / self.lens.wavelength_um * self.order
-        w = self.lens.na
+        w = design_na(self.lens)
         a = float(np.sinc(q * w))
         b = float(np.sinc(q * w / math.sqrt(2)) ** 2)
         return abs(a - b) / max(a, b)
@@ -253,7 +374,9 @@ def build_pupils(lens: LensDesign, wavelength_um: float, *, field_deg: ArrayLike
     transmission (``PostSet.t_pass``): mostly an unfocused plane wave (order 0, haze) plus whatever
     level-to-level variation of ``t_pass`` focuses. ``quantize=False`` with no post set gives the
     continuous-phase lens (c_1 = 1). ``lattice`` applies the lattice-sampling factor to the focusing
-    order. ``orders``: haze orders -orders..orders are kept (their power is tiny per pixel).
+    order. ``orders``: haze orders -orders..orders are kept (their power is tiny per pixel). The haze disks' radii
+    come from the hyperbola's order focal lengths (``phase_poly_rad`` changes them by its focal spread: a uniform
+    disk is a rough stand-in either way).
     """
     wl = check_positive("wavelength_um", wavelength_um, "um", hi=1e4)
     pol = lens.polarization if polarization is None else check_choice("polarization", polarization, ("x", "y"))

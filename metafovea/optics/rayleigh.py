@@ -8,10 +8,12 @@ F/1 lenses). The engines here integrate the first Rayleigh-Sommerfeld formula ov
     U(x) = int_{|rho| <= a} t(rho) exp(i k s0.rho) (z / (i lambda r^2)) (1 - 1 / (i k r)) exp(i k r) d^2 rho,
     r = |(x - rho, z)|,
 
-with the order's lens field ``t(rho) = c_m L(rho) exp(-i m k0 (sqrt(rho^2 + f0^2) - f0))`` (``c_m`` the order
-coefficient, ``L`` the lattice factor of :mod:`metafovea.optics.pupil`): the same thin-element lens as the
-pupil model, without the stationary-phase step. Conventions: um, ``exp(-i omega t)``, arrays ``(H, W)`` with
-row = y.
+with the order's lens field ``t(rho) = c_m L(rho) exp(i m [-k0 (sqrt(rho^2 + f0^2) - f0) + psi(rho)])`` (``c_m`` the
+order coefficient, ``L`` the lattice factor of :mod:`metafovea.optics.pupil`, taken at the local phase gradient;
+``psi`` the phase a design adds to the hyperbola, ``LensDesign.phase_poly_rad``, zero for the plain hyperbola):
+the same thin-element lens as the pupil model, without the stationary-phase step. ``psi`` enters the integrands
+and the ray directions that set the node counts (its slope adds to the residual phase slope), nothing else.
+Conventions: um, ``exp(-i omega t)``, arrays ``(H, W)`` with row = y.
 
 ``rs_field``      the windowed exact engine. The output window is cut into blocks; for the block centred at
                   ``x_b`` the aperture is parametrised by the direction sines ``n`` of the line from the
@@ -47,13 +49,21 @@ from scipy import special
 from metafovea.parallel import StoppableThreadPool, blas_threads
 
 from .propagate import _gl, mft_field, nodes_for_phase
-from .pupil import Pupil
+from .pupil import Pupil, ray_map_monotone
 
 #: Safety factor on the evaluated Taylor remainder (it is a smooth, mostly cubic function of the offset: its
 #: largest value between the probes exceeds the largest probe by well under this).
 TAYLOR_SAFETY = 2.0
 #: Side (samples) of the blocks the planner starts from, and the smallest block.
 BLOCK_PLAN, BLOCK_MIN = 128, 1
+
+
+def _added(lens: Any, rho: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(psi, g / rho) at radii rho: the added phase as the focusing order carries it (rad; ``-phase_sign`` times the
+    design's, like the hyperbola) and the design direction sine per radius (1/um) of the full phase."""
+    from metafovea.lens import added_phase, direction_sine_over_r  # lens stage (rank 3): allowed
+
+    return -lens.phase_sign * added_phase(lens, rho), direction_sine_over_r(lens, rho)
 
 
 # ----------------------------------------------------------------------------------------------
@@ -137,15 +147,26 @@ def _integrand(pupil: Pupil, xb: float, yb: float, u: np.ndarray, v: np.ndarray
     px, py = xb - R * u, yb - R * vv
     L = np.sqrt(px * px + py * py + f * f)
     theta = -km * (L - f) + k * (pupil.s0[0] * px + pupil.s0[1] * py) + k * R
+    if lens.phase_poly_rad:  # the added phase, and the direction sine g of the full phase (g / rho = hx)
+        psi, hx = _added(lens, np.sqrt(px * px + py * py))
+        theta = theta + pupil.order * psi
+        wx, wy = px * hx, py * hx
     amp: complex | np.ndarray = pupil.amplitude_factor
     if pupil.lattice:
         q = lens.period_um / lens.wavelength_um * pupil.order
-        amp = amp * np.sinc(q * px / L) * np.sinc(q * py / L)
+        if lens.phase_poly_rad:
+            amp = amp * np.sinc(q * wx) * np.sinc(q * wy)
+        else:
+            amp = amp * np.sinc(q * px / L) * np.sinc(q * py / L)
     kernel = z / (1j * pupil.wavelength_um * R * R) * (1.0 - 1.0 / (1j * k * R))
     h = amp * kernel * (z * z / c ** 4) * np.exp(1j * theta)
     # d theta / d n = k z J (n - s_ray), J = I / c + n n^T / c^3, s_ray the ray direction leaving rho
-    du = u - (pupil.s0[0] - km / k * px / L)
-    dv = vv - (pupil.s0[1] - km / k * py / L)
+    if lens.phase_poly_rad:
+        du = u - (pupil.s0[0] - km / k * wx)
+        dv = vv - (pupil.s0[1] - km / k * wy)
+    else:
+        du = u - (pupil.s0[0] - km / k * px / L)
+        dv = vv - (pupil.s0[1] - km / k * py / L)
     nd = u * du + vv * dv
     return h, R, k * z * (du / c + u * nd / c ** 3), k * z * (dv / c + vv * nd / c ** 3)
 
@@ -254,6 +275,8 @@ def _plan(pupil: Pupil, xs: np.ndarray, ys: np.ndarray, error: float, q: float, 
              for j0 in range(0, ys.size, size) for i0 in range(0, xs.size, size)]
     if block_px is not None or xs.size * ys.size <= 64 * 64:
         return boxes
+    if pupil.lens.phase_poly_rad and not ray_map_monotone(pupil.lens):
+        return boxes  # no direction-sine preview of such a lens: the blocks are split by their evaluated errors
     A = np.abs(mft_field(pupil, xs[::2], ys[::2], error=1e-3))
     jp, ip = (2 * int(v) for v in np.unravel_index(int(np.argmax(A)), A.shape))
     c0 = min(max(0, ip - 32), max(0, xs.size - 64))
@@ -336,9 +359,26 @@ def rs_field(pupil: Pupil, xs: ArrayLike, ys: ArrayLike, *, error: float = 1e-4,
 # brute-force reference
 # ----------------------------------------------------------------------------------------------
 def zone_radii(pupil: Pupil) -> np.ndarray:
-    """Radii (um) where the order's lens phase passes a multiple of 2 pi, from 0 to the aperture radius."""
+    """Radii (um) where the order's lens phase passes a multiple of 2 pi, from 0 to the aperture radius.
+
+    With ``phase_poly_rad``: where the total variation of the order's full lens phase (hyperbola plus added phase,
+    monotone or not) passes a multiple of 2 pi, found on a fine radial grid (64 samples per zone) and refined by
+    linear interpolation of the accumulated variation.
+    """
     lens = pupil.lens
     a, f = lens.radius_um, lens.f_um
+    if lens.phase_poly_rad:
+        from metafovea.lens import phase_gradient_over_r  # lens stage (rank 3): allowed
+
+        rough = float(np.abs(pupil.order * phase_gradient_over_r(lens, np.linspace(0, a, 4097))).max()) * a * a
+        n = int(min(5e7, 64 * (rough / (2 * np.pi) + 1)))
+        r = np.linspace(0.0, a, n + 1)
+        slope = np.abs(pupil.order * phase_gradient_over_r(lens, r) * r)  # |d phase / d rho|
+        var = np.concatenate([[0.0], np.cumsum(0.5 * (slope[1:] + slope[:-1]) * np.diff(r))])
+        nz = int(var[-1] // (2 * np.pi))
+        edges = np.interp(2 * np.pi * np.arange(nz + 1), var, r)
+        edges = edges[edges < a]
+        return np.append(edges, a)
     step = lens.wavelength_um / pupil.order
     nz = int(math.ceil((math.hypot(a, f) - f) / step))
     r = np.sqrt(np.maximum((f + np.arange(nz + 1) * step) ** 2 - f * f, 0.0))
@@ -381,10 +421,17 @@ def rs_reference(pupil: Pupil, xs: ArrayLike, ys: ArrayLike, *, nodes_per_zone: 
         qx, qy = (R * np.cos(PH)).ravel(), (R * np.sin(PH)).ravel()
         L = np.sqrt(qx * qx + qy * qy + f * f)
         amp: complex | np.ndarray = pupil.amplitude_factor * W.ravel()
-        if pupil.lattice:
-            p = lens.period_um / lens.wavelength_um * pupil.order
-            amp = amp * np.sinc(p * qx / L) * np.sinc(p * qy / L)
-        src = amp * np.exp(1j * (-km * (L - f) + k * (s0[0] * qx + s0[1] * qy)))
+        if lens.phase_poly_rad:
+            psi, hx = _added(lens, R.ravel())
+            if pupil.lattice:
+                p = lens.period_um / lens.wavelength_um * pupil.order
+                amp = amp * np.sinc(p * qx * hx) * np.sinc(p * qy * hx)
+            src = amp * np.exp(1j * (-km * (L - f) + pupil.order * psi + k * (s0[0] * qx + s0[1] * qy)))
+        else:
+            if pupil.lattice:
+                p = lens.period_um / lens.wavelength_um * pupil.order
+                amp = amp * np.sinc(p * qx / L) * np.sinc(p * qy / L)
+            src = amp * np.exp(1j * (-km * (L - f) + k * (s0[0] * qx + s0[1] * qy)))
         step = max(1, chunk // qx.size)
         for j0 in range(0, px_out.size, step):
             ox, oy = px_out[j0:j0 + step, None], py_out[j0:j0 + step, None]

@@ -37,7 +37,7 @@ from .mtf import (
 )
 from .propagate import SamplingError
 from .psf import PSF, defocus_note, depth_of_focus_um, diffraction_radius_um, encircled_energy_on_axis, psf
-from .pupil import EVANESCENT_MARGIN, max_field_deg
+from .pupil import EVANESCENT_MARGIN, design_na, max_field_deg
 from .sensor import sensor_psf
 from .sweep import sensor_psf_sweep
 from .train import POSTS_NOTE_IDEAL, system_trains, throughput_lines
@@ -101,6 +101,13 @@ def psf_report(lens: LensDesign, out_dir: str | Path, *, fields_deg: list[float]
                            "sensor_pixel_um": sensor_pixel_um, "relay_magnification": relay,
                            "posts": "ideal" if post_set is None else post_set.source,
                            "optical_train": trains}
+    if lens.phase_poly_rad:
+        res["phase_poly_rad"] = list(lens.phase_poly_rad)  # the phase beyond the hyperbola (rad)
+        res["warnings"].append(
+            "phase_poly_rad: the on-axis encircled energies, the through-focus curves and the MTF curves of this lens "
+            "come from the direction-sine (Debye) model, which is not bounded for a lens with a phase beyond the "
+            "hyperbola (a lens whose rays cross has none: the report stops with an error); the PSF panels and the "
+            "sensor PSFs use the exact engine within their cost budgets, with their own error estimates")
     if post_set is None:
         res["warnings"].append(f"{POSTS_NOTE_IDEAL} (the PSFs of a lens the platform's RCWA post set was not "
                                "chosen for, or posts=ideal)")
@@ -247,9 +254,10 @@ def _on_the_result(w: warnings.WarningMessage) -> bool:
 
 def _wavefront(plt: ModuleType, lens: LensDesign, res: dict[str, Any], post_set: PostSet | None) -> bytes:
     """Phase error of the fabricated lens (posts on the lattice, N levels, the post set's phases) against the
-    continuous hyperbolic phase, on 120 um patches at the centre and at the rim, sampled at a sixteenth of the
-    period (so the hold over each 4 um cell shows): ``res['wavefront']`` (rms and max after the common phase is
-    removed). Ideal posts (no post set): quantisation and lattice only, rms ~ pi / (N sqrt 3)."""
+    continuous design phase (hyperbola plus ``phase_poly_rad``), on 120 um patches at the centre and at the rim,
+    sampled at a sixteenth of the period (so the hold over each 4 um cell shows): ``res['wavefront']`` (rms and max
+    after the common phase is removed). Ideal posts (no post set): quantisation and lattice only, rms ~ pi / (N
+    sqrt 3)."""
     from metafovea.lens import design_phase, quantize_phase  # lens stage (above optics): allowed
 
     p, n = lens.period_um, lens.levels
@@ -709,7 +717,7 @@ def _check_wavelengths_and_fields(lens: LensDesign, band: tuple[float, float], f
     one at which the rim's first order turns evanescent even on axis (the error names the option that sets it)."""
     wl_max = max(band[1] if filt is None else min(band[1], filt[0] + 1.5 * filt[1]),
                  wavelength_um or lens.wavelength_um)
-    wl_lim = lens.wavelength_um * (1.0 - EVANESCENT_MARGIN) / lens.na
+    wl_lim = lens.wavelength_um * (1.0 - EVANESCENT_MARGIN) / design_na(lens)
     if not wl_max < wl_lim:
         if wavelength_um is not None and wavelength_um >= wl_max:
             opt, val = "wavelength_um", wavelength_um

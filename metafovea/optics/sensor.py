@@ -17,6 +17,11 @@ Engine choice (``engine='auto'``), per wavelength:
   share of the error budget allows it, or when the wave engines would exceed the cost budget (then a
   warning states the achieved error).
 
+A lens with ``phase_poly_rad`` (a phase beyond the hyperbola): ``engine='auto'`` integrates the exact (``rs``)
+field of every wavelength over the pixels while the wave engines' cost (``budget``) allows, else traces every
+wavelength as rays (forwards from the lens: any ray map); the direction-sine and ray engines are not bounded for such
+a lens (``error_estimate`` ``inf``, ``info['model_note']``).
+
 The geometric engine is *not* accurate to O(1/W020) at the brightest pixels: the axial (Poisson) spot of a
 defocused circular pupil and the coma cusp keep an O(1) relative error however many waves of defocus
 (:data:`GEO_ERROR`: BENCHMARKS.md, "PSF engines"); only its pixel-averaged power is (to ~1 %). Its
@@ -43,6 +48,7 @@ from metafovea.library.postset import PostSet
 from . import propagate as prop
 from .psf import (
     MFT_OFF_AXIS_NOTE,
+    POLY_NOTE,
     PSF,
     _ideal_peak,
     _wave_engine,
@@ -51,10 +57,13 @@ from .psf import (
     focus_intensity,
     nyquist_pitch_um,
 )
-from .pupil import Pupil, PupilSet, field_direction
+from .pupil import Pupil, PupilSet, design_na, field_direction
 
 log = logging.getLogger(__name__)
 
+#: The light left outside a wave engine's window 30 diffraction radii beyond the ray box, relative to the ideal
+#: peak: the Airy envelope 8 / (pi x^3), x = 3.83 x 30.
+RS_TAIL = 8.0 / (math.pi * (3.8317 * 30) ** 3)
 #: Largest complex-exponential work (nodes x outputs) the auto engine spends on one wavelength.
 MFT_BUDGET = 4e8
 #: Total wave-engine work (nodes x outputs) one off-axis broadband ``sensor_psf`` spends before the remaining
@@ -160,9 +169,15 @@ def geometric_pixels_multi(pupils: list[Pupil], weights: np.ndarray, x_edges0: f
     R = lens.radius_um
     px, py = _sunflower_cached(int(n_rays))
     rx, ry = R * px, R * py
-    r0 = np.sqrt(rx * rx + ry * ry + lens.f_um ** 2)
-    wx, wy = -rx / r0, -ry / r0  # design direction sines
-    cw = np.sqrt(1.0 - wx * wx - wy * wy)
+    if lens.phase_poly_rad:  # the direction sine of the full phase (g / rho), traced forwards: any ray map
+        from metafovea.lens import direction_sine_over_r  # lens stage (rank 3): allowed
+
+        hr = direction_sine_over_r(lens, np.hypot(rx, ry))
+        wx, wy = -rx * hr, -ry * hr
+    else:
+        r0 = np.sqrt(rx * rx + ry * ry + lens.f_um ** 2)
+        wx, wy = -rx / r0, -ry / r0  # design direction sines
+        cw = np.sqrt(1.0 - wx * wx - wy * wy)
     base = np.ones_like(wx)
     if any(pu.lattice for pu in pupils):
         q = lens.period_um / lens.wavelength_um
@@ -178,9 +193,12 @@ def geometric_pixels_multi(pupils: list[Pupil], weights: np.ndarray, x_edges0: f
         s2 = sx * sx + sy * sy
         ok = s2 < 1.0
         cs = np.sqrt(np.where(ok, 1.0 - s2, 1.0))
-        # Pupil.ray_landing: -f0 w / c_w + z s / c_s
-        X = -lens.f_um * wx / cw + pu.z_um * sx / cs
-        Y = -lens.f_um * wy / cw + pu.z_um * sy / cs
+        if lens.phase_poly_rad:  # Pupil.ray_landing: the lens point plus z s / c_s
+            X = rx + pu.z_um * sx / cs
+            Y = ry + pu.z_um * sy / cs
+        else:  # Pupil.ray_landing: -f0 w / c_w + z s / c_s
+            X = -lens.f_um * wx / cw + pu.z_um * sx / cs
+            Y = -lens.f_um * wy / cw + pu.z_um * sy / cs
         ix = np.floor((X - x_edges0) / pitch)
         iy = np.floor((Y - y_edges0) / pitch)
         m = ok & (ix >= 0) & (ix < size) & (iy >= 0) & (iy < size)
@@ -262,7 +280,7 @@ def _radial_sensor(lens: LensDesign, pupils: list[Pupil], weights: np.ndarray, a
 
     r2 = ax[None, :] ** 2 + ax[:, None] ** 2
     r_max = math.sqrt(float(r2.max()))
-    f_int = 2 * lens.na / lens.wavelength_um  # intensity band limit (cycles/um), the same at every lambda
+    f_int = 2 * design_na(lens) / lens.wavelength_um  # intensity band limit (cycles/um), the same at every lambda
     # cubic-spline error of a sinusoid ~ (5/384)(2 pi f h)^4 of its amplitude: 10 % of the budget
     h = min(dx, (0.1 * error * 384 / 5) ** 0.25 / (2 * math.pi * f_int))
     rr = np.arange(0.0, r_max + 2.5 * h, h)
@@ -423,7 +441,8 @@ def _add_wave(t: _Tally, sets: list[PupilSet], wave_k: list[int], w: np.ndarray,
     for k in sorted(wave_k, key=lambda k: _box_area(boxes[k], mg)):
         # the union window may grow to 1.5x the area of the batch's smallest member (the MFT work grows
         # with the window's area times its node counts)
-        if batches and (engine == "hankel" or _box_area(_union([boxes[j] for j in batches[-1]] + [boxes[k]]), mg)
+        per_wavelength = engine in ("hankel", "rs")
+        if batches and (per_wavelength or _box_area(_union([boxes[j] for j in batches[-1]] + [boxes[k]]), mg)
                         <= 1.5 * _box_area(boxes[batches[-1][0]], mg)):
             batches[-1].append(k)
         else:
@@ -432,22 +451,23 @@ def _add_wave(t: _Tally, sets: list[PupilSet], wave_k: list[int], w: np.ndarray,
         ub = _union([boxes[k] for k in bk])
         i0, i1 = int(np.searchsorted(xs, ub[0] - mg)), int(np.searchsorted(xs, ub[1] + mg))
         j0, j1 = int(np.searchsorted(ys, ub[2] - mg)), int(np.searchsorted(ys, ub[3] + mg))
-        if engine == "hankel":
+        if engine in ("hankel", "rs"):
             for k in bk:
-                I, _, e = focus_intensity(sets[k].focus, xs[i0:i1], ys[j0:j1], error=error, engine="hankel")
+                I, _, e = focus_intensity(sets[k].focus, xs[i0:i1], ys[j0:j1], error=error, engine=engine)
                 t.fine[j0:j1, i0:i1] += w[k] * I
                 t.est_abs += w[k] * e * _ideal_peak(sets[k].focus) * dx * dx / P_in * n_sub * n_sub
+                if engine == "rs":  # the light beyond the window, as for the batched MFT below
+                    t.est_abs += w[k] * RS_TAIL * _ideal_peak(sets[k].focus) * dx * dx / P_in * n_sub * n_sub
         else:
             # one batched MFT (shared kernels in design direction sines)
             t.fine[j0:j1, i0:i1] += prop.mft_intensity_multi([sets[k].focus for k in bk], w[bk],
                                                              xs[i0:i1], ys[j0:j1], error=error * 1e-3)
             # quadrature, and the light left outside the window (30 diffraction radii beyond the ray box:
             # the Airy envelope 8 / (pi x^3), x = 3.83 x 30, of the ideal peak)
-            tail = 8.0 / (math.pi * (3.8317 * 30) ** 3)
-            t.est_abs += sum(w[k] * (error * 1e-3 + tail) * _ideal_peak(sets[k].focus) for k in bk) \
+            t.est_abs += sum(w[k] * (error * 1e-3 + RS_TAIL) * _ideal_peak(sets[k].focus) for k in bk) \
                 * dx * dx / P_in * n_sub * n_sub
     if wave_k:
-        t.engines["hankel" if engine == "hankel" else "mft"] = len(wave_k)
+        t.engines[engine if engine in ("hankel", "rs") else "mft"] = len(wave_k)
 
 
 def _add_fine(t: _Tally, g: _Grid, P_in: float) -> None:
@@ -496,6 +516,10 @@ def _accuracy(lens: LensDesign, fpair: tuple[float, float], est_rel: float, erro
     elif main == "haze":
         reason = "other diffraction orders focus near this plane (modelled as uniform disks)"
         advice = {}
+    elif main == "poly":
+        reason = ("the lens has a phase beyond the hyperbola (phase_poly_rad), which the direction-sine and ray "
+                  "engines do not bound")
+        advice = {"engine": "'auto' (the exact engine, within the cost budget)", "budget": "a larger cost budget"}
     elif main == "geometric" and engine == "geometric":
         reason = "the geometric engine asked for bounds its error loosely"
         advice = {"engine": "the wave engines ('auto')"}
@@ -555,8 +579,10 @@ def sensor_psf(lens: LensDesign, *, pixel_pitch_um: float, field_deg: float | tu
     est_geo = 0.0
     active = [k for k in range(wl.size) if sets[k].focus is not None and w[k] > 0]
     on_axis = float(np.hypot(*s0)) == 0.0
-    radial = on_axis and engine in ("auto", "hankel") and active and (
-        engine == "hankel" or all(sets[k].focus.lattice_anisotropy() * 0.1 <= error for k in active))
+    poly = bool(lens.phase_poly_rad)
+    rs_cost = 0.0
+    radial = on_axis and engine in ("auto", "hankel") and active and (engine == "hankel" or (
+        not poly and all(sets[k].focus.lattice_anisotropy() * 0.1 <= error for k in active)))
     if radial:
         # every wavelength wave-optically: the focusing order is rotationally symmetric on axis, the Bessel
         # matrix is shared by all wavelengths, and the weighted radial intensity is pixelised once
@@ -564,7 +590,13 @@ def sensor_psf(lens: LensDesign, *, pixel_pitch_um: float, field_deg: float | tu
                                                         t.fine, error, g.dx, P_in, t.engines)
     else:
         traced = None
-        if engine in ("hankel", "mft"):
+        wave_engine = engine
+        rs_cost = sum(_wave_cost(sets[k].focus, g.xs, g.ys, r_diff, p, error) for k in active) if poly else 0.0
+        if engine == "auto" and poly:
+            # every wavelength by the exact engine (the direction-sine model of an aberrated lens is not bounded);
+            # over the cost budget, every wavelength traced as rays (any ray map; not bounded either: POLY_NOTE)
+            geo_k, wave_k, wave_engine = ([], list(active), "rs") if rs_cost <= budget else (list(active), [], engine)
+        elif engine in ("hankel", "mft"):
             geo_k, wave_k = [], list(active)
         elif engine == "geometric":
             geo_k, wave_k = list(active), []
@@ -576,8 +608,10 @@ def sensor_psf(lens: LensDesign, *, pixel_pitch_um: float, field_deg: float | tu
         est_before_geo = t.est_abs
         _add_geometric(t, sets, geo_k, w, spreads, g, r_diff, P_in, traced)
         est_geo = t.est_abs - est_before_geo
-        _add_wave(t, sets, wave_k, w, g, r_diff, P_in, error, engine)
+        _add_wave(t, sets, wave_k, w, g, r_diff, P_in, error, wave_engine)
     _add_fine(t, g, P_in)
+    if poly and any(e in t.engines for e in ("hankel", "mft", "geometric")):
+        t.est_abs = math.inf  # the direction-sine and ray models of an aberrated lens: POLY_NOTE
     est_before_haze = t.est_abs
     haze_total = _add_haze(t, lens, sets, w, g)
 
@@ -588,6 +622,7 @@ def sensor_psf(lens: LensDesign, *, pixel_pitch_um: float, field_deg: float | tu
     if est_rel > error:
         main = max((("haze", t.est_abs - est_before_haze), ("geometric", est_geo), ("wave", 0.0)), key=lambda kv: kv[1])
         accuracy = _accuracy(lens, fpair, est_rel, error, g, max_size_px,
+                             "poly" if poly and math.isinf(est_rel) else
                              main[0] if main[1] > 0.5 * t.est_abs else "wave", engine)
         warnings.warn(NotConvergedWarning(accuracy["message"], accuracy), stacklevel=2)
     eng_name = "+".join(f"{k}" for k in sorted(t.engines))
@@ -598,7 +633,11 @@ def sensor_psf(lens: LensDesign, *, pixel_pitch_um: float, field_deg: float | tu
             "error_definition": "max abs error / PSF peak pixel (estimate)"}
     if accuracy is not None:
         info["accuracy"] = accuracy
-    if not on_axis and t.engines.get("mft"):
+    if poly and math.isinf(t.est_abs):
+        info["model_note"] = POLY_NOTE.replace("use engine 'rs' (what 'auto' picks)", (
+            f"the exact engine would cost {rs_cost:.3g} work units, over the budget {budget:.3g}" if engine == "auto"
+            else "engine 'auto' uses the exact (rs) engine within the cost budget"))
+    elif not on_axis and t.engines.get("mft"):
         info["model_note"] = MFT_OFF_AXIS_NOTE.replace("use engine 'rs'", "not in error_estimate; psf() with "
                                                        "engine 'rs' gives the fine-grid PSF exactly")
     log.info("sensor_psf %s field %s deg: %s, %d px, sum %.4g, err %.2g, %.3f s", lens.name, field_text(fpair),

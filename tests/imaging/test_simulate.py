@@ -243,3 +243,16 @@ def test_the_optical_train_sets_gain_and_relative_illumination(small_system, del
     assert float(trains[1].clear_fraction(math.hypot(t, t))) < 0.8  # the ring clips the corner
     assert on.meta["posts"] == "rcwa" and isinstance(on.meta["optical_train"], list)
     assert "simplified" in off.meta["optical_train"]["note"]
+
+
+def test_simulate_runs_on_a_system_with_a_corrected_lens(small_system, delta_psf, quiet):
+    """A foveal lens with a phase beyond the hyperbola (LensDesign.phase_poly_rad) simulates like any design: the
+    optical train samples its lattice sites with the full design phase (the other channel's pass-through)."""
+    from dataclasses import replace
+
+    s = small_system(32)
+    corrected = replace(s, foveal=s.foveal.with_(phase_poly_rad=(120.0, -35.5)))
+    m = simulate(corrected, "bars", frames=2, psf=delta_psf, supersample=1, **quiet)
+    assert m.frames.shape[0] == 2 and np.all(np.isfinite(m.frames))
+    plain = simulate(s, "bars", frames=2, psf=delta_psf, supersample=1, **quiet)
+    assert m.frames.shape == plain.frames.shape

@@ -128,3 +128,26 @@ def test_verify_checks_every_post(tmp_path, tamper_spec, tamper_exported, fmt, r
         assert not rep.ok, (how, reader)
         assert any(TAMPERS[how] in m for m in rep.mismatches), (how, reader, rep.mismatches)
         assert rep.sites is not None and rep.sites["posts"] == posts, (how, reader, rep.sites)
+
+
+def test_lens_with_added_phase_exports_verifies_and_a_different_phase_fails(tmp_path, small_frame):
+    """A lens with a phase beyond the hyperbola (``phase_poly_rad``) is exported and verifies like any design; its
+    label names the coefficients; the same file against a spec with other coefficients (the same hyperbola) fails,
+    post by post (posts of the wrong type), and so does the plain hyperbola's spec."""
+    from metafovea.config import LensDesign
+    from metafovea.layout import export_layout
+    from metafovea.layout.frame import content_hash
+
+    lens = LensDesign("corrected", 375.0, 300.0, polarization="x", phase_poly_rad=(6.0, -4.0))
+    spec = make_spec(lens, band_rows=16, **small_frame)
+    p = tmp_path / "corrected.gds"
+    export_layout(spec, p, "gds")
+    rep = verify_layout(p, spec, reader="klayout")
+    assert rep.ok, rep.mismatches
+    assert "phase_poly_rad=(6,-4)rad" in spec.label_text()
+    for other in (lens.with_(phase_poly_rad=(6.0, -3.0)), lens.with_(phase_poly_rad=())):
+        ospec = make_spec(other, band_rows=16, **small_frame)
+        assert content_hash(ospec) != content_hash(spec)
+        bad = verify_layout(p, ospec, reader="klayout")
+        assert not bad.ok
+        assert bad.sites is not None and bad.sites.get("wrong_type", 0) > 0, bad.sites

@@ -169,3 +169,19 @@ def test_psf_at_zero_order_efficiency_names_the_wavelength():
         with pytest.raises(InputError) as e:
             psf(lens, wavelengths_um=[wl], quantize=True)
         assert e.value.parameter == "wavelengths_um"
+
+
+def test_corrected_lens_engine_choice_and_what_the_direction_sine_engines_say():
+    """A lens with phase_poly_rad: 'auto' runs the exact engine on axis too (test_rayleigh checks its estimate
+    against the reference); 'hankel' and 'mft', asked for by name, run the direction-sine model and say it is not
+    bounded (inf, model_note naming phase_poly_rad). phase_poly_rad = () is the plain lens: the same PSF, bit for
+    bit, as a lens built without the field."""
+    lens = LensDesign("c", 2000.0, 1000.0, phase_poly_rad=(-2.0, 3.0))
+    a = psf(lens, error=1e-3)
+    assert a.engine == "rs" and math.isfinite(a.error_estimate) and "model_note" not in a.info
+    for eng in ("hankel", "mft"):
+        b = psf(lens, error=1e-3, engine=eng, window_um=a.shape[0] * a.pitch_um, allow_truncation=True)
+        assert b.engine == eng and math.isinf(b.error_estimate) and "phase_poly_rad" in b.info["model_note"]
+    plain = LensDesign("p", 2000.0, 1000.0)
+    c, d = psf(plain, wavelengths_um=[10.0, 11.0]), psf(plain.with_(phase_poly_rad=()), wavelengths_um=[10.0, 11.0])
+    assert c.engine == "hankel" and np.array_equal(c.intensity, d.intensity) and c.error_estimate == d.error_estimate
