@@ -386,10 +386,10 @@ def _fit(widths: np.ndarray, wls: np.ndarray, opts: LibraryOptions, lib_key: str
 
 def _self_estimate(widths: np.ndarray, wls: np.ndarray, t_x: np.ndarray) -> dict[str, float]:
     """The fit's error estimated from its own data: interpolate every other grid point (step 2h on all three
-    axes), compare at the points left out, and scale by 2^-4 (cubic interpolation). None where the grid is too
-    small (under 7 points on an axis)."""
+    axes, the last point kept), compare at the points left out, and scale by 2^-4 (cubic interpolation): a rough
+    figure (the h^4 law holds only where the grid resolves the resonances). None under 6 points on an axis."""
     keys = ("estimated_phase_rms_rad", "estimated_amplitude_rms_pct")
-    if min(widths.size, wls.size) < 2 * _DEGREE + 1:
+    if min(widths.size, wls.size) < 2 * _DEGREE:
         return dict.fromkeys(keys)
     iw, il = np.arange(0, widths.size, 2), np.arange(0, wls.size, 2)
     if iw[-1] != widths.size - 1:
