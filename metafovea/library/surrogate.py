@@ -46,7 +46,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike
 
-from metafovea.config import PlatformDesign
+from metafovea.config import PAPER_BAND_UM, PlatformDesign
 from metafovea.errors import InputError, check_int, check_positive
 from metafovea.io import atomic_save_npz, cache_lock, input_hash
 from metafovea.io import cache_dir as io_cache_dir
@@ -57,7 +57,7 @@ from .sweep import LibraryOptions, compute_library, library_key, width_grid
 log = logging.getLogger(__name__)
 
 #: the thermal band the surrogate covers by default (um)
-DEFAULT_BAND_UM = (8.0, 14.0)
+DEFAULT_BAND_UM = PAPER_BAND_UM
 #: the default fitting grid: width step (um) and number of wavelengths (uniform in 1 / lambda)
 DEFAULT_WIDTH_STEP_UM = 0.1
 DEFAULT_N_WAVELENGTHS = 31
@@ -318,13 +318,16 @@ def fit_surrogate(platform: PlatformDesign | None = None, *, band_um: Sequence[f
         harmonics and factorisation, no M - 2 convergence solve); the stack is always the platform's.
     **overrides
         Fields of :class:`LibraryOptions` (``harmonics=8, workers=2, progress=False, cache_dir=...``). The
-        surrogate is cached next to its library (``<cache_dir>/../surrogate`` or ``$METAFOVEA_CACHE/surrogate``).
+        surrogate is cached in ``$METAFOVEA_CACHE/surrogate``, or next to its library in ``cache_dir`` when one is
+        given.
 
     Returns
     -------
     Surrogate
         With ``meta['estimated_phase_rms_rad']`` and ``meta['estimated_amplitude_rms_pct']``: the fit's own error
-        estimate (the interpolation error at step 2h scaled by 2^-4); :func:`error_report` measures the true one.
+        estimate (the interpolation error at step 2h scaled by 2^-4), and ``meta['grid_scale_for_goal']``: the factor
+        on every grid step that the h^4 law says meets the goal (< 1: refine); :func:`error_report` measures the
+        true error.
 
     Notes
     -----
@@ -339,7 +342,7 @@ def fit_surrogate(platform: PlatformDesign | None = None, *, band_um: Sequence[f
     fit = {"schema": _SCHEMA, "library": lib_key, "model": "cubic not-a-knot B-spline of complex t_x in "
            "(wx, wy, 1/lambda); t_y(wx, wy) = t_x(wy, wx)"}
     key = input_hash(fit)
-    cdir = (Path(opts.cache_dir).parent / "surrogate") if opts.cache_dir is not None else io_cache_dir("surrogate")
+    cdir = Path(opts.cache_dir) if opts.cache_dir is not None else io_cache_dir("surrogate")
     path = cdir / f"surrogate-{key}.npz"
     if opts.use_cache:
         with cache_lock(path):
@@ -390,7 +393,7 @@ def _self_estimate(widths: np.ndarray, wls: np.ndarray, t_x: np.ndarray) -> dict
     figure (the h^4 law holds only where the grid resolves the resonances). None under 6 points on an axis."""
     keys = ("estimated_phase_rms_rad", "estimated_amplitude_rms_pct")
     if min(widths.size, wls.size) < 2 * _DEGREE:
-        return dict.fromkeys(keys)
+        return dict.fromkeys((*keys, "grid_scale_for_goal"))
     iw, il = np.arange(0, widths.size, 2), np.arange(0, wls.size, 2)
     if iw[-1] != widths.size - 1:
         iw = np.append(iw, widths.size - 1)
@@ -404,7 +407,10 @@ def _self_estimate(widths: np.ndarray, wls: np.ndarray, t_x: np.ndarray) -> dict
     ref = t_x[left]
     ph = np.angle(tc / ref)
     amp = 100 * (np.abs(tc) - np.abs(ref)) / np.abs(ref)
-    return {keys[0]: float(np.sqrt(np.mean(ph ** 2)) / 16), keys[1]: float(np.sqrt(np.mean(amp ** 2)) / 16)}
+    est = {keys[0]: float(np.sqrt(np.mean(ph ** 2)) / 16), keys[1]: float(np.sqrt(np.mean(amp ** 2)) / 16)}
+    ratio = max(est[keys[0]] / GOAL_PHASE_RMS_RAD, est[keys[1]] / GOAL_AMPLITUDE_RMS_PCT)
+    est["grid_scale_for_goal"] = float(ratio ** -0.25) if ratio > 0 else None
+    return est
 
 
 def _solver_kw(s: Surrogate) -> dict[str, Any]:
