@@ -38,6 +38,7 @@ from .surrogate import (
            fit_surrogate,
            held_out_points,
            rcwa_transmission,
+           surrogate_from_library,
            surrogate_grid,
 )
 from .sweep import DEFAULT_HARMONICS, LIBRARY_ARRAYS, Library, LibraryOptions, compute_library, library_key, width_grid
@@ -47,4 +48,4 @@ __all__ = ["BIAS_CASES", "DEFAULT_HARMONICS", "GOAL_AMPLITUDE_RMS_PCT", "GOAL_PH
            "ObliqueResponse", "POST_SOURCES", "PlatformSweep", "PostSet", "Surrogate", "SurrogateError", "bias_table",
            "compute_library", "error_report", "fit_surrogate", "held_out_points", "library_key", "oblique_cache_name",
            "oblique_response", "platform_post_sets", "postset_table", "rcwa_post_sets", "rcwa_transmission",
-           "select_posts", "surrogate_grid", "system_post_sets", "usable_posts", "width_grid"]
+           "select_posts", "surrogate_from_library", "surrogate_grid", "system_post_sets", "usable_posts", "width_grid"]

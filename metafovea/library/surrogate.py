@@ -29,6 +29,7 @@ File map::
     fit_surrogate      the RCWA sweep (compute_library) and the spline fit, cached as surrogate-<key>.npz under
                        $METAFOVEA_CACHE/surrogate (key: platform stack, widths, band, wavelengths, solver, fit)
     surrogate_grid     the fitting grid (widths, wavelengths) fit_surrogate uses for given settings
+    surrogate_from_library  the spline of a computed library (every stride-th grid point)
     error_report       SurrogateError: rms / max phase (rad) and amplitude (%) errors against fresh RCWA solves
     rcwa_transmission  t_x, t_y of posts by RCWA with a surrogate's solver settings (the reference)
 """
@@ -52,7 +53,7 @@ from metafovea.io import atomic_save_npz, cache_lock, input_hash
 from metafovea.io import cache_dir as io_cache_dir
 
 from .postset import _load_checked
-from .sweep import LibraryOptions, compute_library, library_key, width_grid
+from .sweep import Library, LibraryOptions, compute_library, library_key, width_grid
 
 log = logging.getLogger(__name__)
 
@@ -297,8 +298,8 @@ def _fit_options(platform: PlatformDesign, options: LibraryOptions | None, overr
 
 def fit_surrogate(platform: PlatformDesign | None = None, *, band_um: Sequence[float] = DEFAULT_BAND_UM,
                   width_step_um: float = DEFAULT_WIDTH_STEP_UM, n_wavelengths: int = DEFAULT_N_WAVELENGTHS,
-                  width_range_um: Sequence[float] | None = None, options: LibraryOptions | None = None,
-                  **overrides: Any) -> Surrogate:
+                  width_range_um: Sequence[float] | None = None, stride: int = 1,
+                  options: LibraryOptions | None = None, **overrides: Any) -> Surrogate:
     """Fit the surrogate of a platform's posts to an RCWA library sweep (cached).
 
     Parameters
@@ -313,6 +314,9 @@ def fit_surrogate(platform: PlatformDesign | None = None, *, band_um: Sequence[f
         Wavelengths of the grid, uniform in 1 / lambda over the band.
     width_range_um : (float, float), um, optional
         A sub-range of widths (default: the platform's fabrication range, :func:`width_grid`).
+    stride : int
+        Interpolate every ``stride``-th point of the swept grid on each axis (:func:`surrogate_from_library`; 2:
+        the same sweep at step 2h, for a convergence study).
     options : LibraryOptions, optional
         Solver and run settings of the sweep (default ``LibraryOptions(estimate=False, tol=None)``: the library's
         harmonics and factorisation, no M - 2 convergence solve); the stack is always the platform's.
@@ -339,8 +343,8 @@ def fit_surrogate(platform: PlatformDesign | None = None, *, band_um: Sequence[f
                                  width_range_um=width_range_um)
     opts = _fit_options(plat, options, overrides)
     lib_key = library_key(widths, None, wls, options=opts)
-    fit = {"schema": _SCHEMA, "library": lib_key, "model": "cubic not-a-knot B-spline of complex t_x in "
-           "(wx, wy, 1/lambda); t_y(wx, wy) = t_x(wy, wx)"}
+    fit = {"schema": _SCHEMA, "library": lib_key, "stride": check_int("stride", stride, 1, 1000),
+           "model": "cubic not-a-knot B-spline of complex t_x in (wx, wy, 1/lambda); t_y(wx, wy) = t_x(wy, wx)"}
     key = input_hash(fit)
     cdir = Path(opts.cache_dir) if opts.cache_dir is not None else io_cache_dir("surrogate")
     path = cdir / f"surrogate-{key}.npz"
@@ -348,10 +352,10 @@ def fit_surrogate(platform: PlatformDesign | None = None, *, band_um: Sequence[f
         with cache_lock(path):
             got = _cached(path)
             if got is None:
-                got = _fit(widths, wls, opts, lib_key, key)
+                got = _fit(widths, wls, opts, stride, lib_key, key)
                 got.save(path)
         return got
-    return _fit(widths, wls, opts, lib_key, key)
+    return _fit(widths, wls, opts, stride, lib_key, key)
 
 
 def _cached(path: Path) -> Surrogate | None:
@@ -367,24 +371,63 @@ def _cached(path: Path) -> Surrogate | None:
     return s
 
 
-def _fit(widths: np.ndarray, wls: np.ndarray, opts: LibraryOptions, lib_key: str, key: str) -> Surrogate:
+def _fit(widths: np.ndarray, wls: np.ndarray, opts: LibraryOptions, stride: int, lib_key: str, key: str
+         ) -> Surrogate:
     """Sweep (or load) the library and interpolate it; the meta records the settings and the self-estimate."""
     t0 = time.perf_counter()
     lib = compute_library(widths, None, wls, options=opts)
-    t_x = np.asarray(lib.t_x)
+    s = surrogate_from_library(lib, stride=stride)
+    s.meta.update(library_key=lib_key, key=key, fit_s=time.perf_counter() - t0)
+    log.info("surrogate %s: %d x %d widths x %d wavelengths, estimated phase rms %s rad", key, s.widths_um.size,
+             s.widths_um.size, s.wavelengths_um.size, s.meta["estimated_phase_rms_rad"])
+    return s
+
+
+def surrogate_from_library(lib: Library, *, stride: int = 1) -> Surrogate:
+    """The surrogate interpolating a library (every ``stride``-th width and wavelength of its grid, the last kept).
+
+    Parameters
+    ----------
+    lib : Library
+        A sweep on a square grid (the same widths on both axes, as :func:`compute_library` gives with
+        ``wy_um=None``) of at least 4 widths and 4 wavelengths, every post solved, constant indices.
+    stride : int
+        Keep every ``stride``-th grid point on each axis (2: the grid of step 2h, for a convergence study).
+
+    Returns
+    -------
+    Surrogate
+        Its meta: the library's stack and solver settings, the grid and the self-estimate (see
+        :func:`fit_surrogate`).
+    """
+    k = check_int("stride", stride, 1, 1000)
+    widths, wls = np.asarray(lib.wx_um, float), np.asarray(lib.wavelengths_um, float)
+    if widths.shape != np.asarray(lib.wy_um).shape or not np.allclose(widths, lib.wy_um):
+        raise InputError("lib", "wx_um != wy_um", "a library on a square grid (wy_um=None)")
+    iw, il = _every(widths.size, k), _every(wls.size, k)
+    if min(iw.size, il.size) < _DEGREE + 1:
+        raise InputError("stride", stride, f"a stride leaving at least {_DEGREE + 1} widths and wavelengths")
+    order = np.argsort(wls)
+    t_x = np.asarray(lib.t_x)[order][np.ix_(il, iw, iw)]
+    widths, wls = widths[iw], wls[order][il]
     if not np.all(np.isfinite(t_x)):
-        raise InputError("options", "library", "a library with every post solved", detail="NaN transmissions")
-    meta = {k: lib.meta.get(k) for k in ("period_um", "height_um", "n_post", "n_surround", "n_substrate",
-                                          "n_superstrate", "harmonics", "factorization", "incidence")}
-    meta.update(library_key=lib_key, key=key, width_step_um=float(widths[1] - widths[0]),
+        raise InputError("lib", "NaN transmissions", "a library with every post solved")
+    meta = {key: lib.meta.get(key) for key in ("period_um", "height_um", "n_post", "n_surround", "n_substrate",
+                                                "n_superstrate", "harmonics", "factorization", "incidence")}
+    missing = [key for key, v in meta.items() if v is None]
+    if missing:
+        raise InputError("lib", f"meta without {missing[0]!r}", "a library from compute_library or Library.load")
+    meta.update(library_key=lib.meta.get("key"), stride=k, width_step_um=float(widths[1] - widths[0]),
                 n_wavelengths=int(wls.size), sweep_s=float(lib.meta.get("elapsed_s") or 0.0),
                 conventions=lib.meta.get("conventions"))
     meta.update(_self_estimate(widths, wls, t_x))
-    s = _from_grid(widths, wls, t_x, meta)
-    s.meta["fit_s"] = time.perf_counter() - t0
-    log.info("surrogate %s: %d x %d widths x %d wavelengths, estimated phase rms %.3g rad", key, widths.size,
-             widths.size, wls.size, meta["estimated_phase_rms_rad"])
-    return s
+    return _from_grid(widths, wls, t_x, meta)
+
+
+def _every(n: int, k: int) -> np.ndarray:
+    """Indices 0, k, 2k, ... of n points, the last point always kept."""
+    idx = np.arange(0, n, k)
+    return idx if idx[-1] == n - 1 else np.append(idx, n - 1)
 
 
 def _self_estimate(widths: np.ndarray, wls: np.ndarray, t_x: np.ndarray) -> dict[str, float]:
@@ -394,11 +437,7 @@ def _self_estimate(widths: np.ndarray, wls: np.ndarray, t_x: np.ndarray) -> dict
     keys = ("estimated_phase_rms_rad", "estimated_amplitude_rms_pct")
     if min(widths.size, wls.size) < 2 * _DEGREE:
         return dict.fromkeys((*keys, "grid_scale_for_goal"))
-    iw, il = np.arange(0, widths.size, 2), np.arange(0, wls.size, 2)
-    if iw[-1] != widths.size - 1:
-        iw = np.append(iw, widths.size - 1)
-    if il[-1] != wls.size - 1:
-        il = np.append(il, wls.size - 1)
+    iw, il = _every(widths.size, 2), _every(wls.size, 2)
     coarse = _from_grid(widths[iw], wls[il], t_x[np.ix_(il, iw, iw)], {})
     left = np.ones(t_x.shape, bool)
     left[np.ix_(il, iw, iw)] = False
@@ -484,7 +523,8 @@ class SurrogateError:
     Phase errors are |arg(t_surrogate / t_rcwa)| (rad), amplitude errors (|t_surrogate| - |t_rcwa|) / |t_rcwa|
     (percent); ``*_x`` / ``*_y`` per polarisation. ``by_band``: one row per wavelength bin (``lo_um``, ``hi_um``,
     ``n``, ``phase_rms_rad``, ``amplitude_rms_pct`` over both polarisations): where the goal is met and where not.
-    ``points``: the held-out (wx, wy, lambda) (n, 3), um; ``worst``: the worst points, one dict each.
+    ``points``: the held-out (wx, wy, lambda) (n, 3), um; ``reference``: RCWA's (t_x, t_y) there; ``worst``: the
+    worst points, one dict each.
     """
 
     phase_rms_rad: dict[str, float]
@@ -494,6 +534,7 @@ class SurrogateError:
     by_band: list[dict[str, float]]
     worst: list[dict[str, float]]
     points: np.ndarray
+    reference: tuple[np.ndarray, np.ndarray]
     seconds: dict[str, float]
 
     def meets(self, phase_rms_rad: float = GOAL_PHASE_RMS_RAD,
@@ -531,7 +572,8 @@ def held_out_points(surrogate: Surrogate, n: int, rng: Any = 0) -> np.ndarray:
 
 
 def error_report(surrogate: Surrogate, n_points: int = 200, *, rng: Any = 0, n_bands: int = 6,
-                 workers: int | None = 1, progress: bool = False) -> SurrogateError:
+                 workers: int | None = 1, progress: bool = False, reference: SurrogateError | None = None
+                 ) -> SurrogateError:
     """The surrogate's error against fresh RCWA solves at random held-out posts and wavelengths.
 
     Parameters
@@ -545,6 +587,9 @@ def error_report(surrogate: Surrogate, n_points: int = 200, *, rng: Any = 0, n_b
         Wavelength bins of the breakdown (uniform in lambda over the band).
     workers, progress
         Of the RCWA solves (:func:`rcwa_transmission`).
+    reference : SurrogateError, optional
+        An earlier report whose points and RCWA solves are reused (``n_points`` and ``rng`` ignored): two
+        surrogates of the same stack compared on the same posts.
 
     Returns
     -------
@@ -552,11 +597,13 @@ def error_report(surrogate: Surrogate, n_points: int = 200, *, rng: Any = 0, n_b
         rms and max phase error (rad) and amplitude error (%), both polarisations; :meth:`SurrogateError.meets`
         checks the goals (``GOAL_PHASE_RMS_RAD``, ``GOAL_AMPLITUDE_RMS_PCT``).
     """
-    n = check_int("n_points", n_points, 1, 10 ** 6)
     nb = check_int("n_bands", n_bands, 1, 100)
-    pts = held_out_points(surrogate, n, rng)
     t0 = time.perf_counter()
-    ref = rcwa_transmission(surrogate, pts[:, 0], pts[:, 1], pts[:, 2], workers=workers, progress=progress)
+    if reference is None:
+        pts = held_out_points(surrogate, check_int("n_points", n_points, 1, 10 ** 6), rng)
+        ref = rcwa_transmission(surrogate, pts[:, 0], pts[:, 1], pts[:, 2], workers=workers, progress=progress)
+    else:
+        pts, ref = reference.points, reference.reference
     t1 = time.perf_counter()
     got = surrogate.transmission_np(pts[:, 0], pts[:, 1], pts[:, 2])
     t2 = time.perf_counter()
@@ -581,4 +628,4 @@ def error_report(surrogate: Surrogate, n_points: int = 200, *, rng: Any = 0, n_b
              for i in np.argsort(worst_ph)[::-1][:5]]
     return SurrogateError({p: rms(v) for p, v in ph.items()}, {p: float(v.max()) for p, v in ph.items()},
                           {p: rms(v) for p, v in amp.items()}, {p: float(v.max()) for p, v in amp.items()},
-                          by_band, worst, pts, {"rcwa_s": t1 - t0, "surrogate_s": t2 - t1})
+                          by_band, worst, pts, ref, {"rcwa_s": t1 - t0, "surrogate_s": t2 - t1})

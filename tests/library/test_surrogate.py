@@ -16,10 +16,12 @@ from metafovea.library import (
     GOAL_AMPLITUDE_RMS_PCT,
     GOAL_PHASE_RMS_RAD,
     Surrogate,
+    compute_library,
     error_report,
     fit_surrogate,
     held_out_points,
     rcwa_transmission,
+    surrogate_from_library,
     surrogate_grid,
 )
 from metafovea.rcwa import post_response
@@ -36,9 +38,9 @@ FD_STEP_UM = 1e-3
 GRAD_REL = {"phase": 0.1, "amplitude": 0.25}
 
 
-def _fit(cache, step: float, n_wl: int) -> Surrogate:
+def _fit(cache, step: float, n_wl: int, stride: int = 1) -> Surrogate:
     return fit_surrogate(width_range_um=RANGE, width_step_um=step, n_wavelengths=n_wl, band_um=BAND, harmonics=M,
-                         workers=1, progress=False, cache_dir=cache / "library")
+                         stride=stride, workers=1, progress=False, cache_dir=cache / "library")
 
 
 @pytest.fixture(scope="module")
@@ -72,6 +74,23 @@ def test_planted_coarse_fit_fails_the_check(coarse):
     err = error_report(coarse, 60, rng=0)
     assert not err.meets(), err.summary()
     assert max(err.phase_rms_rad.values()) > GOAL_PHASE_RMS_RAD
+
+
+def test_half_grid_of_the_same_sweep_is_worse_on_the_same_posts(surr, cache):
+    """stride=2 interpolates the same library at step 2h; a report reusing the first one's RCWA solves compares
+    both on the same posts (the convergence study of benchmarks/bench_surrogate.py)."""
+    half = _fit(cache, 0.1, 6, stride=2)
+    assert half.meta["stride"] == 2 and half.widths_um.size == 6
+    assert half.meta["library_key"] == surr.meta["library_key"]
+    fine = error_report(surr, 40, rng=4)
+    rough = error_report(half, reference=fine)
+    np.testing.assert_array_equal(rough.points, fine.points)
+    assert max(rough.phase_rms_rad.values()) > 2 * max(fine.phase_rms_rad.values())
+    widths, wls = surrogate_grid(width_range_um=RANGE, width_step_um=0.1, n_wavelengths=6, band_um=BAND)
+    lib = compute_library(widths, None, wls, harmonics=M, estimate=False, tol=None, workers=1, progress=False,
+                          cache_dir=cache / "library", n_post=3.42, n_substrate=3.42)
+    assert lib.meta["key"] == surr.meta["library_key"]  # the same sweep, from the cache
+    np.testing.assert_allclose(surrogate_from_library(lib).coef, surr.coef, atol=1e-12)
 
 
 def test_held_out_points_are_off_the_grid_and_seeded(surr):
