@@ -9,7 +9,9 @@ The RCWA sweep is the library's (compute_library: cached in $METAFOVEA_CACHE/lib
 only fits (or loads the cached fit) and re-solves the held-out points. Printed: the grid, the sweep's and the fit's
 seconds (the sweep's as recorded when it was computed), the fit's own error estimate, the held-out errors per
 polarisation and per wavelength bin against the goal (0.02 rad rms phase, 1 % rms amplitude), the worst points,
-the RCWA seconds of the reference, and the surrogate's evaluation and gradient times for 100 000 points (jit,
+the RCWA seconds of the reference, the same sweep interpolated at step 2h (stride 2) on the same posts (the observed
+convergence order and the grid-step factor that order gives for the goal), and the surrogate's evaluation and
+gradient times for 100 000 points (jit,
 after compilation). nproc and /proc/loadavg before and after are printed: on a shared machine the seconds measure
 the other jobs too.
 """
@@ -87,6 +89,19 @@ def main() -> None:
     print("worst points:")
     for w in err.worst:
         print("  " + ", ".join(f"{k} {v:.4g}" for k, v in w.items()))
+    half = fit_surrogate(PlatformDesign(), band_um=args.band, width_step_um=args.width_step,
+                         n_wavelengths=args.n_wavelengths, harmonics=args.harmonics, workers=args.workers, stride=2)
+    err2 = error_report(half, reference=err)
+    e1 = max(max(err.phase_rms_rad.values()) / GOAL_PHASE_RMS_RAD,
+             max(err.amplitude_rms_pct.values()) / GOAL_AMPLITUDE_RMS_PCT)
+    e2 = max(max(err2.phase_rms_rad.values()) / GOAL_PHASE_RMS_RAD,
+             max(err2.amplitude_rms_pct.values()) / GOAL_AMPLITUDE_RMS_PCT)
+    order = float(np.log2(e2 / e1)) if e1 > 0 and e2 > e1 else float("nan")
+    scale = e1 ** (-1 / order) if np.isfinite(order) and order > 0 else float("nan")
+    print(f"the same sweep at step 2h (stride 2, the same held-out posts): phase rms "
+          f"{max(err2.phase_rms_rad.values()):.4f} rad, amplitude rms {max(err2.amplitude_rms_pct.values()):.3f} %; "
+          f"observed order {order:.2f}; grid steps x {scale:.2f} for the goal (worse of phase and amplitude)")
+    print(err2.summary())
     times = _eval_times(s)
     print(f"RCWA reference: {err.seconds['rcwa_s']:.1f} s for {args.points} posts x 2 polarisations; surrogate "
           f"{times['points']} points: eval {times['eval_s'] * 1e3:.1f} ms, grad {times['grad_s'] * 1e3:.1f} ms")
@@ -98,7 +113,9 @@ def main() -> None:
                    meta={k: v for k, v in m.items() if not isinstance(v, np.ndarray)},
                    phase_rms_rad=err.phase_rms_rad, phase_max_rad=err.phase_max_rad,
                    amplitude_rms_pct=err.amplitude_rms_pct, amplitude_max_pct=err.amplitude_max_pct,
-                   by_band=err.by_band, worst=err.worst, seconds=err.seconds, eval=times, met=err.meets())
+                   by_band=err.by_band, worst=err.worst, seconds=err.seconds, eval=times, met=err.meets(),
+                   half_grid=dict(phase_rms_rad=err2.phase_rms_rad, amplitude_rms_pct=err2.amplitude_rms_pct,
+                                  by_band=err2.by_band), observed_order=order, grid_scale_for_goal=scale)
         args.out.write_text(json.dumps(rec, indent=2, default=str) + "\n")
 
 

@@ -16,11 +16,12 @@ broadcast; the four non-zero cubic B-splines per axis by the Cox-de Boor recurre
 Inputs outside the fitted box extrapolate the end polynomials (not checked inside traced code: :meth:`Surrogate.
 in_range` says). Precision follows JAX's: float32 by default (about 1e-6 rad), float64 under ``jax.enable_x64``.
 
-The error of cubic interpolation falls as the fourth power of the grid step; :func:`fit_surrogate` estimates it from
-the data by refitting on every other grid point (step 2h) and scaling the error at the dropped points by 1/16
-(``meta['estimated_phase_rms_rad']``); :func:`error_report` measures it against fresh RCWA solves at random posts and
-wavelengths (seeded, off the grid), both polarisations, with a breakdown by wavelength that says where a goal is not
-met.
+The error of cubic interpolation falls as the fourth power of the grid step once the grid resolves the posts'
+resonances, slower before; :func:`fit_surrogate` estimates it from the data by refitting on every 2nd and 4th grid
+point (steps 2h, 4h), comparing at the dropped points and extrapolating with the observed order
+(``meta['estimated_phase_rms_rad']``, ``meta['grid_scale_for_goal']``: the step factor that meets the goal);
+:func:`error_report` measures it against fresh RCWA solves at random posts and wavelengths (seeded, off the grid),
+both polarisations, with a breakdown by wavelength that says where a goal is not met.
 
 File map::
 
@@ -67,7 +68,7 @@ GOAL_PHASE_RMS_RAD = 0.02
 GOAL_AMPLITUDE_RMS_PCT = 1.0
 #: spline degree (cubic) and the schema of the cache files
 _DEGREE = 3
-_SCHEMA = 1
+_SCHEMA = 2
 
 
 @dataclass(frozen=True, eq=False)
@@ -329,9 +330,9 @@ def fit_surrogate(platform: PlatformDesign | None = None, *, band_um: Sequence[f
     -------
     Surrogate
         With ``meta['estimated_phase_rms_rad']`` and ``meta['estimated_amplitude_rms_pct']``: the fit's own error
-        estimate (the interpolation error at step 2h scaled by 2^-4), and ``meta['grid_scale_for_goal']``: the factor
-        on every grid step that the h^4 law says meets the goal (< 1: refine); :func:`error_report` measures the
-        true error.
+        estimate (from the same sweep interpolated at steps 2h and 4h: the observed order ``estimated_order``), and
+        ``meta['grid_scale_for_goal']``: the factor on every grid step that this order says meets the goals (< 1:
+        refine); :func:`error_report` measures the true error.
 
     Notes
     -----
@@ -430,26 +431,42 @@ def _every(n: int, k: int) -> np.ndarray:
     return idx if idx[-1] == n - 1 else np.append(idx, n - 1)
 
 
-def _self_estimate(widths: np.ndarray, wls: np.ndarray, t_x: np.ndarray) -> dict[str, float]:
-    """The fit's error estimated from its own data: interpolate every other grid point (step 2h on all three
-    axes, the last point kept), compare at the points left out, and scale by 2^-4 (cubic interpolation): a rough
-    figure (the h^4 law holds only where the grid resolves the resonances). None under 6 points on an axis."""
-    keys = ("estimated_phase_rms_rad", "estimated_amplitude_rms_pct")
+def _self_estimate(widths: np.ndarray, wls: np.ndarray, t_x: np.ndarray) -> dict[str, float | None]:
+    """The fit's error estimated from its own data.
+
+    Interpolate every 2nd and every 4th grid point (steps 2h and 4h on all three axes, the last point kept) and
+    compare both at the points the 2h grid leaves out; the ratio of the two rms errors gives the observed order p
+    (clipped to 1..4; 4, the cubic's asymptotic order, where the 4h grid has under 4 points), and the error at h is
+    the 2h error / 2^p. Grids that do not resolve the resonances converge slower than h^4: the observed order says
+    so. ``grid_scale_for_goal``: the factor on every step that order gives for the goals. None under 6 points on an
+    axis.
+    """
+    keys = ("estimated_phase_rms_rad", "estimated_amplitude_rms_pct", "estimated_order", "grid_scale_for_goal")
     if min(widths.size, wls.size) < 2 * _DEGREE:
-        return dict.fromkeys((*keys, "grid_scale_for_goal"))
+        return dict.fromkeys(keys)
     iw, il = _every(widths.size, 2), _every(wls.size, 2)
-    coarse = _from_grid(widths[iw], wls[il], t_x[np.ix_(il, iw, iw)], {})
     left = np.ones(t_x.shape, bool)
     left[np.ix_(il, iw, iw)] = False
     L, X, Y = np.meshgrid(wls, widths, widths, indexing="ij")
-    tc, _ = coarse.transmission_np(X[left], Y[left], L[left])
     ref = t_x[left]
-    ph = np.angle(tc / ref)
-    amp = 100 * (np.abs(tc) - np.abs(ref)) / np.abs(ref)
-    est = {keys[0]: float(np.sqrt(np.mean(ph ** 2)) / 16), keys[1]: float(np.sqrt(np.mean(amp ** 2)) / 16)}
-    ratio = max(est[keys[0]] / GOAL_PHASE_RMS_RAD, est[keys[1]] / GOAL_AMPLITUDE_RMS_PCT)
-    est["grid_scale_for_goal"] = float(ratio ** -0.25) if ratio > 0 else None
-    return est
+
+    def rms_errors(stride: int) -> np.ndarray:
+        jw, jl = _every(widths.size, stride), _every(wls.size, stride)
+        coarse = _from_grid(widths[jw], wls[jl], t_x[np.ix_(jl, jw, jw)], {})
+        tc, _ = coarse.transmission_np(X[left], Y[left], L[left])
+        ph = np.angle(tc / ref)
+        amp = 100 * (np.abs(tc) - np.abs(ref)) / np.abs(ref)
+        return np.array([np.sqrt(np.mean(ph ** 2)), np.sqrt(np.mean(amp ** 2))])
+
+    e2 = rms_errors(2)
+    order = 4.0
+    if min(_every(widths.size, 4).size, _every(wls.size, 4).size) > _DEGREE:
+        e4 = rms_errors(4)
+        ratio = np.max(e4 / np.maximum(e2, 1e-300))
+        order = float(np.clip(np.log2(ratio), 1.0, 4.0)) if ratio > 1 else 1.0
+    est = e2 / 2 ** order
+    worst = max(est[0] / GOAL_PHASE_RMS_RAD, est[1] / GOAL_AMPLITUDE_RMS_PCT)
+    return dict(zip(keys, (float(est[0]), float(est[1]), order, float(worst ** (-1 / order)) if worst > 0 else None)))
 
 
 def _solver_kw(s: Surrogate) -> dict[str, Any]:
