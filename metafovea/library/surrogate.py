@@ -118,7 +118,11 @@ class Surrogate:
         """
         import jax.numpy as jnp
 
-        wx, wy, wl = jnp.broadcast_arrays(*(jnp.asarray(a) for a in (wx_um, wy_um, wavelength_um)))
+        def real(a: Any) -> Any:
+            x = jnp.asarray(a)
+            return x if jnp.issubdtype(x.dtype, jnp.floating) else x.astype(jnp.result_type(float))
+
+        wx, wy, wl = jnp.broadcast_arrays(real(wx_um), real(wy_um), real(wavelength_um))
         nu = 1.0 / wl
         return self._t(wx, wy, nu), self._t(wy, wx, nu)
 
