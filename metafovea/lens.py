@@ -410,7 +410,12 @@ def lattice_efficiency(design: LensDesign, levels: int | None = None, *, samples
 # ----------------------------------------------------------------------------------------------
 @dataclass(frozen=True)
 class LensSummary:
-    """The numbers a designer checks (lengths in um unless the name says otherwise)."""
+    """The numbers a designer checks (lengths in um unless the name says otherwise).
+
+    With ``phase_poly_rad``: the rim phase, zones, zone widths, posts per zone and the lattice efficiencies are the
+    full design phase's (its actual local gradient); the NA, F-number, Airy radius, FWHM and MTF cutoff describe the
+    aperture at the focal length f (the hyperbolic part), not the corrected lens' PSF (:mod:`metafovea.optics`).
+    """
 
     name: str
     f_mm: float

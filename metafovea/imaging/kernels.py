@@ -208,7 +208,10 @@ class OpticsPSFProvider:
             ps = None  # the same PSF as sensor_psf's ideal posts
         posts = None if ps is None else {"t_x": np.round(np.stack([ps.t_x.real, ps.t_x.imag]), 9).tolist(),
                                          "t_y": np.round(np.stack([ps.t_y.real, ps.t_y.imag]), 9).tolist()}
-        key = {"lens": asdict(channel.lens), "posts": posts, "pitch_um": round(float(pitch_um), 9),
+        lens_key = asdict(channel.lens)
+        if not lens_key["phase_poly_rad"]:
+            del lens_key["phase_poly_rad"]  # the plain hyperbola: the cache keys of before the field existed
+        key = {"lens": lens_key, "posts": posts, "pitch_um": round(float(pitch_um), 9),
                "field_deg": round(float(field_deg), 9),
                "z_um": round(float(channel.focal_length_um), 6),
                "wavelengths_um": np.round(np.asarray(wavelengths_um, dtype=float), 9).tolist(),

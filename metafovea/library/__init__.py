@@ -18,6 +18,9 @@ Files, in the order a library is made and used::
     oblique    ObliqueResponse, oblique_response (the chosen posts off axis, as t(theta) / t(0); cached)
     seed       the default system's library and oblique responses shipped in metafovea/data/ (read when the
                cache misses with the same key), seed_names, write_seed (``python -m metafovea.library.seed``)
+    surrogate  Surrogate (a differentiable JAX B-spline of t_x, t_y over (wx, wy, lambda)), fit_surrogate (fitted to
+               an RCWA sweep over a band; cached), error_report / SurrogateError (against fresh RCWA solves at
+               held-out posts and wavelengths), rcwa_transmission (the reference)
     report     library_report / LibraryReport (numbers, the paper's Fig. 7b/7c and the files ``metafovea library``
                writes); imported as ``metafovea.library.report``
 """
@@ -26,10 +29,23 @@ from .oblique import OBLIQUE_ANGLES_DEG, OBLIQUE_HARMONICS, ObliqueResponse, obl
 from .platform import POST_SOURCES, PlatformSweep, platform_post_sets, rcwa_post_sets, system_post_sets
 from .postset import PostSet, postset_table
 from .select import BIAS_CASES, JOINT_MAX_ROUNDS, JOINT_POLISH, bias_table, select_posts, usable_posts
+from .surrogate import (
+           GOAL_AMPLITUDE_RMS_PCT,
+           GOAL_PHASE_RMS_RAD,
+           Surrogate,
+           SurrogateError,
+           error_report,
+           fit_surrogate,
+           held_out_points,
+           rcwa_transmission,
+           surrogate_from_library,
+           surrogate_grid,
+)
 from .sweep import DEFAULT_HARMONICS, LIBRARY_ARRAYS, Library, LibraryOptions, compute_library, library_key, width_grid
 
-__all__ = ["BIAS_CASES", "DEFAULT_HARMONICS", "JOINT_MAX_ROUNDS", "JOINT_POLISH", "LIBRARY_ARRAYS",
-           "OBLIQUE_ANGLES_DEG", "OBLIQUE_HARMONICS", "POST_SOURCES", "Library", "LibraryOptions", "ObliqueResponse",
-           "PlatformSweep", "PostSet", "bias_table", "compute_library", "library_key", "oblique_cache_name",
-           "oblique_response", "platform_post_sets", "postset_table", "rcwa_post_sets", "select_posts",
-           "system_post_sets", "usable_posts", "width_grid"]
+__all__ = ["BIAS_CASES", "DEFAULT_HARMONICS", "GOAL_AMPLITUDE_RMS_PCT", "GOAL_PHASE_RMS_RAD", "JOINT_MAX_ROUNDS",
+           "JOINT_POLISH", "LIBRARY_ARRAYS", "Library", "LibraryOptions", "OBLIQUE_ANGLES_DEG", "OBLIQUE_HARMONICS",
+           "ObliqueResponse", "POST_SOURCES", "PlatformSweep", "PostSet", "Surrogate", "SurrogateError", "bias_table",
+           "compute_library", "error_report", "fit_surrogate", "held_out_points", "library_key", "oblique_cache_name",
+           "oblique_response", "platform_post_sets", "postset_table", "rcwa_post_sets", "rcwa_transmission",
+           "select_posts", "surrogate_from_library", "surrogate_grid", "system_post_sets", "usable_posts", "width_grid"]

@@ -4,14 +4,16 @@
 Files, in the order light meets them::
 
     pupil      the lens as a pupil in direction-sine space, per wavelength, field and polarisation: the
-               focusing order (Pupil) and the other diffraction orders as haze (PupilSet); max_field_deg
+               focusing order (Pupil) and the other diffraction orders as haze (PupilSet); max_field_deg; the
+               numerical ray map of a lens with phase_poly_rad (design_na, radius_of_direction_sine)
     propagate  the engines: asm_propagate (band-limited angular spectrum of a sampled field, exact; the
                reference for small apertures), mft_field / mft_intensity_multi (windowed direction-sine
                transform, any field), hankel_field / hankel_profiles (1-D, on axis); SamplingError,
                AliasingWarning
     rayleigh   rs_field (the windowed exact Rayleigh-Sommerfeld engine over the hard-edged aperture: off-axis
                PSFs, with an evaluated error estimate) and rs_reference (brute force, polar per Fresnel zone)
-    psf        the PSF type; psf() (field PSF on a fine grid: hankel on axis, rs off axis, mft on request);
+    psf        the PSF type; psf() (field PSF on a fine grid: hankel on axis, rs off axis and for lenses with
+               phase_poly_rad, mft on request);
                encircled_energy_on_axis (exact radial integral); diffraction_radius_um, nyquist_pitch_um
     sensor     sensor_psf(): the PSF integrated over pixels, broadband, on and off axis (batched hankel on
                axis; batched mft near focus and the geometric ray engine elsewhere off axis, with an error

@@ -18,6 +18,12 @@ Engine choice (``engine='auto'``), per wavelength:
   lenses): its ``error_estimate`` is then ``inf`` (not bounded) and ``info['model_note']`` says why;
 * ``geometric`` (sensor PSFs only, :mod:`metafovea.optics.sensor`).
 
+A lens with a phase beyond the hyperbola (``LensDesign.phase_poly_rad``) goes to ``rs`` on and off axis: the
+direction-sine model of such a lens (the stationary point of the full radial phase, :mod:`pupil`) misses the fine
+structure of its defocused zones by tens of % of the peak (tests/optics/test_rayleigh.py), so ``hankel`` and ``mft``
+asked for by name say so (``error_estimate`` ``inf``, ``info['model_note']``); a lens whose rays cross (ray
+directions not monotone in radius) has no direction-sine pupil at all, and only ``rs`` takes it.
+
 ``error_estimate`` is the largest absolute intensity error relative to the PSF's peak, against the scalar
 thin-element lens field propagated exactly (first Rayleigh-Sommerfeld integral over the aperture): quadrature,
 Taylor remainders and the model of the engine. Not in it: vector (polarisation) effects at the rim, post

@@ -374,7 +374,9 @@ def build_pupils(lens: LensDesign, wavelength_um: float, *, field_deg: ArrayLike
     transmission (``PostSet.t_pass``): mostly an unfocused plane wave (order 0, haze) plus whatever
     level-to-level variation of ``t_pass`` focuses. ``quantize=False`` with no post set gives the
     continuous-phase lens (c_1 = 1). ``lattice`` applies the lattice-sampling factor to the focusing
-    order. ``orders``: haze orders -orders..orders are kept (their power is tiny per pixel).
+    order. ``orders``: haze orders -orders..orders are kept (their power is tiny per pixel). The haze disks' radii
+    come from the hyperbola's order focal lengths (``phase_poly_rad`` changes them by its focal spread: a uniform
+    disk is a rough stand-in either way).
     """
     wl = check_positive("wavelength_um", wavelength_um, "um", hi=1e4)
     pol = lens.polarization if polarization is None else check_choice("polarization", polarization, ("x", "y"))

@@ -103,6 +103,11 @@ def psf_report(lens: LensDesign, out_dir: str | Path, *, fields_deg: list[float]
                            "optical_train": trains}
     if lens.phase_poly_rad:
         res["phase_poly_rad"] = list(lens.phase_poly_rad)  # the phase beyond the hyperbola (rad)
+        res["warnings"].append(
+            "phase_poly_rad: the on-axis encircled energies, the through-focus curves and the MTF curves of this lens "
+            "come from the direction-sine (Debye) model, which is not bounded for a lens with a phase beyond the "
+            "hyperbola (a lens whose rays cross has none: the report stops with an error); the PSF panels and the "
+            "sensor PSFs use the exact engine within their cost budgets, with their own error estimates")
     if post_set is None:
         res["warnings"].append(f"{POSTS_NOTE_IDEAL} (the PSFs of a lens the platform's RCWA post set was not "
                                "chosen for, or posts=ideal)")

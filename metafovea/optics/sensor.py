@@ -17,6 +17,11 @@ Engine choice (``engine='auto'``), per wavelength:
   share of the error budget allows it, or when the wave engines would exceed the cost budget (then a
   warning states the achieved error).
 
+A lens with ``phase_poly_rad`` (a phase beyond the hyperbola): ``engine='auto'`` integrates the exact (``rs``)
+field of every wavelength over the pixels while the wave engines' cost (``budget``) allows, else traces every
+wavelength as rays (forwards from the lens: any ray map); the direction-sine and ray engines are not bounded for such
+a lens (``error_estimate`` ``inf``, ``info['model_note']``).
+
 The geometric engine is *not* accurate to O(1/W020) at the brightest pixels: the axial (Poisson) spot of a
 defocused circular pupil and the coma cusp keep an O(1) relative error however many waves of defocus
 (:data:`GEO_ERROR`: BENCHMARKS.md, "PSF engines"); only its pixel-averaged power is (to ~1 %). Its

@@ -92,3 +92,18 @@ def test_direction_sine_engines_refuse_a_lens_whose_rays_cross():
     pu = build_pupils(lens, 10.0, quantize=False, lattice=False).focus
     with pytest.raises(InputError, match="phase_poly_rad"):
         hankel_field(pu, [0.0, 5.0])
+
+
+def test_added_phase_follows_the_phase_sign_convention():
+    """phase_poly_rad is added to the design phase as is; under phase_sign = +1 the design phase is the conjugate
+    convention's, so the lens (+1, a) is physically the lens (-1, -a): the same pupil, and conjugate layout phases."""
+    from metafovea.lens import design_phase
+
+    a = (-14.0, 30.0, -12.0)
+    p1 = build_pupils(SMALL.with_(phase_sign=1, phase_poly_rad=a), 11.0, field_deg=1.0).focus
+    p2 = build_pupils(SMALL.with_(phase_poly_rad=tuple(-v for v in a)), 11.0, field_deg=1.0).focus
+    sx, sy = _points(p1)
+    assert np.array_equal(p1.phase(sx, sy), p2.phase(sx, sy))
+    assert np.array_equal(p1.amplitude(sx, sy), p2.amplitude(sx, sy))
+    r = np.linspace(0, SMALL.radius_um, 7)
+    assert np.allclose(design_phase(p1.lens, r, 0.0), -design_phase(p2.lens, r, 0.0), rtol=0, atol=1e-9)

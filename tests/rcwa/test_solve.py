@@ -225,3 +225,55 @@ def test_cross_check_grcwa_laurent_identical_harmonics(post_stack):
         assert abs(ours.total_T()[ip] - np.sum(T)) < 5e-5
         assert abs(ours.T["substrate"][ours.zero, ip] - T[0]) < 5e-5
         assert abs(ours.total_R()[ip] - np.sum(R)) < 5e-5
+
+
+def _grcwa_rt(layers, p, Ng, M, wl):
+    """grcwa's zero-order and total efficiencies (p and s incidence from the substrate side at normal incidence)
+    of a stack of grid layers ``[(thickness, eps map (Ng, Ng)), ...]`` on Si under air."""
+    grcwa = pytest.importorskip("grcwa")
+    out = {}
+    for pol in ("p", "s"):
+        obj = grcwa.obj((2 * M + 1) ** 2, [p, 0], [0, p], 1 / wl, 0.0, 0.0, verbose=0)
+        obj.Add_LayerUniform(1.0, NSI ** 2)
+        for d, _ in layers:
+            obj.Add_LayerGrid(d, Ng, Ng)
+        obj.Add_LayerUniform(1.0, 1.0)
+        obj.Init_Setup(Gmethod=1)
+        obj.GridLayer_geteps(np.concatenate([e.ravel() for _, e in layers]))
+        obj.MakeExcitationPlanewave(*((1, 0, 0, 0) if pol == "p" else (0, 0, 1, 0)), order=0)
+        R, T = obj.RT_Solve(normalize=1, byorder=1)
+        out[pol] = (np.sum(R), np.sum(T), T[0])
+    return out
+
+
+def test_full_basis_where_the_mirror_symmetry_fails_matches_grcwa(monkeypatch):
+    """Two stacked posts off the cell centre in different directions have no mirror plane: solve() must take the
+    full basis (x and y couple) and then agrees with grcwa (Laurent rule, the same harmonic set, a grid on which
+    the sampled rectangles' DFT equals the analytic coefficients to ~(pi k / N)^2 / 6). Planted case: the same
+    stack declared mirror symmetric is solved in the parity basis and misses grcwa by far more than the
+    tolerance, so this comparison would catch a wrong choice of path."""
+    p, Ng, M, wl = 4.0, 500, 3, 9.0
+    x = np.arange(Ng) * p / Ng
+    x = np.where(x >= p / 2, x - p, x)
+    X, Y = np.meshgrid(x, x, indexing="ij")
+    # widths of odd pixel counts (0.008 um pixels) centred on pixels
+    rects = [(2.008, 1.208, 0.4, -0.24, 1.5), (1.608, 2.408, -0.8, 0.48, 2.0)]
+    layers, grids = [], []
+    for wx, wy, cx, cy, d in rects:
+        inside = (np.abs(X - cx) <= wx / 2 + 1e-9) & (np.abs(Y - cy) <= wy / 2 + 1e-9)
+        grids.append((d, np.where(inside, NSI ** 2, 1.0)))
+        layers.append(Layer(d, 1.0, [Rectangle(wx, wy, NSI, cx, cy)]))
+    st = Stack(p, p, layers, NSI, 1.0)
+    ref = _grcwa_rt(grids, p, Ng, M, wl)
+
+    def mismatch(res):
+        return max(max(abs(res.total_R()[i] - ref[pol][0]), abs(res.total_T()[i] - ref[pol][1]),
+                       abs(res.T["substrate"][res.zero, i] - ref[pol][2])) for i, pol in enumerate(("p", "s")))
+
+    res = solve(st, wl, harmonics=M, factorization="laurent")
+    assert not st.mirror_symmetric and not res.info["symmetric"]
+    assert np.max(np.abs(res.t00()[[0, 1], [1, 0]])) > 1e-3          # x and y couple: no parity split exists
+    assert mismatch(res) < 5e-5
+    monkeypatch.setattr(Stack, "mirror_symmetric", property(lambda self: True))
+    planted = solve(st, wl, harmonics=M, factorization="laurent", check_energy=False)
+    assert planted.info["symmetric"] and mismatch(planted) > 100 * 5e-5
