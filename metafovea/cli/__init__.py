@@ -28,7 +28,8 @@ from metafovea.errors import InputError
 log = logging.getLogger("metafovea")
 
 #: command modules under ``metafovea.cli``, in the order ``--help`` lists them
-COMMAND_MODULES = ("validate", "design", "library", "layout", "psf", "simulate", "import_", "reconstruct", "codesign", "study")
+COMMAND_MODULES = ("validate", "design", "library", "layout", "psf", "simulate", "import_", "reconstruct", "codesign",
+                   "study")
 
 class Parser(argparse.ArgumentParser):
     """argparse with one-line errors (no usage dump) and exit status 2."""
