@@ -46,9 +46,10 @@ def main(argv: list[str] | None = None) -> int:
                "phase_poly_rad": s["phase_poly_rad"], "seconds": t_run}
         rows.append(row)
         print(f"D {d_mm:g} mm F/2: {row['wavelengths']} wavelengths, {row['depths_of_focus']:.0f} depths of focus; "
-              f"band MTF area {row['area_hyperbolic']:.4f} -> {row['area_codesigned']:.4f}: gain {row['gain_model']:.3f}"
-              f" (production {row['gain_production']:.3f}; line bound <= {row['gain_limit']:.3f}); per-wavelength "
-              f"{row['per_wavelength_hyperbolic']:.4f} -> {row['per_wavelength_codesigned']:.4f}; {t_run:.0f} s")
+              f"band MTF area {row['area_hyperbolic']:.4f} -> {row['area_codesigned']:.4f}: "
+              f"gain {row['gain_model']:.3f} (production {row['gain_production']:.3f}; "
+              f"line bound <= {row['gain_limit']:.3f}); per-wavelength {row['per_wavelength_hyperbolic']:.4f} -> "
+              f"{row['per_wavelength_codesigned']:.4f}; {t_run:.0f} s")
     print(f"load {os.getloadavg()[0]:.2f}")
     if args.out:
         with open(args.out, "w") as fh:
