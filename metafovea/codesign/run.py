@@ -40,6 +40,9 @@ from .optimize import Bounds, OptimizeOptions, OptimizeResult, minimize
 CODESIGN_OBJECTIVES = ("mtf",)
 #: the lenses a run may co-design (each is optimised for its own channel)
 CODESIGN_LENSES = ("foveal", "perifoveal")
+#: the least relative margin kept from a ray crossing (the Debye model's condition), and the penalty's weight
+CROSSING_MARGIN = 0.05
+CROSSING_PENALTY = 100.0
 #: the largest defocus-phase step at the rim between neighbouring wavelength samples (rad): a quarter wave
 RIM_PHASE_STEP_RAD = math.pi / 2
 
@@ -141,6 +144,33 @@ def band_weights(wavelengths_um: np.ndarray, system: SystemDesign, band_um: tupl
     return w / w.sum()
 
 
+def _crossing_margin(lens: LensDesign, n: int = 512) -> Any:
+    """A JAX function of the added-phase coefficients: how far (relative) the lens comes to crossing rays, i.e. the
+    largest of ``phi'' / |phi0''|`` and ``(phi' / rho) / |phi0' / rho|`` plus :data:`CROSSING_MARGIN` over the
+    aperture (``phi0`` the hyperbola; the same condition as :func:`metafovea.optics.jaxpsf.ray_map_is_monotonic`),
+    clipped at 0: zero while every ray keeps a margin from crossing."""
+    import jax.numpy as jnp
+
+    R, f = lens.radius_um, lens.f_um
+    k0 = 2 * math.pi / lens.wavelength_um
+    rho = np.linspace(0.0, R, n)
+    L = np.sqrt(rho * rho + f * f)
+    h1, h2 = k0 / L, k0 * (f / L) ** 3 / f  # -phi0' / rho and -phi0'' of the hyperbola (> 0)
+    u = (rho / R) ** 2
+    sign = -lens.phase_sign
+
+    def margin(coeffs: Any) -> Any:
+        a = sign * coeffs
+        j = jnp.arange(a.shape[0])
+        powers = jnp.asarray(u)[:, None] ** j[None, :]
+        ap_r = powers @ (2 * (j + 1) * a) / (R * R)
+        app = powers @ (2 * (j + 1) * (2 * j + 1) * a) / (R * R)
+        worst = jnp.maximum(jnp.max(ap_r / h1 - 1.0), jnp.max(app / h2 - 1.0))
+        return jnp.maximum(worst + CROSSING_MARGIN, 0.0)
+
+    return margin
+
+
 def _problem_key(system: SystemDesign, lens: LensDesign, options: CodesignOptions, n_wl: int) -> str:
     return input_hash({"system": repr(system), "lens": repr(lens), "objective": options.objective,
                        "band": options.band_um, "n": options.n_coefficients, "size": options.size_px,
@@ -177,9 +207,12 @@ def codesign_lens(system: SystemDesign, name: str, options: CodesignOptions, *,
         tf, tp = jaxpsf.channel_level_tables(system, name, post_sets, wl)
         zero = np.zeros(n)
 
+        crossing = _crossing_margin(lens)
+
         def loss(p: dict[str, Any]) -> tuple[Any, dict[str, Any]]:
             area = model.mtf_area(p["a"], tf, tp)
-            return -area, {"mtf_area": area}
+            c = crossing(p["a"])  # > 0 where rays would cross: outside the Debye model's validity
+            return -area + CROSSING_PENALTY * c * c, {"mtf_area": area, "crossing": c}
 
         res = minimize(loss, {"a": zero}, {"a": Bounds(-limit_rad, limit_rad, np.full(n, 2 * math.pi))},
                        options.optimize, checkpoint=checkpoint, problem_key=_problem_key(system, lens, options, n_wl),
