@@ -14,7 +14,7 @@ def test_every_command_is_registered():
     sub = next(a for a in build_parser()._actions if a.dest == "command")  # argparse keeps subparsers here
     names = set(sub.choices)
     assert {"validate", "design", "library", "export", "verify", "psf", "simulate", "import", "reconstruct"} <= names
-    assert len(COMMAND_MODULES) == 9  # validate design library layout psf simulate import_ reconstruct study
+    assert len(COMMAND_MODULES) == 10  # validate design library layout psf simulate import_ reconstruct study bench
 
 
 def test_a_command_line_builds_only_its_commands_parser():
