@@ -102,7 +102,7 @@ class BenchSizes:
                        psf_budgets=(1e6, 5e6, 2e7), sim_scenes=("siemens-star",), sim_crop=64, sim_frames=8,
                        sim_tolerances_k=(0.03, 0.1, 0.3), rec_size=64, rec_frames=24, rec_snapshot_iterations=30,
                        rec_crop=64, rec_case_frames=12, export_patches_mm=(0.5, 1.0, 2.0))
-        return cls(rcwa_posts=8, rcwa_harmonics=(3, 4, 5, 6, 8, 10, 12, 14), rcwa_reference=18,
+        return cls(rcwa_posts=6, rcwa_harmonics=(3, 4, 5, 6, 8, 10, 12), rcwa_reference=16,
                    psf_bins=(5, 9, 17, 31, 61), psf_reference_bins=121, psf_size_px=41,
                    psf_lenses=(("foveal", 0.0), ("perifoveal", 0.0), ("perifoveal", 3.8)),
                    psf_budgets=(1e6, 5e6, 2e7, 1e8), sim_scenes=("smooth", "siemens-star"), sim_crop=PAPER_CROP_PX,

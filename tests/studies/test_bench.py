@@ -4,6 +4,11 @@ from __future__ import annotations
 
 import json
 import math
+import os
+import signal
+import subprocess
+import sys
+import time
 
 import pytest
 
@@ -104,3 +109,23 @@ def test_disk_write_seconds_writes_and_removes_its_file(tmp_path):
     dt, mode = disk_write_seconds(tmp_path / "d.bin", 1 << 20)
     assert dt > 0 and mode in ("O_DIRECT", "buffered")
     assert not list(tmp_path.iterdir())
+
+
+@pytest.mark.skipif(sys.platform != "linux", reason="process groups (Linux)")
+def test_ctrl_c_stops_the_bench_with_one_line_and_writes_nothing(tmp_path):
+    """SIGINT to the process group while the full bench's first stage runs: exit 130, 'interrupted' the last line,
+    no traceback, nothing left in the output folder (no page, no JSON, no scratch file)."""
+    out = tmp_path / "b"
+    cmd = [sys.executable, "-c", "from metafovea.cli import console_main; raise SystemExit(console_main())",
+           "bench", "--out", str(out)]
+    p = subprocess.Popen(cmd, start_new_session=True, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    first = p.stderr.readline()  # the first progress line: the RCWA reference is being solved
+    assert "rcwa" in first, first
+    time.sleep(0.5)
+    t0 = time.monotonic()
+    os.killpg(p.pid, signal.SIGINT)
+    _, err = p.communicate(timeout=60)
+    assert p.returncode == 130, err[-800:]
+    assert "Traceback" not in err and err.strip().splitlines()[-1] == "interrupted", err[-800:]
+    assert time.monotonic() - t0 < 30
+    assert not out.exists() or not list(out.iterdir()), list(out.rglob("*"))
