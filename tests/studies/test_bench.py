@@ -129,3 +129,10 @@ def test_ctrl_c_stops_the_bench_with_one_line_and_writes_nothing(tmp_path):
     assert "Traceback" not in err and err.strip().splitlines()[-1] == "interrupted", err[-800:]
     assert time.monotonic() - t0 < 30
     assert not out.exists() or not list(out.iterdir()), list(out.rglob("*"))
+
+
+def test_the_page_renders_cleanly(quick_run, browser_check):
+    """The page in a browser: no overflow at 800 and 1400 px, every figure loads and has its text, no raw Python
+    values (the rows' dicts and lists written as a person reads them)."""
+    _, out = quick_run
+    browser_check(out / "index.html")
