@@ -27,14 +27,13 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from metafovea.studies.bench import check_stages, run_bench
+    from metafovea.studies.bench import run_bench
 
-    stages = check_stages(args.stages)  # an unknown stage before anything is created
-    out = out_dir(args, "bench")
+    out = out_dir(args, "bench")  # not created yet: run_bench checks the stages first
     command = " ".join(["metafovea bench", *(["--quick"] if args.quick else []),
                         *(["--stages", *args.stages] if args.stages else []), "--out", shlex.quote(str(out)),
                         *(["--force"] if args.force else [])])
-    res = run_bench(out, quick=args.quick, stages=stages, force=args.force, progress=stage_printer(args, "bench"),
+    res = run_bench(out, quick=args.quick, stages=args.stages, force=args.force, progress=stage_printer(args, "bench"),
                     command=command)
     if args.json:
         print(to_json(res))

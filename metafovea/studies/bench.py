@@ -3,29 +3,29 @@
 :func:`run_bench` runs a short sweep per stage (:data:`STAGES`) and writes one self-contained page (``index.html``,
 its figures embedded as PNG) and ``bench.json`` (every number) into a folder:
 
-========== ================================================ ==============================================
-stage      the sweep                                        error against
-========== ================================================ ==============================================
-rcwa       harmonics M of the RCWA solver (Li's and         the zero-order phase of the same posts at a
-           Laurent's factorisation), random posts of the    high truncation (``reference_harmonics``);
-           paper's platform at 10 um; time per post         the largest over the posts (rad)
-psf        the sensor PSF's spectral bins (8-14 um, on      the same PSF with many bins (max abs / peak);
-           axis, the batched Hankel engine) and the         the engines' own estimate beside it (which
-           engine budget off axis (rays or MFT per          bounds the engine's error, not the spectral
-           wavelength, 9.7-10.3 um at 1 deg)                sampling's)
-simulate   ``simulate(..., tolerance_k=T)``, the planner's  the full model (K rms referred to the scene,
-           reduced model, for several T and scenes          :func:`metafovea.imaging.ablate.model_error_k`)
-reconstruct the separation methods on a synthetic           the truth (PSNR, dB); the linear Wiener
-           measurement (known alpha: video LSQ, the         bound beside the deconvolutions
-           sliding solver; unknown: alternating,
-           snapshot) and the PSF-aware deconvolutions
-           (wiener, wavelet, tv) on a simulated recording
-export     GDSII and OASIS export of patches of the foveal  the disk's own write speed: an ``O_DIRECT``
-           lens, bytes against seconds                      write of as many bytes, fsynced
-========== ================================================ ==============================================
+=========== ================================================ =============================================
+stage       the sweep                                        error against
+=========== ================================================ =============================================
+rcwa        harmonics M of the RCWA solver (Li's and         the zero-order phase of the same posts at a
+            Laurent's factorisation), random posts of the    high truncation (``rcwa_reference``); the
+            paper's platform at 10 um; time per post         largest over the posts (rad)
+psf         the sensor PSF's spectral bins (8-14 um, on      the same PSF with many bins (max abs / peak);
+            and off axis) and the engine budget off axis     the engines' own estimate beside it (which
+            (rays or MFT per wavelength, 9.7-10.3 um at      bounds the propagation, not the spectral
+            1 deg)                                           sampling)
+simulate    ``simulate(..., tolerance_k=T)``, the planner's  the full model (K rms referred to the scene,
+            reduced model, for several T and scenes          :func:`metafovea.imaging.ablate.model_error_k`)
+reconstruct the separation methods on a synthetic           the truth (PSNR, dB); the linear Wiener bound
+            measurement (known alpha: video LSQ, the         beside the deconvolutions
+            sliding solver; unknown: alternating,
+            snapshot) and the PSF-aware deconvolutions
+            (wiener, wavelet, tv) on a simulated recording
+export      GDSII and OASIS export of patches of the foveal  the disk's own write speed: an ``O_DIRECT``
+            lens, bytes against seconds                      write of as many bytes, fsynced
+=========== ================================================ =============================================
 
-``quick`` sizes (CI: well under 30 s on 2 cores) run every stage with fewer points and smaller references; the page
-says which. Each stage records the load average before and after it, its seconds and the command that reruns it
+``quick`` sizes (:meth:`BenchSizes.of`; the CI size) run every stage with fewer points and smaller references; the
+page says which. Each stage records the load average before and after it, its seconds and the command that reruns it
 alone. Nothing is written until every stage is done (then the two files, each atomically); the export's scratch
 files live in a temporary folder inside the output folder (the disk measured is the one written to) and are removed
 on any exit.
