@@ -113,11 +113,11 @@ def test_disk_write_seconds_writes_and_removes_its_file(tmp_path):
 
 @pytest.mark.skipif(sys.platform != "linux", reason="process groups (Linux)")
 def test_ctrl_c_stops_the_bench_with_one_line_and_writes_nothing(tmp_path):
-    """SIGINT to the process group while the full bench's first stage runs: exit 130, 'interrupted' the last line,
+    """SIGINT to the process group while the quick bench's first stage runs: exit 130, 'interrupted' the last line,
     no traceback, nothing left in the output folder (no page, no JSON, no scratch file)."""
     out = tmp_path / "b"
     cmd = [sys.executable, "-c", "from metafovea.cli import console_main; raise SystemExit(console_main())",
-           "bench", "--out", str(out)]
+           "bench", "--quick", "--out", str(out)]
     p = subprocess.Popen(cmd, start_new_session=True, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     first = p.stderr.readline()  # the first progress line: the RCWA reference is being solved
     assert "rcwa" in first, first
