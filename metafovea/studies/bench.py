@@ -102,7 +102,7 @@ class BenchSizes:
                        psf_budgets=(1e6, 5e6, 2e7), sim_scenes=("siemens-star",), sim_crop=64, sim_frames=8,
                        sim_tolerances_k=(0.03, 0.1, 0.3), rec_size=64, rec_frames=24, rec_snapshot_iterations=30,
                        rec_crop=64, rec_case_frames=12, export_patches_mm=(0.5, 1.0, 2.0))
-        return cls(rcwa_posts=6, rcwa_harmonics=(3, 4, 5, 6, 8, 10, 12), rcwa_reference=16,
+        return cls(rcwa_posts=8, rcwa_harmonics=(3, 4, 5, 6, 8, 10, 12, 14), rcwa_reference=20,
                    psf_bins=(5, 9, 17, 31, 61), psf_reference_bins=121, psf_size_px=41,
                    psf_lenses=(("foveal", 0.0), ("perifoveal", 0.0), ("perifoveal", 3.8)),
                    psf_budgets=(1e6, 5e6, 2e7, 1e8), sim_scenes=("smooth", "siemens-star"), sim_crop=PAPER_CROP_PX,
@@ -243,7 +243,9 @@ def _timed(fn: Callable[[], Any], quick_s: float = 0.0, repeats: int = 3) -> tup
 
 
 def bench_rcwa(sizes: BenchSizes, say: Callable[[str], None]) -> dict[str, Any]:
-    """Harmonics against the zero-order phase error and the time per post (module docstring)."""
+    """Harmonics against the zero-order phase error and the time per post (module docstring), with one BLAS thread
+    (as the library's sweeps run: on a loaded machine OpenBLAS' threads make the same solve 10-40x slower at random)."""
+    from metafovea.parallel import blas_threads
     from metafovea.rcwa.posts import post_response
 
     g = np.random.default_rng(RCWA_SEED)
@@ -254,10 +256,12 @@ def bench_rcwa(sizes: BenchSizes, say: Callable[[str], None]) -> dict[str, Any]:
     def solve(M: int, factorization: str) -> tuple[np.ndarray, float]:
         # post by post: a Ctrl-C waits for one post's solve at most, not for the whole batch's
         t, dt = np.empty(n, complex), 0.0
-        for i in range(n):
-            r, dti = _timed(lambda i=i: post_response(wx[i], wy[i], PAPER_WAVELENGTH_UM, harmonics=M,
-                                                      factorization=factorization, polarizations=("x",)), quick_s=0.2)
-            t[i], dt = complex(np.ravel(r.t_x)[0]), dt + dti
+        with blas_threads(1):
+            for i in range(n):
+                r, dti = _timed(lambda i=i: post_response(wx[i], wy[i], PAPER_WAVELENGTH_UM, harmonics=M,
+                                                          factorization=factorization, polarizations=("x",)),
+                                quick_s=0.2)
+                t[i], dt = complex(np.ravel(r.t_x)[0]), dt + dti
         return t, dt
 
     say(f"rcwa: the reference, Li's factorisation at M = {sizes.rcwa_reference}, {n} posts")
@@ -279,7 +283,7 @@ def bench_rcwa(sizes: BenchSizes, say: Callable[[str], None]) -> dict[str, Any]:
             "rows": rows, "x": ("error", "zero-order phase error, largest over the posts (rad)"),
             "y": ("seconds", "seconds per post (one polarisation, the mean over the posts)"),
             "notes": "error: |arg(t_M / t_ref)| of the x-polarised zero order, the largest over the posts; time: the "
-                     "mean solve of one post (a solve under 0.2 s: the best of 3), with this process's BLAS threads."}
+                     "mean solve of one post (a solve under 0.2 s: the best of 3), with one BLAS thread."}
 
 
 def _psf_band(lens: Any, n: int, band: tuple[float, float] = PAPER_BAND_UM) -> tuple[np.ndarray, np.ndarray]:
