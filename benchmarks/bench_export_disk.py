@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import mmap
 import os
 import platform
 import time
@@ -21,21 +20,11 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def disk_write(path: Path, nbytes: int, block: int = 32 << 20) -> float:
-    buf = mmap.mmap(-1, block)
-    buf.write(os.urandom(1 << 20) * (block >> 20))
-    fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC | os.O_DIRECT, 0o644)
-    t0 = time.perf_counter()
-    left = nbytes
-    try:
-        while left > 0:
-            left -= os.write(fd, buf)
-        os.fsync(fd)
-    finally:
-        os.close(fd)
-    dt = time.perf_counter() - t0
-    path.unlink()
-    return dt
+def disk_write(path: Path, nbytes: int) -> float:
+    """The disk's own time for ``nbytes`` (O_DIRECT, fsynced): :func:`metafovea.studies.bench.disk_write_seconds`."""
+    from metafovea.studies.bench import disk_write_seconds
+
+    return disk_write_seconds(path, nbytes)[0]
 
 
 def encode_only(spec, workers: int) -> tuple[float, int]:

@@ -11,9 +11,9 @@ model against the full one (K rms, :func:`metafovea.imaging.ablate.model_error_k
     python benchmarks/bench_plan.py --tolerance-k 0.1 --scenes siemens-star --filter --repeats 5
     python benchmarks/bench_plan.py --quick              # 96 x 96 crop, 12 frames, 1 repeat (a smoke test)
 
-The smooth scenes are built here (:func:`smooth_scene`): ``smooth``, a 256 x 256 raster of 296-305 K (a warm blob on
-a linear gradient) filling the perifoveal field, the simulator's ambient 294 K beyond it (a step at the field's edge);
-``smooth-fade``, a warm blob that fades into the ambient.
+The smooth scenes are :func:`metafovea.studies.bench.smooth_scene`: ``smooth``, a 256 x 256 raster of 296-305 K (a
+warm blob on a linear gradient) filling the perifoveal field, the simulator's ambient 294 K beyond it (a step at the
+field's edge); ``smooth-fade``, a warm blob that fades into the ambient.
 """
 
 from __future__ import annotations
@@ -28,16 +28,7 @@ import warnings
 from dataclasses import replace
 from pathlib import Path
 
-import numpy as np
-
-
-def smooth_scene(kind: str = "smooth") -> np.ndarray:
-    """A smooth thermal scene (K), 256 x 256: ``smooth`` a 6 K blob on a 3 K gradient over 296 K (a 2-5 K step to the
-    ambient 294 K at the field's edge); ``smooth-fade`` an 8 K blob over 294 K that fades into the ambient."""
-    y, x = np.mgrid[0:256, 0:256] / 255.0
-    if kind == "smooth-fade":
-        return 294.0 + 8.0 * np.exp(-((x - 0.45) ** 2 + (y - 0.55) ** 2) / 0.03)
-    return 296.0 + 6.0 * np.exp(-((x - 0.4) ** 2 + (y - 0.55) ** 2) / 0.08) + 3.0 * x
+from metafovea.studies.bench import smooth_scene
 
 
 def _timed(fn):

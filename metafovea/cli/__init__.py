@@ -1,9 +1,9 @@
 """Command-line interface: one thin module per command over the library functions.
 
 ``metafovea COMMAND ...``: every command module (``design``, ``library``, ``layout`` (export, verify), ``psf``,
-``simulate``, ``reconstruct``, ``validate``) has ``register(subparsers)``, which adds its parser(s) with
-``set_defaults(func=run)``; ``run(args)`` parses the values, calls one library function, prints a summary (or
-JSON with ``--json``) and writes files.
+``simulate``, ``reconstruct``, ``validate``, ``study``, ``bench``) has ``register(subparsers)``, which adds its
+parser(s) with ``set_defaults(func=run)``; ``run(args)`` parses the values, calls one library function, prints a
+summary (or JSON with ``--json``) and writes files.
 
 Exit status: 0 on success; 1 when a check fails (``verify``); 2 on bad input, printed as one line that names the
 flag the user typed (a library parameter is mapped to its flag in :mod:`metafovea.cli.flags`, the one place
@@ -29,7 +29,7 @@ log = logging.getLogger("metafovea")
 
 #: command modules under ``metafovea.cli``, in the order ``--help`` lists them
 COMMAND_MODULES = ("validate", "design", "library", "layout", "psf", "simulate", "import_", "reconstruct", "codesign",
-                   "study")
+                   "study", "bench")
 
 class Parser(argparse.ArgumentParser):
     """argparse with one-line errors (no usage dump) and exit status 2."""
@@ -42,7 +42,7 @@ class Parser(argparse.ArgumentParser):
 #: each command's module (``layout`` holds two): :func:`build_parser` imports only the one a command line names
 COMMANDS = {"validate": "validate", "design": "design", "library": "library", "export": "layout", "verify": "layout",
             "psf": "psf", "simulate": "simulate", "import": "import_", "reconstruct": "reconstruct",
-            "codesign": "codesign", "study": "study"}
+            "codesign": "codesign", "study": "study", "bench": "bench"}
 
 
 def _command_in(argv: Sequence[str] | None) -> str | None:

@@ -51,6 +51,7 @@ PARAMETER_FLAGS: dict[str, dict[str, str]] = {
                  "polarizer_phase_deg": "--phase-deg", "field_patches": "--field-patches", "rng": "--seed",
                  "scene_unit": "--scene-unit", "tolerance_k": "--tolerance-k",
                  "out (TIFF)": "--out (TIFF)", "out (preview)": "--out (preview)"},
+    "bench": {"stages": "--stages", "quick": "--quick"},
     "validate": {"frames": "--frames", "seed": "--seed", "rng": "--seed", "scene": "--scene",
                  "scene_unit": "--scene-unit", "dip_steps": "--dip-steps"},
     "import": {"format": "--format", "frames_key": "--frames-key", "frame_axis": "--frame-axis", "times": "--times",

@@ -14,8 +14,9 @@ def test_every_command_is_registered():
     sub = next(a for a in build_parser()._actions if a.dest == "command")  # argparse keeps subparsers here
     names = set(sub.choices)
     assert {"validate", "design", "library", "export", "verify", "psf", "simulate", "import", "reconstruct",
-            "codesign"} <= names
-    assert len(COMMAND_MODULES) == 10  # validate design library layout psf simulate import_ reconstruct codesign study
+            "codesign", "bench"} <= names
+    assert len(COMMAND_MODULES) == 11  # validate design library layout psf simulate import_ reconstruct codesign study
+    # bench
 
 
 def test_a_command_line_builds_only_its_commands_parser():
