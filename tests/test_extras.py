@@ -34,6 +34,7 @@ SKIPS = {
                          "not a pip one: apt-get install chromium (.ci/run installs it where apt-get can)",
     "tests/test_lint.py": "ruff, in the test extra: skips only outside README's install",
     "tests/cli/test_signals.py": "process groups and /proc: Linux only",
+    "tests/studies/test_bench.py": "Ctrl-C of the bench sent to its process group: Linux only",
     "tests/recordings/test_flir.py": "ExifTool (the FLIR format's reference reader) runs on perl and ships with "
                                      "flirpy; the FLIR i7 image is in some flirpy releases only",
 }
