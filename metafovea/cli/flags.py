@@ -59,6 +59,9 @@ PARAMETER_FLAGS: dict[str, dict[str, str]] = {
                "polarizer_unit": "--polarizer-unit", "calibration": "--calibration", "planck": "--planck",
                "calibration_gain": "--calibration-gain", "band_um": "--band-um", "filter_um": "--filter-um",
                "foveal_gain": "--foveal-gain", "scale": "--scale", **_POLARIZER},
+    "codesign": {"objective": "--objective", "band_um": "--band", "lenses": "--lenses",
+                 "n_coefficients": "--coefficients", "size_px": "--size-px", "max_wavelengths": "--max-wavelengths",
+                 "steps": "--steps", "learning_rate": "--learning-rate", "out": "--out", "posts": "--posts"},
 }
 
 #: library keyword expressions in an error's advice -> what to type at the command, per command: a Python caller

@@ -66,10 +66,10 @@ def test_the_paper_lens_is_refused_with_what_it_needs():
 
 
 @pytest.mark.parametrize("flags, word", [(["--coefficients", "0"], "--coefficients"),
-                                         (["--lenses", "middle"], "lenses"),
-                                         (["--band", "14", "8"], "band"),
-                                         (["--objective", "psnr"], "objective"),
-                                         (["--size-px", "20"], "size_px")])
+                                         (["--lenses", "middle"], "--lenses"),
+                                         (["--band", "14", "8"], "--band"),
+                                         (["--objective", "psnr"], "--objective"),
+                                         (["--size-px", "20"], "--size-px")])
 def test_bad_flags_give_one_line_and_exit_2(flags, word, small_system_file, tmp_path, capsys):
     rc = main(["codesign", str(small_system_file), "--out", str(tmp_path / "o"), *flags])
     err = capsys.readouterr().err.strip().splitlines()
