@@ -91,6 +91,8 @@ def band_mtf_bound(lens: LensDesign, band_um: tuple[float, float], nu_cyc_per_mm
     nu_cyc_per_mm : array_like, (n,), cycles/mm on the plane ``z``, > 0, increasing
     z_um : float, optional
         The sensor plane's distance (default the focal length).
+    filter_um : (centre, FWHM), um, optional
+        A narrow-band filter (:func:`metafovea.radiometry.spectral_transmission`'s convention).
     efficiency : callable, optional
         ``eta(lambda_um)``, the focusing order's efficiency (default 1: an ideal lens).
     n_wavelengths, n_line : int

@@ -30,7 +30,7 @@ import numpy as np
 from metafovea.config import LensDesign, SystemDesign
 from metafovea.errors import InputError, check_choice, check_int
 from metafovea.io import input_hash
-from metafovea.radiometry import check_band, planck_radiance, spectral_transmission
+from metafovea.radiometry import check_band, planck_radiance, spectral_transmission, system_filter_um
 
 from .bound import MTFBound, band_mtf_bound
 from .limits import BandwidthLimit, bandwidth_limit
@@ -134,10 +134,7 @@ def spectral_sampling(lens: LensDesign, z_um: float, band_um: tuple[float, float
 
 def band_weights(wavelengths_um: np.ndarray, system: SystemDesign, band_um: tuple[float, float]) -> np.ndarray:
     """Trapezoid weights (sum 1) of the detected spectral density ``B(lambda, T_scene) x band x filter``."""
-    filt = None
-    if system.filter_enabled:
-        half = 0.5 * system.filter_bandwidth_um
-        filt = (system.filter_center_um - half, system.filter_center_um + half)
+    filt = system_filter_um(system)
     s = planck_radiance(wavelengths_um, system.scene_temperature_k) * spectral_transmission(
         wavelengths_um, band_um, filter_um=filt)
     w = np.gradient(wavelengths_um) * s
@@ -189,7 +186,8 @@ def codesign_lens(system: SystemDesign, name: str, options: CodesignOptions, *,
     z = float(system.lens_to_sensor_um[0 if name == "foveal" else 1])
     n_wl, why = spectral_sampling(lens, z, band)
     if n_wl > options.max_wavelengths:
-        b = band_mtf_bound(lens, band, [1.0], z_um=z, temperature_k=system.scene_temperature_k)
+        b = band_mtf_bound(lens, band, [1.0], z_um=z, temperature_k=system.scene_temperature_k,
+                           filter_um=system_filter_um(system))
         raise InputError("max_wavelengths", options.max_wavelengths,
                          f">= {n_wl} for the {name} lens ({why}); its band MTF optimum without a run: the line bound "
                          f"(focus {b.best_wavelength_um:.2f} um on the sensor, at most {b.gain_limit:.2f}x the "
@@ -231,7 +229,7 @@ def codesign_lens(system: SystemDesign, name: str, options: CodesignOptions, *,
     pitch = system.sensor.pixel_pitch_um / system.relay_magnification
     nyq = 0.5 / pitch * 1e3  # cyc/mm on the focal plane
     bound = band_mtf_bound(lens, band, np.linspace(nyq / 64, nyq, 64), z_um=z,
-                           temperature_k=system.scene_temperature_k)
+                           temperature_k=system.scene_temperature_k, filter_um=system_filter_um(system))
     sampling = {"wavelengths": n_wl, "why": why, "posts": source, "engine": model.engine,
                 "pixel_pitch_focal_um": pitch, "size_px": options.size_px}
     return LensResult(replace(lens, phase_poly_rad=coeffs), lens, area1, area0, pw1, pw0,

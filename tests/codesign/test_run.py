@@ -81,3 +81,23 @@ def test_a_finished_run_is_not_overwritten_without_force(result, small_system_fi
     rc = main(["codesign", str(small_system_file), "--out", str(out), "--steps", "1"])
     err = capsys.readouterr().err
     assert rc == 2 and "--force" in err
+
+
+def test_the_band_weights_follow_the_system_filter():
+    """With the system's 10 um filter on, the weights sit on the filter (radiometry's (centre, FWHM) convention) and
+    the line bound leaves nothing to win; without it they follow the 300 K Planck curve over the band."""
+    from dataclasses import replace
+
+    import numpy as np
+
+    from metafovea.codesign import band_mtf_bound
+    from metafovea.codesign.run import band_weights
+    from metafovea.radiometry import system_filter_um
+
+    wl = np.linspace(8.0, 14.0, 601)
+    on = replace(SystemDesign.paper(), filter_enabled=True)
+    w_on, w_off = band_weights(wl, on, (8.0, 14.0)), band_weights(wl, SystemDesign.paper(), (8.0, 14.0))
+    assert abs(float(w_on @ wl) - on.filter_center_um) < 0.05 and float(w_on[np.abs(wl - 10.0) > 1.0].sum()) < 0.01
+    assert float(w_off @ wl) > 10.5 and w_off.sum() == pytest.approx(1.0)
+    b = band_mtf_bound(on.foveal, (8.0, 14.0), [5.0, 10.0], filter_um=system_filter_um(on))
+    assert b.gain_limit < 1.01
