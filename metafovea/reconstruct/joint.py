@@ -578,8 +578,13 @@ def prepare_problem(frames: ArrayLike, alpha: ArrayLike, psfs: ChannelPSFs, offs
     for i in range(2):
         r = psfs.illumination[i]
         r = np.ones((H, W)) if r is None else np.asarray(r, dtype=np.float64)
-        if r.shape != (H, W) or not np.all(r > 0):
+        if r.shape != (H, W):
             raise InputError(f"illumination_x{i + 1}", f"array of shape {r.shape}", f"(H, W) = {(H, W)} values > 0")
+        if not np.all(r > 0):  # a deconvolution divides by it: a field the camera does not see cannot be recovered
+            dark = float(np.mean(~(r > 0)))
+            raise InputError(f"illumination_x{i + 1}", f"0 on {100 * dark:.1f} % of the crop",
+                             "values > 0 everywhere (the channel's optical train vignettes part of the field to "
+                             "nothing: a smaller crop, or a clear aperture that passes the whole field)")
         z[i] = (u[i] - offset) / r
         r_rms.append(float(np.sqrt(np.mean(r ** -2.0))))
     g = Grid((H, W), psfs.kernels, psfs.pedestals)

@@ -312,3 +312,25 @@ def test_boundary_names_say_what_they_do():
     assert all(np.array_equal(x, y) for x, y in zip(old.scene, padded.scene))
     with pytest.raises(InputError, match="boundary"):
         separate_deconvolve(frames, a, psfs, boundary="periodic")
+
+
+def test_a_field_the_camera_does_not_see_is_refused_with_its_cause():
+    """A relative illumination of 0 (a train that vignettes part of the field to nothing) is refused naming the
+    fraction of the crop and the cause, not deconvolved into a division by zero."""
+    import numpy as np
+    import pytest
+
+    from metafovea.errors import InputError
+    from metafovea.reconstruct import ChannelPSFs, separate_deconvolve
+
+    rng = np.random.default_rng(0)
+    H = W = 16
+    k = np.zeros((5, 5))
+    k[2, 2] = 1.0
+    dark = np.ones((H, W))
+    dark[:, :4] = 0.0
+    psfs = ChannelPSFs(kernels=(k, k), pedestals=(0.0, 0.0), illumination=(dark, None))
+    alpha = np.linspace(0.1, 0.9, 6)
+    frames = rng.normal(100.0, 1.0, (6, H, W))
+    with pytest.raises(InputError, match=r"illumination_x1.*25\.0 % of the crop.*vignettes"):
+        separate_deconvolve(frames, alpha, psfs, method="wiener")
