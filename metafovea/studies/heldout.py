@@ -15,7 +15,7 @@ wiener_bound`, computed once per measurement). :func:`run_case` is both, for a p
 from __future__ import annotations
 
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
@@ -130,6 +130,13 @@ def run_case(system: SystemDesign | str | Path, case: HeldOutCase, methods: Sequ
     dict
         The case's fields, ``simulate_seconds`` and :func:`score_psf_aware`'s result.
     """
+    return simulate_and_score(system, case, lambda m: score_psf_aware(m, methods), threads=threads)
+
+
+def simulate_and_score(system: SystemDesign | str | Path, case: HeldOutCase,
+                       score: Callable[[Measurement], dict[str, Any]], *, threads: int | None = None) -> dict[str, Any]:
+    """:func:`simulate_case` then ``score`` of the recording, with ``threads`` BLAS threads (None: the library's):
+    the case's fields, ``simulate_seconds`` and the score's entries (the body of every study's ``run_case``)."""
     import contextlib
 
     from metafovea.parallel import blas_threads
@@ -139,5 +146,5 @@ def run_case(system: SystemDesign | str | Path, case: HeldOutCase, methods: Sequ
         t0 = time.perf_counter()
         m = simulate_case(design, case)
         sim_s = time.perf_counter() - t0
-        res = score_psf_aware(m, methods)
+        res = score(m)
     return {**asdict(case), "simulate_seconds": sim_s, **res}

@@ -45,15 +45,14 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import asdict
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from metafovea.config import SystemDesign, load_system
+from metafovea.config import SystemDesign
 from metafovea.measurement import Measurement
-from metafovea.studies.heldout import HeldOutCase, simulate_case
+from metafovea.studies.heldout import HeldOutCase, simulate_and_score
 
 #: the rows of a case, in order: the one-frame mode, the unseparated frame, the same frame moved to each truth's mean
 #: (an oracle baseline: it knows the truth's level), the multi-frame result
@@ -195,14 +194,4 @@ def run_case(system: SystemDesign | str | Path, case: HeldOutCase, *, solver: di
     dict
         The case's fields, ``simulate_seconds`` and :func:`score_snapshot`'s result.
     """
-    import contextlib
-
-    from metafovea.parallel import blas_threads
-
-    design = system if isinstance(system, SystemDesign) else load_system(system)
-    with blas_threads(threads) if threads else contextlib.nullcontext():
-        t0 = time.perf_counter()
-        m = simulate_case(design, case)
-        sim_s = time.perf_counter() - t0
-        res = score_snapshot(m, solver=solver)
-    return {**asdict(case), "simulate_seconds": sim_s, **res}
+    return simulate_and_score(system, case, lambda m: score_snapshot(m, solver=solver), threads=threads)

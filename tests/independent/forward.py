@@ -184,6 +184,20 @@ def _band_psf(r_um: np.ndarray, na: float, band: tuple, defocus_waves: float, wa
 
 
 @lru_cache(maxsize=16)
+def disk_kernel(radius_px: float, n: int) -> np.ndarray:
+    """(n, n) uniform disk of ``radius_px`` pixels on the pixel grid, centred, sum 1 (a defocus-like haze)."""
+    u = np.arange(n) - n // 2
+    d = (np.hypot(u[:, None], u[None, :]) <= radius_px).astype(float)
+    return d / d.sum()
+
+
+def gauss_kernel(sigma_px: float, n: int) -> np.ndarray:
+    """(n, n) isotropic Gaussian of ``sigma_px`` pixels, centred, sum 1."""
+    u = np.arange(n) - n // 2
+    g = np.exp(-0.5 * (u[:, None] ** 2 + u[None, :] ** 2) / sigma_px ** 2)
+    return g / g.sum()
+
+
 def pixel_kernel(na: float, pitch_um: float, supersample: int, radius_px: int, *, band: tuple = ((8.0, 14.0), None),
                  defocus_waves: float = 0.0, wavelengths: int = 9, box_nodes: int = 8) -> np.ndarray:
     """The pixel-integrated PSF ``K(p) = int_pixel PSF(p - u) du`` on a grid of ``1 / supersample`` pixel steps,

@@ -12,18 +12,7 @@ from metafovea.errors import InputError
 from metafovea.radiometry import BandRadiance
 from metafovea.reconstruct import ChannelPSFs, separate_deconvolve, wiener_bound
 from metafovea.reconstruct.metrics import psnr
-
-
-def _disk(radius: float, n: int) -> np.ndarray:
-    u = np.arange(n) - n // 2
-    d = (np.hypot(u[:, None], u[None, :]) <= radius).astype(float)
-    return d / d.sum()
-
-
-def _gauss(sigma: float, n: int) -> np.ndarray:
-    u = np.arange(n) - n // 2
-    g = np.exp(-0.5 * (u[:, None] ** 2 + u[None, :] ** 2) / sigma ** 2)
-    return g / g.sum()
+from tests.independent.forward import disk_kernel, gauss_kernel
 
 
 def _scene(rng: np.random.Generator, n: int) -> np.ndarray:
@@ -39,9 +28,9 @@ def _scene(rng: np.random.Generator, n: int) -> np.ndarray:
 def _case(seed: int, *, core: float = 0.3, sigma: float = 1.0, n: int = 96, T: int = 24):
     rng = np.random.default_rng(seed)
     big = 3 * n
-    k1 = core * _gauss(1.2, 15)
-    k1 = np.pad(k1, 10) + (1 - core) * _disk(12, 35)
-    k2 = 0.7 * np.pad(_gauss(0.8, 9), 6) + 0.3 * _disk(6, 21)
+    k1 = core * gauss_kernel(1.2, 15)
+    k1 = np.pad(k1, 10) + (1 - core) * disk_kernel(12, 35)
+    k2 = 0.7 * np.pad(gauss_kernel(0.8, 9), 6) + 0.3 * disk_kernel(6, 21)
     s1, s2 = _scene(rng, big), _scene(rng, big)
     c = slice(n, 2 * n)
     u1 = fftconvolve(s1, k1, mode="same")[c, c]
@@ -101,8 +90,8 @@ def _texture_case(seed: int, *, sigma: float, n: int = 96, T: int = 24):
     def scene():
         return 200.0 + 3.0 * np.real(np.fft.ifft2(np.fft.fft2(rng.standard_normal((big, big))) / f))
 
-    k1 = np.pad(0.3 * _gauss(1.2, 15), 10) + 0.7 * _disk(12, 35)
-    k2 = 0.7 * np.pad(_gauss(0.8, 9), 6) + 0.3 * _disk(6, 21)
+    k1 = np.pad(0.3 * gauss_kernel(1.2, 15), 10) + 0.7 * disk_kernel(12, 35)
+    k2 = 0.7 * np.pad(gauss_kernel(0.8, 9), 6) + 0.3 * disk_kernel(6, 21)
     s1, s2 = scene(), scene()
     c = slice(n, 2 * n)
     u1 = fftconvolve(s1, k1, mode="same")[c, c]
@@ -219,7 +208,7 @@ def test_the_measured_prior_is_the_padded_scenes_spectrum(n, spokes):
     rng = np.random.default_rng(n)
     T = 24
     big = 200.0 + 60.0 * _star(3 * n, spokes) + rng.normal(0, 5, (3 * n, 3 * n))
-    k = 0.05 * np.pad(_gauss(1.2, 15), 10) + 0.95 * _disk(12, 35)
+    k = 0.05 * np.pad(gauss_kernel(1.2, 15), 10) + 0.95 * disk_kernel(12, 35)
     c = slice(n, 2 * n)
     u = fftconvolve(big, k, mode="same")[c, c]
     a = np.cos(np.linspace(0, 2 * np.pi, T, endpoint=False) + 0.3) ** 2
@@ -258,8 +247,8 @@ def _zoomed_pair(seed: int, foveal: str, *, n: int = 96, field_dn: float = 0.0, 
         S1 = 200.0 + 40.0 * _star(N, 32)
         t = g * scale + (N - 1) / 2
         S2 = map_coordinates(S1, np.meshgrid(t, t, indexing="ij"), order=1, mode="nearest")
-    k1 = core * np.pad(_gauss(1.2, 15), 10) + (1 - core) * _disk(12, 35)
-    k2 = 0.7 * np.pad(_gauss(0.8, 9), 6) + 0.3 * _disk(6, 21)
+    k1 = core * np.pad(gauss_kernel(1.2, 15), 10) + (1 - core) * disk_kernel(12, 35)
+    k2 = 0.7 * np.pad(gauss_kernel(0.8, 9), 6) + 0.3 * disk_kernel(6, 21)
     c = slice(n, 2 * n)
     v, u = np.meshgrid((np.arange(n) - (n - 1) / 2) / n, (np.arange(n) - (n - 1) / 2) / n, indexing="ij")
     field = field_dn * (1.0 + 1.5 * v - 1.0 * u + 2.0 * u * u)

@@ -17,28 +17,16 @@ from metafovea.measurement import Measurement
 from metafovea.reconstruct import ChannelPSFs, PSFFamily, deconvolve_measurement, refine_psf, separate_deconvolve
 from metafovea.reconstruct.metrics import psnr
 from metafovea.reconstruct.psf_refine import defocus_shift_um, psf_evidence, psf_family
-from tests.independent.forward import pixel_kernel
+from tests.independent.forward import disk_kernel, gauss_kernel, pixel_kernel
 
 N = 96
 SIGMAS = tuple(round(0.6 + 0.2 * k, 1) for k in range(9))  # the x1 family: 0.6 ... 2.2 px, nominal 1.0
 WAVES = (0.0, 0.25, 0.5, 0.75, 1.0, 1.25, 1.5)  # the x2 family: defocus in waves, nominal 0
 
 
-def _disk(radius: float, n: int) -> np.ndarray:
-    u = np.arange(n) - n // 2
-    d = (np.hypot(u[:, None], u[None, :]) <= radius).astype(float)
-    return d / d.sum()
-
-
-def _gauss(sigma: float, n: int) -> np.ndarray:
-    u = np.arange(n) - n // 2
-    g = np.exp(-0.5 * (u[:, None] ** 2 + u[None, :] ** 2) / sigma ** 2)
-    return g / g.sum()
-
-
 def _core_in_haze(sigma: float) -> np.ndarray:
     """A Gaussian core of ``sigma`` px carrying 60 % of the power in a 12 px disk of haze (35 x 35)."""
-    return 0.6 * _gauss(sigma, 35) + 0.4 * _disk(12, 35)
+    return 0.6 * gauss_kernel(sigma, 35) + 0.4 * disk_kernel(12, 35)
 
 
 def _airy(waves: float) -> np.ndarray:
@@ -131,7 +119,7 @@ def test_the_rule_needs_both_the_evidence_and_vuongs_test(families):
 def test_a_family_without_the_files_psf_is_stated(families):
     f1, _ = families
     frames, a, _ = _data(f1.kernels[f1.nominal_index], _airy(0.0), 4)
-    other = ChannelPSFs((_disk(3, 35), _airy(0.0)))  # the "file's" x1 PSF is none of the family's
+    other = ChannelPSFs((disk_kernel(3, 35), _airy(0.0)))  # the "file's" x1 PSF is none of the family's
     (c,) = refine_psf(frames, a, other, [f1], sigma=1.0).channels
     assert not c["nominal_matches_file"] and "not the file's" in c["warning"]
 
@@ -143,7 +131,7 @@ def test_evidence_is_highest_at_the_true_member_of_a_power_law_scene():
     f = np.hypot(np.fft.fftfreq(n)[:, None], np.fft.fftfreq(n)[None, :])
     f[0, 0] = 1.0
     s = np.real(np.fft.ifft2(np.fft.fft2(rng.normal(size=(n, n))) / f)) * 3.0
-    ks = [_gauss(w, 25) for w in (0.8, 1.2, 1.6, 2.0, 2.4)]
+    ks = [gauss_kernel(w, 25) for w in (0.8, 1.2, 1.6, 2.0, 2.4)]
     z = fftconvolve(s, ks[2], mode="same")[N:2 * N, N:2 * N] + rng.normal(0, 0.5, (N, N))
     ev = psf_evidence(z, 0.25, ks, reference=0)
     assert int(np.argmax(ev["two_ln_b"])) == 2 and ev["two_ln_b"][0] == 0.0
@@ -220,7 +208,7 @@ def test_the_foveal_relation_confirms_a_refinement():
 
     f2 = PSFFamily(2, "defocus", np.array(WAVES), tuple(_airy(w) for w in WAVES), (0.0,) * len(WAVES), unit="waves")
     x1, x2 = (200.0 + 100.0 * x for x in scene(N))
-    k1, k2 = _gauss(1.0, 9), f2.kernels[WAVES.index(1.0)]
+    k1, k2 = gauss_kernel(1.0, 9), f2.kernels[WAVES.index(1.0)]
     u = [fftconvolve(np.pad(x, k.shape[0] // 2, mode="reflect"), k, mode="valid") for x, k in ((x1, k1), (x2, k2))]
     rng = np.random.default_rng(0)
     a = np.cos(np.linspace(0, 2 * np.pi, 24, endpoint=False) + 0.3) ** 2
