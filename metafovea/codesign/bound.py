@@ -69,10 +69,13 @@ class MTFBound:
                 f"{self.area_hyperbola:.4f}); reached by focusing {self.best_wavelength_um:.2f} um on the sensor"]
 
 
-def _density(band_um, temperature_k, filter_um, n):
-    lam = np.linspace(*check_band(band_um), n)
-    s = planck_radiance(lam, temperature_k) * spectral_transmission(lam, band_um, filter_um=filter_um)
-    return lam, s / np.trapezoid(s, lam)
+def detected_density(wavelengths_um: np.ndarray, band_um: tuple[float, float], *, temperature_k: float = 300.0,
+                     filter_um: tuple[float, float] | None = None) -> np.ndarray:
+    """The detected spectral density ``s(lambda) = B(lambda, T) x band x filter`` on ``wavelengths_um`` (uniform,
+    increasing), normalised to integrate to 1 (trapezoid rule), per um."""
+    s = planck_radiance(wavelengths_um, temperature_k) * spectral_transmission(wavelengths_um, band_um,
+                                                                                filter_um=filter_um)
+    return s / np.trapezoid(s, wavelengths_um)
 
 
 def band_mtf_bound(lens: LensDesign, band_um: tuple[float, float], nu_cyc_per_mm: ArrayLike, *,
@@ -108,7 +111,8 @@ def band_mtf_bound(lens: LensDesign, band_um: tuple[float, float], nu_cyc_per_mm
     n_wavelengths = check_int("n_wavelengths", n_wavelengths, 101, 10**6)
     n_line = check_int("n_line", n_line, 101, 10**6)
     z = float(lens.f_um if z_um is None else z_um)
-    lam, s = _density(band_um, temperature_k, filter_um, n_wavelengths)
+    lam = np.linspace(*check_band(band_um), n_wavelengths)
+    s = detected_density(lam, band_um, temperature_k=temperature_k, filter_um=filter_um)
     eta = np.ones_like(lam) if efficiency is None else np.clip(np.asarray(efficiency(lam), dtype=float), 0.0, 1.0)
     weight = lam * s * eta
     radius = 0.5 * lens.diameter_um

@@ -30,9 +30,9 @@ import numpy as np
 from metafovea.config import LensDesign, SystemDesign
 from metafovea.errors import InputError, check_choice, check_int
 from metafovea.io import input_hash
-from metafovea.radiometry import check_band, planck_radiance, spectral_transmission, system_filter_um
+from metafovea.radiometry import check_band, system_filter_um
 
-from .bound import MTFBound, band_mtf_bound
+from .bound import MTFBound, band_mtf_bound, detected_density
 from .limits import BandwidthLimit, bandwidth_limit
 from .optimize import Bounds, OptimizeOptions, OptimizeResult, minimize
 
@@ -133,10 +133,10 @@ def spectral_sampling(lens: LensDesign, z_um: float, band_um: tuple[float, float
 
 
 def band_weights(wavelengths_um: np.ndarray, system: SystemDesign, band_um: tuple[float, float]) -> np.ndarray:
-    """Trapezoid weights (sum 1) of the detected spectral density ``B(lambda, T_scene) x band x filter``."""
-    filt = system_filter_um(system)
-    s = planck_radiance(wavelengths_um, system.scene_temperature_k) * spectral_transmission(
-        wavelengths_um, band_um, filter_um=filt)
+    """Trapezoid weights (sum 1) of the detected spectral density (:func:`~metafovea.codesign.bound.detected_density`
+    at the system's scene temperature, through its filter when enabled) on uniform ``wavelengths_um``."""
+    s = detected_density(wavelengths_um, band_um, temperature_k=system.scene_temperature_k,
+                         filter_um=system_filter_um(system))
     w = np.gradient(wavelengths_um) * s
     return w / w.sum()
 
