@@ -35,8 +35,7 @@ def production_check(system: Any, r: LensResult, posts: str) -> dict[str, Any]:
     from metafovea.optics import jaxpsf
     from metafovea.optics.sensor import sensor_psf
 
-    name = r.lens.name if r.lens.name in ("foveal", "perifoveal") else "foveal"
-    z = float(system.lens_to_sensor_um[0 if name == "foveal" else 1])
+    z = float(system.lens_to_sensor_um[0 if r.sampling["channel"] == "foveal" else 1])
     post_sets, _ = system_post_sets(system, posts)
     ps = post_sets[r.lens.polarization]
     n = r.sampling["wavelengths"]

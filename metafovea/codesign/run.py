@@ -230,7 +230,7 @@ def codesign_lens(system: SystemDesign, name: str, options: CodesignOptions, *,
     nyq = 0.5 / pitch * 1e3  # cyc/mm on the focal plane
     bound = band_mtf_bound(lens, band, np.linspace(nyq / 64, nyq, 64), z_um=z,
                            temperature_k=system.scene_temperature_k, filter_um=system_filter_um(system))
-    sampling = {"wavelengths": n_wl, "why": why, "posts": source, "engine": model.engine,
+    sampling = {"channel": name, "wavelengths": n_wl, "why": why, "posts": source, "engine": model.engine,
                 "pixel_pitch_focal_um": pitch, "size_px": options.size_px}
     return LensResult(replace(lens, phase_poly_rad=coeffs), lens, area1, area0, pw1, pw0,
                       bandwidth_limit(lens, system.platform, band), bound, res, sampling, psf1, psf0, pitch)
