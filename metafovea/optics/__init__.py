@@ -12,13 +12,14 @@ Files, in the order light meets them::
                AliasingWarning
     rayleigh   rs_field (the windowed exact Rayleigh-Sommerfeld engine over the hard-edged aperture: off-axis
                PSFs, with an evaluated error estimate) and rs_reference (brute force, polar per Fresnel zone)
-    psf        the PSF type; psf() (field PSF on a fine grid: hankel on axis, rs off axis and for lenses with
-               phase_poly_rad, mft on request);
+    psf        the PSF type; psf() (field PSF on a fine grid: hankel on axis in focus, rs off axis, on axis where
+               the Debye model's rim wave is off (debye_error_bound) and for lenses with phase_poly_rad, mft on
+               request);
                encircled_energy_on_axis (exact radial integral); diffraction_radius_um, nyquist_pitch_um
     sensor     sensor_psf(): the PSF integrated over pixels, broadband, on and off axis (batched hankel on
                axis; batched mft near focus and the geometric ray engine elsewhere off axis, with an error
                bound for each; a result less accurate than asked says why in info['accuracy']); box_integrate,
-               disk_pixels, geometric_pixels_multi
+               disk_pixels, geometric_pixels_multi, debye_pixel_error (the Debye rim wave's error on pixels)
     sweep      sensor_psf_sweep(): sensor PSFs over fields and wavelength sets, one task each through
                metafovea.parallel.run_tasks (local threads or processes, or a Dask cluster: psf --scheduler)
     mtf        metrics of a PSF or a lens: mtf_2d, mtf_radial, mtf_slices, pupil_mtf (exact pupil
@@ -50,16 +51,17 @@ from .propagate import (
                   mft_field,
                   mft_intensity_multi,
 )
-from .psf import PSF, diffraction_radius_um, encircled_energy_on_axis, nyquist_pitch_um, psf
+from .psf import PSF, debye_error_bound, diffraction_radius_um, encircled_energy_on_axis, nyquist_pitch_um, psf
 from .pupil import Pupil, build_pupils, field_direction, max_field_deg
 from .rayleigh import rs_field, rs_reference
-from .sensor import box_integrate, disk_pixels, sensor_psf
+from .sensor import box_integrate, debye_pixel_error, disk_pixels, sensor_psf
 
-__all__ = ["PSF", "AliasingWarning", "Pupil", "SamplingError", "asm_propagate", "box_integrate", "build_pupils",
-           "diffraction_mtf", "diffraction_radius_um", "disk_pixels", "encircled_energy", "encircled_energy_on_axis",
-           "field_direction", "fwhm_um", "hankel_field", "hankel_profiles", "max_field_deg", "mft_field",
-           "mft_intensity_multi", "mtf_2d", "mtf_radial", "mtf_slices", "nyquist_pitch_um", "pixel_mtf",
-           "psf", "pupil_mtf", "rs_field", "rs_reference", "sensor_psf", "strehl"]
+__all__ = ["AliasingWarning", "PSF", "Pupil", "SamplingError", "asm_propagate", "box_integrate", "build_pupils",
+           "debye_error_bound", "debye_pixel_error", "diffraction_mtf", "diffraction_radius_um", "disk_pixels",
+           "encircled_energy", "encircled_energy_on_axis", "field_direction", "fwhm_um", "hankel_field",
+           "hankel_profiles", "max_field_deg", "mft_field", "mft_intensity_multi", "mtf_2d", "mtf_radial",
+           "mtf_slices", "nyquist_pitch_um", "pixel_mtf", "psf", "pupil_mtf", "rs_field", "rs_reference", "sensor_psf",
+           "strehl"]
 
 #: names of the JAX model, imported on first use (``import jax`` takes ~3 s; nothing else here needs it)
 _JAX_NAMES = frozenset({"ImagingModel", "TrainGains", "imaging_model", "train_gains"})

@@ -10,8 +10,12 @@ centre sits at ``center_um`` on the focal plane.
 
 Engine choice (``engine='auto'``), per wavelength:
 
-* ``hankel``  on axis, when the pupil is rotationally symmetric to within the requested error;
-* ``mft``     on axis otherwise (the direction-sine integral; exact on axis for these lenses);
+* ``hankel``  on axis, when the pupil is rotationally symmetric to within the requested error and the
+  direction-sine (Debye) model's rim wave is right to within it (:func:`debye_error_bound`: in focus it is; a
+  wavelength or plane defocused by ``eps`` of the focal length puts the rim wave ``pi N_F eps^2`` rad off, which on
+  the axis of a defocused PSF is O(1) of its peak for the paper's lenses from ~2 % of focal shift);
+* ``mft``     on axis when the pupil is not rotationally symmetric (same model and bound);
+* ``rs``      on axis where the Debye bound exceeds the requested error;
 * ``rs``      off axis: the windowed exact Rayleigh-Sommerfeld engine over the hard-edged aperture
   (:mod:`metafovea.optics.rayleigh`). ``engine='mft'`` off axis is the direction-sine (Debye) model, which
   misses part of the aperture edge's diffraction there (0.6-5 % of the peak at 1-5 deg for the paper's
@@ -270,10 +274,22 @@ def nyquist_pitch_um(lens: LensDesign) -> float:
 # ----------------------------------------------------------------------------------------------
 # one wavelength on a grid
 # ----------------------------------------------------------------------------------------------
+def debye_error_bound(pupil: Pupil) -> float:
+    """Bound on the direction-sine (Debye) engines' intensity error on axis at defocus, relative to the PSF's own
+    peak. Two parts: (i) the rim wave ``U_r`` (``|U_r|^2`` at most the peak) is off in phase by ``delta``
+    (:meth:`Pupil.rim_phase_error`), so ``|dU| <= t |U_r|``, ``t = 2 |sin(delta / 2)|``, and
+    ``|dI| <= 2 |U| |dU| + |dU|^2 <= (2 t + t^2) x peak``; (ii) the amplitude ``(f'/z)^2`` and scale ``f'/z`` the
+    Debye model misses (:meth:`Pupil.focal_shift_ratio` ``e``): ``2 |e|`` of the peak each. 0 in focus; tested
+    against the exact engine on lenses and wavelengths it was not derived on (tests/optics/test_psf.py)."""
+    t = 2.0 * abs(math.sin(0.5 * pupil.rim_phase_error()))
+    return 2.0 * t + t * t + 4.0 * abs(pupil.focal_shift_ratio())
+
+
 def _wave_engine(pupil: Pupil, xs: np.ndarray, ys: np.ndarray, error: float, engine: str) -> tuple[str, float]:
     """(engine, cost) for a wave-optical evaluation at this pupil and grid."""
     on_axis = float(np.hypot(*pupil.s0)) == 0.0
-    if engine == "auto" and pupil.lens.phase_poly_rad:  # the direction-sine model is not bounded for such lenses
+    if engine == "auto" and (pupil.lens.phase_poly_rad or (on_axis and debye_error_bound(pupil) > error)):
+        # the direction-sine model is not bounded for such lenses, or its rim wave is off at this defocus
         return "rs", float(xs.size * ys.size)
     aniso = pupil.lattice_anisotropy()
     if engine == "hankel" or (engine == "auto" and on_axis and aniso * 0.1 <= error):
@@ -304,9 +320,12 @@ def focus_intensity(pupil: Pupil, xs: np.ndarray, ys: np.ndarray, *, error: floa
     else:
         U = prop.mft_field(pupil, xs, ys, error=error * 1e-3)
         est = error * 1e-3 if float(np.hypot(*pupil.s0)) == 0.0 else math.inf
+    intensity = U.real ** 2 + U.imag ** 2
     if eng != "rs" and pupil.lens.phase_poly_rad:
         est = math.inf  # the Debye model of an aberrated lens: POLY_NOTE
-    return np.abs(U) ** 2, eng, est
+    elif eng != "rs" and intensity.size:  # the rim wave at defocus, relative to this PSF's own peak
+        est += debye_error_bound(pupil) * float(intensity.max()) / _ideal_peak(pupil)
+    return intensity, eng, est
 
 
 def _ideal_peak(pupil: Pupil) -> float:

@@ -329,6 +329,37 @@ class Pupil:
         cs = math.sqrt(1.0 - float(s @ s))
         return self.z_um * s / cs
 
+    def rim_phase_error(self) -> float:
+        """Phase error (rad) of the direction-sine (Debye) model's rim wave at the axis of the plane z.
+
+        Stationary phase maps the lens into direction sines exactly inside the aperture; what it changes is the
+        wave diffracted by the rim. On the axis the exact (Rayleigh-Sommerfeld) field is the centre's wave plus
+        the rim's, their phase difference ``k (L_z - z) - m k0 (L_f - f0)`` (``L_z = sqrt(R^2 + z^2)``,
+        ``L_f = sqrt(R^2 + f0^2)``); the direction-sine integral puts the rim at ``Phi(S) - Phi(0)``. The
+        difference vanishes in focus (lambda0, z = f0) and grows as ``pi N_F eps^2`` (Fresnel number
+        ``N_F = R^2 / (lambda0 f0)``, ``eps`` the fractional focal shift or defocus): the Debye model's
+        focal-shift error (Li and Wolf, Opt. Commun. 39, 211 (1981)). 0 for a pupil off axis or of a lens with
+        ``phase_poly_rad`` (their models are not bounded by it; :mod:`metafovea.optics.psf`)."""
+        if float(np.hypot(*self.s0)) > 0 or self.lens.phase_poly_rad:
+            return 0.0
+        R, f0, z = self.lens.radius_um, self.lens.f_um, self.z_um
+        k0m = 2 * np.pi / self.lens.wavelength_um * self.order
+        exact = self.k * R * R / (math.hypot(R, z) + z) - k0m * R * R / (math.hypot(R, f0) + f0)
+        na = self.lens.na
+        S = na / self.alpha
+        if not S < 1.0:
+            return math.inf
+        debye = (k0m * f0 * na * na / (1.0 + math.sqrt(1.0 - na * na))
+                 - self.k * z * S * S / (1.0 + math.sqrt(1.0 - S * S)))
+        return float(exact - debye)
+
+    def focal_shift_ratio(self) -> float:
+        """``1 - f' / z``: the plane z relative to the focus ``f' = f0 lambda0 / (m lambda)`` of this wavelength's
+        focusing order (0 in focus). The exact field there is, paraxially, ``(f'/z)`` times the direction-sine
+        field at scaled coordinates ``x f'/z`` and defocus ``(z - f') f'/z`` (Li and Wolf 1981): the amplitude
+        and scale the Debye model misses, an O(``1 - f'/z``) relative error of the PSF."""
+        return 1.0 - self.lens.f_um * self.alpha / self.z_um
+
     def evanescent_gap(self) -> float:
         """1 - (|s0| + radius): > 0 when the whole disk propagates."""
         return 1.0 - (float(np.hypot(*self.s0)) + self.radius)

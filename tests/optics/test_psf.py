@@ -17,6 +17,7 @@ from metafovea.optics import (
     PSF,
     SamplingError,
     build_pupils,
+    debye_error_bound,
     encircled_energy_on_axis,
     hankel_field,
     psf,
@@ -184,4 +185,36 @@ def test_corrected_lens_engine_choice_and_what_the_direction_sine_engines_say():
         assert b.engine == eng and math.isinf(b.error_estimate) and "phase_poly_rad" in b.info["model_note"]
     plain = LensDesign("p", 2000.0, 1000.0)
     c, d = psf(plain, wavelengths_um=[10.0, 11.0]), psf(plain.with_(phase_poly_rad=()), wavelengths_um=[10.0, 11.0])
-    assert c.engine == "hankel" and np.array_equal(c.intensity, d.intensity) and c.error_estimate == d.error_estimate
+    # 10 um in focus: hankel; 11 um, 10 % of focal shift: the Debye rim wave is off (debye_error_bound), so rs
+    assert c.engine == "hankel+rs" and np.array_equal(c.intensity, d.intensity) and c.error_estimate == d.error_estimate
+
+
+# lenses the Debye bound was not derived on (it was checked on the paper's two): F/1.5 and F/1, N_F = 33 and 62
+DEBYE_LENSES = [LensDesign("d15", 3000.0, 2000.0), LensDesign("d1", 2500.0, 2500.0)]
+
+
+@pytest.mark.parametrize("lens", DEBYE_LENSES, ids=lambda v: v.name)
+def test_debye_bound_covers_the_exact_engine_at_defocus(lens):
+    """The direction-sine engine on axis against the exact (Rayleigh-Sommerfeld) engine at wavelengths 0.5-8 % off
+    focus: its error estimate (debye_error_bound of the PSF's peak, plus quadrature) bounds the true error, and the
+    check can fail: the estimate without the Debye term would not."""
+    missed = []
+    for wl in (10.05, 10.2, 10.4, 9.6, 10.8):
+        half = max(60.0, 1.3 * lens.radius_um * abs(1 - lens.wavelength_um / wl) + 40.0)
+        kw = dict(wavelengths_um=[wl], window_um=2 * half, error=1e-3, allow_truncation=True, quantize=False)
+        h, r = psf(lens, engine="hankel", **kw), psf(lens, engine="rs", **kw)
+        true = np.abs(h.intensity - r.intensity).max() / r.intensity.max()
+        assert true <= h.error_estimate + r.error_estimate, (wl, true, h.error_estimate)
+        bound = debye_error_bound(build_pupils(lens, wl, quantize=False).focus)
+        missed.append(true > h.error_estimate - bound)
+    assert any(missed)  # without the rim-wave term the estimate is not a bound
+
+
+def test_auto_takes_the_exact_engine_on_axis_where_debye_is_off():
+    """'auto' on axis: hankel in focus, rs where the Debye bound exceeds the requested error (same PSF as rs)."""
+    lens = DEBYE_LENSES[0]
+    assert psf(lens, error=1e-3).engine == "hankel"
+    a = psf(lens, wavelengths_um=[10.4], error=1e-3, quantize=False)
+    b = psf(lens, wavelengths_um=[10.4], error=1e-3, quantize=False, engine="rs")
+    assert a.engine == "rs" and np.array_equal(a.intensity, b.intensity)
+    assert debye_error_bound(build_pupils(lens, 10.4).focus) > 1e-3 >= debye_error_bound(build_pupils(lens, 10.0).focus)
