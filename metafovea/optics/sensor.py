@@ -12,8 +12,8 @@ Engine choice (``engine='auto'``), per wavelength:
   weighted radial intensity is put on the pixel grid once (:func:`_radial_sensor`). This is the direction-sine
   (Debye) model, whose error at the defocused wavelengths (the rim wave's phase, the amplitude and scale
   ``f'/z``: :func:`metafovea.optics.psf.debye_error_bound`) is in ``error_estimate`` over pixels
-  (:func:`debye_pixel_error`, conservative: 6-100x the error measured per wavelength) and in
-  ``info['debye_error_estimate']``; the exact engine is ``psf(engine='rs')`` on a fine grid;
+  (:func:`debye_pixel_error`, conservative: BENCHMARKS.md, "PSF engines") and in ``info['debye_error_estimate']``;
+  the exact engine is ``psf(engine='rs')`` on a fine grid;
 * ``mft``       off axis, the wavelengths near focus: one batched MFT (shared kernels in design direction
   sines) per group of similar ray boxes, on a grid of ``n_sub`` samples per pixel, then integrated over the
   pixels exactly (:func:`box_integrate`);
@@ -310,13 +310,31 @@ def _radial_sensor(lens: LensDesign, pupils: list[Pupil], weights: np.ndarray, a
     own = (U.real ** 2 + U.imag ** 2).max(axis=1)
     quad = sum(wk * (qerr * _ideal_peak(pu) + pu.lattice_anisotropy() * min(0.01 * _ideal_peak(pu), float(ok)))
                for pu, wk, ok in zip(pupils, weights, own))
-    debye = sum(wk * debye_pixel_error(pu, float(ok), n_sub * dx) for pu, wk, ok in zip(pupils, weights, own))
+    p = n_sub * dx
+    debye = sum(wk * debye_pixel_error(pu, float(ok), p, _largest_pixel(rr, Ik, p))
+                for pu, wk, ok, Ik in zip(pupils, weights, own, U.real ** 2 + U.imag ** 2))
     log.debug('radial sensor: quad+lattice %.3g, spline %.3g (power per um^2), debye %.3g (power per pixel)',
               quad, 2 * spl_err, debye)
     return (quad + 2 * spl_err) * dx * dx * n_sub * n_sub / P_in, debye / P_in
 
 
-def debye_pixel_error(pupil: Pupil, own_peak: float, pitch_um: float) -> float:
+def _largest_pixel(r: np.ndarray, intensity: np.ndarray, pitch_um: float, n: int = 16) -> float:
+    """Largest power of a pixel (``intensity`` x um^2) of a rotationally symmetric intensity sampled at radii ``r``
+    on a grid of ``pitch_um`` pixels centred on the axis: the pixels along the axis and the diagonal, each integrated
+    on ``n`` x ``n`` points (an estimate of the peak pixel; the Debye estimate's amplitude and scale part)."""
+    J = max(1, int(r[-1] // pitch_um))
+    c = np.arange(J) * pitch_um
+    x = ((np.arange(n) + 0.5) / n - 0.5) * pitch_um
+    best = 0.0
+    for cy_scale in (0.0, 1.0):  # along the axis, along the diagonal
+        X = c[:, None, None] + x[None, :, None]
+        Y = cy_scale * c[:, None, None] + x[None, None, :]
+        vals = np.interp(np.hypot(X, Y), r, intensity).sum(axis=(1, 2)) * (pitch_um / n) ** 2
+        best = max(best, float(vals.max()))
+    return best
+
+
+def debye_pixel_error(pupil: Pupil, own_peak: float, pitch_um: float, own_pixel_peak: float | None = None) -> float:
     """Estimated largest error of a pixel (power, in the units of ``own_peak`` x um^2) of the direction-sine engines'
     on-axis PSF at defocus: the rim wave's phase error ``delta`` (:meth:`Pupil.rim_phase_error`) on the wave the rim
     sends to the axis, ``U_r = a_r J0(kappa r)`` (``kappa = k S``, S the rim's direction sine), against the rest of
@@ -325,9 +343,10 @@ def debye_pixel_error(pupil: Pupil, own_peak: float, pitch_um: float) -> float:
     meet in phase). A pixel several times the rim wave's ring spacing (``2 pi / kappa``) averages most of it out:
     this is what keeps the band PSF's error small on pixels although the fine-grid error is O(1) at the axis. Plus
     the amplitude and scale the Debye model misses (:func:`metafovea.optics.psf.debye_error_bound`, part ii) of
-    ``own_peak`` over the pixel."""
+    ``own_pixel_peak`` (the PSF's largest pixel at this wavelength; ``own_peak`` x the pixel's area if not given)."""
     t = 2.0 * abs(math.sin(0.5 * pupil.rim_phase_error()))
-    scale = 4.0 * abs(pupil.focal_shift_ratio()) * own_peak * pitch_um * pitch_um  # psf.debye_error_bound's (ii)
+    pix = own_peak * pitch_um * pitch_um if own_pixel_peak is None else own_pixel_peak
+    scale = 4.0 * abs(pupil.focal_shift_ratio()) * pix  # psf.debye_error_bound's (ii)
     if t == 0.0:
         return scale
     # the rim wave's amplitude on the axis: the end point of U(0) = int_0^S 2 pi s P(s) exp(i Phi(s)) ds,
@@ -568,8 +587,9 @@ def _accuracy(lens: LensDesign, fpair: tuple[float, float], est_rel: float, erro
         reason = "wavelengths traced as rays (the wave engines' cost budget is spent)"
         advice = {"wavelengths_um": "fewer wavelengths", "budget": "a larger cost budget"}
     elif main == "debye":
-        reason = ("the direction-sine (Debye) model's rim wave at the defocused wavelengths (a conservative "
-                  "estimate: 3-40x the error measured against the exact engine per wavelength, more for a band)")
+        reason = ("the direction-sine (Debye) model at the defocused wavelengths (rim wave, amplitude and scale; a "
+                  "conservative estimate: 15-30x the error measured against the exact engine for the paper's lenses "
+                  "over the 10 um filter's band)")
         advice = {"filter_um": "a narrower band"}
     else:
         reason = "the wave engines' own error estimate"
