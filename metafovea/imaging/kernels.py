@@ -216,7 +216,8 @@ class OpticsPSFProvider:
                "z_um": round(float(channel.focal_length_um), 6),
                "wavelengths_um": np.round(np.asarray(wavelengths_um, dtype=float), 9).tolist(),
                "weights": np.round(np.asarray(weights, dtype=float) / np.sum(weights), 12).tolist(),
-               "size_px": int(size_px), "error": self.error, "kind": "sensor_psf"}
+               "size_px": int(size_px), "error": self.error, "kind": "sensor_psf",
+               "model": "direction-sine with focal shift"}  # the on-axis engine's model (Pupil.li_wolf)
         h = input_hash(key)
         path = self.cache_dir / f"psf_{channel.name}_{h}.npz"
         if path.is_file():

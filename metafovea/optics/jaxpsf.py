@@ -32,9 +32,12 @@ Methods (chosen per field point by :func:`imaging_model`; float64 throughout, se
            (Gauss-Legendre nodes from the phase range, ``L`` the azimuthally averaged lattice factor, as
            production). ``J0(|phi'| r)`` does not depend on the wavelength: one Bessel matrix serves the band.
            For the hyperbola it is production's integral after the change of variable ``s(rho)``, so both agree
-           to quadrature error. Its model error against the exact propagation is production's (O(1 / Fresnel
-           number), larger where a wavelength is far out of focus); the mapping rho -> s must stay monotonic
-           (no caustic inside the aperture: ``phi''`` and ``phi'/rho`` of one sign).
+           to quadrature error, with production's focal-shift correction (``Pupil.li_wolf``: each wavelength's
+           model at ``z_D`` and radii ``m r``, times ``m^2``, ``m = f'/z`` with the hyperbola's focus ``f'``; a
+           Lagrange resampling per wavelength). Its model error against the exact propagation is production's
+           (``psf.debye_error_bound``; for a lens with an added phase the hyperbola's ``f'`` is an approximation);
+           the mapping rho -> s must stay monotonic (no caustic inside the aperture: ``phi''`` and ``phi'/rho`` of
+           one sign).
 ``rs``     any field: the first Rayleigh-Sommerfeld integral over the hard-edged aperture, exact kernel at every
            (node, output) pair, Gauss nodes over the disk (rows ``v = R sin t``, ``u`` between the row's ends:
            the edge costs nothing) sized from the largest slope of the lens-plus-kernel phase towards the window
@@ -457,11 +460,16 @@ class ImagingModel:
         k = jnp.asarray(2 * math.pi / self.wavelengths_um)[:, None]
         s = kr[None, :] / k
         cs = jnp.sqrt(jnp.maximum(1.0 - s * s, 0.0))
-        Phi = leg[None, :] - k * self.z_um * s * s / (1.0 + cs)
+        Phi = leg[None, :] - k * jnp.asarray(st["lw_z"])[:, None] * s * s / (1.0 + cs)
         Q = (c1[:, None] * amp[None, :]) * jnp.exp(1j * Phi)  # (K, n)
-        J = bessel_j0(jnp.asarray(st["r"])[:, None] * kr[None, :])  # (M, n)
+        J = bessel_j0(jnp.asarray(st["r"])[:, None] * kr[None, :])  # (M_ext, n)
         U = Q @ J.T.astype(jnp.complex128)
-        return U.real ** 2 + U.imag ** 2
+        I = U.real ** 2 + U.imag ** 2
+        # at each wavelength's scaled radii m_k r (Lagrange, as onto the grid), times m_k^2
+        gathered = jnp.take_along_axis(I[:, None, :], jnp.asarray(st["lw_idx"]).reshape(I.shape[0], 1, -1), axis=2)
+        gathered = gathered.reshape(st["lw_idx"].shape)
+        m = jnp.asarray(st["lw_m"])
+        return (m * m)[:, None] * jnp.sum(gathered * jnp.asarray(st["lw_w"]), axis=-1)  # (K, M)
 
     def _rs_field(self, a: jnp.ndarray, c1: jnp.ndarray, xs: np.ndarray, ys: np.ndarray) -> jnp.ndarray:
         """(K, M) field at the points (xs, ys) (flattened), exact RS engine (each wavelength its own nodes)."""
@@ -627,8 +635,16 @@ def _debye_static(lens: LensDesign, wl: np.ndarray, z: float, center: np.ndarray
     kr_max = k0 * lens.na + slope_a  # largest |phi'| (rad/um)
     h = min(dx, LAGRANGE_OMEGA_H / (2 * kr_max)) if kr_max > 0 else dx
     n_r = int(math.ceil(r_max / h)) + LAGRANGE_POINTS
-    r_s = np.arange(n_r) * h
     idx, wts = _lagrange(r_uniq, h, n_r)
+    # the focal-shift correction (production's Pupil.li_wolf, with the hyperbola's focus f' = f lambda0 / lambda):
+    # wavelength k's intensity at r is m_k^2 times the model's at m_k r, the model evaluated at z_D,k
+    fp = f * lens.wavelength_um / np.asarray(wl, dtype=float)
+    lw_m = fp / z
+    lw_z = np.where(lw_m == 1.0, z, fp * (2.0 - lw_m))
+    n_ext = int(math.ceil(r_max * max(1.0, float(lw_m.max())) / h)) + 2 * LAGRANGE_POINTS
+    r_s = np.arange(max(n_r, n_ext)) * h
+    lw = [_lagrange(np.arange(n_r) * h * m, h, r_s.size) for m in lw_m]
+    lw_idx, lw_w = np.stack([a for a, _ in lw]), np.stack([b for _, b in lw])
     # radial nodes: the pupil phase's range over [0, R] plus the Bessel's, at the worst wavelength
     rr = np.linspace(0.0, R, 4001)
     Lh = np.sqrt(rr * rr + f * f)
@@ -645,7 +661,8 @@ def _debye_static(lens: LensDesign, wl: np.ndarray, z: float, center: np.ndarray
     n_nodes = nodes_for_phase(beta, error * 1e-3, 8) if nodes is None else check_int("nodes", nodes, 2, 100000)
     x, w = _gl(n_nodes)
     return {"rho": 0.5 * R * (x + 1.0), "rho_w": 0.5 * R * w, "r": r_s, "interp_idx": idx, "interp_w": wts,
-            "grid_inverse": inverse, "nodes": n_nodes, "radial_samples": n_r, "radial_step_um": h}
+            "grid_inverse": inverse, "nodes": n_nodes, "radial_samples": n_r, "radial_step_um": h,
+            "lw_m": lw_m, "lw_z": lw_z, "lw_idx": lw_idx, "lw_w": lw_w}
 
 
 def _rs_static(lens: LensDesign, wl: np.ndarray, z: float, s0: np.ndarray, xs: np.ndarray, ys: np.ndarray,

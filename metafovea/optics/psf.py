@@ -11,9 +11,10 @@ centre sits at ``center_um`` on the focal plane.
 Engine choice (``engine='auto'``), per wavelength:
 
 * ``hankel``  on axis, when the pupil is rotationally symmetric to within the requested error and the
-  direction-sine (Debye) model's rim wave is right to within it (:func:`debye_error_bound`: in focus it is; a
-  wavelength or plane defocused by ``eps`` of the focal length puts the rim wave ``pi N_F eps^2`` rad off, which on
-  the axis of a defocused PSF is O(1) of its peak for the paper's lenses from ~2 % of focal shift);
+  direction-sine (Debye) model is right to within it (:func:`debye_error_bound`). The model is corrected for the
+  focal shift (:meth:`Pupil.li_wolf`: the amplitude, scale and defocus ``f'/z`` of a wavelength or plane away from
+  focus, exact in the Fresnel approximation); what is left is the rim wave's phase beyond that approximation, which
+  on the axis of a defocused PSF reaches O(0.1) of its peak for the F/1 lens at a few % of focal shift;
 * ``mft``     on axis when the pupil is not rotationally symmetric (same model and bound);
 * ``rs``      on axis where the Debye bound exceeds the requested error;
 * ``rs``      off axis: the windowed exact Rayleigh-Sommerfeld engine over the hard-edged aperture
@@ -276,13 +277,15 @@ def nyquist_pitch_um(lens: LensDesign) -> float:
 # ----------------------------------------------------------------------------------------------
 def debye_error_bound(pupil: Pupil) -> float:
     """Bound on the direction-sine (Debye) engines' intensity error on axis at defocus, relative to the PSF's own
-    peak. Two parts: (i) the rim wave ``U_r`` (``|U_r|^2`` at most the peak) is off in phase by ``delta``
-    (:meth:`Pupil.rim_phase_error`), so ``|dU| <= t |U_r|``, ``t = 2 |sin(delta / 2)|``, and
-    ``|dI| <= 2 |U| |dU| + |dU|^2 <= (2 t + t^2) x peak``; (ii) the amplitude ``(f'/z)^2`` and scale ``f'/z`` the
-    Debye model misses (:meth:`Pupil.focal_shift_ratio` ``e``): ``2 |e|`` of the peak each. 0 in focus; tested
-    against the exact engine on lenses and wavelengths it was not derived on (tests/optics/test_psf.py)."""
+    peak, with their focal-shift correction (:meth:`Pupil.li_wolf`, exact in the Fresnel approximation). Two parts:
+    (i) the rim wave ``U_r`` (``|U_r|^2`` at most the peak) is off in phase by ``delta``
+    (:meth:`Pupil.rim_phase_error`, what the correction leaves), so ``|dU| <= t |U_r|``, ``t = 2 |sin(delta / 2)|``,
+    and ``|dI| <= 2 |U| |dU| + |dU|^2 <= (2 t + t^2) x peak``; (ii) the amplitude ``(f'/z)^2`` and the scale
+    ``f'/z`` beyond the Fresnel approximation, ``2 |e| NA^2`` of the peak each (:meth:`Pupil.focal_shift_ratio`
+    ``e``: the corrected terms times the paraxial expansion's next order). 0 in focus; tested against the exact
+    engine on lenses and wavelengths it was not derived on (tests/optics/test_psf.py)."""
     t = 2.0 * abs(math.sin(0.5 * pupil.rim_phase_error()))
-    return 2.0 * t + t * t + 4.0 * abs(pupil.focal_shift_ratio())
+    return 2.0 * t + t * t + 4.0 * abs(pupil.focal_shift_ratio()) * pupil.lens.na ** 2
 
 
 def _wave_engine(pupil: Pupil, xs: np.ndarray, ys: np.ndarray, error: float, engine: str) -> tuple[str, float]:
@@ -311,16 +314,17 @@ def focus_intensity(pupil: Pupil, xs: np.ndarray, ys: np.ndarray, *, error: floa
     is not bounded (the direction-sine engine off axis).
     """
     eng, _ = _wave_engine(pupil, xs, ys, error, engine)
+    model, m = pupil.li_wolf() if eng != "rs" else (pupil, 1.0)  # the direction-sine model's focal shift on axis
     if eng == "hankel":
-        U = prop.hankel_grid(pupil, xs, ys, error=error * 1e-3)
+        U = prop.hankel_grid(model, m * xs, m * ys, error=error * 1e-3)
         est = 0.1 * pupil.lattice_anisotropy() + error * 1e-3
     elif eng == "rs":
         U, info = rayleigh.rs_field(pupil, xs, ys, error=error)
         est = info["intensity_error"] / _ideal_peak(pupil)
     else:
-        U = prop.mft_field(pupil, xs, ys, error=error * 1e-3)
+        U = prop.mft_field(model, m * xs, m * ys, error=error * 1e-3)
         est = error * 1e-3 if float(np.hypot(*pupil.s0)) == 0.0 else math.inf
-    intensity = U.real ** 2 + U.imag ** 2
+    intensity = (m * m) * (U.real ** 2 + U.imag ** 2)
     if eng != "rs" and pupil.lens.phase_poly_rad:
         est = math.inf  # the Debye model of an aberrated lens: POLY_NOTE
     elif eng != "rs" and intensity.size:  # the rim wave at defocus, relative to this PSF's own peak

@@ -52,7 +52,7 @@ the design's quantisation the focal peak relative to a continuous phase is then 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from functools import lru_cache
 from typing import Any
 
@@ -329,20 +329,37 @@ class Pupil:
         cs = math.sqrt(1.0 - float(s @ s))
         return self.z_um * s / cs
 
+    def li_wolf(self) -> tuple[Pupil, float]:
+        """The direction-sine model corrected for the focal shift: ``(pupil at z_D, m)`` with ``m = f'/z`` and
+        ``z_D = f' (2 - f'/z)`` (``f' = f0 lambda0 / (m_order lambda)``), such that the field at ``(x, z)`` is
+        ``m`` times this pupil's field at ``m x``. In the Fresnel approximation this is exact (Li and Wolf, Opt.
+        Commun. 39, 211 (1981)): the converging wave's amplitude ``f'/z``, its scale and its defocus, which the Debye
+        integral misses at first order in ``1 - f'/z``. The plain hyperbola on axis only (identity otherwise, and in
+        focus); what it leaves is :meth:`rim_phase_error`."""
+        if float(np.hypot(*self.s0)) > 0 or self.lens.phase_poly_rad:
+            return self, 1.0
+        fp = self.lens.f_um * self.alpha
+        m = fp / self.z_um
+        if m == 1.0:
+            return self, 1.0
+        return replace(self, z_um=fp * (2.0 - m)), m
+
     def rim_phase_error(self) -> float:
         """Phase error (rad) of the direction-sine (Debye) model's rim wave at the axis of the plane z.
 
         Stationary phase maps the lens into direction sines exactly inside the aperture; what it changes is the
         wave diffracted by the rim. On the axis the exact (Rayleigh-Sommerfeld) field is the centre's wave plus
         the rim's, their phase difference ``k (L_z - z) - m k0 (L_f - f0)`` (``L_z = sqrt(R^2 + z^2)``,
-        ``L_f = sqrt(R^2 + f0^2)``); the direction-sine integral puts the rim at ``Phi(S) - Phi(0)``. The
-        difference vanishes in focus (lambda0, z = f0) and grows as ``pi N_F eps^2`` (Fresnel number
-        ``N_F = R^2 / (lambda0 f0)``, ``eps`` the fractional focal shift or defocus): the Debye model's
-        focal-shift error (Li and Wolf, Opt. Commun. 39, 211 (1981)). 0 for a pupil off axis or of a lens with
-        ``phase_poly_rad`` (their models are not bounded by it; :mod:`metafovea.optics.psf`)."""
+        ``L_f = sqrt(R^2 + f0^2)``); the direction-sine integral, evaluated at the plane :meth:`li_wolf` gives it,
+        puts the rim at ``Phi(S) - Phi(0)``. Uncorrected the difference grows as ``pi N_F eps^2`` (Fresnel number
+        ``N_F = R^2 / (lambda0 f0)``, ``eps`` the fractional focal shift or defocus: Li and Wolf 1981); the
+        correction removes that paraxial part and leaves the rest, the smaller the lower the NA (BENCHMARKS.md).
+        0 for a pupil off axis or of a lens with ``phase_poly_rad`` (their models are not bounded by it;
+        :mod:`metafovea.optics.psf`)."""
         if float(np.hypot(*self.s0)) > 0 or self.lens.phase_poly_rad:
             return 0.0
         R, f0, z = self.lens.radius_um, self.lens.f_um, self.z_um
+        z_model = self.li_wolf()[0].z_um  # the plane the corrected model evaluates
         k0m = 2 * np.pi / self.lens.wavelength_um * self.order
         exact = self.k * R * R / (math.hypot(R, z) + z) - k0m * R * R / (math.hypot(R, f0) + f0)
         na = self.lens.na
@@ -350,7 +367,7 @@ class Pupil:
         if not S < 1.0:
             return math.inf
         debye = (k0m * f0 * na * na / (1.0 + math.sqrt(1.0 - na * na))
-                 - self.k * z * S * S / (1.0 + math.sqrt(1.0 - S * S)))
+                 - self.k * z_model * S * S / (1.0 + math.sqrt(1.0 - S * S)))
         return float(exact - debye)
 
     def focal_shift_ratio(self) -> float:

@@ -9,9 +9,10 @@ Engine choice (``engine='auto'``), per wavelength:
 
 * ``hankel``    on axis, every wavelength wave-optically: the Bessel matrix ``J0(k S t r)`` is the same for
   all wavelengths (``k S = 2 pi NA / lambda0``), so all radial profiles are one matrix product and the
-  weighted radial intensity is put on the pixel grid once (:func:`_radial_sensor`). This is the direction-sine
-  (Debye) model, whose error at the defocused wavelengths (the rim wave's phase, the amplitude and scale
-  ``f'/z``: :func:`metafovea.optics.psf.debye_error_bound`) is in ``error_estimate`` over pixels
+  weighted radial intensity is put on the pixel grid once (:func:`_radial_sensor`; each wavelength's profile
+  corrected for its focal shift, :meth:`Pupil.li_wolf`, by a spline per wavelength). This is the direction-sine
+  (Debye) model, whose error at the defocused wavelengths (the rim wave's phase, the amplitude and scale beyond the
+  Fresnel approximation: :func:`metafovea.optics.psf.debye_error_bound`) is in ``error_estimate`` over pixels
   (:func:`debye_pixel_error`, conservative: BENCHMARKS.md, "PSF engines") and in ``info['debye_error_estimate']``;
   the exact engine is ``psf(engine='rs')`` on a fine grid;
 * ``mft``       off axis, the wavelengths near focus: one batched MFT (shared kernels in design direction
@@ -58,6 +59,7 @@ from .psf import (
     _ideal_peak,
     _wave_engine,
     checked_inputs,
+    debye_error_bound,
     diffraction_radius_um,
     focus_intensity,
     nyquist_pitch_um,
@@ -292,14 +294,38 @@ def _radial_sensor(lens: LensDesign, pupils: list[Pupil], weights: np.ndarray, a
     h = min(dx, (0.1 * error * 384 / 5) ** 0.25 / (2 * math.pi * f_int))
     rr = np.arange(0.0, r_max + 2.5 * h, h)
     qerr = error * 1e-3
-    n = max(prop.hankel_nodes(pu, float(rr[-1]), qerr) for pu in pupils)
-    U = prop.hankel_profiles(pupils, rr, error=qerr, n=n)
-    I = weights @ (U.real ** 2 + U.imag ** 2)
+    # the focal-shift correction (Pupil.li_wolf): wavelength k's intensity at r is m_k^2 times its model's at m_k r;
+    # the models share k S, so one batched evaluation on a grid reaching max(m) r_max, then a spline per wavelength
+    lw = [pu.li_wolf() for pu in pupils]
+    models, ms = [mo for mo, _ in lw], np.array([m for _, m in lw])
+    rr_ext = np.arange(0.0, r_max * max(1.0, float(ms.max())) + 4.5 * h, h)
+    n = max(prop.hankel_nodes(mo, float(rr_ext[-1]), qerr) for mo in models)
+    U_ext = prop.hankel_profiles(models, rr_ext, error=qerr, n=n)
+    I_ext = U_ext.real ** 2 + U_ext.imag ** 2
+    if np.all(ms == 1.0):
+        I_each = I_ext[:, :rr.size]
+        each = None
+    else:
+        each = [CubicSpline(rr_ext, Ik, bc_type=((1, 0.0), "not-a-knot")) for Ik in I_ext]
+        I_each = np.array([m * m * sp(m * rr) for sp, m in zip(each, ms)])
+    I = weights @ I_each
     spl = CubicSpline(rr, I, bc_type=((1, 0.0), "not-a-knot"))
     idx = np.unique(np.linspace(0, rr.size - 2, 256).astype(int))
     mids = rr[idx] + 0.5 * h
-    Um = prop.hankel_profiles(pupils, mids, error=qerr, n=n)
-    spl_err = float(np.abs(spl(mids) - weights @ (np.abs(Um) ** 2)).max())
+    if each is None:
+        exact_mid = weights @ (np.abs(prop.hankel_profiles(models, mids, error=qerr, n=n)) ** 2)
+        spl_err = float(np.abs(spl(mids) - exact_mid).max())
+    else:
+        # the two interpolations, each against what it interpolates: every wavelength's spline against its exact
+        # profile at midpoints of the shared grid (one batched evaluation), the weighted spline against the sum
+        # of the wavelengths' splines at their scaled radii
+        idx_e = np.unique(np.linspace(0, rr_ext.size - 2, 256).astype(int))
+        mids_e = rr_ext[idx_e] + 0.5 * h
+        I_mid = np.abs(prop.hankel_profiles(models, mids_e, error=qerr, n=n)) ** 2
+        err_each = sum(wk * m * m * float(np.abs(sp(mids_e) - Ik).max())
+                       for sp, Ik, m, wk in zip(each, I_mid, ms, weights))
+        summed = sum(wk * m * m * sp(m * mids) for sp, m, wk in zip(each, ms, weights))
+        spl_err = err_each + float(np.abs(spl(mids) - summed).max())
     total_f += spl(np.sqrt(r2))
     engines["hankel"] = len(pupils)
     # quadrature (error * 1e-3 of each ideal peak), azimuthal averaging of the lattice factor and the
@@ -307,12 +333,12 @@ def _radial_sensor(lens: LensDesign, pupils: list[Pupil], weights: np.ndarray, a
     # (hankel vs 2-D mft, 17 um pixels, both lenses, 10-10.4 um) at <= 0.0037 x anisotropy of the ideal peak
     # and <= 0.27 x anisotropy of the wavelength's own peak pixel: bound min(0.01 ideal, 1.0 own peak) per
     # fine cell, times n_sub^2 cells per pixel by the caller (test_radial_lattice_error_bound checks it).
-    own = (U.real ** 2 + U.imag ** 2).max(axis=1)
+    own = I_each.max(axis=1)
     quad = sum(wk * (qerr * _ideal_peak(pu) + pu.lattice_anisotropy() * min(0.01 * _ideal_peak(pu), float(ok)))
                for pu, wk, ok in zip(pupils, weights, own))
     p = n_sub * dx
     debye = sum(wk * debye_pixel_error(pu, float(ok), p, _largest_pixel(rr, Ik, p))
-                for pu, wk, ok, Ik in zip(pupils, weights, own, U.real ** 2 + U.imag ** 2))
+                for pu, wk, ok, Ik in zip(pupils, weights, own, I_each))
     log.debug('radial sensor: quad+lattice %.3g, spline %.3g (power per um^2), debye %.3g (power per pixel)',
               quad, 2 * spl_err, debye)
     return (quad + 2 * spl_err) * dx * dx * n_sub * n_sub / P_in, debye / P_in
@@ -346,7 +372,7 @@ def debye_pixel_error(pupil: Pupil, own_peak: float, pitch_um: float, own_pixel_
     ``own_pixel_peak`` (the PSF's largest pixel at this wavelength; ``own_peak`` x the pixel's area if not given)."""
     t = 2.0 * abs(math.sin(0.5 * pupil.rim_phase_error()))
     pix = own_peak * pitch_um * pitch_um if own_pixel_peak is None else own_pixel_peak
-    scale = 4.0 * abs(pupil.focal_shift_ratio()) * pix  # psf.debye_error_bound's (ii)
+    scale = 4.0 * abs(pupil.focal_shift_ratio()) * pupil.lens.na ** 2 * pix  # psf.debye_error_bound's (ii)
     if t == 0.0:
         return scale
     # the rim wave's amplitude on the axis: the end point of U(0) = int_0^S 2 pi s P(s) exp(i Phi(s)) ds,
@@ -354,7 +380,7 @@ def debye_pixel_error(pupil: Pupil, own_peak: float, pitch_um: float, own_pixel_
     S = pupil.radius
     h = 1e-6 * S
     zero = np.zeros(2)
-    dphi = float(np.diff(pupil.phase(np.array([S - 2 * h, S]), zero))[0]) / (2 * h)
+    dphi = float(np.diff(pupil.li_wolf()[0].phase(np.array([S - 2 * h, S]), zero))[0]) / (2 * h)
     a_c = math.sqrt(own_peak)
     p_rim = float(np.abs(pupil.amplitude(np.array([S]), zero[:1]))[0])
     a_r = min(a_c, 2 * math.pi * S * p_rim / max(abs(dphi), 1e-300))
@@ -490,10 +516,15 @@ def _add_wave(t: _Tally, sets: list[PupilSet], wave_k: list[int], w: np.ndarray,
 
     The ray boxes plus a diffraction margin (tails beyond 30 diffraction radii carry < 0.3 % of the power);
     batches of similar ray boxes share one window and one node set (one batched MFT each), or with
-    ``engine='hankel'`` one Hankel evaluation per wavelength.
+    ``engine='hankel'`` one Hankel evaluation per wavelength. On axis the MFT runs one wavelength at a time through
+    :func:`metafovea.optics.psf.focus_intensity` (the focal-shift correction and the Debye bound need each
+    wavelength's own scaled coordinates).
     """
     xs, ys, dx, n_sub = g.xs, g.ys, g.dx, g.n_sub
     mg = 30 * r_diff + 2 * g.pitch
+    if wave_k and engine not in ("hankel", "rs") and not sets[wave_k[0]].focus.lens.phase_poly_rad and \
+            all(float(np.hypot(*sets[k].focus.s0)) == 0.0 for k in wave_k):
+        engine = "mft"  # on axis one wavelength at a time, with the focal-shift correction and its Debye bound
     boxes = {k: prop.ray_extent(sets[k].focus, 16) for k in wave_k}
     wave_k = [k for k in wave_k if boxes[k][1] + mg > xs[0] and boxes[k][0] - mg < xs[-1]
               and boxes[k][3] + mg > ys[0] and boxes[k][2] - mg < ys[-1]]
@@ -501,7 +532,7 @@ def _add_wave(t: _Tally, sets: list[PupilSet], wave_k: list[int], w: np.ndarray,
     for k in sorted(wave_k, key=lambda k: _box_area(boxes[k], mg)):
         # the union window may grow to 1.5x the area of the batch's smallest member (the MFT work grows
         # with the window's area times its node counts)
-        per_wavelength = engine in ("hankel", "rs")
+        per_wavelength = engine in ("hankel", "rs", "mft")
         if batches and (per_wavelength or _box_area(_union([boxes[j] for j in batches[-1]] + [boxes[k]]), mg)
                         <= 1.5 * _box_area(boxes[batches[-1][0]], mg)):
             batches[-1].append(k)
@@ -511,12 +542,18 @@ def _add_wave(t: _Tally, sets: list[PupilSet], wave_k: list[int], w: np.ndarray,
         ub = _union([boxes[k] for k in bk])
         i0, i1 = int(np.searchsorted(xs, ub[0] - mg)), int(np.searchsorted(xs, ub[1] + mg))
         j0, j1 = int(np.searchsorted(ys, ub[2] - mg)), int(np.searchsorted(ys, ub[3] + mg))
-        if engine in ("hankel", "rs"):
+        if engine in ("hankel", "rs", "mft"):
             for k in bk:
-                I, _, e = focus_intensity(sets[k].focus, xs[i0:i1], ys[j0:j1], error=error, engine=engine)
+                pu = sets[k].focus
+                I, _, e = focus_intensity(pu, xs[i0:i1], ys[j0:j1], error=error, engine=engine)
                 t.fine[j0:j1, i0:i1] += w[k] * I
-                t.est_abs += w[k] * e * _ideal_peak(sets[k].focus) * dx * dx / P_in * n_sub * n_sub
-                if engine == "rs":  # the light beyond the window, as for the batched MFT below
+                if engine != "rs" and float(np.hypot(*pu.s0)) == 0.0 and I.size and not pu.lens.phase_poly_rad:
+                    # the Debye part over pixels (debye_pixel_error) in place of the fine grid's bound
+                    peak = float(I.max())  # power per um^2
+                    e -= debye_error_bound(pu) * peak / _ideal_peak(pu)
+                    t.est_abs += w[k] * debye_pixel_error(pu, peak, g.pitch) / P_in
+                t.est_abs += w[k] * e * _ideal_peak(pu) * dx * dx / P_in * n_sub * n_sub
+                if engine in ("rs", "mft"):  # the light beyond the window, as for the batched MFT below
                     t.est_abs += w[k] * RS_TAIL * _ideal_peak(sets[k].focus) * dx * dx / P_in * n_sub * n_sub
         else:
             # one batched MFT (shared kernels in design direction sines)
@@ -588,7 +625,7 @@ def _accuracy(lens: LensDesign, fpair: tuple[float, float], est_rel: float, erro
         advice = {"wavelengths_um": "fewer wavelengths", "budget": "a larger cost budget"}
     elif main == "debye":
         reason = ("the direction-sine (Debye) model at the defocused wavelengths (rim wave, amplitude and scale; a "
-                  "conservative estimate: 15-30x the error measured against the exact engine for the paper's lenses "
+                  "conservative estimate: 8-13x the error measured against the exact engine for the paper's lenses "
                   "over the 10 um filter's band)")
         advice = {"filter_um": "a narrower band"}
     else:

@@ -218,3 +218,21 @@ def test_auto_takes_the_exact_engine_on_axis_where_debye_is_off():
     b = psf(lens, wavelengths_um=[10.4], error=1e-3, quantize=False, engine="rs")
     assert a.engine == "rs" and np.array_equal(a.intensity, b.intensity)
     assert debye_error_bound(build_pupils(lens, 10.4).focus) > 1e-3 >= debye_error_bound(build_pupils(lens, 10.0).focus)
+
+
+def test_the_focal_shift_correction_brings_the_direction_sine_model_closer_to_the_exact_engine():
+    """Pupil.li_wolf against the exact engine: the corrected direction-sine PSF (what 'hankel' computes) is several
+    times closer to it than the uncorrected integral at the same plane, on lenses of NA 0.24-0.45 at 0.5-2 % focal
+    shift; in focus the correction is the identity."""
+    for lens, wl in ((LensDesign("d15", 3000.0, 2000.0), 10.2), (LensDesign("d1", 2500.0, 2500.0), 10.05),
+                     (LensDesign("f2", 8000.0, 4000.0), 9.9)):
+        kw = dict(wavelengths_um=[wl], window_um=240.0, error=1e-4, allow_truncation=True)
+        h, r = psf(lens, engine="hankel", **kw), psf(lens, engine="rs", **kw)
+        pu = build_pupils(lens, wl, quantize=False, lattice=False).focus
+        ax = (np.arange(h.shape[0]) - (h.shape[0] - 1) / 2) * h.pitch_um
+        raw = np.abs(prop.hankel_grid(pu, ax, ax, error=1e-9)) ** 2 * h.pitch_um ** 2 / (math.pi * lens.radius_um ** 2)
+        e_corr = np.abs(h.intensity - r.intensity).max() / r.intensity.max()
+        e_raw = np.abs(raw - r.intensity).max() / r.intensity.max()
+        assert e_corr < 0.3 * e_raw, (lens.name, e_corr, e_raw)
+    pu = build_pupils(LensDesign("d15", 3000.0, 2000.0), 10.0).focus
+    assert pu.li_wolf() == (pu, 1.0)

@@ -43,8 +43,11 @@ def test_batched_hankel_broadband_on_axis_matches_per_wavelength():
     assert S.info["engines"] == {"hankel": 6}
     n_sub, dx = S.info["n_sub"], S.info["fine_pitch_um"]
     ax = (np.arange(21 * n_sub) - (21 * n_sub - 1) / 2) * dx
-    tot = sum(wk * np.abs(prop.hankel_grid(build_pupils(F1, float(l)).focus, ax, ax, error=1e-9)) ** 2
-              for l, wk in zip(wl, w))
+    # each wavelength directly, with the focal-shift correction (Pupil.li_wolf: the model at z_D, radii m r, x m^2)
+    models = [build_pupils(F1, float(l)).focus.li_wolf() for l in wl]
+    assert any(m != 1.0 for _, m in models)
+    tot = sum(wk * m * m * np.abs(prop.hankel_grid(mo, m * ax, m * ax, error=1e-9)) ** 2
+              for (mo, m), wk in zip(models, w))
     ref = box_integrate(tot, n_sub) * dx * dx / (math.pi * F1.radius_um ** 2)
     d = S.intensity - ref
     d -= np.median(d)  # the haze orders: a uniform floor over this small window
