@@ -35,9 +35,10 @@ Methods (chosen per field point by :func:`imaging_model`; float64 throughout, se
            to quadrature error, with production's focal-shift correction (``Pupil.li_wolf``: each wavelength's
            model at ``z_D`` and radii ``m r``, times ``m^2``, ``m = f'/z`` with the hyperbola's focus ``f'``; a
            Lagrange resampling per wavelength). Its model error against the exact propagation is production's
-           (``psf.debye_error_bound``; for a lens with an added phase the hyperbola's ``f'`` is an approximation);
-           the mapping rho -> s must stay monotonic (no caustic inside the aperture: ``phi''`` and ``phi'/rho`` of
-           one sign).
+           (``psf.debye_error_bound``). A model with added-phase coefficients (co-design) has no single focus
+           and goes uncorrected, as production's direction-sine engines do for such lenses (not bounded: ``rs``
+           is exact); the mapping rho -> s must stay monotonic (no caustic inside the aperture: ``phi''`` and
+           ``phi'/rho`` of one sign).
 ``rs``     any field: the first Rayleigh-Sommerfeld integral over the hard-edged aperture, exact kernel at every
            (node, output) pair, Gauss nodes over the disk (rows ``v = R sin t``, ``u`` between the row's ends:
            the edge costs nothing) sized from the largest slope of the lens-plus-kernel phase towards the window
@@ -619,8 +620,10 @@ def _grid(center: np.ndarray, pitch: float, size: int, n_sub: int) -> tuple[np.n
 
 
 def _debye_static(lens: LensDesign, wl: np.ndarray, z: float, center: np.ndarray, pitch: float, size: int,
-                  n_sub: int, bound: np.ndarray, error: float, nodes: Any = None) -> dict[str, Any]:
-    """Radial nodes, radial samples and the interpolation from them onto the (fine) grid."""
+                  n_sub: int, bound: np.ndarray, error: float, nodes: Any = None, focal_shift: bool = True
+                  ) -> dict[str, Any]:
+    """Radial nodes, radial samples and the interpolation from them onto the (fine) grid. ``focal_shift``: the
+    focal-shift correction (the plain hyperbola; a model with added-phase coefficients has no single focus)."""
     R, f = lens.radius_um, lens.f_um
     k0 = 2 * math.pi / lens.wavelength_um
     slope_a = _phase_slope_bound(bound, R)
@@ -638,7 +641,7 @@ def _debye_static(lens: LensDesign, wl: np.ndarray, z: float, center: np.ndarray
     idx, wts = _lagrange(r_uniq, h, n_r)
     # the focal-shift correction (production's Pupil.li_wolf, with the hyperbola's focus f' = f lambda0 / lambda):
     # wavelength k's intensity at r is m_k^2 times the model's at m_k r, the model evaluated at z_D,k
-    fp = f * lens.wavelength_um / np.asarray(wl, dtype=float)
+    fp = f * lens.wavelength_um / np.asarray(wl, dtype=float) if focal_shift else np.full(np.shape(wl), z)
     lw_m = fp / z
     lw_z = np.where(lw_m == 1.0, z, fp * (2.0 - lw_m))
     n_ext = int(math.ceil(r_max * max(1.0, float(lw_m.max())) / h)) + 2 * LAGRANGE_POINTS
@@ -811,7 +814,7 @@ def imaging_model(lens: LensDesign, *, wavelengths_um: ArrayLike | None = None, 
         raise InputError("center_um", center_um, "(0, 0) for the on-axis (debye) engine")
     gx, gy = _grid(center, p, size, nsub)
     if engine == "debye":
-        static = _debye_static(lens, wl, z, center, p, size, nsub, bound, error, nodes)
+        static = _debye_static(lens, wl, z, center, p, size, nsub, bound, error, nodes, focal_shift=nc == 0)
         info = {"nodes": static["nodes"], "radial_samples": static["radial_samples"],
                 "radial_step_um": static["radial_step_um"]}
     else:
