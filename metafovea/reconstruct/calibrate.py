@@ -181,32 +181,43 @@ def _cropped(psf: np.ndarray, radius: int) -> np.ndarray:
     return k[r0 - r:r0 + r + 1, r0 - r:r0 + r + 1]
 
 
-def _sides(mean: np.ndarray, diff: np.ndarray, scale: float, blur_px: float,
-           psfs: tuple[np.ndarray, np.ndarray] | None, relative_px: float = 0.0) -> tuple[np.ndarray, ...]:
-    """The low-passed images of (2): foveal side (mean, diff) and perifoveal side (mean, diff). With the channels'
-    PSFs each side is also blurred by the other channel's (the foveal side by the perifoveal PSF magnified
-    ``scale`` times, the perifoveal side by the foveal PSF shrunk as much; each cut to the image's size first):
-    both sides then carry both blurs. ``relative_px``: the relative blur ``b_r`` (module docstring)."""
-    from scipy.ndimage import gaussian_filter
+def _psf_sides(mean: np.ndarray, diff: np.ndarray, scale: float,
+               psfs: tuple[np.ndarray, np.ndarray] | None) -> tuple[np.ndarray, ...]:
+    """The images of :func:`_sides` before its Gaussian: foveal side (mean, diff), perifoveal side (mean, diff), NaNs
+    filled; with the channels' PSFs each side blurred by the other channel's (the foveal side by the perifoveal PSF
+    magnified ``scale`` times, the perifoveal side by the foveal PSF shrunk as much; each cut to the image's size
+    first). They do not depend on the blurs: :func:`_relative_blur` makes them once for all its trials."""
     from scipy.signal import fftconvolve
 
-    # the pixel box of the down-scaling, then G (and the relative blur, on its side)
-    s1 = scale * math.sqrt(1.0 / 12.0 + blur_px ** 2 + max(relative_px, 0.0) ** 2)
-    s2 = math.hypot(blur_px, min(relative_px, 0.0))
     n = max(mean.shape)
     kernels = (None, None) if psfs is None else (
         _rescaled_psf(_cropped(psfs[1], math.ceil(n / (2 * scale))), scale),
         _rescaled_psf(_cropped(psfs[0], n), 1.0 / scale))
     out = []
-    for side, s in ((0, s1), (1, s2)):
+    for side in (0, 1):
         for v in (mean, diff):
             u = np.nan_to_num(v, nan=float(np.nanmean(v)))
             k = kernels[side]
             if k is not None:
                 r = k.shape[0] // 2
                 u = fftconvolve(np.pad(u, r, mode="edge"), k, mode="valid")
-            out.append(gaussian_filter(u, s, mode="nearest", truncate=3.0))
+            out.append(u)
     return tuple(out)
+
+
+def _sides(mean: np.ndarray, diff: np.ndarray, scale: float, blur_px: float,
+           psfs: tuple[np.ndarray, np.ndarray] | None, relative_px: float = 0.0,
+           pre: tuple[np.ndarray, ...] | None = None) -> tuple[np.ndarray, ...]:
+    """The low-passed images of (2): foveal side (mean, diff) and perifoveal side (mean, diff). With the channels'
+    PSFs both sides carry both blurs (:func:`_psf_sides`; ``pre``: its result for these images, when made
+    already). ``relative_px``: the relative blur ``b_r`` (module docstring)."""
+    from scipy.ndimage import gaussian_filter
+
+    # the pixel box of the down-scaling, then G (and the relative blur, on its side)
+    s1 = scale * math.sqrt(1.0 / 12.0 + blur_px ** 2 + max(relative_px, 0.0) ** 2)
+    s2 = math.hypot(blur_px, min(relative_px, 0.0))
+    pre = _psf_sides(mean, diff, scale, psfs) if pre is None else pre
+    return tuple(gaussian_filter(u, s, mode="nearest", truncate=3.0) for u, s in zip(pre, (s1, s1, s2, s2)))
 
 
 def _grid(shape: tuple[int, int], scale: float) -> np.ndarray:
@@ -322,12 +333,13 @@ def _coarse_start(foveal: Any, p: np.ndarray, f2m: np.ndarray, f2d: np.ndarray, 
 
 
 def _relative_blur(m: np.ndarray, d: np.ndarray, fit: FovealFit, *, scale: float, blur_px: float,
-                   psfs: tuple[np.ndarray, np.ndarray] | None, fit_amplitude: bool) -> float:
+                   psfs: tuple[np.ndarray, np.ndarray] | None, fit_amplitude: bool,
+                   pre: tuple[np.ndarray, ...] | None = None) -> float:
     """The relative blur ``b_r`` (module docstring) that explains (2) best at ``fit``'s geometry, within
     :data:`RELATIVE_BLUR_MAX`: the relative misfit (:attr:`FovealFit.relative_misfit`: the residual over the
     perifoveal side's contrast times the gain), with ``u`` (a 1-D search) and ``(g, o, h)`` (linear) fitted at each
     trial, minimised by a bounded 1-D search. (Not the residual itself: blurring the foveal side lowers it with the
-    side's contrast, and the gain follows it down.)"""
+    side's contrast, and the gain follows it down.) ``pre``: :func:`_psf_sides` of ``(m, d)``, when made already."""
     from scipy.ndimage import map_coordinates
     from scipy.optimize import minimize_scalar
 
@@ -336,9 +348,11 @@ def _relative_blur(m: np.ndarray, d: np.ndarray, fit: FovealFit, *, scale: float
     iy, ix = p.astype(int)
     q = _foveal_points(p, m.shape, fit.scale, fit.centre_px[0], fit.centre_px[1], math.radians(fit.rotation_deg))
     r2 = ((q[0] - (H - 1) / 2.0) ** 2 + (q[1] - (W - 1) / 2.0) ** 2) / (((H - 1) / 2.0) ** 2 + ((W - 1) / 2.0) ** 2)
+    # the PSF blurs do not depend on b: made once (each trial re-made them: 80 PSF rescalings, 9 of a 17 s fit)
+    pre = _psf_sides(m, d, scale, psfs) if pre is None else pre
 
     def misfit(b: float) -> float:  # FovealFit.relative_misfit at this blur
-        f1m, f1d, f2m, f2d = _sides(m, d, scale, blur_px, psfs, b)
+        f1m, f1d, f2m, f2d = _sides(m, d, scale, blur_px, psfs, b, pre)
         a_m, a_d = (map_coordinates(v, q, order=3, mode="nearest") for v in (f1m, f1d))
         b_m, b_d = f2m[iy, ix], f2d[iy, ix]
         u = _amplitude_u(a_m, a_d, b_m, b_d, r2) if fit_amplitude else 1.0
@@ -367,7 +381,8 @@ def fit_foveal(mean: ArrayLike, diff: ArrayLike, *, scale: float = 6.0, gain: fl
     if m.ndim != 2 or d.shape != m.shape:
         raise InputError("diff", f"array of shape {d.shape}", f"the mean image's (H, W) = {m.shape}")
     pair = None if psfs is None else (np.asarray(psfs[0], np.float64), np.asarray(psfs[1], np.float64))
-    sides = _sides(m, d, scale, blur_px, pair)
+    pre = _psf_sides(m, d, scale, pair)
+    sides = _sides(m, d, scale, blur_px, pair, pre=pre)
     kw = dict(scale=scale, gain=gain, offset=offset, blur_px=blur_px, fit_amplitude=fit_amplitude)
     fit = _fit_once(m.shape, sides, vignetting=True, **kw)
     swapped = False
@@ -380,8 +395,9 @@ def fit_foveal(mean: ArrayLike, diff: ArrayLike, *, scale: float = 6.0, gain: fl
             fit, sides, swapped = other, neg, True
     if swapped:
         d = -d
-    b_r = _relative_blur(m, d, fit, scale=scale, blur_px=blur_px, psfs=pair, fit_amplitude=fit_amplitude)
-    sides = _sides(m, d, scale, blur_px, pair, b_r)
+        pre = _psf_sides(m, d, scale, pair)
+    b_r = _relative_blur(m, d, fit, scale=scale, blur_px=blur_px, psfs=pair, fit_amplitude=fit_amplitude, pre=pre)
+    sides = _sides(m, d, scale, blur_px, pair, b_r, pre)
     fit = replace(_fit_once(m.shape, sides, vignetting=True, **kw), relative_blur_px=b_r)
     without = _fit_once(m.shape, sides, vignetting=False, **kw)
     delta = abs(fit.amplitude - without.amplitude)
