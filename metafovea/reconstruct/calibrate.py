@@ -445,12 +445,20 @@ def _fit_once(shape: tuple[int, int], sides: tuple[np.ndarray, ...], *, scale: f
     c1m, c1d = (spline_filter(np.pad(f, _SPLINE_PAD, mode="edge"), 3, output=np.float64, mode="nearest")
                 for f in (f1m, f1d))
 
+    # the last geometry's samples: of the 9 evaluations of a finite-difference Jacobian, the 4 that move (u, g, o, h)
+    # sample the foveal sides at the same points (half of a fit's interpolations)
+    last: list[Any] = [None, None]
+
     def foveal(theta: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        key = np.asarray(theta[:4], dtype=np.float64).tobytes()
+        if key == last[0]:
+            return last[1]
         q = _foveal_points(p, shape, theta[0], theta[1], theta[2], math.radians(theta[3]))
         r2 = ((q[0] - (H - 1) / 2.0) ** 2 + (q[1] - (W - 1) / 2.0) ** 2) / norm * float(vignetting)
         qp = q + _SPLINE_PAD
-        return (map_coordinates(c1m, qp, order=3, mode="nearest", prefilter=False),
-                map_coordinates(c1d, qp, order=3, mode="nearest", prefilter=False), r2)
+        last[:] = key, (map_coordinates(c1m, qp, order=3, mode="nearest", prefilter=False),
+                        map_coordinates(c1d, qp, order=3, mode="nearest", prefilter=False), r2)
+        return last[1]
 
     def residual(theta: np.ndarray) -> np.ndarray:
         a_m, a_d, r2 = foveal(theta)
