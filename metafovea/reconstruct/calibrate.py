@@ -44,6 +44,7 @@ geometry and ``u`` unidentified, and the caller keeps the stated values and says
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from typing import Any
 
@@ -406,6 +407,38 @@ def fit_foveal(mean: ArrayLike, diff: ArrayLike, *, scale: float = 6.0, gain: fl
     return replace(fit, se=se, identified=ok)
 
 
+def _foveal_sampler(p: np.ndarray, shape: tuple[int, int], f1m: np.ndarray, f1d: np.ndarray,
+                    vignetting: bool) -> Callable[[np.ndarray], tuple[np.ndarray, np.ndarray, np.ndarray]]:
+    """``foveal(theta) -> (a_m, a_d, r2)``: the foveal sides (mean, diff) where the perifoveal pixels ``p`` fall for
+    the geometry ``theta[:4]`` (:func:`_foveal_points`), and their squared distance from the sensor's centre over
+    the half-diagonal's (0 without ``vignetting``)."""
+    from scipy.ndimage import map_coordinates, spline_filter
+
+    H, W = shape
+    norm = ((H - 1) / 2.0) ** 2 + ((W - 1) / 2.0) ** 2
+    # the foveal sides' cubic-spline coefficients, once: map_coordinates' own prefilter (edge padding of
+    # _SPLINE_PAD, the spline filter) on each of the fit's hundreds of evaluations filtered the whole images again;
+    # the same coefficients at the same shifted points give the same values bit for bit
+    c1m, c1d = (spline_filter(np.pad(f, _SPLINE_PAD, mode="edge"), 3, output=np.float64, mode="nearest")
+                for f in (f1m, f1d))
+    # the last geometry's samples: of the 9 evaluations of a finite-difference Jacobian, the 4 that move (u, g, o, h)
+    # sample the foveal sides at the same points (half of a fit's interpolations)
+    last: list[Any] = [None, None]
+
+    def foveal(theta: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        key = np.asarray(theta[:4], dtype=np.float64).tobytes()
+        if key == last[0]:
+            return last[1]
+        q = _foveal_points(p, shape, theta[0], theta[1], theta[2], math.radians(theta[3]))
+        r2 = ((q[0] - (H - 1) / 2.0) ** 2 + (q[1] - (W - 1) / 2.0) ** 2) / norm * float(vignetting)
+        qp = q + _SPLINE_PAD
+        last[:] = key, (map_coordinates(c1m, qp, order=3, mode="nearest", prefilter=False),
+                        map_coordinates(c1d, qp, order=3, mode="nearest", prefilter=False), r2)
+        return last[1]
+
+    return foveal
+
+
 def _fit_once(shape: tuple[int, int], sides: tuple[np.ndarray, ...], *, scale: float = 6.0, gain: float = 1.0,
               offset: float = 0.0, blur_px: float = BLUR_PX, fit_amplitude: bool = True,
               vignetting: bool = True) -> FovealFit:
@@ -429,7 +462,6 @@ def _fit_once(shape: tuple[int, int], sides: tuple[np.ndarray, ...], *, scale: f
     -------
     FovealFit
     """
-    from scipy.ndimage import map_coordinates, spline_filter
     from scipy.optimize import least_squares
 
     f1m, f1d, f2m, f2d = sides
@@ -437,28 +469,7 @@ def _fit_once(shape: tuple[int, int], sides: tuple[np.ndarray, ...], *, scale: f
     iy, ix = p.astype(int)
     b_m, b_d = f2m[iy, ix], f2d[iy, ix]
 
-    H, W = shape
-    norm = ((H - 1) / 2.0) ** 2 + ((W - 1) / 2.0) ** 2
-    # the foveal sides' cubic-spline coefficients, once: map_coordinates' own prefilter (edge padding of
-    # _SPLINE_PAD, the spline filter) on each of the fit's hundreds of evaluations filtered the whole images again;
-    # the same coefficients at the same shifted points give the same values bit for bit
-    c1m, c1d = (spline_filter(np.pad(f, _SPLINE_PAD, mode="edge"), 3, output=np.float64, mode="nearest")
-                for f in (f1m, f1d))
-
-    # the last geometry's samples: of the 9 evaluations of a finite-difference Jacobian, the 4 that move (u, g, o, h)
-    # sample the foveal sides at the same points (half of a fit's interpolations)
-    last: list[Any] = [None, None]
-
-    def foveal(theta: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        key = np.asarray(theta[:4], dtype=np.float64).tobytes()
-        if key == last[0]:
-            return last[1]
-        q = _foveal_points(p, shape, theta[0], theta[1], theta[2], math.radians(theta[3]))
-        r2 = ((q[0] - (H - 1) / 2.0) ** 2 + (q[1] - (W - 1) / 2.0) ** 2) / norm * float(vignetting)
-        qp = q + _SPLINE_PAD
-        last[:] = key, (map_coordinates(c1m, qp, order=3, mode="nearest", prefilter=False),
-                        map_coordinates(c1d, qp, order=3, mode="nearest", prefilter=False), r2)
-        return last[1]
+    foveal = _foveal_sampler(p, shape, f1m, f1d, vignetting)
 
     def residual(theta: np.ndarray) -> np.ndarray:
         a_m, a_d, r2 = foveal(theta)
