@@ -153,3 +153,27 @@ def made_once(tmp_path_factory):
         return d
 
     return made
+
+
+# ------------------------------------------------------------------------------------------------------------------
+# scheduling on the test workers (-n auto): the long tests first, and an idle worker takes over another's queue
+# ------------------------------------------------------------------------------------------------------------------
+def pytest_collection_modifyitems(config, items):
+    """The modules that hold a test marked ``slow`` first (each module's tests kept together and in order, so that
+    its module-scoped fixtures are made once): a long study that started last kept one worker busy for a minute after
+    the other had finished. The order is the same on every worker (xdist requires it)."""
+    slow_modules = {item.module.__name__ for item in items if item.get_closest_marker("slow") is not None
+                    and getattr(item, "module", None) is not None}
+    items.sort(key=lambda item: getattr(getattr(item, "module", None), "__name__", "") not in slow_modules)
+
+
+@pytest.hookimpl(optionalhook=True)
+def pytest_xdist_make_scheduler(config, log):
+    """``-n N`` without ``--dist``: xdist's work stealing instead of its default ``load``, which hands each worker
+    fixed chunks of the queue (a worker then waits on the other's last long tests); an idle worker takes half of the
+    other's pending tests. Any other ``--dist`` keeps xdist's own scheduler."""
+    if config.getoption("dist", "no") != "load":
+        return None
+    from xdist.scheduler import WorkStealingScheduling
+
+    return WorkStealingScheduling(config, log)

@@ -27,6 +27,7 @@ def small_system():
     return dataclasses.replace(s, sensor=dataclasses.replace(s.sensor, crop=(192, 192), pixels=(192, 192)))
 
 
+@pytest.mark.slow  # every stage end to end, at a small size (192 x 192, 16 frames, 2 DIP steps)
 def test_validate_small_runs_every_stage(tmp_path, monkeypatch, small_system, browser_check):
     monkeypatch.setenv("METAFOVEA_CACHE", str(tmp_path / "cache"))
     opts = ValidateOptions(scene="bars", frames=16, calibration_frames=8, filters=(True,), alternating_windows=2,

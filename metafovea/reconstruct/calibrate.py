@@ -44,6 +44,7 @@ geometry and ``u`` unidentified, and the caller keeps the stated values and says
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from typing import Any
 
@@ -181,32 +182,43 @@ def _cropped(psf: np.ndarray, radius: int) -> np.ndarray:
     return k[r0 - r:r0 + r + 1, r0 - r:r0 + r + 1]
 
 
-def _sides(mean: np.ndarray, diff: np.ndarray, scale: float, blur_px: float,
-           psfs: tuple[np.ndarray, np.ndarray] | None, relative_px: float = 0.0) -> tuple[np.ndarray, ...]:
-    """The low-passed images of (2): foveal side (mean, diff) and perifoveal side (mean, diff). With the channels'
-    PSFs each side is also blurred by the other channel's (the foveal side by the perifoveal PSF magnified
-    ``scale`` times, the perifoveal side by the foveal PSF shrunk as much; each cut to the image's size first):
-    both sides then carry both blurs. ``relative_px``: the relative blur ``b_r`` (module docstring)."""
-    from scipy.ndimage import gaussian_filter
+def _psf_sides(mean: np.ndarray, diff: np.ndarray, scale: float,
+               psfs: tuple[np.ndarray, np.ndarray] | None) -> tuple[np.ndarray, ...]:
+    """The images of :func:`_sides` before its Gaussian: foveal side (mean, diff), perifoveal side (mean, diff), NaNs
+    filled; with the channels' PSFs each side blurred by the other channel's (the foveal side by the perifoveal PSF
+    magnified ``scale`` times, the perifoveal side by the foveal PSF shrunk as much; each cut to the image's size
+    first). They do not depend on the blurs: :func:`_relative_blur` makes them once for all its trials."""
     from scipy.signal import fftconvolve
 
-    # the pixel box of the down-scaling, then G (and the relative blur, on its side)
-    s1 = scale * math.sqrt(1.0 / 12.0 + blur_px ** 2 + max(relative_px, 0.0) ** 2)
-    s2 = math.hypot(blur_px, min(relative_px, 0.0))
     n = max(mean.shape)
     kernels = (None, None) if psfs is None else (
         _rescaled_psf(_cropped(psfs[1], math.ceil(n / (2 * scale))), scale),
         _rescaled_psf(_cropped(psfs[0], n), 1.0 / scale))
     out = []
-    for side, s in ((0, s1), (1, s2)):
+    for side in (0, 1):
         for v in (mean, diff):
             u = np.nan_to_num(v, nan=float(np.nanmean(v)))
             k = kernels[side]
             if k is not None:
                 r = k.shape[0] // 2
                 u = fftconvolve(np.pad(u, r, mode="edge"), k, mode="valid")
-            out.append(gaussian_filter(u, s, mode="nearest", truncate=3.0))
+            out.append(u)
     return tuple(out)
+
+
+def _sides(mean: np.ndarray, diff: np.ndarray, scale: float, blur_px: float,
+           psfs: tuple[np.ndarray, np.ndarray] | None, relative_px: float = 0.0,
+           pre: tuple[np.ndarray, ...] | None = None) -> tuple[np.ndarray, ...]:
+    """The low-passed images of (2): foveal side (mean, diff) and perifoveal side (mean, diff). With the channels'
+    PSFs both sides carry both blurs (:func:`_psf_sides`; ``pre``: its result for these images, when made
+    already). ``relative_px``: the relative blur ``b_r`` (module docstring)."""
+    from scipy.ndimage import gaussian_filter
+
+    # the pixel box of the down-scaling, then G (and the relative blur, on its side)
+    s1 = scale * math.sqrt(1.0 / 12.0 + blur_px ** 2 + max(relative_px, 0.0) ** 2)
+    s2 = math.hypot(blur_px, min(relative_px, 0.0))
+    pre = _psf_sides(mean, diff, scale, psfs) if pre is None else pre
+    return tuple(gaussian_filter(u, s, mode="nearest", truncate=3.0) for u, s in zip(pre, (s1, s1, s2, s2)))
 
 
 def _grid(shape: tuple[int, int], scale: float) -> np.ndarray:
@@ -322,12 +334,13 @@ def _coarse_start(foveal: Any, p: np.ndarray, f2m: np.ndarray, f2d: np.ndarray, 
 
 
 def _relative_blur(m: np.ndarray, d: np.ndarray, fit: FovealFit, *, scale: float, blur_px: float,
-                   psfs: tuple[np.ndarray, np.ndarray] | None, fit_amplitude: bool) -> float:
+                   psfs: tuple[np.ndarray, np.ndarray] | None, fit_amplitude: bool,
+                   pre: tuple[np.ndarray, ...] | None = None) -> float:
     """The relative blur ``b_r`` (module docstring) that explains (2) best at ``fit``'s geometry, within
     :data:`RELATIVE_BLUR_MAX`: the relative misfit (:attr:`FovealFit.relative_misfit`: the residual over the
     perifoveal side's contrast times the gain), with ``u`` (a 1-D search) and ``(g, o, h)`` (linear) fitted at each
     trial, minimised by a bounded 1-D search. (Not the residual itself: blurring the foveal side lowers it with the
-    side's contrast, and the gain follows it down.)"""
+    side's contrast, and the gain follows it down.) ``pre``: :func:`_psf_sides` of ``(m, d)``, when made already."""
     from scipy.ndimage import map_coordinates
     from scipy.optimize import minimize_scalar
 
@@ -336,9 +349,11 @@ def _relative_blur(m: np.ndarray, d: np.ndarray, fit: FovealFit, *, scale: float
     iy, ix = p.astype(int)
     q = _foveal_points(p, m.shape, fit.scale, fit.centre_px[0], fit.centre_px[1], math.radians(fit.rotation_deg))
     r2 = ((q[0] - (H - 1) / 2.0) ** 2 + (q[1] - (W - 1) / 2.0) ** 2) / (((H - 1) / 2.0) ** 2 + ((W - 1) / 2.0) ** 2)
+    # the PSF blurs do not depend on b: made once (each trial re-made them: 80 PSF rescalings, 9 of a 17 s fit)
+    pre = _psf_sides(m, d, scale, psfs) if pre is None else pre
 
     def misfit(b: float) -> float:  # FovealFit.relative_misfit at this blur
-        f1m, f1d, f2m, f2d = _sides(m, d, scale, blur_px, psfs, b)
+        f1m, f1d, f2m, f2d = _sides(m, d, scale, blur_px, psfs, b, pre)
         a_m, a_d = (map_coordinates(v, q, order=3, mode="nearest") for v in (f1m, f1d))
         b_m, b_d = f2m[iy, ix], f2d[iy, ix]
         u = _amplitude_u(a_m, a_d, b_m, b_d, r2) if fit_amplitude else 1.0
@@ -367,7 +382,8 @@ def fit_foveal(mean: ArrayLike, diff: ArrayLike, *, scale: float = 6.0, gain: fl
     if m.ndim != 2 or d.shape != m.shape:
         raise InputError("diff", f"array of shape {d.shape}", f"the mean image's (H, W) = {m.shape}")
     pair = None if psfs is None else (np.asarray(psfs[0], np.float64), np.asarray(psfs[1], np.float64))
-    sides = _sides(m, d, scale, blur_px, pair)
+    pre = _psf_sides(m, d, scale, pair)
+    sides = _sides(m, d, scale, blur_px, pair, pre=pre)
     kw = dict(scale=scale, gain=gain, offset=offset, blur_px=blur_px, fit_amplitude=fit_amplitude)
     fit = _fit_once(m.shape, sides, vignetting=True, **kw)
     swapped = False
@@ -380,14 +396,47 @@ def fit_foveal(mean: ArrayLike, diff: ArrayLike, *, scale: float = 6.0, gain: fl
             fit, sides, swapped = other, neg, True
     if swapped:
         d = -d
-    b_r = _relative_blur(m, d, fit, scale=scale, blur_px=blur_px, psfs=pair, fit_amplitude=fit_amplitude)
-    sides = _sides(m, d, scale, blur_px, pair, b_r)
+        pre = _psf_sides(m, d, scale, pair)
+    b_r = _relative_blur(m, d, fit, scale=scale, blur_px=blur_px, psfs=pair, fit_amplitude=fit_amplitude, pre=pre)
+    sides = _sides(m, d, scale, blur_px, pair, b_r, pre)
     fit = replace(_fit_once(m.shape, sides, vignetting=True, **kw), relative_blur_px=b_r)
     without = _fit_once(m.shape, sides, vignetting=False, **kw)
     delta = abs(fit.amplitude - without.amplitude)
     se = {**fit.se, "amplitude_model": delta, "amplitude": max(fit.se["amplitude"], 2.0 * delta)}
     ok = {**fit.identified, "amplitude": bool(se["amplitude"] <= TOLERANCES["amplitude"]), "swapped": swapped}
     return replace(fit, se=se, identified=ok)
+
+
+def _foveal_sampler(p: np.ndarray, shape: tuple[int, int], f1m: np.ndarray, f1d: np.ndarray,
+                    vignetting: bool) -> Callable[[np.ndarray], tuple[np.ndarray, np.ndarray, np.ndarray]]:
+    """``foveal(theta) -> (a_m, a_d, r2)``: the foveal sides (mean, diff) where the perifoveal pixels ``p`` fall for
+    the geometry ``theta[:4]`` (:func:`_foveal_points`), and their squared distance from the sensor's centre over
+    the half-diagonal's (0 without ``vignetting``)."""
+    from scipy.ndimage import map_coordinates, spline_filter
+
+    H, W = shape
+    norm = ((H - 1) / 2.0) ** 2 + ((W - 1) / 2.0) ** 2
+    # the foveal sides' cubic-spline coefficients, once: map_coordinates' own prefilter (edge padding of
+    # _SPLINE_PAD, the spline filter) on each of the fit's hundreds of evaluations filtered the whole images again;
+    # the same coefficients at the same shifted points give the same values bit for bit
+    c1m, c1d = (spline_filter(np.pad(f, _SPLINE_PAD, mode="edge"), 3, output=np.float64, mode="nearest")
+                for f in (f1m, f1d))
+    # the last geometry's samples: of the 9 evaluations of a finite-difference Jacobian, the 4 that move (u, g, o, h)
+    # sample the foveal sides at the same points (half of a fit's interpolations)
+    last: list[Any] = [None, None]
+
+    def foveal(theta: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        key = np.asarray(theta[:4], dtype=np.float64).tobytes()
+        if key == last[0]:
+            return last[1]
+        q = _foveal_points(p, shape, theta[0], theta[1], theta[2], math.radians(theta[3]))
+        r2 = ((q[0] - (H - 1) / 2.0) ** 2 + (q[1] - (W - 1) / 2.0) ** 2) / norm * float(vignetting)
+        qp = q + _SPLINE_PAD
+        last[:] = key, (map_coordinates(c1m, qp, order=3, mode="nearest", prefilter=False),
+                        map_coordinates(c1d, qp, order=3, mode="nearest", prefilter=False), r2)
+        return last[1]
+
+    return foveal
 
 
 def _fit_once(shape: tuple[int, int], sides: tuple[np.ndarray, ...], *, scale: float = 6.0, gain: float = 1.0,
@@ -413,7 +462,6 @@ def _fit_once(shape: tuple[int, int], sides: tuple[np.ndarray, ...], *, scale: f
     -------
     FovealFit
     """
-    from scipy.ndimage import map_coordinates, spline_filter
     from scipy.optimize import least_squares
 
     f1m, f1d, f2m, f2d = sides
@@ -421,20 +469,7 @@ def _fit_once(shape: tuple[int, int], sides: tuple[np.ndarray, ...], *, scale: f
     iy, ix = p.astype(int)
     b_m, b_d = f2m[iy, ix], f2d[iy, ix]
 
-    H, W = shape
-    norm = ((H - 1) / 2.0) ** 2 + ((W - 1) / 2.0) ** 2
-    # the foveal sides' cubic-spline coefficients, once: map_coordinates' own prefilter (edge padding of
-    # _SPLINE_PAD, the spline filter) on each of the fit's hundreds of evaluations filtered the whole images again;
-    # the same coefficients at the same shifted points give the same values bit for bit
-    c1m, c1d = (spline_filter(np.pad(f, _SPLINE_PAD, mode="edge"), 3, output=np.float64, mode="nearest")
-                for f in (f1m, f1d))
-
-    def foveal(theta: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        q = _foveal_points(p, shape, theta[0], theta[1], theta[2], math.radians(theta[3]))
-        r2 = ((q[0] - (H - 1) / 2.0) ** 2 + (q[1] - (W - 1) / 2.0) ** 2) / norm * float(vignetting)
-        qp = q + _SPLINE_PAD
-        return (map_coordinates(c1m, qp, order=3, mode="nearest", prefilter=False),
-                map_coordinates(c1d, qp, order=3, mode="nearest", prefilter=False), r2)
+    foveal = _foveal_sampler(p, shape, f1m, f1d, vignetting)
 
     def residual(theta: np.ndarray) -> np.ndarray:
         a_m, a_d, r2 = foveal(theta)

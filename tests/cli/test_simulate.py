@@ -216,10 +216,11 @@ def test_cli_tolerance_prints_the_plan_and_writes_it_to_the_json_and_the_file(tm
     assert (tmp_path / "m_preview.png").is_file()
     model = Measurement.load(out).meta["model"]
     assert model["reduced"] and model["plan"]["tolerance_k_rms"] == 0.5
-    assert main(base + ["--tolerance-k", "0.5", "--out", str(tmp_path / "j.npz"), "--json"]) == 0
+    # (the summaries only: no preview figure, ~1/2 of each run's time)
+    assert main(base + ["--tolerance-k", "0.5", "--out", str(tmp_path / "j.npz"), "--json", "--no-preview"]) == 0
     summary = json.loads(capsys.readouterr().out)
     assert summary["model"]["reduced"] and summary["plan"]["reduce"] == model["reduce"]
-    assert main(base + ["--out", str(tmp_path / "f.npz"), "--json"]) == 0
+    assert main(base + ["--out", str(tmp_path / "f.npz"), "--json", "--no-preview"]) == 0
     summary = json.loads(capsys.readouterr().out)
     assert summary["model"]["reduced"] is False and "plan" not in summary
 

@@ -64,10 +64,13 @@ def test_psf_error_estimate_bounds_the_true_error_off_axis(f, d, field, fab, wl)
     pu = build_pupils(lens, wl, field_deg=field, quantize=fab, lattice=fab).focus
     # the reference (its cost: sources x points) on every 6th sample over the whole window and on the 9 x 9 samples
     # around the peak, where the engine's error is largest: on every 3rd sample the largest error was the same in six
-    # of the seven cases and 3 % larger in the seventh (4000/2000 um at 2 deg), each below half the estimate
+    # of the seven cases and 3 % larger in the seventh (4000/2000 um at 2 deg), each below half the estimate. The
+    # largest window (127 px, 1500/1500 um at 15 deg) takes every 12th: the same largest error as every 6th there
+    # (4.13e-6 against an estimate of 1.77e-5), at 361 reference points instead of 841
+    step = 6 if P.shape[0] < 120 else 12
     j, i = np.unravel_index(int(np.argmax(P.intensity)), P.shape)
-    rows = sorted(set(range(0, P.shape[0], 6)) | set(range(max(0, j - 4), min(P.shape[0], j + 5))))
-    cols = sorted(set(range(0, P.shape[1], 6)) | set(range(max(0, i - 4), min(P.shape[1], i + 5))))
+    rows = sorted(set(range(0, P.shape[0], step)) | set(range(max(0, j - 4), min(P.shape[0], j + 5))))
+    cols = sorted(set(range(0, P.shape[1], step)) | set(range(max(0, i - 4), min(P.shape[1], i + 5))))
     U = rs_reference(pu, xs[cols], ys[rows])
     ref = np.abs(U) ** 2 * P.pitch_um ** 2 / (math.pi * lens.radius_um ** 2)
     true = float(np.abs(P.intensity[np.ix_(rows, cols)] - ref).max() / ref.max())
@@ -142,7 +145,9 @@ def test_psf_of_a_corrected_lens_within_its_error_estimate_of_the_reference(f, d
     assert P.engine == "rs" and P.error_estimate <= 1e-4 and "model_note" not in P.info
     xs, ys = P.coords()
     pu = build_pupils(lens, wl, field_deg=field, quantize=fab, lattice=fab).focus
-    step = 6 if P.shape[0] < 200 else 9
+    # every 6th sample, every 12th on the 5 mm lens' 157 px window (its largest error 4.79e-6 there against 4.99e-6 on
+    # every 6th, the estimate 4.9e-5; 529 reference points instead of 1,225: the reference was 2/3 of the test's time)
+    step = 6 if P.shape[0] < 120 else 12
     j, i = np.unravel_index(int(np.argmax(P.intensity)), P.shape)
     rows = sorted(set(range(0, P.shape[0], step)) | set(range(max(0, j - 4), min(P.shape[0], j + 5))))
     cols = sorted(set(range(0, P.shape[1], step)) | set(range(max(0, i - 4), min(P.shape[1], i + 5))))

@@ -161,8 +161,8 @@ def test_a_free_running_recording_imported_from_tiff_reconstructs_as_simulated(t
     fixed pattern is off: a TIFF carries no shutter frames (with an uncorrected pattern the summary says the foveal
     relation does not hold)."""
     rc, out, err = cli("simulate", "--scene", "rooftop", "--frames", "24", "--polarizer", "free", "--pixel-um", "24",
-                       "--calibration-frames", "0", "--psf", "airy", "--fpn-rank", "0", "--out", tmp_path / "sim.npz",
-                       "--json")
+                       "--calibration-frames", "0", "--psf", "airy", "--fpn-rank", "0", "--no-preview",
+                       "--out", tmp_path / "sim.npz", "--json")
     assert rc == 0, err
     sim = Measurement.load(tmp_path / "sim.npz")
     rc, out, err = cli("import", tmp_path / "sim.tif", "--frame-rate", "12", "--polarizer-hz", "2",
