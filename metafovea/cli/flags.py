@@ -43,6 +43,7 @@ PARAMETER_FLAGS: dict[str, dict[str, str]] = {
                     "max_seconds": "--max-seconds", "seed": "--seed", "rng": "--seed", "scale": "--scale",
                     "gain": "--foveal-gain", "offset": "--foveal-offset", "denoise": "--denoise",
                     "psf": "--psf", "res": "--deconvolve", "method": "--method", "refine_alpha": "--refine-alpha",
+                    "time_s": "--time-s", "deconvolve": "--deconvolve",
                     **_POLARIZER},
     "simulate": {"extinction": "--extinction", "tau_s": "--tau", "bolometer_tau_s": "--tau", "fpn_drift": "--drift",
                  "netd_k": "--netd", "frames": "--frames", "calibration_frames": "--calibration-frames",

@@ -51,7 +51,7 @@ from typing import Any
 #: deconvolution solvers
 _HOMES = {
     "AlternatingOptions": "alternating", "alternating": "alternating", "foveal_gauge": "alternating",
-    "MethodChoice": "auto", "Motion": "auto", "choose_method": "auto", "motion_of": "auto",
+    "MethodChoice": "auto", "Motion": "auto", "auto_lines": "auto", "choose_method": "auto", "motion_of": "auto",
     "FPN_MODES": "api", "METHODS": "api", "METHOD_CHOICES": "api", "fpn_mode": "api", "reconstruct": "api",
     "reconstruct_measurement": "api",
     "DECONVOLUTION_METHODS": "_common", "DEFAULT_DECONVOLUTION": "_common", "ChannelPSFs": "joint",
@@ -102,7 +102,7 @@ def __dir__() -> list[str]:
 __all__ = ["AlternatingOptions", "ChannelPSFs", "DECONVOLUTION_METHODS", "DEFAULT_DECONVOLUTION", "DENOISERS",
            "Deconvolution", "DipOptions", "FAMILY_KINDS", "FPN_MODES", "FovealOperator", "METHODS", "METHOD_CHOICES",
            "MethodChoice", "Motion", "PSFFamily", "PipelineResult", "Reconstruction", "SlidingLSQ", "alternating",
-           "centre_crop", "choose_method", "condition_number", "deconvolve_measurement", "denoise", "dip",
-           "downsample", "downsample_adjoint", "estimate_fpn", "figure_paths", "foveal_gauge", "fpn_mode",
+           "auto_lines", "centre_crop", "choose_method", "condition_number", "deconvolve_measurement", "denoise",
+           "dip", "downsample", "downsample_adjoint", "estimate_fpn", "figure_paths", "foveal_gauge", "fpn_mode",
            "lsq_known_alpha", "motion_of", "prepare_outputs", "psf_family", "reconstruct", "reconstruct_measurement",
            "refine_psf", "register", "separate_deconvolve", "snapshot", "video", "wiener_bound", "write_outputs"]

@@ -320,7 +320,7 @@ def _pipeline(m: Measurement, method: str, *, known_alpha: bool, window: int | N
 def _auto(m: Measurement, time_s: float | None, deconvolve: str | None, kw: dict[str, Any]) -> PipelineResult:
     """``method='auto'``: :func:`~metafovea.reconstruct.auto.choose_method`, the pipeline with its choice, and the
     choice in ``info['auto']`` with the seconds taken and, where the solver reports its noise gain, the images'
-    expected noise (DN rms: the frames' noise times the gain)."""
+    expected noise (DN rms: the frames' noise times the gain; the worst window's)."""
     choice = choose_method(m.as_recording(), time_s, known_alpha=kw["known_alpha"], window=kw["window"],
                            stride=None if kw["stride"] == 1 else kw["stride"], denoise=kw["denoise"],
                            deconvolve=deconvolve, polarizer=kw["polarizer"])
@@ -329,8 +329,8 @@ def _auto(m: Measurement, time_s: float | None, deconvolve: str | None, kw: dict
     rec = res.reconstruction
     info = {**choice.summary(), "seconds": res.seconds}
     gain = rec.info.get("noise_gain")
-    if gain is not None and np.size(gain) == 2:
-        info["noise_dn"] = [choice.motion.noise_dn * float(g) for g in np.ravel(gain)]
+    if gain is not None and np.size(gain) >= 2 and np.size(gain) % 2 == 0:  # the worst window's
+        info["noise_dn"] = [choice.motion.noise_dn * float(g) for g in np.nanmax(np.reshape(gain, (-1, 2)), axis=0)]
     return replace(res, reconstruction=replace(rec, info={**rec.info, "auto": info}))
 
 

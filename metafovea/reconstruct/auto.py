@@ -318,3 +318,18 @@ def _why(solver: str, pick: dict[str, Any], rows: list[dict[str, Any]], mo: Moti
         time += f" (a more accurate one needs {better[-1]['predicted_s']:.3g} s)"
     kept = f"; kept as given: {', '.join(given)}" if given else ""
     return f"{solver} ({alpha}), {path}{steps}: {mo.why}; {time}{kept}"
+
+
+def auto_lines(auto: dict[str, Any] | None, scene: Any = None) -> list[str]:
+    """What ``metafovea reconstruct --method auto`` prints: the choice and why, the time predicted and taken (the
+    PSF-aware step's, ``scene`` a :class:`~metafovea.reconstruct.deconvolve.Deconvolution`, included) and the images'
+    expected noise; nothing for a run that was not ``auto`` (``auto`` None)."""
+    if not auto:
+        return []
+    took = auto["seconds"] + (float(scene.info.get("seconds", 0.0)) if scene is not None else 0.0)
+    allowed = "no limit" if auto["tolerance_s"] is None else f"{auto['tolerance_s']:g} s allowed"
+    line = f"auto: predicted {auto['predicted_s']:.3g} s ({allowed}), took {took:.3g} s"
+    if auto.get("noise_dn"):
+        line += (f"; expected noise x1 {auto['noise_dn'][0]:.3g} DN, x2 {auto['noise_dn'][1]:.3g} DN rms (the frames' "
+                 "noise through the solver, before denoising)")
+    return [f"auto: {auto['why']}", line]
