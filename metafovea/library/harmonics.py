@@ -11,12 +11,14 @@ posts.
 
 The estimate: probe posts (``n x n`` widths spread over the sweep's width grid, at its shortest, longest and
 design wavelengths: the convergence is slowest at the shortest) are solved at M = 3, 4, 5, ...; at each M the
-estimate is :data:`STEP_SAFETY` times the largest phase step ``|arg(t(M) / t(M - 2))|`` over the probes (posts whose
-``|t|^2`` is below :data:`T_FLOOR` left out: their phase is not used by a lens). The smallest M whose estimate is at
-most the tolerance is chosen. The step is not a bound for each post (:func:`metafovea.rcwa.posts.convergence_bound`
-is one, about 8 times the true phase error at M = 10), but its largest value over posts spread across the grid
-tracks the largest true error over other posts; the factor covers the difference, and
-``tests/library/test_harmonics.py`` checks the chosen M against a converged run on posts that are not probes.
+estimate is :data:`STEP_SAFETY` times the largest phase change to the truncations below,
+``max(|arg t(M)/t(M-2)|, |arg t(M)/t(M-4)|)``, over the probes (posts whose ``|t|^2`` is below :data:`T_FLOOR` left
+out: their phase is not used by a lens) -- the phase form of :func:`metafovea.rcwa.posts.convergence_bound`, which
+bounds each post by three times that change of its own; here the largest change over posts spread across the grid
+stands for the largest error over the library's other posts (the step to M - 2 alone does not: near a resonance the
+truncations converge in steps, and a post between the probes is then off by three times the probes' largest step).
+The smallest M whose estimate is at most the tolerance is chosen; ``tests/library/test_harmonics.py`` checks it
+against a converged run on posts that are not probes, ``benchmarks/bench_harmonics_choice.py`` on more.
 
 :class:`HarmonicsChoice` holds what was chosen and why (a row per M tried), :meth:`HarmonicsChoice.summary` is its
 JSON (``library.json``'s ``harmonics_choice``, the library file's meta) and :meth:`HarmonicsChoice.lines` what the
@@ -36,14 +38,14 @@ from metafovea.errors import InputError, check_int, check_range
 if TYPE_CHECKING:
     from .platform import PlatformSweep
 
-#: the estimate is this times the largest phase step to M - 2 over the probes. On 16 random posts of the paper's
-#: platform (0.5-3.5 um) at 10 um against M = 22, the largest true error at M = 8..16 was 0.82-1.38 times the largest
-#: step over 9 probe posts (3 x 3 widths at the grid's 1/6, 1/2, 5/6)
-STEP_SAFETY = 2.0
+#: the estimate is this times the largest phase change to M - 2 or M - 4 over the probes. On 108 random posts of the
+#: paper's platform (0.5-3.5 um; 3 seeds x 12 posts at 8, 10 and 12 um) against M = 20, the largest true error at
+#: M = 8..17 was 0.29-1.10 times that change over the 27 default probes (and 1.5-3.1 times the step to M - 2 alone)
+STEP_SAFETY = 1.5
 #: probes whose zero-order efficiency is below this are left out of the estimate (a lens does not use their phase)
 T_FLOOR = 0.1
-#: the smallest and largest truncation tried (the library's M - 2 estimate needs M >= 5)
-MIN_CHOICE_HARMONICS = 5
+#: the smallest and largest truncation tried (the change to M - 4 needs M - 4 >= 3, the smallest post solve)
+MIN_CHOICE_HARMONICS = 7
 MAX_CHOICE_HARMONICS = 24
 #: probe widths per axis (``n x n`` probe posts per wavelength)
 PROBES_PER_AXIS = 3
@@ -53,8 +55,9 @@ PROBES_PER_AXIS = 3
 class HarmonicsChoice:
     """The truncation :func:`choose_harmonics` chose for a phase-error tolerance, and why.
 
-    ``rows``: one per M tried, ``{'harmonics', 'step_rad', 'estimate_rad', 'seconds_per_post'}`` (the largest
-    phase step to M - 2 over the probes, :data:`STEP_SAFETY` times it, and the probes' mean solve time at M);
+    ``rows``: one per M tried, ``{'harmonics', 'step_rad', 'step4_rad', 'estimate_rad', 'seconds_per_post'}`` (the
+    largest phase change to M - 2 and to M - 4 over the probes, :data:`STEP_SAFETY` times the larger, and the probes'
+    mean solve time at M);
     ``probes``: the probe posts ``(wx_um, wy_um, wavelength_um)``; ``sweep_seconds``: the library sweep's expected
     wall seconds at the chosen M on its workers (the sweep's cost model); ``seconds``: the choice's own."""
 
@@ -69,17 +72,17 @@ class HarmonicsChoice:
 
     @property
     def why(self) -> str:
-        return (f"harmonics {self.harmonics}: max phase step |arg t(M)/t(M-2)| {self.step_rad:.2g} rad x "
+        return (f"harmonics {self.harmonics}: max phase change to M-2, M-4 {self.step_rad:.2g} rad x "
                 f"{STEP_SAFETY:g} = {self.estimate_rad:.2g} rad <= {self.tolerance_rad:g} on {len(self.probes)} "
-                f"probe posts" + (f" (M = {self.harmonics - 1}: {self.rows[-2]['estimate_rad']:.2g} rad)"
+                f"probe posts" + (f" (M = {self.harmonics - 1}: {self.rows[-2]['estimate_rad']:.3g} rad)"
                                   if len(self.rows) > 1 else ""))
 
     def summary(self) -> dict[str, Any]:
         """The choice as JSON: the stage, the tolerance and its unit, what was chosen, the estimate, why."""
         return {"stage": "library", "tolerance_rad": self.tolerance_rad, "chose": {"harmonics": self.harmonics},
                 "estimate_rad": self.estimate_rad, "why": self.why,
-                "estimate": f"{STEP_SAFETY:g} x the largest zero-order phase step to M - 2 over the probe posts "
-                            f"(|t|^2 >= {T_FLOOR:g})",
+                "estimate": f"{STEP_SAFETY:g} x the largest zero-order phase change to M - 2 or M - 4 over the "
+                            f"probe posts (|t|^2 >= {T_FLOOR:g})",
                 "rows": [dict(r) for r in self.rows],
                 "probes": [{"wx_um": a, "wy_um": b, "wavelength_um": w} for a, b, w in self.probes],
                 "seconds": self.seconds, "sweep_seconds_expected": self.sweep_seconds}
@@ -88,8 +91,8 @@ class HarmonicsChoice:
         """What ``metafovea library --tolerance-rad`` prints."""
         out = [f"harmonics chosen for a phase error of {self.tolerance_rad:g} rad: {self.why}; chosen in "
                f"{self.seconds:.1f} s" + (f", the sweep ~{self.sweep_seconds:.0f} s" if self.sweep_seconds else "")]
-        out += ["  M   max step (rad)  estimate (rad)  s per post"]
-        out += [f"  {r['harmonics']:<3d} {r['step_rad']:14.3g}  {r['estimate_rad']:14.3g}  "
+        out += ["  M   to M-2 (rad)  to M-4 (rad)  estimate (rad)  s per post"]
+        out += [f"  {r['harmonics']:<3d} {r['step_rad']:12.3g}  {r['step4_rad']:12.3g}  {r['estimate_rad']:14.3g}  "
                 f"{r['seconds_per_post']:10.3g}" for r in self.rows]
         return out
 
@@ -148,17 +151,17 @@ def choose_harmonics(tolerance_rad: float, sweep: PlatformSweep | None = None, *
     ts: dict[int, np.ndarray] = {}
     rows: list[dict[str, Any]] = []
     with blas_threads(1):
-        for M in range(MIN_CHOICE_HARMONICS - 2, top + 1):
+        for M in range(MIN_CHOICE_HARMONICS - 4, top + 1):
             t1 = time.perf_counter()
             ts[M] = np.ravel(post_response(pr[:, 0], pr[:, 1], pr[:, 2], harmonics=M, **kw).t_x)
             per_post = (time.perf_counter() - t1) / len(pr)
             if M < MIN_CHOICE_HARMONICS:
                 continue
             used = np.abs(ts[M]) ** 2 >= T_FLOOR
-            step = float(np.max(np.abs(np.angle(ts[M][used] / ts[M - 2][used])), initial=0.0))
-            rows.append({"harmonics": M, "step_rad": step, "estimate_rad": STEP_SAFETY * step,
+            s2, s4 = (float(np.max(np.abs(np.angle(ts[M][used] / ts[M - k][used])), initial=0.0)) for k in (2, 4))
+            rows.append({"harmonics": M, "step_rad": s2, "step4_rad": s4, "estimate_rad": STEP_SAFETY * max(s2, s4),
                          "seconds_per_post": per_post})
-            if STEP_SAFETY * step <= tol:
+            if rows[-1]["estimate_rad"] <= tol:
                 break
     last = rows[-1]
     if last["estimate_rad"] > tol:
@@ -167,7 +170,8 @@ def choose_harmonics(tolerance_rad: float, sweep: PlatformSweep | None = None, *
     chosen = replace(opts, harmonics=last["harmonics"])
     expected = _expected_seconds(_checked_sweep(sweep.widths_um, None, sweep.wavelengths, chosen),
                                  _workers(chosen.workers))
-    return HarmonicsChoice(tol, last["harmonics"], last["estimate_rad"], last["step_rad"], tuple(rows),
+    return HarmonicsChoice(tol, last["harmonics"], last["estimate_rad"], max(last["step_rad"], last["step4_rad"]),
+                           tuple(rows),
                            tuple(tuple(float(v) for v in p) for p in pr), time.perf_counter() - t0, expected)
 
 

@@ -143,11 +143,11 @@ def test_library_tolerance_rad_chooses_the_harmonics_and_says_why(tmp_path, caps
         warnings.simplefilter("ignore")
         assert main(argv + ["--out", str(out)]) == 0
     text = capsys.readouterr().out
-    assert "harmonics chosen for a phase error of 0.2 rad: harmonics 6:" in text and "<= 0.2 on 9 probe posts" in text
+    assert "harmonics chosen for a phase error of 0.2 rad: harmonics 8:" in text and "<= 0.2 on 9 probe posts" in text
     choice = json.loads((out / "library.json").read_text())["harmonics_choice"]
-    assert choice["chose"] == {"harmonics": 6} and choice["estimate_rad"] <= 0.2
+    assert choice["chose"] == {"harmonics": 8} and choice["estimate_rad"] <= 0.2
     _, meta = load_npz(out / "library.npz")
-    assert meta["harmonics"] == 6 and meta["harmonics_choice"]["why"] == choice["why"]
+    assert meta["harmonics"] == 8 and meta["harmonics_choice"]["why"] == choice["why"]
     assert main(argv + ["--harmonics", "8"]) == 2
     err = _err(capsys)
     assert err.startswith("metafovea library: error: --harmonics") and "--tolerance-rad" in err
