@@ -75,6 +75,7 @@ SECONDS_PER = {
     "lsq_window_frame_px": 5e-9,      # lsq, sliding windows: per window, frame and pixel (2.3e-9 and 2.7e-9)
     "alternating_frame_px": 2.5e-7,   # alternating, per window, frame and pixel (1.6e-7 to 2.5e-7)
     "calibration_frame_px": 6e-6,     # alternating's calibration pass: per frame and pixel (5.4e-6 and 5.9e-6)
+    "snapshot_px": 4e-5,              # one frame (100 L-BFGS iterations: 2.7 s at 290^2, BENCHMARKS.md)
     "denoise_window_px": 2e-6,        # TV denoising of both images, per window and pixel
     "deconvolve_wiener_px": 3e-5,     # the PSF-aware step, per pixel (2.8e-5 at both sizes)
     "deconvolve_wavelet_px": 7e-5,    # (5.8e-5 and 6.9e-5)
@@ -105,6 +106,8 @@ class Motion:
 
     @property
     def why(self) -> str:
+        if self.frames < 3:
+            return f"static {self.noise_from}"
         return (f"{'moving' if self.moving else 'static'}: {100 * self.fraction:.2g} % of the pixels change beyond "
                 f"{self.threshold:.3g} x the noise variance (limit {100 * MOTION_FRACTION:g} %; noise "
                 f"{self.noise_dn:.3g} DN {self.noise_from})")
@@ -116,19 +119,20 @@ def motion_of(m: Measurement) -> Motion:
     Parameters
     ----------
     m : Measurement
-        Its frames ``(T, H, W)`` (at least 3), the shutter frames ``extras['calibration']`` when it has them.
+        Its frames ``(T, H, W)``, the shutter frames ``extras['calibration']`` when it has them.
 
     Returns
     -------
     Motion
+        Fewer than 3 frames cannot tell (one image and one number per frame fit any 2): static, said so.
     """
     from scipy.stats import chi2
 
     F = np.asarray(m.frames)
     T = F.shape[0]
     if T < 3:
-        raise InputError("frames", f"{T} frame(s)", "at least 3 frames to tell a moving scene from a static one",
-                         source=m.source)
+        return Motion(False, 0.0, float("nan"), float("nan"), f"(not measured: {T} frame(s) cannot tell)",
+                      float("nan"), T, 0)
     idx = np.unique(np.linspace(0, T - 1, min(T, MOTION_MAX_FRAMES)).round().astype(int))
     X = np.asarray(F[idx], dtype=np.float64).reshape(idx.size, -1)
     bad = m.invalid_samples()
@@ -173,7 +177,7 @@ def predicted_seconds(method: str, frames: int, pixels: int, window: int, stride
 
     Parameters
     ----------
-    method : {'lsq', 'alternating'}
+    method : {'lsq', 'alternating', 'snapshot'}
     frames, pixels : int
         The recording's frames and pixels per frame.
     window, stride : int
@@ -183,10 +187,12 @@ def predicted_seconds(method: str, frames: int, pixels: int, window: int, stride
     deconvolve : {'wavelet', 'wiener', 'tv'} or None
         The PSF-aware step after a one-window reconstruction.
     """
-    method = check_choice("method", method, ("lsq", "alternating"))
+    method = check_choice("method", method, ("lsq", "alternating", "snapshot"))
     k = windows_of(frames, window, stride)
     s = SECONDS_PER
-    if method == "lsq":
+    if method == "snapshot":
+        t = s["snapshot_px"] * pixels
+    elif method == "lsq":
         t = s["lsq_frame_px"] * frames * pixels if k == 1 else s["lsq_window_frame_px"] * k * window * pixels
     else:
         t = (s["calibration_frame_px"] * min(frames, CALIBRATION_FRAMES) + s["alternating_frame_px"] * k * window) \
@@ -256,7 +262,8 @@ def choose_method(m: Measurement, time_s: float | None = None, *, known_alpha: b
     tmax = None if time_s is None else check_positive("time_s", time_s, "s")
     T, H, W = m.shape
     spec = m.polarizer_spec(**(polarizer or {}))
-    solver = "lsq" if (known_alpha or m.alpha_known or spec.mode == "sync") else "alternating"
+    solver = ("snapshot" if T == 1 else
+              "lsq" if (known_alpha or m.alpha_known or spec.mode == "sync") else "alternating")
     mo = motion_of(m)
     given = tuple(k for k, v in (("window", window), ("stride", stride), ("denoise", denoise),
                                  ("deconvolve", deconvolve)) if v is not None)
@@ -279,7 +286,7 @@ def _candidates(m: Measurement, moving: bool, T: int, window: int | None, stride
     if deconvolve is not None:
         d = check_choice("deconvolve", deconvolve, (*DECONVOLUTION_METHODS, "none"))
         scene: tuple[str | None, ...] = (None if d == "none" else d,)
-    elif not moving and "psf_x1" in m.extras and "psf_x2" in m.extras:
+    elif not moving and T > 1 and "psf_x1" in m.extras and "psf_x2" in m.extras:
         scene = (*SCENE_METHODS, None)
     else:
         scene = (None,)
@@ -293,7 +300,7 @@ def _candidates(m: Measurement, moving: bool, T: int, window: int | None, stride
         if not 2 <= w <= T:
             raise InputError("window", w, f"2 <= window <= number of frames ({T})")
         paths = [(w, stride or 1)]
-    elif not moving or T <= DEFAULT_WINDOW:
+    elif not moving or T <= DEFAULT_WINDOW:  # (one frame: the snapshot of frame 0)
         paths = [(T, 1)]
     else:
         paths = [(DEFAULT_WINDOW, s) for s in (1, 2, 4, DEFAULT_WINDOW)]
@@ -306,7 +313,7 @@ def _candidates(m: Measurement, moving: bool, T: int, window: int | None, stride
 
 def _why(solver: str, pick: dict[str, Any], rows: list[dict[str, Any]], mo: Motion, tmax: float | None, T: int,
          given: tuple[str, ...]) -> str:
-    alpha = "alpha known" if solver == "lsq" else "alpha unknown"
+    alpha = {"lsq": "alpha known", "alternating": "alpha unknown", "snapshot": "one frame"}[solver]
     path = (f"one window of all {T} frames" if pick["window"] == T else
             f"sliding windows of {pick['window']} frames at stride {pick['stride']}")
     steps = "".join(f", {k} {pick[k]}" for k in ("denoise", "deconvolve") if pick[k])
