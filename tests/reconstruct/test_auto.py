@@ -112,3 +112,12 @@ def test_the_cost_model_scales_with_the_work():
     assert predicted_seconds("lsq", 96, 290 * 290, 8, 8) < predicted_seconds("lsq", 96, 290 * 290, 8, 1)
     assert predicted_seconds("lsq", 96, 290 * 290, 96, deconvolve="wavelet") > \
         predicted_seconds("lsq", 96, 290 * 290, 96, deconvolve="wiener") > one
+
+
+def test_one_frame_is_a_snapshot_and_two_cannot_tell_motion():
+    """One frame: the snapshot; two frames: no motion test (one image and one number per frame fit any two),
+    static, said so."""
+    one = simulate(_system(48), "bars", frames=2, psf="airy", optical_train=False, rng=0)
+    assert "cannot tell" in choose_method(one).why and choose_method(one).window == 2
+    single = dataclasses.replace(one, frames=one.frames[:1], times_s=one.times_s[:1], alpha=one.alpha[:1])
+    assert choose_method(single).method == "snapshot"
