@@ -91,7 +91,7 @@ def _solver_options(args: argparse.Namespace) -> dict[str, Any]:
             if reg < 0:
                 raise InputError("--regularize", args.regularize, "'difference' or a ridge weight >= 0")
         kw["regularize"] = reg
-    if args.method == "alternating":
+    if args.method in ("alternating", "auto"):  # auto: used if it chooses alternating
         kw.update(polarizer=args.polarizer, polarizer_alpha=args.polarizer_alpha, **({"strict": False}
                                                                                     if args.no_strict else {}))
     if args.method == "dip":

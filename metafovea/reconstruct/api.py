@@ -36,6 +36,8 @@ from metafovea.reconstruct.video import video
 
 #: the solvers, in the CLI's words (``--method``)
 METHODS = ("lsq", "alternating", "dip", "snapshot")
+#: the alternating solver's own keywords of ``solver``, which ``auto`` passes on only when it chooses that solver
+ALTERNATING_KEYWORDS = ("polarizer", "polarizer_alpha", "strict")
 #: what :func:`reconstruct_measurement` accepts: a solver, or ``auto``
 #: (:func:`~metafovea.reconstruct.auto.choose_method`: from the recording's motion and the time allowed)
 METHOD_CHOICES = (*METHODS, "auto")
@@ -319,15 +321,18 @@ def _pipeline(m: Measurement, method: str, *, known_alpha: bool, window: int | N
 
 def _auto(m: Measurement, time_s: float | None, deconvolve: str | None, kw: dict[str, Any]) -> PipelineResult:
     """``method='auto'``: :func:`~metafovea.reconstruct.auto.choose_method`, the pipeline with its choice, and the
-    choice in ``info['auto']`` with the seconds taken and, where the solver reports its noise gain, the images'
-    expected noise (DN rms: the frames' noise times the gain; the worst window's)."""
+    choice in ``info['auto']`` with the seconds the pipeline took and, where the solver reports its noise gain, the
+    images' expected noise (DN rms: the frames' noise times the gain; the worst window's)."""
     choice = choose_method(m.as_recording(), time_s, known_alpha=kw["known_alpha"], window=kw["window"],
                            stride=None if kw["stride"] == 1 else kw["stride"], denoise=kw["denoise"],
                            deconvolve=deconvolve, polarizer=kw["polarizer"])
+    solver = {k: v for k, v in (kw["solver"] or {}).items()
+              if choice.method == "alternating" or k not in ALTERNATING_KEYWORDS}  # those of the solver chosen
+    t0 = time.perf_counter()
     res = _pipeline(m, choice.method, **{**kw, "window": choice.window, "stride": choice.stride,
-                                         "denoise": choice.denoise})
+                                         "denoise": choice.denoise, "solver": solver})
     rec = res.reconstruction
-    info = {**choice.summary(), "seconds": res.seconds}
+    info = {**choice.summary(), "seconds": time.perf_counter() - t0}  # the whole pipeline (its calibration pass too)
     gain = rec.info.get("noise_gain")
     if gain is not None and np.size(gain) >= 2 and np.size(gain) % 2 == 0:  # the worst window's
         info["noise_dn"] = [choice.motion.noise_dn * float(g) for g in np.nanmax(np.reshape(gain, (-1, 2)), axis=0)]
