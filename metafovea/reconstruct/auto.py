@@ -17,10 +17,11 @@ left out.
 
 Cost (:func:`predicted_seconds`)
 --------------------------------
-Each method's wall time as a linear model in the work it does (:data:`SECONDS_PER`): frame-pixels of the one-window
-solve, window-frame-pixels of the sliding windows, frame-pixels of the unknown-alpha calibration pass, pixels of
-the PSF-aware step. The constants are each method's speed on the development machine (their source beside them,
-``benchmarks/bench_auto.py`` reruns them): a prediction, not a promise, and the summary reports the time taken.
+Each method's wall time as a fixed cost per run plus a linear model in the work it does (:data:`SECONDS_PER`):
+frame-pixels of the one-window solve, window-frame-pixels of the sliding windows, frame-pixels of the unknown-alpha
+calibration pass, window-pixels of the denoising, pixels of the PSF-aware step. The constants are each method's
+speed on the development machine (their source beside them, ``benchmarks/bench_auto.py`` reruns them): a
+prediction, not a promise, and the summary reports the time taken.
 
 The choice (:func:`choose_method`)
 ----------------------------------
@@ -69,8 +70,9 @@ MOTION_MAX_FRAMES = 128
 #: never seen": wavelet above wiener against the Wiener bound)
 SCENE_METHODS = ("wavelet", "wiener")
 #: seconds per unit of work (see :func:`predicted_seconds`), measured on 96 x 96 and 192 x 192 simulated recordings
-#: of 24 and 48 frames on the 2-core development machine at load ~7 (benchmarks/bench_auto.py), rounded up
+#: of 24 and 48 frames on the 2-core development machine at load 7-11 (benchmarks/bench_auto.py), rounded up
 SECONDS_PER = {
+    "call": 0.02,                     # every run: masks, the fixed pattern, the windows' set-up (0.02-0.03 s)
     "lsq_frame_px": 5e-8,             # lsq, one window: per frame and pixel (1e-8 to 5e-8)
     "lsq_window_frame_px": 5e-9,      # lsq, sliding windows: per window, frame and pixel (2.3e-9 and 2.7e-9)
     "alternating_frame_px": 2.5e-7,   # alternating, per window, frame and pixel (1.6e-7 to 2.5e-7)
@@ -197,6 +199,7 @@ def predicted_seconds(method: str, frames: int, pixels: int, window: int, stride
     else:
         t = (s["calibration_frame_px"] * min(frames, CALIBRATION_FRAMES) + s["alternating_frame_px"] * k * window) \
             * pixels
+    t += s["call"]
     if denoise is not None:
         t += s["denoise_window_px"] * k * pixels
     if deconvolve is not None:
