@@ -2,7 +2,7 @@
 write the paper's Fig. 7b/7c maps and JSON numbers.
 
     metafovea library [designs/platform.toml] [--wavelengths-um 10] [--grid-step-um 0.1]
-                      [--levels 8] [--harmonics 10] [--bias-weight 0] [--out DIR] [--json] ...
+                      [--levels 8] [--harmonics 10 | --tolerance-rad T] [--bias-weight 0] [--out DIR] [--json] ...
 
 Outputs in --out: library.npz (Library.save), postset_x.npz (foveal lens, focuses x) and
 postset_y.npz (perifoveal lens, focuses y) for `metafovea design --post-set`, fig7b_phase_maps.png,
@@ -15,7 +15,7 @@ import argparse
 from typing import TYPE_CHECKING
 
 from metafovea.cli.options import add_shared, alias, show_progress, workers_arg
-from metafovea.errors import check_int, check_positive, check_range
+from metafovea.errors import InputError, check_int, check_positive, check_range
 
 if TYPE_CHECKING:
     from metafovea.library import LibraryOptions, PlatformSweep
@@ -30,7 +30,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    help="wavelengths to sweep in um (default: the platform's design wavelength)")
     p.add_argument("--grid-step-um", default="0.1", help="width grid step in um (default 0.1: 31 x 31 posts)")
     p.add_argument("--levels", default="8", help="phase levels per lens (default 8)")
-    p.add_argument("--harmonics", default="10", help="Fourier orders M, |m|,|n| <= M (default 10: 441 plane waves)")
+    p.add_argument("--harmonics", default=None, help="Fourier orders M, |m|,|n| <= M (default 10: 441 plane waves)")
+    p.add_argument("--tolerance-rad", default=None, help="choose the harmonics instead: the smallest M whose estimated "
+                   "zero-order phase error (probe posts) is at most this many rad; says what it chose and why")
     p.add_argument("--factorization", default="li", choices=FACTORIZATIONS, help="Fourier factorisation rule")
     p.add_argument("--incidence", default="substrate", choices=SIDES,
                    help="side light enters from (default substrate: through the wafer, posts face the sensor)")
@@ -51,7 +53,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     from metafovea.config import PlatformDesign, load_platform
     from metafovea.io import prepare_output, to_json
-    from metafovea.library import LibraryOptions, PlatformSweep
+    from metafovea.library import LibraryOptions, PlatformSweep, choose_harmonics
     from metafovea.library.report import library_report
 
     src = args.platform_file
@@ -60,7 +62,9 @@ def run(args: argparse.Namespace) -> int:
            if args.wavelengths_um else None)
     step = check_positive("--grid-step-um", args.grid_step_um, "um")
     levels = check_int("--levels", args.levels, 2, 64)
-    options = LibraryOptions(harmonics=check_int("--harmonics", args.harmonics, 5, 40),
+    if args.harmonics is not None and args.tolerance_rad is not None:
+        raise InputError("--harmonics", args.harmonics, "not with --tolerance-rad (which chooses the harmonics)")
+    options = LibraryOptions(harmonics=check_int("--harmonics", args.harmonics or "10", 5, 40),
                              factorization=args.factorization, incidence=args.incidence,
                              tol=check_positive("--tol", args.tol), cache_dir=args.cache_dir,
                              use_cache=not args.no_cache,
@@ -69,9 +73,11 @@ def run(args: argparse.Namespace) -> int:
     bias_weight = check_range("--bias-weight", args.bias_weight, 0.0, None, lo_inclusive=True)
     sweep = PlatformSweep(plat, levels, step, wls, options, source=src,  # checks the platform and the grid
                           bias_weight=bias_weight)
-    check_sweep_cost(args, sweep, options)
     out = prepare_output(args.out, args.force, is_dir=True) if args.out else None
-    rep = library_report(sweep)  # warnings: one line each, by the printer of metafovea.cli.main
+    choice = choose_harmonics(args.tolerance_rad, sweep) if args.tolerance_rad is not None else None
+    sweep = choice.applied(sweep) if choice is not None else sweep
+    check_sweep_cost(args, sweep, sweep.options)
+    rep = library_report(sweep, harmonics_choice=choice)  # warnings: one line each, by metafovea.cli.main's printer
     if out is not None:
         rep.write(out)
     if args.json:
@@ -97,7 +103,7 @@ def check_sweep_cost(args: argparse.Namespace, sweep: PlatformSweep, options: Li
     import os
     import warnings
 
-    from metafovea.errors import InputError, human_bytes
+    from metafovea.errors import human_bytes
     from metafovea.imaging.simulate import available_memory_bytes
     from metafovea.rcwa.solve import solve_cost
 
@@ -105,7 +111,7 @@ def check_sweep_cost(args: argparse.Namespace, sweep: PlatformSweep, options: Li
     workers = options.workers or os.cpu_count() or 1
     core_s, per_worker = solve_cost(options.harmonics, n)
     hours = core_s / workers / 3600
-    flag, value = (("--harmonics", args.harmonics) if int(options.harmonics) > 10
+    flag, value = (("--harmonics", args.harmonics or options.harmonics) if int(options.harmonics) > 10
                    else ("--grid-step-um", args.grid_step_um))
     avail = available_memory_bytes()
     need = f"{n:,} post solves at {options.harmonics} harmonics: ~{hours:.3g} h on {workers} workers, " \

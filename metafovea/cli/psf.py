@@ -53,12 +53,23 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
     p.add_argument("--window-um", type=float, default=None,
                    help="full width of the fine monochromatic PSF windows in um (default: sized from the rays); "
                         "a window that truncates the PSF above --error is an error")
-    p.add_argument("--error", type=float, default=1e-4, help="requested max abs error relative to the peak")
+    p.add_argument("--error", "--tolerance", dest="error", type=float, default=1e-4, action=_Typed,
+                   help="the accuracy asked of every PSF: max abs error relative to the peak (default 1e-4; "
+                        "--tolerance is the same): each PSF's engine and sampling are chosen for it, and the output "
+                        "names them with their error estimates")
     p.add_argument("--out", default=None, help="output directory, new or empty (default: a new out/psf-<time>/)")
     add_shared(p, "--force", "--json", "--workers", "--scheduler")  # workers: one lens each
     alias(p, "--jobs", "--workers", "workers")
     p.set_defaults(func=run)
     return p
+
+
+class _Typed(argparse.Action):
+    """Stores the value and the spelling typed (``--error`` or ``--tolerance``), which an error then names."""
+
+    def __call__(self, parser: Any, namespace: Any, values: Any, option_string: Any = None) -> None:
+        setattr(namespace, self.dest, values)
+        namespace.error_flag = option_string
 
 
 #: most wavelength bins --wavelength-bins may ask for
@@ -112,7 +123,7 @@ def run(args: argparse.Namespace) -> int:
             raise InputError("--filter", "on", "not together with --band-um or --filter-um (the system's filter)")
         filt = (system.filter_center_um, system.filter_bandwidth_um)
     check_positive("--temperature-k", args.temperature_k, "K", hi=1e5)
-    check_positive("--error", args.error, hi=0.5)
+    check_positive(getattr(args, "error_flag", "--error"), args.error, hi=0.5)
     pixel_um = (system.sensor.pixel_pitch_um if args.pixel_um is None else
                 check_positive("--pixel-um", args.pixel_um, "um", hi=1e4))
     relay = system.relay_magnification if args.relay is None else check_positive("--relay", args.relay, hi=10.0)

@@ -22,17 +22,17 @@ HELP = "separate foveal and perifoveal images from a measurement (.npz)"
 
 
 def register(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
-    from metafovea.reconstruct import DECONVOLUTION_METHODS, DEFAULT_DECONVOLUTION, DENOISERS, FAMILY_KINDS, METHODS
+    from metafovea.reconstruct import DECONVOLUTION_METHODS, DEFAULT_DECONVOLUTION, DENOISERS, FAMILY_KINDS
+    from metafovea.reconstruct.api import METHOD_CHOICES
 
     p = subparsers.add_parser("reconstruct", help=HELP, description=HELP)
     p.add_argument("measurement", help="Measurement .npz (frames, times_s, optional alpha / truth_x1 / truth_x2)")
-    p.add_argument("--method", default="lsq", choices=METHODS, help="solver (default lsq; lsq needs the file's alpha)")
-    p.add_argument("--known-alpha", action="store_true", help="use the file's alpha (implied by --method lsq; holds "
-                   "alpha fixed for dip)")
-    p.add_argument("--refine-alpha", action="store_true", help="lsq: alpha from the frames (the rotation's phase "
-                   "and rate fitted) instead of the file's nominal one")
-    p.add_argument("--window", type=int, default=None, help="frames per window (default 8; fewer than 16 frames: "
-                   "one window of all)")
+    p.add_argument("--method", default="lsq", choices=METHOD_CHOICES, help="solver (default lsq; lsq needs the file's "
+                   "alpha); auto: chosen from the file's alpha, the scene's motion and --time-s, saying why")
+    p.add_argument("--time-s", type=float, default=None, help="--method auto: the time allowed (s; default no limit)")
+    p.add_argument("--known-alpha", action="store_true", help="use the file's alpha (implied by lsq; dip: held fixed)")
+    p.add_argument("--refine-alpha", action="store_true", help="lsq: alpha fitted from the frames, not the nominal one")
+    p.add_argument("--window", type=int, default=None, help="frames per window (default 8; under 16 frames: all)")
     p.add_argument("--stride", type=int, default=1, help="window stride in frames (default 1)")
     p.add_argument("--denoise", default=None, choices=DENOISERS, help="denoise the outputs")
     p.add_argument("--fpn", default="auto", metavar="auto|none|prior|calibration|PATTERN",
@@ -48,8 +48,7 @@ def register(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
     p.add_argument("--regularize", default=None, help="lsq: 'difference' (ridge on x1 - x2, the smallest that "
                    "meets the condition limit) or a ridge weight >= 0, for windows whose alpha barely varies")
     p.add_argument("--no-strict", action="store_true", help="alternating: when the foveal constraint cannot fix "
-                   "alpha's gauge, return the frame-mean-gauge result (flagged alpha_identified: false) instead of "
-                   "an error")
+                   "alpha's gauge, the frame-mean-gauge result (alpha_identified: false), not an error")
     p.add_argument("--polarizer", default="auto", choices=("auto", "none"),
                    help="alternating: fix alpha's gauge with the polariser model (the file's keys, the flags "
                         "below, else the paper's free-running 2 Hz polariser: auto, default) or not (none: the "
@@ -60,12 +59,10 @@ def register(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
                         "each frame's own (frames: follows a jittering polariser), or auto (default: frames when the "
                         "rotation is irregular beyond the noise)")
     p.add_argument("--frame", type=int, default=0, help="frame index for --method snapshot (default 0)")
-    p.add_argument("--steps", type=int, default=2000, help="DIP step budget: at most this many steps "
-                   "(default 2000)")
+    p.add_argument("--steps", type=int, default=2000, help="DIP step budget: at most this many (default 2000)")
     p.add_argument("--channels", type=int, default=None, help="DIP network channels (default 16)")
     p.add_argument("--init", default="random", choices=("random", "classical"), help="DIP start: random (the "
-                   "paper's fixed random inputs, default) or classical (a residual warm start from alternating, or "
-                   "from LSQ + TV with --known-alpha)")
+                   "paper's, default) or classical (warm start from alternating, or LSQ + TV with --known-alpha)")
     p.add_argument("--max-seconds", type=float, default=None, help="DIP time budget of the whole run (default 600; "
                    "0: no cap); a window it stops keeps its lowest-loss images, and the summary says so")
     add_shared(p, "--seed")  # the DIP's weights and inputs
@@ -94,7 +91,7 @@ def _solver_options(args: argparse.Namespace) -> dict[str, Any]:
             if reg < 0:
                 raise InputError("--regularize", args.regularize, "'difference' or a ridge weight >= 0")
         kw["regularize"] = reg
-    if args.method == "alternating":
+    if args.method in ("alternating", "auto"):  # auto: used if it chooses alternating
         kw.update(polarizer=args.polarizer, polarizer_alpha=args.polarizer_alpha, **({"strict": False}
                                                                                     if args.no_strict else {}))
     if args.method == "dip":
@@ -119,34 +116,37 @@ def run(args: argparse.Namespace) -> int:
     """Reconstruct, print the summary, write the outputs; 0 on success (an InputError is reported by main)."""
     from metafovea.measurement import FovealConstraint, Measurement
     from metafovea.reconstruct import prepare_outputs, reconstruct_measurement, write_outputs
+    from metafovea.reconstruct.auto import auto_lines
     from metafovea.reconstruct.files import scene_paths, write_scene
 
     m = Measurement.load(args.measurement)
     solver = _solver_options(args)
     out, figures = prepare_outputs(m.source, out_file(args, None), figures=not args.no_figures, force=args.force)
-    scene_out = scene_paths(out, not args.no_figures, args.force) if args.deconvolve else []
     fc = FovealConstraint.from_meta(m.meta, scale=args.scale, gain=args.foveal_gain, offset=args.foveal_offset)
     res = reconstruct_measurement(m, args.method, known_alpha=args.known_alpha, window=args.window,
                                   stride=args.stride, fpn=_fpn_arg(args.fpn), denoise=args.denoise, frame=args.frame,
                                   constraint=fc, solver=solver, progress=show_progress(args),
                                   score_truth=not args.no_score, polarizer=polarizer_args(args),
-                                  refine_alpha=args.refine_alpha)
+                                  refine_alpha=args.refine_alpha, time_s=args.time_s,
+                                  **({"deconvolve": args.deconvolve} if args.method == "auto" else {}))
+    auto = res.reconstruction.info.get("auto")
+    decon = auto["chose"]["deconvolve"] if auto else args.deconvolve  # what auto chose (or was given)
+    scene_out = scene_paths(out, not args.no_figures, args.force) if decon else []  # before any file is written
     files = write_outputs(res, out, figures, title=f"{res.reconstruction.method}: {Path(m.source).name}")
     dec = None
-    if args.deconvolve:
+    if decon:
         from metafovea.reconstruct.deconvolve import deconvolve_result  # only here: a plain run starts faster
 
-        dec = deconvolve_result(m, res, args.deconvolve, args.psf, score_truth=not args.no_score,
-                                refine_psf=args.refine_psf)
+        dec = deconvolve_result(m, res, decon, args.psf, score_truth=not args.no_score, refine_psf=args.refine_psf)
         files += write_scene(dec, scene_out)
     s = res.summary(files)
-    if dec is not None:
-        s["scene"] = dec.summary()
+    s.update({"scene": dec.summary()} if dec is not None else {})
     if args.json:
         print(to_json(s))
         return 0
     print(f"{s['method']}: {s['frames']} frames -> {s['outputs']} reconstruction(s) in {s['seconds']:.3f} s "
           f"({s['ms_per_output']:.3f} ms each)")
+    print("".join(f"  {line}\n" for line in auto_lines(auto, dec)), end="")
     if "condition" in s:
         print(f"  normal-matrix condition number: {s['condition']:.3g}")
     _print_dip(s.get("dip"), args)

@@ -11,6 +11,8 @@ Files, in the order a library is made and used::
     sweep      Library (t, T, R per (wavelength, wx, wy)), LibraryOptions (stack, solver, run), width_grid,
                compute_library (one task per row through metafovea.parallel.run_tasks; cached under a hash of
                every input, library_key; resumable from finished rows)
+    harmonics  choose_harmonics / HarmonicsChoice (the smallest RCWA truncation whose estimated zero-order phase
+               error on probe posts is within a tolerance: ``metafovea library --tolerance-rad``), probe_posts
     select     select_posts (the paper's Fig. 7c: nominal grid search, or jointly over the -/0/+ edge-bias
                cases), usable_posts, bias_table (a set solved by RCWA under the edge bias)
     platform   PlatformSweep and platform_post_sets (a platform's library and both post sets: the path of
@@ -25,6 +27,7 @@ Files, in the order a library is made and used::
                writes); imported as ``metafovea.library.report``
 """
 
+from .harmonics import HarmonicsChoice, choose_harmonics, probe_posts
 from .oblique import OBLIQUE_ANGLES_DEG, OBLIQUE_HARMONICS, ObliqueResponse, oblique_cache_name, oblique_response
 from .platform import POST_SOURCES, PlatformSweep, platform_post_sets, rcwa_post_sets, system_post_sets
 from .postset import PostSet, postset_table
@@ -43,9 +46,10 @@ from .surrogate import (
 )
 from .sweep import DEFAULT_HARMONICS, LIBRARY_ARRAYS, Library, LibraryOptions, compute_library, library_key, width_grid
 
-__all__ = ["BIAS_CASES", "DEFAULT_HARMONICS", "GOAL_AMPLITUDE_RMS_PCT", "GOAL_PHASE_RMS_RAD", "JOINT_MAX_ROUNDS",
-           "JOINT_POLISH", "LIBRARY_ARRAYS", "Library", "LibraryOptions", "OBLIQUE_ANGLES_DEG", "OBLIQUE_HARMONICS",
-           "ObliqueResponse", "POST_SOURCES", "PlatformSweep", "PostSet", "Surrogate", "SurrogateError", "bias_table",
-           "compute_library", "error_report", "fit_surrogate", "held_out_points", "library_key", "oblique_cache_name",
-           "oblique_response", "platform_post_sets", "postset_table", "rcwa_post_sets", "rcwa_transmission",
-           "select_posts", "surrogate_from_library", "surrogate_grid", "system_post_sets", "usable_posts", "width_grid"]
+__all__ = ["BIAS_CASES", "DEFAULT_HARMONICS", "GOAL_AMPLITUDE_RMS_PCT", "GOAL_PHASE_RMS_RAD", "HarmonicsChoice",
+           "JOINT_MAX_ROUNDS", "JOINT_POLISH", "LIBRARY_ARRAYS", "Library", "LibraryOptions", "OBLIQUE_ANGLES_DEG",
+           "OBLIQUE_HARMONICS", "ObliqueResponse", "POST_SOURCES", "PlatformSweep", "PostSet", "Surrogate",
+           "SurrogateError", "bias_table", "choose_harmonics", "compute_library", "error_report", "fit_surrogate",
+           "held_out_points", "library_key", "oblique_cache_name", "oblique_response", "platform_post_sets",
+           "postset_table", "probe_posts", "rcwa_post_sets", "rcwa_transmission", "select_posts",
+           "surrogate_from_library", "surrogate_grid", "system_post_sets", "usable_posts", "width_grid"]

@@ -19,6 +19,7 @@ import numpy as np
 from metafovea.io import atomic_write_bytes, atomic_write_json
 from metafovea.report import fig_to_png
 
+from .harmonics import HarmonicsChoice
 from .platform import PlatformSweep
 from .postset import PostSet, postset_table
 from .select import bias_table
@@ -43,13 +44,16 @@ class LibraryReport:
     elapsed_s: float
     edge_bias: dict[str, Any] = field(default_factory=dict)  #: pol -> :func:`metafovea.library.bias_table`
     bound: dict[str, Any] = field(default_factory=dict)  #: :func:`convergence_bounds`
+    #: what :func:`~metafovea.library.harmonics.choose_harmonics` chose (``--tolerance-rad``), or None
+    harmonics_choice: HarmonicsChoice | None = None
 
     def numbers(self) -> dict[str, Any]:
         """The JSON numbers: library size, solver settings, convergence estimates, and per lens its post set's
         figures of merit and per-level table."""
         lib, meta = self.library, self.library.meta
         M = int(meta["harmonics"])
-        return {
+        choice = {} if self.harmonics_choice is None else {"harmonics_choice": self.harmonics_choice.summary()}
+        return {**choice,
             "library": {"n_wx": int(lib.wx_um.size), "n_wy": int(lib.wy_um.size),
                         "wavelengths_um": lib.wavelengths_um, "harmonics": M, "plane_waves": (2 * M + 1) ** 2,
                         "factorization": meta.get("factorization"), "incidence": meta.get("incidence"),
@@ -86,6 +90,8 @@ class LibraryReport:
                  f"M = {lb['harmonics']} ({lb['plane_waves']} plane waves, {lb['factorization']}), light from the "
                  f"{lb['incidence']}, {lb['elapsed_s']:.1f} s{' (cache)' if lb['from_cache'] else ''}; "
                  f"step |t(M) - t(M-2)| max {lb['max_error_estimate']:.3g}, median {lb['median_error_estimate']:.3g}"]
+        if self.harmonics_choice is not None:
+            lines = self.harmonics_choice.lines() + lines
         bd = d.get("convergence_bound")
         if bd:
             lines.append(f"truncation-error bound 3 max(|t(M) - t(M-2)|, |t(M) - t(M-4)|): max {bd['max']:.3g}, "
@@ -111,7 +117,11 @@ class LibraryReport:
     def write(self, out_dir: Path) -> list[Path]:
         """Write the library, both post sets, Fig. 7b/7c and library.json into ``out_dir`` (which must exist)."""
         out_dir = Path(out_dir)
-        written = [self.library.save(out_dir / "library.npz")]
+        lib = self.library
+        if self.harmonics_choice is not None:  # the file says why it has its harmonics
+            lib = Library(lib.wx_um, lib.wy_um, lib.wavelengths_um, lib.arrays,
+                          dict(lib.meta, harmonics_choice=self.harmonics_choice.summary()))
+        written = [lib.save(out_dir / "library.npz")]
         written += [ps.save(out_dir / f"postset_{pol}.npz") for pol, ps in self.post_sets.items()]
         il = self.library.index_of_wavelength(self.design_wavelength_um)
         written.append(atomic_write_bytes(out_dir / "fig7b_phase_maps.png", phase_maps_png(self.library, il)))
@@ -121,8 +131,9 @@ class LibraryReport:
         return written
 
 
-def library_report(sweep: PlatformSweep) -> LibraryReport:
-    """Compute (or load from the cache) the library of ``sweep`` and select both post sets."""
+def library_report(sweep: PlatformSweep, *, harmonics_choice: HarmonicsChoice | None = None) -> LibraryReport:
+    """Compute (or load from the cache) the library of ``sweep`` and select both post sets; ``harmonics_choice``
+    (:func:`~metafovea.library.harmonics.choose_harmonics`, already applied to ``sweep``) is reported with it."""
     t0 = time.perf_counter()
     lib = sweep.library()
     elapsed = time.perf_counter() - t0
@@ -131,7 +142,7 @@ def library_report(sweep: PlatformSweep) -> LibraryReport:
     delta = sweep.platform.edge_bias_um
     il = int(np.argmin(np.abs(lib.wavelengths_um - sweep.design_wavelength_um)))
     bias = {pol: bias_table(lib, ps.widths_um, pol, delta, il) for pol, ps in sets.items()} if delta > 0 else {}
-    return LibraryReport(lib, sets, sweep.design_wavelength_um, elapsed, bias, bound)
+    return LibraryReport(lib, sets, sweep.design_wavelength_um, elapsed, bias, bound, harmonics_choice)
 
 
 def convergence_bounds(lib: Library, sweep: PlatformSweep) -> dict[str, Any]:

@@ -148,6 +148,7 @@ def psf_report(lens: LensDesign, out_dir: str | Path, *, fields_deg: list[float]
     bar.close()
     res["pixel_pitch_um"] = pixel_pitch_um
     res["seconds"] = time.perf_counter() - t0
+    res["tolerance"] = tolerance_summary(res)
     for name, data in figs.items():
         atomic_write_bytes(out / f"{stem}_{name}", data)
     atomic_write_json(out / f"{stem}_psf_report.json", res)
@@ -680,7 +681,7 @@ def _report_one(lens: LensDesign, out: str, kw: dict[str, Any]) -> tuple[str, An
 SUMMARY_KEYS = ("lens", "f_mm", "diameter_mm", "na", "wavelength_um", "mono_wavelength_um", "polarization", "posts",
                 "seconds", "monochromatic", "sensor", "on_axis_ee_pixel_radius", "warnings", "accuracy",
                 "pixel_pitch_um", "sensor_pixel_um", "z_um", "defocus_um", "relay_magnification", "requested_error",
-                "spectral")
+                "spectral", "tolerance")
 
 
 def _check_light(band: tuple[float, float], filt: tuple[float, float] | None, temperature_k: float) -> None:
@@ -778,10 +779,36 @@ def lens_lines(name: str, s: dict[str, Any]) -> list[str]:
     lines.append(f"  sensor PSFs at {len(sens)} field{'s' if len(sens) > 1 else ''} ({fmt(min(fd))}-{fmt(max(fd))} "
                  f"deg, {sp['n_wavelengths']} wavelength bins): the chief-ray pixel holds {min(peak):.3g}-"
                  f"{max(peak):.3g} of the incident power over the band")
+    if s.get("tolerance"):
+        lines.append(f"  {s['tolerance']['why']}")
     warn = len(set(s["warnings"])) + len(s["accuracy"])
     lines.append(f"  report {s['html']} ({s['seconds']:.1f} s)"
                  + (f"  [{warn} warning{'s' if warn > 1 else ''}, on stderr]" if warn else ""))
     return lines
+
+
+def tolerance_summary(res: dict[str, Any]) -> dict[str, Any]:
+    """The report's PSFs in the words every stage's tolerance uses (``docs/tolerances.md``): the accuracy asked
+    (``requested_error``: max abs error relative to the peak, ``metafovea psf --tolerance``), the engines each PSF's
+    error chose (:func:`~metafovea.optics.psf.psf` and :func:`~metafovea.optics.sensor.sensor_psf` pick engine and
+    sampling for it, within their cost budgets), the largest error estimate, the PSFs whose error is not bounded
+    (the direction-sine model's edge diffraction) and those that missed the tolerance (``accuracy``), and why."""
+    tol = float(res["requested_error"])
+    mono, sens = res.get("monochromatic", []), res.get("sensor", [])
+    bounded = [m["error_estimate"] for m in mono if not m.get("model_note") and m["error_estimate"] is not None]
+    bounded += [r[k] for r in sens for k in ("poly_error_estimate", "mono_error_estimate") if r[k] is not None]
+    chose = {"monochromatic": sorted({str(m["engine"]) for m in mono}),
+             "sensor": sorted({str(r[k]) for r in sens for k in ("poly_engine", "mono_engine")})}
+    est = max(bounded) if bounded else None
+    unbounded = sum(1 for m in mono if m.get("model_note"))
+    missed = len(res.get("accuracy", []))
+    why = (f"tolerance {tol:g} of the peak (--tolerance, --error): engines {', '.join(chose['monochromatic'])} "
+           f"(fine PSFs), {', '.join(chose['sensor'])} (sensor PSFs); largest error estimate "
+           + ("none" if est is None else f"{est:.2g}")
+           + (f", {unbounded} PSF(s) not bounded" if unbounded else "")
+           + (f"; {missed} result(s) above the tolerance (on stderr)" if missed else "; every bounded PSF within it"))
+    return {"stage": "psf", "tolerance_of_peak": tol, "chose": chose, "estimate_of_peak": est,
+            "not_bounded": unbounded, "above_tolerance": missed, "why": why}
 
 
 def timing_line(timing: dict[str, Any]) -> str:

@@ -10,6 +10,8 @@ Files:
 =================  ==========================================================================================
 ``api``            :func:`reconstruct_measurement` (the pipeline: windows, FPN, denoising, scores; a
                    :class:`PipelineResult`) and :func:`reconstruct` (arrays in, one solver)
+``auto``           :func:`choose_method` (``method='auto'``: the solver, windows and PSF-aware step from the
+                   recording's motion, :func:`motion_of`, and the time allowed)
 ``lsq``            known alpha: :func:`lsq_known_alpha`, :class:`SlidingLSQ` (closed form, conditioning reported)
 ``alternating``    unknown alpha: :func:`alternating` (:class:`AlternatingOptions`; subspace start, foveal gauge
                    fix, TV prior)
@@ -49,7 +51,9 @@ from typing import Any
 #: deconvolution solvers
 _HOMES = {
     "AlternatingOptions": "alternating", "alternating": "alternating", "foveal_gauge": "alternating",
-    "FPN_MODES": "api", "METHODS": "api", "fpn_mode": "api", "reconstruct": "api", "reconstruct_measurement": "api",
+    "MethodChoice": "auto", "Motion": "auto", "auto_lines": "auto", "choose_method": "auto", "motion_of": "auto",
+    "FPN_MODES": "api", "METHODS": "api", "METHOD_CHOICES": "api", "fpn_mode": "api", "reconstruct": "api",
+    "reconstruct_measurement": "api",
     "DECONVOLUTION_METHODS": "_common", "DEFAULT_DECONVOLUTION": "_common", "ChannelPSFs": "joint",
     "Deconvolution": "deconvolve",
     "deconvolve_measurement": "deconvolve", "separate_deconvolve": "deconvolve", "wiener_bound": "metrics",
@@ -96,9 +100,9 @@ def __dir__() -> list[str]:
 
 
 __all__ = ["AlternatingOptions", "ChannelPSFs", "DECONVOLUTION_METHODS", "DEFAULT_DECONVOLUTION", "DENOISERS",
-           "Deconvolution", "DipOptions", "FAMILY_KINDS", "FPN_MODES", "FovealOperator", "METHODS", "PSFFamily",
-           "PipelineResult", "Reconstruction", "SlidingLSQ", "alternating", "centre_crop", "condition_number",
-           "deconvolve_measurement", "denoise", "dip", "downsample", "downsample_adjoint", "estimate_fpn",
-           "figure_paths", "foveal_gauge", "fpn_mode", "lsq_known_alpha", "prepare_outputs", "psf_family",
-           "reconstruct", "reconstruct_measurement", "refine_psf", "register", "separate_deconvolve", "snapshot",
-           "video", "wiener_bound", "write_outputs"]
+           "Deconvolution", "DipOptions", "FAMILY_KINDS", "FPN_MODES", "FovealOperator", "METHODS", "METHOD_CHOICES",
+           "MethodChoice", "Motion", "PSFFamily", "PipelineResult", "Reconstruction", "SlidingLSQ", "alternating",
+           "auto_lines", "centre_crop", "choose_method", "condition_number", "deconvolve_measurement", "denoise",
+           "dip", "downsample", "downsample_adjoint", "estimate_fpn", "figure_paths", "foveal_gauge", "fpn_mode",
+           "lsq_known_alpha", "motion_of", "prepare_outputs", "psf_family", "reconstruct", "reconstruct_measurement",
+           "refine_psf", "register", "separate_deconvolve", "snapshot", "video", "wiener_bound", "write_outputs"]

@@ -21,6 +21,13 @@ DECONVOLUTION_METHODS = ("tv", "wavelet", "wiener")
 #: generator's tuning seeds (BENCHMARKS.md, "PSF-aware reconstruction on scenes never seen"); ``'wiener'`` is the
 #: fast linear alternative
 DEFAULT_DECONVOLUTION = "wavelet"
+#: frames per window of :func:`~metafovea.reconstruct.reconstruct_measurement` unless told; a sequence shorter than
+#: SHORT_SEQUENCE frames is one window of all its frames (importable from ``metafovea.reconstruct.api`` as well)
+DEFAULT_WINDOW = 8
+SHORT_SEQUENCE = 2 * DEFAULT_WINDOW
+#: frames of the unknown-alpha pipeline's calibration pass (the first ones): 24 frames are 2 s, four turns of the
+#: paper's polariser
+CALIBRATION_FRAMES = 24
 
 O = TypeVar("O")
 

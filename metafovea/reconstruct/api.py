@@ -24,6 +24,8 @@ from numpy.typing import ArrayLike
 
 from metafovea.errors import InputError, check_choice
 from metafovea.measurement import FovealConstraint, Measurement, PolarizerSpec
+from metafovea.reconstruct._common import CALIBRATION_FRAMES, DEFAULT_WINDOW, SHORT_SEQUENCE
+from metafovea.reconstruct.auto import choose_method
 from metafovea.reconstruct.denoise import denoise as denoise_image
 from metafovea.reconstruct.fpn import estimate_fpn
 from metafovea.reconstruct.lsq import lsq_known_alpha
@@ -34,12 +36,14 @@ from metafovea.reconstruct.video import video
 
 #: the solvers, in the CLI's words (``--method``)
 METHODS = ("lsq", "alternating", "dip", "snapshot")
+#: the alternating solver's own keywords of ``solver``, which ``auto`` passes on only when it chooses that solver
+ALTERNATING_KEYWORDS = ("polarizer", "polarizer_alpha", "strict")
+#: what :func:`reconstruct_measurement` accepts: a solver, or ``auto``
+#: (:func:`~metafovea.reconstruct.auto.choose_method`: from the recording's motion and the time allowed)
+METHOD_CHOICES = (*METHODS, "auto")
 #: fixed-pattern noise handling of :func:`reconstruct_measurement` (``--fpn``); ``auto`` picks one from the file
 #: (:func:`fpn_mode`)
 FPN_MODES = ("auto", "none", "prior", "calibration")
-#: frames per window unless told; a sequence shorter than SHORT_SEQUENCE frames is one window of all its frames
-DEFAULT_WINDOW = 8
-SHORT_SEQUENCE = 2 * DEFAULT_WINDOW
 #: noise gain (x_i's noise std per unit frame noise) above which the summary warns
 NOISE_GAIN_WARN = 10.0
 #: the deep image prior's default time budget for a whole run (all windows), in seconds (``solver={'max_seconds':
@@ -56,8 +60,6 @@ FOVEA_INVALID_MAX = 0.5
 #: NOMINAL_TOL (a rotation's phase off by 0.1 deg moves alpha by up to 0.0035)
 NOMINAL_FACTOR = 3.0
 NOMINAL_TOL = 2e-3
-#: frames of the calibration pass (the first ones): 24 frames are 2 s, four turns of the paper's polariser
-CALIBRATION_FRAMES = 24
 
 
 def reconstruct(frames: ArrayLike, alpha: ArrayLike | None = None, method: str = "lsq", *,
@@ -175,14 +177,19 @@ def reconstruct_measurement(m: Measurement, method: str = "lsq", *, known_alpha:
                             constraint: FovealConstraint | None = None, solver: dict[str, Any] | None = None,
                             level_free: bool = False, progress: bool = False,
                             score_truth: bool = True, polarizer: dict[str, Any] | None = None,
-                            calibrate: bool = True, refine_alpha: bool = False) -> PipelineResult:
+                            calibrate: bool = True, refine_alpha: bool = False, time_s: float | None = None,
+                            deconvolve: str | None = None) -> PipelineResult:
     """Reconstruct a Measurement by the pipeline's rules and score it against its truth.
 
     Parameters
     ----------
     m : Measurement
-    method : {'lsq', 'alternating', 'dip', 'snapshot'}
-        ``lsq`` uses the file's alpha; ``snapshot`` separates the single frame ``frame``.
+    method : {'lsq', 'alternating', 'dip', 'snapshot', 'auto'}
+        ``lsq`` uses the file's alpha; ``snapshot`` separates the single frame ``frame``; ``auto`` chooses the solver,
+        window and stride (and the PSF-aware step to run after: ``deconvolve``) from what the file knows of alpha,
+        the scene's motion and ``time_s`` (:func:`~metafovea.reconstruct.auto.choose_method`), and records the
+        choice, why, and the time it took in ``reconstruction.info['auto']`` (a given ``window`` or a ``stride``
+        other than 1 is kept).
     known_alpha : bool
         Use the file's alpha with ``dip`` (held fixed) or ``snapshot`` (implied by ``lsq``; refused with
         ``alternating``, which estimates it).
@@ -223,6 +230,11 @@ def reconstruct_measurement(m: Measurement, method: str = "lsq", *, known_alpha:
         polariser, which ``lsq`` uses without a file alpha and checks against the frames (``info['alpha_nominal']``).
     calibrate : bool
         Unknown alpha: calibrate the camera from the recording first (:func:`_calibrated`; ``info['calibration']``).
+    time_s : float, s, optional
+        ``auto``: the time allowed (None: no limit).
+    deconvolve : {'wavelet', 'wiener', 'tv', 'none'}, optional
+        ``auto``: the PSF-aware step the caller runs after (:func:`~metafovea.reconstruct.deconvolve.deconvolve_result`)
+        counted in the time; None lets ``auto`` choose it (``info['auto']['chose']['deconvolve']``).
 
     Notes
     -----
@@ -234,7 +246,24 @@ def reconstruct_measurement(m: Measurement, method: str = "lsq", *, known_alpha:
         The reconstruction, the frames each output covers, the time taken, metrics against the truth each output
         shows (a video truth averaged over the output's frames) and, when alpha was estimated, its error.
     """
-    method = check_choice("method", method, METHODS)
+    method = check_choice("method", method, METHOD_CHOICES)
+    kw = dict(known_alpha=known_alpha, window=window, stride=stride, starts=starts, fpn=fpn, denoise=denoise,
+              frame=frame, constraint=constraint, solver=solver, level_free=level_free, progress=progress,
+              score_truth=score_truth, polarizer=polarizer, calibrate=calibrate, refine_alpha=refine_alpha)
+    if method == "auto":
+        return _auto(m, time_s, deconvolve, kw)
+    for name, v in (("time_s", time_s), ("deconvolve", deconvolve)):
+        if v is not None:
+            raise InputError(name, v, "only with method='auto' (which chooses the method from it)")
+    return _pipeline(m, method, **kw)
+
+
+def _pipeline(m: Measurement, method: str, *, known_alpha: bool, window: int | None, stride: int,
+              starts: Sequence[int] | None, fpn: str | np.ndarray, denoise: str | None, frame: int,
+              constraint: FovealConstraint | None, solver: dict[str, Any] | None, level_free: bool, progress: bool,
+              score_truth: bool, polarizer: dict[str, Any] | None, calibrate: bool,
+              refine_alpha: bool) -> PipelineResult:
+    """:func:`reconstruct_measurement` with a solver (``method`` checked)."""
     m = m.as_recording()
     spec = m.polarizer_spec(**(polarizer or {}))
     T = m.shape[0]
@@ -288,6 +317,26 @@ def reconstruct_measurement(m: Measurement, method: str = "lsq", *, known_alpha:
     res = PipelineResult(reconstruction=rec, spans=spans, seconds=seconds, constraint=fc, frames=T, source=m.source)
     return replace(res, metrics=_metrics(m, res, level_free) if score_truth else None,
                    alpha_mae=_alpha_mae(m, res, alpha is None or nominal))
+
+
+def _auto(m: Measurement, time_s: float | None, deconvolve: str | None, kw: dict[str, Any]) -> PipelineResult:
+    """``method='auto'``: :func:`~metafovea.reconstruct.auto.choose_method`, the pipeline with its choice, and the
+    choice in ``info['auto']`` with the seconds the pipeline took and, where the solver reports its noise gain, the
+    images' expected noise (DN rms: the frames' noise times the gain; the worst window's)."""
+    choice = choose_method(m.as_recording(), time_s, known_alpha=kw["known_alpha"], window=kw["window"],
+                           stride=None if kw["stride"] == 1 else kw["stride"], denoise=kw["denoise"],
+                           deconvolve=deconvolve, polarizer=kw["polarizer"])
+    solver = {k: v for k, v in (kw["solver"] or {}).items()
+              if choice.method == "alternating" or k not in ALTERNATING_KEYWORDS}  # those of the solver chosen
+    t0 = time.perf_counter()
+    res = _pipeline(m, choice.method, **{**kw, "window": choice.window, "stride": choice.stride,
+                                         "denoise": choice.denoise, "solver": solver})
+    rec = res.reconstruction
+    info = {**choice.summary(), "seconds": time.perf_counter() - t0}  # the whole pipeline (its calibration pass too)
+    gain = rec.info.get("noise_gain")
+    if gain is not None and np.size(gain) >= 2 and np.size(gain) % 2 == 0:  # the worst window's
+        info["noise_dn"] = [choice.motion.noise_dn * float(g) for g in np.nanmax(np.reshape(gain, (-1, 2)), axis=0)]
+    return replace(res, reconstruction=replace(rec, info={**rec.info, "auto": info}))
 
 
 def _flat_fielded(m: Measurement, rec: Reconstruction) -> Reconstruction:

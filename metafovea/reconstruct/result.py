@@ -290,6 +290,8 @@ class PipelineResult:
             out["nonfinite_pixels"] = self.nonfinite_pixels
         if self.metrics is not None:
             out["metrics"] = self.metrics
+        if rec.info.get("auto"):  # what method='auto' chose, why, and the time it took
+            out["auto"] = rec.info["auto"]
         return out
 
 

@@ -131,3 +131,23 @@ def test_a_library_sweep_off_a_terminal_logs_progress_lines(tmp_path, capsys, mo
         assert "metafovea: RCWA library: 3/3 task (100 %) in" in err
         assert main([*argv, "--cache-dir", str(tmp_path / "d"), "-q"]) == 0
     assert "metafovea: RCWA library" not in capsys.readouterr().err
+
+
+def test_library_tolerance_rad_chooses_the_harmonics_and_says_why(tmp_path, capsys):
+    """--tolerance-rad: the harmonics chosen from probe posts, printed with the reason and written to library.json
+    and the library file's meta; with --harmonics it is refused (one line naming the flag)."""
+    out = tmp_path / "out"
+    argv = ["library", "--grid-step-um", "1.0", "--levels", "2", "--cache-dir", str(tmp_path / "c"), "--no-progress",
+            "--workers", "1", "--tolerance-rad", "0.2"]
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        assert main(argv + ["--out", str(out)]) == 0
+    text = capsys.readouterr().out
+    assert "harmonics chosen for a phase error of 0.2 rad: harmonics 8:" in text and "<= 0.2 on 9 probe posts" in text
+    choice = json.loads((out / "library.json").read_text())["harmonics_choice"]
+    assert choice["chose"] == {"harmonics": 8} and choice["estimate_rad"] <= 0.2
+    _, meta = load_npz(out / "library.npz")
+    assert meta["harmonics"] == 8 and meta["harmonics_choice"]["why"] == choice["why"]
+    assert main(argv + ["--harmonics", "8"]) == 2
+    err = _err(capsys)
+    assert err.startswith("metafovea library: error: --harmonics") and "--tolerance-rad" in err

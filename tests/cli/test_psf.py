@@ -299,3 +299,19 @@ def test_psf_and_simulate_print_the_same_throughput(tiny, tmp_path, capsys):
     for line in throughput_lines(trains):
         assert line in out
     assert Measurement.load(tmp_path / "m.npz").meta["optical_train"] == json.loads(json.dumps(trains))
+
+
+def test_tolerance_is_the_error_in_the_words_of_the_other_stages(tiny, tiny_toml, tmp_path, capsys):
+    """--tolerance (the --error of the other stages' vocabulary): the output names it with the engines it chose and
+    the largest error estimate, in the lens' JSON too; a bad value names the spelling typed."""
+    from metafovea.cli import build_parser
+
+    _, _, stdout, _, res = tiny
+    assert "tolerance 0.0001 of the peak (--tolerance, --error): engines " in stdout
+    tol = res["tolerance"]
+    assert tol["tolerance_of_peak"] == 1e-4 and tol["chose"]["sensor"] and tol["chose"]["monochromatic"]
+    assert tol["above_tolerance"] == len(res["accuracy"]) and tol["estimate_of_peak"] > 0 and tol["why"] in stdout
+    args = build_parser(["psf", "x.toml"]).parse_args(["psf", "x.toml", "--tolerance", "0.01"])
+    assert args.error == 0.01 and args.error_flag == "--tolerance"
+    assert main(["psf", str(tiny_toml), "--tolerance", "0", "--out", str(tmp_path / "p")]) == 2
+    assert error_lines(capsys.readouterr().err)[0].startswith("metafovea psf: error: --tolerance = 0")

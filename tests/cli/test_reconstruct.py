@@ -479,3 +479,26 @@ def test_dip_off_a_terminal_logs_progress_lines_and_says_when_the_time_cap_stopp
     assert "stopped the run after 1 of 2 windows (the output holds those)" in out
     assert Reconstruction.load(tmp_path / "w.npz").x1.shape == (1, 64, 64)
     assert _run([meas, "--method", "dip", "--max-seconds", "-1"], capsys)[0] == 2
+
+
+def test_method_auto_says_what_it_chose_and_runs_the_psf_aware_step_it_chose(tmp_path, capsys):
+    """--method auto on a static simulated file with its PSFs: one window, the PSF-aware scene written, the choice
+    and why printed with the time taken and the scores; a tight --time-s leaves the scene out; --time-s without auto
+    is one line naming it (exit 2)."""
+    from metafovea.config import SystemDesign
+    from metafovea.imaging import simulate
+
+    s = SystemDesign.paper()
+    s = dataclasses.replace(s, sensor=dataclasses.replace(s.sensor, crop=(64, 64), pixels=(64, 64)))
+    path = simulate(s, "bars", frames=12, psf="airy", optical_train=False, rng=0).save(tmp_path / "meas.npz")
+    rc, stdout, err = _run([path, "--method", "auto", "--no-figures"], capsys)
+    assert rc == 0, err
+    assert "auto: lsq (alpha known), one window of all 12 frames, denoise tv, deconvolve wavelet: static:" in stdout
+    assert "took" in stdout and "psnr_x2" in stdout and (tmp_path / "meas_rec_scene.npz").is_file()
+    rc, stdout, err = _run([path, "--method", "auto", "--time-s", "0.001", "--json", "--no-figures",
+                            "--out", tmp_path / "fast.npz"], capsys)
+    auto = json.loads(stdout)["auto"]
+    assert rc == 0 and auto["chose"]["deconvolve"] is None and "no candidate fits 0.001 s" in auto["why"]
+    assert not (tmp_path / "fast_scene.npz").exists()
+    rc, _, err = _run([path, "--time-s", "1", "--force"], capsys)
+    assert rc == 2 and err.count("\n") == 1 and "--time-s" in err and "--method auto" in err
