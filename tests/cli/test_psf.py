@@ -144,7 +144,9 @@ def test_one_summary_warning_naming_the_options_psf_has(tiny_toml, tmp_path, cap
     assert len(warns) == 1, cap.err
     w = warns[0]
     assert "less accurate than the requested error 1e-05" in w and "sensor PSF of 'tiny'" in w
-    assert "what changes it: --error " in w and "raise error" not in w and "wavelengths_um" not in w
+    advice = w.split("what changes it: ", 1)[1]
+    assert "--error " in advice and "raise error" not in w and "wavelengths_um" not in w
+    assert all(a.split()[0] in ("--error", "--filter-um") for a in advice.split(", "))  # flags psf has
     assert not re.search(r"\d\.\d{6,}", cap.out + cap.err), "numbers for people: no 17-digit floats"
     assert "0.3245 deg" in cap.out
 
