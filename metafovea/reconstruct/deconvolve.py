@@ -118,13 +118,21 @@ from metafovea.reconstruct.joint import (
     tv_admm,
 )
 from metafovea.reconstruct.metrics import score_deconvolution, true_fpn_error_dn, wiener_bound
-from metafovea.reconstruct.spectra import BETA_RANGE, PRIORS, fitted_spectrum, inverse_prior, radial_mean
+from metafovea.reconstruct.spectra import (
+    BETA_RANGE,
+    DETECTION_SNR,
+    PRIORS,
+    fitted_spectrum,
+    inverse_prior,
+    radial_mean,
+)
 from metafovea.reconstruct.wavelet import (
     DEFAULT_WAVELET,
     NOISE_SAMPLES,
     TAUS,
     WAVELETS,
-    shrink,
+    shrink_linearised,
+    stationary_frame,
     swt_levels,
 )
 
@@ -294,6 +302,7 @@ def _wavelet_step(pb: Problem, C: np.ndarray, prior_inv: np.ndarray, surround: b
 
     ``surround``: the foveal channel's padding is the perifoveal channel's prediction, not its own edge values, so
     its noise draws are 0 there (the prediction's noise is the perifoveal estimate's, low-passed: neglected).
+    With ``boundary='unknown'`` (no periodic data) the risk is eq. (2b) there: the prior's predicted bias plus SURE.
     Returns the crop's estimates ``(2, H, W)`` (DN above the dark level) and the info entries.
     """
     g = pb.g
@@ -313,14 +322,18 @@ def _wavelet_step(pb: Problem, C: np.ndarray, prior_inv: np.ndarray, surround: b
             draws.append(grid)
         else:
             draws.append(nk)
-    # the data and the noise draws through the filter: one right-hand side each, the same for every tau
-    # (single precision from here: the estimate's rounding, ~1e-7 of its range, is far below its noise)
-    B = filt.rhs(g.rfft(np.stack([pb.z] + draws).astype(np.float32))) if periodic else None
     levels = swt_levels((H, W))
-    best: list[tuple[float, float, np.ndarray, float, float] | None] = [None, None]
+    spec = B = frame_power = None
+    if periodic:
+        # the data and the noise draws through the filter: one right-hand side each, the same for every tau
+        # (single precision for the solves: the estimate's rounding, ~1e-7 of its range, is far below its noise;
+        # double for the risk, whose terms cancel)
+        spec = g.rfft(np.stack([pb.z] + draws))
+        B = filt.rhs(spec.astype(np.complex64))
+        frame_power = np.abs(stationary_frame(g.shape, wavelet, levels).filters) ** 2  # |F_b(f)|^2 on the grid
+    best: list[tuple[float, float, np.ndarray] | None] = [None, None]
     curve: list[list[dict[str, float]]] = [[], []]
     for tau in TAUS:
-        bias = filt.bias2(tau)
         if periodic:
             sol = g.irfft_crop(filt.solve(tau, B)).astype(np.float64)
             x, noise = sol[0], sol[1:]
@@ -333,17 +346,25 @@ def _wavelet_step(pb: Problem, C: np.ndarray, prior_inv: np.ndarray, surround: b
                 noise_list.append(linear_solve(pb, tau * prior_inv, None)[0][:, g.crop[0], g.crop[1]])
             pb.z = z0
             noise = np.stack(noise_list)
+        parts = [shrink_linearised(x[i], noise[:, i], wavelet, levels) for i in range(2)]
+        if periodic:
+            gain = np.stack([np.tensordot(p[2], frame_power, axes=(0, 0)) for p in parts])
+            lin = filt.linear_risk(tau, spec[0], spec[1:], gain, DETECTION_SNR)
+        else:
+            lin = filt.bias2(tau)
         for i in range(2):
-            est, sure = shrink(x[i], noise[:, i], wavelet, levels)
-            risk = float(bias[i]) + sure
-            curve[i].append({"tau": tau, "risk_dn2": risk, "bias2_dn2": float(bias[i]), "sure_dn2": sure})
-            if best[i] is None or risk < best[i][0]:
-                best[i] = (risk, tau, est, float(bias[i]), sure)
+            est, sure, _, sure_lin = parts[i]
+            # periodic: eq. (2) of metafovea.reconstruct.wavelet, the linearised estimate's risk (eq. 4 of joint)
+            # plus what the non-linear shrinkage changes (SURE less its linear fit's SURE); else eq. (2b)
+            risk = float(lin[i]) + (sure - sure_lin if periodic else sure)
+            curve[i].append({"tau": tau, "risk_dn2": risk, "linear_risk_dn2": float(lin[i]), "sure_dn2": sure,
+                             "sure_linear_dn2": sure_lin})
+            if best[i] is None or risk < best[i][0]:  # type: ignore[index]
+                best[i] = (risk, tau, est)
     out = np.stack([b[2] for b in best])  # type: ignore[index]
     info = {"wavelet": wavelet, "wavelet_levels": levels, "noise_samples": NOISE_SAMPLES,
             "tau": [b[1] for b in best],  # type: ignore[index]
-            # the criterion at the chosen tau: a ranking, not an error bar (the prior's extrapolation and the cross
-            # term of eq. (2) of metafovea.reconstruct.wavelet make it optimistic)
+            # the criterion at the chosen tau, up to a constant of each channel (periodic): a ranking, not an error
             "risk_criterion_dn2": [b[0] for b in best],  # type: ignore[index]
             "risk_curve": {"x1": curve[0], "x2": curve[1]}}
     return out, info

@@ -213,6 +213,31 @@ def shrink(img: np.ndarray, noise: np.ndarray, wavelet: str = DEFAULT_WAVELET,
     The coefficients of eq. (1) minimise each subband's own SURE, so the total is slightly optimistic (by the
     2 x 3 L fitted parameters' share of the coefficients).
     """
+    est, sure, _, _ = shrink_linearised(img, noise, wavelet, levels)
+    return est, sure
+
+
+def shrink_linearised(img: np.ndarray, noise: np.ndarray, wavelet: str = DEFAULT_WAVELET,
+                      levels: int | None = None) -> tuple[np.ndarray, float, np.ndarray, float]:
+    """:func:`shrink`, with the shrinkage's best linear fit per subband and that fit's own SURE, eq. (3).
+
+    Parameters
+    ----------
+    img, noise, wavelet, levels
+        As :func:`shrink`.
+
+    Returns
+    -------
+    estimate : ndarray, shape (H, W)
+    sure : float
+        As :func:`shrink`.
+    gains : ndarray, shape (3 L + 1,)
+        ``g_b = <theta_b(w), w> / <w, w>`` per subband (the approximation first, kept: 1), in the order of
+        :attr:`StationaryFrame.filters`: the linear map ``F^T diag(g) F`` is the filter
+        ``sum_b g_b |F_b(f)|^2``.
+    sure_linear : float
+        The SURE of that linear map's estimate, per pixel (``theta_j'`` replaced by ``g_j``).
+    """
     img = np.asarray(img, dtype=np.float64)
     noise = np.asarray(noise, dtype=np.float64)
     if img.ndim != 2 or noise.ndim != 3 or noise.shape[1:] != img.shape or noise.shape[0] < 1:
@@ -223,12 +248,21 @@ def shrink(img: np.ndarray, noise: np.ndarray, wavelet: str = DEFAULT_WAVELET,
     # the subbands in single precision (their rounding, ~1e-7 of the image's range, is far below any noise shrunk)
     c = frame.analysis(img.astype(np.float32)).astype(np.float64)
     div = float(var[0]) * c[0].size  # the approximation is kept: theta' = 1
+    div_lin = div
+    gains = np.ones(c.shape[0])
     out = np.empty_like(c)
-    out[0] = c[0]
+    lin = np.empty_like(c)
+    out[0] = lin[0] = c[0]
     for b in range(1, c.shape[0]):
         out[b], d = _surelet(c[b], float(var[b]))
         div += d
+        ww = float(np.sum(c[b] * c[b]))
+        gains[b] = float(np.sum(out[b] * c[b])) / ww if ww > 0 else 1.0
+        lin[b] = gains[b] * c[b]
+        div_lin += gains[b] * float(var[b]) * c[b].size
     est = frame.synthesis(out.astype(np.float32)).astype(np.float64)
+    est_lin = frame.synthesis(lin.astype(np.float32)).astype(np.float64)
     tr = float(np.mean(np.sum(noise ** 2, axis=(1, 2))))
     sure = (float(np.sum((est - img) ** 2)) - tr + 2.0 * div) / img.size
-    return est, sure
+    sure_lin = (float(np.sum((est_lin - img) ** 2)) - tr + 2.0 * div_lin) / img.size
+    return est, sure, gains, sure_lin
