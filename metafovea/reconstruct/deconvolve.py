@@ -23,8 +23,9 @@ OTFs, both channels are solved jointly on a grid padded by the kernels' radius:
   k = 1: the padding carries the crop's edge values, no texture); the mean is not shrunk;
 * ``method='wavelet'`` (default): the Fourier-wavelet estimate (:mod:`metafovea.reconstruct.wavelet`): (2) with the
   prior's weight ``tau <= 1`` (sharper, noisier), then each channel's noise shrunk in a stationary wavelet frame by
-  SURE-LET, ``tau`` per channel the one whose estimated risk (the prior's predicted bias plus Stein's unbiased risk
-  estimate of the shrinkage) is lowest: non-linear, so not bound by the best linear estimate;
+  SURE-LET, ``tau`` per channel the one whose estimated risk is lowest (the risk of the shrinkage's linear fit
+  estimated from the data where they show signal, plus Stein's unbiased risk estimate of what the non-linear
+  shrinkage changes): non-linear, so not bound by the best linear estimate;
 * ``method='tv'``: total variation [2]_, started from the Wiener estimate and solved by ADMM [3]_,
 
       min_s 1/2 ||z - D s||^2_{C^-1} + sum_i lambda_i TV(s_i),    lambda_i = 1 / mean |grad s_i|          (3)
@@ -66,7 +67,9 @@ benchmarks judge on):
 ``spectra.TRUTH_RADIAL_BINS``          periodogram samples per ring)
 ``spectra.BETA_RANGE``,                natural scenes' power spectra, ``|f|^-2`` (Field 1987), the fit clipped
 ``spectra.DEFAULT_BETA``               to 1-4
-``spectra.DETECTION_SNR``              derived: a ring whose periodogram is twice the noise
+``spectra.DETECTION_SNR``              derived: a ring whose periodogram is twice the noise; the wavelet step's
+                                       risk takes the data's estimate on the bins where the prior predicts signal
+                                       above the noise by the same factor (``PeriodicFilter.linear_risk``)
 ``spectra.MIN_FIT_BINS``               derived: two parameters and one degree of freedom
 ``spectra.MEASURED_SNR``,              the hybrid prior's: where the measured spectrum replaces the power law
 ``spectra.MIN_HYBRID_BINS``            and when the tail alone is fitted; set with the
@@ -428,8 +431,8 @@ def separate_deconvolve(frames: ArrayLike, alpha: ArrayLike, psfs: ChannelPSFs, 
         ``cycles_per_px``), the foveal surround (``foveal_surround``: scale, gain ratio, form and residuals;
         ``foveal_surround_join``, ``foveal_surround_surface_rms_dn``), ``tv_weight`` and ``admm_iterations`` for
         TV, for ``'wavelet'`` ``wavelet``, ``wavelet_levels``, ``noise_samples``, ``tau`` (per channel),
-        ``risk_criterion_dn2`` and ``risk_curve`` (per channel: ``tau``, ``risk_dn2``, ``bias2_dn2``,
-        ``sure_dn2``), ``cg_iterations`` and ``seconds``.
+        ``risk_criterion_dn2`` and ``risk_curve`` (per channel: ``tau``, ``risk_dn2``, ``linear_risk_dn2``,
+        ``sure_dn2``, ``sure_linear_dn2``; up to a constant per channel), ``cg_iterations`` and ``seconds``.
 
     Notes
     -----

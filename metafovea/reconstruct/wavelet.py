@@ -16,16 +16,28 @@ with ``sigma_j^2`` the noise variance of subband ``j`` and ``(a_j1, a_j2)`` the 
 (per-pixel covariance ``C``, padded as the data are) are passed through the same filter and transform
 (:meth:`StationaryFrame.noise_variances`), so the padding and the joint 2 x 2 filter are counted exactly.
 
-The regularisation ``tau`` is chosen per channel by the estimated mean squared error against the scene,
+The regularisation ``tau`` is chosen per channel by the estimated mean squared error against the scene. The shrunk
+estimate is split into its best linear fit per subband, ``L x_tau`` with ``L = F^T diag(g) F`` (``g_b = <theta_b(w),
+w> / <w, w>``: a stationary filter ``L(f) = sum_b g_b |F_b(f)|^2``), and what the non-linear map changes,
 
-    R(tau) = B(tau) + SURE(tau),    B(tau) = sum_f |[(I - G_tau D)]_i|^2 P(f) / n^2                    (2)
+    R(tau) = R_lin(tau) + SURE(tau) - SURE_lin(tau)                                                    (2)
 
-``SURE(tau)`` the image-domain risk of the shrunk estimate against ``E[x_tau] = G_tau D s`` (Stein's lemma for
-correlated Gaussian noise: ``||f(y) - y||^2 - tr C_x + 2 sum_jk theta_j'(w_jk) sigma_j^2``) and ``B(tau)`` the squared
-bias that the Fourier step leaves, predicted by the scene prior ``P`` (:func:`metafovea.reconstruct.joint.
-filter_bias2`); the cross term between the two is neglected. Where the prior is extrapolated (no signal above the
-noise) ``G_tau D`` is near 0 for every ``tau``, so the prior's errors there move ``R`` but hardly its minimiser. The
-search runs over :data:`TAUS`.
+``R_lin`` the risk of the linear estimate ``L G_tau z`` against the scene, estimated from the data (the generalised
+SURE of a linear estimate [4]_, eq. (4) of :meth:`metafovea.reconstruct.joint.PeriodicFilter.linear_risk`: no prior
+where the prior predicts the data's signal above their noise, the prior's expectation where it does not), and
+``SURE - SURE_lin`` the shrinkage's Stein estimate less that of its linear fit, both against ``E[x_tau] = G_tau D
+s``. The linear fit carries the cross term between the Fourier step's bias and the shrinkage (both remove detail in
+the same bands); only the non-linear remainder's cross term with the bias is neglected. A risk predicted from the
+prior alone (``B(tau) = sum_f |[(I - G_tau D)]_i|^2 P(f) / n^2`` plus SURE, the cross term neglected) follows the
+prior's errors; it is what ``boundary='unknown'`` (no periodic data) still uses:
+
+    R_prior(tau) = B(tau) + SURE(tau)                                                                  (2b)
+
+The search runs over :data:`TAUS`.
+
+The linear fit's SURE (``theta_j'`` replaced by ``g_j``)::
+
+    SURE_lin = (||L x - x||^2 - tr C_x + 2 sum_j g_j sigma_j^2 n_j) / n                              (3)
 
 Constants: :data:`NOISE_SAMPLES`, :data:`TAUS`, :data:`MIN_COARSEST_PX` (the module docstring of
 :mod:`metafovea.reconstruct.deconvolve` lists where each comes from); the wavelet (``wavelet``, default
@@ -39,6 +51,8 @@ References
    in *Wavelets and Statistics*, Lecture Notes in Statistics 103, 281 (Springer, 1995).
 .. [3] F. Luisier, T. Blu and M. Unser, "A new SURE approach to image denoising: interscale orthonormal wavelet
    thresholding", IEEE Trans. Image Process. 16, 593 (2007).
+.. [4] Y. C. Eldar, "Generalized SURE for exponential families: applications to regularization", IEEE Trans. Signal
+   Process. 57, 471 (2009).
 """
 
 from __future__ import annotations
