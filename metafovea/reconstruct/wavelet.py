@@ -148,6 +148,9 @@ class StationaryFrame:
         self.filters = np.concatenate([low[None]] + details[::-1])
         self.shape = (P, Q)
         self._filters32 = self.filters.astype(np.complex64)
+        #: ``|F_b(f)|^2``, shape (3 L + 1, P, Q // 2 + 1): a subband-diagonal linear map's transfer function is
+        #: ``sum_b g_b |F_b(f)|^2``
+        self.power = np.abs(self.filters) ** 2
 
     def _f(self, a: np.ndarray) -> np.ndarray:
         return self._filters32 if a.dtype in (np.float32, np.complex64) else self.filters
@@ -164,6 +167,16 @@ class StationaryFrame:
 
         spec = np.sum(rfft2(c, axes=(-2, -1), workers=-1) * np.conj(self._f(c)), axis=0)
         return irfft2(spec, s=self.shape, workers=-1)
+
+    def mean_square(self, spec: np.ndarray) -> float:
+        """The mean over the image's pixels of a field whose power per unnormalised rfft bin is ``spec``
+        ``(P, Q // 2 + 1)`` (Parseval, the half plane's inner columns counted twice)."""
+        P, Q = self.shape
+        wt = np.full(Q // 2 + 1, 2.0)
+        wt[0] = 1.0
+        if Q % 2 == 0:
+            wt[-1] = 1.0
+        return float(np.sum(spec * wt) / float(P * Q) ** 2)
 
     def noise_variances(self, noise: np.ndarray) -> np.ndarray:
         """Each subband's mean square over the noise draws ``(K, P, Q)`` (Parseval on their spectra): ``(3 L + 1,)``."""
@@ -265,18 +278,19 @@ def shrink_linearised(img: np.ndarray, noise: np.ndarray, wavelet: str = DEFAULT
     div_lin = div
     gains = np.ones(c.shape[0])
     out = np.empty_like(c)
-    lin = np.empty_like(c)
-    out[0] = lin[0] = c[0]
+    out[0] = c[0]
     for b in range(1, c.shape[0]):
         out[b], d = _surelet(c[b], float(var[b]))
         div += d
         ww = float(np.sum(c[b] * c[b]))
         gains[b] = float(np.sum(out[b] * c[b])) / ww if ww > 0 else 1.0
-        lin[b] = gains[b] * c[b]
         div_lin += gains[b] * float(var[b]) * c[b].size
     est = frame.synthesis(out.astype(np.float32)).astype(np.float64)
-    est_lin = frame.synthesis(lin.astype(np.float32)).astype(np.float64)
     tr = float(np.mean(np.sum(noise ** 2, axis=(1, 2))))
     sure = (float(np.sum((est - img) ** 2)) - tr + 2.0 * div) / img.size
-    sure_lin = (float(np.sum((est_lin - img) ** 2)) - tr + 2.0 * div_lin) / img.size
+    # ||L x - x||^2 in the Fourier domain: L x - x has the spectrum (sum_b g_b |F_b|^2 - 1) X
+    from scipy.fft import rfft2
+
+    resid = (np.tensordot(gains, frame.power, axes=(0, 0)) - 1.0) ** 2 * np.abs(rfft2(img, workers=-1)) ** 2
+    sure_lin = frame.mean_square(resid) - (tr - 2.0 * div_lin) / img.size
     return est, sure, gains, sure_lin

@@ -42,7 +42,7 @@ def _trial(rng, g, C, spec_true, filt, taus, detection_snr):
     est, true = [], []
     for tau in taus:
         x = irfft2(filt.solve(tau, filt.rhs(Z)), s=(P, Q))
-        est.append(filt.linear_risk(tau, Z, Nd, np.ones((2,) + Z.shape[1:]), detection_snr))
+        est.append(filt.linear_risk(tau, np.ones((2,) + Z.shape[1:]), filt.risk_data(Z, Nd, detection_snr)))
         true.append(np.mean((x - s) ** 2, axis=(1, 2)))
     return np.array(est), np.array(true)
 
@@ -56,8 +56,8 @@ def test_linear_risk_follows_the_true_error_more_closely_than_the_prior(prior_fa
     rng, g, pb, C, spec_true, filt = _setup(prior_factor)
     taus = (1.0, 1.0 / 16)
     shape = g.D.shape[1:]
-    prior_only = [filt.linear_risk(t, np.zeros((2,) + shape, complex), np.zeros((1, 2) + shape, complex),
-                                   np.ones((2,) + shape), np.inf) for t in taus]
+    nothing = filt.risk_data(np.zeros((2,) + shape, complex), np.zeros((1, 2) + shape, complex), np.inf)
+    prior_only = [filt.linear_risk(t, np.ones((2,) + shape), nothing) for t in taus]
     d_prior = prior_only[1] - prior_only[0]
     d_est, d_true = [], []
     for _ in range(12):
