@@ -69,7 +69,8 @@ benchmarks judge on):
 ``spectra.DEFAULT_BETA``               to 1-4
 ``spectra.DETECTION_SNR``              derived: a ring whose periodogram is twice the noise; the wavelet step's
                                        risk takes the data's estimate on the bins where the prior predicts signal
-                                       above the noise by the same factor (``PeriodicFilter.linear_risk``)
+                                       above the noise by the same factor (``PeriodicFilter.linear_risk``;
+                                       checked against 1/4 and 4 on the tuning seeds: BENCHMARKS.md)
 ``spectra.MIN_FIT_BINS``               derived: two parameters and one degree of freedom
 ``spectra.MEASURED_SNR``,              the hybrid prior's: where the measured spectrum replaces the power law
 ``spectra.MIN_HYBRID_BINS``            and when the tail alone is fitted; set with the
@@ -80,7 +81,8 @@ benchmarks judge on):
 ``wavelet.DEFAULT_WAVELET``            (BENCHMARKS.md): Haar, the shortest filters, is the default
 ``wavelet.NOISE_SAMPLES``              derived: the subband variances' standard error (its comment)
 ``wavelet.TAUS``                       a search range: the Wiener filter down to 1/64 of its prior weight
-                                       (the chosen tau reached 1/64 on the tuning seeds, never above 1)
+                                       (the chosen tau reached 1/64 on the tuning seeds; with the range extended
+                                       to 8 the criterion chose none above 1 there)
 ``wavelet.MIN_COARSEST_PX``            the coarsest atoms fit 8 times across the crop
 =====================================  =======================================================================
 
