@@ -71,7 +71,9 @@ benchmarks judge on):
                                        risk takes the data's estimate on the bins where the prior predicts signal
                                        above the noise by the same factor (``PeriodicFilter.linear_risk``;
                                        checked against 1/4 and 4 on the tuning seeds: BENCHMARKS.md)
-``spectra.MIN_FIT_BINS``               derived: two parameters and one degree of freedom
+``spectra.MIN_FIT_BINS``               derived: two parameters and one degree of freedom; with fewer detected
+                                       rings the level is the Whittle likelihood's (``spectra.whittle_level``,
+                                       its search range 1e-8 to 1e8 of the noise's level: numerical)
 ``spectra.MEASURED_SNR``,              the hybrid prior's: where the measured spectrum replaces the power law
 ``spectra.MIN_HYBRID_BINS``            and when the tail alone is fitted; set with the
                                        prior on built-in scenes (issue 13), kept because the default method
