@@ -23,8 +23,9 @@ OTFs, both channels are solved jointly on a grid padded by the kernels' radius:
   k = 1: the padding carries the crop's edge values, no texture); the mean is not shrunk;
 * ``method='wavelet'`` (default): the Fourier-wavelet estimate (:mod:`metafovea.reconstruct.wavelet`): (2) with the
   prior's weight ``tau <= 1`` (sharper, noisier), then each channel's noise shrunk in a stationary wavelet frame by
-  SURE-LET, ``tau`` per channel the one whose estimated risk (the prior's predicted bias plus Stein's unbiased risk
-  estimate of the shrinkage) is lowest: non-linear, so not bound by the best linear estimate;
+  SURE-LET, ``tau`` per channel the one whose estimated risk is lowest (the risk of the shrinkage's linear fit
+  estimated from the data where they show signal, plus Stein's unbiased risk estimate of what the non-linear
+  shrinkage changes): non-linear, so not bound by the best linear estimate;
 * ``method='tv'``: total variation [2]_, started from the Wiener estimate and solved by ADMM [3]_,
 
       min_s 1/2 ||z - D s||^2_{C^-1} + sum_i lambda_i TV(s_i),    lambda_i = 1 / mean |grad s_i|          (3)
@@ -66,8 +67,13 @@ benchmarks judge on):
 ``spectra.TRUTH_RADIAL_BINS``          periodogram samples per ring)
 ``spectra.BETA_RANGE``,                natural scenes' power spectra, ``|f|^-2`` (Field 1987), the fit clipped
 ``spectra.DEFAULT_BETA``               to 1-4
-``spectra.DETECTION_SNR``              derived: a ring whose periodogram is twice the noise
-``spectra.MIN_FIT_BINS``               derived: two parameters and one degree of freedom
+``spectra.DETECTION_SNR``              derived: a ring whose periodogram is twice the noise; the wavelet step's
+                                       risk takes the data's estimate on the bins where the prior predicts signal
+                                       above the noise by the same factor (``PeriodicFilter.linear_risk``;
+                                       checked against 1/4 and 4 on the tuning seeds: BENCHMARKS.md)
+``spectra.MIN_FIT_BINS``               derived: two parameters and one degree of freedom; with fewer detected
+                                       rings the level is the Whittle likelihood's (``spectra.whittle_level``,
+                                       its search range 1e-8 to 1e8 of the noise's level: numerical)
 ``spectra.MEASURED_SNR``,              the hybrid prior's: where the measured spectrum replaces the power law
 ``spectra.MIN_HYBRID_BINS``            and when the tail alone is fitted; set with the
                                        prior on built-in scenes (issue 13), kept because the default method
@@ -77,7 +83,8 @@ benchmarks judge on):
 ``wavelet.DEFAULT_WAVELET``            (BENCHMARKS.md): Haar, the shortest filters, is the default
 ``wavelet.NOISE_SAMPLES``              derived: the subband variances' standard error (its comment)
 ``wavelet.TAUS``                       a search range: the Wiener filter down to 1/64 of its prior weight
-                                       (the chosen tau reached 1/64 on the tuning seeds, never above 1)
+                                       (the chosen tau reached 1/64 on the tuning seeds; with the range extended
+                                       to 8 the criterion chose none above 1 there)
 ``wavelet.MIN_COARSEST_PX``            the coarsest atoms fit 8 times across the crop
 =====================================  =======================================================================
 
@@ -118,13 +125,21 @@ from metafovea.reconstruct.joint import (
     tv_admm,
 )
 from metafovea.reconstruct.metrics import score_deconvolution, true_fpn_error_dn, wiener_bound
-from metafovea.reconstruct.spectra import BETA_RANGE, PRIORS, fitted_spectrum, inverse_prior, radial_mean
+from metafovea.reconstruct.spectra import (
+    BETA_RANGE,
+    DETECTION_SNR,
+    PRIORS,
+    fitted_spectrum,
+    inverse_prior,
+    radial_mean,
+)
 from metafovea.reconstruct.wavelet import (
     DEFAULT_WAVELET,
     NOISE_SAMPLES,
     TAUS,
     WAVELETS,
-    shrink,
+    shrink_linearised,
+    stationary_frame,
     swt_levels,
 )
 
@@ -294,6 +309,7 @@ def _wavelet_step(pb: Problem, C: np.ndarray, prior_inv: np.ndarray, surround: b
 
     ``surround``: the foveal channel's padding is the perifoveal channel's prediction, not its own edge values, so
     its noise draws are 0 there (the prediction's noise is the perifoveal estimate's, low-passed: neglected).
+    With ``boundary='unknown'`` (no periodic data) the risk is eq. (2b) there: the prior's predicted bias plus SURE.
     Returns the crop's estimates ``(2, H, W)`` (DN above the dark level) and the info entries.
     """
     g = pb.g
@@ -313,14 +329,19 @@ def _wavelet_step(pb: Problem, C: np.ndarray, prior_inv: np.ndarray, surround: b
             draws.append(grid)
         else:
             draws.append(nk)
-    # the data and the noise draws through the filter: one right-hand side each, the same for every tau
-    # (single precision from here: the estimate's rounding, ~1e-7 of its range, is far below its noise)
-    B = filt.rhs(g.rfft(np.stack([pb.z] + draws).astype(np.float32))) if periodic else None
     levels = swt_levels((H, W))
-    best: list[tuple[float, float, np.ndarray, float, float] | None] = [None, None]
+    spec = B = frame_power = risk_data = None
+    if periodic:
+        # the data and the noise draws through the filter: one right-hand side each, the same for every tau
+        # (single precision for the solves: the estimate's rounding, ~1e-7 of its range, is far below its noise;
+        # double for the risk, whose terms cancel)
+        spec = g.rfft(np.stack([pb.z] + draws))
+        B = filt.rhs(spec.astype(np.complex64))
+        frame_power = stationary_frame(g.shape, wavelet, levels).power  # |F_b(f)|^2 on the grid
+        risk_data = filt.risk_data(spec[0], spec[1:], DETECTION_SNR)
+    best: list[tuple[float, float, np.ndarray] | None] = [None, None]
     curve: list[list[dict[str, float]]] = [[], []]
     for tau in TAUS:
-        bias = filt.bias2(tau)
         if periodic:
             sol = g.irfft_crop(filt.solve(tau, B)).astype(np.float64)
             x, noise = sol[0], sol[1:]
@@ -333,17 +354,25 @@ def _wavelet_step(pb: Problem, C: np.ndarray, prior_inv: np.ndarray, surround: b
                 noise_list.append(linear_solve(pb, tau * prior_inv, None)[0][:, g.crop[0], g.crop[1]])
             pb.z = z0
             noise = np.stack(noise_list)
+        parts = [shrink_linearised(x[i], noise[:, i], wavelet, levels) for i in range(2)]
+        if periodic:
+            gain = np.stack([np.tensordot(p[2], frame_power, axes=(0, 0)) for p in parts])
+            lin = filt.linear_risk(tau, gain, risk_data)
+        else:
+            lin = filt.bias2(tau)
         for i in range(2):
-            est, sure = shrink(x[i], noise[:, i], wavelet, levels)
-            risk = float(bias[i]) + sure
-            curve[i].append({"tau": tau, "risk_dn2": risk, "bias2_dn2": float(bias[i]), "sure_dn2": sure})
-            if best[i] is None or risk < best[i][0]:
-                best[i] = (risk, tau, est, float(bias[i]), sure)
+            est, sure, _, sure_lin = parts[i]
+            # periodic: eq. (2) of metafovea.reconstruct.wavelet, the linearised estimate's risk (eq. 4 of joint)
+            # plus what the non-linear shrinkage changes (SURE less its linear fit's SURE); else eq. (2b)
+            risk = float(lin[i]) + (sure - sure_lin if periodic else sure)
+            curve[i].append({"tau": tau, "risk_dn2": risk, "linear_risk_dn2": float(lin[i]), "sure_dn2": sure,
+                             "sure_linear_dn2": sure_lin})
+            if best[i] is None or risk < best[i][0]:  # type: ignore[index]
+                best[i] = (risk, tau, est)
     out = np.stack([b[2] for b in best])  # type: ignore[index]
     info = {"wavelet": wavelet, "wavelet_levels": levels, "noise_samples": NOISE_SAMPLES,
             "tau": [b[1] for b in best],  # type: ignore[index]
-            # the criterion at the chosen tau: a ranking, not an error bar (the prior's extrapolation and the cross
-            # term of eq. (2) of metafovea.reconstruct.wavelet make it optimistic)
+            # the criterion at the chosen tau, up to a constant of each channel (periodic): a ranking, not an error
             "risk_criterion_dn2": [b[0] for b in best],  # type: ignore[index]
             "risk_curve": {"x1": curve[0], "x2": curve[1]}}
     return out, info
@@ -407,8 +436,8 @@ def separate_deconvolve(frames: ArrayLike, alpha: ArrayLike, psfs: ChannelPSFs, 
         ``cycles_per_px``), the foveal surround (``foveal_surround``: scale, gain ratio, form and residuals;
         ``foveal_surround_join``, ``foveal_surround_surface_rms_dn``), ``tv_weight`` and ``admm_iterations`` for
         TV, for ``'wavelet'`` ``wavelet``, ``wavelet_levels``, ``noise_samples``, ``tau`` (per channel),
-        ``risk_criterion_dn2`` and ``risk_curve`` (per channel: ``tau``, ``risk_dn2``, ``bias2_dn2``,
-        ``sure_dn2``), ``cg_iterations`` and ``seconds``.
+        ``risk_criterion_dn2`` and ``risk_curve`` (per channel: ``tau``, ``risk_dn2``, ``linear_risk_dn2``,
+        ``sure_dn2``, ``sure_linear_dn2``; up to a constant per channel), ``cg_iterations`` and ``seconds``.
 
     Notes
     -----

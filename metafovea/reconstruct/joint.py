@@ -444,6 +444,87 @@ class PeriodicFilter:
         return mean_square(self.g, b2)
 
 
+    def risk_data(self, Z: np.ndarray, noise: np.ndarray, detection_snr: float) -> dict[str, Any]:
+        """What :meth:`linear_risk` needs of the data, the same for every ``tau``.
+
+        Parameters
+        ----------
+        Z : ndarray, shape (2, P, Q // 2 + 1)
+            The data's spectra on the grid (``rfft`` of :attr:`Problem.z`).
+        noise : ndarray, shape (K, 2, P, Q // 2 + 1)
+            Spectra of ``K`` draws of the data's noise, padded as the data are: their mean cross-power is the noise
+            covariance per bin ``N_f`` (the padding's repeated edge noise included).
+        detection_snr : float
+            The split between the data's estimate and the prior's (eq. 4 of :meth:`linear_risk`).
+
+        Returns
+        -------
+        dict
+            ``Z``; ``cross``: ``z_k conj(z_i) - N_ki`` as ``cross[k][i]``; ``seen``: per channel, the bins where the
+            prior predicts the data's signal at least ``detection_snr`` times their noise.
+        """
+        C = np.linalg.inv(self.Ci)
+        cross = [[Z[k] * np.conj(Z[i]) - np.mean(noise[:, k] * np.conj(noise[:, i]), axis=0) for i in range(2)]
+                 for k in range(2)]
+        seen = [np.abs(self.D[i]) ** 2 * self.P[i] >= detection_snr * self.n * C[i, i] for i in range(2)]
+        return {"Z": Z, "cross": cross, "seen": seen}
+
+    def linear_risk(self, tau: float, gain: np.ndarray, data: dict[str, Any]) -> np.ndarray:
+        """The mean squared error per pixel of each channel's linear estimate ``L_i (G_tau z)_i`` against the scene,
+        less a part that does not depend on ``tau`` or ``L``, ``(2,)``: eq. (4) on the bins where the prior predicts
+        the data's signal at least ``detection_snr`` times their noise, its expectation under the prior elsewhere.
+
+        Parameters
+        ----------
+        tau : float
+            The prior's weight.
+        gain : ndarray, shape (2, P, Q // 2 + 1)
+            Each channel's real filter ``L_i(f)`` applied after the solve (1: the solve alone).
+        data : dict
+            :meth:`risk_data` of the data and their noise draws.
+
+        Returns
+        -------
+        ndarray, shape (2,)
+
+        Notes
+        -----
+        Per bin, ``z = D s + n`` and ``E z z^H = D s s^H D^H + N``, so ``(z z^H - N) / (D_k conj(D_i))`` is an
+        unbiased estimate of ``s_k conj(s_i)`` wherever ``D`` is not 0. The error of ``s_hat_i = L_i (G z)_i`` is
+        ``|((L G D - I) s)_i + (L G n)_i|^2``; its expectation, with that estimate in place of ``s s^H`` and the
+        terms free of ``tau`` and ``L`` dropped, is (the generalised SURE of Y. C. Eldar, IEEE Trans. Signal
+        Process. 57, 471 (2009), for a linear estimate)
+
+            T_i = L_i^2 |(G z)_i|^2 - 2 L_i Re sum_k H_ik (z_k conj(z_i) - N_ki),    H_ik = G_ik / conj(D_i)   (4)
+
+        (``G_ik`` carries the factor ``conj(D_i)``, so ``H`` is finite). It needs no prior, but its variance grows
+        as ``1 / |D|^2``, and the padded grid's data differ from ``D s + n`` by the padding's model error, which
+        ``1 / |D|^2`` magnifies where the PSF passes almost nothing; there (``|D_i|^2 P_i`` below ``detection_snr``
+        times the noise ``n C_ii``) ``T_i`` is replaced by its expectation under the prior ``P`` (channels
+        independent): ``L_i^2 E|(G z)_i|^2 - 2 L_i Re(G_ii D_i) P_i``.
+        """
+        m11, m12, m22 = self._m(tau)
+        det = m11 * m22 - np.abs(m12) ** 2
+        det = np.where(np.abs(det) > 0, det, np.inf)
+        Ci, D, n, Z = self.Ci, self.D, self.n, data["Z"]
+        C = np.linalg.inv(Ci)
+        mi = ((m22 / det, -m12 / det), (-np.conj(m12) / det, m11 / det))
+        G = [[sum(mi[i][j] * np.conj(D[j]) * Ci[j, k] for j in range(2)) for k in range(2)] for i in range(2)]
+        # H_ik = G_ik / conj(D_i): the other channel's term of G_ik carries conj(D_i) in m12
+        H = [[mi[0][0] * Ci[0, k] - Ci[0, 1] * np.abs(D[1]) ** 2 / det * Ci[1, k] for k in range(2)],
+             [mi[1][1] * Ci[1, k] - Ci[1, 0] * np.abs(D[0]) ** 2 / det * Ci[0, k] for k in range(2)]]
+        out = np.empty(2)
+        for i in range(2):
+            seen = data["seen"][i]
+            # the coefficients of L_i^2 and of -2 L_i: the data's (eq. 4) where seen, the prior's expectation elsewhere
+            EX = (sum(np.abs(G[i][k] * D[k]) ** 2 * self.P[k] for k in range(2))
+                  + n * np.real(sum(G[i][k] * np.conj(G[i][m]) * C[k, m] for k in range(2) for m in range(2))))
+            a = np.where(seen, np.abs(G[i][0] * Z[0] + G[i][1] * Z[1]) ** 2, EX)
+            b = np.where(seen, np.real(sum(H[i][k] * data["cross"][k][i] for k in range(2))),
+                         np.real(G[i][i] * D[i]) * self.P[i])
+            out[i] = float(mean_square(self.g, gain[i] ** 2 * a - 2.0 * gain[i] * b))
+        return out
+
 def mean_square(g: Grid, spec: np.ndarray) -> np.ndarray:
     """The mean over the grid's pixels of a field whose power per unnormalised rfft bin is ``spec``.
 

@@ -11,7 +11,9 @@ width from 0 to the grid's corner ``F_MAX = 0.5 sqrt 2`` (:func:`radial_mean`, a
     S(f)   ~ c |f|^-beta,  fitted in log-log where P_z - sigma^2 > DETECTION_SNR sigma^2  (3)
 
 (1) is the Hann-tapered periodogram per pixel (:func:`crop_periodogram`), (2) the scene's spectral density per
-pixel, (3) the power law that extrapolates it beyond the detected bins (:func:`fitted_spectrum`). The solver works
+pixel, (3) the power law that extrapolates it beyond the detected bins (:func:`fitted_spectrum`). Where fewer than
+:data:`MIN_FIT_BINS` rings are detected, ``beta`` is :data:`DEFAULT_BETA` and ``c`` maximises the Whittle likelihood
+of every ring's periodogram (:func:`whittle_level`, eq. 4 there): the non-detections bound the level. The solver works
 per unnormalised FFT bin of a padded grid of ``n_grid`` pixels, so a per-pixel density ``S`` becomes
 ``scale n_grid S`` there (``scale``: the solver's ``prior_scale``). The Wiener solve needs the prior's inverse,
 :func:`inverse_prior`.
@@ -155,6 +157,57 @@ def crop_periodogram(z: np.ndarray, nbins: int = RADIAL_BINS) -> tuple[np.ndarra
     return fc, mean / float(np.sum(w ** 2)), cnt
 
 
+def whittle_level(fc: np.ndarray, power: np.ndarray, otf2: np.ndarray, counts: np.ndarray, noise_var: float,
+                  beta: float) -> float:
+    """The log level ``log c`` of the spectrum ``c |f|^-beta`` that maximises the Whittle likelihood of ring-averaged
+    periodograms, eq. (4).
+
+    Parameters
+    ----------
+    fc : ndarray, shape (n,)
+        The rings' frequencies (> 0), cycles per pixel.
+    power : ndarray, shape (n,)
+        Their periodograms per pixel (:func:`crop_periodogram`).
+    otf2 : ndarray, shape (n,)
+        ``<|D|^2>`` per ring (> 0).
+    counts : ndarray, shape (n,)
+        Periodogram samples per ring (the likelihood's weights).
+    noise_var : float
+        The white noise's variance per pixel (> 0).
+    beta : float
+        The exponent, held fixed.
+
+    Returns
+    -------
+    float
+        ``log c`` (``c``: the per-pixel density at 1 cycle per pixel).
+
+    Notes
+    -----
+    A ring's mean periodogram ``I_r`` of ``m_r`` samples of a stationary Gaussian field has mean
+    ``mu_r = <|D|^2>_r c f_r^-beta + sigma^2``; the Whittle approximation of the likelihood [P. Whittle, "Curve and
+    periodogram smoothing", J. R. Stat. Soc. B 19, 38 (1957)] is
+
+        -log L(c) = sum_r m_r (log mu_r + I_r / mu_r)                                                   (4)
+
+    which counts the rings where no signal was detected too: their periodogram bounds ``c`` from above. The search
+    is over ``c`` from 1e-8 to 1e8 times the level whose signal equals the noise in the strongest or the weakest
+    ring (a numerical range, wide enough that no data reach its ends).
+    """
+    from scipy.optimize import minimize_scalar
+
+    a = otf2 * fc ** -beta
+    m = counts.astype(np.float64)
+
+    def nll(logc: float) -> float:
+        mu = a * math.exp(logc) + noise_var
+        return float(np.sum(m * (np.log(mu) + power / mu)))
+
+    lo = math.log(noise_var * 1e-8 / float(np.max(a)))
+    hi = math.log(noise_var * 1e8 / float(np.min(a)))
+    return float(minimize_scalar(nll, bounds=(lo, hi), method="bounded").x)
+
+
 def fitted_spectrum(z: np.ndarray, z_padded: np.ndarray, D: np.ndarray, noise_var: float, prior: str = "power-law",
                     scale: float = 1.0) -> tuple[np.ndarray, dict[str, Any]]:
     """The scene's power spectrum per unnormalised FFT bin of the padded grid, estimated from the crop ``z``.
@@ -182,7 +235,8 @@ def fitted_spectrum(z: np.ndarray, z_padded: np.ndarray, D: np.ndarray, noise_va
     -------
     spectrum : ndarray, shape (P, Q // 2 + 1)
     info : dict
-        ``prior``; ``bins`` and ``bins_with_signal`` (empirical) or ``beta`` and ``bins_used`` (the fit);
+        ``prior``; ``bins`` and ``bins_with_signal`` (empirical) or ``beta``, ``bins_used`` and ``level_from``
+        (``'detected rings'``, or ``'likelihood'``: :func:`whittle_level`) (the fit);
         ``'hybrid'`` adds ``measured_bins`` and ``measured_below_cycles_per_px``.
     """
     from scipy.fft import rfft2
@@ -190,7 +244,7 @@ def fitted_spectrum(z: np.ndarray, z_padded: np.ndarray, D: np.ndarray, noise_va
     nb = RADIAL_BINS
     shape = z_padded.shape
     f_grid = rfft_frequencies(shape)
-    fc, pz, _ = crop_periodogram(z, nb)
+    fc, pz, cnt = crop_periodogram(z, nb)
     _, pd, _ = radial_mean(f_grid, np.abs(D) ** 2, nb)
     sig = pz - noise_var  # power spectral density per pixel
     n_grid = shape[0] * shape[1]
@@ -212,11 +266,15 @@ def fitted_spectrum(z: np.ndarray, z_padded: np.ndarray, D: np.ndarray, noise_va
     if ok.sum() >= MIN_FIT_BINS:
         beta = float(np.clip(-np.polyfit(np.log(fc[ok]), np.log(sig[ok] / pd[ok]), 1)[0], *BETA_RANGE))
         logc = float(np.mean(np.log(sig[ok] / pd[ok]) + beta * np.log(fc[ok])))
-    else:
-        logc = math.log(max(noise_var, 1e-30))
+        level_from = "detected rings"
+    else:  # too few detected rings for a fit: the level that makes the whole periodogram likeliest
+        valid = np.isfinite(pz) & (fc > 0) & (pd > 0) & (cnt > 0)
+        valid[0] = False
+        logc = whittle_level(fc[valid], pz[valid], pd[valid], cnt[valid], noise_var, beta)
+        level_from = "likelihood"
     f = np.maximum(f_grid, 1.0 / max(shape))
     law = n_grid * scale * np.exp(logc) / f ** beta
-    info = {"prior": prior, "beta": beta, "bins_used": int(ok.sum())}
+    info = {"prior": prior, "beta": beta, "bins_used": int(ok.sum()), "level_from": level_from}
     if prior == "hybrid":
         # below the fitted tail, where the signal is strong: the padded grid's measured spectrum
         strong = (np.isfinite(sig) & (sig > MEASURED_SNR * noise_var) & (pd > 0)

@@ -16,16 +16,28 @@ with ``sigma_j^2`` the noise variance of subband ``j`` and ``(a_j1, a_j2)`` the 
 (per-pixel covariance ``C``, padded as the data are) are passed through the same filter and transform
 (:meth:`StationaryFrame.noise_variances`), so the padding and the joint 2 x 2 filter are counted exactly.
 
-The regularisation ``tau`` is chosen per channel by the estimated mean squared error against the scene,
+The regularisation ``tau`` is chosen per channel by the estimated mean squared error against the scene. The shrunk
+estimate is split into its best linear fit per subband, ``L x_tau`` with ``L = F^T diag(g) F`` (``g_b = <theta_b(w),
+w> / <w, w>``: a stationary filter ``L(f) = sum_b g_b |F_b(f)|^2``), and what the non-linear map changes,
 
-    R(tau) = B(tau) + SURE(tau),    B(tau) = sum_f |[(I - G_tau D)]_i|^2 P(f) / n^2                    (2)
+    R(tau) = R_lin(tau) + SURE(tau) - SURE_lin(tau)                                                    (2)
 
-``SURE(tau)`` the image-domain risk of the shrunk estimate against ``E[x_tau] = G_tau D s`` (Stein's lemma for
-correlated Gaussian noise: ``||f(y) - y||^2 - tr C_x + 2 sum_jk theta_j'(w_jk) sigma_j^2``) and ``B(tau)`` the squared
-bias that the Fourier step leaves, predicted by the scene prior ``P`` (:func:`metafovea.reconstruct.joint.
-filter_bias2`); the cross term between the two is neglected. Where the prior is extrapolated (no signal above the
-noise) ``G_tau D`` is near 0 for every ``tau``, so the prior's errors there move ``R`` but hardly its minimiser. The
-search runs over :data:`TAUS`.
+``R_lin`` the risk of the linear estimate ``L G_tau z`` against the scene, estimated from the data (the generalised
+SURE of a linear estimate [4]_, eq. (4) of :meth:`metafovea.reconstruct.joint.PeriodicFilter.linear_risk`: no prior
+where the prior predicts the data's signal above their noise, the prior's expectation where it does not), and
+``SURE - SURE_lin`` the shrinkage's Stein estimate less that of its linear fit, both against ``E[x_tau] = G_tau D
+s``. The linear fit carries the cross term between the Fourier step's bias and the shrinkage (both remove detail in
+the same bands); only the non-linear remainder's cross term with the bias is neglected. A risk predicted from the
+prior alone (``B(tau) = sum_f |[(I - G_tau D)]_i|^2 P(f) / n^2`` plus SURE, the cross term neglected) follows the
+prior's errors; it is what ``boundary='unknown'`` (no periodic data) still uses:
+
+    R_prior(tau) = B(tau) + SURE(tau)                                                                  (2b)
+
+The search runs over :data:`TAUS`.
+
+The linear fit's SURE (``theta_j'`` replaced by ``g_j``)::
+
+    SURE_lin = (||L x - x||^2 - tr C_x + 2 sum_j g_j sigma_j^2 n_j) / n                              (3)
 
 Constants: :data:`NOISE_SAMPLES`, :data:`TAUS`, :data:`MIN_COARSEST_PX` (the module docstring of
 :mod:`metafovea.reconstruct.deconvolve` lists where each comes from); the wavelet (``wavelet``, default
@@ -39,6 +51,8 @@ References
    in *Wavelets and Statistics*, Lecture Notes in Statistics 103, 281 (Springer, 1995).
 .. [3] F. Luisier, T. Blu and M. Unser, "A new SURE approach to image denoising: interscale orthonormal wavelet
    thresholding", IEEE Trans. Image Process. 16, 593 (2007).
+.. [4] Y. C. Eldar, "Generalized SURE for exponential families: applications to regularization", IEEE Trans. Signal
+   Process. 57, 471 (2009).
 """
 
 from __future__ import annotations
@@ -134,6 +148,9 @@ class StationaryFrame:
         self.filters = np.concatenate([low[None]] + details[::-1])
         self.shape = (P, Q)
         self._filters32 = self.filters.astype(np.complex64)
+        #: ``|F_b(f)|^2``, shape (3 L + 1, P, Q // 2 + 1): a subband-diagonal linear map's transfer function is
+        #: ``sum_b g_b |F_b(f)|^2``
+        self.power = np.abs(self.filters) ** 2
 
     def _f(self, a: np.ndarray) -> np.ndarray:
         return self._filters32 if a.dtype in (np.float32, np.complex64) else self.filters
@@ -150,6 +167,16 @@ class StationaryFrame:
 
         spec = np.sum(rfft2(c, axes=(-2, -1), workers=-1) * np.conj(self._f(c)), axis=0)
         return irfft2(spec, s=self.shape, workers=-1)
+
+    def mean_square(self, spec: np.ndarray) -> float:
+        """The mean over the image's pixels of a field whose power per unnormalised rfft bin is ``spec``
+        ``(P, Q // 2 + 1)`` (Parseval, the half plane's inner columns counted twice)."""
+        P, Q = self.shape
+        wt = np.full(Q // 2 + 1, 2.0)
+        wt[0] = 1.0
+        if Q % 2 == 0:
+            wt[-1] = 1.0
+        return float(np.sum(spec * wt) / float(P * Q) ** 2)
 
     def noise_variances(self, noise: np.ndarray) -> np.ndarray:
         """Each subband's mean square over the noise draws ``(K, P, Q)`` (Parseval on their spectra): ``(3 L + 1,)``."""
@@ -213,6 +240,31 @@ def shrink(img: np.ndarray, noise: np.ndarray, wavelet: str = DEFAULT_WAVELET,
     The coefficients of eq. (1) minimise each subband's own SURE, so the total is slightly optimistic (by the
     2 x 3 L fitted parameters' share of the coefficients).
     """
+    est, sure, _, _ = shrink_linearised(img, noise, wavelet, levels)
+    return est, sure
+
+
+def shrink_linearised(img: np.ndarray, noise: np.ndarray, wavelet: str = DEFAULT_WAVELET,
+                      levels: int | None = None) -> tuple[np.ndarray, float, np.ndarray, float]:
+    """:func:`shrink`, with the shrinkage's best linear fit per subband and that fit's own SURE, eq. (3).
+
+    Parameters
+    ----------
+    img, noise, wavelet, levels
+        As :func:`shrink`.
+
+    Returns
+    -------
+    estimate : ndarray, shape (H, W)
+    sure : float
+        As :func:`shrink`.
+    gains : ndarray, shape (3 L + 1,)
+        ``g_b = <theta_b(w), w> / <w, w>`` per subband (the approximation first, kept: 1), in the order of
+        :attr:`StationaryFrame.filters`: the linear map ``F^T diag(g) F`` is the filter
+        ``sum_b g_b |F_b(f)|^2``.
+    sure_linear : float
+        The SURE of that linear map's estimate, per pixel (``theta_j'`` replaced by ``g_j``).
+    """
     img = np.asarray(img, dtype=np.float64)
     noise = np.asarray(noise, dtype=np.float64)
     if img.ndim != 2 or noise.ndim != 3 or noise.shape[1:] != img.shape or noise.shape[0] < 1:
@@ -223,12 +275,22 @@ def shrink(img: np.ndarray, noise: np.ndarray, wavelet: str = DEFAULT_WAVELET,
     # the subbands in single precision (their rounding, ~1e-7 of the image's range, is far below any noise shrunk)
     c = frame.analysis(img.astype(np.float32)).astype(np.float64)
     div = float(var[0]) * c[0].size  # the approximation is kept: theta' = 1
+    div_lin = div
+    gains = np.ones(c.shape[0])
     out = np.empty_like(c)
     out[0] = c[0]
     for b in range(1, c.shape[0]):
         out[b], d = _surelet(c[b], float(var[b]))
         div += d
+        ww = float(np.sum(c[b] * c[b]))
+        gains[b] = float(np.sum(out[b] * c[b])) / ww if ww > 0 else 1.0
+        div_lin += gains[b] * float(var[b]) * c[b].size
     est = frame.synthesis(out.astype(np.float32)).astype(np.float64)
     tr = float(np.mean(np.sum(noise ** 2, axis=(1, 2))))
     sure = (float(np.sum((est - img) ** 2)) - tr + 2.0 * div) / img.size
-    return est, sure
+    # ||L x - x||^2 in the Fourier domain: L x - x has the spectrum (sum_b g_b |F_b|^2 - 1) X
+    from scipy.fft import rfft2
+
+    resid = (np.tensordot(gains, frame.power, axes=(0, 0)) - 1.0) ** 2 * np.abs(rfft2(img, workers=-1)) ** 2
+    sure_lin = frame.mean_square(resid) - (tr - 2.0 * div_lin) / img.size
+    return est, sure, gains, sure_lin

@@ -16,6 +16,7 @@ from metafovea.reconstruct.spectra import (
     radial_field,
     radial_mean,
     rfft_frequencies,
+    whittle_level,
 )
 
 
@@ -64,3 +65,25 @@ def test_the_fitted_law_finds_a_known_exponent(beta):
     assert law.shape == D.shape
     inv = inverse_prior([law, law])
     assert inv.shape == (2,) + D.shape and np.all(inv[:, 0, 0] == 0) and np.all(inv >= 0)
+
+
+@pytest.mark.parametrize("snr_low", [3.0, 0.3, 0.03])
+def test_whittle_level_recovers_the_level_also_below_the_noise(snr_low):
+    """Ring periodograms drawn from ``mu_r = <|D|^2>_r c f^-2 + sigma^2`` (Gamma, ``m_r`` samples each): the level
+    comes back within four of its standard errors whether the signal exceeds the noise in the first ring or stays
+    below it in every ring (where a detection-based fit has nothing to fit, and a level tied to the noise is off by
+    orders of magnitude)."""
+    rng = np.random.default_rng(int(snr_low * 100))
+    fc = (np.arange(1, 64) + 0.5) * (0.5 * np.sqrt(2) / 64)
+    otf2 = 0.3 * np.exp(-(fc / 0.08) ** 2) + 1e-4
+    counts = np.maximum((2 * np.pi * fc * 290 ** 2 * (0.5 * np.sqrt(2) / 64)).astype(int), 4)
+    sigma2 = 2.0
+    c = snr_low * sigma2 / (otf2[0] * fc[0] ** -2.0)
+    mu = otf2 * c * fc ** -2.0 + sigma2
+    power = mu * rng.gamma(counts, 1.0 / counts)
+    logc = whittle_level(fc, power, otf2, counts, sigma2, 2.0)
+    # the likelihood's own standard error of log c (Fisher information of eq. 4)
+    se = 1.0 / np.sqrt(np.sum(counts * (otf2 * c * fc ** -2.0 / mu) ** 2))
+    assert abs(logc - np.log(c)) < 4 * se, (np.exp(logc), c, se)
+    # the level the noise alone would suggest (the fit's former fallback) is orders of magnitude off
+    assert abs(np.log(sigma2) - np.log(c)) > 5.0 and abs(logc - np.log(c)) < 0.3 * abs(np.log(sigma2) - np.log(c))
