@@ -23,9 +23,9 @@ OTFs, both channels are solved jointly on a grid padded by the kernels' radius:
   k = 1: the padding carries the crop's edge values, no texture); the mean is not shrunk;
 * ``method='wavelet'`` (default): the Fourier-wavelet estimate (:mod:`metafovea.reconstruct.wavelet`): (2) with the
   prior's weight ``tau <= 1`` (sharper, noisier), then each channel's noise shrunk in a stationary wavelet frame by
-  SURE-LET, ``tau`` per channel the one whose estimated risk is lowest (the risk of the shrinkage's linear fit
-  estimated from the data where they show signal, plus Stein's unbiased risk estimate of what the non-linear
-  shrinkage changes): non-linear, so not bound by the best linear estimate;
+  SURE-LET, ``tau`` per channel by its estimated risk (the risk of the shrinkage's linear fit estimated from the
+  data where they show signal, plus Stein's unbiased risk estimate of what the non-linear shrinkage changes): the
+  largest ``tau`` within one standard error of the lowest; non-linear, so not bound by the best linear estimate;
 * ``method='tv'``: total variation [2]_, started from the Wiener estimate and solved by ADMM [3]_,
 
       min_s 1/2 ||z - D s||^2_{C^-1} + sum_i lambda_i TV(s_i),    lambda_i = 1 / mean |grad s_i|          (3)
@@ -86,6 +86,8 @@ benchmarks judge on):
                                        (the chosen tau reached 1/64 on the tuning seeds; with the range extended
                                        to 8 the criterion chose none above 1 there)
 ``wavelet.MIN_COARSEST_PX``            the coarsest atoms fit 8 times across the crop
+one standard error (tau's choice)      the one-standard-error rule: the largest tau within one standard error
+                                       (the noise draws' spread of the mean squared noise) of the lowest risk
 =====================================  =======================================================================
 
 Measured figures: BENCHMARKS.md, sections "PSF-aware reconstruction against the scene" and "PSF-aware
@@ -341,6 +343,7 @@ def _wavelet_step(pb: Problem, C: np.ndarray, prior_inv: np.ndarray, surround: b
         risk_data = filt.risk_data(spec[0], spec[1:], DETECTION_SNR)
     best: list[tuple[float, float, np.ndarray] | None] = [None, None]
     curve: list[list[dict[str, float]]] = [[], []]
+    estimates: list[list[np.ndarray]] = [[], []]
     for tau in TAUS:
         if periodic:
             sol = g.irfft_crop(filt.solve(tau, B)).astype(np.float64)
@@ -365,10 +368,21 @@ def _wavelet_step(pb: Problem, C: np.ndarray, prior_inv: np.ndarray, surround: b
             # periodic: eq. (2) of metafovea.reconstruct.wavelet, the linearised estimate's risk (eq. 4 of joint)
             # plus what the non-linear shrinkage changes (SURE less its linear fit's SURE); else eq. (2b)
             risk = float(lin[i]) + (sure - sure_lin if periodic else sure)
+            # the estimate's standard error: the spread over the noise draws of a mean of squared noise over the
+            # crop (its spatial correlation included; for white noise of variance v it is v sqrt(2 / n))
+            ms = np.mean(noise[:, i] ** 2, axis=(1, 2))
+            se = float(max(np.std(ms, ddof=1), np.mean(ms) * math.sqrt(2.0 / (H * W))))
             curve[i].append({"tau": tau, "risk_dn2": risk, "linear_risk_dn2": float(lin[i]), "sure_dn2": sure,
-                             "sure_linear_dn2": sure_lin})
-            if best[i] is None or risk < best[i][0]:  # type: ignore[index]
-                best[i] = (risk, tau, est)
+                             "sure_linear_dn2": sure_lin, "standard_error_dn2": se})
+            estimates[i].append(est)
+    # the one-standard-error rule (Hastie, Tibshirani and Friedman, Elements of Statistical Learning, 7.10): the
+    # most regularised tau (the largest: the Wiener filter at 1) whose risk is within one standard error of the
+    # lowest; a smaller tau is taken only when the data say it is better by more than the estimate's noise
+    for i in range(2):
+        risks = [c["risk_dn2"] for c in curve[i]]
+        k_min = int(np.argmin(risks))
+        k = next(j for j in range(len(TAUS)) if risks[j] <= risks[k_min] + curve[i][k_min]["standard_error_dn2"])
+        best[i] = (risks[k], TAUS[k], estimates[i][k])
     out = np.stack([b[2] for b in best])  # type: ignore[index]
     info = {"wavelet": wavelet, "wavelet_levels": levels, "noise_samples": NOISE_SAMPLES,
             "tau": [b[1] for b in best],  # type: ignore[index]

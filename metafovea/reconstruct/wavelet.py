@@ -33,7 +33,9 @@ prior's errors; it is what ``boundary='unknown'`` (no periodic data) still uses:
 
     R_prior(tau) = B(tau) + SURE(tau)                                                                  (2b)
 
-The search runs over :data:`TAUS`.
+The search runs over :data:`TAUS`; the chosen ``tau`` is the largest whose risk is within one standard error of
+the lowest (the one-standard-error rule: a sharper estimate only where the data show it better by more than the
+estimate's own noise; :func:`metafovea.reconstruct.deconvolve.separate_deconvolve`).
 
 The linear fit's SURE (``theta_j'`` replaced by ``g_j``)::
 

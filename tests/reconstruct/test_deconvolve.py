@@ -271,8 +271,9 @@ def test_the_foveal_surround_follows_what_the_perifoveal_channel_resolves(seed):
     assert w.info["foveal_surround_join"] is False
     assert psnr(w.scene[0], truth[0]) > psnr(w0.scene[0], truth[0]) + 10.0
     fr, a, psfs, truth, _ = _zoomed_pair(seed, "spokes", core=0.3)
-    w = separate_deconvolve(fr, a, psfs, foveal_scale=6.0, foveal_ratio=1.0)
-    w0 = separate_deconvolve(fr, a, psfs)
+    # the linear step alone (the wavelet step's tau may differ between the two boundaries: that is not the point)
+    w = separate_deconvolve(fr, a, psfs, foveal_scale=6.0, foveal_ratio=1.0, method="wiener")
+    w0 = separate_deconvolve(fr, a, psfs, method="wiener")
     assert w.info["foveal_surround_join"] is True
     assert psnr(w.scene[0], truth[0]) > psnr(w0.scene[0], truth[0]) - 0.3
 
