@@ -466,6 +466,8 @@ class ImagingModel:
         J = bessel_j0(jnp.asarray(st["r"])[:, None] * kr[None, :])  # (M_ext, n)
         U = Q @ J.T.astype(jnp.complex128)
         I = U.real ** 2 + U.imag ** 2
+        if not st["lw"]:  # no focal-shift correction (in focus, or a model with added-phase coefficients)
+            return I[:, :st["radial_samples"]]
         # at each wavelength's scaled radii m_k r (Lagrange, as onto the grid), times m_k^2
         gathered = jnp.take_along_axis(I[:, None, :], jnp.asarray(st["lw_idx"]).reshape(I.shape[0], 1, -1), axis=2)
         gathered = gathered.reshape(st["lw_idx"].shape)
@@ -665,7 +667,7 @@ def _debye_static(lens: LensDesign, wl: np.ndarray, z: float, center: np.ndarray
     x, w = _gl(n_nodes)
     return {"rho": 0.5 * R * (x + 1.0), "rho_w": 0.5 * R * w, "r": r_s, "interp_idx": idx, "interp_w": wts,
             "grid_inverse": inverse, "nodes": n_nodes, "radial_samples": n_r, "radial_step_um": h,
-            "lw_m": lw_m, "lw_z": lw_z, "lw_idx": lw_idx, "lw_w": lw_w}
+            "lw_m": lw_m, "lw_z": lw_z, "lw_idx": lw_idx, "lw_w": lw_w, "lw": bool(np.any(lw_m != 1.0))}
 
 
 def _rs_static(lens: LensDesign, wl: np.ndarray, z: float, s0: np.ndarray, xs: np.ndarray, ys: np.ndarray,

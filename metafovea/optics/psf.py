@@ -284,8 +284,16 @@ def debye_error_bound(pupil: Pupil) -> float:
     ``f'/z`` beyond the Fresnel approximation, ``2 |e| NA^2`` of the peak each (:meth:`Pupil.focal_shift_ratio`
     ``e``: the corrected terms times the paraxial expansion's next order). 0 in focus; tested against the exact
     engine on lenses and wavelengths it was not derived on (tests/optics/test_psf.py)."""
+    t, scale = debye_error_parts(pupil)
+    return 2.0 * t + t * t + scale
+
+
+def debye_error_parts(pupil: Pupil) -> tuple[float, float]:
+    """The two parts of :func:`debye_error_bound`: ``t = 2 |sin(delta / 2)|`` of the rim wave and the amplitude and
+    scale part ``4 |e| NA^2`` (relative to the peak), which :func:`metafovea.optics.sensor.debye_pixel_error` also
+    integrates over pixels."""
     t = 2.0 * abs(math.sin(0.5 * pupil.rim_phase_error()))
-    return 2.0 * t + t * t + 4.0 * abs(pupil.focal_shift_ratio()) * pupil.lens.na ** 2
+    return t, 4.0 * abs(pupil.focal_shift_ratio()) * pupil.lens.na ** 2
 
 
 def _wave_engine(pupil: Pupil, xs: np.ndarray, ys: np.ndarray, error: float, engine: str) -> tuple[str, float]:
@@ -307,11 +315,12 @@ def _wave_engine(pupil: Pupil, xs: np.ndarray, ys: np.ndarray, error: float, eng
 
 
 def focus_intensity(pupil: Pupil, xs: np.ndarray, ys: np.ndarray, *, error: float = 1e-4,
-                    engine: str = "auto") -> tuple[np.ndarray, str, float]:
+                    engine: str = "auto", debye: bool = True) -> tuple[np.ndarray, str, float]:
     """Intensity (power per um^2 for unit incident intensity) of the focusing order on the grid.
 
     Returns (I, engine, error estimate relative to the ideal in-focus peak); ``inf`` where the engine's model
-    is not bounded (the direction-sine engine off axis).
+    is not bounded (the direction-sine engine off axis). ``debye=False`` leaves the direction-sine model's defocus
+    term (:func:`debye_error_bound`) out of the estimate, for a caller that bounds it over pixels instead.
     """
     eng, _ = _wave_engine(pupil, xs, ys, error, engine)
     model, m = pupil.li_wolf() if eng != "rs" else (pupil, 1.0)  # the direction-sine model's focal shift on axis
@@ -327,7 +336,7 @@ def focus_intensity(pupil: Pupil, xs: np.ndarray, ys: np.ndarray, *, error: floa
     intensity = (m * m) * (U.real ** 2 + U.imag ** 2)
     if eng != "rs" and pupil.lens.phase_poly_rad:
         est = math.inf  # the Debye model of an aberrated lens: POLY_NOTE
-    elif eng != "rs" and intensity.size:  # the rim wave at defocus, relative to this PSF's own peak
+    elif debye and eng != "rs" and intensity.size:  # the rim wave at defocus, relative to this PSF's own peak
         est += debye_error_bound(pupil) * float(intensity.max()) / _ideal_peak(pupil)
     return intensity, eng, est
 

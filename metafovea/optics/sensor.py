@@ -59,7 +59,7 @@ from .psf import (
     _ideal_peak,
     _wave_engine,
     checked_inputs,
-    debye_error_bound,
+    debye_error_parts,
     diffraction_radius_um,
     focus_intensity,
     nyquist_pitch_um,
@@ -370,9 +370,9 @@ def debye_pixel_error(pupil: Pupil, own_peak: float, pitch_um: float, own_pixel_
     this is what keeps the band PSF's error small on pixels although the fine-grid error is O(1) at the axis. Plus
     the amplitude and scale the Debye model misses (:func:`metafovea.optics.psf.debye_error_bound`, part ii) of
     ``own_pixel_peak`` (the PSF's largest pixel at this wavelength; ``own_peak`` x the pixel's area if not given)."""
-    t = 2.0 * abs(math.sin(0.5 * pupil.rim_phase_error()))
+    t, scale_rel = debye_error_parts(pupil)
     pix = own_peak * pitch_um * pitch_um if own_pixel_peak is None else own_pixel_peak
-    scale = 4.0 * abs(pupil.focal_shift_ratio()) * pupil.lens.na ** 2 * pix  # psf.debye_error_bound's (ii)
+    scale = scale_rel * pix  # psf.debye_error_bound's (ii)
     if t == 0.0:
         return scale
     # the rim wave's amplitude on the axis: the end point of U(0) = int_0^S 2 pi s P(s) exp(i Phi(s)) ds,
@@ -545,16 +545,15 @@ def _add_wave(t: _Tally, sets: list[PupilSet], wave_k: list[int], w: np.ndarray,
         if engine in ("hankel", "rs", "mft"):
             for k in bk:
                 pu = sets[k].focus
-                I, _, e = focus_intensity(pu, xs[i0:i1], ys[j0:j1], error=error, engine=engine)
+                # on axis the Debye part over pixels (debye_pixel_error) in place of the fine grid's bound
+                on_pixels = engine != "rs" and float(np.hypot(*pu.s0)) == 0.0 and not pu.lens.phase_poly_rad
+                I, _, e = focus_intensity(pu, xs[i0:i1], ys[j0:j1], error=error, engine=engine, debye=not on_pixels)
                 t.fine[j0:j1, i0:i1] += w[k] * I
-                if engine != "rs" and float(np.hypot(*pu.s0)) == 0.0 and I.size and not pu.lens.phase_poly_rad:
-                    # the Debye part over pixels (debye_pixel_error) in place of the fine grid's bound
-                    peak = float(I.max())  # power per um^2
-                    e -= debye_error_bound(pu) * peak / _ideal_peak(pu)
-                    t.est_abs += w[k] * debye_pixel_error(pu, peak, g.pitch) / P_in
+                if on_pixels and I.size:
+                    t.est_abs += w[k] * debye_pixel_error(pu, float(I.max()), g.pitch) / P_in
                 t.est_abs += w[k] * e * _ideal_peak(pu) * dx * dx / P_in * n_sub * n_sub
                 if engine in ("rs", "mft"):  # the light beyond the window, as for the batched MFT below
-                    t.est_abs += w[k] * RS_TAIL * _ideal_peak(sets[k].focus) * dx * dx / P_in * n_sub * n_sub
+                    t.est_abs += w[k] * RS_TAIL * _ideal_peak(pu) * dx * dx / P_in * n_sub * n_sub
         else:
             # one batched MFT (shared kernels in design direction sines)
             t.fine[j0:j1, i0:i1] += prop.mft_intensity_multi([sets[k].focus for k in bk], w[bk],
