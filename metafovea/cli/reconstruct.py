@@ -145,18 +145,18 @@ def run(args: argparse.Namespace) -> int:
         print(to_json(s))
         return 0
     print(f"{s['method']}: {s['frames']} frames -> {s['outputs']} reconstruction(s) in {s['seconds']:.3f} s "
-          f"({s['ms_per_output']:.3f} ms each)")
-    print("".join(f"  {line}\n" for line in auto_lines(auto, dec)), end="")
+          f"({s['ms_per_output']:.3f} ms each)\n" + "".join(f"  {line}\n" for line in auto_lines(auto, dec)), end="")
     if "condition" in s:
         print(f"  normal-matrix condition number: {s['condition']:.3g}")
     _print_dip(s.get("dip"), args)
     if "fpn_mode" in s:
-        print(f"  fixed-pattern noise: {s['fpn_mode']}" + (f", {s['fpn_auto']} (--fpn auto)" if s.get("fpn_auto")
-                                                           else ""))
+        print(f"  fixed-pattern noise: {s['fpn_mode']}" + f", {s.get('fpn_auto')} (--fpn auto)" * ("fpn_auto" in s))
     if "alpha_gauge" in s:
-        se = s.get("alpha_se_max")
+        se, ig = s.get("alpha_se_max"), s.get("images_gauge_se")
         print(f"  alpha gauge: {s['alpha_gauge']}; identified: {s.get('alpha_identified')}"
-              + (f" (standard error <= {se:.2g}, threshold {s.get('alpha_se_threshold', 5e-3):.2g})" if se else ""))
+              + (f" (standard error <= {se:.2g}, threshold {s.get('alpha_se_threshold', 5e-3):.2g})" if se else "")
+              + (f"\n  what alpha's gauge leaves uncertain in the images: +- {ig[0]:.3g} (x1), +- {ig[1]:.3g} (x2) "
+                 "rms, the frames' units (one standard error)" if ig else ""))
     ng = s.get("noise_gain")
     if ng and max(ng) > 10:
         print(f"  warning: noise amplified {ng[0]:.3g} x in x1, {ng[1]:.3g} x in x2 (alpha barely varies, or one "

@@ -582,9 +582,11 @@ def polarizer_gauge_step(win: _Window, x1: np.ndarray, x2: np.ndarray, alpha: np
     alpha : ndarray, shape (T,)
     report : dict
         ``applied``, ``reason``, the fit, ``sign``, ``alpha_se`` (each frame's standard error), ``alpha_se_max``,
-        ``foveal_rms``; ``channel_assignment`` (the misfit ratio) when the sign was open.
+        ``foveal_rms``, ``images_gauge_se`` (the standard errors of ``x1`` and ``x2`` that the gauge's uncertainty
+        leaves, the frames' units: :func:`~metafovea.reconstruct.polarizer.gauge_image_factors`);
+        ``channel_assignment`` (the misfit ratio) when the sign was open.
     """
-    from metafovea.reconstruct.polarizer import gauged_alpha, model_alpha, polarizer_gauge
+    from metafovea.reconstruct.polarizer import gauge_image_factors, gauged_alpha, model_alpha, polarizer_gauge
 
     x1d, x2d = x1.astype(np.float64), x2.astype(np.float64)
     d = x1d - x2d
@@ -613,8 +615,11 @@ def polarizer_gauge_step(win: _Window, x1: np.ndarray, x2: np.ndarray, alpha: np
         al_f = al
         al, se = model_alpha(model, fit, sign)
         rep["frames_vs_model_rms"] = float(np.sqrt(np.mean((al_f - al) ** 2)))
+    f1, f2 = gauge_image_factors(fit, sign, use)
+    rms_d = math.sqrt(float(np.mean(d ** 2)))
     rep.update(applied=True, reason="polariser model (known mean and amplitude of alpha)", sign=sign, alpha_from=use,
-               alpha_se=se.tolist(), alpha_se_max=float(se.max()), foveal_rms=mis)
+               alpha_se=se.tolist(), alpha_se_max=float(se.max()), foveal_rms=mis,
+               images_gauge_se=[f1 * rms_d, f2 * rms_d])
     if fit.get("irregular"):
         rep["warning"] = (f"alpha deviates from a constant-rate rotation by {fit['jitter_rms']:.2g} rms beyond the "
                           f"noise ({fit['alpha_noise_absolute']:.2g}): scene motion or an irregular polariser; "
@@ -708,6 +713,7 @@ def alternating(frames: ArrayLike, options: AlternatingOptions | None = None, **
     info.update(iterations=it_done, loss_history=history, condition=float(cond),
                 alpha_identified=bool(grep["applied"] or (by_pol and se_max <= ALPHA_SE_MAX)),
                 alpha_se_max=se_max, alpha_se_threshold=ALPHA_SE_MAX,
+                images_gauge_se=prep.get("images_gauge_se") if by_pol else None,
                 noise_gain=_channel_noise_gain(np.asarray(a, dtype=np.float64)).tolist(),
                 alpha_gauge="absolute (polariser model)" if by_pol else "absolute (foveal constraint)"
                 if grep["applied"] else "relative: frame means rescaled to [0, 1] (foveal fix not applied)",

@@ -56,6 +56,11 @@ DIP_MAX_SECONDS = 600.0
 STUCK_MIN_FRAMES = 6
 #: the share of saturated or invalid samples in the fovea above which the summary warns
 FOVEA_INVALID_MAX = 0.5
+#: alpha's amplitude's relative error where the recording does not state its polariser's extinction and bolometer
+#: lag and the calibration cannot measure it: the rms departure from the ideal device's amplitude of one anywhere in
+#: extinction 0-5 % and tau 0-12 ms at 2 Hz (issue 30's ranges of real devices: amplitude 0.866-1 of the ideal,
+#: uniformly: rms 0.134 / sqrt(3))
+ASSUMED_AMPLITUDE_SE = 0.077
 #: the nominal alpha disagrees with the frames when their rms difference exceeds this many times its noise plus
 #: NOMINAL_TOL (a rotation's phase off by 0.1 deg moves alpha by up to 0.0035)
 NOMINAL_FACTOR = 3.0
@@ -288,7 +293,9 @@ def _pipeline(m: Measurement, method: str, *, known_alpha: bool, window: int | N
     frames, mask_info = _masked(m, frames, method)
     calib = None
     if isinstance(kw.get("polarizer"), PolarizerModel) and calibrate:
-        kw["polarizer"], calib = _calibrated(m, frames, kw, fpn_kw, method)
+        kw["polarizer"], calib = _calibrated(m, frames, kw, fpn_kw, method,
+                                             assumed=any(spec.sources.get(k) == "default" for k in
+                                                         ("extinction", "tau_s")))
     video_out = method != "snapshot" and (T > window or starts is not None)
     t0 = time.perf_counter()
     from metafovea.parallel import blas_threads
@@ -414,7 +421,7 @@ def _unidentifiable(m: Measurement, window: int, spec: PolarizerSpec) -> list[st
 
 
 def _calibrated(m: Measurement, frames: np.ndarray, kw: dict[str, Any], fpn_kw: dict[str, Any],
-                method: str) -> tuple[PolarizerModel, dict[str, Any]]:
+                method: str, assumed: bool = False) -> tuple[PolarizerModel, dict[str, Any]]:
     """The polariser model with alpha's amplitude calibrated from the recording, and what the calibration found.
 
     One pass of the classical solver (no prior: least-squares images) over the first :data:`CALIBRATION_FRAMES`
@@ -423,11 +430,42 @@ def _calibrated(m: Measurement, frames: np.ndarray, kw: dict[str, Any], fpn_kw: 
     assignments: the one it explains better is the recording's, and its relation (gain, offset; for the alternating
     solver the geometry, scale, centre and rotation, where the fit moved it) is what the solver then tells the
     channels apart by (``kw`` updated). The amplitude is used
-    when it is identified and departs from the stated one by more than twice its standard error, the fit's model
+    where it departs from the stated one by more than twice its standard error, the fit's model
     error (:data:`~metafovea.reconstruct.calibrate.AMPLITUDE_MODEL_ERROR` times its relative misfit) and
-    :data:`~metafovea.reconstruct.calibrate.AMPLITUDE_FLOOR`; its standard error includes the calibration pass's own
-    (the polariser fit's uncertainty in alpha's amplitude, which a jittering rotation makes large: only a departure
-    beyond it is then taken for a leak or a lag)."""
+    :data:`~metafovea.reconstruct.calibrate.AMPLITUDE_FLOOR` (also where that error is too large for the amplitude to
+    count as identified: a departure that large is evidence against the stated constants all the same); its standard
+    error includes the calibration pass's own (the polariser fit's uncertainty in alpha's amplitude, which a
+    jittering rotation makes large: only a departure beyond it is then taken for a leak or a lag).
+
+    The returned model's ``amplitude_se`` carries what is known of the amplitude into every frame's alpha error:
+    the calibration's error where it was used; where the stated constants are used, 0 if the recording (or the
+    caller) states them, else (``assumed``: the paper's defaults stand in) the calibration's error where it checked
+    them, and :data:`ASSUMED_AMPLITUDE_SE` where nothing could."""
+    model, info = _calibration_fit(m, frames, kw, fpn_kw, method)
+    if not info.get("applied"):
+        checked = info.get("checked_se")
+        eps = 0.0 if not assumed else ASSUMED_AMPLITUDE_SE if checked is None else min(checked, ASSUMED_AMPLITUDE_SE)
+        model = replace(model, amplitude_se=eps)
+        if assumed:
+            info["amplitude_se_used"] = eps
+            info["amplitude_se_why"] = (
+                "the recording does not state its polariser's extinction or bolometer lag and the calibration could "
+                "not measure alpha's amplitude: the paper's constants stand in, with the spread of real devices "
+                f"(extinction 0-5 %, tau 0-12 ms: +- {ASSUMED_AMPLITUDE_SE:.2g})" if checked is None else
+                "the recording does not state its polariser's constants: the paper's stand in, checked by the "
+                f"calibration to +- {eps:.2g}")
+            if checked is None:  # alpha's amplitude, and with it the images' contrast, is a guess: say so
+                info["warning"] = "; ".join(w for w in (info.get("warning"), info["amplitude_se_why"] + (
+                    " (state them: --extinction, --tau)")) if w)
+    else:
+        info["amplitude_se_used"] = model.amplitude_se
+    return model, info
+
+
+def _calibration_fit(m: Measurement, frames: np.ndarray, kw: dict[str, Any], fpn_kw: dict[str, Any],
+                     method: str) -> tuple[PolarizerModel, dict[str, Any]]:
+    """:func:`_calibrated`'s fit and verdict (``info['checked_se']``: the amplitude's error where the fit checked
+    the stated constants and kept them)."""
     from metafovea.reconstruct.calibrate import AMPLITUDE_FLOOR, AMPLITUDE_MODEL_ERROR, fit_foveal
 
     model: PolarizerModel = kw["polarizer"]
@@ -485,25 +523,29 @@ def _calibrated(m: Measurement, frames: np.ndarray, kw: dict[str, Any], fpn_kw: 
                           "relation: it takes a polariser that departs from the stated one for a pattern, so alpha's "
                           "amplitude cannot be calibrated (shutter frames, fpn='calibration', let it be)")
         info["warning"] = info["reason"]
-    elif not fit.identified["amplitude"]:
-        info["reason"] = (f"alpha's amplitude is not identified by the foveal constraint (standard error {se:.2g}: "
-                          "too little texture in the fovea): the stated polariser constants are used")
-        info["warning"] = info["reason"]
     else:
-        model, info = _amplitude_verdict(model, info, rho, se, max(2.0 * se, AMPLITUDE_MODEL_ERROR *
-                                                                   fit.relative_misfit, AMPLITUDE_FLOOR))
+        model, info = _amplitude_verdict(model, info, rho, se, max(AMPLITUDE_MODEL_ERROR * fit.relative_misfit,
+                                                                   AMPLITUDE_FLOOR))
+        if not fit.identified["amplitude"]:
+            info["reason"] = (f"alpha's amplitude is identified by the foveal constraint only to +- {se:.2g} (too "
+                              "little texture in the fovea, or a misfit): " + info["reason"])
+            info["warning"] = info["reason"]
     return model, info
 
 
 def _amplitude_verdict(model: PolarizerModel, info: dict[str, Any], rho: float, se: float,
-                       tol: float) -> tuple[PolarizerModel, dict[str, Any]]:
-    """The calibrated amplitude ``rho`` (of the stated constants', standard error ``se``) used, or not, by
-    :func:`_calibrated`: used where it departs from 1 by more than ``tol``. No polariser leaks less than an ideal one
-    and no bolometer lags less than an instantaneous one, so alpha's amplitude is at most the ideal device's,
+                       model_error: float) -> tuple[PolarizerModel, dict[str, Any]]:
+    """The calibrated amplitude ``rho`` (of the stated constants', standard error ``se``; the fit's model error
+    ``model_error``) used, or not, by :func:`_calibrated`: used where it departs from 1 by more than
+    ``tol = max(2 se, model_error)``, and then known to ``max(se, model_error)`` (the model's ``amplitude_se``). No
+    polariser leaks less than an ideal one and no bolometer lags less than an instantaneous one, so alpha's amplitude
+    is at most the ideal device's,
     ``rho_max`` times the stated one: a fit beyond it by more than ``tol`` is the foveal relation's bias (an
     uncorrected fixed pattern, haze), not the polariser's, and is said so; ``min(rho, rho_max)`` is what is used."""
     from metafovea.polarizer import RotatingPolarizer
 
+    tol = max(2.0 * se, model_error)
+    known = max(se, model_error)
     rho_max = RotatingPolarizer(model.rate_hz).amplitude / model.physics.amplitude
     info["amplitude_max"] = rho_max
     above = rho > rho_max + tol
@@ -519,13 +561,14 @@ def _amplitude_verdict(model: PolarizerModel, info: dict[str, Any], rho: float, 
                           "used")
         if above:
             info["warning"] = info["reason"]
+        info["checked_se"] = known
         return model, info
     info.update(applied=True, amplitude_used=rho_used, reason=beyond + (
         f"alpha's amplitude is {rho_used:.4f} of the stated constants' ({rho:.4f} +- {se:.2g} fitted): the "
         "recording's polariser leaks more (extinction) or its bolometer is slower (tau) than stated; the calibrated "
         "amplitude is used"))
     info["warning"] = info["reason"]
-    return replace(model, amplitude_scale=rho_used), info
+    return replace(model, amplitude_scale=rho_used, amplitude_se=min(known / rho_used, 1.0)), info
 
 
 def _polarizer_model(m: Measurement, method: str, alpha: np.ndarray | None, spec: PolarizerSpec,

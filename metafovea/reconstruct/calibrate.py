@@ -368,9 +368,10 @@ def fit_foveal(mean: ArrayLike, diff: ArrayLike, *, scale: float = 6.0, gain: fl
                blur_px: float = BLUR_PX, fit_amplitude: bool = True, psfs: tuple[ArrayLike, ArrayLike] | None = None,
                both_assignments: bool = False) -> FovealFit:
     """Fit the foveal relation (2) and the amplitude ratio (1) to a recording's separated images, with and without
-    the radial gain (vignetting): the fit with it, its amplitude's error widened by the two fits' difference
-    (``se['amplitude_model']``: how much the amplitude rests on how the relation is modelled; haze from outside the
-    fovea or an uncorrected fixed pattern move it, a clean relation does not). Both are fitted with the relative
+    the radial gain (vignetting): the fit with it, its amplitude's error widened by the two fits' difference as far
+    as the data cannot tell the two models apart (``se['amplitude_model']``, the models' spread when averaged by
+    their likelihoods: how much the amplitude rests on how the relation is modelled; 0 where the data reject the
+    model without the radial gain, as they do wherever the foveal side is vignetted). Both are fitted with the relative
     blur that explains the first fit best (:func:`_relative_blur`).
 
     ``both_assignments``: also fit the channels swapped (``-diff``); the assignment the relation explains better
@@ -401,8 +402,18 @@ def fit_foveal(mean: ArrayLike, diff: ArrayLike, *, scale: float = 6.0, gain: fl
     sides = _sides(m, d, scale, blur_px, pair, b_r, pre)
     fit = replace(_fit_once(m.shape, sides, vignetting=True, **kw), relative_blur_px=b_r)
     without = _fit_once(m.shape, sides, vignetting=False, **kw)
+    # the two models averaged by their likelihoods (Bayesian model averaging: the spread between them is the
+    # between-model variance w (1 - w) delta^2): a relation that needs the radial gain (the data reject the model
+    # without it by chi^2, counted in independent samples) leaves no model error; one it does not need, the
+    # difference (w = 1/2: delta / 2, doubled in the amplitude's error as before)
     delta = abs(fit.amplitude - without.amplitude)
-    se = {**fit.se, "amplitude_model": delta, "amplitude": max(fit.se["amplitude"], 2.0 * delta)}
+    n_eff = fit.samples / max(1.0, 4.0 * math.pi * blur_px ** 2)
+    var = fit.residual_rms ** 2
+    dchi2 = max(n_eff * (without.residual_rms ** 2 - var) / var, 0.0) if var > 0 else math.inf
+    w = 1.0 / (1.0 + math.exp(min(0.5 * dchi2, 700.0)))  # the model without the radial gain's weight
+    spread = 2.0 * math.sqrt(w * (1.0 - w)) * delta
+    se = {**fit.se, "amplitude_model": spread,
+          "amplitude": max(fit.se["amplitude"], 2.0 * spread)}
     ok = {**fit.identified, "amplitude": bool(se["amplitude"] <= TOLERANCES["amplitude"]), "swapped": swapped}
     return replace(fit, se=se, identified=ok)
 

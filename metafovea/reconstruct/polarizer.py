@@ -56,6 +56,10 @@ class PolarizerModel:
     #: the amplitude of alpha over the one the device's constants give, calibrated from the recording
     #: (:mod:`metafovea.reconstruct.calibrate`: a polariser that leaks more, or a slower bolometer, than stated)
     amplitude_scale: float = 1.0
+    #: the relative standard error of the amplitude (``amplitude_scale`` x the constants'): 0 where the stated
+    #: constants are taken as exact; the calibration's error where it measured the amplitude; it widens every
+    #: frame's alpha error (:func:`polarizer_gauge`'s ``(a, b)`` covariance, :func:`model_alpha`)
+    amplitude_se: float = 0.0
 
     def __post_init__(self) -> None:
         t = np.asarray(self.times_s, dtype=np.float64).reshape(-1)
@@ -69,6 +73,7 @@ class PolarizerModel:
         RotatingPolarizer(self.rate_hz, self.extinction, self.tau_s)  # checks the device's constants
         check_range("rate_tolerance", self.rate_tolerance, 0.0, 0.5, lo_inclusive=True)
         check_range("amplitude_scale", self.amplitude_scale, 0.0, 2.0)
+        check_range("amplitude_se", self.amplitude_se, 0.0, 1.0, lo_inclusive=True)
 
     @classmethod
     def from_spec(cls, spec: PolarizerSpec, times_s: ArrayLike) -> PolarizerModel:
@@ -212,10 +217,14 @@ def polarizer_gauge(alpha_hat: np.ndarray, model: PolarizerModel, *,
     for k in ("var_phase_centre", "var_omega"):
         out[k] = out[k] * infl
     out["t_inflation"] = infl
+    sa = math.sqrt(max(cov[0][0], 0.0))  # the data's own: a stopped polariser is judged by it
+    if model.amplitude_se > 0:  # s known to a relative eps: a = R / s, b = A0 - a / 2 move by (-a eps, a eps / 2)
+        ga = np.array([-a, ALPHA_MEAN * a]) * model.amplitude_se
+        cov = cov + np.outer(ga, ga)
+        out["amplitude_se"] = model.amplitude_se
     out.update(a=a, b=b, cov=cov.tolist(), a_se=math.sqrt(max(float(cov[0][0]), 0.0)),
                b_se=math.sqrt(max(float(cov[1][1]), 0.0)), residual_rms=rms,
                residual_rms_absolute=rms / abs(a) if a else math.inf)
-    sa = math.sqrt(max(cov[0][0], 0.0))
     if not abs(a) > 0 or sa > 0.2 * abs(a):
         out.update(status="stopped", reason=f"alpha's variation at the noise level (amplitude {a * s:.3g} of the "
                                            f"data-term alpha, uncertainty {sa * s:.3g}): the polariser is stopped, "
@@ -252,16 +261,41 @@ def gauged_alpha(alpha_hat: np.ndarray, fit: dict[str, Any], sign: float = 1.0,
     return al, np.sqrt(np.maximum(var, 0.0))
 
 
+def gauge_image_factors(fit: dict[str, Any], sign: float = 1.0, alpha_from: str = "frames") -> tuple[float, float]:
+    """How far the gauge's uncertainty leaves the separated images: the standard errors of ``x1`` and ``x2``, each
+    in units of the rms of ``d = x1 - x2``.
+
+    An error ``(da, db)`` of the fitted ``(a, b)`` gives ``alpha' = (1 + k) alpha + c`` (``k = -da / a``,
+    ``c = -db / a``) and, to first order, the images ``x1' = x1 - (c + k) d`` and ``x2' = x2 - c d`` (the mixture
+    ``x2 + alpha d`` unchanged), so ``sd(x1) = sd(c + k) rms(d)`` and ``sd(x2) = sd(c) rms(d)``. ``alpha_from``
+    'model' (the fitted rotation's alpha, ``1/2 + s cos``): only the amplitude's relative error ``eps`` counts,
+    ``k = eps``, ``c = -eps / 2``.
+    """
+    if alpha_from == "model":
+        e = 0.5 * float(fit.get("amplitude_se", 0.0))
+        return e, e
+    a = float(fit["a"])
+    cov = np.asarray(fit["cov"], dtype=np.float64)
+    if sign < 0:
+        Jm = np.array([[-1.0, 0.0], [1.0, 1.0]])
+        cov = Jm @ cov @ Jm.T
+    v2 = cov[1, 1] / (a * a)
+    v1 = (cov[0, 0] + 2 * cov[0, 1] + cov[1, 1]) / (a * a)
+    return math.sqrt(max(v1, 0.0)), math.sqrt(max(v2, 0.0))
+
+
 def model_alpha(model: PolarizerModel, fit: dict[str, Any], sign: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
     """The fitted rotation's alpha, ``1/2 + s cos(omega t + phi)`` (``sign`` -1: the other channel assignment, phase
     + pi), and each frame's standard error from the phase and frequency (a synchronised polariser's are known: 0;
-    the model's mean and amplitude are taken as exact, so a wrong extinction or lag is not in it)."""
+    the model's mean is exact; its amplitude is known to ``model.amplitude_se``, relative)."""
     t = model.times_s
     ph = fit["phase_centre"] + (math.pi if sign < 0 else 0.0)
     u = fit["omega"] * (t - fit["t_centre"]) + ph
     al = model.alpha(t - fit["t_centre"], omega=fit["omega"], phase=ph)
     var = (model.amplitude * np.sin(u)) ** 2 * (fit["var_phase_centre"] + (t - fit["t_centre"]) ** 2 * fit["var_omega"])
+    var = var + (model.amplitude * model.amplitude_se * np.cos(u)) ** 2
     return al, np.sqrt(np.maximum(var, 0.0))
 
 
-__all__ = ["ALPHA_SE_MAX", "JITTER_FACTOR", "PolarizerModel", "gauged_alpha", "model_alpha", "polarizer_gauge"]
+__all__ = ["ALPHA_SE_MAX", "JITTER_FACTOR", "PolarizerModel", "gauge_image_factors", "gauged_alpha", "model_alpha",
+           "polarizer_gauge"]

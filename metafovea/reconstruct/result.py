@@ -259,7 +259,7 @@ class PipelineResult:
             out["noise_gain"] = [float(v) for v in np.ravel(ng)]
         if rec.info.get("invalid_samples"):
             out["invalid_samples"] = rec.info["invalid_samples"]
-        for key in ("alpha_gauge", "alpha_se_max", "alpha_se_threshold"):
+        for key in ("alpha_gauge", "alpha_se_max", "alpha_se_threshold", "images_gauge_se"):
             if rec.info.get(key) is not None:
                 out[key] = rec.info[key]
         pg = rec.info.get("polarizer_gauge")

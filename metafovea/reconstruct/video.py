@@ -227,6 +227,17 @@ def _apply_pooled_gauge(x1: np.ndarray, x2: np.ndarray, aw: list, se_w: list, id
         identified[k] = bool(se_p[k] <= ALPHA_SE_MAX)
 
 
+def _window_errors(infos: list, se_w: list, info: dict[str, Any]) -> None:
+    """``info['alpha_se_max']`` (the windows' largest) and ``info['images_gauge_se']``: the largest over the windows
+    of what each window's own gauge leaves uncertain in its images (a pooled gauge is at least as good), where every
+    window has them."""
+    if all(v is not None for v in se_w):
+        info["alpha_se_max"] = float(max(se_w))
+    gse = [i.get("images_gauge_se") for i in infos]
+    if gse and all(v is not None for v in gse):
+        info["images_gauge_se"] = np.max(np.asarray(gse, dtype=np.float64), axis=0).tolist()
+
+
 def video(frames: ArrayLike, alpha: ArrayLike | None = None, *, window: int = 8, stride: int = 1,
           starts: Sequence[int] | None = None, method: str = "lsq", denoise: str | None = None,
           max_condition: float = MAX_CONDITION, regularize: str | float | None = None, saturation: float | None = None,
@@ -325,8 +336,7 @@ def video(frames: ArrayLike, alpha: ArrayLike | None = None, *, window: int = 8,
             info["window_alpha_se_max"] = se_w
             info["alpha_identified"] = bool(all(identified))
             info["alpha_gauge"] = sorted({str(i.get("alpha_gauge")) for i in infos})
-            if all(v is not None for v in se_w):
-                info["alpha_se_max"] = float(max(se_w))
+            _window_errors(infos, se_w, info)
         else:
             info.update(dip_windows=runs, max_seconds=budget, windows_planned=K)
             if len(runs) < K:  # stopped by the time cap: the windows done
