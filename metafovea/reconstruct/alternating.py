@@ -492,10 +492,11 @@ def _window(frames: ArrayLike, saturation: float | None) -> _Window:
     M = valid_mask(Y, saturation)
     Yf = Y
     if M is not None:
-        # fill invalid samples with the per-pixel mean of the valid ones (refilled from the model later)
-        with np.errstate(invalid="ignore"):
-            fill = np.nanmean(np.where(M, Y, np.nan), axis=0)
-        fill = np.nan_to_num(fill, nan=float(np.nanmean(np.where(M, Y, np.nan))))
+        # fill invalid samples with the per-pixel mean of the valid ones (refilled from the model later); a pixel
+        # with none (dead in every frame) gets the frames' mean: computed without nanmean's empty-slice warning
+        valid = M.sum(axis=0)
+        fill = np.where(M, Y, 0).sum(axis=0, dtype=np.float64) / np.maximum(valid, 1)
+        fill = np.where(valid > 0, fill, float(np.where(M, Y, 0).sum(dtype=np.float64) / max(int(M.sum()), 1)))
         Yf = np.where(M, Y, fill[None]).astype(dt)
     return _Window(Y=Y, Yf=Yf, M=M, dt=dt)
 
