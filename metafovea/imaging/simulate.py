@@ -43,7 +43,9 @@ from metafovea.config import SystemDesign, load_system
 from metafovea.errors import InputError, as_rng, check_int
 from metafovea.imaging.channel import Channel, channels_for
 from metafovea.imaging.kernels import (
+    KERNEL_NOISE_SHARE,
     ChannelOptics,
+    KernelAccuracy,
     build_channel_optics,
     glare_as_pedestal,
     pixel_psf,
@@ -51,6 +53,7 @@ from metafovea.imaging.kernels import (
     resolve_provider,
 )
 from metafovea.imaging.plan import (
+    BUDGET_SHARE,
     REDUCED_PSF_WAVELENGTHS,
     Plan,
     PlanInputs,
@@ -220,8 +223,55 @@ def camera_for(system: SystemDesign, opt: SimulationOptions) -> Camera:
     return Camera(sensor, channels, fe, radiance, pol, trains, post_sets, posts)
 
 
+def kernel_accuracy(system: SystemDesign, camera: Camera, scene: Scene, times: np.ndarray,
+                    tolerance_k: float | None = None) -> list[KernelAccuracy]:
+    """What each channel's PSF kernels must resolve in this recording
+    (:class:`~metafovea.imaging.kernels.KernelAccuracy`, the derivation in :mod:`metafovea.imaging.kernels`).
+
+    ``allowed_k``: :data:`~metafovea.imaging.kernels.KERNEL_NOISE_SHARE` of one frame's noise, ``sqrt(sigma^2 + 1/12)``
+    DN (temporal noise, the ADC step), referred to the scene through the channel (its DN per kelvin at the design's
+    scene temperature); with ``tolerance_k``, the share of it the planner leaves as margin,
+    ``(1 - BUDGET_SHARE) T``, where that is looser (the plan's tolerance is against the full model, whose kernels a
+    reduced model shares: it never tightens the request); None without noise, ADC or tolerance. ``contrast_k``: the
+    scene's radiance range over the channel's field (its pixel centres and a margin of 8 pixels; a video at its first,
+    middle and last frame) in kelvin at the scene temperature. Structure finer than a pixel that the pixel centres
+    miss is not in the range."""
+    sensor, radiance = camera.sensor, camera.radiance
+    dldt = radiance.derivative(system.scene_temperature_k)
+    dldt300 = radiance.derivative(300.0)
+    sig_dn = math.sqrt(sensor.noise_sigma_dn ** 2 + (1.0 / 12.0 if sensor.quantize else 0.0))
+    n = times.size
+    ts = [float(times[0])] if scene.static else [float(times[i]) for i in sorted({0, n // 2, n - 1})]
+    out = []
+    for ch, gain in zip(camera.channels, camera.gains):
+        H, W = ch.shape
+        ya = np.arctan(ch.positions_um(H, 1, 8) / ch.focal_length_um)
+        xa = np.arctan(ch.positions_um(W, 1, 8) / ch.focal_length_um)
+        ax, ay = np.broadcast_to(xa[None, :], (ya.size, xa.size)), np.broadcast_to(ya[:, None], (ya.size, xa.size))
+        lo, hi = math.inf, -math.inf
+        for t in ts:
+            temp, eps = scene.sample(ax, ay, t)
+            L = radiance.apparent(temp, eps, scene.reflected_k)
+            lo, hi = min(lo, float(L.min())), max(hi, float(L.max()))
+        contrast = (hi - lo) / dldt
+        dn_per_k = sensor.counts_per_k * gain * dldt / dldt300
+        noise_k = KERNEL_NOISE_SHARE * sig_dn / dn_per_k
+        margin_k = None if tolerance_k is None else (1.0 - BUDGET_SHARE) * float(tolerance_k)
+        if margin_k is not None and margin_k > noise_k:
+            out.append(KernelAccuracy(margin_k, contrast, f"{1 - BUDGET_SHARE:.0%} of the tolerance "
+                                      f"{float(tolerance_k):g} K, the margin the plan leaves, looser than the noise"))
+        elif noise_k > 0:
+            out.append(KernelAccuracy(noise_k, contrast, f"{KERNEL_NOISE_SHARE:g} x one frame's noise "
+                                      f"{sig_dn:.3g} DN rms (NETD {sensor.netd_k if sensor.noise else 0:g} K, ADC "
+                                      f"{'on' if sensor.quantize else 'off'}) at {dn_per_k:.3g} DN/K"))
+        else:
+            out.append(KernelAccuracy(None, contrast, "no noise, ADC or tolerance bounds what the recording shows"))
+    return out
+
+
 def _channel_optics(system: SystemDesign, camera: Camera, provider: Any, provider_name: str, trains: Any, ss: int,
-                    opt: SimulationOptions, **changes: Any) -> list[ChannelOptics]:
+                    opt: SimulationOptions, accuracy: list[KernelAccuracy] | None = None,
+                    **changes: Any) -> list[ChannelOptics]:
     """Each channel's optics (PSF kernels and haze; the metasurface transmission and glare leaks of its train).
 
     ``changes``: ``haze``, ``field_patches``, ``n_psf_wavelengths`` in place of the options'; ``kernel_from_full``:
@@ -232,23 +282,26 @@ def _channel_optics(system: SystemDesign, camera: Camera, provider: Any, provide
         provider = _kernel_at_full_spectrum(provider, camera.radiance, system.scene_temperature_k)
     glare = not changes.pop("no_glare", False)
     kw = {"haze": opt.haze, "field_patches": opt.field_patches, **changes}
+    acc = accuracy or [None, None]
     return [build_channel_optics(ch, provider, camera.radiance, ss=ss, psf_size_px=opt.psf_size_px,
                                  patch_threshold=opt.patch_threshold,
                                  scene_temperature_k=system.scene_temperature_k,
                                  transmitted=1.0 if tr is None or provider_name != "optics"
                                  else tr.metasurface_transmission,
                                  leaks=() if tr is None or not glare else [(lk.power_fraction / tr.throughput,
-                                                                            lk.radius_um) for lk in tr.leaks], **kw)
-            for ch, tr in zip(camera.channels, trains)]
+                                                                            lk.radius_um) for lk in tr.leaks],
+                                 accuracy=a, **kw)
+            for ch, tr, a in zip(camera.channels, trains, acc)]
 
 
 def _kernel_at_full_spectrum(provider: Any, radiance: BandRadiance, temperature_k: float) -> Any:
     """``provider`` asked for the full model's wavelength bins whatever bins it is given."""
     def call(channel: Channel, *, pitch_um: float, field_deg: float, wavelengths_um: np.ndarray, weights: np.ndarray,
-             size_px: int) -> Any:
+             size_px: int, **ask: Any) -> Any:
         lam, w = radiance.psf_wavelengths(channel.lens.wavelength_um, temperature_k)
         return provider(channel, pitch_um=pitch_um, field_deg=field_deg, wavelengths_um=lam, weights=w,
-                        size_px=size_px)
+                        size_px=size_px, **ask)
+    call.takes_error = bool(getattr(provider, "takes_error", False))  # type: ignore[attr-defined]
     return call
 
 
@@ -539,13 +592,15 @@ def _model_optics(system: SystemDesign, camera: Camera, sc: Scene, times: np.nda
     :mod:`metafovea.imaging.ablate`), keyed by what they depend on."""
     provider, provider_name = resolve_provider(opt.psf, opt.psf_cache_dir, camera.post_sets)
     trains = camera.trains or (None, None)
+    accuracy = kernel_accuracy(system, camera, sc, times, tol) if getattr(provider, "takes_error", False) else None
 
     def optics_for(o: SimulationOptions = opt, **changes: Any) -> list[ChannelOptics]:
         key = ("optics", ss, o.haze, o.field_patches, o.psf_size_px, o.patch_threshold, id(o.psf),
-               camera.trains is None, tuple(sorted(changes.items())))
+               camera.trains is None, tuple(sorted(changes.items())),
+               None if accuracy is None else tuple((a.allowed_k, a.contrast_k) for a in accuracy))
         if cache is not None and key in cache:
             return cache[key]
-        out = _channel_optics(system, camera, provider, provider_name, trains, ss, o, **changes)
+        out = _channel_optics(system, camera, provider, provider_name, trains, ss, o, accuracy, **changes)
         if cache is not None:
             cache[key] = out
         return out
@@ -669,6 +724,8 @@ class SimulationRun:
                 "seed": m.meta["seed"], "psf": psf["provider"],
                 "psf_mode": {c: psf[c]["mode"] for c in ("foveal", "perifoveal")},
                 "haze_fraction": {c: psf[c]["haze"].get("fraction", 0.0) for c in ("foveal", "perifoveal")},
+                **({"psf_request": {c: psf[c]["psf_request"] for c in ("foveal", "perifoveal")}}
+                   if all("psf_request" in psf[c] for c in ("foveal", "perifoveal")) else {}),
                 "foveal_constraint": m.meta["foveal_constraint"], "saturated_fraction": m.meta["saturated_fraction"],
                 "seconds": {k: round(v, 3) for k, v in self.seconds.items()},
                 "files": {k: str(v) for k, v in self.files.items()}, **_model_summary(m.meta.get("model"))}
