@@ -26,6 +26,7 @@ a file the run reads.
 from __future__ import annotations
 
 import copy
+import functools
 import io as _io
 import json
 import logging
@@ -215,15 +216,35 @@ def camera_for(system: SystemDesign, opt: SimulationOptions) -> Camera:
     channels = channels_for(system, pixel_pitch_um=sensor.pixel_pitch_um,
                             relay_magnification=opt.relay_magnification, shape=sensor.shape)
     fe = system.filter_enabled if opt.filter_enabled is None else bool(opt.filter_enabled)
-    radiance = BandRadiance.for_system(system, filter_enabled=fe)
+    if isinstance(opt.posts, str) and _hashable(system):
+        radiance, post_sets, posts, trains = _camera_optics(system, fe, opt.posts, bool(opt.optical_train))
+    else:
+        radiance, post_sets, posts, trains = _camera_optics.__wrapped__(system, fe, opt.posts, opt.optical_train)
     pol = Polarizer(rate_hz=system.polarizer_hz if opt.polarizer_hz is None else opt.polarizer_hz,
                     mode=opt.polarizer_mode,
                     phase_rad=None if opt.polarizer_phase_deg is None else math.radians(opt.polarizer_phase_deg),
                     extinction=system.polarizer_extinction if opt.extinction is None else opt.extinction,
                     tau_s=opt.bolometer_tau_s)
-    post_sets, posts = system_post_sets(system, opt.posts)
-    trains = system_trains(system, post_sets, posts, filter_enabled=fe) if opt.optical_train else None
     return Camera(sensor, channels, fe, radiance, pol, trains, post_sets, posts)
+
+
+def _hashable(x: Any) -> bool:
+    try:
+        hash(x)
+    except TypeError:
+        return False
+    return True
+
+
+@functools.lru_cache(maxsize=8)
+def _camera_optics(system: SystemDesign, filter_enabled: bool, posts: Any, optical_train: bool) -> tuple[Any, ...]:
+    """The camera's band radiance, post sets and optical trains (frozen; 0.1 s for the paper's camera, the posts'
+    library read from the disk cache): kept for the last few systems, as every simulation of a sweep, a benchmark or
+    ``validate`` asks for the same ones."""
+    radiance = BandRadiance.for_system(system, filter_enabled=filter_enabled)
+    post_sets, posts = system_post_sets(system, posts)
+    trains = system_trains(system, post_sets, posts, filter_enabled=filter_enabled) if optical_train else None
+    return radiance, post_sets, posts, trains
 
 
 def kernel_accuracy(system: SystemDesign, camera: Camera, scene: Scene, times: np.ndarray,
