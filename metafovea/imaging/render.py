@@ -18,7 +18,7 @@ import numpy as np
 
 from metafovea.imaging.channel import relative_illumination_map
 from metafovea.imaging.kernels import ChannelOptics
-from metafovea.imaging.scene import Scene
+from metafovea.imaging.scene import Scene, bilinear_grid
 from metafovea.radiometry import BandRadiance
 
 
@@ -146,11 +146,7 @@ class ChannelRenderer:
     def to_pixels(self, part: dict, coarse: np.ndarray) -> np.ndarray:
         """A far component's coarse grid (the valid convolution's output, or any array of its shape) interpolated
         (linearly) to the pixels, ``(H, W)``: what the image gets from it, before its weight."""
-        from scipy.ndimage import map_coordinates
-
-        H, W = self.optics.channel.shape
-        yy, xx = np.meshgrid(part["ry"], part["rx"], indexing="ij")
-        return map_coordinates(coarse, [yy.ravel(), xx.ravel()], order=1, mode="nearest").reshape(H, W)
+        return bilinear_grid(coarse, part["ry"], part["rx"])
 
     def _finish(self, fine: np.ndarray, hz: list[np.ndarray], pedestal: float = 0.0) -> np.ndarray:
         ch, ss = self.optics.channel, self.optics.ss
