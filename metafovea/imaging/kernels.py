@@ -48,6 +48,7 @@ samples per pixel (:func:`bin_kernel`: the same PSF and haze, the scene sampled 
 
 from __future__ import annotations
 
+import functools
 import logging
 import math
 import warnings
@@ -356,9 +357,17 @@ def resolve_provider(psf: str | PSFProvider | dict | None, cache_dir: str | Path
 # haze kernels
 # ----------------------------------------------------------------------------------------------
 def disk_mixture_kernel(radii: np.ndarray, weights: np.ndarray, step: float, sub: int = 4) -> np.ndarray:
-    """Normalised mixture of uniform disks (radii and step in the same unit), integrated over samples."""
-    radii = np.asarray(radii, dtype=np.float64)
-    w = np.asarray(weights, dtype=np.float64)
+    """Normalised mixture of uniform disks (radii and step in the same unit), integrated over samples (read-only:
+    the last few are kept, as every simulation of one camera asks for the same haze and glare disks)."""
+    radii = np.ascontiguousarray(radii, dtype=np.float64)
+    w = np.ascontiguousarray(weights, dtype=np.float64)
+    return _disk_mixture_kernel(radii.tobytes(), w.tobytes(), float(step), int(sub))
+
+
+@functools.lru_cache(maxsize=64)
+def _disk_mixture_kernel(radii_bytes: bytes, weights_bytes: bytes, step: float, sub: int) -> np.ndarray:
+    radii = np.frombuffer(radii_bytes, dtype=np.float64)
+    w = np.frombuffer(weights_bytes, dtype=np.float64)
     rmax = float(radii.max())
     n = 2 * int(math.ceil(rmax / step + 0.5)) + 1
     u = ((np.arange(n * sub) + 0.5) / sub - n / 2.0) * step
@@ -369,7 +378,9 @@ def disk_mixture_kernel(radii: np.ndarray, weights: np.ndarray, step: float, sub
     tail = np.concatenate([np.cumsum(dens[::-1])[::-1], [0.0]])  # tail[i] = sum_{j >= i} dens_j
     idx = np.searchsorted(rs, r, side="left")
     img = tail[idx].reshape(n, sub, n, sub).mean(axis=(1, 3))
-    return img / img.sum()
+    img /= img.sum()
+    img.flags.writeable = False
+    return img
 
 
 @dataclass
