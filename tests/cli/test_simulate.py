@@ -234,3 +234,13 @@ def test_cli_a_bad_tolerance_is_one_line_naming_the_flag(bad, tmp_path, capsys, 
     if bad != "abc":
         assert "0 K < --tolerance-k <= 100 K" in err
     assert not (tmp_path / "m.npz").exists()
+
+
+def test_cli_simulate_says_which_psf_request_it_used(tmp_path, capsys):
+    """With the optics PSFs the summary names each channel's error request, why, and whether the kernel met it."""
+    out = tmp_path / "m.npz"
+    assert main(["simulate", "--frames", "1", "--psf", "optics", "--out", str(out), "--no-tiff", "--no-preview"]) == 0
+    text = capsys.readouterr().out
+    for c in ("foveal", "perifoveal"):
+        line = next(ln for ln in text.splitlines() if ln.startswith(f"{c} PSF kernels asked for"))
+        assert "of one frame's noise" in line and "scene range" in line and "within the" in line
