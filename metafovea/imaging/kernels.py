@@ -364,6 +364,11 @@ def disk_mixture_kernel(radii: np.ndarray, weights: np.ndarray, step: float, sub
     return _disk_mixture_kernel(radii.tobytes(), w.tobytes(), float(step), int(sub))
 
 
+def clear_disk_kernels() -> None:
+    """Forget the disk kernels :func:`disk_mixture_kernel` keeps."""
+    _disk_mixture_kernel.cache_clear()
+
+
 @functools.lru_cache(maxsize=64)
 def _disk_mixture_kernel(radii_bytes: bytes, weights_bytes: bytes, step: float, sub: int) -> np.ndarray:
     radii = np.frombuffer(radii_bytes, dtype=np.float64)

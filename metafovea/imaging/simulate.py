@@ -228,6 +228,15 @@ def camera_for(system: SystemDesign, opt: SimulationOptions) -> Camera:
     return Camera(sensor, channels, fe, radiance, pol, trains, post_sets, posts)
 
 
+def clear_caches() -> None:
+    """Forget the cameras and haze kernels kept in this process (after changing the files they were read from:
+    the RCWA library, the post caches)."""
+    from metafovea.imaging.kernels import clear_disk_kernels
+
+    _camera_optics.cache_clear()
+    clear_disk_kernels()
+
+
 def _hashable(x: Any) -> bool:
     try:
         hash(x)

@@ -128,8 +128,10 @@ def test_simulate_off_a_terminal_says_what_it_computes(tmp_path, capsys, monkeyp
     (minutes, cached afterwards) and printed nothing meanwhile off a terminal: each long step now writes a line every
     PROGRESS_LINE_S (shortened here) saying what it computes; -q silences it."""
     import metafovea.parallel
+    from metafovea.imaging.simulate import clear_caches
 
     monkeypatch.setattr(metafovea.parallel, "PROGRESS_LINE_S", 0.01, raising=False)
+    clear_caches()  # the camera of an earlier simulation in this process would be reused at once
     argv = ["simulate", "--scene", "bars", "--frames", "2", "--psf", "airy", "--no-tiff", "--no-preview"]
     assert main([*argv, "--out", str(tmp_path / "a.npz")]) == 0
     err = capsys.readouterr().err
@@ -243,4 +245,4 @@ def test_cli_simulate_says_which_psf_request_it_used(tmp_path, capsys):
     text = capsys.readouterr().out
     for c in ("foveal", "perifoveal"):
         line = next(ln for ln in text.splitlines() if ln.startswith(f"{c} PSF kernels asked for"))
-        assert "of one frame's noise" in line and "scene range" in line and "within the" in line
+        assert "one frame's noise" in line and "scene range" in line and "within the" in line
