@@ -63,7 +63,7 @@ class ChannelRenderer:
     def __init__(self, scene: Scene, optics: ChannelOptics, radiance: BandRadiance,
                  relative_illumination: bool = True,
                  field_factor: Callable[[np.ndarray, np.ndarray], np.ndarray] | None = None, *, sub: int | None = None,
-                 far_cache: dict | None = None):
+                 far_cache: dict | None = None, ri: np.ndarray | None = None):
         self.scene, self.optics, self.radiance = scene, optics, radiance
         self.far_cache = far_cache  # far components computed by other renderers of the same scene and camera
         if sub is not None:  # samples per coarse sample and axis of the far components (a reduced model: 1)
@@ -73,7 +73,9 @@ class ChannelRenderer:
         m = optics.margin
         self.ya = np.arctan(ch.positions_um(H, ss, m) / ch.focal_length_um)
         self.xa = np.arctan(ch.positions_um(W, ss, m) / ch.focal_length_um)
-        self.ri = relative_illumination_map(ch, field_factor) if relative_illumination else None
+        # ``ri``: the relative illumination map of this channel and field factor, already computed (a plan's pilot)
+        self.ri = None if not relative_illumination else ri if ri is not None else \
+            relative_illumination_map(ch, field_factor)
         # far components, each on its own coarse grid: the chromatic haze, then the glare (ChannelOptics.far_parts)
         self.parts = []
         for weight, kernel, q in optics.far_parts():

@@ -703,8 +703,9 @@ def _simulate_with(system: SystemDesign, camera: Camera, scene: str | Path | Sce
     renderers = [ChannelRenderer(sc, o, camera.radiance, opt.relative_illumination,
                                  None if tr is None or "train_field" in reduce else tr.field_factor,
                                  sub=1 if "far_sampling" in reduce else None,
-                                 far_cache=None if cache is None else cache.setdefault("far", {}))
-                 for o, tr in zip(optics, trains)]
+                                 far_cache=None if cache is None else cache.setdefault("far", {}),
+                                 ri=None if plan is None or "train_field" in reduce else plan.illumination(i))
+                 for i, (o, tr) in enumerate(zip(optics, trains))]
     rendered = None
     if cache is not None and plan is None:
         key = ("render", ss, opt.haze, opt.field_patches, opt.psf_size_px, opt.patch_threshold, id(opt.psf),
