@@ -7,8 +7,9 @@ FPN and quantisation)
     frames[t] = alpha[t] * truth_x1 + (1 - alpha[t]) * truth_x2
 
 Its steps, in order: the camera (sensor, channels, band radiance, polariser: :func:`camera_for`), the scene and
-the memory check, the channel optics (PSF kernels and haze), the noise-free truth images, the polariser's alphas,
-the fixed pattern, the mixed frames, noise and ADC, closed-shutter calibration frames, the metadata. The random
+the memory check, the channel optics (PSF kernels and haze; the kernels asked for the error the recording can show,
+:func:`kernel_accuracy`), the noise-free truth images, the polariser's alphas, the fixed pattern, the mixed frames
+with noise and ADC (a block of frames at a time), closed-shutter calibration frames, the metadata. The random
 streams (polariser, FPN, noise; calibration from the noise stream after the frames) are drawn from ``rng`` in a
 fixed order, so the same seed gives identical frames.
 
