@@ -24,16 +24,17 @@ Providers (:func:`resolve_provider`): ``OpticsPSFProvider`` (``metafovea.optics.
 The kernels' error request (:class:`KernelAccuracy`, :func:`kernel_error_request`): what a PSF engine is asked for
 comes from what the recording can show, not a constant. An engine's error estimate ``e`` is relative to the kernel's
 peak; the error is where the kernel's light is (the rim wave and the defocused disks), so its l1 norm is modelled as
-``|dK|_1 <= e peak N_eff = e sum(K)`` (``N_eff = sum(K) / peak``, the peak-normalised kernel's l1 norm: tested
-against the exact engine in tests/imaging/test_kernels.py, 100x below it on a small lens). The haze takes up the
-power the kernel misses (``h = 1 - sum K``), so a pixel changes by ``sum_j dK_j (L(x - j) - (H * L)(x))``, at most
-``|dK|_1`` times the scene's radiance range, in kelvin ``e sum(K) dT_scene``. Required: at most ``allowed_k``, a
-share ``KERNEL_NOISE_SHARE`` of one frame's noise (NETD and the ADC step) referred to the scene through the
-channel (the error then adds at most 12 % to the noise rms); with a tolerance, the share of it the planner leaves
-as margin when that is looser. So ``e_request = allowed_k / (dT_scene S)``, ``S >= sum(K)`` bounded before the
-kernel exists (:func:`kernel_sum_bound`), rounded down to a 1-2-5 step so that scenes of similar contrast share
-the PSF cache. The engine warns (``NotConvergedWarning``) when its estimate misses the request; ``info['psf_request']``
-holds the request, why, and the bound reached with the kernel's own sum.
+``|dK|_1 <= e peak N_eff = e sum(K)`` (``N_eff = sum(K) / peak``, the peak-normalised kernel's l1 norm; a model,
+tested against the exact engine in tests/imaging/test_kernels.py). The haze takes up the power the kernel misses
+(``h = 1 - sum K``), so a pixel changes by ``sum_j dK_j (L(x - j) - (H * L)(x))``, at most ``|dK|_1`` times the
+scene's radiance range, in kelvin ``e sum(K) dT_scene``. Required: at most ``allowed_k``, a share
+``KERNEL_NOISE_SHARE`` of one frame's noise (NETD and the ADC step) referred to the scene through the channel (an
+independent error of that size adds at most 12 % to the noise rms); with a tolerance, the share of it the planner
+leaves as margin where that is looser. So ``e_request = allowed_k / (dT_scene S)``, with ``S >= sum(K)`` bounded
+before the kernel exists (:func:`kernel_sum_bound`), rounded down to a 1-2-5 step so that scenes of similar contrast
+share the PSF cache. A kernel whose own bound ``e sum(K) dT_scene`` exceeds ``allowed_k`` gives a
+``NotConvergedWarning`` (the engine's, or one of its own for a cached kernel); ``info['psf_request']`` holds the
+request, why, and that bound.
 
 Field dependence: by default each channel is shift-invariant (the on-axis kernel). With
 ``field_patches='auto'`` the provider is asked for the kernel at the channel's field corner too; when it
