@@ -158,7 +158,8 @@ def run(args: argparse.Namespace) -> int:
               f"perifoveal {summary['haze_fraction']['perifoveal']:.3f}; "
               f"simulated in {result.seconds['simulate']:.2f} s, total {result.seconds['total']:.2f} s")
         for c, r in summary.get("psf_request", {}).items():
-            print(f"{c} PSF kernels asked for {r['error']:g} of the peak: {r['why']}"
+            print(f"{c} PSF kernels: the recording asks for {r['error']:g} of the peak (the engines for "
+                  f"{r['engine_error']:g}): {r['why']}"
                   + (f"; estimate {result.measurement.meta['psf'][c]['error_estimate']:.2g} of the peak: pixel "
                      f"change <= {r['bound_k']:.2g} K, {'within' if r['met'] else 'OVER'} the {r['allowed_k']:.2g} K "
                      "allowed" if "bound_k" in r else ""))

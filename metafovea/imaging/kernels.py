@@ -32,9 +32,10 @@ scene's radiance range, in kelvin ``e sum(K) dT_scene``. Required: at most ``all
 independent error of that size adds at most 12 % to the noise rms); with a tolerance, the share of it the planner
 leaves as margin where that is looser. So ``e_request = allowed_k / (dT_scene S)``, with ``S >= sum(K)`` bounded
 before the kernel exists (:func:`kernel_sum_bound`), rounded down to a 1-2-5 step so that scenes of similar contrast
-share the PSF cache. A kernel whose own bound ``e sum(K) dT_scene`` exceeds ``allowed_k`` gives a
-``NotConvergedWarning`` (the engine's, or one of its own for a cached kernel); ``info['psf_request']`` holds the
-request, why, and that bound.
+share the PSF cache. The engine is asked for that or :data:`DEFAULT_KERNEL_ERROR`, the tighter (the kernels are
+computed once and cached; a looser request would only let it pick a cheaper engine). A kernel whose own bound
+``e sum(K) dT_scene`` exceeds ``allowed_k`` gives a ``NotConvergedWarning``, a cached one too; ``info['psf_request']``
+holds the request, why, what the engine was asked and that bound.
 
 Field dependence: by default each channel is shift-invariant (the on-axis kernel). With
 ``field_patches='auto'`` the provider is asked for the kernel at the channel's field corner too; when it
@@ -556,12 +557,15 @@ def _kernel_getter(channel: Channel, provider: PSFProvider, pitch: float, lam_ps
                    size: int, tr: float, accuracy: KernelAccuracy | None
                    ) -> tuple[Callable[[float], Kernel], float | None, float]:
     """``(get, request, s_bound)``: ``get(field_deg)`` the provider's kernel at a field (divided by ``tr``, checked,
-    its warnings passed on by :func:`_check_request`), the error request it is asked for (None: the provider's own)
-    and the a-priori bound on the kernel's sum."""
+    its warnings passed on by :func:`_check_request`), the error request the recording derives (None: a provider that
+    takes none) and the a-priori bound on the kernel's sum. The engine is asked for the request or
+    :data:`DEFAULT_KERNEL_ERROR`, the tighter: a looser request only lets it pick a cheaper engine with a larger
+    estimate (the kernels are computed once and cached), and the default keeps the kernels the same as other callers'
+    (the reconstruction's PSF family)."""
     s_bound = kernel_sum_bound(channel, lam_psf, w_psf, 0.5 * size * pitch)
     takes_error = bool(getattr(provider, "takes_error", False))
     request = kernel_error_request(accuracy, s_bound) if takes_error else None
-    ask = {} if request is None else {"error": request}
+    ask = {} if request is None else {"error": min(request, DEFAULT_KERNEL_ERROR)}
 
     def get(field_deg: float) -> Kernel:
         with warnings.catch_warnings(record=True) as caught:
@@ -584,37 +588,41 @@ def _kernel_getter(channel: Channel, provider: PSFProvider, pitch: float, lam_ps
 
 def _check_request(channel: Channel, field_deg: float, k: Kernel, request: float | None,
                    accuracy: KernelAccuracy | None, caught: list[warnings.WarningMessage]) -> None:
-    """Pass on the provider's warnings, except an engine's ``NotConvergedWarning`` where the kernel meets the derived
-    request with its own sum (the request assumed the a-priori bound :func:`kernel_sum_bound` and was rounded
-    down); warn where it does not, a cached kernel too (the engine warns only when it computes)."""
+    """Pass on the provider's warnings; where the recording's allowance is known, its verdict replaces the engine's
+    ``NotConvergedWarning`` (which compares with what the engine was asked): none where the kernel's bound
+    ``e sum(K) dT_scene`` is within ``allowed_k``, a ``NotConvergedWarning`` where it is not, for a cached kernel too
+    (the engine warns only when it computes)."""
     e = k.error_estimate
     checked = (request is not None and accuracy is not None and accuracy.allowed_k is not None and e is not None
                and math.isfinite(e))
-    bound = float(e) * float(k.intensity.sum()) * accuracy.contrast_k if checked else math.nan
-    met = checked and bound <= accuracy.allowed_k
-    engine_warned = False
+    engine: dict[str, Any] = {}
     for w in caught:
-        if issubclass(w.category, NotConvergedWarning):
-            engine_warned = True
-            if met:
-                log.info("%s kernel at %.3g deg: %s; met with the kernel's sum (%.2g K <= %.2g K allowed)",
-                         channel.name, field_deg, w.message, bound, accuracy.allowed_k)
-                continue
+        if checked and issubclass(w.category, NotConvergedWarning):
+            engine = dict(getattr(w.message, "data", {}) or {})
+            continue
         warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
-    if checked and not met and not engine_warned:
-        msg = (f"PSF kernel of '{channel.name}' at field {field_deg:.4g} deg: estimated error {float(e):.2g} of the "
-               f"peak changes a pixel by up to {bound:.2g} K, more than the {accuracy.allowed_k:.2g} K allowed "
-               f"({accuracy.why})")
-        warnings.warn(NotConvergedWarning(msg, {
-            "subject": f"PSF kernel of '{channel.name}'", "field_deg": float(field_deg), "estimate": float(e),
-            "requested": float(request), "reason": f"the kernel's error allows {bound:.2g} K per pixel, "
-            f"{accuracy.allowed_k:.2g} K allowed ({accuracy.why})", "advice": {}, "message": msg}), stacklevel=3)
+    if not checked:
+        return
+    bound = float(e) * float(k.intensity.sum()) * accuracy.contrast_k
+    if bound <= accuracy.allowed_k:
+        log.info("%s kernel at %.3g deg: estimate %.2g of the peak, pixel change <= %.2g K, within the %.2g K allowed",
+                 channel.name, field_deg, e, bound, accuracy.allowed_k)
+        return
+    verdict = (f"pixel change up to {bound:.2g} K, more than the {accuracy.allowed_k:.2g} K allowed ({accuracy.why})")
+    reason = f"{engine['reason']}; {verdict}" if engine.get("reason") else verdict
+    msg = (f"PSF kernel of '{channel.name}' at field {field_deg:.4g} deg: estimated error {float(e):.2g} of the peak "
+           f"exceeds the {request:g} the recording asks for: {reason}")
+    warnings.warn(NotConvergedWarning(msg, {
+        "subject": f"PSF kernel of '{channel.name}'", "field_deg": float(field_deg), "estimate": float(e),
+        "requested": float(request), "reason": reason, "advice": engine.get("advice", {}), "message": msg}),
+        stacklevel=3)
 
 
 def _request_info(request: float, accuracy: KernelAccuracy | None, s_bound: float, k0: Kernel) -> dict[str, Any]:
     """``info['psf_request']``: the request, why, and the pixel change the kernel's estimate allows with its own sum
     (``bound_k``, K; met when at most ``allowed_k``)."""
-    out: dict[str, Any] = {"error": request, "kernel_sum_bound": s_bound}
+    out: dict[str, Any] = {"error": request, "engine_error": min(request, DEFAULT_KERNEL_ERROR),
+                           "kernel_sum_bound": s_bound}
     if accuracy is None or accuracy.allowed_k is None:
         out["why"] = (f"{DEFAULT_KERNEL_ERROR:g} of the peak: nothing bounds what the recording shows"
                       if accuracy is None else accuracy.why)

@@ -244,5 +244,5 @@ def test_cli_simulate_says_which_psf_request_it_used(tmp_path, capsys):
     assert main(["simulate", "--frames", "1", "--psf", "optics", "--out", str(out), "--no-tiff", "--no-preview"]) == 0
     text = capsys.readouterr().out
     for c in ("foveal", "perifoveal"):
-        line = next(ln for ln in text.splitlines() if ln.startswith(f"{c} PSF kernels asked for"))
+        line = next(ln for ln in text.splitlines() if ln.startswith(f"{c} PSF kernels: the recording asks for"))
         assert "one frame's noise" in line and "scene range" in line and "within the" in line

@@ -280,6 +280,7 @@ def test_the_kernels_error_request_is_met_on_the_default_camera_and_warns_when_p
         r = info["psf_request"]
         assert r["met"] and r["bound_k"] <= r["allowed_k"] and r["kernel_sum_bound"] >= info["kernel_sum"]
         assert r["error"] > 1e-4 and "noise" in r["why"]  # looser than the constant it replaces, and says why
+        assert r["engine_error"] == 1e-4  # the engines are asked for the tighter
         assert r["allowed_k"] == pytest.approx(0.5 * np.hypot(0.05 * 40, 1 / np.sqrt(12)) / m.meta["model"]["dn_per_k"][
             "x1" if c == "foveal" else "x2"], rel=1e-6)
     for _ in range(2):  # computed, then from the cache: both warn
