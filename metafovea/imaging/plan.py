@@ -88,7 +88,7 @@ import numpy as np
 
 from metafovea.errors import InputError, check_range
 from metafovea.imaging.channel import relative_illumination_map
-from metafovea.imaging.kernels import resample_optics
+from metafovea.imaging.kernels import fftconvolve, resample_optics
 from metafovea.imaging.render import ChannelRenderer
 
 if TYPE_CHECKING:
@@ -265,8 +265,6 @@ def _rms(a: np.ndarray) -> float:
 
 
 def _conv(img: np.ndarray, k: np.ndarray, mode: str = "valid") -> np.ndarray:
-    from scipy.signal import fftconvolve
-
     return img * k[0, 0] if k.shape == (1, 1) else fftconvolve(img, k, mode=mode)
 
 

@@ -17,15 +17,13 @@ from collections.abc import Callable
 import numpy as np
 
 from metafovea.imaging.channel import relative_illumination_map
-from metafovea.imaging.kernels import ChannelOptics
+from metafovea.imaging.kernels import ChannelOptics, fftconvolve
 from metafovea.imaging.scene import Scene, bilinear_grid
 from metafovea.radiometry import BandRadiance
 
 
 def _conv_valid(img: np.ndarray, k: np.ndarray) -> np.ndarray:
     """The valid part of ``img * k`` (a 1 x 1 kernel is a scale)."""
-    from scipy.signal import fftconvolve
-
     if k.shape == (1, 1):
         return img * k[0, 0]
     return fftconvolve(img, k, mode="valid")
@@ -235,8 +233,6 @@ class ChannelRenderer:
     def _add_full(out: np.ndarray, d: np.ndarray, k: np.ndarray, r0: int, c0: int, m: int) -> None:
         """Add the full convolution of ``d`` (placed at input index r0, c0 of a valid convolution with
         margin m) into ``out``."""
-        from scipy.signal import fftconvolve
-
         f = fftconvolve(d, k, mode="full")
         y0, x0 = r0 - 2 * m, c0 - 2 * m
         ys, xs = max(0, -y0), max(0, -x0)

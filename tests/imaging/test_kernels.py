@@ -272,3 +272,19 @@ def test_kernel_error_request_follows_the_allowed_change():
         == DEFAULT_KERNEL_ERROR
     assert kernel_error_request(KernelAccuracy(100.0, 0.1, "x"), 0.01) == KERNEL_ERROR_RANGE[1]
     assert kernel_error_request(KernelAccuracy(1e-12, 100.0, "x"), 1.0) == KERNEL_ERROR_RANGE[0]
+
+
+def test_fftconvolve_is_scipys():
+    """The convolution the renderer and the planner use is scipy.signal.fftconvolve's, to the bit, in every mode,
+    for odd and even shapes, float32 and float64, and a 'valid' call with the larger array second."""
+    from scipy.signal import fftconvolve as scipy_fftconvolve
+
+    from metafovea.imaging.kernels import fftconvolve
+
+    rng = np.random.default_rng(3)
+    for (h, w), (p, q) in [((64, 50), (7, 7)), ((33, 40), (6, 9)), ((5, 5), (5, 5)), ((8, 9), (20, 21)),
+                           ((12, 10), (1, 1))]:
+        for dt in (np.float64, np.float32):
+            a, b = rng.normal(size=(h, w)).astype(dt), rng.normal(size=(p, q))
+            for mode in ("full", "same", "valid"):
+                np.testing.assert_array_equal(fftconvolve(a, b, mode), scipy_fftconvolve(a, b, mode=mode))
