@@ -5,7 +5,9 @@ For each scene (default: a smooth scene and the Siemens star, the paper's camera
 post caches); the table gives the median wall and CPU seconds of each, their ratio, the seconds of the parts the
 planner governs (optics, plan and rendering: ``timing_s['psf'] + ['render']``; the rest, the camera's posts and
 train, the noise and ADC of every frame and the file's PSFs, is the same in both), the realised error of the reduced
-model against the full one (K rms, :func:`metafovea.imaging.ablate.model_error_k`) and the plan table.
+model against the full one (K rms, :func:`metafovea.imaging.ablate.model_error_k`), each model's seconds by stage
+(median wall: plan, optics, rendering, mixing with noise and ADC, camera and scene, the file's PSFs and metadata) and
+the plan table.
 
     python benchmarks/bench_plan.py                      # smooth scene and siemens-star, T = 0.05 K
     python benchmarks/bench_plan.py --tolerance-k 0.1 --scenes siemens-star --filter --repeats 5
@@ -44,16 +46,19 @@ def run_scene(system, name: str, scene, tolerance_k: float, repeats: int, kw: di
     simulate(system, scene, **{**kw, "frames": 2})  # warm-up: imports, PSF and post caches
     simulate(system, scene, tolerance_k=tolerance_k, **{**kw, "frames": 2})
     full_w, full_c, red_w, red_c, full_part, red_part = [], [], [], [], [], []
+    stages: dict[str, list[dict[str, float]]] = {"full": [], "reduced": []}
     full = red = None
     for _ in range(repeats):
         full, w, c = _timed(lambda: simulate(system, scene, **kw))
         full_w.append(w)
         full_c.append(c)
         full_part.append(full.meta["timing_s"]["psf"] + full.meta["timing_s"]["render"])
+        stages["full"].append(_stages(full.meta["timing_s"], w))
         red, w, c = _timed(lambda: simulate(system, scene, tolerance_k=tolerance_k, **kw))
         red_w.append(w)
         red_c.append(c)
         red_part.append(red.meta["timing_s"]["psf"] + red.meta["timing_s"]["render"])
+        stages["reduced"].append(_stages(red.meta["timing_s"], w))
     med = statistics.median
     return {"scene": name, "tolerance_k": tolerance_k,
             "full_wall_s": med(full_w), "reduced_wall_s": med(red_w), "wall_ratio": med(full_w) / med(red_w),
@@ -61,7 +66,16 @@ def run_scene(system, name: str, scene, tolerance_k: float, repeats: int, kw: di
             "full_optics_render_s": med(full_part), "reduced_plan_optics_render_s": med(red_part),
             "optics_render_ratio": med(full_part) / med(red_part),
             "realised_error_k": model_error_k(red, full), "within_budget": model_error_k(red, full) <= tolerance_k,
-            "reduce": red.meta["model"]["reduce"], "plan": red.meta["model"]["plan"]}
+            "reduce": red.meta["model"]["reduce"], "plan": red.meta["model"]["plan"],
+            "stages_wall_s": {k: {s: med(r[s] for r in v) for s in v[0]} for k, v in stages.items()}}
+
+
+def _stages(t: dict, wall: float) -> dict[str, float]:
+    """A run's wall seconds by stage: the plan, the optics (PSF kernels and haze), the rendering, the frames' mixing,
+    noise and ADC, the camera and scene before them and the file's PSFs and metadata after."""
+    plan = t.get("plan", 0.0)
+    return {"plan": plan, "optics": t["psf"] - plan, "render": t["render"], "mix_noise_adc": t["mix_noise"],
+            "camera_scene": t["total"] - t["psf"] - t["render"] - t["mix_noise"], "psf_files_meta": wall - t["total"]}
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -99,6 +113,8 @@ def main(argv: list[str] | None = None) -> int:
               f"optics + rendering {r['reduced_plan_optics_render_s']:.2f} s: x{r['optics_render_ratio']:.2f}; "
               f"realised error {r['realised_error_k']:.4f} K rms ({'within' if r['within_budget'] else 'OVER'} "
               f"{args.tolerance_k:g} K); replaced: {', '.join(r['reduce']) or 'nothing'}")
+        for k, v in r["stages_wall_s"].items():
+            print(f"   {k} by stage (wall s): " + ", ".join(f"{s} {x:.3f}" for s, x in v.items()))
         print("\n".join(plan_lines(r["plan"])))
     load1 = os.getloadavg()
     print(f"\nload average at the end {load1[0]:.2f} {load1[1]:.2f} {load1[2]:.2f}")

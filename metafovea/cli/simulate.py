@@ -157,6 +157,12 @@ def run(args: argparse.Namespace) -> int:
         print(f"haze fraction foveal {summary['haze_fraction']['foveal']:.3f}, "
               f"perifoveal {summary['haze_fraction']['perifoveal']:.3f}; "
               f"simulated in {result.seconds['simulate']:.2f} s, total {result.seconds['total']:.2f} s")
+        for c, r in summary.get("psf_request", {}).items():
+            print(f"{c} PSF kernels: the recording asks for {r['error']:g} of the peak (the engines for "
+                  f"{r['engine_error']:g}): {r['why']}"
+                  + (f"; estimate {result.measurement.meta['psf'][c]['error_estimate']:.2g} of the peak: pixel "
+                     f"change <= {r['bound_k']:.2g} K, {'within' if r['met'] else 'OVER'} the {r['allowed_k']:.2g} K "
+                     "allowed" if "bound_k" in r else ""))
         train = result.measurement.meta["optical_train"]
         print("\n".join(throughput_lines(train)) if isinstance(train, list) else f"optical train {train['note']}")
         for k, v in summary["files"].items():

@@ -21,6 +21,22 @@ Providers (:func:`resolve_provider`): ``OpticsPSFProvider`` (``metafovea.optics.
 ``metafovea.io.cache_dir("psf")``), ``airy_provider`` (analytic Airy core + haze), ``gaussian:SIGMA_UM``,
 ``ExplicitPSF`` (fixed or field-dependent kernels), or any callable with the :class:`PSFProvider` signature.
 
+The kernels' error request (:class:`KernelAccuracy`, :func:`kernel_error_request`): what a PSF engine is asked for
+comes from what the recording can show, not a constant. An engine's error estimate ``e`` is relative to the kernel's
+peak; the error is where the kernel's light is (the rim wave and the defocused disks), so its l1 norm is modelled as
+``|dK|_1 <= e peak N_eff = e sum(K)`` (``N_eff = sum(K) / peak``, the peak-normalised kernel's l1 norm; a model,
+tested against the exact engine in tests/imaging/test_kernels.py). The haze takes up the power the kernel misses
+(``h = 1 - sum K``), so a pixel changes by ``sum_j dK_j (L(x - j) - (H * L)(x))``, at most ``|dK|_1`` times the
+scene's radiance range, in kelvin ``e sum(K) dT_scene``. Required: at most ``allowed_k``, a share
+``KERNEL_NOISE_SHARE`` of one frame's noise (NETD and the ADC step) referred to the scene through the channel (an
+independent error of that size adds at most 12 % to the noise rms); with a tolerance, the share of it the planner
+leaves as margin where that is looser. So ``e_request = allowed_k / (dT_scene S)``, with ``S >= sum(K)`` bounded
+before the kernel exists (:func:`kernel_sum_bound`), rounded down to a 1-2-5 step so that scenes of similar contrast
+share the PSF cache. The engine is asked for that or :data:`DEFAULT_KERNEL_ERROR`, the tighter (the kernels are
+computed once and cached; a looser request would only let it pick a cheaper engine). A kernel whose own bound
+``e sum(K) dT_scene`` exceeds ``allowed_k`` gives a ``NotConvergedWarning``, a cached one too; ``info['psf_request']``
+holds the request, why, what the engine was asked and that bound.
+
 Field dependence: by default each channel is shift-invariant (the on-axis kernel). With
 ``field_patches='auto'`` the provider is asked for the kernel at the channel's field corner too; when it
 differs from the on-axis one by more than ``patch_threshold`` (total-variation distance of the
@@ -34,16 +50,18 @@ samples per pixel (:func:`bin_kernel`: the same PSF and haze, the scene sampled 
 
 from __future__ import annotations
 
+import functools
 import logging
 import math
-from collections.abc import Sequence
+import warnings
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, Protocol
 
 import numpy as np
 
-from metafovea.errors import InputError, check_int, check_positive
+from metafovea.errors import InputError, NotConvergedWarning, check_int, check_positive
 from metafovea.imaging.channel import Channel
 from metafovea.io import cache_dir as io_cache_dir
 from metafovea.radiometry import BandRadiance
@@ -58,6 +76,100 @@ NEAR_HAZE_PX = 6.0
 FAR_HAZE_SAMPLES = 48
 #: glare disks are rendered in bands of radii within this factor, each on its own coarse grid
 GLARE_BAND = 4.0
+#: the kernels' error may change a pixel by at most this share of one frame's noise rms (referred to the scene):
+#: an independent error of half the noise adds at most 12 % to the rms (sqrt(1 + 0.5^2) = 1.118)
+KERNEL_NOISE_SHARE = 0.5
+#: the error request (relative to the kernel's peak) where nothing bounds what the recording shows (no noise, no
+#: ADC, no tolerance) and the request's limits (an engine's estimate beyond 0.1 of the peak means little)
+DEFAULT_KERNEL_ERROR = 1e-4
+KERNEL_ERROR_RANGE = (1e-6, 0.1)
+
+
+@dataclass(frozen=True)
+class KernelAccuracy:
+    """What a channel's kernels must resolve (see the module docstring): ``allowed_k`` the largest change of a pixel
+    (K, referred to the scene) their error may cause, None where nothing bounds it; ``contrast_k`` the scene's range
+    (K: radiance range over ``dL/dT`` at the scene temperature) that the error acts on; ``why`` where ``allowed_k``
+    comes from."""
+
+    allowed_k: float | None
+    contrast_k: float
+    why: str
+
+
+def _floor_125(x: float) -> float:
+    """The largest of 1, 2, 5 x 10^k at most ``x`` (``x > 0``)."""
+    k = math.floor(math.log10(x))
+    m = x / 10.0 ** k
+    return (5.0 if m >= 5 - 1e-9 else 2.0 if m >= 2 - 1e-9 else 1.0) * 10.0 ** k
+
+
+def kernel_sum_bound(channel: Channel, wavelengths_um: np.ndarray, weights: np.ndarray, window_radius_um: float
+                     ) -> float:
+    """An upper bound, before the kernel is computed, on the share of the light leaving the lens that its window
+    holds: each wavelength's geometric blur disk (radius :func:`chromatic_blur_radius_um`) puts at most
+    ``2 x (4 / pi) (R / rho)^2`` of its power in a square window of half width ``R`` (the area ratio, doubled for the
+    diffraction rings), at most 1."""
+    w = np.asarray(weights, dtype=np.float64)
+    w = w / w.sum()
+    rho = chromatic_blur_radius_um(channel, np.asarray(wavelengths_um, dtype=np.float64))
+    share = np.minimum(1.0, 8.0 / math.pi * (window_radius_um / np.maximum(rho, 1e-300)) ** 2)
+    return float(min(1.0, np.sum(w * share)))
+
+
+def kernel_error_request(accuracy: KernelAccuracy | None, kernel_sum: float) -> float:
+    """The error (max abs error / the kernel's peak) a PSF engine is asked for: ``allowed_k / (contrast_k x
+    kernel_sum)`` (the module docstring's derivation), rounded down to a 1-2-5 step and kept within
+    :data:`KERNEL_ERROR_RANGE`; :data:`DEFAULT_KERNEL_ERROR` where nothing bounds it."""
+    if accuracy is None or accuracy.allowed_k is None:
+        return DEFAULT_KERNEL_ERROR
+    lo, hi = KERNEL_ERROR_RANGE
+    denom = max(accuracy.contrast_k, 1e-12) * max(kernel_sum, 1e-12)
+    return float(min(hi, max(lo, _floor_125(max(accuracy.allowed_k / denom, lo)))))
+
+
+def fftconvolve(in1: np.ndarray, in2: np.ndarray, mode: str = "full") -> np.ndarray:
+    """``scipy.signal.fftconvolve(in1, in2, mode)`` of two real 2-D arrays, the same operations (``scipy.fft``'s real
+    transforms at ``next_fast_len`` sizes, the mode's centred part), without importing ``scipy.signal``, which
+    imports ``scipy.stats`` (half a second of every ``metafovea simulate``). Other inputs go to scipy's.
+
+    Parameters
+    ----------
+    in1, in2 : ndarray, shape (M, N) and (P, Q), real
+    mode : {'full', 'valid', 'same'}
+
+    Returns
+    -------
+    ndarray
+        The convolution, ``(M + P - 1, N + Q - 1)``, ``(M - P + 1, N - Q + 1)`` or ``(M, N)``.
+    """
+    import scipy.fft as sp_fft
+
+    a, b = np.asarray(in1), np.asarray(in2)
+    if a.ndim == 2 and b.shape == (1, 1) and mode in ("full", "valid", "same"):
+        return a * b  # as scipy: a length-1 axis is a broadcast product, no transform
+    if (a.ndim != 2 or b.ndim != 2 or not (np.isrealobj(a) and np.isrealobj(b)) or min(a.shape + b.shape) < 2
+            or a.dtype.kind not in "f" or b.dtype.kind not in "f" or mode not in ("full", "valid", "same")):
+        from scipy.signal import fftconvolve as scipy_fftconvolve
+
+        return scipy_fftconvolve(in1, in2, mode=mode)
+    if mode == "valid" and not all(x >= y for x, y in zip(a.shape, b.shape)):
+        if all(x <= y for x, y in zip(a.shape, b.shape)):
+            a, b = b, a  # as scipy: convolution commutes
+        else:
+            raise InputError("fftconvolve shapes", f"{a.shape} and {b.shape}",
+                             "one at least as large as the other in every dimension for mode 'valid'")
+    s1, s2 = a.shape, b.shape
+    shape = [s1[i] + s2[i] - 1 for i in range(2)]
+    fshape = [sp_fft.next_fast_len(n, True) for n in shape]
+    ret = sp_fft.irfftn(sp_fft.rfftn(a, fshape, axes=[0, 1]) * sp_fft.rfftn(b, fshape, axes=[0, 1]), fshape,
+                        axes=[0, 1])
+    ret = ret[:shape[0], :shape[1]]
+    if mode == "full":
+        return ret.copy()
+    out = list(s1) if mode == "same" else [s1[i] - s2[i] + 1 for i in range(2)]
+    y0, x0 = (shape[0] - out[0]) // 2, (shape[1] - out[1]) // 2
+    return ret[y0:y0 + out[0], x0:x0 + out[1]].copy()
 
 
 # ----------------------------------------------------------------------------------------------
@@ -181,7 +293,11 @@ class ExplicitPSF:
 
 class OpticsPSFProvider:
     """Calls ``metafovea.optics.sensor_psf`` (imported lazily) and caches each kernel on disk, keyed by
-    a hash of all its inputs (lens, pitch, field, wavelengths, weights, window, error)."""
+    a hash of all its inputs (lens, pitch, field, wavelengths, weights, window, error). ``error``: the request
+    (relative to the peak) when a call does not give one (:func:`build_channel_optics` gives the derived one)."""
+
+    #: takes the keyword ``error`` (the request derived by build_channel_optics)
+    takes_error = True
 
     def __init__(self, cache_dir: str | Path | None = None, error: float = 1e-4, post_sets: dict | None = None):
         self.cache_dir = Path(cache_dir) if cache_dir else io_cache_dir("psf")
@@ -197,12 +313,13 @@ class OpticsPSFProvider:
         return True
 
     def __call__(self, channel: Channel, *, pitch_um: float, field_deg: float, wavelengths_um: np.ndarray,
-                 weights: np.ndarray, size_px: int) -> Kernel:
+                 weights: np.ndarray, size_px: int, error: float | None = None) -> Kernel:
         from dataclasses import asdict
 
         from metafovea.io import atomic_save_npz, input_hash, load_npz
 
         size_px += 1 - size_px % 2
+        error = self.error if error is None else float(error)
         ps = self.post_sets.get(channel.lens.polarization)
         if ps is not None and ps.source == "ideal":
             ps = None  # the same PSF as sensor_psf's ideal posts
@@ -216,7 +333,7 @@ class OpticsPSFProvider:
                "z_um": round(float(channel.focal_length_um), 6),
                "wavelengths_um": np.round(np.asarray(wavelengths_um, dtype=float), 9).tolist(),
                "weights": np.round(np.asarray(weights, dtype=float) / np.sum(weights), 12).tolist(),
-               "size_px": int(size_px), "error": self.error, "kind": "sensor_psf",
+               "size_px": int(size_px), "error": error, "kind": "sensor_psf",
                "model": "direction-sine with focal shift"}  # the on-axis engine's model (Pupil.li_wolf)
         h = input_hash(key)
         path = self.cache_dir / f"psf_{channel.name}_{h}.npz"
@@ -232,7 +349,7 @@ class OpticsPSFProvider:
 
         psf = sensor_psf(channel.lens, pixel_pitch_um=pitch_um, field_deg=field_deg,
                          wavelengths_um=np.asarray(wavelengths_um), weights=np.asarray(weights),
-                         size_px=size_px, error=self.error, z_um=channel.focal_length_um, post_set=ps)
+                         size_px=size_px, error=error, z_um=channel.focal_length_um, post_set=ps)
         k = _as_odd_kernel(np.asarray(psf.intensity, dtype=np.float64))
         src = f"metafovea.optics.sensor_psf ({getattr(psf, 'engine', '?')})"
         err = getattr(psf, "error_estimate", None)
@@ -286,9 +403,22 @@ def resolve_provider(psf: str | PSFProvider | dict | None, cache_dir: str | Path
 # haze kernels
 # ----------------------------------------------------------------------------------------------
 def disk_mixture_kernel(radii: np.ndarray, weights: np.ndarray, step: float, sub: int = 4) -> np.ndarray:
-    """Normalised mixture of uniform disks (radii and step in the same unit), integrated over samples."""
-    radii = np.asarray(radii, dtype=np.float64)
-    w = np.asarray(weights, dtype=np.float64)
+    """Normalised mixture of uniform disks (radii and step in the same unit), integrated over samples (read-only:
+    the last few are kept, as every simulation of one camera asks for the same haze and glare disks)."""
+    radii = np.ascontiguousarray(radii, dtype=np.float64)
+    w = np.ascontiguousarray(weights, dtype=np.float64)
+    return _disk_mixture_kernel(radii.tobytes(), w.tobytes(), float(step), int(sub))
+
+
+def clear_disk_kernels() -> None:
+    """Forget the disk kernels :func:`disk_mixture_kernel` keeps."""
+    _disk_mixture_kernel.cache_clear()
+
+
+@functools.lru_cache(maxsize=64)
+def _disk_mixture_kernel(radii_bytes: bytes, weights_bytes: bytes, step: float, sub: int) -> np.ndarray:
+    radii = np.frombuffer(radii_bytes, dtype=np.float64)
+    w = np.frombuffer(weights_bytes, dtype=np.float64)
     rmax = float(radii.max())
     n = 2 * int(math.ceil(rmax / step + 0.5)) + 1
     u = ((np.arange(n * sub) + 0.5) / sub - n / 2.0) * step
@@ -299,7 +429,9 @@ def disk_mixture_kernel(radii: np.ndarray, weights: np.ndarray, step: float, sub
     tail = np.concatenate([np.cumsum(dens[::-1])[::-1], [0.0]])  # tail[i] = sum_{j >= i} dens_j
     idx = np.searchsorted(rs, r, side="left")
     img = tail[idx].reshape(n, sub, n, sub).mean(axis=(1, 3))
-    return img / img.sum()
+    img /= img.sum()
+    img.flags.writeable = False
+    return img
 
 
 @dataclass
@@ -359,14 +491,17 @@ def build_channel_optics(channel: Channel, provider: PSFProvider, radiance: Band
                          psf_size_px: int | None = None, field_patches: int | str = 1,
                          patch_threshold: float = 0.2, scene_temperature_k: float = 300.0,
                          haze: bool = True, n_psf_wavelengths: int = 31, transmitted: float = 1.0,
-                         leaks: Sequence[tuple[float, float]] = ()) -> ChannelOptics:
+                         leaks: Sequence[tuple[float, float]] = (),
+                         accuracy: KernelAccuracy | None = None) -> ChannelOptics:
     """Ask the provider for the channel's kernel(s) and build the haze model (see module docstring).
 
     ``transmitted``: the fraction of the incident power the focusing metasurface transmits (the optical
     train's ``T_ms``; 1 for ideal posts): kernels are divided by it, so that kernels and haze share out the light
     that left the lens (the train's throughput counts the rest). ``leaks``: ``(power, radius_um)`` pairs of
     broad disks on top (the other lens' pass-through ripple, :class:`metafovea.optics.train.Leak`), power relative
-    to the channel's throughput."""
+    to the channel's throughput. ``accuracy``: what the kernels must resolve; a provider that takes ``error``
+    (``takes_error``) is asked for :func:`kernel_error_request` of it (None: :data:`DEFAULT_KERNEL_ERROR`, the
+    provider's own for others); ``info['psf_request']`` says which request and why."""
     tr = check_positive("transmitted", transmitted, hi=1.0)
     ss = check_int("supersample", ss, 1, 8)
     pitch = channel.focal_pitch_um / ss
@@ -374,23 +509,12 @@ def build_channel_optics(channel: Channel, provider: PSFProvider, radiance: Band
     size = check_int("psf_size_px", size, 1, MAX_PSF_SIZE)
     size += 1 - size % 2
     lam_psf, w_psf = radiance.psf_wavelengths(channel.lens.wavelength_um, scene_temperature_k, n_psf_wavelengths)
-
-    def get(field_deg: float) -> Kernel:
-        k = provider(channel, pitch_um=pitch, field_deg=field_deg, wavelengths_um=lam_psf, weights=w_psf,
-                     size_px=size)
-        if not isinstance(k, Kernel):
-            arr = _as_odd_kernel(k)
-            k = Kernel(arr, pitch, 0.5 * arr.shape[0] * pitch, "callable")
-        if tr != 1.0:
-            k = Kernel(k.intensity / tr, k.pitch_um, k.window_radius_um, k.source, k.error_estimate)
-        s = float(k.intensity.sum())
-        if s > 1.0 + 1e-6:
-            raise InputError("psf kernel sum", s, "<= 1 (the fraction of the channel's power inside the window)")
-        return k
-
+    get, request, s_bound = _kernel_getter(channel, provider, pitch, lam_psf, w_psf, size, tr, accuracy)
     k0 = get(0.0)
     info: dict[str, Any] = {"source": k0.source, "sample_pitch_um": pitch, "kernel_size": int(k0.intensity.shape[0]),
                             "kernel_sum": float(k0.intensity.sum()), "error_estimate": k0.error_estimate}
+    if request is not None:
+        info["psf_request"] = _request_info(request, accuracy, s_bound, k0)
     # ---- field dependence -------------------------------------------------------------------------
     H, W = channel.shape
     n = 1
@@ -473,6 +597,90 @@ def build_channel_optics(channel: Channel, provider: PSFProvider, radiance: Band
     return ChannelOptics(channel, ss, kernels, centres, n, far_w, far_kernel, coarse, info, tuple(extra))
 
 
+def _kernel_getter(channel: Channel, provider: PSFProvider, pitch: float, lam_psf: np.ndarray, w_psf: np.ndarray,
+                   size: int, tr: float, accuracy: KernelAccuracy | None
+                   ) -> tuple[Callable[[float], Kernel], float | None, float]:
+    """``(get, request, s_bound)``: ``get(field_deg)`` the provider's kernel at a field (divided by ``tr``, checked,
+    its warnings passed on by :func:`_check_request`), the error request the recording derives (None: a provider that
+    takes none) and the a-priori bound on the kernel's sum. The engine is asked for the request or
+    :data:`DEFAULT_KERNEL_ERROR`, the tighter: a looser request only lets it pick a cheaper engine with a larger
+    estimate (the kernels are computed once and cached), and the default keeps the kernels the same as other callers'
+    (the reconstruction's PSF family)."""
+    s_bound = kernel_sum_bound(channel, lam_psf, w_psf, 0.5 * size * pitch)
+    takes_error = bool(getattr(provider, "takes_error", False))
+    request = kernel_error_request(accuracy, s_bound) if takes_error else None
+    ask = {} if request is None else {"error": min(request, DEFAULT_KERNEL_ERROR)}
+
+    def get(field_deg: float) -> Kernel:
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always", NotConvergedWarning)
+            k = provider(channel, pitch_um=pitch, field_deg=field_deg, wavelengths_um=lam_psf, weights=w_psf,
+                         size_px=size, **ask)
+        if not isinstance(k, Kernel):
+            arr = _as_odd_kernel(k)
+            k = Kernel(arr, pitch, 0.5 * arr.shape[0] * pitch, "callable")
+        if tr != 1.0:
+            k = Kernel(k.intensity / tr, k.pitch_um, k.window_radius_um, k.source, k.error_estimate)
+        s = float(k.intensity.sum())
+        if s > 1.0 + 1e-6:
+            raise InputError("psf kernel sum", s, "<= 1 (the fraction of the channel's power inside the window)")
+        _check_request(channel, field_deg, k, request, accuracy, caught)
+        return k
+
+    return get, request, s_bound
+
+
+def _check_request(channel: Channel, field_deg: float, k: Kernel, request: float | None,
+                   accuracy: KernelAccuracy | None, caught: list[warnings.WarningMessage]) -> None:
+    """Pass on the provider's warnings; where the recording's allowance is known, its verdict replaces the engine's
+    ``NotConvergedWarning`` (which compares with what the engine was asked): none where the kernel's bound
+    ``e sum(K) dT_scene`` is within ``allowed_k``, a ``NotConvergedWarning`` where it is not, for a cached kernel too
+    (the engine warns only when it computes)."""
+    e = k.error_estimate
+    checked = (request is not None and accuracy is not None and accuracy.allowed_k is not None and e is not None
+               and math.isfinite(e))
+    engine: dict[str, Any] = {}
+    for w in caught:
+        if checked and issubclass(w.category, NotConvergedWarning):
+            engine = dict(getattr(w.message, "data", {}) or {})
+            continue
+        warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
+    if not checked:
+        return
+    bound = float(e) * float(k.intensity.sum()) * accuracy.contrast_k
+    if bound <= accuracy.allowed_k:
+        log.info("%s kernel at %.3g deg: estimate %.2g of the peak, pixel change <= %.2g K, within the %.2g K allowed",
+                 channel.name, field_deg, e, bound, accuracy.allowed_k)
+        return
+    verdict = (f"pixel change up to {bound:.2g} K, more than the {accuracy.allowed_k:.2g} K allowed ({accuracy.why})")
+    reason = f"{engine['reason']}; {verdict}" if engine.get("reason") else verdict
+    msg = (f"PSF kernel of '{channel.name}' at field {field_deg:.4g} deg: estimated error {float(e):.2g} of the peak "
+           f"exceeds the {request:g} the recording asks for: {reason}")
+    warnings.warn(NotConvergedWarning(msg, {
+        "subject": f"PSF kernel of '{channel.name}'", "field_deg": float(field_deg), "estimate": float(e),
+        "requested": float(request), "reason": reason, "advice": engine.get("advice", {}), "message": msg}),
+        stacklevel=3)
+
+
+def _request_info(request: float, accuracy: KernelAccuracy | None, s_bound: float, k0: Kernel) -> dict[str, Any]:
+    """``info['psf_request']``: the request, why, and the pixel change the kernel's estimate allows with its own sum
+    (``bound_k``, K; met when at most ``allowed_k``)."""
+    out: dict[str, Any] = {"error": request, "engine_error": min(request, DEFAULT_KERNEL_ERROR),
+                           "kernel_sum_bound": s_bound}
+    if accuracy is None or accuracy.allowed_k is None:
+        out["why"] = (f"{DEFAULT_KERNEL_ERROR:g} of the peak: nothing bounds what the recording shows"
+                      if accuracy is None else accuracy.why)
+        return out
+    out.update(allowed_k=accuracy.allowed_k, contrast_k=accuracy.contrast_k,
+               why=f"{request:g} of the peak = {accuracy.allowed_k:.3g} K allowed ({accuracy.why}) / (scene range "
+                   f"{accuracy.contrast_k:.3g} K x kernel sum <= {s_bound:.3g}), rounded down to a 1-2-5 step")
+    e = k0.error_estimate
+    if e is not None and math.isfinite(e):
+        b = float(e) * float(k0.intensity.sum()) * accuracy.contrast_k
+        out.update(bound_k=b, met=b <= accuracy.allowed_k)
+    return out
+
+
 def _embed_add(a: np.ndarray, b: np.ndarray, wb: float) -> np.ndarray:
     """``a + wb b`` of two centred square kernels, on the larger one's grid."""
     n = max(a.shape[0], b.shape[0])
@@ -503,8 +711,6 @@ def pixel_psf(optics: ChannelOptics, max_radius_px: int | None = None) -> tuple[
     power beyond (glare disks of several crop widths) is the ``pedestal``, a uniform level over the crop (its
     transfer function is the DC term only).
     """
-    from scipy.signal import fftconvolve
-
     s = optics.ss
     H, W = optics.channel.shape
     centre = ((H - 1) / 2, (W - 1) / 2)

@@ -88,7 +88,7 @@ import numpy as np
 
 from metafovea.errors import InputError, check_range
 from metafovea.imaging.channel import relative_illumination_map
-from metafovea.imaging.kernels import resample_optics
+from metafovea.imaging.kernels import fftconvolve, resample_optics
 from metafovea.imaging.render import ChannelRenderer
 
 if TYPE_CHECKING:
@@ -198,7 +198,8 @@ class Plan:
     scene_temperature_k: float
     notes: tuple[str, ...] = ()
     #: per channel, the pilot's parts a reduced model at its sampling reuses (a static scene): ``fine`` the kernel
-    #: image at 1 sample per pixel, ``samples`` its fine samples, ``haze`` the far haze at 1 sample per coarse sample
+    #: image at 1 sample per pixel, ``samples`` its fine samples, ``haze`` the far haze at 1 sample per coarse sample,
+    #: ``ri`` the relative illumination map
     pilot: tuple[dict[str, Any], ...] | None = field(default=None, compare=False, repr=False)
 
     def reusable(self, i: int) -> dict[str, Any]:
@@ -213,6 +214,11 @@ class Plan:
         if "far_sampling" in self.reduce and "glare" in self.reduce:
             out["far"] = [p["haze"]] if p["haze"] is not None else []
         return out
+
+    def illumination(self, i: int) -> np.ndarray | None:
+        """Channel ``i``'s relative illumination map of the full model (``cos^4`` times the train's field factor), as
+        the pilot computed it (None without a pilot or relative illumination)."""
+        return None if self.pilot is None else self.pilot[i].get("ri")
 
     def row(self, effect: str) -> PlanRow:
         return next(r for r in self.rows if r.effect == effect)
@@ -259,8 +265,6 @@ def _rms(a: np.ndarray) -> float:
 
 
 def _conv(img: np.ndarray, k: np.ndarray, mode: str = "valid") -> np.ndarray:
-    from scipy.signal import fftconvolve
-
     return img * k[0, 0] if k.shape == (1, 1) else fftconvolve(img, k, mode=mode)
 
 
@@ -713,7 +717,7 @@ def plan_model(inp: PlanInputs, tolerance_k: float, ss_full: int) -> Plan:
             if t == ts[0]:
                 pilots.append(p)
                 reuse.append({"fine": p.comps["fine"], "samples": p.comps["L"],
-                              "haze": p.comps["far"][0] if p.n_haze else None})
+                              "haze": p.comps["far"][0] if p.n_haze else None, "ri": p.rd.ri})
                 scale = sensor.counts_per_k * cam.gains[i] / dldt300
                 dn.append(sensor.to_dn(p.image, cam.gains[i], dldt300))
                 fid_dn.append(_fidelity(p) * scale)

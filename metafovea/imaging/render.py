@@ -17,15 +17,13 @@ from collections.abc import Callable
 import numpy as np
 
 from metafovea.imaging.channel import relative_illumination_map
-from metafovea.imaging.kernels import ChannelOptics
-from metafovea.imaging.scene import Scene
+from metafovea.imaging.kernels import ChannelOptics, fftconvolve
+from metafovea.imaging.scene import Scene, bilinear_grid
 from metafovea.radiometry import BandRadiance
 
 
 def _conv_valid(img: np.ndarray, k: np.ndarray) -> np.ndarray:
     """The valid part of ``img * k`` (a 1 x 1 kernel is a scale)."""
-    from scipy.signal import fftconvolve
-
     if k.shape == (1, 1):
         return img * k[0, 0]
     return fftconvolve(img, k, mode="valid")
@@ -63,7 +61,7 @@ class ChannelRenderer:
     def __init__(self, scene: Scene, optics: ChannelOptics, radiance: BandRadiance,
                  relative_illumination: bool = True,
                  field_factor: Callable[[np.ndarray, np.ndarray], np.ndarray] | None = None, *, sub: int | None = None,
-                 far_cache: dict | None = None):
+                 far_cache: dict | None = None, ri: np.ndarray | None = None):
         self.scene, self.optics, self.radiance = scene, optics, radiance
         self.far_cache = far_cache  # far components computed by other renderers of the same scene and camera
         if sub is not None:  # samples per coarse sample and axis of the far components (a reduced model: 1)
@@ -73,7 +71,9 @@ class ChannelRenderer:
         m = optics.margin
         self.ya = np.arctan(ch.positions_um(H, ss, m) / ch.focal_length_um)
         self.xa = np.arctan(ch.positions_um(W, ss, m) / ch.focal_length_um)
-        self.ri = relative_illumination_map(ch, field_factor) if relative_illumination else None
+        # ``ri``: the relative illumination map of this channel and field factor, already computed (a plan's pilot)
+        self.ri = None if not relative_illumination else ri if ri is not None else \
+            relative_illumination_map(ch, field_factor)
         # far components, each on its own coarse grid: the chromatic haze, then the glare (ChannelOptics.far_parts)
         self.parts = []
         for weight, kernel, q in optics.far_parts():
@@ -146,11 +146,7 @@ class ChannelRenderer:
     def to_pixels(self, part: dict, coarse: np.ndarray) -> np.ndarray:
         """A far component's coarse grid (the valid convolution's output, or any array of its shape) interpolated
         (linearly) to the pixels, ``(H, W)``: what the image gets from it, before its weight."""
-        from scipy.ndimage import map_coordinates
-
-        H, W = self.optics.channel.shape
-        yy, xx = np.meshgrid(part["ry"], part["rx"], indexing="ij")
-        return map_coordinates(coarse, [yy.ravel(), xx.ravel()], order=1, mode="nearest").reshape(H, W)
+        return bilinear_grid(coarse, part["ry"], part["rx"])
 
     def _finish(self, fine: np.ndarray, hz: list[np.ndarray], pedestal: float = 0.0) -> np.ndarray:
         ch, ss = self.optics.channel, self.optics.ss
@@ -237,8 +233,6 @@ class ChannelRenderer:
     def _add_full(out: np.ndarray, d: np.ndarray, k: np.ndarray, r0: int, c0: int, m: int) -> None:
         """Add the full convolution of ``d`` (placed at input index r0, c0 of a valid convolution with
         margin m) into ``out``."""
-        from scipy.signal import fftconvolve
-
         f = fftconvolve(d, k, mode="full")
         y0, x0 = r0 - 2 * m, c0 - 2 * m
         ys, xs = max(0, -y0), max(0, -x0)

@@ -651,6 +651,14 @@ class RasterScene(Scene):
         tk = self.temperature_k
         if tk.ndim == 3:
             tk = tk[int(math.floor(t * self.frame_rate_hz + 1e-9)) % tk.shape[0]]
+        ax, ay = np.asarray(ax), np.asarray(ay)
+        if ax.ndim == 2 and ax.strides[0] == 0 and ay.strides[1] == 0:
+            # a grid (a renderer's rows x columns of field angles): the same interpolation, one axis at a time
+            row, col = self._coords(ax[0], ay[:, 0])
+            temp = bilinear_grid(tk, row, col, cval=self.background_k)
+            eps = bilinear_grid(self.emissivity, row, col, cval=0.95) if self.emissivity.ndim else \
+                np.full(ax.shape, float(self.emissivity))
+            return temp, eps
         row, col = self._coords(ax, ay)
         temp = map_coordinates(tk, [row.ravel(), col.ravel()], order=1, mode="constant",
                                cval=self.background_k).reshape(ax.shape)
@@ -660,6 +668,31 @@ class RasterScene(Scene):
         else:
             eps = np.full(ax.shape, float(self.emissivity))
         return temp, eps
+
+
+def bilinear_grid(a: np.ndarray, rows: np.ndarray, cols: np.ndarray, cval: float | None = None) -> np.ndarray:
+    """``a`` (2-D) interpolated linearly at the grid ``rows`` x ``cols`` (1-D fractional indices), one axis at a time:
+    ``scipy.ndimage.map_coordinates(a, order=1)`` on the grid (to rounding) with ``mode='constant'`` (``cval`` where a
+    row or column index is outside ``[0, n - 1]``) or, with ``cval=None``, ``mode='nearest'`` (indices clamped), for
+    ``O(rows (W + cols))`` work instead of ``O(rows cols)`` 2-D interpolations. Returns ``(rows.size, cols.size)``."""
+    a = np.asarray(a, dtype=np.float64)
+    h, w = a.shape
+
+    def axis(x: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None]:
+        x = np.asarray(x, dtype=np.float64)
+        outside = None if cval is None else (x < 0) | (x > n - 1)
+        x = np.clip(x, 0.0, n - 1.0)
+        i0 = np.minimum(np.floor(x).astype(np.intp), max(n - 2, 0))
+        return i0, np.minimum(i0 + 1, n - 1), x - i0, outside
+
+    i0, i1, fr, out_r = axis(rows, h)
+    j0, j1, fc, out_c = axis(cols, w)
+    t = a[i0] * (1.0 - fr)[:, None] + a[i1] * fr[:, None]
+    out = t[:, j0] * (1.0 - fc) + t[:, j1] * fc
+    if cval is not None:
+        out[out_r, :] = cval
+        out[:, out_c] = cval
+    return out
 
 
 #: scikit-image pictures bundled inside the package (no download needed).

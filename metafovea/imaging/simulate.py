@@ -7,8 +7,9 @@ FPN and quantisation)
     frames[t] = alpha[t] * truth_x1 + (1 - alpha[t]) * truth_x2
 
 Its steps, in order: the camera (sensor, channels, band radiance, polariser: :func:`camera_for`), the scene and
-the memory check, the channel optics (PSF kernels and haze), the noise-free truth images, the polariser's alphas,
-the fixed pattern, the mixed frames, noise and ADC, closed-shutter calibration frames, the metadata. The random
+the memory check, the channel optics (PSF kernels and haze; the kernels asked for the error the recording can show,
+:func:`kernel_accuracy`), the noise-free truth images, the polariser's alphas, the fixed pattern, the mixed frames
+with noise and ADC (a block of frames at a time), closed-shutter calibration frames, the metadata. The random
 streams (polariser, FPN, noise; calibration from the noise stream after the frames) are drawn from ``rng`` in a
 fixed order, so the same seed gives identical frames.
 
@@ -26,6 +27,7 @@ a file the run reads.
 from __future__ import annotations
 
 import copy
+import functools
 import io as _io
 import json
 import logging
@@ -43,7 +45,9 @@ from metafovea.config import SystemDesign, load_system
 from metafovea.errors import InputError, as_rng, check_int
 from metafovea.imaging.channel import Channel, channels_for
 from metafovea.imaging.kernels import (
+    KERNEL_NOISE_SHARE,
     ChannelOptics,
+    KernelAccuracy,
     build_channel_optics,
     glare_as_pedestal,
     pixel_psf,
@@ -51,6 +55,7 @@ from metafovea.imaging.kernels import (
     resolve_provider,
 )
 from metafovea.imaging.plan import (
+    BUDGET_SHARE,
     REDUCED_PSF_WAVELENGTHS,
     Plan,
     PlanInputs,
@@ -74,6 +79,9 @@ from metafovea.report import FIGURE_DPI, fig_to_png
 log = logging.getLogger(__name__)
 
 
+#: frames per block of the sensor's noise draws (:meth:`SensorModel.add_noise_and_digitise`'s chunk: the random
+#: stream depends on it)
+NOISE_CHUNK = 8
 #: closed-shutter frames a simulation records by default, for the reconstruction's FPN calibration (``fpn='auto'``
 #: uses them): 16 frames estimate the default camera's pattern (10.7 DN rms) within 0.14 DN rms, for 17 % more
 #: memory than the 96 frames; without them the default reconstruction falls back to the blind estimate, 0.75 dB
@@ -209,19 +217,95 @@ def camera_for(system: SystemDesign, opt: SimulationOptions) -> Camera:
     channels = channels_for(system, pixel_pitch_um=sensor.pixel_pitch_um,
                             relay_magnification=opt.relay_magnification, shape=sensor.shape)
     fe = system.filter_enabled if opt.filter_enabled is None else bool(opt.filter_enabled)
-    radiance = BandRadiance.for_system(system, filter_enabled=fe)
+    if isinstance(opt.posts, str) and _hashable(system):
+        radiance, post_sets, posts, trains = _camera_optics(system, fe, opt.posts, bool(opt.optical_train))
+    else:
+        radiance, post_sets, posts, trains = _camera_optics.__wrapped__(system, fe, opt.posts, opt.optical_train)
     pol = Polarizer(rate_hz=system.polarizer_hz if opt.polarizer_hz is None else opt.polarizer_hz,
                     mode=opt.polarizer_mode,
                     phase_rad=None if opt.polarizer_phase_deg is None else math.radians(opt.polarizer_phase_deg),
                     extinction=system.polarizer_extinction if opt.extinction is None else opt.extinction,
                     tau_s=opt.bolometer_tau_s)
-    post_sets, posts = system_post_sets(system, opt.posts)
-    trains = system_trains(system, post_sets, posts, filter_enabled=fe) if opt.optical_train else None
     return Camera(sensor, channels, fe, radiance, pol, trains, post_sets, posts)
 
 
+def clear_caches() -> None:
+    """Forget the cameras and haze kernels kept in this process (after changing the files they were read from:
+    the RCWA library, the post caches)."""
+    from metafovea.imaging.kernels import clear_disk_kernels
+
+    _camera_optics.cache_clear()
+    clear_disk_kernels()
+
+
+def _hashable(x: Any) -> bool:
+    try:
+        hash(x)
+    except TypeError:
+        return False
+    return True
+
+
+@functools.lru_cache(maxsize=8)
+def _camera_optics(system: SystemDesign, filter_enabled: bool, posts: Any, optical_train: bool) -> tuple[Any, ...]:
+    """The camera's band radiance, post sets and optical trains (frozen; 0.1 s for the paper's camera, the posts'
+    library read from the disk cache): kept for the last few systems, as every simulation of a sweep, a benchmark or
+    ``validate`` asks for the same ones."""
+    radiance = BandRadiance.for_system(system, filter_enabled=filter_enabled)
+    post_sets, posts = system_post_sets(system, posts)
+    trains = system_trains(system, post_sets, posts, filter_enabled=filter_enabled) if optical_train else None
+    return radiance, post_sets, posts, trains
+
+
+def kernel_accuracy(system: SystemDesign, camera: Camera, scene: Scene, times: np.ndarray,
+                    tolerance_k: float | None = None) -> list[KernelAccuracy]:
+    """What each channel's PSF kernels must resolve in this recording
+    (:class:`~metafovea.imaging.kernels.KernelAccuracy`, the derivation in :mod:`metafovea.imaging.kernels`).
+
+    ``allowed_k``: :data:`~metafovea.imaging.kernels.KERNEL_NOISE_SHARE` of one frame's noise, ``sqrt(sigma^2 + 1/12)``
+    DN (temporal noise, the ADC step), referred to the scene through the channel (its DN per kelvin at the design's
+    scene temperature); with ``tolerance_k``, the share of it the planner leaves as margin,
+    ``(1 - BUDGET_SHARE) T``, where that is looser (the plan's tolerance is against the full model, whose kernels a
+    reduced model shares: it never tightens the request); None without noise, ADC or tolerance. ``contrast_k``: the
+    scene's radiance range over the channel's field (its pixel centres and a margin of 8 pixels; a video at its first,
+    middle and last frame) in kelvin at the scene temperature. Structure finer than a pixel that the pixel centres
+    miss is not in the range."""
+    sensor, radiance = camera.sensor, camera.radiance
+    dldt = radiance.derivative(system.scene_temperature_k)
+    dldt300 = radiance.derivative(300.0)
+    sig_dn = math.sqrt(sensor.noise_sigma_dn ** 2 + (1.0 / 12.0 if sensor.quantize else 0.0))
+    n = times.size
+    ts = [float(times[0])] if scene.static else [float(times[i]) for i in sorted({0, n // 2, n - 1})]
+    out = []
+    for ch, gain in zip(camera.channels, camera.gains):
+        H, W = ch.shape
+        ya = np.arctan(ch.positions_um(H, 1, 8) / ch.focal_length_um)
+        xa = np.arctan(ch.positions_um(W, 1, 8) / ch.focal_length_um)
+        ax, ay = np.broadcast_to(xa[None, :], (ya.size, xa.size)), np.broadcast_to(ya[:, None], (ya.size, xa.size))
+        lo, hi = math.inf, -math.inf
+        for t in ts:
+            temp, eps = scene.sample(ax, ay, t)
+            L = radiance.apparent(temp, eps, scene.reflected_k)
+            lo, hi = min(lo, float(L.min())), max(hi, float(L.max()))
+        contrast = (hi - lo) / dldt
+        dn_per_k = sensor.counts_per_k * gain * dldt / dldt300
+        noise_k = KERNEL_NOISE_SHARE * sig_dn / dn_per_k
+        margin_k = None if tolerance_k is None else (1.0 - BUDGET_SHARE) * float(tolerance_k)
+        if margin_k is not None and margin_k > noise_k:
+            out.append(KernelAccuracy(margin_k, contrast, f"{1 - BUDGET_SHARE:.0%} of the tolerance "
+                                      f"{float(tolerance_k):g} K, the margin the plan leaves, looser than the noise"))
+        elif noise_k > 0:
+            out.append(KernelAccuracy(noise_k, contrast, f"{KERNEL_NOISE_SHARE:g} x one frame's noise "
+                                      f"{sig_dn:.3g} DN rms (NETD {sensor.netd_k if sensor.noise else 0:g} K, ADC "
+                                      f"{'on' if sensor.quantize else 'off'}) at {dn_per_k:.3g} DN/K"))
+        else:
+            out.append(KernelAccuracy(None, contrast, "no noise, ADC or tolerance bounds what the recording shows"))
+    return out
+
+
 def _channel_optics(system: SystemDesign, camera: Camera, provider: Any, provider_name: str, trains: Any, ss: int,
-                    opt: SimulationOptions, **changes: Any) -> list[ChannelOptics]:
+                    opt: SimulationOptions, accuracy: list[KernelAccuracy] | None = None,
+                    **changes: Any) -> list[ChannelOptics]:
     """Each channel's optics (PSF kernels and haze; the metasurface transmission and glare leaks of its train).
 
     ``changes``: ``haze``, ``field_patches``, ``n_psf_wavelengths`` in place of the options'; ``kernel_from_full``:
@@ -232,23 +316,26 @@ def _channel_optics(system: SystemDesign, camera: Camera, provider: Any, provide
         provider = _kernel_at_full_spectrum(provider, camera.radiance, system.scene_temperature_k)
     glare = not changes.pop("no_glare", False)
     kw = {"haze": opt.haze, "field_patches": opt.field_patches, **changes}
+    acc = accuracy or [None, None]
     return [build_channel_optics(ch, provider, camera.radiance, ss=ss, psf_size_px=opt.psf_size_px,
                                  patch_threshold=opt.patch_threshold,
                                  scene_temperature_k=system.scene_temperature_k,
                                  transmitted=1.0 if tr is None or provider_name != "optics"
                                  else tr.metasurface_transmission,
                                  leaks=() if tr is None or not glare else [(lk.power_fraction / tr.throughput,
-                                                                            lk.radius_um) for lk in tr.leaks], **kw)
-            for ch, tr in zip(camera.channels, trains)]
+                                                                            lk.radius_um) for lk in tr.leaks],
+                                 accuracy=a, **kw)
+            for ch, tr, a in zip(camera.channels, trains, acc)]
 
 
 def _kernel_at_full_spectrum(provider: Any, radiance: BandRadiance, temperature_k: float) -> Any:
     """``provider`` asked for the full model's wavelength bins whatever bins it is given."""
     def call(channel: Channel, *, pitch_um: float, field_deg: float, wavelengths_um: np.ndarray, weights: np.ndarray,
-             size_px: int) -> Any:
+             size_px: int, **ask: Any) -> Any:
         lam, w = radiance.psf_wavelengths(channel.lens.wavelength_um, temperature_k)
         return provider(channel, pitch_um=pitch_um, field_deg=field_deg, wavelengths_um=lam, weights=w,
-                        size_px=size_px)
+                        size_px=size_px, **ask)
+    call.takes_error = bool(getattr(provider, "takes_error", False))  # type: ignore[attr-defined]
     return call
 
 
@@ -332,21 +419,26 @@ def _truth_images(renderers: list[ChannelRenderer], camera: Camera, times: np.nd
     return x1, x2
 
 
-def _fpn_per_frame(fpn: FixedPattern) -> Callable[[int], np.ndarray | None]:
+def _fpn_per_frame(fpn: FixedPattern, fpn0: np.ndarray | None = None) -> Callable[[int], np.ndarray | None]:
     """``k -> the fixed pattern added to frame k`` (None without one): a drifting pattern changes per frame, a
-    fixed one is computed once."""
+    fixed one is computed once (``fpn0``: already computed, ``fpn.frame(None)``)."""
     if fpn.w is not None and fpn.rank > 0:
         return fpn.frame
-    fpn0 = fpn.frame(None) if fpn.rank else None
+    if fpn0 is None and fpn.rank:
+        fpn0 = fpn.frame(None)
     return lambda k: fpn0
 
 
-def _mixed_frames(x1: np.ndarray, x2: np.ndarray, alpha: np.ndarray, fpn: FixedPattern) -> np.ndarray:
-    """``alpha x1 + (1 - alpha) x2 + FPN`` per frame, float32 ``(T, H, W)``, before noise and the ADC."""
+def _mixed_frames(x1: np.ndarray, x2: np.ndarray, alpha: np.ndarray, fpn: FixedPattern, *,
+                  sensor: SensorModel | None = None, rng: np.random.Generator | None = None,
+                  fpn0: np.ndarray | None = None) -> np.ndarray:
+    """``alpha x1 + (1 - alpha) x2 + FPN`` per frame, float32 ``(T, H, W)``; with ``sensor`` and ``rng``, the noise and
+    the ADC added (:meth:`SensorModel.add_noise_and_digitise`) to each block of :data:`NOISE_CHUNK` frames as soon as
+    it is mixed, while it is in the cache: the same draws, in the same order, as on the whole stack."""
     n_frames = alpha.size
     H, W = x1.shape[-2:]
     static = x1.ndim == 2
-    pattern = _fpn_per_frame(fpn)
+    pattern = _fpn_per_frame(fpn, fpn0)
     frames = np.empty((n_frames, H, W), np.float32)
     a32 = alpha.astype(np.float32)
     for k in range(n_frames):
@@ -357,11 +449,14 @@ def _mixed_frames(x1: np.ndarray, x2: np.ndarray, alpha: np.ndarray, fpn: FixedP
         p = pattern(k)
         if p is not None:
             f += p
+        if sensor is not None and ((k + 1) % NOISE_CHUNK == 0 or k + 1 == n_frames):
+            k0 = k - k % NOISE_CHUNK
+            sensor.add_noise_and_digitise(frames[k0:k + 1], rng, chunk=NOISE_CHUNK)
     return frames
 
 
 def _shutter_frames(n_cal: int, x1: np.ndarray, x2: np.ndarray, fpn: FixedPattern, sensor: SensorModel,
-                    r_noise: np.random.Generator) -> np.ndarray | None:
+                    r_noise: np.random.Generator, fpn0: np.ndarray | None = None) -> np.ndarray | None:
     """Closed-shutter calibration frames, or None when none are asked for.
 
     A closed shutter in front of the sensor: a uniform source at the scene's mean level, seen without the
@@ -373,7 +468,7 @@ def _shutter_frames(n_cal: int, x1: np.ndarray, x2: np.ndarray, fpn: FixedPatter
     r_cal = np.random.default_rng(int(r_noise.integers(0, 2 ** 63 - 1)))
     level = np.float32(0.5 * (float(np.mean(x1)) + float(np.mean(x2))))
     calibration = np.full((n_cal, H, W), level, np.float32)
-    p = _fpn_per_frame(fpn)(0)
+    p = _fpn_per_frame(fpn, fpn0)(0)
     if p is not None:
         calibration += p
     sensor.add_noise_and_digitise(calibration, r_cal)
@@ -539,13 +634,15 @@ def _model_optics(system: SystemDesign, camera: Camera, sc: Scene, times: np.nda
     :mod:`metafovea.imaging.ablate`), keyed by what they depend on."""
     provider, provider_name = resolve_provider(opt.psf, opt.psf_cache_dir, camera.post_sets)
     trains = camera.trains or (None, None)
+    accuracy = kernel_accuracy(system, camera, sc, times, tol) if getattr(provider, "takes_error", False) else None
 
     def optics_for(o: SimulationOptions = opt, **changes: Any) -> list[ChannelOptics]:
         key = ("optics", ss, o.haze, o.field_patches, o.psf_size_px, o.patch_threshold, id(o.psf),
-               camera.trains is None, tuple(sorted(changes.items())))
+               camera.trains is None, tuple(sorted(changes.items())),
+               None if accuracy is None else tuple((a.allowed_k, a.contrast_k) for a in accuracy))
         if cache is not None and key in cache:
             return cache[key]
-        out = _channel_optics(system, camera, provider, provider_name, trains, ss, o, **changes)
+        out = _channel_optics(system, camera, provider, provider_name, trains, ss, o, accuracy, **changes)
         if cache is not None:
             cache[key] = out
         return out
@@ -607,8 +704,9 @@ def _simulate_with(system: SystemDesign, camera: Camera, scene: str | Path | Sce
     renderers = [ChannelRenderer(sc, o, camera.radiance, opt.relative_illumination,
                                  None if tr is None or "train_field" in reduce else tr.field_factor,
                                  sub=1 if "far_sampling" in reduce else None,
-                                 far_cache=None if cache is None else cache.setdefault("far", {}))
-                 for o, tr in zip(optics, trains)]
+                                 far_cache=None if cache is None else cache.setdefault("far", {}),
+                                 ri=None if plan is None or "train_field" in reduce else plan.illumination(i))
+                 for i, (o, tr) in enumerate(zip(optics, trains))]
     rendered = None
     if cache is not None and plan is None:
         key = ("render", ss, opt.haze, opt.field_patches, opt.psf_size_px, opt.patch_threshold, id(opt.psf),
@@ -624,9 +722,9 @@ def _simulate_with(system: SystemDesign, camera: Camera, scene: str | Path | Sce
     # the scene's dynamic range as seen by the sensor: the larger of the two channels' own ranges
     fpn = sensor.make_fpn(max(float(x1.max() - x1.min()), float(x2.max() - x2.min())), times, r_fpn)
     t_mix = time.perf_counter()
-    frames = _mixed_frames(x1, x2, alpha, fpn)
-    sensor.add_noise_and_digitise(frames, r_noise)
-    calibration = _shutter_frames(n_cal, x1, x2, fpn, sensor, r_noise)
+    fpn0 = fpn.frame(None) if fpn.rank else None
+    frames = _mixed_frames(x1, x2, alpha, fpn, sensor=sensor, rng=r_noise, fpn0=fpn0)
+    calibration = _shutter_frames(n_cal, x1, x2, fpn, sensor, r_noise, fpn0)
     t_mix = time.perf_counter() - t_mix
 
     saturated = _saturated_fraction(frames, sensor)
@@ -645,7 +743,7 @@ def _simulate_with(system: SystemDesign, camera: Camera, scene: str | Path | Sce
     meta["psf_pedestal"] = {c: float((meta["psf"]["pixel"].get(c) or {}).get("pedestal", 0.0)) for c in ("x1", "x2")}
     extras = {**_extras(theta, calibration, fpn, n_frames), **psf_arrays}
     return Measurement(frames=frames, times_s=times, alpha=alpha, truth_x1=x1, truth_x2=x2,
-                       fpn=fpn.frame(None) if fpn.rank else None, meta=meta, extras=extras)
+                       fpn=fpn0, meta=meta, extras=extras)
 
 
 # ----------------------------------------------------------------------------------------------
@@ -669,6 +767,8 @@ class SimulationRun:
                 "seed": m.meta["seed"], "psf": psf["provider"],
                 "psf_mode": {c: psf[c]["mode"] for c in ("foveal", "perifoveal")},
                 "haze_fraction": {c: psf[c]["haze"].get("fraction", 0.0) for c in ("foveal", "perifoveal")},
+                **({"psf_request": {c: psf[c]["psf_request"] for c in ("foveal", "perifoveal")}}
+                   if all("psf_request" in psf[c] for c in ("foveal", "perifoveal")) else {}),
                 "foveal_constraint": m.meta["foveal_constraint"], "saturated_fraction": m.meta["saturated_fraction"],
                 "seconds": {k: round(v, 3) for k, v in self.seconds.items()},
                 "files": {k: str(v) for k, v in self.files.items()}, **_model_summary(m.meta.get("model"))}

@@ -128,8 +128,10 @@ def test_simulate_off_a_terminal_says_what_it_computes(tmp_path, capsys, monkeyp
     (minutes, cached afterwards) and printed nothing meanwhile off a terminal: each long step now writes a line every
     PROGRESS_LINE_S (shortened here) saying what it computes; -q silences it."""
     import metafovea.parallel
+    from metafovea.imaging.simulate import clear_caches
 
     monkeypatch.setattr(metafovea.parallel, "PROGRESS_LINE_S", 0.01, raising=False)
+    clear_caches()  # the camera of an earlier simulation in this process would be reused at once
     argv = ["simulate", "--scene", "bars", "--frames", "2", "--psf", "airy", "--no-tiff", "--no-preview"]
     assert main([*argv, "--out", str(tmp_path / "a.npz")]) == 0
     err = capsys.readouterr().err
@@ -234,3 +236,13 @@ def test_cli_a_bad_tolerance_is_one_line_naming_the_flag(bad, tmp_path, capsys, 
     if bad != "abc":
         assert "0 K < --tolerance-k <= 100 K" in err
     assert not (tmp_path / "m.npz").exists()
+
+
+def test_cli_simulate_says_which_psf_request_it_used(tmp_path, capsys):
+    """With the optics PSFs the summary names each channel's error request, why, and whether the kernel met it."""
+    out = tmp_path / "m.npz"
+    assert main(["simulate", "--frames", "1", "--psf", "optics", "--out", str(out), "--no-tiff", "--no-preview"]) == 0
+    text = capsys.readouterr().out
+    for c in ("foveal", "perifoveal"):
+        line = next(ln for ln in text.splitlines() if ln.startswith(f"{c} PSF kernels: the recording asks for"))
+        assert "one frame's noise" in line and "scene range" in line and "within the" in line

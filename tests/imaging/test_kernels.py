@@ -217,3 +217,74 @@ def test_glare_does_not_coarsen_the_chromatic_haze():
     d = b - a
     assert float(d.mean()) == pytest.approx(0.0024 * float(a.mean()), rel=0.5)  # about the glare's share
     assert float(d.std()) < 0.05 * float(np.abs(d.mean()))  # and smooth over the foveal crop
+
+
+@pytest.mark.parametrize("f_um,d_um,band,n,q", [(3000.0, 2000.0, (9.5, 10.5), 9, 3),
+                                                  (2500.0, 2500.0, (9.7, 10.3), 7, 5)])
+def test_the_kernel_error_model_bounds_the_exact_engine(f_um, d_um, band, n, q):
+    """The kernels' error request assumes ``|dK|_1 <= e sum(K)`` (``e`` the engine's estimate relative to the peak,
+    the error where the kernel's light is) and a pixel change ``<= |dK|_1 x the scene's range`` (the haze takes up the
+    power the kernel misses). Against the exact engine integrated over the same pixels (F/1.5 and F/1 lenses, a band
+    on axis, 17 um pixels; an odd number of fine samples per pixel, centred as the sensor's) on a random scene: the
+    model bounds the true l1 error (30-200x) and the true largest pixel change. The check can fail: without the Debye
+    part of the estimate it is not a bound."""
+    import warnings
+
+    from scipy.signal import fftconvolve
+
+    from metafovea.config import LensDesign
+    from metafovea.errors import NotConvergedWarning
+    from metafovea.optics import box_integrate, psf, sensor_psf
+    from metafovea.radiometry import psf_wavelengths
+
+    lens = LensDesign("small", f_um, d_um)
+    wl, w = psf_wavelengths(band, design_um=10.0, n=n, temperature_k=300.0)
+    size, p = 21, 17.0
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", NotConvergedWarning)
+        S = sensor_psf(lens, pixel_pitch_um=p, wavelengths_um=wl, weights=w, size_px=size, error=1e-4)
+    R = psf(lens, engine="rs", wavelengths_um=wl, weights=w, window_um=size * p - 1e-6, pitch_um=p / q, error=1e-5,
+            allow_truncation=True, quantize=True, lattice=True)
+    o = (R.shape[0] - size * q) // 2
+    ref = box_integrate(R.intensity[o:o + size * q, o:o + size * q], q)
+    d = S.intensity - ref
+    d -= np.median(d)  # the haze orders: a uniform floor over this small window
+    l1 = float(np.abs(d).sum())
+    model = S.error_estimate * float(S.intensity.sum())
+    assert l1 <= model
+    assert l1 > (S.error_estimate - S.info["debye_error_estimate"]) * float(S.intensity.sum())
+    scene = np.random.default_rng(0).uniform(0.0, 1.0, (80, 80))  # range 1
+    change = fftconvolve(scene - scene.mean(), d, mode="valid")  # the haze: the kernel's missing power at the mean
+    assert float(np.abs(change).max()) <= model * float(np.ptp(scene))
+
+
+def test_kernel_error_request_follows_the_allowed_change():
+    """``allowed_k / (contrast_k x kernel_sum)`` rounded down to a 1-2-5 step within the range; the constant where
+    nothing bounds it; a tighter allowance or a larger range or sum asks for more."""
+    from metafovea.imaging.kernels import DEFAULT_KERNEL_ERROR, KERNEL_ERROR_RANGE, KernelAccuracy, kernel_error_request
+
+    a = KernelAccuracy(0.0816, 25.7, "noise")
+    assert kernel_error_request(a, 0.0946) == pytest.approx(0.02)  # 0.0336 -> 0.02
+    assert kernel_error_request(KernelAccuracy(0.05, 1.0, "x"), 1.0) == pytest.approx(0.05)
+    assert kernel_error_request(a, 0.2) < kernel_error_request(a, 0.0946)
+    assert kernel_error_request(KernelAccuracy(1e-3, 25.7, "x"), 0.0946) < kernel_error_request(a, 0.0946)
+    assert kernel_error_request(None, 1.0) == kernel_error_request(KernelAccuracy(None, 3.0, "x"), 1.0) \
+        == DEFAULT_KERNEL_ERROR
+    assert kernel_error_request(KernelAccuracy(100.0, 0.1, "x"), 0.01) == KERNEL_ERROR_RANGE[1]
+    assert kernel_error_request(KernelAccuracy(1e-12, 100.0, "x"), 1.0) == KERNEL_ERROR_RANGE[0]
+
+
+def test_fftconvolve_is_scipys():
+    """The convolution the renderer and the planner use is scipy.signal.fftconvolve's, to the bit, in every mode,
+    for odd and even shapes, float32 and float64, and a 'valid' call with the larger array second."""
+    from scipy.signal import fftconvolve as scipy_fftconvolve
+
+    from metafovea.imaging.kernels import fftconvolve
+
+    rng = np.random.default_rng(3)
+    for (h, w), (p, q) in [((64, 50), (7, 7)), ((33, 40), (6, 9)), ((5, 5), (5, 5)), ((8, 9), (20, 21)),
+                           ((12, 10), (1, 1))]:
+        for dt in (np.float64, np.float32):
+            a, b = rng.normal(size=(h, w)).astype(dt), rng.normal(size=(p, q))
+            for mode in ("full", "same", "valid"):
+                np.testing.assert_array_equal(fftconvolve(a, b, mode), scipy_fftconvolve(a, b, mode=mode))

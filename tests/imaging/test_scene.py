@@ -264,3 +264,22 @@ def test_a_picture_s_levels_and_a_cold_pixel_are_named(tmp_path):
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         make_scene(np.full((16, 16), 250.0))  # a clear sky: a scene
+
+
+@pytest.mark.parametrize("shape", [(7, 9), (1, 5), (2, 2)])
+def test_bilinear_grid_is_map_coordinates_on_a_grid(shape):
+    """The one-axis-at-a-time interpolation against scipy's order-1 map_coordinates on the grid, both edge modes,
+    with indices on, just outside and far outside the edges."""
+    from scipy.ndimage import map_coordinates
+
+    from metafovea.imaging.scene import bilinear_grid
+
+    rng = np.random.default_rng(1)
+    h, w = shape
+    a = rng.normal(size=shape)
+    r = np.concatenate([rng.uniform(-2, h + 1, 30), [0, h - 1, -1e-9, h - 1 + 1e-9]])
+    c = np.concatenate([rng.uniform(-2, w + 1, 20), [0, w - 1, -1e-9, w - 1 + 1e-9]])
+    yy, xx = np.meshgrid(r, c, indexing="ij")
+    for cval, mode in ((3.5, "constant"), (None, "nearest")):
+        ref = map_coordinates(a, [yy.ravel(), xx.ravel()], order=1, mode=mode, cval=cval or 0.0).reshape(yy.shape)
+        np.testing.assert_allclose(bilinear_grid(a, r, c, cval), ref, rtol=0, atol=1e-12)

@@ -256,3 +256,34 @@ def test_simulate_runs_on_a_system_with_a_corrected_lens(small_system, delta_psf
     assert m.frames.shape[0] == 2 and np.all(np.isfinite(m.frames))
     plain = simulate(s, "bars", frames=2, psf=delta_psf, supersample=1, **quiet)
     assert m.frames.shape == plain.frames.shape
+
+
+# ---------------------------------------------------------------------------------------------
+# the PSF kernels' error request, derived from what the recording shows
+# ---------------------------------------------------------------------------------------------
+def test_the_kernels_error_request_is_met_on_the_default_camera_and_warns_when_planted_tight(tmp_path):
+    """The paper's camera at its default noise (8-14 um, the siemens star), PSFs computed afresh: the request derived
+    from half of one frame's noise is met by the engines (no NotConvergedWarning), the a-priori bound on the kernel's
+    sum holds, and the output says which request and why. A planted camera with almost no noise (NETD 1e-4 K, no ADC)
+    asks for more than the engines' estimates: it warns, also from the cache."""
+    import warnings
+
+    from metafovea.errors import NotConvergedWarning
+
+    opts = dict(frames=2, psf="optics", psf_cache_dir=str(tmp_path / "psf"))
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        m = simulate(SystemDesign.paper(), "siemens-star", **opts)
+    assert not [w for w in caught if issubclass(w.category, NotConvergedWarning)], [str(w.message) for w in caught]
+    for c in ("foveal", "perifoveal"):
+        info = m.meta["psf"][c]
+        r = info["psf_request"]
+        assert r["met"] and r["bound_k"] <= r["allowed_k"] and r["kernel_sum_bound"] >= info["kernel_sum"]
+        assert r["error"] > 1e-4 and "noise" in r["why"]  # looser than the constant it replaces, and says why
+        assert r["engine_error"] == 1e-4  # the engines are asked for the tighter
+        assert r["allowed_k"] == pytest.approx(0.5 * np.hypot(0.05 * 40, 1 / np.sqrt(12)) / m.meta["model"]["dn_per_k"][
+            "x1" if c == "foveal" else "x2"], rel=1e-6)
+    for _ in range(2):  # computed, then from the cache: both warn
+        with pytest.warns(NotConvergedWarning):
+            t = simulate(SystemDesign.paper(), "siemens-star", netd_k=1e-4, quantize=False, **opts)
+        assert not t.meta["psf"]["perifoveal"]["psf_request"]["met"]
