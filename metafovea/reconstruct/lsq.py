@@ -214,9 +214,9 @@ def _lsq_masked(Y: np.ndarray, a: np.ndarray, M: np.ndarray, max_condition: floa
         x2 = np.where(ok, (n11 * r2 - n12 * r1) / det, np.nan)
     info = {"masked_samples": int(M.size - M.sum()), "unresolved_pixels": int((~ok).sum()),
             "pixel_condition_max": float(np.max(cond[ok])) if ok.any() else math.inf}
-    if info["unresolved_pixels"]:
-        log.warning("known-alpha LSQ: %d pixel(s) lack enough valid samples to separate the channels (NaN)",
-                    info["unresolved_pixels"])
+    if info["unresolved_pixels"]:  # (info: a summary's nonfinite_pixels says it once, not once per window)
+        log.info("known-alpha LSQ: %d pixel(s) lack enough valid samples to separate the channels (NaN)",
+                 info["unresolved_pixels"])
     return x1.reshape(H, W).astype(dt), x2.reshape(H, W).astype(dt), info
 
 
