@@ -13,6 +13,20 @@ if os.environ.get("PYTEST_XDIST_WORKER"):
     # with one, 52 s, 73 CPU s). Set before numpy loads (xdist sets the variable before it reads this file).
     for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS"):
         os.environ.setdefault(_var, "1")
+elif "JAX_COMPILATION_CACHE_DIR" not in os.environ:
+    # one JAX compilation cache for the run, in a folder of its own: the test workers (-n auto) and the commands the
+    # tests start inherit it from here (the controller, or a run without workers), so that a jitted function of one
+    # shape (the DIP's step, a PSF model) is compiled once per run, not once per process. The cache holds the compiled
+    # programs, so the numbers are those of a fresh compilation; a run starts with an empty one (set the variable to
+    # keep one across runs).
+    import atexit
+    import shutil
+    import tempfile
+
+    _JAX_CACHE = tempfile.mkdtemp(prefix="metafovea-jax-cache-")
+    os.environ["JAX_COMPILATION_CACHE_DIR"] = _JAX_CACHE
+    os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", "0.5")
+    atexit.register(shutil.rmtree, _JAX_CACHE, ignore_errors=True)
 
 
 @pytest.fixture
