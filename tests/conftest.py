@@ -24,9 +24,16 @@ def _jax_cache_folder() -> None:
         cpu = ""
     tag = hashlib.sha256(f"{version('jax')} {version('jaxlib')} {platform.machine()} {cpu}".encode()).hexdigest()[:12]
     folder = cache_root() / "jax-tests" / tag
-    if folder.is_dir() and sum(f.stat().st_size for f in folder.iterdir() if f.is_file()) > 256 * 2 ** 20:
-        shutil.rmtree(folder, ignore_errors=True)  # no eviction without the filelock package: start it again
-    folder.mkdir(parents=True, exist_ok=True)
+    try:
+        if folder.is_dir() and sum(f.stat().st_size for f in folder.iterdir() if f.is_file()) > 256 * 2 ** 20:
+            shutil.rmtree(folder, ignore_errors=True)  # no eviction without the filelock package: start it again
+        folder.mkdir(parents=True, exist_ok=True)
+    except OSError:  # a cache folder that cannot be written: one for this run
+        import atexit
+        import tempfile
+
+        folder = Path(tempfile.mkdtemp(prefix="metafovea-jax-cache-"))
+        atexit.register(shutil.rmtree, folder, ignore_errors=True)
     os.environ["JAX_COMPILATION_CACHE_DIR"] = str(folder)
     os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", "0")  # every program (0.5 s: 26 % more CPU)
 
