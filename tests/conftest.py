@@ -37,6 +37,7 @@ def _jax_cache_folder() -> None:
     os.environ["JAX_COMPILATION_CACHE_DIR"] = str(folder)
     os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", "0")  # every program (0.5 s: 26 % more CPU)
 
+
 if os.environ.get("PYTEST_XDIST_WORKER"):
     # the test workers (-n auto) already fill the cores: one BLAS thread each, also for the commands they start (two
     # workers with two OpenBLAS threads each on 2 cores: tests/rcwa and optics' RCWA tests took 72 s, 118 CPU s;
