@@ -7,51 +7,12 @@ REPO = Path(__file__).resolve().parents[1]
 DESIGNS = REPO / "designs"
 
 os.environ.setdefault("MPLBACKEND", "Agg")
-
-
-def _jax_cache_folder() -> None:
-    """Point JAX_COMPILATION_CACHE_DIR at the tests' persistent JAX cache (see the call)."""
-    import hashlib
-    import platform
-    import shutil
-    from importlib.metadata import version
-
-    from metafovea.io import cache_root
-
-    try:
-        cpu = next((line for line in Path("/proc/cpuinfo").read_text().splitlines() if line.startswith("flags")), "")
-    except OSError:
-        cpu = ""
-    tag = hashlib.sha256(f"{version('jax')} {version('jaxlib')} {platform.machine()} {cpu}".encode()).hexdigest()[:12]
-    folder = cache_root() / "jax-tests" / tag
-    try:
-        if folder.is_dir() and sum(f.stat().st_size for f in folder.iterdir() if f.is_file()) > 256 * 2 ** 20:
-            shutil.rmtree(folder, ignore_errors=True)  # no eviction without the filelock package: start it again
-        folder.mkdir(parents=True, exist_ok=True)
-    except OSError:  # a cache folder that cannot be written: one for this run
-        import atexit
-        import tempfile
-
-        folder = Path(tempfile.mkdtemp(prefix="metafovea-jax-cache-"))
-        atexit.register(shutil.rmtree, folder, ignore_errors=True)
-    os.environ["JAX_COMPILATION_CACHE_DIR"] = str(folder)
-    os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", "0")  # every program (0.5 s: 26 % more CPU)
-
-
 if os.environ.get("PYTEST_XDIST_WORKER"):
     # the test workers (-n auto) already fill the cores: one BLAS thread each, also for the commands they start (two
     # workers with two OpenBLAS threads each on 2 cores: tests/rcwa and optics' RCWA tests took 72 s, 118 CPU s;
     # with one, 52 s, 73 CPU s). Set before numpy loads (xdist sets the variable before it reads this file).
     for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS"):
         os.environ.setdefault(_var, "1")
-elif "JAX_COMPILATION_CACHE_DIR" not in os.environ:
-    # JAX's compilation cache on disk, which the test workers (-n auto) and the commands the tests start inherit from
-    # here (the controller, or a run without workers): a jitted function of one shape (the DIP's step, a PSF model)
-    # is compiled once, not once per process and run (the JAX tests' CPU time fell by a third on a warm cache). It holds
-    # the compiled programs, keyed by the program, the options and jax's version, so the numbers are a fresh
-    # compilation's. In metafovea's cache folder, one per jax version and CPU (the programs are compiled for the host's
-    # instruction set), emptied past 256 MB; JAX_COMPILATION_CACHE_DIR chooses another folder (empty: no cache).
-    _jax_cache_folder()
 
 
 @pytest.fixture
