@@ -148,6 +148,19 @@ def _psf_cached(d: Path, pid: int, err: str) -> bool:
     return any((d / "cache" / "psf").glob("*.npz"))
 
 
+def _thread_names(pid: int) -> list[str]:
+    """The names of a process's threads (``/proc/PID/task/*/comm``), counted: ``['python x1', 'tf_XLA... x4']``."""
+    from collections import Counter
+
+    names: Counter = Counter()
+    for t in Path(f"/proc/{pid}/task").glob("*"):
+        try:
+            names[(t / "comm").read_text().strip()] += 1
+        except OSError:  # a thread that ended while listed
+            pass
+    return [f"{n} x{k}" for n, k in sorted(names.items())]
+
+
 def _xla_running(d: Path, pid: int, err: str) -> bool:
     """reconstruct's sign: XLA's CPU runtime has started its threads (``tf_XLA...``; ``llvm-worker-N`` while it
     compiles): the DIP is being set up and compiled, a stop there takes :func:`metafovea.cli.console_main`'s path
@@ -183,6 +196,7 @@ def test_long_commands_stop_on_sigint_with_one_line(tmp_path, name):
     import threading
 
     make, at_work, output = LONG_COMMANDS[name]
+    t_start = time.monotonic()
     p = _command(make(tmp_path), tmp_path)
     lines: list[str] = []
     reader = threading.Thread(target=lambda: lines.extend(p.stderr), daemon=True)  # stderr as it comes
@@ -191,12 +205,14 @@ def test_long_commands_stop_on_sigint_with_one_line(tmp_path, name):
         f"{name}: no sign of work in 120 s: {''.join(lines)[-500:]}"
     assert p.poll() is None, f"{name} finished before the signal: {''.join(lines)[-500:]}"
     t0 = time.monotonic()
+    threads = _thread_names(p.pid)  # what the command was doing when the signal came (a diagnosis if it is lost)
     os.killpg(p.pid, signal.SIGINT)
     rc = p.wait(timeout=60)
     stopped = time.monotonic() - t0
     reader.join(10)
     err = "".join(lines)
-    assert rc == 130, err[-800:]
+    assert rc == 130, (f"signal sent {t0 - t_start:.1f} s after the start, threads then {threads}; "
+                       f"stderr: {err[-800:]}")
     assert "Traceback" not in err and "KeyboardInterrupt" not in err, err[-800:]
     assert err.splitlines()[-1] == "interrupted", err[-800:]  # the last line, and the only one after the signal
     assert stopped < 10, f"{name} took {stopped:.1f} s to stop"  # 0.2-1.4 s measured on a loaded 2-core machine
