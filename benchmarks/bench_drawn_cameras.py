@@ -20,7 +20,6 @@ pixels of 17 or 24 um; 8-14 um or the 10 um filter (30 %); 24 or 36 frames; the 
 from __future__ import annotations
 
 import argparse
-import importlib.util
 import json
 import logging
 import os
@@ -37,19 +36,8 @@ import numpy as np
 from metafovea.measurement import Measurement
 from metafovea.reconstruct import reconstruct_measurement
 
-REPO = Path(__file__).resolve().parents[1]
-
-
-def load_forward() -> Any:
-    path = REPO / "tests" / "independent" / "forward.py"
-    spec = importlib.util.spec_from_file_location("independent_forward", path)
-    mod = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = mod
-    spec.loader.exec_module(mod)
-    return mod
-
-
-F = load_forward()
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from bench_real_recordings import F  # the independent forward model (tests/independent), loaded once
 
 
 def draw(k: int) -> tuple[str, Any, Any, int]:
