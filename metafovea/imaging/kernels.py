@@ -647,7 +647,7 @@ def _check_request(channel: Channel, field_deg: float, k: Kernel, request: float
         warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
     if not checked:
         return
-    bound = float(e) * float(k.intensity.sum()) * accuracy.contrast_k
+    bound = _pixel_change_k(float(e), k, accuracy)
     if bound <= accuracy.allowed_k:
         log.info("%s kernel at %.3g deg: estimate %.2g of the peak, pixel change <= %.2g K, within the %.2g K allowed",
                  channel.name, field_deg, e, bound, accuracy.allowed_k)
@@ -660,6 +660,12 @@ def _check_request(channel: Channel, field_deg: float, k: Kernel, request: float
         "subject": f"PSF kernel of '{channel.name}'", "field_deg": float(field_deg), "estimate": float(e),
         "requested": float(request), "reason": reason, "advice": engine.get("advice", {}), "message": msg}),
         stacklevel=3)
+
+
+def _pixel_change_k(error: float, k: Kernel, accuracy: KernelAccuracy) -> float:
+    """The largest change of a pixel (K) that a kernel's peak-relative error ``error`` allows: ``e sum(K) dT_scene``
+    (the module docstring's derivation)."""
+    return error * float(k.intensity.sum()) * accuracy.contrast_k
 
 
 def _request_info(request: float, accuracy: KernelAccuracy | None, s_bound: float, k0: Kernel) -> dict[str, Any]:
@@ -676,7 +682,7 @@ def _request_info(request: float, accuracy: KernelAccuracy | None, s_bound: floa
                    f"{accuracy.contrast_k:.3g} K x kernel sum <= {s_bound:.3g}), rounded down to a 1-2-5 step")
     e = k0.error_estimate
     if e is not None and math.isfinite(e):
-        b = float(e) * float(k0.intensity.sum()) * accuracy.contrast_k
+        b = _pixel_change_k(float(e), k0, accuracy)
         out.update(bound_k=b, met=b <= accuracy.allowed_k)
     return out
 

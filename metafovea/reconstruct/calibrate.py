@@ -364,6 +364,12 @@ def _relative_blur(m: np.ndarray, d: np.ndarray, fit: FovealFit, *, scale: float
                                  options={"xatol": 0.01}).x)
 
 
+def _correlation_area(blur_px: float) -> float:
+    """How many low-passed samples share one error (module docstring, "Uncertainty"): ``4 pi blur_px^2``, at least
+    1."""
+    return max(1.0, 4.0 * math.pi * blur_px ** 2)
+
+
 def fit_foveal(mean: ArrayLike, diff: ArrayLike, *, scale: float = 6.0, gain: float = 1.0, offset: float = 0.0,
                blur_px: float = BLUR_PX, fit_amplitude: bool = True, psfs: tuple[ArrayLike, ArrayLike] | None = None,
                both_assignments: bool = False) -> FovealFit:
@@ -407,7 +413,7 @@ def fit_foveal(mean: ArrayLike, diff: ArrayLike, *, scale: float = 6.0, gain: fl
     # without it by chi^2, counted in independent samples) leaves no model error; one it does not need, the
     # difference (w = 1/2: delta / 2, doubled in the amplitude's error as before)
     delta = abs(fit.amplitude - without.amplitude)
-    n_eff = fit.samples / max(1.0, 4.0 * math.pi * blur_px ** 2)
+    n_eff = fit.samples / _correlation_area(blur_px)
     var = fit.residual_rms ** 2
     dchi2 = max(n_eff * (without.residual_rms ** 2 - var) / var, 0.0) if var > 0 else math.inf
     w = 1.0 / (1.0 + math.exp(min(0.5 * dchi2, 700.0)))  # the model without the radial gain's weight
@@ -509,7 +515,7 @@ def _fit_once(shape: tuple[int, int], sides: tuple[np.ndarray, ...], *, scale: f
     th = sol.x
     r = sol.fun
     n = r.size
-    inflate = max(1.0, 4.0 * math.pi * blur_px ** 2)  # neighbouring samples share their error through the low-pass
+    inflate = _correlation_area(blur_px)  # neighbouring samples share their error through the low-pass
     se_all, var = _errors(sol.jac if fit_amplitude else np.delete(sol.jac, 4, axis=1), r, inflate)
     if not fit_amplitude:
         se_all = np.insert(se_all, 4, 0.0)

@@ -238,6 +238,17 @@ def polarizer_gauge(alpha_hat: np.ndarray, model: PolarizerModel, *,
     return out
 
 
+def _signed_gauge(fit: dict[str, Any], sign: float) -> tuple[float, float, np.ndarray]:
+    """The fit's ``(a, b)`` and their covariance for the channel assignment ``sign`` (-1: the other candidate of a
+    free-running fit; ``A0 = b + a / 2`` stays, ``a -> -a``, so ``b' = b + a``)."""
+    a, b = float(fit["a"]), float(fit["b"])
+    cov = np.asarray(fit["cov"], dtype=np.float64)
+    if sign < 0:
+        Jm = np.array([[-1.0, 0.0], [1.0, 1.0]])  # (a', b') from (a, b)
+        return -a, b + a, Jm @ cov @ Jm.T
+    return a, b, cov
+
+
 def gauged_alpha(alpha_hat: np.ndarray, fit: dict[str, Any], sign: float = 1.0,
                  frame_noise: float | None = None) -> tuple[np.ndarray, np.ndarray]:
     """``alpha_t = (alpha_hat_t - b) / a`` for the fit's ``(a, b)`` (``sign`` -1: the other candidate of a
@@ -245,13 +256,7 @@ def gauged_alpha(alpha_hat: np.ndarray, fit: dict[str, Any], sign: float = 1.0,
     (delta method) and the per-frame scatter (the fit's residual, conservative: it also holds any jitter; or
     ``frame_noise``, the data-term noise of ``alpha_hat`` in its gauge, when the frames' own alpha is used)."""
     y = np.asarray(alpha_hat, dtype=np.float64)
-    a, b = fit["a"], fit["b"]
-    cov = np.asarray(fit["cov"])
-    if sign < 0:  # A0 = b + a / 2 stays; a -> -a: b' = A0 + a / 2 = b + a
-        b = b + a
-        a = -a
-        Jm = np.array([[-1.0, 0.0], [1.0, 1.0]])  # (a', b') from (a, b)
-        cov = Jm @ cov @ Jm.T
+    a, b, cov = _signed_gauge(fit, sign)
     al = (y - b) / a
     var_frame = fit["residual_rms"] ** 2 * fit.get("t_inflation", 1.0) * fit["frames"] / max(
         fit["frames"] - (2 if fit["mode"] == "sync" else 4), 1)
@@ -274,11 +279,7 @@ def gauge_image_factors(fit: dict[str, Any], sign: float = 1.0, alpha_from: str 
     if alpha_from == "model":
         e = 0.5 * float(fit.get("amplitude_se", 0.0))
         return e, e
-    a = float(fit["a"])
-    cov = np.asarray(fit["cov"], dtype=np.float64)
-    if sign < 0:
-        Jm = np.array([[-1.0, 0.0], [1.0, 1.0]])
-        cov = Jm @ cov @ Jm.T
+    a, _, cov = _signed_gauge(fit, sign)
     v2 = cov[1, 1] / (a * a)
     v1 = (cov[0, 0] + 2 * cov[0, 1] + cov[1, 1]) / (a * a)
     return math.sqrt(max(v1, 0.0)), math.sqrt(max(v2, 0.0))
