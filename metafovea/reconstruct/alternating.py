@@ -481,6 +481,11 @@ class _Window:
         return r if self.M is None else np.where(self.M, r, 0.0)
 
 
+#: the grid of blocks (per side) whose own alpha estimates tell a polariser's deviation, shared by the whole image,
+#: from scene motion's (:func:`deviation_shared`): 16 blocks put the decision near the irregularity test's 3 sigma
+DEVIATION_BLOCKS = 4
+
+
 def _channel_noise_gain(a: np.ndarray) -> np.ndarray:
     """Noise std of (x1, x2) per unit frame noise for mixing ratios ``a``."""
     return np.sqrt(np.diag(np.linalg.inv(normal_matrix(a) + 1e-12 * np.eye(2))))
@@ -553,6 +558,57 @@ def _alternate(win: _Window, x1: np.ndarray, x2: np.ndarray, a: np.ndarray, cond
     return x1, x2, a, cond, history, it_done
 
 
+def deviation_shared(win: _Window, x1: np.ndarray, x2: np.ndarray, fitted: np.ndarray) -> float:
+    """The fraction of the frames' deviation from the fitted rotation that the image's parts share.
+
+    Every block of a :data:`DEVIATION_BLOCKS` x :data:`DEVIATION_BLOCKS` grid estimates each frame's alpha on its own
+    (the alpha-step on its pixels); ``A_bt``, weighted by the block's ``sum d^2`` (its Fisher information, ``d = x1 -
+    x2``), has the whole image's alpha as its weighted mean ``a_t``. A polariser that jitters moves every block's
+    alpha alike; scene motion or a drifting fixed pattern moves each part by its own amount. Returns
+
+        shared = C / (C + S),  C = mean_t (a_t - fitted_t)^2,  S = mean_t sum_b w_b (A_bt - a_t)^2 / sum_b w_b
+
+    With no jitter, white noise gives ``S ~ (B - 1) C`` (``B`` blocks: each block's noise is ``sqrt B`` times the
+    whole image's), so ``shared ~ 1 / B``; it passes 1/2 when the shared deviation exceeds ``sqrt(B - 2)`` times the
+    whole image's noise, about :data:`~metafovea.reconstruct.polarizer.JITTER_FACTOR` x it for 16 blocks: on a
+    static scene this is the irregularity test again; under motion it is what tells them apart.
+
+    Parameters
+    ----------
+    win : _Window
+    x1, x2 : ndarray, shape (H, W)
+        The images in the gauge of ``fitted``.
+    fitted : ndarray, shape (T,)
+        The fitted rotation's alpha in that gauge.
+
+    Returns
+    -------
+    float
+        In [0, 1]; 1 when there is no deviation at all.
+    """
+    H, W = x1.shape
+    ny, nx = min(DEVIATION_BLOCKS, max(H // 2, 1)), min(DEVIATION_BLOCKS, max(W // 2, 1))
+    ys, xs = np.linspace(0, H, ny + 1).astype(int), np.linspace(0, W, nx + 1).astype(int)
+    d = (x1 - x2).astype(np.float64)
+    blocks, weights = [], []
+    for i in range(ny):
+        for j in range(nx):
+            sl = (slice(ys[i], ys[i + 1]), slice(xs[j], xs[j + 1]))
+            Mb = None if win.M is None else win.M[:, sl[0], sl[1]]
+            d2 = d[sl] ** 2
+            w = float(np.sum(d2)) if Mb is None else float(np.mean(np.sum(np.where(Mb, d2[None], 0.0), axis=(1, 2))))
+            if w > 0:
+                blocks.append(_alpha_step(win.Yf[:, sl[0], sl[1]], x1[sl], x2[sl], Mb))
+                weights.append(w)
+    if len(blocks) < 2:
+        return 1.0
+    A, wb = np.asarray(blocks), np.asarray(weights)[:, None]
+    mean = np.sum(wb * A, axis=0) / wb.sum()
+    common = float(np.mean((mean - fitted) ** 2))
+    scatter = float(np.mean(np.sum(wb * (A - mean[None]) ** 2, axis=0) / wb.sum()))
+    return common / (common + scatter) if common + scatter > 0 else 1.0
+
+
 def polarizer_gauge_step(win: _Window, x1: np.ndarray, x2: np.ndarray, alpha: np.ndarray, op: FovealOperator,
                          model: PolarizerModel, sig: float, use: str = "model"
                          ) -> tuple[np.ndarray, np.ndarray, np.ndarray, dict[str, Any]]:
@@ -572,8 +628,9 @@ def polarizer_gauge_step(win: _Window, x1: np.ndarray, x2: np.ndarray, alpha: np
     sig : float
         The frames' noise std (alpha's data-term noise: ``sig / ||d||``).
     use : {'auto', 'model', 'frames'}
-        ``auto``: ``frames`` when the fit finds the rotation irregular (beyond the noise), else ``model``. Return
-        the fitted rotation's alpha (:func:`~metafovea.reconstruct.polarizer.model_alpha`) or each frame's
+        ``auto``: ``frames`` when the fit finds the rotation irregular (beyond the noise) and the image's parts
+        share most of the deviation (:func:`deviation_shared`: a polariser's, not scene motion's), else ``model``.
+        Return the fitted rotation's alpha (:func:`~metafovea.reconstruct.polarizer.model_alpha`) or each frame's
         own (:func:`~metafovea.reconstruct.polarizer.gauged_alpha`).
 
     Returns
@@ -583,8 +640,9 @@ def polarizer_gauge_step(win: _Window, x1: np.ndarray, x2: np.ndarray, alpha: np
     alpha : ndarray, shape (T,)
     report : dict
         ``applied``, ``reason``, the fit, ``sign``, ``alpha_se`` (each frame's standard error), ``alpha_se_max``,
-        ``foveal_rms``, ``images_gauge_se`` (the standard errors of ``x1`` and ``x2`` that the gauge's uncertainty
-        leaves, the frames' units: :func:`~metafovea.reconstruct.polarizer.gauge_image_factors`);
+        ``foveal_rms``, ``deviation_shared`` (an irregular rotation), ``images_gauge_se`` (the standard errors of
+        ``x1`` and ``x2`` that the gauge's uncertainty leaves, the frames' units:
+        :func:`~metafovea.reconstruct.polarizer.gauge_image_factors`);
         ``channel_assignment`` (the misfit ratio) when the sign was open.
     """
     from metafovea.reconstruct.polarizer import gauge_image_factors, gauged_alpha, model_alpha, polarizer_gauge
@@ -608,8 +666,13 @@ def polarizer_gauge_step(win: _Window, x1: np.ndarray, x2: np.ndarray, alpha: np
         cands.append((mis, sign, al, se, n1, n2))
     cands.sort(key=lambda c: c[0])
     mis, sign, al, se, n1, n2 = cands[0]
-    if use == "auto":  # a rotation that jitters beyond the noise: each frame's own alpha follows it
-        use = "frames" if fit.get("irregular") else "model"
+    shared = None
+    if fit.get("irregular"):  # how much of the deviation the image's parts share (a polariser's) or not (motion)
+        fitted_abs, _ = model_alpha(model, fit, 1.0)
+        shared = deviation_shared(win, x1d, x2d, fit["a"] * fitted_abs + fit["b"])
+        rep["deviation_shared"] = shared
+    if use == "auto":  # a rotation that jitters beyond the noise, alike in every part of the image: follow each frame
+        use = "frames" if fit.get("irregular") and shared is not None and shared > 0.5 else "model"
     if use == "frames" and dnorm > 0:  # each frame's alpha carries its data-term noise, not the jitter it follows
         al, se = gauged_alpha(alpha, fit, sign, frame_noise=sig / dnorm)
     if use == "model":
@@ -622,8 +685,10 @@ def polarizer_gauge_step(win: _Window, x1: np.ndarray, x2: np.ndarray, alpha: np
                alpha_se=se.tolist(), alpha_se_max=float(se.max()), foveal_rms=mis,
                images_gauge_se=[f1 * rms_d, f2 * rms_d])
     if fit.get("irregular"):
+        why = (f"the image's parts share {shared:.0%} of it: " + ("an irregular polariser" if shared > 0.5 else
+                                                                  "scene motion or a drifting pattern"))
         rep["warning"] = (f"alpha deviates from a constant-rate rotation by {fit['jitter_rms']:.2g} rms beyond the "
-                          f"noise ({fit['alpha_noise_absolute']:.2g}): scene motion or an irregular polariser; "
+                          f"noise ({fit['alpha_noise_absolute']:.2g}); {why}; "
                           + ("using the fitted rotation" if use == "model" else "following each frame"))
     if len(cands) > 1:
         rep["channel_assignment"] = {"by": "foveal constraint", "misfit_ratio": cands[1][0] / max(mis, 1e-300)}

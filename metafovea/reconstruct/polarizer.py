@@ -18,8 +18,9 @@ constant rate, and a frame's own ``alpha_hat`` is biased wherever the scene move
 own ``alpha_t = (alpha_hat_t - b) / a`` (:func:`gauged_alpha`: follows a rotation that jitters). The fit's residual
 gives the uncertainty of ``(a, b)``, of the phase and frequency and of every ``alpha_t`` (delta method), and
 flags a stopped polariser (amplitude at the noise level) or an irregular sequence (residual well above the
-data-term noise of ``alpha_hat``: scene motion or a jittering rotation). Measured accuracies: BENCHMARKS.md,
-"Unknown alpha with the polariser model".
+data-term noise of ``alpha_hat``: scene motion or a jittering rotation; the default follows each frame only where the
+image's parts share the deviation, :func:`metafovea.reconstruct.alternating.deviation_shared`). Measured accuracies:
+BENCHMARKS.md, "Unknown alpha with the polariser model".
 """
 
 from __future__ import annotations

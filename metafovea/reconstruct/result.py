@@ -267,7 +267,8 @@ class PipelineResult:
             fit = pg.get("fit", {})
             out["polarizer"] = {"applied": pg["applied"], "reason": pg.get("reason"), "mode": fit.get("mode"),
                                 "rate_hz": fit.get("rate_hz"), "irregular": fit.get("irregular"),
-                                "warning": pg.get("warning"), "alpha_from": pg.get("alpha_from")}
+                                "warning": pg.get("warning"), "alpha_from": pg.get("alpha_from"),
+                                "deviation_shared": pg.get("deviation_shared")}
         if rec.info.get("polarizer_spec") is not None:  # the model used: each value with its source
             out.setdefault("polarizer", {})["model"] = rec.info["polarizer_spec"]
         if rec.info.get("gauge_pooled"):  # windows whose gauges were chained into one polariser fit
@@ -288,8 +289,9 @@ class PipelineResult:
             out["dip"] = dip
         if self.nonfinite_pixels:
             out["nonfinite_pixels"] = self.nonfinite_pixels
-        if self.metrics is not None:
-            out["metrics"] = self.metrics
+        if self.metrics is not None:  # with the estimated alpha's error against the file's, where both exist
+            add = isinstance(self.metrics, dict) and self.alpha_mae is not None
+            out["metrics"] = {**self.metrics, "alpha_mae": self.alpha_mae} if add else self.metrics
         if rec.info.get("auto"):  # what method='auto' chose, why, and the time it took
             out["auto"] = rec.info["auto"]
         return out

@@ -112,6 +112,29 @@ def test_jitter_is_detected_and_frames_follow_it():
     # the default (auto) follows the frames once the fit finds the rotation irregular
     auto = reconstruct(Y, method="alternating", polarizer=model, scale=6.0, prior=None)
     assert auto.info["polarizer_gauge"]["alpha_from"] == "frames" and np.array_equal(auto.alpha, follow.alpha)
+    # and the whole image shares the deviation (a polariser's)
+    assert auto.info["polarizer_gauge"]["deviation_shared"] > 0.9
+
+
+def test_scene_motion_is_not_taken_for_a_jittering_polariser():
+    """A regular polariser and a warm object crossing the perifoveal view: each frame's own alpha follows the
+    motion (its deviation from the rotation is beyond the noise), but the image's parts do not share it, so the
+    default keeps the fitted rotation (4x closer to the true alpha here) and says why."""
+    rng = np.random.default_rng(1)
+    x1, x2 = scene(96, 6.0, foveal="coins", perifoveal="moon")
+    t = np.arange(12) / 12.0
+    ph = float(rng.uniform(0, 2 * np.pi))
+    al = _alpha(t, phase=ph)
+    yy, xx = np.mgrid[:96, :96]
+    Y = np.stack([al[k] * x1 + (1 - al[k]) * (x2 + 1.5 * np.exp(-((yy - 20) ** 2 + (xx - 10 - 5 * k) ** 2) / 50.0))
+                  for k in range(t.size)]) + rng.normal(0, 0.01, (t.size, 96, 96))
+    model = PolarizerModel(t, 2.0, "free")
+    kw = dict(method="alternating", polarizer=model, scale=6.0, prior=None, strict=False)
+    auto, frames = reconstruct(Y, **kw), reconstruct(Y, polarizer_alpha="frames", **kw)
+    pg = auto.info["polarizer_gauge"]
+    assert pg["fit"]["irregular"] and pg["deviation_shared"] < 0.5
+    assert pg["alpha_from"] == "model" and "scene motion" in pg["warning"]
+    assert np.mean(np.abs(auto.alpha - al)) < 0.5 * np.mean(np.abs(frames.alpha - al))
 
 
 def test_stopped_polarizer_is_reported():
