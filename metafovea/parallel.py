@@ -25,6 +25,7 @@ import time
 from collections.abc import Callable, Iterable, Iterator
 from typing import Any
 
+from metafovea import stopping
 from metafovea.errors import InputError
 
 #: seconds between two progress lines off a terminal: a sign of life in a log every 10 s, and a 30-minute run writes
@@ -594,6 +595,7 @@ def run_tasks(fn: Callable, items: Iterable[Any], *, workers: int | None = None,
             res = fut.result()
             if bar is not None:
                 bar.update(1)
+            stopping.check()  # a stop signal that compiled code's callback dropped (metafovea.stopping)
             yield i, res
         interrupted = False
     finally:

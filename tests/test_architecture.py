@@ -17,7 +17,7 @@ PKG = Path(__file__).resolve().parents[1] / "metafovea"
 
 #: ground floor: conventions, checks, files, executors, shared data types and primitives; imports only itself
 SHARED = {"units", "errors", "io", "parallel", "config", "materials", "radiometry", "measurement", "report", "plotting",
-          "polarizer", "__init__"}
+          "polarizer", "stopping", "__init__"}
 #: stage rank; a module may import from ranks <= its own. layout and optics are sibling branches.
 RANK = {
     "rcwa": 1, "library": 2, "lens": 3, "design_report": 3,

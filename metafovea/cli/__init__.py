@@ -112,6 +112,9 @@ def _run(args: argparse.Namespace) -> int:
         sys.stderr.write(f"metafovea {args.command}: error: {as_flag_error(args.command, e, args)}\n")
         return 2
     except KeyboardInterrupt:
+        from metafovea import stopping
+
+        stopping.clear()  # handled: the request does not outlive this command (tests run several in one process)
         sys.stderr.write("interrupted\n")
         return 130
     except BrokenPipeError:

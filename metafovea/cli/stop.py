@@ -7,6 +7,9 @@ import sys
 
 
 def _interrupt(signum: int, frame: object) -> None:
+    from metafovea import stopping
+
+    stopping.request(signum)  # raised again by the long loops if what runs now drops it (metafovea.stopping)
     raise KeyboardInterrupt(f"signal {signum}")
 
 

@@ -55,6 +55,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from numpy.typing import ArrayLike
 
+from metafovea import stopping
 from metafovea.errors import InputError, as_float, as_rng, check_choice, check_int
 from metafovea.reconstruct._common import Timings, as_alpha, as_frames, image_dtype, with_overrides
 from metafovea.reconstruct.alternating import alternating, frame_mean_alpha
@@ -716,6 +717,7 @@ def _optimise(step: Callable[..., tuple[tuple, jax.Array]], params: dict[str, An
                 log.info("dip step %d/%d loss %.4g (%.3f s/step)", k, opt.steps, loss, el / k)
             record(k, state)
             bar(k, loss, el)
+            stopping.check()  # a stop signal that a callback of XLA's dropped (metafovea.stopping)
             if opt.tol and k > opt.patience and best[k - 1 - opt.patience] - best[-1] <= opt.tol * abs(
                     best[k - 1 - opt.patience]):
                 stop = "converged"

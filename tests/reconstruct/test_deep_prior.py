@@ -212,3 +212,41 @@ def test_random_starts_tv_weight_from_the_data_reaches_alternatings_prior():
         p_plain = psnr((plain.x1, plain.x2)[k], truth, 1.0)
         assert p_auto > p_alt - 1.0, (k, p_auto, p_alt)
         assert p_auto > p_plain + (2.0 if k == 0 else -1.0), (k, p_auto, p_plain)
+
+
+def test_a_stop_signal_that_a_callback_drops_still_stops_the_steps(data):
+    """Ctrl-C while compiled code runs a Python callback: the handler's KeyboardInterrupt is raised inside it and can
+    be dropped there (a lost Ctrl-C in CI: the DIP ran to convergence, exit 0). The request is recorded
+    (metafovea.stopping), so the next step raises it again."""
+    import os
+    import signal
+    import time
+
+    from metafovea import stopping
+    from metafovea.cli.stop import install_stop_handlers
+
+    x1, x2, a, Y = data
+    seen: list[int] = []
+
+    def dropping_callback(p):  # what a C++ caller of a Python callback may do with the exception
+        seen.append(p["step"])
+        if len(seen) == 1:
+            try:
+                os.kill(os.getpid(), signal.SIGINT)
+                time.sleep(0.5)  # the handler runs here and raises
+            except KeyboardInterrupt:
+                pass
+
+    import sys
+
+    old, hook = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM)}, sys.unraisablehook
+    try:
+        install_stop_handlers()
+        with pytest.raises(KeyboardInterrupt, match="raised again"):
+            dip(Y, a, steps=400, rng=0, tol=0.0, progress=dropping_callback, progress_every=5, **KW)
+    finally:
+        for s, h in old.items():
+            signal.signal(s, h)
+        sys.unraisablehook = hook
+        stopping.clear()
+    assert seen[0] == 5 and len(seen) == 1  # stopped at the step after the dropped signal, not after 400
