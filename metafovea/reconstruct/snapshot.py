@@ -136,6 +136,16 @@ def _parabola_peak(vm: float, v0: float, vp: float) -> float:
     return float(np.clip(0.5 * (vm - vp) / den, -0.5, 0.5)) if den < 0 else 0.0
 
 
+def _rises_beyond(mp: np.ndarray, iy: int, ix: int, centre: tuple[int, int], search: int) -> bool:
+    """Whether the peak ``(iy, ix)`` of map ``mp``, found within ``+-search`` of ``centre``, has a higher neighbour
+    outside that window: then it is no located maximum (a false peak on a slope, or a crop further away than
+    searched)."""
+    oy, ox = centre
+    return any(mp[iy + dy, ix + dx] > mp[iy, ix] for dy in (-1, 0, 1) for dx in (-1, 0, 1)
+               if (abs(iy + dy - oy) > search or abs(ix + dx - ox) > search)
+               and 0 <= iy + dy < mp.shape[0] and 0 <= ix + dx < mp.shape[1])
+
+
 def register(frame: ArrayLike, *, scale: float = 6.0, search: int | None = None, refine: bool = True,
              refine_scale: bool = False, max_scale_change: float = 0.03,
              false_alarm: float = REGISTER_FALSE_ALARM) -> dict[str, Any]:
@@ -167,7 +177,9 @@ def register(frame: ArrayLike, *, scale: float = 6.0, search: int | None = None,
     -------
     dict
         ``identified`` (the test passed; else the nominal geometry is returned and ``reason`` says why),
-        ``moved`` (the peak beats the nominal geometry by the same margin: only then is the geometry found returned),
+        ``moved`` (the peak beats the nominal geometry by the same margin and is a maximum of the correlation, not
+        the edge of a slope that rises beyond the search, ``peak_on_edge``: only then is the geometry found
+        returned),
         ``offset`` ``(dy, dx)``, ``scale``, ``rotation_deg`` (0: the constraint has no rotation, none is
         estimated), ``ncc`` (intensity NCC of ``D y`` and ``C y`` at the returned geometry), ``low_shape``; the
         test's ``z`` (the whitened NCC's peak over its null spread), ``z_critical``, ``null_sd``, ``tests`` (shifts
@@ -220,14 +232,19 @@ def register(frame: ArrayLike, *, scale: float = 6.0, search: int | None = None,
     off = (float(sy0 + iy - c_y), float(sx0 + ix - c_x))
     # the nominal geometry is left only for a peak that beats it by the test's margin too
     z_move = (peak - float(null_map[oy, ox])) / null_sd if null_sd > 0 else 0.0
+    edge = _rises_beyond(maps[k], iy, ix, (oy, ox), search)
     res: dict[str, Any] = {"offset_ncc": off, "ncc_coarse": peak, "z": z, "z_move": z_move, "z_critical": z_crit,
                            "null_sd": null_sd, "tests": tests, "search": search, "identified": bool(z >= z_crit),
-                           "moved": bool(z >= z_crit and z_move >= z_crit)}
+                           "moved": bool(z >= z_crit and z_move >= z_crit and not edge), "peak_on_edge": bool(edge)}
     best: dict[str, Any] = {"offset": (0.0, 0.0), "scale": float(op0.scale), "rotation_deg": 0.0}
     if not res["identified"]:
         res["reason"] = (f"no significant foveal content in the frame (whitened NCC peak z = {z:.2f} < {z_crit:.2f}, "
                          f"false-alarm probability {false_alarm:g} over {tests} shifts and scales): the nominal "
                          "geometry is kept")
+    elif not res["moved"] and z_move >= z_crit:
+        res["reason"] = (f"the peak lies on the search's edge ({search} x2 pixels from the nominal crop) and the "
+                         "correlation rises beyond it: no located maximum, the nominal geometry is kept (a larger "
+                         "search if the lenses' axes may be further apart)")
     elif not res["moved"]:
         res["reason"] = (f"the peak does not beat the nominal geometry significantly (by {z_move:.2f} null spreads < "
                          f"{z_crit:.2f}): the nominal geometry is kept")

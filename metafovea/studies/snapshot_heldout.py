@@ -116,10 +116,11 @@ def snapshot_frame(m: Measurement) -> int:
 def registration_error(reg: dict[str, Any], truth: dict[str, Any]) -> dict[str, Any]:
     """The registration's error against ``truth`` (:func:`true_geometry`): ``scale_error`` (relative),
     ``offset_error_px`` (Euclidean, x2 pixels), ``rotation_error_deg`` (None when the registration gave none), and
-    the estimates themselves."""
+    the estimates themselves, with the test's verdict (``identified``, ``moved``, ``peak_on_edge``) and figures."""
     off = tuple(float(v) for v in reg["offset"])
     rot = reg.get("rotation_deg")
     return {"scale": float(reg["scale"]), "offset": off, "rotation_deg": rot,
+            **{k: reg[k] for k in ("identified", "moved", "peak_on_edge", "z", "z_move", "z_critical") if k in reg},
             "scale_error": float(reg["scale"]) / truth["scale"] - 1.0,
             "offset_error_px": math.hypot(off[0] - truth["offset"][0], off[1] - truth["offset"][1]),
             "rotation_error_deg": None if rot is None else float(rot) - truth["rotation_deg"]}

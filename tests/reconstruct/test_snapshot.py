@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -144,3 +146,25 @@ def test_snapshot_init_frame_starts_from_the_unseparated_frame():
     assert np.allclose(0.5 * frame.x1 + 0.5 * frame.x2, y, atol=1e-9)
     with pytest.raises(InputError):
         snapshot(y, init="zeros")
+
+
+def test_a_peak_on_the_search_edge_with_the_correlation_rising_beyond_does_not_move_the_geometry():
+    """A scene of the generator (hot objects, seed 22, the 10 um filter: the simulator realises no misregistration)
+    whose frame's correlation peaks at the search's corner (-5, -5) on a slope that rises beyond it, by a margin just
+    over the test's: no located maximum, so the nominal geometry is kept (it moved 7.3 px there and lost the foveal
+    image: 13.7 against 23 dB). A true offset on the edge (5, -5) is still found: the correlation falls beyond it."""
+    from metafovea.config import load_system
+    from metafovea.reconstruct.api import reconstruct_measurement
+    from metafovea.studies.heldout import HeldOutCase, simulate_case
+    from metafovea.studies.snapshot_heldout import snapshot_frame
+
+    system = load_system(Path(__file__).resolve().parents[2] / "designs" / "system.toml")
+    m = simulate_case(system, HeldOutCase("gen:hot-objects:22", True, None, 48, 16, 22))
+    reg = reconstruct_measurement(m, "snapshot", known_alpha=True, frame=snapshot_frame(m)).reconstruction.info[
+        "registration"]
+    assert reg["identified"] and reg["z_move"] >= reg["z_critical"]  # the margin would have moved it
+    assert reg["peak_on_edge"] and not reg["moved"] and reg["offset"] == (0.0, 0.0)
+    assert "rises beyond" in reg["reason"]
+    x1, x2 = scene(96, offset=(5, -5))
+    edge = register(measure(x1, x2, [0.5], sigma=0.01, rng=0)[0])
+    assert edge["moved"] and not edge["peak_on_edge"] and np.allclose(edge["offset"], (5, -5), atol=0.5)
