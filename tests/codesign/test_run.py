@@ -39,6 +39,7 @@ def result(small_system_file, made_once):
     return json.loads((out / "codesign.json").read_text()), out
 
 
+@pytest.mark.slow  # the co-design run (~20 s, made once) at a small size: 9 px, one coefficient, 10 steps
 def test_the_run_gains_within_the_line_bound_and_production_agrees(result):
     summary, _ = result
     d = summary["lenses"]["foveal"]
