@@ -174,6 +174,62 @@ def pytest_xdist_make_scheduler(config, log):
     other's pending tests. Any other ``--dist`` keeps xdist's own scheduler."""
     if config.getoption("dist", "no") != "load":
         return None
-    from xdist.scheduler import WorkStealingScheduling
+    return _module_stealing()(config, log)
 
-    return WorkStealingScheduling(config, log)
+
+def _module(nodeid: str) -> str:
+    return nodeid.split("::", 1)[0]
+
+
+def _module_cut(collection: list[str], queue: list[int], cut: int, lo: int) -> int:
+    """The cut of ``queue`` (``queue[:cut]`` stays, ``queue[cut:]`` goes to another worker) moved to the nearest
+    boundary between two modules in ``[lo, len(queue) - 1]``; ``cut`` itself where there is none (the queue from
+    ``lo - 1`` on is one module)."""
+    cuts = [c for c in range(max(lo, 1), len(queue))
+            if _module(collection[queue[c - 1]]) != _module(collection[queue[c]])]
+    return min(cuts, key=lambda c: (abs(c - cut), c)) if cuts else cut
+
+
+def _module_stealing():
+    """xdist's work stealing with every cut at a module boundary, so that a module's tests stay on one worker and
+    its module-scoped fixtures are made once: a cut inside tests/codesign/test_run.py made both workers build its
+    20 s co-design run. A module is split only where the queue left to split is that one module (the run's end)."""
+    from xdist.scheduler import WorkStealingScheduling
+    from xdist.scheduler.worksteal import MIN_PENDING
+
+    class ModuleStealing(WorkStealingScheduling):
+        def _send_tests(self, node, num: int) -> None:
+            if 0 < num < len(self.pending):
+                num = _module_cut(self.collection, self.pending, num, 1)
+            super()._send_tests(node, num)
+
+        def check_schedule(self) -> None:
+            # xdist's own (3.8), with the steal's cut moved by _module_cut
+            nodes_up = [(node, pending) for node, pending in self.node2pending.items() if not node.shutting_down]
+
+            def idle() -> list:
+                return [node for node, pending in nodes_up if len(pending) < MIN_PENDING]
+
+            idle_nodes = idle()
+            if not idle_nodes:
+                return
+            if self.pending:
+                for i, node in enumerate(idle_nodes):
+                    self._send_tests(node, len(self.pending) // (len(idle_nodes) - i))
+                idle_nodes = idle()
+                if not idle_nodes:
+                    return
+            if self.steal_requested_from_node is not None:
+                return
+            victim = max(nodes_up, key=lambda np_: len(np_[1]), default=None)
+            num = 0 if victim is None else min(len(victim[1]) // 2, max(0, len(victim[1]) - MIN_PENDING))
+            if num == 0:
+                for node in idle_nodes:
+                    node.shutdown()
+                return
+            queue = victim[1]
+            cut = _module_cut(self.collection, queue, len(queue) - num, MIN_PENDING)
+            victim[0].send_steal(queue[cut:])
+            self.steal_requested_from_node = victim[0]
+
+    return ModuleStealing

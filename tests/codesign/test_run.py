@@ -32,11 +32,14 @@ def small_system_file(tmp_path_factory):
 
 
 @pytest.fixture(scope="module")
-def result(small_system_file, tmp_path_factory):
-    out = tmp_path_factory.mktemp("run") / "cd"
-    return run_codesign(small_system_file, OPTS, out), out
+def result(small_system_file, made_once):
+    """The run's summary (what :func:`run_codesign` returns: its codesign.json) and folder: made once per test run
+    (~20 s) even where two test workers share this module's tests."""
+    out = made_once("codesign-run", lambda d: run_codesign(small_system_file, OPTS, d / "cd")) / "cd"
+    return json.loads((out / "codesign.json").read_text()), out
 
 
+@pytest.mark.slow  # the co-design run (~20 s, made once) at a small size: 9 px, one coefficient, 10 steps
 def test_the_run_gains_within_the_line_bound_and_production_agrees(result):
     summary, _ = result
     d = summary["lenses"]["foveal"]

@@ -29,12 +29,17 @@ def _numbers(obj):
 
 
 @pytest.fixture(scope="module")
-def quick_run(tmp_path_factory):
-    out = tmp_path_factory.mktemp("bench") / "b"
-    rc = main(["-q", "bench", "--quick", "--out", str(out)])
-    return rc, out
+def quick_run(made_once):
+    """``metafovea bench --quick`` (its status, its folder): made once per test run (7-20 s) even where two test
+    workers share this module's tests."""
+    def make(d):
+        (d / "rc.txt").write_text(str(main(["-q", "bench", "--quick", "--out", str(d / "b")])))
+
+    d = made_once("bench-quick", make)
+    return int((d / "rc.txt").read_text()), d / "b"
 
 
+@pytest.mark.slow  # the quick bench (every stage at its --quick size): its module runs among the first
 def test_quick_bench_writes_the_page_and_the_json_of_every_stage(quick_run):
     rc, out = quick_run
     assert rc == 0
