@@ -525,6 +525,98 @@ class PeriodicFilter:
             out[i] = float(mean_square(self.g, gain[i] ** 2 * a - 2.0 * gain[i] * b))
         return out
 
+    def crop_inverse(self, Z: np.ndarray, seen: list[np.ndarray]) -> np.ndarray:
+        """Each channel's data inverted on the bins where it shows signal, on the crop: ``u_i = M F^-1 [seen_i Z_i /
+        D_i]`` (DC counted as seen), ``(2, H, W)``: an unbiased estimate of the grid scene's part in those bins (eq. 5
+        of :meth:`crop_linear_risk`).
+
+        Parameters
+        ----------
+        Z : ndarray, shape (2, P, Q // 2 + 1)
+            The data's spectra on the grid.
+        seen : list of 2 ndarray of bool, shape (P, Q // 2 + 1)
+            :meth:`risk_data`'s ``seen``.
+
+        Returns
+        -------
+        ndarray, shape (2, H, W)
+        """
+        out = []
+        for i in range(2):
+            sn = self._seen_dc(seen[i])
+            out.append(self.g.irfft_crop(np.where(sn, Z[i] / np.where(sn, self.D[i], 1.0), 0.0)))
+        return np.stack(out)
+
+    @staticmethod
+    def _seen_dc(seen: np.ndarray) -> np.ndarray:
+        sn = np.array(seen, dtype=bool, copy=True)
+        sn[0, 0] = True  # the mean: seen (its prior is 0, never shrunk)
+        return sn
+
+    def crop_linear_risk(self, tau: float, gain: np.ndarray, solved: np.ndarray, inverse: np.ndarray,
+                         data: dict[str, Any]) -> np.ndarray:
+        """The mean squared error per pixel *of the crop* of each channel's linear estimate ``L_i (G_tau z)_i``
+        against the scene, less ``||s_i||^2`` (the same for every estimate), ``(2,)``: eq. (5).
+
+        Parameters
+        ----------
+        tau : float
+            The prior's weight.
+        gain : ndarray, shape (2, P, Q // 2 + 1)
+            Each channel's real filter ``L_i(f)`` applied after the solve.
+        solved : ndarray, shape (2, P, Q // 2 + 1)
+            The solve's spectra ``G_tau Z`` (:meth:`solve` of the data's :meth:`rhs`).
+        inverse : ndarray, shape (2, H, W)
+            :meth:`crop_inverse` of the data.
+        data : dict
+            :meth:`risk_data`.
+
+        Returns
+        -------
+        ndarray, shape (2,)
+
+        Notes
+        -----
+        :meth:`linear_risk` is the error over the whole padded grid, whose padding (the crop's edge values, or the
+        foveal surround) is not the scene: where the grid is several times the crop, its error there outweighs the
+        crop's. Split the estimate into its seen bins (where the prior predicts the data's signal above
+        ``detection_snr`` times their noise; DC counted as seen) and the rest, ``l_i = l_i^s + l_i^u``. On the crop
+        ``M``, with ``n_c`` its pixels,
+
+            R_i = (||M l_i^s||^2 - 2 <M l_i^s, u_i>) / n_c + 2 tr_i + U_i,                                 (5)
+
+        ``u_i = M F^-1 [seen_i Z_i / D_i]`` (:meth:`crop_inverse`: unbiased for the scene's seen part, ``Z_i = D_i
+        S_i + N_i``), ``tr_i = E <M l_i^s(n), M F^-1 [seen_i n_i / D_i]> / n_c`` the noise's share of that inner
+        product, per bin ``L_i Re sum_k H_ik N_ki`` (``H`` as eq. 4, ``N = n C``), and ``U_i`` the unseen bins'
+        expected error under the prior, ``L_i^2 E|(G z)_i|^2 - 2 L_i Re(G_ii D_i) P_i`` per bin (as eq. 4's
+        complement), both per pixel by Parseval on the grid (a stationary field's mean square on the crop is its
+        grid mean). The cross terms between the two parts vanish on the grid (disjoint bins) and are neglected on
+        the crop. Where the prior's level is off, ``U`` errs as the prior does, but as the bias power ``P (|1 - L G
+        D|^2 - 1)``, not as a cross term against a data energy that is counted exactly.
+        """
+        m11, m12, m22 = self._m(tau)
+        det = m11 * m22 - np.abs(m12) ** 2
+        det = np.where(np.abs(det) > 0, det, np.inf)
+        Ci, D, n = self.Ci, self.D, self.n
+        C = np.linalg.inv(Ci)
+        mi = ((m22 / det, -m12 / det), (-np.conj(m12) / det, m11 / det))
+        G = [[sum(mi[i][j] * np.conj(D[j]) * Ci[j, k] for j in range(2)) for k in range(2)] for i in range(2)]
+        H = [[mi[0][0] * Ci[0, k] - Ci[0, 1] * np.abs(D[1]) ** 2 / det * Ci[1, k] for k in range(2)],
+             [mi[1][1] * Ci[1, k] - Ci[1, 0] * np.abs(D[0]) ** 2 / det * Ci[0, k] for k in range(2)]]
+        seen = [self._seen_dc(data["seen"][i]) for i in range(2)]
+        ls = self.g.irfft_crop(np.stack([np.where(seen[i], gain[i] * solved[i], 0.0) for i in range(2)]))
+        out = np.empty(2)
+        for i in range(2):
+            EX = (sum(np.abs(G[i][k] * D[k]) ** 2 * self.P[k] for k in range(2))
+                  + n * np.real(sum(G[i][k] * np.conj(G[i][m]) * C[k, m] for k in range(2) for m in range(2))))
+            per_bin = np.where(seen[i], 2.0 * gain[i] * np.real(sum(H[i][k] * n * C[k, i] for k in range(2))),
+                               gain[i] ** 2 * EX - 2.0 * gain[i] * np.real(G[i][i] * D[i]) * self.P[i])
+            li = ls[i].astype(np.float64)
+            out[i] = (float(np.sum(li * li)) - 2.0 * float(np.sum(li * inverse[i]))) / li.size + float(
+                mean_square(self.g, per_bin))
+        return out
+
+
 def mean_square(g: Grid, spec: np.ndarray) -> np.ndarray:
     """The mean over the grid's pixels of a field whose power per unnormalised rfft bin is ``spec``.
 
