@@ -332,7 +332,7 @@ def _wavelet_step(pb: Problem, C: np.ndarray, prior_inv: np.ndarray, surround: b
         else:
             draws.append(nk)
     levels = swt_levels((H, W))
-    spec = B = frame_power = risk_data = inverse = None
+    spec = B = frame_power = risk_data = None
     if periodic:
         # the data and the noise draws through the filter: one right-hand side each, the same for every tau
         # (single precision for the solves: the estimate's rounding, ~1e-7 of its range, is far below its noise;
@@ -341,14 +341,12 @@ def _wavelet_step(pb: Problem, C: np.ndarray, prior_inv: np.ndarray, surround: b
         B = filt.rhs(spec.astype(np.complex64))
         frame_power = stationary_frame(g.shape, wavelet, levels).power  # |F_b(f)|^2 on the grid
         risk_data = filt.risk_data(spec[0], spec[1:], DETECTION_SNR)
-        inverse = filt.crop_inverse(spec[0], risk_data["seen"])
     best: list[tuple[float, float, np.ndarray] | None] = [None, None]
     curve: list[list[dict[str, float]]] = [[], []]
     estimates: list[list[np.ndarray]] = [[], []]
     for tau in TAUS:
         if periodic:
-            solved = filt.solve(tau, B)
-            sol = g.irfft_crop(solved).astype(np.float64)
+            sol = g.irfft_crop(filt.solve(tau, B)).astype(np.float64)
             x, noise = sol[0], sol[1:]
         else:
             x = linear_solve(pb, tau * prior_inv, None)[0][:, g.crop[0], g.crop[1]]
@@ -362,7 +360,7 @@ def _wavelet_step(pb: Problem, C: np.ndarray, prior_inv: np.ndarray, surround: b
         parts = [shrink_linearised(x[i], noise[:, i], wavelet, levels) for i in range(2)]
         if periodic:
             gain = np.stack([np.tensordot(p[2], frame_power, axes=(0, 0)) for p in parts])
-            lin = filt.crop_linear_risk(tau, gain, solved[0], inverse, risk_data)
+            lin = filt.linear_risk(tau, gain, risk_data)
         else:
             lin = filt.bias2(tau)
         for i in range(2):
