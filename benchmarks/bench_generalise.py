@@ -6,7 +6,7 @@ user records it (48 frames, 16 shutter frames, ``designs/system.toml``), the fix
 frames (its error counted), then each method of ``deconvolve_measurement`` on that one measurement, side by side
 (:func:`metafovea.studies.heldout.run_case`).
 
-    python benchmarks/bench_generalise.py [--scenes 64] [--seed-offset 0] [--noise default|high|both]
+    python benchmarks/bench_generalise.py [--scenes 64] [--seed-offset 0] [--tuning] [--noise default|high|both]
         [--bands 8-14um 10um] [--methods NAME ...] [--workers 1] [--json out.json] [--plot margins.png] [--quick]
 
 Prints per case and channel: scene, kind, band, noise, channel, method PSNR, bound PSNR, margin (dB) and the method's
@@ -30,7 +30,7 @@ from pathlib import Path
 import numpy as np
 
 from metafovea.config import load_system
-from metafovea.imaging.generator import held_out_scenes, parse_scene_name
+from metafovea.imaging.generator import held_out_scenes, parse_scene_name, tuning_scenes
 from metafovea.parallel import run_tasks
 from metafovea.reconstruct.deconvolve import DECONVOLUTION_METHODS
 from metafovea.reconstruct.metrics import margin_summary
@@ -55,6 +55,8 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--scenes", type=int, default=64, help="generated scenes (default 64), the kinds in turn")
     ap.add_argument("--seed-offset", type=int, default=0, help="first test seed (scene i has seed offset + i)")
+    ap.add_argument("--tuning", action="store_true",
+                    help="the tuning scenes (seeds from 10000 + offset) instead of the held-out test scenes")
     ap.add_argument("--noise", choices=("default", "high", "both"), default="default",
                     help=f"the system's NETD, {HIGH_NETD_FACTOR:g}x it, or both (default: default)")
     ap.add_argument("--bands", nargs="+", choices=tuple(BANDS), default=list(BANDS),
@@ -80,7 +82,7 @@ def make_cases(args: argparse.Namespace, netd_k: float) -> list[tuple[str, HeldO
     levels = {"default": [("default", None)], "high": [("high", HIGH_NETD_FACTOR * netd_k)]}
     levels["both"] = levels["default"] + levels["high"]
     cases = []
-    for name, _ in held_out_scenes(args.scenes, args.seed_offset):
+    for name, _ in (tuning_scenes if args.tuning else held_out_scenes)(args.scenes, args.seed_offset):
         seed = parse_scene_name(name)[1]
         for label, netd in levels[args.noise]:
             for band in args.bands:
@@ -169,7 +171,9 @@ def main(argv: list[str] | None = None) -> int:
     print(f"nproc {os.cpu_count()}, load {load0}, {datetime.datetime.now().isoformat(timespec='seconds')}")
     system = load_system(SYSTEM)
     cases = make_cases(args, system.sensor.netd_k)
-    print(f"{len(cases)} cases: {args.scenes} scenes (seeds {args.seed_offset}-{args.seed_offset + args.scenes - 1})"
+    first = parse_scene_name(cases[0][1].scene)[1]
+    print(f"{len(cases)} cases: {args.scenes} {'tuning' if args.tuning else 'held-out test'} scenes (seeds {first}-"
+          f"{first + args.scenes - 1})"
           f" x {len(args.bands)} bands x noise {args.noise}; {args.frames} frames, {args.calibration_frames} shutter "
           f"frames; methods {args.methods or 'default'}; {args.workers} worker(s)")
     print(f"{'scene':<22} {'kind':<11} {'band':<6} {'noise':<7} {'channel':<10} {'method':<10} "
