@@ -151,11 +151,19 @@ def _paint(temp: np.ndarray, eps: np.ndarray, mask: np.ndarray, t_k: float, e: f
 
 def _capsule(ax: np.ndarray, ay: np.ndarray, p0: tuple[float, float], p1: tuple[float, float],
              r: float) -> np.ndarray:
-    """Points within ``r`` of the segment p0-p1."""
+    """Points within ``r`` of the segment p0-p1 (evaluated inside the capsule's bounding box only: a point outside
+    it is farther than ``r`` from the segment)."""
+    sel = _bbox_view(ax, ay, min(p0[0], p1[0]) - r, min(p0[1], p1[1]) - r, max(p0[0], p1[0]) + r,
+                     max(p0[1], p1[1]) + r)
+    out = np.zeros(np.shape(ax), dtype=bool)
+    if not sel.any():
+        return out
+    bx, by = ax[sel], ay[sel]
     dx, dy = p1[0] - p0[0], p1[1] - p0[1]
     ll = dx * dx + dy * dy
-    s = np.clip(((ax - p0[0]) * dx + (ay - p0[1]) * dy) / max(ll, 1e-300), 0.0, 1.0)
-    return (ax - p0[0] - s * dx) ** 2 + (ay - p0[1] - s * dy) ** 2 <= r * r
+    s = np.clip(((bx - p0[0]) * dx + (by - p0[1]) * dy) / max(ll, 1e-300), 0.0, 1.0)
+    out[sel] = (bx - p0[0] - s * dx) ** 2 + (by - p0[1] - s * dy) ** 2 <= r * r
+    return out
 
 
 def _box(ax: np.ndarray, ay: np.ndarray, x0: float, y0: float, x1: float, y1: float) -> np.ndarray:
