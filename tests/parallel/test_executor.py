@@ -139,3 +139,21 @@ def _until(cond, timeout_s: float) -> bool:
             return True
         time.sleep(0.02)
     return False
+
+
+def test_a_stop_request_that_was_dropped_stops_run_tasks_at_the_next_result():
+    """A stop signal whose KeyboardInterrupt compiled code dropped is on record (metafovea.stopping): run_tasks raises
+    it at the next result, once; without a request the tasks all run."""
+    from metafovea import stopping
+    from metafovea.parallel import run_tasks
+
+    assert sorted(r for _, r in run_tasks(abs, [-1, -2, -3], workers=1)) == [1, 2, 3]
+    done = []
+    try:
+        stopping.request(2)  # what the signal handler records before its KeyboardInterrupt was dropped
+        with pytest.raises(KeyboardInterrupt, match="raised again"):
+            for _, r in run_tasks(abs, [-1, -2, -3], workers=1):
+                done.append(r)
+        assert done == [] and not stopping.requested()  # raised once, at the first result
+    finally:
+        stopping.clear()
