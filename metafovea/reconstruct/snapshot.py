@@ -241,7 +241,7 @@ def register(frame: ArrayLike, *, scale: float = 6.0, search: int | None = None,
         res["reason"] = (f"no significant foveal content in the frame (whitened NCC peak z = {z:.2f} < {z_crit:.2f}, "
                          f"false-alarm probability {false_alarm:g} over {tests} shifts and scales): the nominal "
                          "geometry is kept")
-    elif not res["moved"] and z_move >= z_crit:
+    elif edge and z_move >= z_crit:  # significant, but the correlation rises beyond the search
         res["reason"] = (f"the peak lies on the search's edge ({search} x2 pixels from the nominal crop) and the "
                          "correlation rises beyond it: no located maximum, the nominal geometry is kept (a larger "
                          "search if the lenses' axes may be further apart)")
