@@ -10,8 +10,9 @@ Cases (the camera that made the data; the reconstruction is given the nominal ca
 * ``defocus-W-xI``: lens I's kernel on a plane moved by ``W`` waves peak-to-valley at 10 um
   (:class:`~metafovea.reconstruct.psf_refine.DisplacedFocusProvider`; the far haze and the geometry nominal);
 * ``field``: both channels in 3 x 3 field patches (``field_patches=3``: the off-axis PSFs), reconstructed with the
-  on-axis one; its "true PSF" column is the same scene and seed made shift-invariant (the on-axis PSF everywhere),
-  reconstructed with its own PSF: what the field dependence costs;
+  on-axis one, and with the file's patches (``psf_patches_x*``, :mod:`metafovea.reconstruct.field`); its "true PSF"
+  column is the same scene and seed made shift-invariant (the on-axis PSF everywhere), reconstructed with its own
+  PSF: what the field dependence costs;
 * ``focal+5%-xI``: lens I's focal length times 1.05 (``LensDesign.with_(f_um=...)``), the sensor where it was.
 
 Per case, scene, band (8-14 um and the 10 um filter) and channel: the PSNR against the scene with the true PSF, with
@@ -111,6 +112,7 @@ def main() -> None:
     t_start = time.perf_counter()
     families: dict = {}
     summary: dict = {}
+    field_loss: dict = {}
     for filt in (False, True):
         band = "10 um" if filt else "8-14 um"
         for scene in scenes:
@@ -133,6 +135,8 @@ def main() -> None:
                 else:
                     true = {me: _scores(m, file_psfs, me, fpn, fe) for me in args.methods}
                 plain = {me: _scores(m, nominal, me, fpn, fe) for me in args.methods}
+                # the field case through the file's own 3 x 3 patches (psf_patches_x*, field_psf='auto')
+                patched = {me: _scores(m, file_psfs, me, fpn, fe) for me in args.methods} if case == "field" else {}
                 from metafovea.reconstruct.deconvolve import _frames_for  # the frames deconvolve_measurement uses
 
                 frames = _frames_for(m, fpn)
@@ -155,6 +159,10 @@ def main() -> None:
                                     f"(best {c['best']:+g}, {c['two_ln_b']:.0f}, {c['z']:.1f})")
                             if case == "field":
                                 what += f"; light kept off axis: {_power_ratio(m, nominal_m)[i]:.3f} of on-axis"
+                                if kind == kinds[0]:
+                                    pt = patched[me][i]
+                                    what += f"; with the file's patches {pt:.2f} (loss {t - pt:.2f})"
+                                    field_loss.setdefault((band, me), []).append(t - pt)
                             print(f"{case:<15} {scene:<13} {band:<7} x{i + 1:<2} {me:<8} {t:6.2f} {n:7.2f} "
                                   f"{t - n:6.2f} {rf:7.2f} {rf - n:+6.2f}  {what}", flush=True)
                             summary.setdefault((case, kind, band, me), []).append((t - n, rf - n, c["refined"]))
@@ -166,6 +174,9 @@ def main() -> None:
         print(f"  {case:<15} {kind:<12} {band:<7} {me:<8} loss {a[:, 0].mean():6.2f} (worst {a[:, 0].max():6.2f}), "
               f"refinement {a[:, 1].mean():+6.2f} (worst {a[:, 1].min():+6.2f}), refined {sum(x[2] for x in v)} of "
               f"{len(v)}")
+    for (band, me), v in field_loss.items():
+        print(f"  field, the file's 3 x 3 patches (field_psf='auto'), {band:<7} {me:<8} loss {np.mean(v):6.2f} "
+              f"(worst {np.max(v):6.2f})")
 
 
 if __name__ == "__main__":

@@ -27,6 +27,10 @@ Written with :func:`metafovea.io.atomic_save_npz` (uncompressed ``.npz`` + JSON 
     Each channel's PSF on the pixel grid (odd ``n``, centred, sum ~1: core, haze and glare), and
 ``illumination_x1``, ``illumination_x2`` (H, W) (optional)
     its relative illumination: what a PSF-aware reconstruction (:mod:`metafovea.reconstruct.deconvolve`) uses.
+``psf_patches_x1``, ``psf_patches_x2`` (p, p, n, n) (optional)
+    A field-dependent PSF: the kernels at the centres of a ``p x p`` grid of equal patches of the crop (row-major,
+    patch ``(i, j)`` centred on pixel ``((i + 1/2) H / p - 1/2, (j + 1/2) W / p - 1/2)``), the PSF between them
+    interpolated bilinearly (:func:`patch_weights`; ``psf_x*`` stays the kernel nearest the axis).
 ``scene_x1``, ``scene_x2`` (H, W) (optional)
     Truth for scoring only: the scene through a perfect lens (no PSF, haze or relative illumination), in DN.
 
@@ -67,7 +71,7 @@ RECORDING_META = ("units", "frame_rate_hz", "pixel_pitch_um", "netd_k", "scale",
 #: the arrays the reconstruction reads (``alpha``: the camera's logged mixing ratio, which ``lsq`` uses and the
 #: unknown-alpha methods only score against)
 RECORDING_ARRAYS = ("frames", "times_s", "alpha", "theta_rad", "calibration", "bad_pixels", "flat_field", "psf_x1",
-                    "psf_x2", "illumination_x1", "illumination_x2")
+                    "psf_x2", "illumination_x1", "illumination_x2", "psf_patches_x1", "psf_patches_x2")
 #: truth for scoring only: arrays, and the metadata key ``truth`` (a dict of what the writer knows and a camera
 #: would not record: the simulator's realised polariser phase and rate, its noise level, ...)
 SCORING_ARRAYS = ("truth_x1", "truth_x2", "scene_x1", "scene_x2", "fpn", "fpn_u", "fpn_v", "fpn_s", "fpn_weights")
@@ -80,7 +84,29 @@ POLARIZER_KEYS = {"rate_hz": "polarizer_hz", "mode": "polarizer_mode", "phase_de
                   "extinction": "polarizer_extinction", "tau_s": "bolometer_tau_s"}
 OPTIONAL = ("alpha", "truth_x1", "truth_x2", "fpn", "fpn_u", "fpn_v", "fpn_s", "fpn_weights", "theta_rad",
             "calibration", "bad_pixels", "flat_field", "psf_x1", "psf_x2", "illumination_x1", "illumination_x2",
-            "scene_x1", "scene_x2")
+            "scene_x1", "scene_x2", "psf_patches_x1", "psf_patches_x2")
+
+
+def patch_weights(n: int, size: int, centres: Sequence[float] | None = None) -> list[np.ndarray]:
+    """1-D tent weights along an axis of ``size`` samples for ``n`` patch centres (default: the centres of ``n``
+    equal patches, ``(i + 1/2) size / n - 1/2``): a partition of unity, linear between neighbouring centres and
+    constant beyond the outer ones. ``w_i(y) w_j(x)`` is patch ``(i, j)``'s weight: the interpolation of a
+    field-dependent PSF (``psf_patches_x*``) that the simulator renders and the reconstruction inverts."""
+    x = np.arange(size, dtype=np.float64)
+    c = np.asarray([(i + 0.5) * size / n - 0.5 for i in range(n)] if centres is None else centres, dtype=np.float64)
+    out = []
+    for i in range(n):
+        w = np.zeros(size)
+        if n == 1:
+            w[:] = 1
+        else:
+            left = c[i - 1] if i > 0 else -np.inf
+            right = c[i + 1] if i < n - 1 else np.inf
+            w = np.where(x <= c[i], 1 - (c[i] - x) / (c[i] - left) if i > 0 else 1.0,
+                         1 - (x - c[i]) / (right - c[i]) if i < n - 1 else 1.0)
+            w = np.clip(w, 0, 1)
+        out.append(w)
+    return out
 
 
 def _real(a: np.ndarray) -> bool:

@@ -70,6 +70,8 @@ def register(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
                    help=f"also the scene (PSF-aware, static): <out>_scene.npz, .png in K ({DEFAULT_DECONVOLUTION})")
     p.add_argument("--psf", default=None, help="for --deconvolve: a PSF file (.npz: psf_x1, psf_x2) (not the file's)")
     p.add_argument("--refine-psf", choices=FAMILY_KINDS, help="for --deconvolve: refine the PSFs from the data")
+    p.add_argument("--field-psf", default="auto", choices=("auto", "patches", "on-axis"), help="for --deconvolve, a "
+                   "field-dependent PSF (psf_patches_x*): the patches the data need (auto), every one, or none")
     p.add_argument("--out", default=None, help="output .npz (default: <measurement>_rec.npz); figures next to it")
     p.add_argument("--no-figures", action="store_true", help="do not write PNG figures")
     p.add_argument("--no-score", action="store_true", help="do not score against the file's truth (faster)")
@@ -137,10 +139,10 @@ def run(args: argparse.Namespace) -> int:
     if decon:
         from metafovea.reconstruct.deconvolve import deconvolve_result  # only here: a plain run starts faster
 
-        dec = deconvolve_result(m, res, decon, args.psf, score_truth=not args.no_score, refine_psf=args.refine_psf)
+        dec = deconvolve_result(m, res, decon, args.psf, score_truth=not args.no_score, refine_psf=args.refine_psf,
+                                field_psf=args.field_psf)
         files += write_scene(dec, scene_out)
-    s = res.summary(files)
-    s.update({"scene": dec.summary()} if dec is not None else {})
+    s = res.summary(files) | ({"scene": dec.summary()} if dec is not None else {})
     if args.json:
         print(to_json(s))
         return 0
@@ -174,12 +176,7 @@ def run(args: argparse.Namespace) -> int:
         print(f"  {s['nonfinite_pixels']} NaN value(s) in x1/x2: pixels without valid samples (e.g. dead pixels)")
     if isinstance(s.get("metrics"), dict):
         print("  " + ", ".join(f"{k} {v:.4g}" for k, v in s["metrics"].items()))
-    if dec is not None:
-        sc = dec.info.get("scores") or {}
-        print(f"  scene ({dec.info['method']}, alpha from {dec.info['alpha_from']}, {dec.info['seconds']:.1f} s)"
-              + ("" if not sc else ": against the scene " + ", ".join(f"{k} {v:.4g}" for k, v in sc.items()
-                                                                       if isinstance(v, float) and "second" not in k)))
-        print("".join(f"  {line}\n" for line in (dec.info.get("psf_refinement") or {}).get("lines", [])), end="")
+    print("".join(f"  {line}\n" for line in (dec.lines() if dec is not None else [])), end="")
     print("  wrote " + ", ".join(s["files"]))
     return 0
 

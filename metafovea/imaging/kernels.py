@@ -699,7 +699,8 @@ def _embed_add(a: np.ndarray, b: np.ndarray, wb: float) -> np.ndarray:
 
 
 
-def pixel_psf(optics: ChannelOptics, max_radius_px: int | None = None) -> tuple[np.ndarray, float]:
+def pixel_psf(optics: ChannelOptics, max_radius_px: int | None = None,
+              patch: int | None = None) -> tuple[np.ndarray, float]:
     """The channel's PSF on the sensor's pixel grid and its pedestal: ``(K, pedestal)``, ``K`` ``(n, n)``, ``n``
     odd, centred, ``sum(K) + pedestal`` = the power the channel keeps (kernel + haze + glare, ~1), what
     :class:`~metafovea.imaging.render.ChannelRenderer` does to a scene that is uniform within each pixel (before
@@ -709,7 +710,8 @@ def pixel_psf(optics: ChannelOptics, max_radius_px: int | None = None) -> tuple[
     ``(K * tri)[d s] / s^2`` with ``tri`` the ``(2s-1)^2`` self-correlation of the ``s x s`` pixel box; each far
     component (haze, glare: a normalised kernel on a grid of ``q`` pixels) is the linear interpolation back to
     pixels of its coarse kernel, blurred by the coarse sample's ``q``-pixel average. A channel computed in
-    field patches contributes the kernel of the patch nearest the axis (the shift-invariant approximation).
+    field patches contributes the kernel of the patch nearest the axis (the shift-invariant approximation), or of
+    patch ``patch`` (row-major, :func:`pixel_psf_patches`).
     The coarse grid's interpolation is the model's, so this is the operator the simulator applies up to the
     sub-pixel structure of the scene.
 
@@ -720,7 +722,10 @@ def pixel_psf(optics: ChannelOptics, max_radius_px: int | None = None) -> tuple[
     s = optics.ss
     H, W = optics.channel.shape
     centre = ((H - 1) / 2, (W - 1) / 2)
-    i0 = int(np.argmin([math.hypot(r - centre[0], c - centre[1]) for r, c in optics.patch_centres]))
+    if patch is None:
+        i0 = int(np.argmin([math.hypot(r - centre[0], c - centre[1]) for r, c in optics.patch_centres]))
+    else:
+        i0 = check_int("patch", patch, 0, len(optics.kernels) - 1)
     k = np.asarray(optics.kernels[i0], dtype=np.float64)
     tri1 = np.convolve(np.ones(s), np.ones(s))
     kt = fftconvolve(k, np.outer(tri1, tri1), mode="full")
@@ -760,6 +765,22 @@ def pixel_psf(optics: ChannelOptics, max_radius_px: int | None = None) -> tuple[
         out = out[h - r:h + r + 1, h - r:h + r + 1]
     # the power beyond the cut (0 when every component fits: never a rounding residue below 0)
     return out, max(0.0, total - float(out.sum()))
+
+
+def pixel_psf_patches(optics: ChannelOptics, max_radius_px: int | None = None) -> np.ndarray | None:
+    """A channel computed in ``p x p`` field patches: every patch's :func:`pixel_psf`, ``(p, p, n, n)`` (row-major,
+    zero-padded to one size), the ``psf_patches_x*`` of the Measurement format; None for a shift-invariant
+    channel."""
+    p = optics.n_patches
+    if p == 1:
+        return None
+    ks = [pixel_psf(optics, max_radius_px, patch=j)[0] for j in range(p * p)]
+    n = max(k.shape[0] for k in ks)
+    out = np.zeros((p * p, n, n))
+    for j, k in enumerate(ks):
+        o = (n - k.shape[0]) // 2
+        out[j, o:o + k.shape[0], o:o + k.shape[0]] = k
+    return out.reshape(p, p, n, n)
 
 
 # ----------------------------------------------------------------------------------------------

@@ -19,6 +19,7 @@ import numpy as np
 from metafovea.imaging.channel import relative_illumination_map
 from metafovea.imaging.kernels import ChannelOptics, fftconvolve
 from metafovea.imaging.scene import Scene, bilinear_grid
+from metafovea.measurement import patch_weights
 from metafovea.radiometry import BandRadiance
 
 
@@ -27,25 +28,6 @@ def _conv_valid(img: np.ndarray, k: np.ndarray) -> np.ndarray:
     if k.shape == (1, 1):
         return img * k[0, 0]
     return fftconvolve(img, k, mode="valid")
-
-
-def _patch_weights(n: int, size: int, ss_centres: list[float]) -> list[np.ndarray]:
-    """1-D tent weights (partition of unity) for n patch centres along an axis of ``size`` samples."""
-    x = np.arange(size, dtype=np.float64)
-    c = np.asarray(ss_centres)
-    out = []
-    for i in range(n):
-        w = np.zeros(size)
-        if n == 1:
-            w[:] = 1
-        else:
-            left = c[i - 1] if i > 0 else -np.inf
-            right = c[i + 1] if i < n - 1 else np.inf
-            w = np.where(x <= c[i], 1 - (c[i] - x) / (c[i] - left) if i > 0 else 1.0,
-                         1 - (x - c[i]) / (right - c[i]) if i < n - 1 else 1.0)
-            w = np.clip(w, 0, 1)
-        out.append(w)
-    return out
 
 
 class ChannelRenderer:
@@ -128,8 +110,8 @@ class ChannelRenderer:
         n = o.n_patches
         rows = sorted({c[0] for c in o.patch_centres})
         cols = sorted({c[1] for c in o.patch_centres})
-        wy = _patch_weights(n, H * ss, [(r + 0.5) * ss - 0.5 for r in rows])
-        wx = _patch_weights(n, W * ss, [(c + 0.5) * ss - 0.5 for c in cols])
+        wy = patch_weights(n, H * ss, [(r + 0.5) * ss - 0.5 for r in rows])
+        wx = patch_weights(n, W * ss, [(c + 0.5) * ss - 0.5 for c in cols])
         img = np.zeros((H * ss, W * ss))
         for p, k in enumerate(o.kernels):
             i, j = divmod(p, n)

@@ -51,6 +51,7 @@ from metafovea.imaging.kernels import (
     build_channel_optics,
     glare_as_pedestal,
     pixel_psf,
+    pixel_psf_patches,
     resample_optics,
     resolve_provider,
 )
@@ -491,7 +492,8 @@ def _extras(theta: np.ndarray, calibration: np.ndarray | None, fpn: FixedPattern
 def _psf_extras(renderers: list[ChannelRenderer], camera: Camera, times: np.ndarray, *,
                 static: bool) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
     """What a PSF-aware reconstruction needs and is scored against: each channel's PSF on the pixel grid
-    (``psf_x1``/``psf_x2``: :func:`~metafovea.imaging.kernels.pixel_psf`) and relative illumination
+    (``psf_x1``/``psf_x2``: :func:`~metafovea.imaging.kernels.pixel_psf`; in field patches also every patch's,
+    ``psf_patches_x*``: :func:`~metafovea.imaging.kernels.pixel_psf_patches`) and relative illumination
     (``illumination_x1``/``_x2``, (H, W)): known properties of the camera; for a static scene, the scene seen
     through a perfect lens (``scene_x1``/``_x2``, DN: :meth:`ChannelRenderer.scene_image` on the frames' DN scale):
     truth, for scoring only. Also the metadata ``{x1: {pedestal, size}, x2: ...}`` (the power beyond the kernels'
@@ -503,6 +505,10 @@ def _psf_extras(renderers: list[ChannelRenderer], camera: Camera, times: np.ndar
         k, pedestal = pixel_psf(rd.optics)
         out[f"psf_x{i}"] = k.astype(np.float32)
         info[f"x{i}"] = {"size": int(k.shape[0]), "kernel_sum": float(k.sum()), "pedestal": pedestal}
+        kp = pixel_psf_patches(rd.optics)
+        if kp is not None:  # a field-dependent PSF: every patch's kernel (the Measurement format's psf_patches_x*)
+            out[f"psf_patches_x{i}"] = kp.astype(np.float32)
+            info[f"x{i}"]["patches"] = int(kp.shape[0])
         ri = rd.ri if rd.ri is not None else np.ones(sensor.shape)
         out[f"illumination_x{i}"] = np.asarray(ri, dtype=np.float32)
         if static:

@@ -116,9 +116,11 @@ from numpy.typing import ArrayLike
 from metafovea.errors import InputError, check_choice, check_int
 from metafovea.measurement import RadiometricCalibration
 from metafovea.reconstruct._common import DECONVOLUTION_METHODS, DEFAULT_DECONVOLUTION
+from metafovea.reconstruct.field import FIELD_MODES, field_deconvolve
 from metafovea.reconstruct.joint import (
     BOUNDARIES,
     ChannelPSFs,
+    Grid,
     PeriodicFilter,
     Problem,
     check_boundary,
@@ -190,11 +192,24 @@ class Deconvolution:
 
     #: the entries of ``info`` a summary (``metafovea reconstruct --json``'s ``scene``) carries
     SUMMARY_KEYS = ("method", "alpha_from", "sigma_dn", "scores", "foveal_surround", "seconds", "psf_source",
-                    "psf_refinement")
+                    "psf_refinement", "field")
 
     def summary(self) -> dict[str, Any]:
         """The entries of ``info`` named in :attr:`SUMMARY_KEYS` that it has."""
         return {k: v for k, v in self.info.items() if k in self.SUMMARY_KEYS}
+
+    def lines(self) -> list[str]:
+        """What a person reads: the method, alpha's source, the time and the scores against the scene (when
+        scored), the field-dependent PSF's choice (when the PSFs have one) and the PSF refinement's lines."""
+        sc = self.info.get("scores") or {}
+        out = [f"scene ({self.info['method']}, alpha from {self.info.get('alpha_from', 'given')}, "
+               f"{self.info['seconds']:.1f} s)" + ("" if not sc else ": against the scene " + ", ".join(
+                   f"{k} {v:.4g}" for k, v in sc.items() if isinstance(v, float) and "second" not in k))]
+        fld = self.info.get("field") or {}
+        if fld.get("patches", 1) > 1:
+            out.append(f"field-dependent PSF ({fld['patches']} x {fld['patches']} patches): {fld['mode']}; "
+                       f"{fld['why']}")
+        return out + list((self.info.get("psf_refinement") or {}).get("lines", []))
 
 
 def temperatures(scene_dn: tuple[ArrayLike, ArrayLike], offset: float,
@@ -392,12 +407,37 @@ def _wavelet_step(pb: Problem, C: np.ndarray, prior_inv: np.ndarray, surround: b
     return out, info
 
 
+def _fit_priors(pb: Problem, C: np.ndarray, prior: str, scale: float,
+                prior_psfs: ChannelPSFs | None) -> list[tuple[np.ndarray, dict[str, Any]]]:
+    """Each channel's scene spectrum on the solve's grid (:func:`fitted_spectrum`), through ``prior_psfs``' OTFs
+    when given (a field-dependent reconstruction's on-axis kernels, on the same grid)."""
+    g = pb.g
+    D_fit = g.D
+    if prior_psfs is not None:
+        gp = Grid(pb.zc.shape[1:], prior_psfs.kernels, prior_psfs.pedestals)
+        if gp.shape != g.shape:
+            raise InputError("prior_psfs", "kernels of other sizes", f"kernels padded as psfs' (grid {g.shape})")
+        D_fit = gp.D
+    return [fitted_spectrum(pb.zc[i], g.padded(pb.zc[i] - np.mean(pb.zc[i])), D_fit[i], C[i, i], prior, scale)
+            for i in range(2)]
+
+
+def _shift_invariant_info(p: int) -> dict[str, Any]:
+    """``info['field']`` of a shift-invariant solve: the PSFs have no field dependence, or it was left out."""
+    if p > 1:
+        return {"mode": "on-axis", "patches": p, "why": f"asked (field_psf='on-axis'): the PSFs' {p} x {p} field "
+                "patches are left out (the shift-invariant approximation)"}
+    return {"mode": "shift-invariant", "patches": 1, "why": "the PSFs carry no field dependence (no psf_patches_x1 "
+            "/ psf_patches_x2)"}
+
+
 def separate_deconvolve(frames: ArrayLike, alpha: ArrayLike, psfs: ChannelPSFs, *, method: str = DEFAULT_DECONVOLUTION,
                         offset: float = 0.0, sigma: float | None = None, iterations: int = 100,
                         tv_weight: float | None = None, meta: dict[str, Any] | RadiometricCalibration | None = None,
                         boundary: str = "padded", pad_mode: str = "edge", prior: str = "hybrid",
                         foveal_scale: float | None = None, foveal_ratio: float = 1.0, fpn_error_dn: float = 0.0,
-                        prior_scale: str = "geometric", wavelet: str = DEFAULT_WAVELET) -> Deconvolution:
+                        prior_scale: str = "geometric", wavelet: str = DEFAULT_WAVELET,
+                        field_psf: str = "auto", prior_psfs: ChannelPSFs | None = None) -> Deconvolution:
     """The scene radiance of both channels from their mixed frames and PSFs.
 
     Parameters
@@ -440,6 +480,11 @@ def separate_deconvolve(frames: ArrayLike, alpha: ArrayLike, psfs: ChannelPSFs, 
         How the crop's per-pixel spectrum is spread over the padded grid (:data:`PRIOR_SCALES`).
     wavelet : {'haar', 'db2', 'sym4'}
         The wavelet of ``method='wavelet'`` (:data:`metafovea.reconstruct.wavelet.WAVELETS`).
+    field_psf : {'auto', 'patches', 'on-axis'}
+        A field-dependent PSF (``psfs.patches``): the patches the data need, every one, or none, blended
+        (:mod:`metafovea.reconstruct.field`); ``info['field']`` says what was modelled and why.
+    prior_psfs : ChannelPSFs, optional
+        The PSFs the scene's spectrum is fitted through (default ``psfs``): the field's on-axis ones for a patch.
 
     Returns
     -------
@@ -462,6 +507,16 @@ def separate_deconvolve(frames: ArrayLike, alpha: ArrayLike, psfs: ChannelPSFs, 
     See the module docstring, [1]_ to [3]_.
     """
     method = check_choice("method", method, DECONVOLUTION_METHODS)
+    field_psf = check_choice("field_psf", field_psf, FIELD_MODES)
+    if psfs.n_patches > 1 and field_psf != "on-axis":  # each patch shift-invariant, its prior fitted on axis
+        kw = dict(method=method, offset=offset, sigma=sigma, iterations=iterations, tv_weight=tv_weight, meta=meta,
+                  boundary=boundary, pad_mode=pad_mode, prior=prior, foveal_scale=foveal_scale, wavelet=wavelet,
+                  foveal_ratio=foveal_ratio, fpn_error_dn=fpn_error_dn, prior_scale=prior_scale,
+                  field_psf="on-axis", prior_psfs=psfs.on_axis())
+        return field_deconvolve(psfs, lambda p: separate_deconvolve(frames, alpha, p, **kw), field_psf, offset,
+                                lambda sc: temperatures(sc, offset, meta))
+    if field_psf == "patches":
+        raise InputError("field_psf", field_psf, "'auto' or 'on-axis' for PSFs without psf_patches_x1 / _x2")
     wavelet = check_choice("wavelet", wavelet, WAVELETS)
     prior = check_choice("prior", prior, PRIORS)
     prior_scale = check_choice("prior_scale", prior_scale, PRIOR_SCALES)
@@ -472,8 +527,7 @@ def separate_deconvolve(frames: ArrayLike, alpha: ArrayLike, psfs: ChannelPSFs, 
     g = pb.g
     frac = pb.zc.shape[1] * pb.zc.shape[2] / float(g.shape[0] * g.shape[1])  # the crop's share of the grid
     scale = {"grid": 1.0, "crop": frac, "geometric": math.sqrt(frac)}[prior_scale]
-    fits = [fitted_spectrum(pb.zc[i], g.padded(pb.zc[i] - np.mean(pb.zc[i])), g.D[i], C[i, i], prior, scale)
-            for i in range(2)]
+    fits = _fit_priors(pb, C, prior, scale, prior_psfs)
     prior_inv = inverse_prior([f[0] for f in fits])
     radial = [radial_mean(g.f, f[0]) for f in fits]  # (ring centres, mean, counts) per channel
     info.update(prior_scale=prior_scale, prior_scale_factor=scale,
@@ -494,6 +548,7 @@ def separate_deconvolve(frames: ArrayLike, alpha: ArrayLike, psfs: ChannelPSFs, 
         scene = (crop[0] + offset, crop[1] + offset)
     else:
         scene = (s[0][g.crop] + offset, s[1][g.crop] + offset)
+    info["field"] = _shift_invariant_info(psfs.n_patches)
     info["seconds"] = time.perf_counter() - t0
     return Deconvolution(scene, temperatures(scene, offset, meta), info)
 

@@ -88,12 +88,18 @@ class ChannelPSFs:
         Relative illumination per channel (None: 1).
     source : str
         Where they came from.
+    patches : tuple of 2 (ndarray, shape (p, p, n, n), or None)
+        A field-dependent PSF per channel (the Measurement format's ``psf_patches_x*``): the kernels at the centres
+        of ``p x p`` equal patches of the crop, interpolated bilinearly between them
+        (:func:`metafovea.measurement.patch_weights`); None: shift-invariant (``kernels``). Both channels' ``p``
+        agree when both are given.
     """
 
     kernels: tuple[np.ndarray, np.ndarray]
     pedestals: tuple[float, float] = (0.0, 0.0)
     illumination: tuple[np.ndarray | None, np.ndarray | None] = (None, None)
     source: str = "given"
+    patches: tuple[np.ndarray | None, np.ndarray | None] = (None, None)
 
     def __post_init__(self) -> None:
         ks = []
@@ -111,6 +117,48 @@ class ChannelPSFs:
                 raise InputError(f"pedestal_x{i}", p, "a power fraction in [0, 1)")
             peds.append(max(0.0, float(p)))  # a rounding residue below 0 is 0
         object.__setattr__(self, "pedestals", tuple(peds))
+        pts = []
+        for i, k in enumerate(self.patches, start=1):
+            if k is None:
+                pts.append(None)
+                continue
+            a = np.asarray(k, dtype=np.float64)
+            if (a.ndim != 4 or a.shape[0] != a.shape[1] or not 2 <= a.shape[0] <= 9 or a.shape[2] != a.shape[3]
+                    or a.shape[2] % 2 == 0):
+                raise InputError(f"psf_patches_x{i}", f"array of shape {a.shape}",
+                                 "(p, p, n, n): 2 <= p <= 9 patches a side, square kernels of odd size n")
+            sums = a.sum(axis=(2, 3))
+            if not np.all(np.isfinite(a)) or a.min() < 0 or sums.min() <= 0:
+                raise InputError(f"psf_patches_x{i}", "kernels", "finite values >= 0, each with a positive sum")
+            pts.append(a)
+        if pts[0] is not None and pts[1] is not None and pts[0].shape[0] != pts[1].shape[0]:
+            raise InputError("psf_patches_x2", f"{pts[1].shape[0]} x {pts[1].shape[0]} patches",
+                             f"the same grid as psf_patches_x1 ({pts[0].shape[0]} x {pts[0].shape[0]})")
+        object.__setattr__(self, "patches", tuple(pts))
+
+    @property
+    def n_patches(self) -> int:
+        """Patches a side of the field-dependent PSF (1: shift-invariant)."""
+        return max([1] + [int(p.shape[0]) for p in self.patches if p is not None])
+
+    def _common(self, c: int, k: np.ndarray) -> np.ndarray:
+        """``k`` zero-padded to channel ``c``'s largest kernel (on axis or any patch): every patch's solve and the
+        on-axis one then share one padded grid."""
+        p = self.patches[c]
+        n = max(self.kernels[c].shape[0], 0 if p is None else p.shape[2])
+        o = (n - k.shape[0]) // 2
+        return np.pad(k, o) if o else k
+
+    def patch(self, i: int, j: int) -> ChannelPSFs:
+        """The shift-invariant PSFs of patch ``(i, j)`` (a channel without patches keeps its kernel)."""
+        ks = tuple(self._common(c, self.kernels[c] if p is None else p[i, j]) for c, p in enumerate(self.patches))
+        return ChannelPSFs(ks, self.pedestals, self.illumination,  # type: ignore[arg-type]
+                           source=f"{self.source}, patch ({i}, {j})")
+
+    def on_axis(self) -> ChannelPSFs:
+        """The same without the field dependence (``kernels``: the kernel nearest the axis, on the patches' grid)."""
+        ks = tuple(self._common(c, k) for c, k in enumerate(self.kernels))
+        return ChannelPSFs(ks, self.pedestals, self.illumination, source=self.source)  # type: ignore[arg-type]
 
     @classmethod
     def from_measurement(cls, m: Measurement) -> ChannelPSFs:
@@ -131,7 +179,9 @@ class ChannelPSFs:
             raise InputError("measurement", m.source or "in memory", "a file with the channel PSFs 'psf_x1' and "
                              "'psf_x2' (metafovea simulate writes them), or a PSF file (psf=PATH)", source=m.source)
         ill = tuple(ex.get(f"illumination_x{i}") for i in (1, 2))
-        return cls((ex["psf_x1"], ex["psf_x2"]), m.psf_pedestals, ill, source=m.source or "measurement")
+        pts = tuple(ex.get(f"psf_patches_x{i}") for i in (1, 2))
+        return cls((ex["psf_x1"], ex["psf_x2"]), m.psf_pedestals, ill, source=m.source or "measurement",
+                   patches=pts)  # type: ignore[arg-type]
 
     @classmethod
     def from_file(cls, path: str | Path, name: str = "psf") -> ChannelPSFs:
@@ -159,9 +209,10 @@ class ChannelPSFs:
                 ks = (z["psf_x1"], z["psf_x2"])
                 ped = tuple(float(z[f"pedestal_x{i}"]) if f"pedestal_x{i}" in z.files else 0.0 for i in (1, 2))
                 ill = tuple(z[f"illumination_x{i}"] if f"illumination_x{i}" in z.files else None for i in (1, 2))
+                pts = tuple(z[f"psf_patches_x{i}"] if f"psf_patches_x{i}" in z.files else None for i in (1, 2))
         except (OSError, ValueError) as e:
             raise InputError(name, str(p), f"a readable .npz file ({e})") from None
-        return cls(ks, ped, ill, source=str(p))  # type: ignore[arg-type]
+        return cls(ks, ped, ill, source=str(p), patches=pts)  # type: ignore[arg-type]
 
 
 def normal_equations(frames: np.ndarray, alpha: ArrayLike) -> tuple[np.ndarray, np.ndarray, float, int]:

@@ -314,8 +314,17 @@ def score_deconvolution(m: Measurement, scene: tuple[np.ndarray, np.ndarray],
         fe = true_fpn_error_dn(m, fpn)
         best = [-math.inf, -math.inf]
         for e in ((0.0, fe) if fe > 0 else (0.0,)):
-            wb = wiener_bound(frames, alpha, psfs, truth, offset=offset, sigma=sig, boundary=boundary,
-                              pad_mode=pad_mode, fpn_error_dn=e)
+            def bound(p: ChannelPSFs, e: float = e) -> tuple[np.ndarray, np.ndarray]:
+                return wiener_bound(frames, alpha, p, truth, offset=offset, sigma=sig, boundary=boundary,
+                                    pad_mode=pad_mode, fpn_error_dn=e)
+
+            if psfs.n_patches > 1:  # a field-dependent PSF: the bound sectioned like the estimate
+                from metafovea.reconstruct.field import blend_patches
+
+                wb = blend_patches(psfs, bound)
+                out["wiener_bound_psf"] = f"sectioned: {psfs.n_patches} x {psfs.n_patches} patches' kernels, blended"
+            else:
+                wb = bound(psfs)
             best = [max(best[i], psnr(wb[i], truth[i])) for i in range(2)]
         out.update(wiener_bound_psnr_x1=best[0], wiener_bound_psnr_x2=best[1],
                    wiener_bound_seconds=time.perf_counter() - t0, wiener_bound_fpn_error_dn=fe)
