@@ -116,7 +116,7 @@ from numpy.typing import ArrayLike
 from metafovea.errors import InputError, check_choice, check_int
 from metafovea.measurement import RadiometricCalibration
 from metafovea.reconstruct._common import DECONVOLUTION_METHODS, DEFAULT_DECONVOLUTION
-from metafovea.reconstruct.field import FIELD_MODES, field_deconvolve
+from metafovea.reconstruct.field import FIELD_MODES, PatchContext, field_deconvolve
 from metafovea.reconstruct.joint import (
     BOUNDARIES,
     ChannelPSFs,
@@ -237,7 +237,8 @@ def temperatures(scene_dn: tuple[ArrayLike, ArrayLike], offset: float,
     return cal.temperatures(scene_dn, offset)
 
 
-def _foveal_surround(pb: Problem, s: np.ndarray, scale: float, ratio: float, join: bool = True) -> float:
+def _foveal_surround(pb: Problem, s: np.ndarray, scale: float, ratio: float, join: bool = True,
+                     perifoveal: np.ndarray | None = None) -> float:
     """Replace the foveal channel's padding (``pb.z[0]``) by what the perifoveal estimate ``s`` predicts there.
 
     The foveal field at focal-plane position ``p`` is the perifoveal one at ``p / scale`` (both channels share the
@@ -251,7 +252,9 @@ def _foveal_surround(pb: Problem, s: np.ndarray, scale: float, ratio: float, joi
     edge-extended data, zero on the crop and low-passed (a Gaussian of ``SURROUND_SIGMA_PER_SCALE x scale`` px, half
     power at that frequency): far out the padding is the prediction's low-pass, at the crop's edge it joins the
     data's edge values, which carry detail finer than the perifoveal channel resolves, but wrong detail where the
-    scene has none finer than that. Returns the surface's rms on the crop (DN).
+    scene has none finer than that. ``perifoveal`` (the crop, DN above the dark level): the perifoveal estimate
+    to predict from in place of ``s``'s (a field patch's solve: the on-axis one's). Returns the surface's rms on
+    the crop (DN).
     """
     from scipy.ndimage import gaussian_filter, map_coordinates
 
@@ -262,7 +265,7 @@ def _foveal_surround(pb: Problem, s: np.ndarray, scale: float, ratio: float, joi
     # grid index j -> foveal pixel j - p -> offset from the crop centre -> perifoveal pixel
     yy = ((np.arange(P) - p) - (H - 1) / 2) / scale + (H - 1) / 2
     xx = ((np.arange(Q) - p) - (W - 1) / 2) / scale + (W - 1) / 2
-    s2 = s[1][g.crop]
+    s2 = s[1][g.crop] if perifoveal is None else perifoveal
     ext = ratio * map_coordinates(s2, np.meshgrid(yy, xx, indexing="ij"), order=1, mode="nearest")
     pred = g.irfft(g.D[0] * g.rfft(ext))
     # the smooth field the prediction lacks: a quadratic surface in the crop's normalised coordinates
@@ -283,15 +286,15 @@ def _foveal_surround(pb: Problem, s: np.ndarray, scale: float, ratio: float, joi
     return float(np.sqrt(np.mean(field[g.crop] ** 2)))
 
 
-def _surround_solve(pb: Problem, s: np.ndarray, prior_inv: np.ndarray, scale: float,
-                    ratio: float) -> tuple[np.ndarray, int, dict[str, Any]]:
+def _surround_solve(pb: Problem, s: np.ndarray, prior_inv: np.ndarray, scale: float, ratio: float,
+                    perifoveal: np.ndarray | None = None) -> tuple[np.ndarray, int, dict[str, Any]]:
     """Both forms of the foveal surround, each solved; the one whose solution explains the foveal data on the crop
     better is kept (``pb.z[0]`` left at it). Returns ``(s, CG iterations, info entries)``."""
     g = pb.g
     n_cg = 0
     cands = []
     for join in (True, False):
-        smooth = _foveal_surround(pb, s, scale, ratio, join=join)
+        smooth = _foveal_surround(pb, s, scale, ratio, join=join, perifoveal=perifoveal)
         s_j, n_j = linear_solve(pb, prior_inv, s)
         n_cg += n_j
         r = pb.zc[0] - g.irfft(g.D[0] * g.rfft(s_j[0]))[g.crop]
@@ -408,15 +411,15 @@ def _wavelet_step(pb: Problem, C: np.ndarray, prior_inv: np.ndarray, surround: b
 
 
 def _fit_priors(pb: Problem, C: np.ndarray, prior: str, scale: float,
-                prior_psfs: ChannelPSFs | None) -> list[tuple[np.ndarray, dict[str, Any]]]:
-    """Each channel's scene spectrum on the solve's grid (:func:`fitted_spectrum`), through ``prior_psfs``' OTFs
-    when given (a field-dependent reconstruction's on-axis kernels, on the same grid)."""
+                patch: PatchContext | None) -> list[tuple[np.ndarray, dict[str, Any]]]:
+    """Each channel's scene spectrum on the solve's grid (:func:`fitted_spectrum`), through the on-axis kernels'
+    OTFs for a field patch's solve (``patch.prior_psfs``, on the same grid)."""
     g = pb.g
     D_fit = g.D
-    if prior_psfs is not None:
-        gp = Grid(pb.zc.shape[1:], prior_psfs.kernels, prior_psfs.pedestals)
+    if patch is not None:
+        gp = Grid(pb.zc.shape[1:], patch.prior_psfs.kernels, patch.prior_psfs.pedestals)
         if gp.shape != g.shape:
-            raise InputError("prior_psfs", "kernels of other sizes", f"kernels padded as psfs' (grid {g.shape})")
+            raise InputError("patch", "on-axis kernels of other sizes", f"kernels padded as psfs' (grid {g.shape})")
         D_fit = gp.D
     return [fitted_spectrum(pb.zc[i], g.padded(pb.zc[i] - np.mean(pb.zc[i])), D_fit[i], C[i, i], prior, scale)
             for i in range(2)]
@@ -437,7 +440,7 @@ def separate_deconvolve(frames: ArrayLike, alpha: ArrayLike, psfs: ChannelPSFs, 
                         boundary: str = "padded", pad_mode: str = "edge", prior: str = "hybrid",
                         foveal_scale: float | None = None, foveal_ratio: float = 1.0, fpn_error_dn: float = 0.0,
                         prior_scale: str = "geometric", wavelet: str = DEFAULT_WAVELET,
-                        field_psf: str = "auto", prior_psfs: ChannelPSFs | None = None) -> Deconvolution:
+                        field_psf: str = "auto", patch: PatchContext | None = None) -> Deconvolution:
     """The scene radiance of both channels from their mixed frames and PSFs.
 
     Parameters
@@ -483,8 +486,8 @@ def separate_deconvolve(frames: ArrayLike, alpha: ArrayLike, psfs: ChannelPSFs, 
     field_psf : {'auto', 'patches', 'on-axis'}
         A field-dependent PSF (``psfs.patches``): the patches the data need, every one, or none, blended
         (:mod:`metafovea.reconstruct.field`); ``info['field']`` says what was modelled and why.
-    prior_psfs : ChannelPSFs, optional
-        The PSFs the scene's spectrum is fitted through (default ``psfs``): the field's on-axis ones for a patch.
+    patch : PatchContext, optional
+        A field patch's solve (:func:`~metafovea.reconstruct.field.field_deconvolve`): what it keeps of the on-axis.
 
     Returns
     -------
@@ -508,13 +511,12 @@ def separate_deconvolve(frames: ArrayLike, alpha: ArrayLike, psfs: ChannelPSFs, 
     """
     method = check_choice("method", method, DECONVOLUTION_METHODS)
     field_psf = check_choice("field_psf", field_psf, FIELD_MODES)
-    if psfs.n_patches > 1 and field_psf != "on-axis":  # each patch shift-invariant, its prior fitted on axis
+    if psfs.n_patches > 1 and field_psf != "on-axis":  # each patch shift-invariant (field.py)
         kw = dict(method=method, offset=offset, sigma=sigma, iterations=iterations, tv_weight=tv_weight, meta=meta,
                   boundary=boundary, pad_mode=pad_mode, prior=prior, foveal_scale=foveal_scale, wavelet=wavelet,
-                  foveal_ratio=foveal_ratio, fpn_error_dn=fpn_error_dn, prior_scale=prior_scale,
-                  field_psf="on-axis", prior_psfs=psfs.on_axis())
-        return field_deconvolve(psfs, lambda p: separate_deconvolve(frames, alpha, p, **kw), field_psf, offset,
-                                lambda sc: temperatures(sc, offset, meta))
+                  foveal_ratio=foveal_ratio, fpn_error_dn=fpn_error_dn, prior_scale=prior_scale, field_psf="on-axis")
+        return field_deconvolve(psfs, lambda p, c: separate_deconvolve(frames, alpha, p, patch=c, **kw), field_psf,
+                                offset, lambda sc: temperatures(sc, offset, meta))
     if field_psf == "patches":
         raise InputError("field_psf", field_psf, "'auto' or 'on-axis' for PSFs without psf_patches_x1 / _x2")
     wavelet = check_choice("wavelet", wavelet, WAVELETS)
@@ -527,7 +529,7 @@ def separate_deconvolve(frames: ArrayLike, alpha: ArrayLike, psfs: ChannelPSFs, 
     g = pb.g
     frac = pb.zc.shape[1] * pb.zc.shape[2] / float(g.shape[0] * g.shape[1])  # the crop's share of the grid
     scale = {"grid": 1.0, "crop": frac, "geometric": math.sqrt(frac)}[prior_scale]
-    fits = _fit_priors(pb, C, prior, scale, prior_psfs)
+    fits = _fit_priors(pb, C, prior, scale, patch)
     prior_inv = inverse_prior([f[0] for f in fits])
     radial = [radial_mean(g.f, f[0]) for f in fits]  # (ring centres, mean, counts) per channel
     info.update(prior_scale=prior_scale, prior_scale_factor=scale,
@@ -535,7 +537,8 @@ def separate_deconvolve(frames: ArrayLike, alpha: ArrayLike, psfs: ChannelPSFs, 
                               "x1": radial[0][1].tolist(), "x2": radial[1][1].tolist()})
     s, n_cg = linear_solve(pb, prior_inv, None)
     if foveal_scale is not None and boundary == "padded":
-        s, n_sur, sur = _surround_solve(pb, s, prior_inv, float(foveal_scale), float(foveal_ratio))
+        s, n_sur, sur = _surround_solve(pb, s, prior_inv, float(foveal_scale), float(foveal_ratio),
+                                        None if patch is None else patch.perifoveal_dn)
         n_cg += n_sur
         info.update(sur)
     info.update(method=method, prior=prior, prior_fit=[f[1] for f in fits], cg_iterations=n_cg)

@@ -14,7 +14,10 @@ over the whole crop (both channels together, as the joint solve needs), blended 
     s_i = sum_j w_j s_ij                                                                                (2)
 
 exact where one patch's weight is 1, between neighbouring centres the interpolation of two estimates each made
-for the PSF at its own centre; every ``s_ij`` sees the whole crop, so no patch has a boundary of its own.
+for the PSF at its own centre; every ``s_ij`` sees the whole crop, so no patch has a boundary of its own. Each
+patch's solve keeps two things of the on-axis solve (:class:`PatchContext`): the scene's spectrum, fitted through
+the on-axis kernels, and the perifoveal estimate from which the foveal surround is predicted (the perifoveal
+channel's centre, which a corner patch's kernels image wrong).
 
 What is modelled is chosen from the data (``field_psf='auto'``): the on-axis estimate ``s_0`` first; patch ``j``'s
 kernels change the data it predicts by ``d_ij = (K_ij - K_i0) * s_0i`` (the separated channel, illumination divided
@@ -37,6 +40,7 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Callable
+from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -50,12 +54,30 @@ if TYPE_CHECKING:
     from metafovea.reconstruct.deconvolve import Deconvolution
     from metafovea.reconstruct.joint import ChannelPSFs
 
-__all__ = ["FIELD_MODES", "FIELD_NOISE_SHARE", "blend_patches", "field_deconvolve", "model_change"]
+__all__ = ["FIELD_MODES", "FIELD_NOISE_SHARE", "PatchContext", "blend_patches", "field_deconvolve", "model_change"]
 
 #: ``field``: ``'auto'`` (the patches the data need), ``'patches'`` (every patch), ``'on-axis'`` (none)
 FIELD_MODES = ("auto", "patches", "on-axis")
 #: a patch is solved when its kernels change the predicted data by more than this share of the noise (rms)
 FIELD_NOISE_SHARE = KERNEL_NOISE_SHARE
+
+
+@dataclass(frozen=True)
+class PatchContext:
+    """What a patch's shift-invariant solve takes from the on-axis one (:func:`field_deconvolve`).
+
+    Attributes
+    ----------
+    prior_psfs : ChannelPSFs
+        The on-axis kernels, through which the scene's spectrum is fitted: through a patch's kernels over the
+        whole crop, data that a narrower kernel made elsewhere look like a scene of far more detail.
+    perifoveal_dn : ndarray, shape (H, W)
+        The perifoveal estimate (DN above the dark level) that predicts the foveal surround: the surround is the
+        perifoveal channel's centre, which the on-axis solve images right and a corner patch's solve does not.
+    """
+
+    prior_psfs: ChannelPSFs
+    perifoveal_dn: np.ndarray
 
 
 def _weights(p: int, shape: tuple[int, int]) -> list[list[np.ndarray]]:
@@ -132,7 +154,7 @@ def model_change(psfs: ChannelPSFs, scene: tuple[np.ndarray, np.ndarray], offset
     return out
 
 
-def field_deconvolve(psfs: ChannelPSFs, solve: Callable[[ChannelPSFs], Deconvolution], mode: str,
+def field_deconvolve(psfs: ChannelPSFs, solve: Callable[[ChannelPSFs, PatchContext | None], Deconvolution], mode: str,
                      offset: float, temperatures: Callable[[tuple[np.ndarray, np.ndarray]], Any]) -> Deconvolution:
     """Eq. (2): the shift-invariant ``solve`` per patch the data need, blended.
 
@@ -141,7 +163,8 @@ def field_deconvolve(psfs: ChannelPSFs, solve: Callable[[ChannelPSFs], Deconvolu
     psfs : ChannelPSFs
         With a field-dependent PSF (``psfs.n_patches > 1``).
     solve : callable
-        ``solve(ChannelPSFs) -> Deconvolution``: the shift-invariant reconstruction with the given kernels.
+        ``solve(ChannelPSFs, PatchContext or None) -> Deconvolution``: the shift-invariant reconstruction with the
+        given kernels (the context None for the on-axis solve).
     mode : {'auto', 'patches'}
         Which patches are solved (module docstring; ``field_psf`` of
         :func:`~metafovea.reconstruct.deconvolve.separate_deconvolve`).
@@ -162,8 +185,10 @@ def field_deconvolve(psfs: ChannelPSFs, solve: Callable[[ChannelPSFs], Deconvolu
     if p < 2:
         raise InputError("field_psf", mode, "PSFs with a field dependence (psf_patches_x1 / psf_patches_x2)")
     t0 = time.perf_counter()
-    base = solve(psfs.on_axis())
+    axis = psfs.on_axis()
+    base = solve(axis, None)
     H, W = base.scene[0].shape
+    ctx = PatchContext(axis, np.asarray(base.scene[1], dtype=np.float64) - offset)
     change = model_change(psfs, base.scene, offset, tuple(base.info["noise_std_dn"]))  # type: ignore[arg-type]
     # per patch and channel: its own kernels where they change the channel's data beyond the share of the noise
     # (the joint solve of a patch uses both channels' kernels; a channel whose kernels barely change keeps the
@@ -176,7 +201,7 @@ def field_deconvolve(psfs: ChannelPSFs, solve: Callable[[ChannelPSFs], Deconvolu
         for j in range(p):
             r = base
             if np.any(need[i, j]):
-                r = solve(psfs.patch(i, j))
+                r = solve(psfs.patch(i, j), ctx)
                 solved.append([i, j, [c + 1 for c in range(2) if need[i, j, c]]])
                 if "tau" in r.info:
                     taus[f"{i},{j}"] = r.info["tau"]
