@@ -243,13 +243,16 @@ class PSFFamily:
         return int(np.argmin(np.abs(self.values - self.nominal)))
 
     def member(self, base: ChannelPSFs, index: int) -> ChannelPSFs:
-        """``base`` with this family's channel replaced by member ``index`` (the other channel and the
-        illumination kept)."""
-        ks, ped = list(base.kernels), list(base.pedestals)
+        """``base`` with this family's channel replaced by member ``index`` (the other channel, with its field
+        patches, and the illumination kept; the family's members are on-axis kernels, so the channel replaced
+        loses its field patches)."""
+        ks, ped, pts = list(base.kernels), list(base.pedestals), list(base.patches)
         ks[self.channel - 1] = self.kernels[index]
         ped[self.channel - 1] = self.pedestals[index]
+        pts[self.channel - 1] = None
         return ChannelPSFs((ks[0], ks[1]), (ped[0], ped[1]), base.illumination,
-                           source=f"{base.source}; x{self.channel} {self.kind} {self.values[index]:+g} {self.unit}")
+                           source=f"{base.source}; x{self.channel} {self.kind} {self.values[index]:+g} {self.unit}",
+                           patches=(pts[0], pts[1]))
 
 
 def _channel_index(channel: int | str) -> int:

@@ -150,3 +150,26 @@ def test_the_simulators_field_patches_reach_the_reconstruction_through_the_file(
     assert auto.info["field"]["solved"] and sc["wiener_bound_psf"].startswith("sectioned")
     assert sc["psnr_x2"] > on["psnr_x2"] + 10.0  # measured 5.7 -> 25.8 dB
     assert sc["psnr_x1"] > on["psnr_x1"] - 0.05  # measured 25.4 -> 25.9 dB (24.3 with a patch's own surround)
+
+
+def test_reconstruct_says_which_patches_it_solved_and_why(tmp_path, capsys):
+    import dataclasses
+    import json
+
+    from metafovea.cli import main
+    from metafovea.config import load_system
+    from metafovea.imaging.simulate import simulate
+
+    system = load_system("designs/system.toml")
+    system = dataclasses.replace(system, sensor=dataclasses.replace(system.sensor, crop=(64, 64)))
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        m = simulate(system, "coins", field_patches=3, rng=1, frames=12, filter_enabled=True)
+    path = m.save(tmp_path / "f.npz")
+    base = ["reconstruct", str(path), "--method", "lsq", "--deconvolve", "wiener", "--no-figures"]
+    assert main(base + ["--out", str(tmp_path / "a.npz")]) == 0
+    out = capsys.readouterr().out
+    assert "field-dependent PSF (3 x 3 patches): 3 x 3 patches;" in out and "the noise" in out
+    assert main(base + ["--out", str(tmp_path / "b.npz"), "--field-psf", "on-axis", "--json"]) == 0
+    f = json.loads(capsys.readouterr().out)["scene"]["field"]
+    assert f["mode"] == "on-axis" and "left out" in f["why"]
