@@ -175,3 +175,16 @@ def test_reconstruct_says_which_patches_it_solved_and_why(tmp_path, capsys):
     assert main(base + ["--out", str(tmp_path / "b.npz"), "--field-psf", "on-axis", "--json"]) == 0
     f = json.loads(capsys.readouterr().out)["scene"]["field"]
     assert f["mode"] == "on-axis" and "left out" in f["why"]
+
+
+def test_a_psf_file_carries_the_patches_and_bad_ones_are_named(strong, tmp_path):
+    """``reconstruct --psf FILE``: a calibration's field-dependent PSF in the documented arrays."""
+    _, _, psfs, _ = strong
+    path = tmp_path / "psf.npz"
+    np.savez(path, psf_x1=psfs.kernels[0], psf_x2=psfs.kernels[1], psf_patches_x2=psfs.patches[1])
+    loaded = ChannelPSFs.from_file(path)
+    assert loaded.n_patches == 3 and loaded.patches[0] is None
+    assert np.array_equal(loaded.patches[1], psfs.patches[1])
+    np.savez(path, psf_x1=psfs.kernels[0], psf_x2=psfs.kernels[1], psf_patches_x2=psfs.patches[1][:, :, :-1])
+    with pytest.raises(InputError, match="psf_patches_x2"):
+        ChannelPSFs.from_file(path)
