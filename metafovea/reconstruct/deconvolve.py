@@ -322,16 +322,14 @@ def _tv_step(pb: Problem, s: np.ndarray, tv_weight: float | None, iterations: in
     return s, {"tv_weight": [float(v) for v in lam], "tv_weight_multiplier": mult, "admm_iterations": its}
 
 
-def _wavelet_step(pb: Problem, C: np.ndarray, prior_inv: np.ndarray, surround: bool, wavelet: str,
-                  fixed_taus: tuple[float, float] | None = None) -> tuple[np.ndarray, dict[str, Any]]:
+def _wavelet_step(pb: Problem, C: np.ndarray, prior_inv: np.ndarray, surround: bool,
+                  wavelet: str) -> tuple[np.ndarray, dict[str, Any]]:
     """The Fourier-wavelet estimate (:mod:`metafovea.reconstruct.wavelet`): per channel, the ``tau`` of
     :data:`~metafovea.reconstruct.wavelet.TAUS` whose shrunk estimate has the lowest estimated risk, eq. (2) there.
 
     ``surround``: the foveal channel's padding is the perifoveal channel's prediction, not its own edge values, so
     its noise draws are 0 there (the prediction's noise is the perifoveal estimate's, low-passed: neglected).
     With ``boundary='unknown'`` (no periodic data) the risk is eq. (2b) there: the prior's predicted bias plus SURE.
-    ``fixed_taus``: each channel's ``tau`` given, no search (a field patch's solve takes the on-axis solve's: its own
-    risk would be estimated over the whole crop, most of which its kernels do not image).
     Returns the crop's estimates ``(2, H, W)`` (DN above the dark level) and the info entries.
     """
     g = pb.g
@@ -360,36 +358,23 @@ def _wavelet_step(pb: Problem, C: np.ndarray, prior_inv: np.ndarray, surround: b
         spec = g.rfft(np.stack([pb.z] + draws))
         B = filt.rhs(spec.astype(np.complex64))
         frame_power = stationary_frame(g.shape, wavelet, levels).power  # |F_b(f)|^2 on the grid
-        if fixed_taus is None:
-            risk_data = filt.risk_data(spec[0], spec[1:], DETECTION_SNR)
-
-    def linear(tau: float) -> tuple[np.ndarray, np.ndarray]:
-        """The Fourier step's estimate ``(2, H, W)`` at ``tau`` and the noise draws through it ``(K, 2, H, W)``."""
-        if periodic:
-            sol = g.irfft_crop(filt.solve(tau, B)).astype(np.float64)
-            return sol[0], sol[1:]
-        x = linear_solve(pb, tau * prior_inv, None)[0][:, g.crop[0], g.crop[1]]
-        z0 = pb.z
-        noise_list = []
-        for nk in draws:
-            pb.z = nk
-            noise_list.append(linear_solve(pb, tau * prior_inv, None)[0][:, g.crop[0], g.crop[1]])
-        pb.z = z0
-        return x, np.stack(noise_list)
-
-    levels_info = {"wavelet": wavelet, "wavelet_levels": levels, "noise_samples": NOISE_SAMPLES}
-    if fixed_taus is not None:
-        fixed = np.empty((2, H, W))
-        for tau in sorted(set(fixed_taus)):
-            x, noise = linear(tau)
-            for i in (i for i in range(2) if fixed_taus[i] == tau):
-                fixed[i] = shrink_linearised(x[i], noise[:, i], wavelet, levels)[0]
-        return fixed, {**levels_info, "tau": list(fixed_taus), "tau_from": "the on-axis solve (a field patch)"}
+        risk_data = filt.risk_data(spec[0], spec[1:], DETECTION_SNR)
     best: list[tuple[float, float, np.ndarray] | None] = [None, None]
     curve: list[list[dict[str, float]]] = [[], []]
     estimates: list[list[np.ndarray]] = [[], []]
     for tau in TAUS:
-        x, noise = linear(tau)
+        if periodic:
+            sol = g.irfft_crop(filt.solve(tau, B)).astype(np.float64)
+            x, noise = sol[0], sol[1:]
+        else:
+            x = linear_solve(pb, tau * prior_inv, None)[0][:, g.crop[0], g.crop[1]]
+            z0 = pb.z
+            noise_list = []
+            for nk in draws:
+                pb.z = nk
+                noise_list.append(linear_solve(pb, tau * prior_inv, None)[0][:, g.crop[0], g.crop[1]])
+            pb.z = z0
+            noise = np.stack(noise_list)
         parts = [shrink_linearised(x[i], noise[:, i], wavelet, levels) for i in range(2)]
         if periodic:
             gain = np.stack([np.tensordot(p[2], frame_power, axes=(0, 0)) for p in parts])
@@ -417,7 +402,8 @@ def _wavelet_step(pb: Problem, C: np.ndarray, prior_inv: np.ndarray, surround: b
         k = next(j for j in range(len(TAUS)) if risks[j] <= risks[k_min] + curve[i][k_min]["standard_error_dn2"])
         best[i] = (risks[k], TAUS[k], estimates[i][k])
     out = np.stack([b[2] for b in best])  # type: ignore[index]
-    info = {**levels_info, "tau": [b[1] for b in best],  # type: ignore[index]
+    info = {"wavelet": wavelet, "wavelet_levels": levels, "noise_samples": NOISE_SAMPLES,
+            "tau": [b[1] for b in best],  # type: ignore[index]
             # the criterion at the chosen tau, up to a constant of each channel (periodic): a ranking, not an error
             "risk_criterion_dn2": [b[0] for b in best],  # type: ignore[index]
             "risk_curve": {"x1": curve[0], "x2": curve[1]}}
@@ -560,7 +546,7 @@ def separate_deconvolve(frames: ArrayLike, alpha: ArrayLike, psfs: ChannelPSFs, 
         s, tv_info = _tv_step(pb, s, tv_weight, iterations)
         info.update(tv_info)
     if method == "wavelet":
-        crop, w_info = _wavelet_step(pb, C, prior_inv, "foveal_surround" in info, wavelet, patch and patch.taus)
+        crop, w_info = _wavelet_step(pb, C, prior_inv, "foveal_surround" in info, wavelet)
         info.update(w_info)
         scene = (crop[0] + offset, crop[1] + offset)
     else:

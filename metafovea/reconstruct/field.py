@@ -15,10 +15,9 @@ over the whole crop (both channels together, as the joint solve needs), blended 
 
 exact where one patch's weight is 1, between neighbouring centres the interpolation of two estimates each made
 for the PSF at its own centre; every ``s_ij`` sees the whole crop, so no patch has a boundary of its own. Each
-patch's solve keeps of the on-axis solve (:class:`PatchContext`): the scene's spectrum, fitted through the on-axis
-kernels; the perifoveal estimate from which the foveal surround is predicted (the perifoveal channel's centre, which
-a corner patch's kernels image wrong); for the wavelet method each channel's regularisation ``tau`` (a patch's own
-risk estimate would average over the whole crop, which its kernels do not image).
+patch's solve keeps two things of the on-axis solve (:class:`PatchContext`): the scene's spectrum, fitted through
+the on-axis kernels, and the perifoveal estimate from which the foveal surround is predicted (the perifoveal
+channel's centre, which a corner patch's kernels image wrong).
 
 What is modelled is chosen from the data (``field_psf='auto'``): the on-axis estimate ``s_0`` first; patch ``j``'s
 kernels change the data it predicts by ``d_ij = (K_ij - K_i0) * s_0i`` (the separated channel, illumination divided
@@ -75,15 +74,10 @@ class PatchContext:
     perifoveal_dn : ndarray, shape (H, W)
         The perifoveal estimate (DN above the dark level) that predicts the foveal surround: the surround is the
         perifoveal channel's centre, which the on-axis solve images right and a corner patch's solve does not.
-    taus : tuple of 2 float, optional
-        The wavelet method's ``tau`` per channel, chosen by the on-axis solve's risk: a patch's own risk would be
-        estimated over the whole crop, most of which its kernels do not image (taking the on-axis choice was as
-        good or better on all the channels of BENCHMARKS.md's field cases, and halves the time).
     """
 
     prior_psfs: ChannelPSFs
     perifoveal_dn: np.ndarray
-    taus: tuple[float, float] | None = None
 
 
 def _weights(p: int, shape: tuple[int, int]) -> list[list[np.ndarray]]:
@@ -194,9 +188,7 @@ def field_deconvolve(psfs: ChannelPSFs, solve: Callable[[ChannelPSFs, PatchConte
     axis = psfs.on_axis()
     base = solve(axis, None)
     H, W = base.scene[0].shape
-    tau = base.info.get("tau")
-    ctx = PatchContext(axis, np.asarray(base.scene[1], dtype=np.float64) - offset,
-                       None if tau is None else (float(tau[0]), float(tau[1])))
+    ctx = PatchContext(axis, np.asarray(base.scene[1], dtype=np.float64) - offset)
     change = model_change(psfs, base.scene, offset, tuple(base.info["noise_std_dn"]))  # type: ignore[arg-type]
     # per patch and channel: its own kernels where they change the channel's data beyond the share of the noise
     # (the joint solve of a patch uses both channels' kernels; a channel whose kernels barely change keeps the

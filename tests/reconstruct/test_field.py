@@ -92,9 +92,7 @@ def test_the_default_method_gains_too(strong):
     on = separate_deconvolve(frames, a, psfs, sigma=1.0, field_psf="on-axis")
     auto = separate_deconvolve(frames, a, psfs, sigma=1.0)
     assert psnr(auto.scene[1], truth[1]) - psnr(on.scene[1], truth[1]) > 6.0
-    taus = auto.info["field"]["tau_per_patch"]
-    assert set(taus) == {f"{i},{j}" for i in range(3) for j in range(3)} - {"1,1"}
-    assert all(t == auto.info["tau"] for t in taus.values())  # each patch takes the on-axis solve's regularisation
+    assert set(auto.info["field"]["tau_per_patch"]) == {f"{i},{j}" for i in range(3) for j in range(3)} - {"1,1"}
 
 
 def test_a_field_variation_below_the_noise_is_not_modelled():
