@@ -69,6 +69,10 @@ def test_quick_bench_writes_the_page_and_the_json_of_every_stage(quick_run):
     assert all(r["bytes"] > 0 and r["disk_seconds"] > 0 for r in d["stages"]["export"]["rows"])
     # the reduced models stay within their budgets
     assert all(r["within_budget"] for r in d["stages"]["simulate"]["rows"] if r["tolerance_k"] is not None)
+    # a field-dependent PSF: the file's patches beat the on-axis kernel in the perifoveal channel at 10 um
+    fld = {r["setting"]: r["psnr_db"] for r in d["stages"]["reconstruct"]["rows"]
+           if r["series"] == "field-dependent PSF, perifoveal channel"}
+    assert fld["wiener, field_psf auto"] > fld["wiener, field_psf on-axis"] + 2.0, fld
 
 
 def test_nothing_is_overwritten_without_force(quick_run, capsys):
