@@ -48,7 +48,7 @@ from typing import Any
 
 import numpy as np
 
-from metafovea.errors import InputError, check_choice, check_positive
+from metafovea.errors import InputError, check_choice, check_int, check_positive
 from metafovea.measurement import Measurement
 from metafovea.reconstruct._common import (
     CALIBRATION_FRAMES,
@@ -174,7 +174,7 @@ def windows_of(frames: int, window: int, stride: int) -> int:
 
 
 def predicted_seconds(method: str, frames: int, pixels: int, window: int, stride: int = 1, *,
-                      denoise: str | None = None, deconvolve: str | None = None) -> float:
+                      denoise: str | None = None, deconvolve: str | None = None, field_patches: int = 1) -> float:
     """The predicted wall seconds of a reconstruction (:data:`SECONDS_PER`).
 
     Parameters
@@ -188,6 +188,9 @@ def predicted_seconds(method: str, frames: int, pixels: int, window: int, stride
         Denoising of each window's images (costed as TV).
     deconvolve : {'wavelet', 'wiener', 'tv'} or None
         The PSF-aware step after a one-window reconstruction.
+    field_patches : int
+        Patches a side of the file's field-dependent PSF (``psf_patches_x*``): the PSF-aware step may solve each
+        (:mod:`metafovea.reconstruct.field`), so it is costed ``field_patches^2`` times (at most).
     """
     method = check_choice("method", method, ("lsq", "alternating", "snapshot"))
     k = windows_of(frames, window, stride)
@@ -203,7 +206,8 @@ def predicted_seconds(method: str, frames: int, pixels: int, window: int, stride
     if denoise is not None:
         t += s["denoise_window_px"] * k * pixels
     if deconvolve is not None:
-        t += s[f"deconvolve_{check_choice('deconvolve', deconvolve, DECONVOLUTION_METHODS)}_px"] * pixels
+        t += (s[f"deconvolve_{check_choice('deconvolve', deconvolve, DECONVOLUTION_METHODS)}_px"] * pixels
+              * check_int("field_patches", field_patches, 1, 9) ** 2)
     return float(t)
 
 
@@ -270,8 +274,9 @@ def choose_method(m: Measurement, time_s: float | None = None, *, known_alpha: b
     mo = motion_of(m)
     given = tuple(k for k, v in (("window", window), ("stride", stride), ("denoise", denoise),
                                  ("deconvolve", deconvolve)) if v is not None)
+    fp = max([1] + [int(np.shape(m.extras[k])[0]) for k in ("psf_patches_x1", "psf_patches_x2") if k in m.extras])
     rows = [{"method": solver, "window": w, "stride": s, "denoise": dn, "deconvolve": d,
-             "predicted_s": predicted_seconds(solver, T, H * W, w, s, denoise=dn, deconvolve=d)}
+             "predicted_s": predicted_seconds(solver, T, H * W, w, s, denoise=dn, deconvolve=d, field_patches=fp)}
             for w, s, dn, d in _candidates(m, mo.moving, T, window, stride, denoise, deconvolve)]
     for r in rows:
         r["fits"] = tmax is None or r["predicted_s"] <= tmax

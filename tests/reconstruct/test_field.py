@@ -152,11 +152,11 @@ def test_the_simulators_field_patches_reach_the_reconstruction_through_the_file(
     assert sc["psnr_x1"] > on["psnr_x1"] - 0.05  # measured 25.4 -> 25.9 dB (24.3 with a patch's own surround)
 
 
-def test_reconstruct_says_which_patches_it_solved_and_why(tmp_path, capsys):
+@pytest.fixture(scope="module")
+def small_file(tmp_path_factory):
+    """A 64 px recording of the paper's camera at 10 um in 3 x 3 field patches, saved."""
     import dataclasses
-    import json
 
-    from metafovea.cli import main
     from metafovea.config import load_system
     from metafovea.imaging.simulate import simulate
 
@@ -165,7 +165,32 @@ def test_reconstruct_says_which_patches_it_solved_and_why(tmp_path, capsys):
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         m = simulate(system, "coins", field_patches=3, rng=1, frames=12, filter_enabled=True)
-    path = m.save(tmp_path / "f.npz")
+    return m.save(tmp_path_factory.mktemp("field") / "f.npz")
+
+
+def test_auto_costs_the_patches_in_its_time_budget(small_file):
+    """``reconstruct --method auto --time-s S``: the PSF-aware step of a field-dependent file may solve every patch,
+    so a budget that fits one shift-invariant solve does not pick it."""
+    from metafovea.measurement import Measurement
+    from metafovea.reconstruct.auto import choose_method, predicted_seconds
+
+    m = Measurement.load(small_file)
+    T, H, W = m.shape
+    one = predicted_seconds("lsq", T, H * W, T, deconvolve="wavelet")
+    nine = predicted_seconds("lsq", T, H * W, T, deconvolve="wavelet", field_patches=3)
+    plain = predicted_seconds("lsq", T, H * W, T)
+    assert nine - plain == pytest.approx(9 * (one - plain))
+    c = choose_method(m, time_s=0.5 * (one + nine), known_alpha=True)
+    assert c.deconvolve != "wavelet" and c.predicted_s <= 0.5 * (one + nine)
+    assert choose_method(m, time_s=1.01 * nine, known_alpha=True).deconvolve == "wavelet"
+
+
+def test_reconstruct_says_which_patches_it_solved_and_why(small_file, tmp_path, capsys):
+    import json
+
+    from metafovea.cli import main
+
+    path = small_file
     base = ["reconstruct", str(path), "--method", "lsq", "--deconvolve", "wiener", "--no-figures"]
     assert main(base + ["--out", str(tmp_path / "a.npz")]) == 0
     out = capsys.readouterr().out
