@@ -137,10 +137,12 @@ def run(args: argparse.Namespace) -> int:
     files = write_outputs(res, out, figures, title=f"{res.reconstruction.method}: {Path(m.source).name}")
     dec = None
     if decon:
+        from metafovea.parallel import heartbeat
         from metafovea.reconstruct.deconvolve import deconvolve_result  # only here: a plain run starts faster
 
-        dec = deconvolve_result(m, res, decon, args.psf, score_truth=not args.no_score, refine_psf=args.refine_psf,
-                                field_psf=args.field_psf)
+        with heartbeat(f"deconvolve ({decon})", enabled=show_progress(args)):  # field patches: tens of seconds
+            dec = deconvolve_result(m, res, decon, args.psf, score_truth=not args.no_score,
+                                    refine_psf=args.refine_psf, field_psf=args.field_psf)
         files += write_scene(dec, scene_out)
     s = res.summary(files) | ({"scene": dec.summary()} if dec is not None else {})
     if args.json:
