@@ -87,6 +87,18 @@ def test_the_field_dependent_psf_is_modelled_where_the_data_need_it(strong):
     assert np.allclose(every.scene[1], auto.scene[1])
 
 
+def test_the_patches_solved_on_threads_give_the_same_numbers(strong, monkeypatch):
+    from metafovea.reconstruct import field
+
+    frames, a, psfs, _ = strong
+    monkeypatch.setattr(field, "MAX_THREADS", 3)
+    threads = separate_deconvolve(frames, a, psfs, method="wiener", sigma=1.0)
+    monkeypatch.setattr(field, "MAX_THREADS", 1)
+    one = separate_deconvolve(frames, a, psfs, method="wiener", sigma=1.0)
+    assert np.array_equal(threads.scene[0], one.scene[0]) and np.array_equal(threads.scene[1], one.scene[1])
+    assert threads.info["field"]["solved"] == one.info["field"]["solved"]
+
+
 def test_the_default_method_gains_too(strong):
     frames, a, psfs, truth = strong
     on = separate_deconvolve(frames, a, psfs, sigma=1.0, field_psf="on-axis")
