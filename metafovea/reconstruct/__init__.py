@@ -26,6 +26,7 @@ Files:
 ``deconvolve``     PSF-aware: :func:`deconvolve_measurement`, :func:`separate_deconvolve`: joint separation and
                    deconvolution to the scene's radiance and brightness temperature
 ``joint``          its model and linear solves: :class:`ChannelPSFs`, the padded grid, CG, TV-ADMM
+``field``          its field-dependent PSF (``psf_patches_x*``): the patches the data need, solved and blended
 ``psf_refine``     its PSFs refined from the data: :func:`psf_family` (one-parameter families from the optics
                    engine), :func:`refine_psf` (the member of largest evidence, where it beats the nominal)
 ``spectra``        its scene prior: radially averaged spectra, the fitted power law
