@@ -105,6 +105,28 @@ def main(argv: Sequence[str] | None = None) -> int:
         return rc
 
 
+def _masks_a_stop(e: BaseException) -> bool:
+    """Whether ``e`` was raised while a stop (KeyboardInterrupt) was being handled: a library's cleanup that fails
+    when the signal lands mid-write (``zipfile`` closing with a writing handle open raises a ValueError, seen in CI)
+    replaces the stop with its own error; the stop is what happened."""
+    seen = set()
+    c: BaseException | None = e
+    while c is not None and id(c) not in seen:
+        if isinstance(c, KeyboardInterrupt):
+            return True
+        seen.add(id(c))
+        c = c.__cause__ or c.__context__
+    return False
+
+
+def _interrupted() -> int:
+    from metafovea import stopping
+
+    stopping.clear()  # handled: the request does not outlive this command (tests run several in one process)
+    sys.stderr.write("interrupted\n")
+    return 130
+
+
 def _run(args: argparse.Namespace) -> int:
     try:
         rc = args.func(args)
@@ -112,14 +134,14 @@ def _run(args: argparse.Namespace) -> int:
         sys.stderr.write(f"metafovea {args.command}: error: {as_flag_error(args.command, e, args)}\n")
         return 2
     except KeyboardInterrupt:
-        from metafovea import stopping
-
-        stopping.clear()  # handled: the request does not outlive this command (tests run several in one process)
-        sys.stderr.write("interrupted\n")
-        return 130
+        return _interrupted()
     except BrokenPipeError:
         return 0
-    except OSError as e:
+    except Exception as e:
+        if _masks_a_stop(e):
+            return _interrupted()
+        if not isinstance(e, OSError):
+            raise
         sys.stderr.write(f"metafovea {args.command}: error: {e.strerror or e}: {getattr(e, 'filename', '') or ''}\n")
         return 2
     return int(rc or 0)

@@ -242,3 +242,30 @@ def test_a_stop_signal_dropped_in_a_finaliser_is_delivered_again(tmp_path):
     r = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, timeout=60, cwd=tmp_path)
     assert r.stdout.strip() == "stopped" and time.monotonic() - t0 < 15, (r.stdout, r.stderr[-500:])
     assert "Traceback" not in r.stderr and "Exception ignored" not in r.stderr, r.stderr[-500:]
+
+
+def test_a_stop_that_a_cleanup_error_masks_still_stops_with_130(capsys):
+    """A signal inside ``np.savez``'s zip write: zipfile's cleanup raises a ValueError while the KeyboardInterrupt is
+    handled (seen in CI: a library sweep's part file, exit 1 with a traceback); the command exits 130, "interrupted".
+    An error of its own is still an error."""
+    import argparse
+
+    from metafovea.cli import _run
+
+    def masked(_args):
+        try:
+            raise KeyboardInterrupt("signal 15")
+        except KeyboardInterrupt:
+            raise ValueError("Can't close the ZIP file while there is an open writing handle on it") from None
+
+    def own(_args):
+        raise ValueError("a bug")
+
+    def own_oserror(_args):
+        raise FileNotFoundError(2, "No such file or directory", "x.npz")
+
+    assert _run(argparse.Namespace(func=masked, command="library")) == 130
+    assert capsys.readouterr().err == "interrupted\n"
+    with pytest.raises(ValueError, match="a bug"):
+        _run(argparse.Namespace(func=own, command="library"))
+    assert _run(argparse.Namespace(func=own_oserror, command="library")) == 2
