@@ -244,19 +244,18 @@ def test_a_stop_signal_dropped_in_a_finaliser_is_delivered_again(tmp_path):
     assert "Traceback" not in r.stderr and "Exception ignored" not in r.stderr, r.stderr[-500:]
 
 
-def test_a_stop_that_a_cleanup_error_masks_still_stops_with_130(capsys):
+def test_a_stop_that_a_cleanup_error_masks_still_stops_with_130(capsys, monkeypatch, tmp_path):
     """A signal inside ``np.savez``'s zip write: zipfile's cleanup raises a ValueError while the KeyboardInterrupt is
     handled (seen in CI: a library sweep's part file, exit 1 with a traceback); the command exits 130, "interrupted".
     An error of its own is still an error."""
-    import argparse
-
-    from metafovea.cli import _run
+    import metafovea.cli.bench as bench_cli
+    from metafovea.cli import main
 
     def masked(_args):
         try:
             raise KeyboardInterrupt("signal 15")
         except KeyboardInterrupt:
-            raise ValueError("Can't close the ZIP file while there is an open writing handle on it") from None
+            raise ValueError("Can't close the ZIP file while there is an open writing handle on it")  # noqa: B904
 
     def own(_args):
         raise ValueError("a bug")
@@ -264,8 +263,12 @@ def test_a_stop_that_a_cleanup_error_masks_still_stops_with_130(capsys):
     def own_oserror(_args):
         raise FileNotFoundError(2, "No such file or directory", "x.npz")
 
-    assert _run(argparse.Namespace(func=masked, command="library")) == 130
-    assert capsys.readouterr().err == "interrupted\n"
+    argv = ["bench", "--out", str(tmp_path / "b")]
+    monkeypatch.setattr(bench_cli, "run", masked)
+    assert main(argv) == 130
+    assert capsys.readouterr().err.endswith("interrupted\n")
+    monkeypatch.setattr(bench_cli, "run", own)
     with pytest.raises(ValueError, match="a bug"):
-        _run(argparse.Namespace(func=own, command="library"))
-    assert _run(argparse.Namespace(func=own_oserror, command="library")) == 2
+        main(argv)
+    monkeypatch.setattr(bench_cli, "run", own_oserror)
+    assert main(argv) == 2
