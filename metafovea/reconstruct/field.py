@@ -97,21 +97,26 @@ def _conv_same(img: np.ndarray, k: np.ndarray) -> np.ndarray:
     return fftconvolve(np.pad(img, h, mode="edge"), k, mode="valid")
 
 
+def _blend(p: int, image_of: Callable[[int, int], tuple[np.ndarray, np.ndarray]]) -> list[np.ndarray]:
+    """Eq. (2): ``sum_j w_j image_of(j)`` per channel, the patches in row-major order."""
+    out: list[np.ndarray] = []
+    for i in range(p):
+        for j in range(p):
+            e = image_of(i, j)
+            if not out:
+                out = [np.zeros(np.shape(e[0])), np.zeros(np.shape(e[1]))]
+                w = _weights(p, out[0].shape)
+            for c in range(2):
+                out[c] += w[i][j] * np.asarray(e[c], dtype=np.float64)
+    return out
+
+
 def blend_patches(psfs: ChannelPSFs, estimate: Callable[[ChannelPSFs], tuple[np.ndarray, np.ndarray]]
                   ) -> tuple[np.ndarray, np.ndarray]:
     """Eq. (2) with every patch: ``sum_j w_j estimate(psfs.patch(j))`` per channel (a shift-invariant ``estimate``
     made sectioned, e.g. the Wiener bound's)."""
-    p = psfs.n_patches
-    out: list[np.ndarray] = []
-    for i in range(p):
-        for j in range(p):
-            e = estimate(psfs.patch(i, j))
-            if not out:
-                out = [np.zeros_like(np.asarray(e[c], dtype=np.float64)) for c in range(2)]
-                w = _weights(p, out[0].shape)
-            for c in range(2):
-                out[c] += w[i][j] * np.asarray(e[c], dtype=np.float64)
-    return out[0], out[1]
+    b = _blend(psfs.n_patches, lambda i, j: estimate(psfs.patch(i, j)))
+    return b[0], b[1]
 
 
 def model_change(psfs: ChannelPSFs, scene: tuple[np.ndarray, np.ndarray], offset: float,
@@ -138,23 +143,15 @@ def model_change(psfs: ChannelPSFs, scene: tuple[np.ndarray, np.ndarray], offset
     H, W = scene[0].shape
     w = _weights(p, (H, W))
     out = np.zeros((p, p, 2))
-    for c in range(2):
-        pk = psfs.patches[c]
-        if pk is None:
-            continue
-        s = np.asarray(scene[c], dtype=np.float64) - offset
-        k0 = psfs.kernels[c]
-        for i in range(p):
-            for j in range(p):
-                k = np.asarray(pk[i, j], dtype=np.float64)
-                n = max(k.shape[0], k0.shape[0])
-                dk = np.zeros((n, n))
-                o, o0 = (n - k.shape[0]) // 2, (n - k0.shape[0]) // 2
-                dk[o:o + k.shape[0], o:o + k.shape[0]] += k
-                dk[o0:o0 + k0.shape[0], o0:o0 + k0.shape[0]] -= k0
-                if not np.any(dk):
+    k0 = psfs.on_axis().kernels  # on the patches' common size, as psfs.patch's
+    for i in range(p):
+        for j in range(p):
+            kj = psfs.patch(i, j).kernels
+            for c in range(2):
+                dk = kj[c] - k0[c]
+                if psfs.patches[c] is None or not np.any(dk):
                     continue
-                d = _conv_same(s, dk)
+                d = _conv_same(np.asarray(scene[c], dtype=np.float64) - offset, dk)
                 rms = math.sqrt(float(np.sum(w[i][j] * d ** 2) / np.sum(w[i][j])))
                 out[i, j, c] = rms / max(float(noise_std_dn[c]), 1e-300)
     return out
@@ -209,29 +206,18 @@ def field_deconvolve(psfs: ChannelPSFs, solve: Callable[[ChannelPSFs, PatchConte
     t0 = time.perf_counter()
     axis = psfs.on_axis()
     base = solve(axis, None)
-    H, W = base.scene[0].shape
     ctx = PatchContext(axis, np.asarray(base.scene[1], dtype=np.float64) - offset)
     change = model_change(psfs, base.scene, offset, tuple(base.info["noise_std_dn"]))  # type: ignore[arg-type]
     # per patch and channel: its own kernels where they change the channel's data beyond the share of the noise
     # (the joint solve of a patch uses both channels' kernels; a channel whose kernels barely change keeps the
     # on-axis estimate there)
     need = (change > FIELD_NOISE_SHARE) if mode == "auto" else (change > 0)
-    w = _weights(p, (H, W))
-    scene = [np.zeros((H, W)), np.zeros((H, W))]
-    solved, taus = [], {}
     todo = [(i, j) for i in range(p) for j in range(p) if np.any(need[i, j])]
     n_threads = min(MAX_THREADS, os.cpu_count() or 1) if workers is None else check_int("workers", workers, 1, 64)
     results = dict(zip(todo, _solve_all(solve, [psfs.patch(i, j) for i, j in todo], ctx, n_threads)))
-    for i in range(p):
-        for j in range(p):
-            r = results.get((i, j), base)
-            if (i, j) in results:
-                solved.append([i, j, [c + 1 for c in range(2) if need[i, j, c]]])
-                if "tau" in r.info:
-                    taus[f"{i},{j}"] = r.info["tau"]
-            for c in range(2):
-                src = r if need[i, j, c] else base
-                scene[c] += w[i][j] * np.asarray(src.scene[c], dtype=np.float64)
+    solved = [[i, j, [c + 1 for c in range(2) if need[i, j, c]]] for i, j in todo]
+    taus = {f"{i},{j}": r.info["tau"] for (i, j), r in results.items() if "tau" in r.info}
+    scene = _blend(p, lambda i, j: tuple((results[i, j] if need[i, j, c] else base).scene[c] for c in range(2)))
     # a channel no patch changed is the on-axis estimate itself (the weights' sum is 1 only to rounding)
     blended = tuple(scene[c] if need[..., c].any() else np.asarray(base.scene[c], dtype=np.float64)
                     for c in range(2))
