@@ -6,11 +6,11 @@ x1/x2, seconds. Make the files with
     python -c "from metafovea.config import SystemDesign; from metafovea.imaging.simulate import simulate; \
         simulate(SystemDesign.paper(), 'bars', frames=96, rng=5, filter_enabled=True).save('/tmp/bars.npz')"
 
-    python benchmarks/bench_fpn_blind.py /tmp/bars.npz [more.npz ...] [tv]
+    python benchmarks/bench_fpn_blind.py /tmp/bars.npz [more.npz ...] [--tv]
 """
-import sys
 import time
 from functools import partial
+from pathlib import Path
 
 import numpy as np
 
@@ -41,28 +41,38 @@ def timed_fpn(x1p, x2p, fc, **kw):
         return F, info, time.perf_counter() - t0
 
 
-tv = "tv" in sys.argv
-for path in [a for a in sys.argv[1:] if a.endswith(".npz")]:
-    m = Measurement.load(path)
-    fc = m.foveal_constraint
-    with blas_threads(1):
-        r = lsq_known_alpha(m.frames.astype(np.float64), m.alpha)
-    x1p, x2p = r.x1, r.x2
-    t1, t2 = m.truth_x1.astype(float), m.truth_x2.astype(float)
-    if t1.ndim == 3:
-        t1, t2 = t1.mean(0), t2.mean(0)
-    Ft = m.fpn.astype(float)
-    print(f"\n{path}: {m.meta['scene']} {m.shape}, FPN rms {Ft.std():.2f} DN, x1 range {np.ptp(t1):.1f}, "
-          f"x2 {np.ptp(t2):.1f}")
-    rep = partial(row, (x1p, x2p), (t1, t2, Ft))
-    rep("none", np.zeros_like(Ft))
-    rep("true pattern subtracted", Ft - Ft.mean())
-    for rk in (2, 4, 6, 10, 20):
-        F, info, s = timed_fpn(x1p, x2p, fc, rank=rk)
-        rep(f"foveal, rank {rk}" + (" (default)" if rk == 4 else ""), F, s,
-            f"g {info.get('foveal_gain', float('nan')):.3f} {info.get('fallback', '')}")
-    F, info, _ = timed_fpn(x1p, x2p, fc, fit_gain=False)
-    rep("foveal, rank 4, stored gain", F, None, f"g {info.get('foveal_gain', float('nan')):.3f}")
-    if tv:
-        F, info, s = timed_fpn(x1p, x2p, fc, method="tv")
-        rep("TV prior (previous --fpn prior)", F, s, f"rank {info['rank']}")
+def main(argv: list[str] | None = None) -> None:
+    import argparse
+
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("files", nargs="+", type=Path, help="simulated Measurement files (.npz, with the FPN truth)")
+    ap.add_argument("--tv", action="store_true", help="also the TV low-rank prior (slow)")
+    args = ap.parse_args(argv)
+    for path in args.files:
+        m = Measurement.load(path)
+        fc = m.foveal_constraint
+        with blas_threads(1):
+            r = lsq_known_alpha(m.frames.astype(np.float64), m.alpha)
+        x1p, x2p = r.x1, r.x2
+        t1, t2 = m.truth_x1.astype(float), m.truth_x2.astype(float)
+        if t1.ndim == 3:
+            t1, t2 = t1.mean(0), t2.mean(0)
+        Ft = m.fpn.astype(float)
+        print(f"\n{path}: {m.meta['scene']} {m.shape}, FPN rms {Ft.std():.2f} DN, x1 range {np.ptp(t1):.1f}, "
+              f"x2 {np.ptp(t2):.1f}")
+        rep = partial(row, (x1p, x2p), (t1, t2, Ft))
+        rep("none", np.zeros_like(Ft))
+        rep("true pattern subtracted", Ft - Ft.mean())
+        for rk in (2, 4, 6, 10, 20):
+            F, info, s = timed_fpn(x1p, x2p, fc, rank=rk)
+            rep(f"foveal, rank {rk}" + (" (default)" if rk == 4 else ""), F, s,
+                f"g {info.get('foveal_gain', float('nan')):.3f} {info.get('fallback', '')}")
+        F, info, _ = timed_fpn(x1p, x2p, fc, fit_gain=False)
+        rep("foveal, rank 4, stored gain", F, None, f"g {info.get('foveal_gain', float('nan')):.3f}")
+        if args.tv:
+            F, info, s = timed_fpn(x1p, x2p, fc, method="tv")
+            rep("TV prior (previous --fpn prior)", F, s, f"rank {info['rank']}")
+
+
+if __name__ == "__main__":
+    main()

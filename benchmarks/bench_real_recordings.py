@@ -206,7 +206,7 @@ def table(rows: list[dict[str, Any]]) -> str:
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--quick", action="store_true", help=f"a small grid: {', '.join(QUICK)}")
+    ap.add_argument("--quick", action="store_true", help="a small grid: " + ", ".join(QUICK).replace("%", "%%"))
     ap.add_argument("--frames", type=int, default=24)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--scene", nargs="+", default=["mixed"], choices=sorted(F.SCENES), help="one table each")
