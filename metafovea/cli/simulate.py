@@ -152,6 +152,11 @@ def run(args: argparse.Namespace) -> int:
             print("\n".join(plan_lines(summary["plan"])))
         print(f"scene {summary['scene']}: {T} frames {H}x{W} ({summary['units']}), "
               f"alpha {summary.get('alpha_range', 'unknown')}, PSF {summary['psf']} {summary['psf_mode']}")
+        fld = summary.get("psf_field", {})
+        if fld:
+            same = fld["foveal"] == fld["perifoveal"]
+            print("field dependence of the PSFs: " + (fld["foveal"] if same else "; ".join(
+                f"{c} {v}" for c, v in fld.items())))
         if "scene_conversion" in summary:
             print(f"scene values: {summary['scene_conversion']}")
         print(f"haze fraction foveal {summary['haze_fraction']['foveal']:.3f}, "

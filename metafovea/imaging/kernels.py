@@ -530,6 +530,9 @@ def build_channel_optics(channel: Channel, provider: PSFProvider, radiance: Band
                                   f"{'3 x 3 patches' if n > 1 else 'shift-invariant'}")
     else:
         n = check_int("field_patches", field_patches, 1, 9)
+        info["patch_decision"] = (f"field_patches = {n}: " + (
+            "the on-axis kernel over the whole field, a simplification (off axis the PSF spreads and loses light "
+            "from its window; field_patches='auto' models it where it matters)" if n == 1 else f"{n} x {n} patches"))
     kernels, centres = [], []
     if n == 1:
         kernels.append(k0.intensity)

@@ -772,6 +772,8 @@ class SimulationRun:
         return {**m.summary(), "scene": m.meta["scene"], **({"scene_conversion": conversion} if conversion else {}),
                 "seed": m.meta["seed"], "psf": psf["provider"],
                 "psf_mode": {c: psf[c]["mode"] for c in ("foveal", "perifoveal")},
+                **({"psf_field": {c: psf[c]["patch_decision"] for c in ("foveal", "perifoveal")}}
+                   if all("patch_decision" in psf[c] for c in ("foveal", "perifoveal")) else {}),
                 "haze_fraction": {c: psf[c]["haze"].get("fraction", 0.0) for c in ("foveal", "perifoveal")},
                 **({"psf_request": {c: psf[c]["psf_request"] for c in ("foveal", "perifoveal")}}
                    if all("psf_request" in psf[c] for c in ("foveal", "perifoveal")) else {}),

@@ -36,6 +36,9 @@ def test_cli_simulate_text_summary_and_optional_outputs(tmp_path, capsys):
                  "--no-tiff", "--no-preview"]) == 0
     text = capsys.readouterr().out
     assert text.startswith("scene uniform: 2 frames 290x290 (DN)") and "haze fraction foveal" in text
+    # the default's shift-invariant PSF says that it is a simplification, and what models the field dependence
+    assert "field dependence of the PSFs: field_patches = 1: the on-axis kernel over the whole field, a " \
+           "simplification" in text and "'auto' models it" in text
     assert f"measurement: {out}" in text and "tiff" not in text
     assert out.is_file() and not (tmp_path / "m.tif").exists() and not (tmp_path / "m_preview.png").exists()
     assert main(["simulate", "--scene", "uniform", "--out", str(tmp_path / "m.txt")]) == 2

@@ -128,6 +128,8 @@ def test_field_dependent_psf_patches_decided_and_reported(small_system, gauss_ps
     a = simulate(s, "camera", frames=1, psf=g, supersample=1, field_patches=1, **quiet)
     b = simulate(s, "camera", frames=1, psf=g, supersample=1, field_patches=3, **quiet)
     np.testing.assert_allclose(a.truth_x2, b.truth_x2, rtol=1e-5)
+    assert "a simplification" in a.meta["psf"]["foveal"]["patch_decision"]
+    assert b.meta["psf"]["foveal"]["patch_decision"] == "field_patches = 3: 3 x 3 patches"
 
 
 # ---------------------------------------------------------------------------------------------
