@@ -46,7 +46,6 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
-from scipy.signal import fftconvolve
 
 from metafovea.errors import InputError, check_choice, check_int
 from metafovea.imaging.kernels import KERNEL_NOISE_SHARE
@@ -93,6 +92,8 @@ def _weights(p: int, shape: tuple[int, int]) -> list[list[np.ndarray]]:
 
 def _conv_same(img: np.ndarray, k: np.ndarray) -> np.ndarray:
     """``k * img`` on the crop, the crop extended by its edge values (the padding of the joint solve)."""
+    from scipy.signal import fftconvolve  # scipy.signal takes ~0.6 s to import: only field-dependent PSFs need it
+
     h = k.shape[0] // 2
     return fftconvolve(np.pad(img, h, mode="edge"), k, mode="valid")
 
