@@ -130,6 +130,15 @@ def summaries(rows: list[dict]) -> dict:
     return out
 
 
+def below_by_kind(rows: list[dict]) -> dict:
+    """Per method and scene kind: channel cases below the bound, of how many, and the kind's median margin (dB)."""
+    out: dict = {}
+    for r in rows:
+        out.setdefault(r["method"], {}).setdefault(r["kind"], []).append(r["margin_db"])
+    return {m: {k: {"below": int(np.sum(np.array(v) < 0)), "cases": len(v), "median_db": float(np.median(v))}
+                for k, v in sorted(by.items())} for m, by in out.items()}
+
+
 def plot(rows: list[dict], path: Path) -> None:
     import matplotlib
 
@@ -203,6 +212,10 @@ def main(argv: list[str] | None = None) -> int:
     for k, s in summ.items():
         print(f"  {k:<28} {s['at_or_above']:6.1%} of {s['cases']:>4}  worst {s['worst_db']:+6.2f}  median "
               f"{s['median_db']:+6.2f}  time median {s['median_seconds']:.2f} max {s['max_seconds']:.2f}")
+    kinds = below_by_kind(rows)
+    for m, by in kinds.items():
+        print(f"  {m}: below the bound by kind: " + ", ".join(
+            f"{k} {v['below']} of {v['cases']} (median {v['median_db']:+.2f})" for k, v in by.items()))
     wall = time.perf_counter() - t0
     load1 = _load()
     print(f"nproc {os.cpu_count()}, load {load1}; wall {wall:.0f} s")
@@ -210,8 +223,8 @@ def main(argv: list[str] | None = None) -> int:
         meta = {"command": " ".join([Path(sys.argv[0]).name, *(argv if argv is not None else sys.argv[1:])]),
                 "nproc": os.cpu_count(), "load_start": load0, "load_end": load1, "wall_seconds": wall,
                 "date": datetime.date.today().isoformat(), "args": {k: str(v) for k, v in vars(args).items()}}
-        args.json.write_text(json.dumps({"meta": meta, "summary": summ, "foveal_gaps": gaps, "rows": rows,
-                                         "cases": results}, indent=1, default=float))
+        args.json.write_text(json.dumps({"meta": meta, "summary": summ, "below_by_kind": kinds, "foveal_gaps": gaps,
+                                         "rows": rows, "cases": results}, indent=1, default=float))
     if args.plot:
         plot(rows, args.plot)
     return 0
