@@ -96,12 +96,12 @@ def _solver_options(args: argparse.Namespace) -> dict[str, Any]:
     if args.method in ("alternating", "auto"):  # auto: used if it chooses alternating
         kw.update(polarizer=args.polarizer, polarizer_alpha=args.polarizer_alpha, **({"strict": False}
                                                                                     if args.no_strict else {}))
+    if args.max_seconds is not None and not args.max_seconds >= 0:  # a bad value is an error whatever the method
+        raise InputError("--max-seconds", args.max_seconds, "a time budget in seconds >= 0 (0: no cap)")
     if args.method == "dip":
         kw.update(steps=args.steps, rng=seed, init=args.init, alpha_init="classical")
         kw.update({"channels": args.channels} if args.channels is not None else {})
         if args.max_seconds is not None:
-            if not args.max_seconds >= 0:
-                raise InputError("--max-seconds", args.max_seconds, "a time budget in seconds >= 0 (0: no cap)")
             kw["max_seconds"] = args.max_seconds or None
     return kw
 

@@ -491,6 +491,9 @@ def test_dip_off_a_terminal_logs_progress_lines_and_says_when_the_time_cap_stopp
     assert "stopped the run after 1 of 2 windows (the output holds those)" in out
     assert Reconstruction.load(tmp_path / "w.npz").x1.shape == (1, 64, 64)
     assert _run([meas, "--method", "dip", "--max-seconds", "-1"], capsys)[0] == 2
+    # NaN is refused whatever the method (it was ignored outside dip, accepted in silence)
+    rc, _, err = _run([meas, "--max-seconds", "nan", "--out", tmp_path / "n.npz"], capsys)
+    assert rc == 2 and "--max-seconds" in err and len(err.strip().splitlines()) == 1
 
 
 def test_method_auto_says_what_it_chose_and_runs_the_psf_aware_step_it_chose(tmp_path, capsys):
