@@ -138,12 +138,13 @@ class FovealConstraint:
 
         def pick(given: float | None, key: str, fallback: Any) -> float:
             v = given if given is not None else fc.get(key, fallback)
+            name = {"offset_dn": "offset"}.get(key, key) if given is not None else f"foveal_constraint.{key}"
             try:
                 v = float(v)
             except (TypeError, ValueError):
-                raise InputError(f"foveal_constraint.{key}", v, "a number") from None
+                raise InputError(name, v, "a number") from None
             if not np.isfinite(v):
-                raise InputError(f"foveal_constraint.{key}", v, "a finite number")
+                raise InputError(name, v, "a finite number")
             return v
 
         out = cls(scale=pick(scale, "scale", meta.get("scale", 6.0)), gain=pick(gain, "gain", 1.0),

@@ -21,7 +21,7 @@ from typing import Any
 import numpy as np
 
 from metafovea.errors import InputError, check_choice
-from metafovea.measurement import Measurement, PolarizerSpec
+from metafovea.measurement import FovealConstraint, Measurement, PolarizerSpec
 from metafovea.radiometry import BAND_UM, check_band, check_filter
 from metafovea.recordings.calibration import (
     GAIN_MODES,
@@ -168,6 +168,8 @@ def to_measurement(rec: Recording, options: ImportOptions | None = None) -> tupl
     r = 1.0 if opt.foveal_gain is None else float(opt.foveal_gain)
     if not (math.isfinite(r) and r > 0):
         raise InputError("foveal_gain", opt.foveal_gain, "a positive flat-field ratio of the channels")
+    if opt.scale is not None:  # the range the reconstruction reads back (one home: FovealConstraint), checked here
+        FovealConstraint.from_meta({}, scale=float(opt.scale))
     meta: dict[str, Any] = {
         "units": "DN" if model is not None else "counts",
         "units_note": ("camera counts, linear in radiance: DN = dark_dn + G_i L(T) (see calibration)" if model

@@ -127,6 +127,8 @@ def test_no_calibration_keeps_counts(tmp_path, cli, linear_camera):
     (["rec.tif", "--frame-rate", "-4"], "--frame-rate"),
     (["rec.tif", "--frame-rate", "30", "--out", "rec.txt"], "--out"),
     (["rec.bin", "--frame-rate", "30"], "--format"),
+    (["rec.tif", "--frame-rate", "30", "--scale", "nan"], "--scale"),
+    (["rec.tif", "--frame-rate", "30", "--scale", "0.5"], "--scale"),
 ])
 def test_bad_input_is_one_line_and_writes_nothing(tmp_path, cli, monkeypatch, argv, flag, linear_camera):
     h5py = pytest.importorskip("h5py")
