@@ -16,7 +16,7 @@ from typing import Any
 
 from metafovea.cli.options import add_shared, check_out_suffix, progress, workers_arg
 from metafovea.cli.output import out_file
-from metafovea.errors import InputError, check_choice
+from metafovea.errors import InputError, check_choice, check_range
 
 
 def _patch(s: str | None):
@@ -132,6 +132,11 @@ def run_export(args) -> int:
     from metafovea.layout.export import FORMATS, ExportOptions, export_file, output_path, size_notice
 
     fmt = _format(args)
+    if args.substrate_um is not None:  # checked whatever the format (a layout format has no use for it: said)
+        check_range("--substrate-um", args.substrate_um, 0.0, 1e5, unit="um", lo_inclusive=True)
+        if fmt in FORMATS:
+            warnings.warn(f"--substrate-um is the STL/GLB patch mesh's substrate: --format {fmt} has none (ignored)",
+                          UserWarning, stacklevel=2)
     spec, ta = _inputs(args, args.design)
     out = out_file(args, None)
     opt = ExportOptions(flat=args.flat, max_refs=args.max_refs, dwl=args.dwl, compress=args.compress, force=args.force,

@@ -98,6 +98,14 @@ def test_mesh_substrate_thickness_checked(tmp_path, capsys, value, lens_toml, cl
                  "--substrate-um", value, "--quiet"]) == 2
     assert "--substrate-um" in cli_error(capsys)
     assert not out.exists()
+    # a layout format has no substrate: a bad value is still an error (it was accepted in silence), a good one ignored
+    # with a warning
+    gds = tmp_path / "m.gds"
+    assert main(["export", str(toml), "--patch", "0,0,0.02", "--out", str(gds), "--substrate-um", value,
+                 "--quiet"]) == 2
+    assert "--substrate-um" in cli_error(capsys) and not gds.exists()
+    assert main(["export", str(toml), "--patch", "0,0,0.02", "--out", str(gds), "--substrate-um", "20", "--quiet"]) == 0
+    assert "--substrate-um is the STL/GLB patch mesh's substrate: --format gds has none" in capsys.readouterr().err
 
 
 def test_export_cli_post_set_not_npz(tmp_path, capsys, lens_toml, cli_error):
