@@ -120,7 +120,11 @@ def as_flag_error(command: str, err: InputError, args: argparse.Namespace | None
     dest = FILE_KEYS.get(command, {}).get(err.parameter)
     if dest is not None and args is not None and getattr(args, dest, None) is not None:
         return err.located(f"--{dest.replace('_', '-')} {getattr(args, dest)}")
-    err = err.renamed(flags[err.parameter]) if err.parameter in flags else err
+    head, _, rest = err.parameter.partition(" ")  # a part of a parameter ('filter_um width') names the flag too
+    if err.parameter in flags:
+        err = err.renamed(flags[err.parameter])
+    elif rest and head in flags:
+        err = err.renamed(f"{flags[head]} {rest}")
     if getattr(args, "out_default", False) and err.parameter.split(" ")[0] == "--out":
         # the command chose the path (no --out typed): say so, and what to type instead
         from metafovea.cli.output import DEFAULT_OUT

@@ -129,6 +129,7 @@ def test_no_calibration_keeps_counts(tmp_path, cli, linear_camera):
     (["rec.bin", "--frame-rate", "30"], "--format"),
     (["rec.tif", "--frame-rate", "30", "--scale", "nan"], "--scale"),
     (["rec.tif", "--frame-rate", "30", "--scale", "0.5"], "--scale"),
+    (["rec.tif", "--frame-rate", "30", "--filter-um", "10", "nan"], "--filter-um width"),  # it named filter_um
 ])
 def test_bad_input_is_one_line_and_writes_nothing(tmp_path, cli, monkeypatch, argv, flag, linear_camera):
     h5py = pytest.importorskip("h5py")
