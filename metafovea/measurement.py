@@ -367,6 +367,11 @@ class Measurement:
         t = t.astype(np.float64).reshape(-1) if _real(t) else np.full(np.shape(t), np.nan).reshape(-1)
         if t.shape != (T,) or not np.all(np.isfinite(t)):
             raise InputError("times_s", f"array of shape {t.shape}", f"({T},) finite times in seconds", source=src)
+        if T > 1 and not np.all(np.diff(t) > 0):  # the polariser model and the video windows read time's order
+            k = int(np.argmax(~(np.diff(t) > 0)))
+            raise InputError("times_s", f"{t[k]:g} s then {t[k + 1]:g} s (frames {k} and {k + 1})",
+                             "strictly increasing times in seconds, one per frame (metafovea import removes a "
+                             "recording's duplicated frames)", source=src)
         object.__setattr__(self, "frames", f)
         object.__setattr__(self, "times_s", t)
         if self.alpha is not None:

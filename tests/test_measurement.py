@@ -95,6 +95,10 @@ def test_files_that_are_not_measurements(tmp_path, kind):
     ("frames", np.full((4, 16, 16), np.nan, np.float32), "no finite value"),
     ("frames", np.ones((2, 3, 4, 5), np.float32), "frames"),
     ("times_s", np.arange(3.0), "times_s"),
+    # out of order or repeated: the polariser model took them as they were (decreasing times, the free-running
+    # polariser's fit: x1 at -54 dB, exit 0)
+    ("times_s", np.arange(4.0)[::-1].copy(), "strictly increasing"),
+    ("times_s", np.zeros(4), "strictly increasing"),
 ])
 def test_arrays_that_do_not_fit_the_frames_name_the_file_and_the_key(tmp_path, key, value, match):
     """The reconstruct command re-checked the file with its own rules; Measurement.load now does, and says which
