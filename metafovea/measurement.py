@@ -252,6 +252,90 @@ class PolarizerSpec:
                 if src in ("given", "file") and getattr(self, n) is not None}
 
 
+#: the recording schema's plain numbers: key -> (lowest, highest, open at the low end, what it is); the polariser's
+#: keys and ``foveal_constraint`` are checked where they are read (PolarizerSpec / FovealConstraint.from_meta), as
+#: a flag of ``reconstruct`` may replace them
+_META_NUMBERS = {
+    "frame_rate_hz": (0.0, 1e6, True, "frames per second"),
+    "pixel_pitch_um": (0.0, 1e4, True, "the pixel pitch in um"),
+    "netd_k": (0.0, 1e3, True, "the NETD in K"),
+    "scale": (1.0, 1000.0, False, "f1 / f2 of the two lenses (6 for the paper's)"),
+    "dark_dn": (-1e15, 1e15, False, "the dark level in the frames' unit"),
+    "saturation_dn": (-1e15, 1e15, False, "the ADC's full scale in the frames' unit"),
+    "floor_dn": (-1e15, 1e15, False, "the ADC's floor in the frames' unit"),
+}
+#: the schema's ``{x1, x2}`` mappings: key -> (lowest, open at the low end, what each value is)
+_META_PAIRS = {
+    "channel_gain": (0.0, True, "the channel's relative radiometric gain"),
+    "dn_per_k_300K": (0.0, True, "the channel's DN per kelvin at 300 K"),
+    "psf_pedestal": (0.0, False, "the power of the channel's PSF beyond its kernel"),
+}
+
+
+def _meta_number(key: str, v: Any, lo: float, hi: float, open_low: bool, what: str, source: str | None) -> float:
+    """``v`` as a float within ``lo..hi`` (``lo`` excluded when ``open_low``), else an InputError naming ``key``."""
+    rng = f"{lo:g} < {key.split('.')[-1]} <= {hi:g}" if open_low else f"{lo:g} <= {key.split('.')[-1]} <= {hi:g}"
+    allowed = f"a finite number, {rng}: {what} (docs/measurement_format.md, the recording schema)"
+    if isinstance(v, bool) or not isinstance(v, (int, float)):
+        raise InputError(f"meta.{key}", v, allowed, source=source)
+    x = float(v)
+    if not (math.isfinite(x) and (x > lo if open_low else x >= lo) and x <= hi):
+        raise InputError(f"meta.{key}", v, allowed, source=source)
+    return x
+
+
+def check_recording_meta(meta: Any, source: str | None = None) -> None:
+    """Check the recording schema's keys that ``meta`` holds (absent or null: not stated) against their types and
+    ranges (docs/measurement_format.md); the first bad one is an :class:`InputError` naming ``meta.KEY`` and the
+    file ``source``. Keys outside the schema are not read, so not checked."""
+    if not isinstance(meta, dict):
+        raise InputError("meta", type(meta).__name__, "a mapping of the recording schema's keys", source=source)
+    units = meta.get("units")
+    if units is not None and (not isinstance(units, str) or not units.strip()):
+        raise InputError("meta.units", units, "a label of the frames' unit, e.g. DN", source=source)
+    vals = {k: _meta_number(k, meta[k], *spec, source) for k, spec in _META_NUMBERS.items()
+            if meta.get(k) is not None}
+    if "floor_dn" in vals and "saturation_dn" in vals and not vals["floor_dn"] < vals["saturation_dn"]:
+        raise InputError("meta.floor_dn", meta["floor_dn"], f"below meta.saturation_dn = {meta['saturation_dn']:g} "
+                         "(the ADC's floor under its full scale)", source=source)
+    for key, (lo, open_low, what) in _META_PAIRS.items():
+        d = meta.get(key)
+        if d is None:
+            continue
+        if not isinstance(d, dict):
+            raise InputError(f"meta.{key}", d, "a mapping {x1, x2}: " + what, source=source)
+        for ch in ("x1", "x2"):  # a channel left out takes its default (dn_per_k_300K needs both); null is not one
+            if ch in d or key == "dn_per_k_300K":
+                _meta_number(f"{key}.{ch}", d.get(ch), lo, 1e15, open_low, what, source)
+    rank = meta.get("fpn_rank")
+    if rank is not None and (isinstance(rank, bool) or not isinstance(rank, (int, float)) or not math.isfinite(rank)
+                             or rank != int(rank) or not 0 <= rank <= 10000):
+        raise InputError("meta.fpn_rank", rank, "an integer 0 <= fpn_rank <= 10000 (0: no fixed pattern)",
+                         source=source)
+    rad = meta.get("radiometry")
+    if rad is not None:
+        if not isinstance(rad, dict):
+            raise InputError("meta.radiometry", rad, "a mapping {band_um, filter, dL_dT_300K}", source=source)
+        band = rad.get("band_um")  # the band the kelvin conversion integrates: needed
+        ok = isinstance(band, (list, tuple)) and len(band) == 2
+        b = [_meta_number("radiometry.band_um", x, 0.0, 1e4, True, "a wavelength in um", source)
+             for x in band] if ok else []  # type: ignore[union-attr]
+        if not ok or not b[0] < b[1]:
+            raise InputError("meta.radiometry.band_um", band, "[lowest, highest] wavelength in um, lowest < highest",
+                             source=source)
+        filt = rad.get("filter")
+        if filt:
+            if not isinstance(filt, (list, tuple)) or len(filt) != 2:
+                raise InputError("meta.radiometry.filter", filt, "null, or [centre, bandwidth] in um",
+                                 source=source)
+            for x in filt:
+                _meta_number("radiometry.filter", x, 0.0, 1e4, True, "the filter's centre and bandwidth in um",
+                             source)
+        if rad.get("dL_dT_300K") is not None:
+            _meta_number("radiometry.dL_dT_300K", rad["dL_dT_300K"], 0.0, 1e15, True,
+                         "the band radiance's derivative at 300 K, W m^-2 sr^-1 K^-1", source)
+
+
 def recording_view(meta: dict[str, Any]) -> dict[str, Any]:
     """The part of ``meta`` the reconstruction may read: the keys of the recording schema
     (:data:`RECORDING_META`) and the scoring-only ``truth`` dict."""
@@ -294,7 +378,7 @@ class RadiometricCalibration:
         -------
         RadiometricCalibration or None
         """
-        if not meta or "dn_per_k_300K" not in meta or "radiometry" not in meta:
+        if not meta or meta.get("dn_per_k_300K") is None or meta.get("radiometry") is None:
             return None
         rad = meta["radiometry"]
         filt = rad.get("filter")
@@ -407,6 +491,7 @@ class Measurement:
                                 or np.shape(cal)[-2:] != (H, W)):
             raise InputError("calibration", f"array of shape {np.shape(cal)}",
                              f"(Tc, H, W) or (H, W) frames with (H, W) = {(H, W)}", source=src)
+        check_recording_meta(self.meta, src)
 
     def _checked_alpha(self, T: int) -> np.ndarray:
         """``alpha`` as ``(T,)`` float64: real, one per frame, finite values in [0, 1] (NaN = unknown)."""

@@ -3,6 +3,7 @@ against the frames with the file named, damaged files refused, the foveal constr
 
 from __future__ import annotations
 
+import json
 from dataclasses import replace
 
 import numpy as np
@@ -183,3 +184,60 @@ def test_the_reconstructions_metadata_is_read_here(tmp_path):
                                                                                            (0.0, 0.0))
     assert bare.true_noise_dn is None and bare.radiometric_calibration is None and bare.scene_truth is None
     assert bare.scale == 6.0  # the foveal constraint's default, not a stated scale
+
+
+#: a recording's documented keys with their values as a camera's file would state them
+GOOD_META = {"units": "DN", "frame_rate_hz": 12.0, "pixel_pitch_um": 17.0, "netd_k": 0.05, "scale": 6.0,
+             "dark_dn": 1000.0, "saturation_dn": 16383.0, "floor_dn": 0.0, "channel_gain": {"x1": 0.09, "x2": 0.31},
+             "dn_per_k_300K": {"x1": 3.6, "x2": 12.4}, "fpn_rank": 20, "psf_pedestal": {"x1": 0.04, "x2": 1e-5},
+             "radiometry": {"band_um": [8.0, 14.0], "filter": None, "dL_dT_300K": 0.84}}
+
+
+@pytest.mark.parametrize("key, value", [
+    # each was read as it came: a traceback (float('abc'), a float's .get, float division by zero) or a silent
+    # answer (nan, inf and negative gains, rates and pitches gave exit 0); found by tampering with a file's keys
+    ("units", 3.0), ("frame_rate_hz", float("nan")), ("frame_rate_hz", -12.0), ("pixel_pitch_um", 0.0),
+    ("netd_k", "abc"), ("scale", float("inf")), ("scale", 0.5), ("dark_dn", [1, 2]), ("dark_dn", True),
+    ("saturation_dn", "abc"), ("floor_dn", 1e300), ("channel_gain", 0.5), ("channel_gain.x2", 0.0),
+    ("channel_gain.x1", None), ("dn_per_k_300K.x1", "abc"), ("dn_per_k_300K", {"x1": 3.6}), ("fpn_rank", 2.5),
+    ("fpn_rank", -1), ("psf_pedestal.x1", float("nan")), ("radiometry", [8, 14]), ("radiometry.band_um", None),
+    ("radiometry.band_um", [14.0, 8.0]), ("radiometry.band_um", [8.0, float("inf")]),
+    ("radiometry.filter", [10.0, -0.5]), ("radiometry.filter", "10um"), ("radiometry.dL_dT_300K", 0.0),
+])
+def test_a_tampered_documented_key_names_the_file_and_the_key(tmp_path, key, value):
+    """Every documented key of the recording schema is checked on reading, against its type and range: one
+    InputError naming the file and the key (``meta.KEY``), never a traceback in the reconstruction or a silent
+    answer. The untampered file reads; null stays 'not stated' where the schema has a default."""
+    import copy
+
+    assert Measurement.load(_file(tmp_path / "good.npz", meta=GOOD_META)).meta["netd_k"] == 0.05
+    meta = copy.deepcopy(GOOD_META)
+    top, _, sub = key.partition(".")
+    if sub:
+        meta[top][sub] = value
+    else:
+        meta[top] = value
+    # written as another program would (json.dumps writes NaN and Infinity; our writer would store null)
+    p = tmp_path / "m.npz"
+    np.savez(p, __meta__=np.frombuffer(json.dumps(meta).encode(), dtype=np.uint8), **_arrays())
+    with pytest.raises(InputError) as e:
+        Measurement.load(p)
+    assert e.value.parameter.startswith(f"meta.{top}") and e.value.source == str(p)
+    assert str(p) in str(e.value) and "\n" not in str(e.value)
+    # null where the schema has a default (the whole key, a gain's channel left out) is 'not stated'
+    meta = copy.deepcopy(GOOD_META)
+    meta[top] = None
+    m = Measurement.load(_file(tmp_path / "null.npz", meta=meta))
+    assert m.radiometric_calibration is None or top not in ("radiometry", "dn_per_k_300K")
+    assert Measurement.load(_file(tmp_path / "one.npz", meta={**GOOD_META, "channel_gain": {"x1": 0.2}})
+                            ).channel_gains == (0.2, 1.0)
+
+
+def test_a_tampered_key_through_reconstruct_is_one_line_and_exit_2(tmp_path, capsys):
+    """The command that reads the file: one line naming the file and the key, exit 2 (it was a traceback)."""
+    from metafovea.cli import main
+
+    p = _file(tmp_path / "m.npz", meta={**GOOD_META, "channel_gain": {"x1": 0.09, "x2": "abc"}})
+    rc = main(["reconstruct", str(p), "--method", "lsq", "--out", str(tmp_path / "r.npz")])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert rc == 2 and len(err) == 1 and "meta.channel_gain.x2" in err[0] and str(p) in err[0]
