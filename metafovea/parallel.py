@@ -320,6 +320,42 @@ def _refused(address: str) -> str | None:
         return None
 
 
+def check_scheduler(scheduler: str) -> str:
+    """``scheduler`` checked before any work starts (a command's ``--scheduler``; :class:`DaskExecutor` again):
+    ``local``, ``local:N`` (N >= 1) or an address of a scheme Dask knows whose host answers; the stripped address,
+    else an :class:`InputError` naming ``scheduler`` (a bad address was refused only when the executor was made,
+    after the command's first work)."""
+    s = str(scheduler).strip()
+    if s == "local" or s.startswith("local:"):
+        try:
+            n = int(s.split(":", 1)[1]) if ":" in s else 1
+        except ValueError:
+            raise InputError("scheduler", scheduler, "local, local:N (N >= 1 worker processes) or "
+                             "tcp://host:port") from None
+        if n < 1:
+            raise InputError("scheduler", scheduler, "local:N with N >= 1 worker processes")
+        return s
+    try:
+        from distributed.comm.addressing import parse_address, parse_host_port  # type: ignore
+        from distributed.comm.registry import backends  # type: ignore
+    except ImportError:
+        raise InputError("scheduler", scheduler, "a Dask scheduler with dask.distributed installed "
+                         "(pip install 'metafovea[dask]')") from None
+    try:
+        proto, loc = parse_address(s)
+        if proto in ("tcp", "tls"):
+            parse_host_port(loc)
+    except (ValueError, TypeError) as e:
+        raise InputError("scheduler", scheduler, f"a Dask scheduler address such as tcp://host:8786 ({e})") from None
+    if proto not in backends:
+        raise InputError("scheduler", scheduler, "a Dask scheduler address of a known scheme (" +
+                         ", ".join(sorted(backends)) + "), e.g. tcp://host:8786")
+    refused = _refused(s)
+    if refused is not None:  # nothing listens there: say so at once (Dask's client retries until timeout)
+        raise InputError("scheduler", scheduler, f"a reachable Dask scheduler address ({refused})")
+    return s
+
+
 class DaskExecutor:
     """``submit``/``map``/``close`` on a Dask client: a scheduler at an address (``tcp://host:8786``), or a
     ``LocalCluster`` of worker processes started for this run (``local`` = one per core, ``local:N``)."""
@@ -330,22 +366,13 @@ class DaskExecutor:
         except ImportError:
             raise InputError("scheduler", scheduler, "a Dask scheduler with dask.distributed installed "
                              "(pip install 'metafovea[dask]')") from None
-        s = scheduler.strip()
+        s = check_scheduler(scheduler)
         self.cluster = None
         if s == "local" or s.startswith("local:"):
-            try:
-                n = int(s.split(":", 1)[1]) if ":" in s else default_workers()
-            except ValueError:
-                raise InputError("scheduler", scheduler, "local, local:N (N >= 1 worker processes) or "
-                                 "tcp://host:port") from None
-            if n < 1:
-                raise InputError("scheduler", scheduler, "local:N with N >= 1 worker processes")
+            n = int(s.split(":", 1)[1]) if ":" in s else default_workers()
             self.cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=None)
             self.client = Client(self.cluster)
         else:
-            refused = _refused(s)
-            if refused is not None:  # nothing listens there: say so at once (Dask's client retries until timeout)
-                raise InputError("scheduler", scheduler, f"a reachable Dask scheduler address ({refused})")
             try:
                 self.client = Client(s, timeout="10s")  # an address that does not answer: 10 s
             except (OSError, TimeoutError, ValueError) as e:  # ValueError: an unknown scheme (foo://)

@@ -129,6 +129,10 @@ def _interrupted() -> int:
 
 def _run(args: argparse.Namespace) -> int:
     try:
+        if getattr(args, "scheduler", None) is not None:  # every command's --scheduler, before its first work
+            from metafovea.cli.options import scheduler_arg
+
+            args.scheduler = scheduler_arg(args.scheduler)
         rc = args.func(args)
     except InputError as e:
         sys.stderr.write(f"metafovea {args.command}: error: {as_flag_error(args.command, e, args)}\n")

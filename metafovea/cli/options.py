@@ -74,6 +74,14 @@ def workers_arg(value: Any) -> int | None:
     return None if value is None else check_int("--workers", value, 1, 4096)
 
 
+def scheduler_arg(value: Any) -> str | None:
+    """``--scheduler`` checked before the command's work starts (:func:`metafovea.parallel.check_scheduler`), or
+    None (absent: local processes)."""
+    from metafovea.parallel import check_scheduler
+
+    return None if value is None else check_scheduler(value)
+
+
 def seed_arg(value: Any) -> int:
     """``--seed`` checked: an integer 0 <= seed < 2**63."""
     from metafovea.errors import check_int

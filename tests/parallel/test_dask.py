@@ -156,7 +156,7 @@ def test_bad_scheduler_is_one_line_naming_the_flag():
 
     with pytest.raises(InputError, match="^scheduler = "):
         DaskExecutor("local:x")
-    with pytest.raises(InputError, match="^scheduler = .*unknown address scheme"):
+    with pytest.raises(InputError, match="^scheduler = .*a known scheme .*tcp"):
         DaskExecutor("foo://127.0.0.1:9")
     with socket.socket() as s:  # a port bound but not listening: a connection to it is refused
         s.bind(("127.0.0.1", 0))
@@ -164,6 +164,20 @@ def test_bad_scheduler_is_one_line_naming_the_flag():
         with pytest.raises(InputError, match="^scheduler = .*connection refused"):
             DaskExecutor(f"tcp://127.0.0.1:{s.getsockname()[1]}")
         assert time.monotonic() - t0 < 5.0
+
+
+def test_every_commands_bad_scheduler_is_one_line_before_any_work(monkeypatch, capsys, tmp_path):
+    """A bad --scheduler was refused only when the executor was made: `study` first simulated (3 s), and the
+    PSF-accuracy warning of that work followed the error line. Now every command checks it before its work."""
+    import metafovea.studies as studies
+    from metafovea.cli import main
+
+    monkeypatch.setattr(studies, "run_study", lambda *a, **k: pytest.fail("the study started"))
+    for i, address in enumerate(("foo", "foo://127.0.0.1:9", "local:0", "local:x")):
+        rc = main(["study", "frames", "--fast", "--scheduler", address, "--out", str(tmp_path / f"s{i}")])
+        err = capsys.readouterr().err.strip().splitlines()
+        assert rc == 2 and len(err) == 1 and err[0].startswith(f"metafovea study: error: --scheduler = '{address}'")
+        assert not (tmp_path / f"s{i}").exists()
 
 
 def test_a_study_on_a_cluster_gives_the_same_json(cluster):
