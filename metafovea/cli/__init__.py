@@ -151,14 +151,37 @@ def _run(args: argparse.Namespace) -> int:
     return int(rc or 0)
 
 
+#: seconds a stopped command waits for its other threads (a process pool's manager, ...) before it leaves without them
+STOP_GRACE_S = 5.0
+
+
+def _threads_left(grace_s: float) -> bool:
+    """Whether a thread other than the main one that interpreter exit would wait for is still running ``grace_s``
+    after a stop. A process pool whose worker died as the stop arrived (a SIGTERM to the whole process group) left
+    its manager thread joining a queue-feeder thread blocked on a full pipe (CPython gh-94777; seen once, on
+    ``metafovea study ablation`` under ``timeout``): the command had said 'interrupted' and never exited."""
+    import threading
+    import time
+
+    deadline = time.monotonic() + grace_s
+    others = [t for t in threading.enumerate() if t is not threading.main_thread() and not t.daemon]
+    try:
+        for t in others:
+            t.join(max(0.0, deadline - time.monotonic()))
+    except KeyboardInterrupt:  # a second stop: leave now
+        return True
+    return any(t.is_alive() for t in others)
+
+
 def console_main() -> int:
     """The ``metafovea`` command: :func:`main` with SIGINT and SIGTERM both stopping the run (exit 130, the
     resumable state kept, :func:`install_stop_handlers`)."""
     install_stop_handlers()
     rc = main()
-    if rc == 130 and "jax" in sys.modules:
+    if rc == 130 and ("jax" in sys.modules or _threads_left(STOP_GRACE_S)):
         # an interrupted JAX computation leaves XLA's threads mid-flight: interpreter finalisation then crashes
-        # (SIGSEGV); everything worth keeping is written and cleaned up by now, so leave without it
+        # (SIGSEGV); a thread that does not end would hold the exit for ever; everything worth keeping is written
+        # and cleaned up by now (the stop unwound every task), so leave without them
         sys.stdout.flush()
         sys.stderr.flush()
         os._exit(130)

@@ -244,6 +244,26 @@ def test_a_stop_signal_dropped_in_a_finaliser_is_delivered_again(tmp_path):
     assert "Traceback" not in r.stderr and "Exception ignored" not in r.stderr, r.stderr[-500:]
 
 
+def test_a_stopped_command_exits_although_a_thread_never_ends(tmp_path):
+    """A stopped command left a process pool's manager thread joining a feeder thread blocked on a full pipe (a
+    worker died as the group's SIGTERM arrived: CPython gh-94777): it had printed 'interrupted' and never exited.
+    Stand-in: a command that returns 130 with a thread that never ends; it must still exit, with 130."""
+    script = tmp_path / "s.py"
+    script.write_text(
+        "import threading\n"
+        "import metafovea.cli as cli\n"
+        "threading.Thread(target=threading.Event().wait, name='stuck').start()  # not a daemon: exit waits on it\n"
+        "cli.main = lambda: 130\n"
+        "cli.STOP_GRACE_S = 0.5\n"
+        "raise SystemExit(cli.console_main())\n")
+    t0 = time.monotonic()
+    try:
+        r = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, timeout=30, cwd=tmp_path)
+    except subprocess.TimeoutExpired:
+        pytest.fail("the stopped command did not exit: it waited on a thread that never ends")
+    assert r.returncode == 130 and time.monotonic() - t0 < 20, r.stderr[-500:]
+
+
 def test_a_stop_that_a_cleanup_error_masks_still_stops_with_130(capsys, monkeypatch, tmp_path):
     """A signal inside ``np.savez``'s zip write: zipfile's cleanup raises a ValueError while the KeyboardInterrupt is
     handled (seen in CI: a library sweep's part file, exit 1 with a traceback); the command exits 130, "interrupted".
