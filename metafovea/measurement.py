@@ -114,6 +114,60 @@ def _real(a: np.ndarray) -> bool:
     return np.issubdtype(a.dtype, np.number) and not np.iscomplexobj(a)
 
 
+#: the largest value a kernel or an illumination may hold: the solves run partly in single precision (largest
+#: 3.4e38), where a kernel of 1e300 overflowed into "estimate: array with NaN/inf" and an illumination of 1e300
+#: made the noise covariance singular (found by tampering with a file)
+MAX_ARRAY_VALUE = 1e30
+
+
+def check_kernel(name: str, k: Any, source: str | None = None) -> np.ndarray:
+    """A channel's PSF on the pixel grid (``psf_x*``): real numbers, a square kernel of odd size (centred), finite
+    values >= 0 with a positive sum; float64, else an InputError naming ``name`` (and the file ``source``). The one
+    check of a kernel, for a recording's arrays and a PSF file's (:class:`~metafovea.reconstruct.joint.ChannelPSFs`)."""
+    a = np.asarray(k)
+    if not _real(a):
+        raise InputError(name, str(a.dtype), "real numbers: a square kernel of odd size, centred", source=source)
+    a = a.astype(np.float64)
+    if a.ndim != 2 or a.shape[0] != a.shape[1] or a.shape[0] % 2 == 0:
+        raise InputError(name, f"array of shape {a.shape}", "a square kernel of odd size, centred", source=source)
+    if not np.all(np.isfinite(a)) or a.min() < 0 or a.sum() <= 0 or a.max() > MAX_ARRAY_VALUE:
+        raise InputError(name, "kernel", f"finite values >= 0 with a positive sum, at most {MAX_ARRAY_VALUE:g}",
+                         source=source)
+    return a
+
+
+def check_patches(name: str, k: Any, source: str | None = None) -> np.ndarray:
+    """A field-dependent PSF (``psf_patches_x*``): real ``(p, p, n, n)``, 2 <= p <= 9, odd n, finite values >= 0,
+    each kernel with a positive sum; float64, else an InputError naming ``name``."""
+    a = np.asarray(k)
+    if not _real(a):
+        raise InputError(name, str(a.dtype), "real numbers: (p, p, n, n) kernels", source=source)
+    a = a.astype(np.float64)
+    if (a.ndim != 4 or a.shape[0] != a.shape[1] or not 2 <= a.shape[0] <= 9 or a.shape[2] != a.shape[3]
+            or a.shape[2] % 2 == 0):
+        raise InputError(name, f"array of shape {a.shape}",
+                         "(p, p, n, n): 2 <= p <= 9 patches a side, square kernels of odd size n", source=source)
+    if not np.all(np.isfinite(a)) or a.min() < 0 or a.sum(axis=(2, 3)).min() <= 0 or a.max() > MAX_ARRAY_VALUE:
+        raise InputError(name, "kernels", f"finite values >= 0, each with a positive sum, at most {MAX_ARRAY_VALUE:g}",
+                         source=source)
+    return a
+
+
+def check_illumination(name: str, a: Any, shape: tuple[int, int] | None, source: str | None = None) -> np.ndarray:
+    """A channel's relative illumination (``illumination_x*``): real, finite, >= 0, of the frames' ``shape``
+    (None: any 2-D shape); float64, else an InputError naming ``name``."""
+    v = np.asarray(a)
+    want = f"(H, W) = {shape}" if shape is not None else "(H, W)"
+    if not _real(v) or v.ndim != 2 or (shape is not None and v.shape != tuple(shape)):
+        raise InputError(name, f"array of shape {v.shape}, dtype {v.dtype}", f"real values of {want}",
+                         source=source)
+    v = v.astype(np.float64)
+    if not np.all(np.isfinite(v)) or v.min() < 0 or v.max() > MAX_ARRAY_VALUE:  # 0: refused where solved
+        raise InputError(name, "array", f"a finite relative illumination >= 0, at most {MAX_ARRAY_VALUE:g}",
+                         source=source)
+    return v
+
+
 @dataclass(frozen=True)
 class FovealConstraint:
     """``D x1 = gain * C x2 + offset``: the foveal image ``x1``, downsampled by ``scale`` (``D``), equals the
@@ -491,7 +545,41 @@ class Measurement:
                                 or np.shape(cal)[-2:] != (H, W)):
             raise InputError("calibration", f"array of shape {np.shape(cal)}",
                              f"(Tc, H, W) or (H, W) frames with (H, W) = {(H, W)}", source=src)
+        for name in ("psf_x1", "psf_x2"):
+            if name in self.extras:
+                check_kernel(name, self.extras[name], src)
+        for name in ("psf_patches_x1", "psf_patches_x2"):
+            if name in self.extras:
+                check_patches(name, self.extras[name], src)
+        for name in ("illumination_x1", "illumination_x2"):
+            if name in self.extras:
+                check_illumination(name, self.extras[name], (H, W), src)
+        th = self.extras.get("theta_rad")
+        if th is not None and (not _real(np.asarray(th)) or np.shape(th) != (T,)):
+            raise InputError("theta_rad", f"array of shape {np.shape(th)}", f"({T},) real angles in radians, one per "
+                             "frame", source=src)
+        bp = self.extras.get("bad_pixels")
+        if bp is not None:
+            bpa = np.asarray(bp)
+            if (bpa.shape != (H, W) or not (bpa.dtype == bool or _real(bpa))
+                    or (bpa.dtype != bool and not np.all(np.isfinite(bpa)))):
+                raise InputError("bad_pixels", f"array of shape {bpa.shape}, dtype {bpa.dtype}",
+                                 f"an (H, W) = {(H, W)} map, true (non-zero) where a pixel is bad", source=src)
+            if np.all(bpa.astype(bool)):
+                raise InputError("bad_pixels", "every pixel marked bad", "a map that leaves pixels to read",
+                                 source=src)
         check_recording_meta(self.meta, src)
+        lo, hi = self.valid_range_dn
+        if lo is not None or hi is not None:
+            ok = np.isfinite(f)
+            if hi is not None:
+                ok &= f < hi
+            if lo is not None:
+                ok &= f > lo
+            if not ok.any():
+                raise InputError("frames", "every sample at or beyond the ADC's range",
+                                 f"samples between meta.floor_dn = {lo} and meta.saturation_dn = {hi} (the ADC's "
+                                 "floor and full scale: samples at or beyond them carry no information)", source=src)
 
     def _checked_alpha(self, T: int) -> np.ndarray:
         """``alpha`` as ``(T,)`` float64: real, one per frame, finite values in [0, 1] (NaN = unknown)."""

@@ -94,6 +94,22 @@ def test_files_that_are_not_measurements(tmp_path, kind):
     ("fpn", np.where(np.eye(16) > 0, np.nan, 0.0).astype(np.float32), "finite fixed pattern"),
     ("calibration", np.zeros((4, 3, 3), np.float32), "calibration"),
     ("frames", np.full((4, 16, 16), np.nan, np.float32), "no finite value"),
+    # each of these was read as it came (found by tampering with a simulated file's arrays): a traceback in
+    # reconstruct (float('abc'), an index error on a 1-D kernel, an SVD that did not converge, int(nan)) or a silent
+    # answer (a complex PSF cast to real with a warning, exit 0)
+    ("psf_x1", np.array(["abc"] * 3), "real numbers"),
+    ("psf_x1", np.ones(9), "square kernel of odd size"),
+    ("psf_x2", np.ones((3, 3), complex), "real numbers"),
+    ("psf_x2", np.full((3, 3), np.inf), "finite values >= 0"),
+    ("psf_x2", np.full((3, 3), 1e300), "at most 1e\\+30"),
+    ("illumination_x1", np.full((16, 16), 1e300), "at most 1e\\+30"),
+    ("psf_patches_x1", np.array(["abc"] * 3), "real numbers"),
+    ("illumination_x1", np.full((16, 16), np.inf), "finite relative illumination"),
+    ("illumination_x2", np.ones((8, 8)), "real values of"),
+    ("bad_pixels", np.full((16, 16), np.nan), "an \\(H, W\\)"),
+    ("bad_pixels", np.ones((16, 16), bool), "leaves pixels"),
+    ("theta_rad", np.zeros(3), "one per frame"),
+    ("theta_rad", np.array(["a", "b", "c", "d"]), "one per frame"),
     ("frames", np.ones((2, 3, 4, 5), np.float32), "frames"),
     ("times_s", np.arange(3.0), "times_s"),
     # out of order or repeated: the polariser model took them as they were (decreasing times, the free-running
@@ -108,6 +124,15 @@ def test_arrays_that_do_not_fit_the_frames_name_the_file_and_the_key(tmp_path, k
     with pytest.raises(InputError, match=match) as e:
         Measurement.load(p)
     assert e.value.parameter == key and e.value.source == str(p)
+
+
+def test_frames_all_beyond_the_adcs_range_name_the_range(tmp_path):
+    """Every sample at or beyond the ADC's floor or full scale: the reconstruction said 'sigma = nan'."""
+    p = _file(tmp_path / "m.npz", meta={"scale": 6.0, "floor_dn": 0.0, "saturation_dn": 16383.0},
+              frames=-np.ones((4, 16, 16), np.float32))
+    with pytest.raises(InputError, match="floor_dn = 0.0 and meta.saturation_dn = 16383.0") as e:
+        Measurement.load(p)
+    assert e.value.parameter == "frames" and e.value.source == str(p)
 
 
 def test_times_without_a_frame_rate_are_an_error_naming_the_file(tmp_path):

@@ -37,6 +37,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from metafovea.errors import InputError
+from metafovea.measurement import check_illumination, check_kernel, check_patches
 from metafovea.reconstruct.spectra import rfft_frequencies
 
 if TYPE_CHECKING:
@@ -102,15 +103,11 @@ class ChannelPSFs:
     patches: tuple[np.ndarray | None, np.ndarray | None] = (None, None)
 
     def __post_init__(self) -> None:
-        ks = []
-        for i, k in enumerate(self.kernels, start=1):
-            a = np.asarray(k, dtype=np.float64)
-            if a.ndim != 2 or a.shape[0] != a.shape[1] or a.shape[0] % 2 == 0:
-                raise InputError(f"psf_x{i}", f"array of shape {a.shape}", "a square kernel of odd size, centred")
-            if not np.all(np.isfinite(a)) or a.min() < 0 or a.sum() <= 0:
-                raise InputError(f"psf_x{i}", "kernel", "finite values >= 0 with a positive sum")
-            ks.append(a)
+        ks = [check_kernel(f"psf_x{i}", k) for i, k in enumerate(self.kernels, start=1)]
         object.__setattr__(self, "kernels", tuple(ks))
+        object.__setattr__(self, "illumination", tuple(
+            None if v is None else check_illumination(f"illumination_x{i}", v, None)
+            for i, v in enumerate(self.illumination, start=1)))
         peds = []
         for i, p in enumerate(self.pedestals, start=1):
             if not (math.isfinite(p) and -1e-9 <= p < 1):
@@ -122,15 +119,7 @@ class ChannelPSFs:
             if k is None:
                 pts.append(None)
                 continue
-            a = np.asarray(k, dtype=np.float64)
-            if (a.ndim != 4 or a.shape[0] != a.shape[1] or not 2 <= a.shape[0] <= 9 or a.shape[2] != a.shape[3]
-                    or a.shape[2] % 2 == 0):
-                raise InputError(f"psf_patches_x{i}", f"array of shape {a.shape}",
-                                 "(p, p, n, n): 2 <= p <= 9 patches a side, square kernels of odd size n")
-            sums = a.sum(axis=(2, 3))
-            if not np.all(np.isfinite(a)) or a.min() < 0 or sums.min() <= 0:
-                raise InputError(f"psf_patches_x{i}", "kernels", "finite values >= 0, each with a positive sum")
-            pts.append(a)
+            pts.append(check_patches(f"psf_patches_x{i}", k))
         if pts[0] is not None and pts[1] is not None and pts[0].shape[0] != pts[1].shape[0]:
             raise InputError("psf_patches_x2", f"{pts[1].shape[0]} x {pts[1].shape[0]} patches",
                              f"the same grid as psf_patches_x1 ({pts[0].shape[0]} x {pts[0].shape[0]})")

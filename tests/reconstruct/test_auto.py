@@ -119,5 +119,7 @@ def test_one_frame_is_a_snapshot_and_two_cannot_tell_motion():
     static, said so."""
     one = simulate(_system(48), "bars", frames=2, psf="airy", optical_train=False, rng=0)
     assert "cannot tell" in choose_method(one).why and choose_method(one).window == 2
-    single = dataclasses.replace(one, frames=one.frames[:1], times_s=one.times_s[:1], alpha=one.alpha[:1])
+    extras = {k: (v[:1] if k in ("theta_rad", "fpn_weights") else v) for k, v in one.extras.items()}
+    single = dataclasses.replace(one, frames=one.frames[:1], times_s=one.times_s[:1], alpha=one.alpha[:1],
+                                 extras=extras)
     assert choose_method(single).method == "snapshot"
