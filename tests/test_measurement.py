@@ -266,3 +266,16 @@ def test_a_tampered_key_through_reconstruct_is_one_line_and_exit_2(tmp_path, cap
     rc = main(["reconstruct", str(p), "--method", "lsq", "--out", str(tmp_path / "r.npz")])
     err = capsys.readouterr().err.strip().splitlines()
     assert rc == 2 and len(err) == 1 and "meta.channel_gain.x2" in err[0] and str(p) in err[0]
+
+
+def test_a_kernels_rounding_residue_is_zero_and_a_negative_value_is_not():
+    """The simulator's reduced model writes a kernel with -1.6e-17 in it (FFT resampling): read as 0, where -1e-3 of
+    the peak is an error."""
+    from metafovea.measurement import check_kernel
+
+    k = np.zeros((3, 3))
+    k[1, 1], k[0, 0] = 1.0, -1.6e-17
+    assert check_kernel("psf_x1", k).min() == 0.0
+    k[0, 0] = -1e-3
+    with pytest.raises(InputError, match="finite values >= 0"):
+        check_kernel("psf_x1", k)
