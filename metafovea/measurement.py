@@ -509,7 +509,8 @@ class Measurement:
         if not np.any(np.isfinite(f)):
             raise InputError("frames", "no finite value", "frames with finite pixel values (NaN/inf pixels are "
                              "masked, but all of them are non-finite)", source=src)
-        f = f.astype(np.float32, copy=False)
+        with np.errstate(over="ignore"):  # beyond float32's range: inf, masked as every non-finite sample is
+            f = f.astype(np.float32, copy=False)
         T, H, W = f.shape
         t = np.asarray(self.times_s)
         t = t.astype(np.float64).reshape(-1) if _real(t) else np.full(np.shape(t), np.nan).reshape(-1)

@@ -133,6 +133,15 @@ def test_frames_all_beyond_the_adcs_range_name_the_range(tmp_path):
     with pytest.raises(InputError, match="floor_dn = 0.0 and meta.saturation_dn = 16383.0") as e:
         Measurement.load(p)
     assert e.value.parameter == "frames" and e.value.source == str(p)
+    # beyond float32's range: inf (masked), without an overflow warning as a second line before the error
+    import warnings
+
+    p = _file(tmp_path / "h.npz", meta={"scale": 6.0, "floor_dn": 0.0, "saturation_dn": 16383.0},
+              frames=np.full((4, 16, 16), 1e300))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        with pytest.raises(InputError, match="ADC's range"):
+            Measurement.load(p)
 
 
 def test_times_without_a_frame_rate_are_an_error_naming_the_file(tmp_path):
