@@ -548,9 +548,11 @@ class Measurement:
             raise InputError("extras", sorted(bad), "keys among " + ", ".join(OPTIONAL[4:]), source=src)
         ff = self.extras.get("flat_field")
         if ff is not None and (not _real(np.asarray(ff)) or np.shape(ff) != (H, W)
-                               or not np.all(np.isfinite(ff)) or not np.all(np.asarray(ff) > 0)):
+                               or not np.all(np.isfinite(ff)) or not np.all(np.asarray(ff) > 0)
+                               or np.max(ff) > MAX_ARRAY_VALUE):
             raise InputError("flat_field", f"array of shape {np.shape(ff)}",
-                             f"a finite, positive (H, W) = {(H, W)} relative gain", source=src)
+                             f"a finite, positive (H, W) = {(H, W)} relative gain, at most {MAX_ARRAY_VALUE:g}",
+                             source=src)
         cal = self.extras.get("calibration")
         if cal is not None and (not _real(np.asarray(cal)) or np.ndim(cal) not in (2, 3)
                                 or np.shape(cal)[-2:] != (H, W)):

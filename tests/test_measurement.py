@@ -103,6 +103,7 @@ def test_files_that_are_not_measurements(tmp_path, kind):
     ("psf_x2", np.full((3, 3), np.inf), "finite values >= 0"),
     ("psf_x2", np.full((3, 3), 1e300), "at most 1e\\+30"),
     ("illumination_x1", np.full((16, 16), 1e300), "at most 1e\\+30"),
+    ("flat_field", np.full((16, 16), 1e300), "at most 1e\\+30"),  # divided out: images of 1e-297, exit 0
     ("psf_patches_x1", np.array(["abc"] * 3), "real numbers"),
     ("illumination_x1", np.full((16, 16), np.inf), "finite relative illumination"),
     ("illumination_x2", np.ones((8, 8)), "real values of"),
