@@ -582,17 +582,12 @@ class Measurement:
                 raise InputError("bad_pixels", "every pixel marked bad", "a map that leaves pixels to read",
                                  source=src)
         check_recording_meta(self.meta, src)
-        lo, hi = self.valid_range_dn
-        if lo is not None or hi is not None:
-            ok = np.isfinite(f)
-            if hi is not None:
-                ok &= f < hi
-            if lo is not None:
-                ok &= f > lo
-            if not ok.any():
-                raise InputError("frames", "every sample at or beyond the ADC's range",
-                                 f"samples between meta.floor_dn = {lo} and meta.saturation_dn = {hi} (the ADC's "
-                                 "floor and full scale: samples at or beyond them carry no information)", source=src)
+        left_out = self.invalid_samples()
+        if left_out is not None and left_out.all():
+            lo, hi = self.valid_range_dn
+            raise InputError("frames", "every sample at or beyond the ADC's range",
+                             f"samples between meta.floor_dn = {lo} and meta.saturation_dn = {hi} (the ADC's "
+                             "floor and full scale: samples at or beyond them carry no information)", source=src)
 
     def _checked_alpha(self, T: int) -> np.ndarray:
         """``alpha`` as ``(T,)`` float64: real, one per frame, finite values in [0, 1] (NaN = unknown)."""
@@ -703,13 +698,9 @@ class Measurement:
             bad |= f >= hi
         if lo is not None:
             bad |= f <= lo
-        bp = self.extras.get("bad_pixels")
+        bp = self.extras.get("bad_pixels")  # (H, W): checked on construction
         if bp is not None:
-            bp = np.asarray(bp)
-            if bp.shape != f.shape[1:]:
-                raise InputError("bad_pixels", f"array of shape {bp.shape}", f"(H, W) = {f.shape[1:]}",
-                                 source=self.source)
-            bad |= bp.astype(bool)[None]
+            bad |= np.asarray(bp).astype(bool)[None]
         return bad if bad.any() else None
 
     @property
