@@ -350,14 +350,14 @@ def _wavelet_step(pb: Problem, C: np.ndarray, prior_inv: np.ndarray, surround: b
         else:
             draws.append(nk)
     levels = swt_levels((H, W))
-    spec = B = frame_power = risk_data = None
+    spec = B = grid_frame = risk_data = None
     if periodic:
         # the data and the noise draws through the filter: one right-hand side each, the same for every tau
         # (single precision for the solves: the estimate's rounding, ~1e-7 of its range, is far below its noise;
         # double for the risk, whose terms cancel)
         spec = g.rfft(np.stack([pb.z] + draws))
         B = filt.rhs(spec.astype(np.complex64))
-        frame_power = stationary_frame(g.shape, wavelet, levels).power  # |F_b(f)|^2 on the grid
+        grid_frame = stationary_frame(g.shape, wavelet, levels)  # its |F_b(f)|^2 on the grid
         risk_data = filt.risk_data(spec[0], spec[1:], DETECTION_SNR)
     best: list[tuple[float, float, np.ndarray] | None] = [None, None]
     curve: list[list[dict[str, float]]] = [[], []]
@@ -377,7 +377,7 @@ def _wavelet_step(pb: Problem, C: np.ndarray, prior_inv: np.ndarray, surround: b
             noise = np.stack(noise_list)
         parts = [shrink_linearised(x[i], noise[:, i], wavelet, levels) for i in range(2)]
         if periodic:
-            gain = np.stack([np.tensordot(p[2], frame_power, axes=(0, 0)) for p in parts])
+            gain = np.stack([grid_frame.transfer(p[2]) for p in parts])  # type: ignore[union-attr]
             lin = filt.linear_risk(tau, gain, risk_data)
         else:
             lin = filt.bias2(tau)

@@ -123,8 +123,8 @@ class StationaryFrame:
 
     Attributes
     ----------
-    filters : ndarray, shape (3 L + 1, P, Q // 2 + 1)
-        The approximation at level ``L`` first, then per level (coarsest first) the three details.
+    factors : tuple of 2 ndarray
+        The separable factors of :attr:`filters`.
     shape : tuple of 2 int
     """
 
@@ -133,26 +133,52 @@ class StationaryFrame:
 
         w = pywt.Wavelet(_check_wavelet(wavelet))
         P, Q = shape
-        fy = np.fft.fftfreq(P)[:, None]
-        fx = np.fft.rfftfreq(Q)[None, :]
 
         def resp(h: list[float], f: np.ndarray, j: int) -> np.ndarray:
             n = np.arange(len(h))
-            return np.exp(-2j * np.pi * (2 ** j) * f[..., None] * n).dot(np.asarray(h)) / math.sqrt(2.0)
+            return np.exp(-2j * np.pi * (2 ** j) * f[:, None] * n).dot(np.asarray(h)) / math.sqrt(2.0)
 
-        low = np.ones((P, Q // 2 + 1), dtype=complex)
+        # every filter is the product of a response along y and one along x: kept as the two factors (the grid's
+        # frame is only ever asked for its power's weighted sums, :meth:`transfer`: 0.8 s and 50 MB on a 900 x 900
+        # grid as full arrays)
+        fy, fx = np.fft.fftfreq(P), np.fft.rfftfreq(Q)
+        low_y, low_x = np.ones(P, dtype=complex), np.ones(Q // 2 + 1, dtype=complex)
         details = []
         for j in range(levels):
             ly, hy = resp(w.dec_lo, fy, j), resp(w.dec_hi, fy, j)
             lx, hx = resp(w.dec_lo, fx, j), resp(w.dec_hi, fx, j)
-            details.append(np.stack([low * ly * hx, low * hy * lx, low * hy * hx]))
-            low = low * ly * lx
-        self.filters = np.concatenate([low[None]] + details[::-1])
+            details.append([(low_y * ly, low_x * hx), (low_y * hy, low_x * lx), (low_y * hy, low_x * hx)])
+            low_y, low_x = low_y * ly, low_x * lx
+        pairs = [(low_y, low_x)] + [pair for level in details[::-1] for pair in level]
+        #: the factors along y ``(3 L + 1, P)`` and x ``(3 L + 1, Q // 2 + 1)``: ``filters[b] = fy[b] (x) fx[b]``
+        self.factors = (np.array([py for py, _ in pairs]), np.array([px for _, px in pairs]))
+        self._power_factors = (np.abs(self.factors[0]) ** 2, np.abs(self.factors[1]) ** 2)
         self.shape = (P, Q)
-        self._filters32 = self.filters.astype(np.complex64)
-        #: ``|F_b(f)|^2``, shape (3 L + 1, P, Q // 2 + 1): a subband-diagonal linear map's transfer function is
-        #: ``sum_b g_b |F_b(f)|^2``
-        self.power = np.abs(self.filters) ** 2
+
+    @functools.cached_property
+    def filters(self) -> np.ndarray:
+        """The subbands' transfer functions, ``(3 L + 1, P, Q // 2 + 1)``: the approximation at level ``L`` first,
+        then per level (coarsest first) the three details."""
+        fy, fx = self.factors
+        return fy[:, :, None] * fx[:, None, :]
+
+    @functools.cached_property
+    def _filters32(self) -> np.ndarray:
+        return self.filters.astype(np.complex64)
+
+    @functools.cached_property
+    def power(self) -> np.ndarray:
+        """``|F_b(f)|^2``, shape ``(3 L + 1, P, Q // 2 + 1)``: a subband-diagonal linear map's transfer function is
+        ``sum_b g_b |F_b(f)|^2`` (:meth:`transfer`)."""
+        py, px = self._power_factors
+        return py[:, :, None] * px[:, None, :]
+
+    def transfer(self, gains: np.ndarray) -> np.ndarray:
+        """``sum_b gains_b |F_b(f)|^2`` ``(P, Q // 2 + 1)``: the transfer function of the map that multiplies
+        subband ``b`` by ``gains_b`` (``(3 L + 1,)``) and synthesises (a sum of separable products: no
+        ``(3 L + 1, P, Q // 2 + 1)`` array)."""
+        py, px = self._power_factors
+        return (np.asarray(gains, dtype=np.float64)[:, None] * py).T @ px
 
     def _f(self, a: np.ndarray) -> np.ndarray:
         return self._filters32 if a.dtype in (np.float32, np.complex64) else self.filters
@@ -190,7 +216,8 @@ class StationaryFrame:
         wt[0] = 1.0
         if Q % 2 == 0:
             wt[-1] = 1.0
-        return np.sum(np.abs(self.filters) ** 2 * (spec * wt)[None], axis=(-2, -1)) / float(P * Q) ** 2
+        py, px = self._power_factors
+        return np.sum((py @ (spec * wt)) * px, axis=1) / float(P * Q) ** 2
 
 
 def _surelet(w: np.ndarray, var: float) -> tuple[np.ndarray, float]:
@@ -293,6 +320,6 @@ def shrink_linearised(img: np.ndarray, noise: np.ndarray, wavelet: str = DEFAULT
     # ||L x - x||^2 in the Fourier domain: L x - x has the spectrum (sum_b g_b |F_b|^2 - 1) X
     from scipy.fft import rfft2
 
-    resid = (np.tensordot(gains, frame.power, axes=(0, 0)) - 1.0) ** 2 * np.abs(rfft2(img, workers=-1)) ** 2
+    resid = (frame.transfer(gains) - 1.0) ** 2 * np.abs(rfft2(img, workers=-1)) ** 2
     sure_lin = frame.mean_square(resid) - (tr - 2.0 * div_lin) / img.size
     return est, sure, gains, sure_lin

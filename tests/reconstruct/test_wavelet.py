@@ -16,7 +16,8 @@ from metafovea.reconstruct.wavelet import WAVELETS, StationaryFrame, shrink, shr
 @pytest.mark.parametrize("wavelet", WAVELETS)
 def test_the_fft_frame_is_pywavelets_stationary_transform(wavelet):
     """Parseval (sum |F_b|^2 = 1, perfect reconstruction) and, subband by subband, the energies of
-    ``pywt.swt2(..., norm=True)`` (periodic), which computes the transform by its own filter bank."""
+    ``pywt.swt2(..., norm=True)`` (periodic), which computes the transform by its own filter bank; the transfer
+    function of a subband-diagonal map against the map applied to an image."""
     y = np.random.default_rng(0).standard_normal((64, 64))
     f = StationaryFrame(y.shape, wavelet, 3)
     assert np.max(np.abs(np.sum(np.abs(f.filters) ** 2, axis=0) - 1.0)) < 1e-9
@@ -28,6 +29,16 @@ def test_the_fft_frame_is_pywavelets_stationary_transform(wavelet):
     assert np.allclose(sorted(e), sorted(e_ref), rtol=1e-9)
     # the noise variances from the draws' spectra are the subbands' mean squares
     assert np.allclose(f.noise_variances(y[None]), [np.mean(x ** 2) for x in c], rtol=1e-9)
+    # a subband-diagonal map's transfer function (a sum of separable products) is what the map does to an image
+    g = np.random.default_rng(1).uniform(0, 1.5, c.shape[0])
+    assert np.allclose(irfft2(rfft2(y) * f.transfer(g), s=y.shape), f.synthesis(g[:, None, None] * c), atol=1e-9)
+    # on a non-square grid too (the factors along y and x differ)
+    f2 = StationaryFrame((48, 80), wavelet, 2)
+    y2 = np.random.default_rng(2).standard_normal((48, 80))
+    c2 = f2.analysis(y2)
+    assert np.allclose(f2.synthesis(c2), y2, atol=1e-9)
+    g2 = np.random.default_rng(3).uniform(0, 1.5, c2.shape[0])
+    assert np.allclose(irfft2(rfft2(y2) * f2.transfer(g2), s=y2.shape), f2.synthesis(g2[:, None, None] * c2), atol=1e-9)
 
 
 def _blocks(n: int, seed: int) -> np.ndarray:
