@@ -234,9 +234,11 @@ def clear_caches() -> None:
     """Forget the cameras and haze kernels kept in this process (after changing the files they were read from:
     the RCWA library, the post caches)."""
     from metafovea.imaging.kernels import clear_disk_kernels
+    from metafovea.library.platform import clear_selection_cache
 
     _camera_optics.cache_clear()
     clear_disk_kernels()
+    clear_selection_cache()
 
 
 def _hashable(x: Any) -> bool:

@@ -24,6 +24,46 @@ def test_platform_post_sets_coarse(tmp_path):
     assert again["y"].widths_um.tolist() == sets["y"].widths_um.tolist()
 
 
+
+def _same_sets(a, b) -> bool:
+    import dataclasses
+
+    return all(np.array_equal(getattr(a[p], f.name), getattr(b[p], f.name)) if isinstance(getattr(a[p], f.name),
+                                                                                          np.ndarray)
+               else getattr(a[p], f.name) == getattr(b[p], f.name) for p in a for f in dataclasses.fields(a[p]))
+
+
+def test_the_selection_is_cached_on_disk_read_back_the_same_and_a_damaged_file_is_redone(tmp_path, monkeypatch):
+    """A new process reads both post sets from the cache (0.9 s of grid search per process before); every field is
+    the selection's; a damaged file is selected again and rewritten; without use_cache nothing is written."""
+    import metafovea.library.platform as platform
+    from metafovea.library import PostSet
+    from metafovea.library.platform import clear_selection_cache
+
+    clear_selection_cache()
+    sets, _ = platform_post_sets(cache_dir=tmp_path)  # the paper's library (the package's seed), 8 levels
+    files = sorted(tmp_path.glob("posts_*.npz"))
+    assert [f.name[-6:] for f in files] == ["_x.npz", "_y.npz"]
+
+    def no_selection(*a, **k):
+        raise AssertionError("selected again")
+
+    clear_selection_cache()
+    monkeypatch.setattr(platform, "select_posts", no_selection)
+    assert _same_sets(platform_post_sets(cache_dir=tmp_path)[0], sets)
+
+    files[1].write_bytes(b"not a post set")  # damaged: selected again, rewritten
+    monkeypatch.undo()
+    clear_selection_cache()
+    assert _same_sets(platform_post_sets(cache_dir=tmp_path)[0], sets)
+    assert np.array_equal(PostSet.load(files[1]).widths_um, sets["y"].widths_um)
+
+    clear_selection_cache()
+    other = tmp_path / "no_cache"
+    platform_post_sets(PlatformDesign(), 4, grid_step_um=0.5, harmonics=5, cache_dir=other, use_cache=False,
+                       workers=1)  # a coarse library: it is swept again without a cache
+    assert not list(other.glob("*"))
+
 def test_platform_sweep_checks_before_any_work():
     """A platform whose min feature leaves no post or gap, or a grid step that leaves fewer than 2 widths, is an
     error on construction (the CLI checks before it creates --out), naming the platform file."""
