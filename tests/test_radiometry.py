@@ -117,3 +117,12 @@ def test_planck_value_and_band_checks():
     assert b[0] == pytest.approx(9.923, rel=1e-3)  # W / (m^2 sr um)
     with pytest.raises(InputError, match="reversed"):
         check_band((14.0, 8.0))
+
+
+def test_the_si_constants_are_scipys():
+    """The exact SI values written out (scipy.constants' import cost ~0.1 s in every process) are CODATA's."""
+    from scipy import constants
+
+    from metafovea.radiometry import BOLTZMANN_J_K, LIGHT_SPEED_M_S, PLANCK_J_S
+
+    assert (PLANCK_J_S, LIGHT_SPEED_M_S, BOLTZMANN_J_K) == (constants.h, constants.c, constants.k)
