@@ -32,9 +32,11 @@ THUMBNAIL_DPI = 60
 
 
 def fig_to_png(fig: Figure, dpi: int = FIGURE_DPI) -> bytes:
-    """A matplotlib figure as PNG bytes at ``dpi`` (default :data:`FIGURE_DPI`), trimmed to its content."""
+    """A matplotlib figure as PNG bytes at ``dpi`` (default :data:`FIGURE_DPI`), trimmed to its content (a figure
+    with the constrained layout is already fitted to its size: drawn once, not trimmed, a second draw saved)."""
     buf = _io.BytesIO()
-    fig.savefig(buf, format="png", dpi=dpi, bbox_inches="tight")
+    fitted = fig.get_layout_engine() is not None and type(fig.get_layout_engine()).__name__ == "ConstrainedLayoutEngine"
+    fig.savefig(buf, format="png", dpi=dpi, bbox_inches=None if fitted else "tight")
     return buf.getvalue()
 
 

@@ -28,9 +28,16 @@ from metafovea.imaging.kernels import ExplicitPSF, Kernel
 from metafovea.imaging.polarizer import Polarizer
 from metafovea.imaging.scene import Scene, SceneGeometry, list_scenes, make_scene
 from metafovea.imaging.sensor import FixedPattern, SensorModel
-from metafovea.imaging.simulate import SimulationOptions, simulate, simulate_to_files, write_preview, write_tiff
+from metafovea.imaging.simulate import (
+    SimulationOptions,
+    preview_figure,
+    simulate,
+    simulate_to_files,
+    write_preview,
+    write_tiff,
+)
 
 __all__ = ["Scene", "SceneGeometry", "GENERATOR_KINDS", "generated_scene", "held_out_scenes", "tuning_scenes",
            "list_scenes", "make_scene", "FixedPattern", "SensorModel", "SimulationOptions", "simulate",
-           "simulate_to_files", "write_preview", "write_tiff", "Channel", "ExplicitPSF", "Kernel", "Polarizer",
-           "channels_for"]
+           "simulate_to_files", "preview_figure", "write_preview", "write_tiff", "Channel", "ExplicitPSF", "Kernel",
+           "Polarizer", "channels_for"]

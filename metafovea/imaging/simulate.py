@@ -62,6 +62,7 @@ from metafovea.imaging.plan import (
     PlanInputs,
     check_effects,
     check_tolerance,
+    plan_lines,
     plan_model,
 )
 from metafovea.imaging.polarizer import Polarizer
@@ -73,7 +74,6 @@ from metafovea.library import system_post_sets
 from metafovea.measurement import Measurement
 from metafovea.optics.train import system_trains
 from metafovea.parallel import heartbeat, progress_iter
-from metafovea.plotting import iron_colormap
 from metafovea.radiometry import BandRadiance
 from metafovea.report import FIGURE_DPI, fig_to_png
 
@@ -873,13 +873,21 @@ def write_tiff(m: Measurement, path: str | Path, force: bool = False) -> Path:
 
 
 def write_preview(m: Measurement, path: str | Path, force: bool = False, dpi: int = FIGURE_DPI) -> Path:
-    """PNG: four frames (highest, middle and lowest alpha) and the two truth images in the iron palette,
-    and alpha(t)."""
+    """:func:`preview_figure` as a PNG (nothing overwritten without ``force``)."""
+    p = prepare_output(path, force, name="path")
+    return atomic_write_bytes(p, fig_to_png(preview_figure(m, dpi), dpi=dpi))
+
+
+def preview_figure(m: Measurement, dpi: int = FIGURE_DPI) -> Any:
+    """The preview of a recording: four frames (highest, middle and lowest alpha) and the two truth images
+    (noise-free, each channel alone) in the iron palette with colour bars in the file's units, alpha(t) and the
+    frame mean; under them, a reduced model's plan. Returns the matplotlib ``Figure``."""
     from matplotlib.figure import Figure
 
-    p = prepare_output(path, force, name="path")
-    cmap = iron_colormap()
+    from metafovea.plotting import image
+
     T = m.frames.shape[0]
+    units = m.meta.get("units", "DN")
     if m.alpha is not None and np.all(np.isfinite(m.alpha)):
         # highest and lowest alpha and two in between, preferring distinct alpha values
         order = [int(k) for k in np.argsort(m.alpha)[::-1]]
@@ -896,59 +904,49 @@ def write_preview(m: Measurement, path: str | Path, force: bool = False, dpi: in
             picks.append(picks[-1])
     else:
         picks = [int(v) for v in np.linspace(0, T - 1, 4)]
-    fig = Figure(figsize=(13, 6.6), dpi=dpi)
-    axs = fig.subplots(2, 4)
-    for a, k in zip(axs[0], picks):
+    model = m.meta.get("model") or {}
+    lines = plan_lines(model["plan"]) if "plan" in model else []
+    text_in = 0.13 * (len(lines) + 1)
+    # a fixed grid (the constrained layout took 1-1.5 s more to draw), trimmed to its content when saved
+    h = 7.2 + text_in
+    fig = Figure(figsize=(15, h), dpi=dpi)
+    gs = fig.add_gridspec(3 if lines else 2, 4, height_ratios=[1, 1, text_in / 3.6] if lines else [1, 1],
+                          left=0.02, right=0.98, top=1 - 0.6 / h, bottom=0.02, hspace=0.35, wspace=0.45)
+    for j, k in enumerate(picks):
         # per-frame automatic gain control (0.5-99.5 % percentiles), as a thermal camera displays
-        vmin, vmax = np.percentile(m.frames[k], [0.5, 99.5])
-        a.imshow(m.frames[k], cmap=cmap, vmin=vmin, vmax=max(vmax, vmin + 1), interpolation="nearest")
-        lab = f"frame {k}, t = {m.times_s[k]:.2f} s, {vmin:.0f}-{vmax:.0f} DN"
-        if m.alpha is not None:
-            lab += f"\nalpha = {m.alpha[k]:.2f}"
-        a.set_title(lab, fontsize=9)
-        a.set_axis_off()
+        lab = f"frame {k}, t = {m.times_s[k]:.2f} s" + ("" if m.alpha is None else f"\nalpha = {m.alpha[k]:.2f}")
+        ax = fig.add_subplot(gs[0, j])
+        image(ax, m.frames[k], label=units, title=lab)
+        ax.set_axis_off()  # pixel ticks on every panel cost half the drawing time and say little here
     tr = m.truth(picks[0])
-    if tr is not None:
-        for a, img, name in zip(axs[1][:2], tr, ("truth x1 (foveal, x-pol)", "truth x2 (perifoveal, y-pol)")):
-            lo, hi = np.percentile(img, [0.5, 99.5])
-            a.imshow(img, cmap=cmap, vmin=lo, vmax=hi if hi > lo else lo + 1, interpolation="nearest")
-            a.set_title(name, fontsize=9)
-            a.set_axis_off()
-    else:
-        for a in axs[1][:2]:
-            a.set_axis_off()
-    a = axs[1][2]
+    for j, name in enumerate(("truth x1: foveal (x-pol)\nnoise-free", "truth x2: perifoveal (y-pol)\nnoise-free")):
+        ax = fig.add_subplot(gs[1, j])
+        if tr is None:
+            ax.set_axis_off()
+            ax.text(0.5, 0.5, "no truth in the file", ha="center", va="center", transform=ax.transAxes)
+        else:
+            image(ax, tr[j], label=units, title=name)
+            ax.set_axis_off()
+    a = fig.add_subplot(gs[1, 2])
     if m.alpha is not None:
         a.plot(m.times_s, m.alpha, ".-", lw=0.8, ms=3)
     a.set_xlabel("t (s)")
     a.set_ylabel("alpha")
     a.set_ylim(-0.05, 1.05)
-    a.set_title("mixing ratio", fontsize=9)
-    a = axs[1][3]
+    a.set_title("mixing ratio", fontsize=10)
+    a = fig.add_subplot(gs[1, 3])
     a.plot(m.times_s, m.frames.reshape(T, -1).mean(1), lw=0.8)
     a.set_xlabel("t (s)")
-    a.set_ylabel("mean " + m.meta.get("units", "DN"))
-    a.set_title("frame mean", fontsize=9)
-    model = m.meta.get("model") or {}
+    a.set_ylabel(f"mean ({units})")
+    a.set_title("frame mean", fontsize=10)
     fig.suptitle(f"metafovea simulate: scene '{m.meta.get('scene', '?')}', {T} frames "
                  f"{m.frames.shape[1]}x{m.frames.shape[2]}, seed {m.meta.get('seed')}"
                  + ("   [REDUCED MODEL: " + ", ".join(model["reduce"]) + " replaced]" if model.get("reduced") else ""),
                  fontsize=11, color="darkred" if model.get("reduced") else "black")
-    if "plan" in model:
-        _plan_panel(fig, model["plan"])
-    return atomic_write_bytes(p, fig_to_png(fig, dpi=dpi))
+    if lines:
+        ax = fig.add_subplot(gs[2, :])
+        ax.set_axis_off()
+        ax.text(0.0, 1.0, "\n".join(lines), family="monospace", fontsize=6.5, va="top", ha="left",
+                transform=ax.transAxes, color="darkred" if model["plan"]["reduce"] else "black")
+    return fig
 
-
-def _plan_panel(fig: Any, plan: dict[str, Any]) -> None:
-    """The plan table as a text panel under the preview's images (the figure grows to hold it)."""
-    from metafovea.imaging.plan import plan_lines
-
-    lines = plan_lines(plan)
-    w, h = fig.get_size_inches()
-    extra = 0.17 * (len(lines) + 1)
-    fig.set_size_inches(w, h + extra)
-    for ax in fig.axes:  # keep the image panels where they were, in the upper part
-        x0, y0, bw, bh = ax.get_position().bounds
-        ax.set_position([x0, (y0 * h + extra) / (h + extra), bw, bh * h / (h + extra)])
-    fig.text(0.01, (extra - 0.1) / (h + extra), "\n".join(lines), family="monospace", fontsize=6.5, va="top",
-             color="darkred" if plan["reduce"] else "black")

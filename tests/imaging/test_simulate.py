@@ -182,6 +182,10 @@ def test_simulate_to_files_writes_the_measurement_tiff_and_preview(tmp_path, sma
     assert np.array_equal(back.frames, simulate(s, "bars", frames=3, psf=delta_psf, supersample=1, rng=2).frames)
     assert np.array_equal(tifffile.imread(run.files["tiff"]), back.frames.astype(np.uint16))
     assert run.files["preview"].read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    # the preview's six thermal images (four frames, two truths) each carry a colour bar in the file's units
+    fig = sim.preview_figure(back)
+    bars = [ax for ax in fig.axes if ax.get_label() == "<colorbar>"]
+    assert len(bars) == 6 and all(ax.get_ylabel() == "DN" for ax in bars)
     summary = run.summary()
     assert summary["frames"] == 3 and summary["seed"] == 2 and set(summary["seconds"]) == {"simulate", "total"}
     with pytest.raises(InputError, match="force"):  # nothing is overwritten without force
