@@ -40,16 +40,14 @@ def fig_to_png(fig: Figure, dpi: int = FIGURE_DPI) -> bytes:
     return buf.getvalue()
 
 
-def array_png(img: ArrayLike, cmap: str = "inferno") -> bytes:
-    """One image as a PNG, one pixel per array element, in the colour map ``cmap`` (NaN shown as 0)."""
-    import matplotlib
-
-    matplotlib.use("Agg", force=False)
-    import matplotlib.pyplot as plt
+def array_png(img: ArrayLike, cmap: Any = "inferno") -> bytes:
+    """One image as a PNG, one pixel per array element (NaN shown as 0), in the colour map ``cmap`` (a name or a
+    matplotlib colormap: thermal images pass :func:`metafovea.plotting.iron_colormap`)."""
     import numpy as np
+    from matplotlib.image import imsave
 
     buf = _io.BytesIO()
-    plt.imsave(buf, np.nan_to_num(np.asarray(img, dtype=np.float64)), cmap=cmap, format="png")
+    imsave(buf, np.nan_to_num(np.asarray(img, dtype=np.float64)), cmap=cmap, format="png")
     return buf.getvalue()
 
 

@@ -136,41 +136,43 @@ def write_outputs(result: PipelineResult, out: str | os.PathLike, figures: list[
     rec.save(out)
     files = [str(out)]
     if figures:
+        from metafovea.plotting import iron_colormap
+
         x1, x2 = result.x1s[-1], result.x2s[-1]
-        for name, data in zip(figures, (array_png(x1), array_png(x2), pair_figure(x1, x2, title or rec.method))):
+        iron = iron_colormap()
+        pngs = (array_png(x1, iron), array_png(x2, iron), pair_figure(x1, x2, title or rec.method))
+        for name, data in zip(figures, pngs):
             atomic_write_bytes(name, data)
             files.append(str(name))
     return files
 
 
-def pair_figure(x1: np.ndarray, x2: np.ndarray, title: str) -> bytes:
-    """The foveal and perifoveal images side by side with colour bars.
+def pair_figure(x1: np.ndarray, x2: np.ndarray, title: str, units: str = "DN") -> bytes:
+    """The foveal and perifoveal images side by side in the iron palette, colour bars in ``units``.
 
     Parameters
     ----------
     x1, x2 : ndarray, shape (H, W)
     title : str
+    units : str
+        The images' unit (the frames'; the simulator's are DN).
 
     Returns
     -------
     bytes
         PNG.
     """
-    import matplotlib
+    from matplotlib.figure import Figure
 
-    matplotlib.use("Agg", force=False)
-    import matplotlib.pyplot as plt
+    from metafovea.plotting import image
 
-    fig, axs = plt.subplots(1, 2, figsize=(9, 4.2), constrained_layout=True)
+    fig = Figure(figsize=(9, 4.2), layout="constrained")
+    axs = fig.subplots(1, 2)
     for ax, img, name in ((axs[0], x1, "foveal x1"), (axs[1], x2, "perifoveal x2")):
-        im = ax.imshow(img, cmap="inferno")
-        ax.set_title(name)
+        image(ax, img, label=f"signal ({units})", title=name)
         ax.set_axis_off()
-        fig.colorbar(im, ax=ax, shrink=0.8)
     fig.suptitle(title)
-    png = fig_to_png(fig)
-    plt.close(fig)
-    return png
+    return fig_to_png(fig)
 
 
 def scene_paths(out: str | os.PathLike, figures: bool = True, force: bool = False) -> list[Path]:
