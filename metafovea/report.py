@@ -31,12 +31,16 @@ FIGURE_DPI = 100
 THUMBNAIL_DPI = 60
 
 
-def fig_to_png(fig: Figure, dpi: int = FIGURE_DPI) -> bytes:
-    """A matplotlib figure as PNG bytes at ``dpi`` (default :data:`FIGURE_DPI`), trimmed to its content (a figure
-    with the constrained layout is already fitted to its size: drawn once, not trimmed, a second draw saved)."""
+def fig_to_png(fig: Figure, dpi: int = FIGURE_DPI, *, trim: bool | None = None) -> bytes:
+    """A matplotlib figure as PNG bytes at ``dpi`` (default :data:`FIGURE_DPI`).
+
+    ``trim``: cut the figure to its content (``bbox_inches='tight'``, which draws it twice); default: unless the
+    figure has the constrained layout (already fitted to its size); a figure laid out to fit passes False."""
+    if trim is None:
+        engine = fig.get_layout_engine()
+        trim = engine is None or type(engine).__name__ != "ConstrainedLayoutEngine"
     buf = _io.BytesIO()
-    fitted = fig.get_layout_engine() is not None and type(fig.get_layout_engine()).__name__ == "ConstrainedLayoutEngine"
-    fig.savefig(buf, format="png", dpi=dpi, bbox_inches=None if fitted else "tight")
+    fig.savefig(buf, format="png", dpi=dpi, bbox_inches="tight" if trim else None)
     return buf.getvalue()
 
 
