@@ -905,8 +905,8 @@ def preview_figure(m: Measurement, dpi: int = FIGURE_DPI) -> Any:
     else:
         picks = [int(v) for v in np.linspace(0, T - 1, 4)]
     model = m.meta.get("model") or {}
-    lines = plan_lines(model["plan"]) if "plan" in model else []
-    text_in = 0.13 * (len(lines) + 1)
+    plan = model.get("plan")
+    text_in = 0.14 * (len(plan["rows"]) + 3) if plan else 0.0
     # a fixed grid that fits the figure (the constrained layout took 1-1.5 s more to draw; trimming, 0.3-0.5 s)
     h = 7.2 + text_in
     fig = Figure(figsize=(15, h), dpi=dpi)
@@ -943,8 +943,28 @@ def preview_figure(m: Measurement, dpi: int = FIGURE_DPI) -> Any:
                  f"{m.frames.shape[1]}x{m.frames.shape[2]}, seed {m.meta.get('seed')}"
                  + ("   [REDUCED MODEL: " + ", ".join(model["reduce"]) + " replaced]" if model.get("reduced") else ""),
                  fontsize=11, color="darkred" if model.get("reduced") else "black")
-    if lines:  # 6.5 pt monospace, 0.11 in per line: in the figure's lowest text_in inches
-        fig.text(0.02, (text_in + 0.05) / h, "\n".join(lines), family="monospace", fontsize=6.5, va="top", ha="left",
-                 color="darkred" if model["plan"]["reduce"] else "black")
+    if plan:
+        _plan_block(fig, plan, (text_in + 0.05) / h)
     return fig
+
+
+def _plan_block(fig: Any, plan: dict[str, Any], top: float) -> None:
+    """The plan table under the preview's panels from ``top`` (figure fraction) down: its headline, then effect,
+    estimate, included and cost in columns (one text per column, in the figure's own font: a monospaced table took
+    longer to draw than a reduced model saves); the reasons are in the command's output and the file's meta."""
+    rows = plan["rows"]
+    colour = "darkred" if plan["reduce"] else "black"
+    fig.text(0.02, top, plan_lines(plan, why=False)[0], fontsize=7.5, va="top", ha="left", color=colour)
+    cols = ((0.02, "left", "effect", [r["label"] for r in rows]),
+            (0.25, "right", "estimate (K rms)", ["-" if r["estimate_k_rms"] is None else f"{r['estimate_k_rms']:.3g}"
+                                                 for r in rows]),
+            (0.27, "left", "included", ["n/a" if r["included"] is None else "yes" if r["included"] else "NO"
+                                        for r in rows]),
+            (0.36, "right", "cost", [f"{100 * r['relative_cost']:.1f} %" for r in rows]))
+    step = 0.14 / fig.get_size_inches()[1]  # one row, 7 pt and its leading, as a figure fraction
+    for x, ha, head, vals in cols:  # one text per cell: a multi-line text's rows are as tall as their glyphs
+        for i, v in enumerate([head] + vals):
+            fig.text(x, top - (i + 1.2) * step, v, fontsize=7, va="top", ha=ha, color=colour)
+    fig.text(0.02, top - (len(rows) + 2.4) * step, "why each: the command's output and the file's meta "
+             "'model.plan'", fontsize=7, va="top", ha="left", color=colour)
 
