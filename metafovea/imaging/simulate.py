@@ -590,14 +590,15 @@ def _measurement_meta(system: SystemDesign, camera: Camera, sc: Scene, opt: Simu
     }
 
 
-def simulate(system: SystemDesign, scene: str | Path | Scene | np.ndarray, options: SimulationOptions | None = None,
-             rng: np.random.Generator | int | None = 0, **overrides: Any) -> Measurement:
+def simulate(system: SystemDesign | str | Path, scene: str | Path | Scene | np.ndarray,
+             options: SimulationOptions | None = None, rng: np.random.Generator | int | None = 0,
+             **overrides: Any) -> Measurement:
     """Simulate ``options.frames`` frames of ``scene`` through ``system``.
 
     Parameters
     ----------
-    system : SystemDesign
-        The camera (both lenses, distances, relay, polariser, sensor, band).
+    system : SystemDesign, or str or Path
+        The camera (both lenses, distances, relay, polariser, sensor, band), or a system TOML file of it.
     scene : str, Path, Scene or ndarray, shape (h, w) or (T, h, w)
         A bundled scene (:func:`~metafovea.imaging.list_scenes`), ``skimage:NAME``, a file of temperatures or a
         picture, a Scene, or temperatures (one channel; :func:`~metafovea.imaging.make_scene`). Temperatures are
@@ -619,6 +620,10 @@ def simulate(system: SystemDesign, scene: str | Path | Scene | np.ndarray, optio
         pixel PSFs and the metadata (camera, scene, timings).
     """
     t_start = time.perf_counter()
+    if isinstance(system, (str, Path)):
+        system = load_system(system)
+    elif not isinstance(system, SystemDesign):
+        raise InputError("system", type(system).__name__, "a SystemDesign or a system TOML file")
     opt = _options(options, overrides)
     check_int("frames", opt.frames, 1, 100_000)
     tol = None if opt.tolerance_k is None else check_tolerance(opt.tolerance_k)

@@ -235,7 +235,11 @@ def _figure(multi: list[dict[str, Any]], snap: list[dict[str, Any]], meas: Measu
         worst = min(rows[1:], key=lambda r: r["psnr_x1"])
         for c, (img, name) in enumerate(((truth1, "foveal truth"), (rows[0]["images"][0], "foveal, full"),
                                          (worst["images"][0], f"foveal, {worst['variant']}")), start=1):
-            ax[row, c].imshow(np.asarray(img), cmap=cmap, vmin=lo, vmax=max(hi, lo + 1e-9), interpolation="nearest")
+            im = ax[row, c].imshow(np.asarray(img), cmap=cmap, vmin=lo, vmax=max(hi, lo + 1e-9),
+                                   interpolation="nearest")
+            cb = fig.colorbar(im, ax=ax[row, c], fraction=0.046, pad=0.03)
+            cb.set_label("DN", fontsize=7)
+            cb.ax.tick_params(labelsize=6)
             ax[row, c].set_title(f"{title}: {name}", fontsize=9)
             ax[row, c].set_axis_off()
     return fig_to_png(fig)

@@ -104,7 +104,8 @@ def _figure(rows: list[dict[str, Any]], meas: Measurement, cs: list[int]) -> byt
     c = cs[len(cs) // 2]
     img = meas.frames[c]
     lo, hi = np.percentile(img, [0.5, 99.5])
-    ax[0, 2].imshow(img, cmap=iron_colormap(), vmin=lo, vmax=max(hi, lo + 1), interpolation="nearest")
+    im = ax[0, 2].imshow(img, cmap=iron_colormap(), vmin=lo, vmax=max(hi, lo + 1), interpolation="nearest")
+    fig.colorbar(im, ax=ax[0, 2], fraction=0.046, pad=0.03).set_label("DN", fontsize=8)
     ax[0, 2].set_title(f"measured frame {c} (alpha {meas.alpha[c]:.2f})", fontsize=9)
     ax[0, 2].set_axis_off()
     return fig_to_png(fig)

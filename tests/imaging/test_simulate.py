@@ -4,6 +4,7 @@ calibration frames, memory check) and simulate_to_files."""
 from __future__ import annotations
 
 import importlib
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -144,6 +145,19 @@ def test_bad_simulation_inputs(small_system, delta_psf):
         simulate(s, "bars", frames=1, psf={"foveal": np.full((3, 3), 1.0), "perifoveal": np.ones((1, 1))})
     with pytest.raises(InputError, match="option"):
         simulate(s, "bars", frames=1, psf=delta_psf, no_such_option=1)
+    # the system: a SystemDesign or its TOML file (a path string raised AttributeError)
+    with pytest.raises(InputError, match="^system = "):
+        simulate(42, "bars", frames=1, psf=delta_psf)
+    with pytest.raises(InputError):
+        simulate("no_such_system.toml", "bars", frames=1, psf=delta_psf)
+
+
+def test_a_system_file_simulates_as_its_design(delta_psf):
+    from metafovea.config import load_system
+
+    f = Path(__file__).resolve().parents[2] / "designs" / "system.toml"
+    kw = {"frames": 1, "psf": delta_psf, "optical_train": False, "posts": "ideal", "supersample": 1}
+    assert np.array_equal(simulate(str(f), "bars", **kw).frames, simulate(load_system(f), "bars", **kw).frames)
 
 
 def test_a_scene_in_celsius_is_simulated_only_with_its_unit_given(small_system, delta_psf):
