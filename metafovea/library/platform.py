@@ -136,10 +136,11 @@ def clear_selection_cache() -> None:
     _SELECTED.clear()
 
 
-def _selection_path(key: tuple, options: LibraryOptions) -> Path:
+def _selection_path(key: tuple, options: LibraryOptions) -> Path | None:
     """The cache file of a selection: next to the library's cache, named by a hash of the library's content, the
     selection's inputs and the selection's own code (a change to :mod:`metafovea.library.select` or
-    :mod:`~metafovea.library.postset` is a new file, never a stale one)."""
+    :mod:`~metafovea.library.postset` is a new file, never a stale one); None where that code cannot be read (a
+    zipped install): no disk cache then."""
     import hashlib
     from dataclasses import asdict
 
@@ -147,7 +148,10 @@ def _selection_path(key: tuple, options: LibraryOptions) -> Path:
 
     from . import postset, select
 
-    code = hashlib.sha256(b"".join(Path(m.__file__).read_bytes() for m in (select, postset))).hexdigest()[:16]
+    try:
+        code = hashlib.sha256(b"".join(Path(m.__file__).read_bytes() for m in (select, postset))).hexdigest()[:16]
+    except (OSError, TypeError):
+        return None
     digest, platform, levels, wl, bias = key
     name = input_hash({"library": digest, "platform": asdict(platform), "levels": levels, "wavelength_um": wl,
                        "bias_weight": bias, "code": code})
