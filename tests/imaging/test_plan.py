@@ -158,6 +158,15 @@ def test_the_default_is_the_full_model_and_a_tolerance_says_it_is_reduced(small_
     lines = plan_lines(plan)
     assert lines[0].startswith("REDUCED MODEL for a tolerance of 1 K rms") and len(lines) == 2 + len(EFFECTS) + 2
     assert "REDUCED" in red._repr_html_() and "REDUCED" not in full._repr_html_()  # the notebook view says so
+    # the preview shows the plan: its headline, every effect's row, and NO where an effect was replaced
+    from metafovea.imaging.simulate import preview_figure
+
+    texts = [t.get_text() for t in preview_figure(red).texts]
+    assert lines[0] in texts and all(r["label"] in texts for r in plan["rows"])
+    assert texts.count("NO") == len(model["reduce"])
+    assert "effect" in texts and "effect" not in [t.get_text() for t in preview_figure(full).texts]
+    # without the reasons, the table's columns only
+    assert all(" why" not in ln and "note:" not in ln for ln in plan_lines(plan, why=False))
     # the same images as the full model with the plan's effects replaced, and within the tolerance of the full one
     again = simulate(s, "bars", frames=2, psf="airy", reduce=tuple(model["reduce"]), **quiet)
     np.testing.assert_array_equal(red.truth_x1, again.truth_x1)
