@@ -134,7 +134,8 @@ def run(args: argparse.Namespace) -> int:
     auto = res.reconstruction.info.get("auto")
     decon = auto["chose"]["deconvolve"] if auto else args.deconvolve  # what auto chose (or was given)
     scene_out = scene_paths(out, not args.no_figures, args.force) if decon else []  # before any file is written
-    files = write_outputs(res, out, figures, title=f"{res.reconstruction.method}: {Path(m.source).name}")
+    files = write_outputs(res, out, figures, title=f"{res.reconstruction.method}: {Path(m.source).name}",
+                          units=m.meta.get("units") or "DN")
     dec = None
     if decon:
         from metafovea.parallel import heartbeat

@@ -114,7 +114,7 @@ def prepare_outputs(measurement: str | os.PathLike, out: str | os.PathLike | Non
 
 
 def write_outputs(result: PipelineResult, out: str | os.PathLike, figures: list[Path] | None = None, *,
-                  title: str = "") -> list[str]:
+                  title: str = "", units: str = "DN") -> list[str]:
     """Save a pipeline result and the figures of its last output.
 
     Parameters
@@ -126,6 +126,8 @@ def write_outputs(result: PipelineResult, out: str | os.PathLike, figures: list[
         :func:`figure_paths` (from :func:`prepare_outputs`); None or empty: no figures.
     title : str
         The side-by-side figure's title (default: the method).
+    units : str
+        The images' unit, the recording's (``meta['units']``: DN, or an imported camera's counts).
 
     Returns
     -------
@@ -140,7 +142,7 @@ def write_outputs(result: PipelineResult, out: str | os.PathLike, figures: list[
 
         x1, x2 = result.x1s[-1], result.x2s[-1]
         iron = iron_colormap()
-        pngs = (array_png(x1, iron), array_png(x2, iron), pair_figure(x1, x2, title or rec.method))
+        pngs = (array_png(x1, iron), array_png(x2, iron), pair_figure(x1, x2, title or rec.method, units))
         for name, data in zip(figures, pngs):
             atomic_write_bytes(name, data)
             files.append(str(name))

@@ -48,3 +48,22 @@ def test_alpha_per_frame_takes_each_windows_estimate_where_the_sequence_has_none
     own = Reconstruction(x1=np.zeros((4, 4)), x2=np.zeros((4, 4)), alpha=np.linspace(0, 1, 10),
                          info={"window_starts": [0], "alpha_windows": [[0.5] * 3]})
     assert np.allclose(own.alpha_per_frame(10), np.linspace(0, 1, 10))  # the sequence's own wins
+
+
+def test_the_written_figures_carry_the_recordings_units(tmp_path, monkeypatch):
+    """The side-by-side figure's colour bars name the recording's units (an imported camera's counts, not DN)."""
+    import metafovea.reconstruct.files as files
+    from metafovea.reconstruct import write_outputs
+
+    figs = []
+    real = files.fig_to_png
+    monkeypatch.setattr(files, "fig_to_png", lambda fig, *a, **k: figs.append(fig) or real(fig, *a, **k))
+    rng = np.random.default_rng(0)
+    x1, x2 = rng.uniform(0, 1, (2, 8, 8)).astype(np.float32)
+    rec = Reconstruction(x1=x1, x2=x2, alpha=np.array([0.5]), method="lsq")
+    res = PipelineResult(reconstruction=rec, spans=((0, 2),), seconds=0.1, constraint=FovealConstraint(), frames=2)
+    pngs = [tmp_path / f"r{i}.png" for i in range(3)]
+    written = write_outputs(res, tmp_path / "r.npz", pngs, units="counts")
+    assert len(written) == 4 and all(p.stat().st_size > 0 for p in pngs)
+    labels = [ax.get_ylabel() for ax in figs[0].axes if ax.get_label() == "<colorbar>"]
+    assert labels == ["signal (counts)", "signal (counts)"]
