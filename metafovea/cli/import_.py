@@ -62,6 +62,7 @@ def register(subparsers: Any) -> argparse.ArgumentParser:
                    "foveal constraint's gain; default 1): splits the calibration between the channels")
     c.add_argument("--scale", type=float, default=None, help="f1/f2 of the two lenses (default: reconstruct's 6)")
     p.add_argument("--out", default=None, help="output .npz (default: the recording's name with .npz)")
+    p.add_argument("--no-preview", action="store_true", help="do not write the preview PNG (<out>_preview.png)")
     add_shared(p, "--force", "--json")
     p.set_defaults(func=run)
     return p
@@ -82,7 +83,8 @@ def run(args: argparse.Namespace) -> int:
                         band_um=tuple(args.band_um) if args.band_um else BAND_UM,
                         filter_um=tuple(args.filter_um) if args.filter_um else None, foveal_gain=args.foveal_gain,
                         scale=args.scale, polarizer=polarizer_args(args))
-    out, s = import_recording(args.recording, out_file(args, None), opt, force=args.force)
+    out, s = import_recording(args.recording, out_file(args, None), opt, force=args.force,
+                              preview=not args.no_preview)
     s["warnings"] = [in_flags(w, flag_map("import")) for w in s["warnings"]]  # the flags for the options they advise
     for w in s["warnings"]:
         warnings.warn(w, UserWarning, stacklevel=1)
@@ -107,5 +109,5 @@ def run(args: argparse.Namespace) -> int:
         + (f", Planck fit within {cal['fit_max_error_k']:.2g} K" if "fit_max_error_k" in cal else "")
         + (f", {cal['bad_pixels']} bad pixel(s)" if cal.get("bad_pixels") else ""))
     print(f"  polariser: {pol}; calibration: {how}")
-    print(f"  wrote {out}")
+    print(f"  wrote {out}" + (f", {s['preview']}" if s.get("preview") else ""))
     return 0

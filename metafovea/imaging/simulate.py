@@ -34,6 +34,7 @@ import logging
 import math
 import os
 import time
+import warnings
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -924,17 +925,25 @@ def preview_figure(m: Measurement, dpi: int = FIGURE_DPI) -> Any:
         image(ax, m.frames[k], label=units, title=lab)
         ax.set_axis_off()  # pixel ticks on every panel cost half the drawing time and say little here
     tr = m.truth(picks[0])
-    for j, name in enumerate(("truth x1: foveal (x-pol)\nnoise-free", "truth x2: perifoveal (y-pol)\nnoise-free")):
+    if tr is not None:
+        lower = ((tr[0], "truth x1: foveal (x-pol)\nnoise-free"), (tr[1], "truth x2: perifoveal (y-pol)\nnoise-free"))
+    else:  # a recording: per pixel, the frames' mean and spread (the spread is the polariser's modulation, where the
+        # two channels differ: the foveal content shows there); at most 256 frames, evenly spaced
+        sub = np.asarray(m.frames[np.unique(np.linspace(0, T - 1, min(T, 256)).astype(int))], dtype=np.float64)
+        sub[~np.isfinite(sub)] = np.nan
+        with warnings.catch_warnings():  # a pixel never valid stays NaN (shown blank)
+            warnings.simplefilter("ignore", RuntimeWarning)
+            lower = ((np.nanmean(sub, axis=0), "mean over the frames"),
+                     (np.nanstd(sub, axis=0), "spread (std) over the frames\nthe polariser's modulation"))
+    for j, (img, name) in enumerate(lower):
         ax = fig.add_subplot(gs[1, j])
-        if tr is None:
-            ax.set_axis_off()
-            ax.text(0.5, 0.5, "no truth in the file", ha="center", va="center", transform=ax.transAxes)
-        else:
-            image(ax, tr[j], label=units, title=name)
-            ax.set_axis_off()
+        image(ax, img, label=units, title=name)
+        ax.set_axis_off()
     a = fig.add_subplot(gs[1, 2])
     if m.alpha is not None:
         a.plot(m.times_s, m.alpha, ".-", lw=0.8, ms=3)
+    else:
+        a.text(0.5, 0.5, "not in the file:\nreconstruct estimates it", ha="center", va="center", transform=a.transAxes)
     a.set_xlabel("t (s)")
     a.set_ylabel("alpha")
     a.set_ylim(-0.05, 1.05)
@@ -944,8 +953,11 @@ def preview_figure(m: Measurement, dpi: int = FIGURE_DPI) -> Any:
     a.set_xlabel("t (s)")
     a.set_ylabel(f"mean ({units})")
     a.set_title("frame mean", fontsize=10)
-    fig.suptitle(f"metafovea simulate: scene '{m.meta.get('scene', '?')}', {T} frames "
-                 f"{m.frames.shape[1]}x{m.frames.shape[2]}, seed {m.meta.get('seed')}"
+    src = m.meta.get("source")
+    origin = (f"recording {src.get('file')} ({src.get('format')})" if isinstance(src, dict) and "seed" not in m.meta
+              else f"metafovea simulate: scene '{m.meta.get('scene', '?')}'")
+    fig.suptitle(f"{origin}, {T} frames {m.frames.shape[1]}x{m.frames.shape[2]}"
+                 + (f", seed {m.meta['seed']}" if m.meta.get("seed") is not None else "")
                  + ("   [REDUCED MODEL: " + ", ".join(model["reduce"]) + " replaced]" if model.get("reduced") else ""),
                  fontsize=11, color="darkred" if model.get("reduced") else "black")
     if plan:

@@ -219,9 +219,12 @@ def to_measurement(rec: Recording, options: ImportOptions | None = None) -> tupl
 
 
 def import_recording(path: str | Path, out: str | Path | None = None, options: ImportOptions | None = None, *,
-                     force: bool = False) -> tuple[Path, dict[str, Any]]:
+                     force: bool = False, preview: bool = True) -> tuple[Path, dict[str, Any]]:
     """Read ``path``, convert it (:func:`to_measurement`) and write the Measurement ``.npz`` to ``out`` (default:
-    the recording's name with ``.npz``); ``(path written, summary)``. Nothing is written on any error."""
+    the recording's name with ``.npz``) and, with ``preview``, ``<out>_preview.png`` (frames in the iron palette with
+    colour bars in the file's units, the frames' mean and spread per pixel, alpha and the frame mean over time:
+    :func:`metafovea.imaging.simulate.write_preview`); ``(path written, summary)``, the summary's ``preview`` the
+    PNG. Nothing is written on any error, nothing overwritten without ``force``."""
     from metafovea.io import prepare_output
 
     opt = options or ImportOptions()
@@ -231,10 +234,17 @@ def import_recording(path: str | Path, out: str | Path | None = None, options: I
         raise InputError("out", str(dest), "a file name ending in .npz")
     if src.exists() and dest.exists() and dest.resolve() == src.resolve():
         raise InputError("out", str(dest), "a path other than the recording itself")
+    png = dest.with_name(dest.stem + "_preview.png") if preview else None
     prepare_output(dest, force)  # refuse an existing file before reading anything
+    if png is not None:
+        prepare_output(png, force, name="out (preview)")
     rec = read_recording(src, format=opt.format, frames_key=opt.frames_key, times=opt.times,
                          time_unit=opt.time_unit, frame_axis=opt.frame_axis, polarizer_key=opt.polarizer_key)
     m, summary = to_measurement(rec, opt)
     written = m.save(dest, force=force)
     summary["out"] = str(written)
+    if png is not None:
+        from metafovea.imaging.simulate import write_preview
+
+        summary["preview"] = str(write_preview(m, png, force=force))
     return written, summary

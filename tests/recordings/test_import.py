@@ -112,6 +112,14 @@ def test_no_calibration_keeps_counts(tmp_path, cli, linear_camera):
     assert m.meta["units"] == "counts" and "dn_per_k_300K" not in m.meta
     np.testing.assert_array_equal(m.frames, linear_camera.frames.astype(np.float32))
     assert "no kelvin" in out
+    # the preview: the frames and, with no truth, their mean and spread per pixel, colour bars in the file's counts
+    from metafovea.imaging.simulate import preview_figure
+
+    assert (tmp_path / "rec_preview.png").read_bytes()[:4] == b"\x89PNG" and "rec_preview.png" in out
+    fig = preview_figure(m)
+    bars = [ax for ax in fig.axes if ax.get_label() == "<colorbar>"]
+    assert len(bars) == 6 and all(ax.get_ylabel() == "counts" for ax in bars)
+    assert any(ax.get_title().startswith("spread (std)") for ax in fig.axes)
 
 
 @pytest.mark.parametrize("argv, flag", [
@@ -154,6 +162,12 @@ def test_existing_output_needs_force(tmp_path, cli, linear_camera):
     rc, _, err = cli("import", rec, "--frame-rate", 30)
     assert rc == 2 and "--force" in err
     assert cli("import", rec, "--frame-rate", 30, "--force")[0] == 0
+    # an existing preview alone is refused too, before anything is written; --no-preview writes none
+    (tmp_path / "rec.npz").unlink()
+    rc, _, err = cli("import", rec, "--frame-rate", 30)
+    assert rc == 2 and "preview" in err and "--force" in err and not (tmp_path / "rec.npz").exists()
+    assert cli("import", rec, "--frame-rate", 30, "--out", tmp_path / "n.npz", "--no-preview")[0] == 0
+    assert (tmp_path / "n.npz").exists() and not (tmp_path / "n_preview.png").exists()
 
 
 def test_a_free_running_recording_imported_from_tiff_reconstructs_as_simulated(tmp_path, cli):
