@@ -34,7 +34,6 @@ import logging
 import math
 import os
 import time
-import warnings
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -928,13 +927,20 @@ def preview_figure(m: Measurement, dpi: int = FIGURE_DPI) -> Any:
     if tr is not None:
         lower = ((tr[0], "truth x1: foveal (x-pol)\nnoise-free"), (tr[1], "truth x2: perifoveal (y-pol)\nnoise-free"))
     else:  # a recording: per pixel, the frames' mean and spread (the spread is the polariser's modulation, where the
-        # two channels differ: the foveal content shows there); at most 256 frames, evenly spaced
-        sub = np.asarray(m.frames[np.unique(np.linspace(0, T - 1, min(T, 256)).astype(int))], dtype=np.float64)
-        sub[~np.isfinite(sub)] = np.nan
-        with warnings.catch_warnings():  # a pixel never valid stays NaN (shown blank)
-            warnings.simplefilter("ignore", RuntimeWarning)
-            lower = ((np.nanmean(sub, axis=0), "mean over the frames"),
-                     (np.nanstd(sub, axis=0), "spread (std) over the frames\nthe polariser's modulation"))
+        # two channels differ: the foveal content shows there); at most 256 frames, evenly spaced, one at a time
+        n = np.zeros(m.frames.shape[1:])
+        s1, s2 = np.zeros_like(n), np.zeros_like(n)
+        for k in np.unique(np.linspace(0, T - 1, min(T, 256)).astype(int)):
+            f = np.asarray(m.frames[k], dtype=np.float64)
+            ok = np.isfinite(f)
+            f = np.where(ok, f, 0.0)
+            n += ok
+            s1 += f
+            s2 += f * f
+        with np.errstate(invalid="ignore", divide="ignore"):  # a pixel never valid stays NaN (shown blank)
+            mean = s1 / n
+            lower = ((mean, "mean over the frames"), (np.sqrt(np.maximum(s2 / n - mean * mean, 0.0)),
+                                                      "spread (std) over the frames\nthe polariser's modulation"))
     for j, (img, name) in enumerate(lower):
         ax = fig.add_subplot(gs[1, j])
         image(ax, img, label=units, title=name)
