@@ -7,8 +7,9 @@ channel's 6x magnified view holds detail down to its own pixels. The kinds (:dat
 
 * ``texture``: a 1/f texture, a sum of :data:`TEXTURE_WAVES` plane waves from half a cycle across the perifoveal
   field up to the foveal channel's Nyquist frequency. Its spectrum is therefore a set of lines, not a continuum: a
-  method that estimates a 2-D spectrum from the data gains several dB on these scenes over the radially averaged
-  Wiener bound (2.6-6.6 dB measured, BENCHMARKS.md), a gain that natural thermal textures would not give;
+  method that estimates a 2-D spectrum from the data beats the radially averaged Wiener bound on these scenes by a
+  margin that natural thermal textures would not give (BENCHMARKS.md, "PSF-aware reconstruction on scenes never
+  seen");
 * ``hot-objects``: ellipses and convex polygons (mostly warmer, some colder) on a cool, faintly textured background;
 * ``edges``: random half-planes (steps), one through the fovea;
 * ``sources``: small hot points, from a quarter of a foveal pixel to a few perifoveal pixels, some in the fovea;
