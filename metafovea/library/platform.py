@@ -138,18 +138,21 @@ def clear_selection_cache() -> None:
 
 def _selection_path(key: tuple, options: LibraryOptions) -> Path | None:
     """The cache file of a selection: next to the library's cache, named by a hash of the library's content, the
-    selection's inputs and the selection's own code (a change to :mod:`metafovea.library.select` or
-    :mod:`~metafovea.library.postset` is a new file, never a stale one); None where that code cannot be read (a
-    zipped install): no disk cache then."""
+    selection's inputs and the code it runs (:mod:`metafovea.library.select`, ``postset``, ``sweep`` and the RCWA
+    solver, which the selection calls for posts off the library's grid: a change to any is a new file, never a stale
+    one); None where that code cannot be read (a zipped install): no disk cache then."""
     import hashlib
     from dataclasses import asdict
 
+    import metafovea.rcwa
     from metafovea.io import cache_dir, input_hash
 
-    from . import postset, select
+    from . import postset, select, sweep
 
     try:
-        code = hashlib.sha256(b"".join(Path(m.__file__).read_bytes() for m in (select, postset))).hexdigest()[:16]
+        files = [Path(m.__file__) for m in (select, postset, sweep)]
+        files += sorted(Path(metafovea.rcwa.__file__).parent.glob("*.py"))
+        code = hashlib.sha256(b"".join(f.read_bytes() for f in files)).hexdigest()[:16]
     except (OSError, TypeError):
         return None
     digest, platform, levels, wl, bias = key
