@@ -562,19 +562,23 @@ class PeriodicFilter:
         Ci, D, n, Z = self.Ci, self.D, self.n, data["Z"]
         C = np.linalg.inv(Ci)
         mi = ((m22 / det, -m12 / det), (-np.conj(m12) / det, m11 / det))
-        G = [[sum(mi[i][j] * np.conj(D[j]) * Ci[j, k] for j in range(2)) for k in range(2)] for i in range(2)]
-        # H_ik = G_ik / conj(D_i): the other channel's term of G_ik carries conj(D_i) in m12
-        H = [[mi[0][0] * Ci[0, k] - Ci[0, 1] * np.abs(D[1]) ** 2 / det * Ci[1, k] for k in range(2)],
-             [mi[1][1] * Ci[1, k] - Ci[1, 0] * np.abs(D[0]) ** 2 / det * Ci[0, k] for k in range(2)]]
         out = np.empty(2)
         for i in range(2):
-            seen = data["seen"][i]
-            # the coefficients of L_i^2 and of -2 L_i: the data's (eq. 4) where seen, the prior's expectation elsewhere
-            EX = (sum(np.abs(G[i][k] * D[k]) ** 2 * self.P[k] for k in range(2))
-                  + n * np.real(sum(G[i][k] * np.conj(G[i][m]) * C[k, m] for k in range(2) for m in range(2))))
-            a = np.where(seen, np.abs(G[i][0] * Z[0] + G[i][1] * Z[1]) ** 2, EX)
-            b = np.where(seen, np.real(sum(H[i][k] * data["cross"][k][i] for k in range(2))),
-                         np.real(G[i][i] * D[i]) * self.P[i])
+            j = 1 - i
+            G = [sum(mi[i][q] * np.conj(D[q]) * Ci[q, k] for q in range(2)) for k in range(2)]
+            # the coefficients of L_i^2 and of -2 L_i: the data's (eq. 4) where seen, the prior's expectation elsewhere;
+            # each computed on its own bins only (element by element: the same numbers as on the whole grid)
+            s = data["seen"][i]
+            u = ~s
+            a, b = np.empty(s.shape), np.empty(s.shape)
+            a[s] = np.abs(G[0][s] * Z[0][s] + G[1][s] * Z[1][s]) ** 2
+            # H_ik = G_ik / conj(D_i): the other channel's term of G_ik carries conj(D_i) in m12
+            H = [mi[i][i][s] * Ci[i, k] - Ci[i, j] * np.abs(D[j][s]) ** 2 / det[s] * Ci[j, k] for k in range(2)]
+            b[s] = np.real(sum(H[k] * data["cross"][k][i][s] for k in range(2)))
+            Gu = [G[k][u] for k in range(2)]
+            a[u] = (sum(np.abs(Gu[k] * D[k][u]) ** 2 * self.P[k][u] for k in range(2))
+                    + n * np.real(sum(Gu[k] * np.conj(Gu[m]) * C[k, m] for k in range(2) for m in range(2))))
+            b[u] = np.real(Gu[i] * D[i][u]) * self.P[i][u]
             out[i] = float(mean_square(self.g, gain[i] ** 2 * a - 2.0 * gain[i] * b))
         return out
 
