@@ -307,12 +307,30 @@ class Grid:
         return irfft(rows, n=self.shape[1], axis=-1, workers=-1)[..., self.crop[1]]
 
 
-def _solve2(M: tuple[np.ndarray, np.ndarray, np.ndarray], b: np.ndarray) -> np.ndarray:
-    """Per-frequency solve of the Hermitian 2 x 2 systems ``[[m11, m12], [conj(m12), m22]] x = b``."""
-    m11, m12, m22 = M
+def _det2(m11: np.ndarray, m12: np.ndarray, m22: np.ndarray) -> np.ndarray:
+    """The determinants of the Hermitian 2 x 2 systems ``[[m11, m12], [conj(m12), m22]]``, inf where one is 0 (its
+    solution then 0)."""
     det = m11 * m22 - np.abs(m12) ** 2
-    det = np.where(np.abs(det) > 0, det, np.inf)
-    return np.stack([(m22 * b[0] - m12 * b[1]) / det, (m11 * b[1] - np.conj(m12) * b[0]) / det])
+    return np.where(np.abs(det) > 0, det, np.inf)
+
+
+def _solve2(m11: Any, m12: Any, m22: Any, det: Any, b: np.ndarray) -> np.ndarray:
+    """Per-frequency solve of the systems ``[[m11, m12], [conj(m12), m22]] x = b`` (``det``: :func:`_det2`) for
+    right-hand sides ``b`` ``(..., 2, P, Q // 2 + 1)``: ``[(m22 b0 - m12 b1) / det, (m11 b1 - conj(m12) b0) / det]``,
+    those operations in that order, written into one output (right-hand sides of 5 x 2 grids: temporaries and a
+    stack's copy were half of a solve's time)."""
+    b0, b1 = b[..., 0, :, :], b[..., 1, :, :]
+    out = np.empty(np.broadcast_shapes(b.shape, (2,) + np.shape(det)), dtype=np.result_type(m11, m12, det, b))
+    o0, o1 = out[..., 0, :, :], out[..., 1, :, :]
+    tmp = np.multiply(m12, b1)
+    np.multiply(m22, b0, out=o0)
+    np.subtract(o0, tmp, out=o0)
+    np.divide(o0, det, out=o0)
+    np.multiply(np.conj(m12), b0, out=tmp)
+    np.multiply(m11, b1, out=o1)
+    np.subtract(o1, tmp, out=o1)
+    np.divide(o1, det, out=o1)
+    return out
 
 
 class Problem:
@@ -398,8 +416,10 @@ def linear_solve(pb: Problem, prior_inv: np.ndarray, x0: np.ndarray | None, iter
         S = g.rfft(s)
         return pb.blur_t(pb.weighted(g.irfft(g.D * S))) + g.irfft(prior_inv * n_bins * S)
 
+    det_pre = _det2(*Mpre)
+
     def pre(r: np.ndarray) -> np.ndarray:
-        return g.irfft(_solve2(Mpre, g.rfft(r)))
+        return g.irfft(_solve2(*Mpre, det_pre, g.rfft(r)))
 
     b = pb.data_rhs()
     if pb.boundary == "padded":  # the preconditioner is the system itself: CG's one step, done directly
@@ -464,33 +484,17 @@ class PeriodicFilter:
         """``M_tau^-1 B`` for right-hand sides ``B`` ``(..., 2, P, Q // 2 + 1)`` (:meth:`rhs`), in ``B``'s
         precision."""
         m11, m12, m22 = self._m(tau)
-        det = m11 * m22 - np.abs(m12) ** 2
-        det = np.where(np.abs(det) > 0, det, np.inf)
+        det = _det2(m11, m12, m22)
         if B.dtype == np.complex64:
             m11, m12, m22, det = (np.asarray(v).astype(np.complex64 if np.iscomplexobj(v) else np.float32)
                                   for v in (m11, m12, m22, det))
-        # the same operations in the same order as ``stack([(m22 b0 - m12 b1) / det, (m11 b1 - conj(m12) b0) / det])``,
-        # written into one output (the right-hand sides are 5 x 2 grids: temporaries and the stack's copy were half
-        # of a solve's time)
-        b0, b1 = B[..., 0, :, :], B[..., 1, :, :]
-        out = np.empty(np.broadcast_shapes(B.shape, (2,) + np.shape(det)), dtype=np.result_type(m11, m12, det, B))
-        o0, o1 = out[..., 0, :, :], out[..., 1, :, :]
-        tmp = np.multiply(m12, b1)
-        np.multiply(m22, b0, out=o0)
-        np.subtract(o0, tmp, out=o0)
-        np.divide(o0, det, out=o0)
-        np.multiply(np.conj(m12), b0, out=tmp)
-        np.multiply(m11, b1, out=o1)
-        np.subtract(o1, tmp, out=o1)
-        np.divide(o1, det, out=o1)
-        return out
+        return _solve2(m11, m12, m22, det, B)
 
     def bias2(self, tau: float) -> np.ndarray:
         """The mean squared bias per pixel of each channel, ``(2,)``: ``E |((I - G D) S)_i|^2`` per bin, ``(I - G D) =
         M_tau^-1 tau n prior_inv``, with ``E |S_k|^2`` the prior's power, summed over the grid (Parseval)."""
         m11, m12, m22 = self._m(tau)
-        det = m11 * m22 - np.abs(m12) ** 2
-        det = np.where(np.abs(det) > 0, det, np.inf)
+        det = _det2(m11, m12, m22)
         w = tau * self.n * self.prior_inv
         minv = ((m22, -m12), (-np.conj(m12), m11))
         b2 = np.stack([sum(np.abs(minv[i][k] * w[k] / det) ** 2 * self.P[k] for k in range(2)) for i in range(2)])
@@ -557,8 +561,7 @@ class PeriodicFilter:
         independent): ``L_i^2 E|(G z)_i|^2 - 2 L_i Re(G_ii D_i) P_i``.
         """
         m11, m12, m22 = self._m(tau)
-        det = m11 * m22 - np.abs(m12) ** 2
-        det = np.where(np.abs(det) > 0, det, np.inf)
+        det = _det2(m11, m12, m22)
         Ci, D, n, Z = self.Ci, self.D, self.n, data["Z"]
         C = np.linalg.inv(Ci)
         mi = ((m22 / det, -m12 / det), (-np.conj(m12) / det, m11 / det))
