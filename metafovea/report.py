@@ -37,8 +37,9 @@ def fig_to_png(fig: Figure, dpi: int = FIGURE_DPI, *, trim: bool | None = None) 
     ``trim``: cut the figure to its content (``bbox_inches='tight'``, which draws it twice); default: unless the
     figure has the constrained layout (already fitted to its size); a figure laid out to fit passes False."""
     if trim is None:
-        engine = fig.get_layout_engine()
-        trim = engine is None or type(engine).__name__ != "ConstrainedLayoutEngine"
+        from matplotlib.layout_engine import ConstrainedLayoutEngine
+
+        trim = not isinstance(fig.get_layout_engine(), ConstrainedLayoutEngine)
     buf = _io.BytesIO()
     fig.savefig(buf, format="png", dpi=dpi, bbox_inches="tight" if trim else None)
     return buf.getvalue()

@@ -241,6 +241,14 @@ class Plan:
         return plan_lines(self.summary())
 
 
+def plan_cells(summary: dict[str, Any]) -> list[tuple[str, str, str, str]]:
+    """Each row of the plan table as text: ``(effect, estimate in K rms or '-', included 'yes' / 'NO' / 'n/a',
+    cost as a percentage of the full model's)``, from :meth:`Plan.summary`."""
+    return [(r["label"], "-" if r["estimate_k_rms"] is None else f"{r['estimate_k_rms']:.3g}",
+             "n/a" if r["included"] is None else ("yes" if r["included"] else "NO"),
+             f"{100 * r['relative_cost']:.1f}%") for r in summary["rows"]]
+
+
 def plan_lines(summary: dict[str, Any], why: bool = True) -> list[str]:
     """The plan table as text lines, from :meth:`Plan.summary` (so a stored plan prints the same); ``why=False``:
     without the reasons and notes (a figure's glance: they are most of the text)."""
@@ -250,11 +258,8 @@ def plan_lines(summary: dict[str, Any], why: bool = True) -> list[str]:
         f"{s['budget_k_rms']:.3g} K in all: {s['estimated_error_k_rms']:.3g} K); rendering work " \
         f"{100 * s['render_work_fraction']:.0f} % of the full model's; planned in {s['planner_seconds']:.2f} s"
     out = [head, f"  {'effect':34s} {'estimate K rms':>14s}  {'included':8s} {'cost':>6s}" + ("  why" if why else "")]
-    for r in s["rows"]:
-        est = "-" if r["estimate_k_rms"] is None else f"{r['estimate_k_rms']:.3g}"
-        inc = "n/a" if r["included"] is None else ("yes" if r["included"] else "NO")
-        out.append(f"  {r['label']:34s} {est:>14s}  {inc:8s} {100 * r['relative_cost']:5.1f}%"
-                   + (f"  {r['why']}" if why else ""))
+    for r, (label, est, inc, cost) in zip(s["rows"], plan_cells(s)):
+        out.append(f"  {label:34s} {est:>14s}  {inc:8s} {cost:>6s}" + (f"  {r['why']}" if why else ""))
     if why:
         out += [f"  note: {n}" for n in s.get("notes", [])]
     return out

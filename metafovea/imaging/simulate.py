@@ -62,6 +62,7 @@ from metafovea.imaging.plan import (
     PlanInputs,
     check_effects,
     check_tolerance,
+    plan_cells,
     plan_lines,
     plan_model,
 )
@@ -975,19 +976,13 @@ def _plan_block(fig: Any, plan: dict[str, Any], top: float) -> None:
     """The plan table under the preview's panels from ``top`` (figure fraction) down: its headline, then effect,
     estimate, included and cost in columns (one text per column, in the figure's own font: a monospaced table took
     longer to draw than a reduced model saves); the reasons are in the command's output and the file's meta."""
-    rows = plan["rows"]
+    rows = [("effect", "estimate (K rms)", "included", "cost")] + plan_cells(plan)
     colour = "darkred" if plan["reduce"] else "black"
     fig.text(0.02, top, plan_lines(plan, why=False)[0], fontsize=7.5, va="top", ha="left", color=colour)
-    cols = ((0.02, "left", "effect", [r["label"] for r in rows]),
-            (0.25, "right", "estimate (K rms)", ["-" if r["estimate_k_rms"] is None else f"{r['estimate_k_rms']:.3g}"
-                                                 for r in rows]),
-            (0.27, "left", "included", ["n/a" if r["included"] is None else "yes" if r["included"] else "NO"
-                                        for r in rows]),
-            (0.36, "right", "cost", [f"{100 * r['relative_cost']:.1f} %" for r in rows]))
     step = 0.14 / fig.get_size_inches()[1]  # one row, 7 pt and its leading, as a figure fraction
-    for x, ha, head, vals in cols:  # one text per cell: a multi-line text's rows are as tall as their glyphs
-        for i, v in enumerate([head] + vals):
+    for i, cells in enumerate(rows):  # one text per cell: a multi-line text's rows are as tall as their glyphs
+        for (x, ha), v in zip(((0.02, "left"), (0.25, "right"), (0.27, "left"), (0.36, "right")), cells):
             fig.text(x, top - (i + 1.2) * step, v, fontsize=7, va="top", ha=ha, color=colour)
-    fig.text(0.02, top - (len(rows) + 2.4) * step, "why each: the command's output and the file's meta "
+    fig.text(0.02, top - (len(rows) + 1.4) * step, "why each: the command's output and the file's meta "
              "'model.plan'", fontsize=7, va="top", ha="left", color=colour)
 
