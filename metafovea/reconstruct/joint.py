@@ -38,7 +38,7 @@ from numpy.typing import ArrayLike
 
 from metafovea.errors import InputError
 from metafovea.measurement import check_illumination, check_kernel, check_patches
-from metafovea.reconstruct.spectra import rfft_frequencies
+from metafovea.reconstruct.spectra import rfft_frequencies, rfft_weights
 
 if TYPE_CHECKING:
     from metafovea.measurement import Measurement
@@ -599,11 +599,7 @@ def mean_square(g: Grid, spec: np.ndarray) -> np.ndarray:
         ``sum_f spec(f) / n^2`` over the full plane (the half plane's inner columns counted twice; Parseval).
     """
     P, Q = g.shape
-    wt = np.full(spec.shape[-1], 2.0)
-    wt[0] = 1.0
-    if Q % 2 == 0:
-        wt[-1] = 1.0
-    return np.sum(spec * wt, axis=(-2, -1)) / float(P * Q) ** 2
+    return np.sum(spec * rfft_weights(g.shape), axis=(-2, -1)) / float(P * Q) ** 2
 
 
 def _shrink(gy: np.ndarray, gx: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -77,6 +77,18 @@ def rfft_frequencies(shape: tuple[int, int]) -> np.ndarray:
     return np.hypot(np.fft.fftfreq(shape[0])[:, None], np.fft.rfftfreq(shape[1])[None, :])
 
 
+def rfft_weights(shape: tuple[int, int]) -> np.ndarray:
+    """Each rfft column's count in the full plane of an image of ``shape`` ``(P, Q)``: ``(Q // 2 + 1,)``, 2 for the
+    inner columns, 1 for the zero frequency and (``Q`` even) the Nyquist column; a sum over the half plane weighted
+    by it is the full plane's (Parseval)."""
+    Q = shape[1]
+    wt = np.full(Q // 2 + 1, 2.0)
+    wt[0] = 1.0
+    if Q % 2 == 0:
+        wt[-1] = 1.0
+    return wt
+
+
 def _ring_index(f: np.ndarray, nbins: int) -> tuple[np.ndarray, np.ndarray]:
     """``(edges (nbins + 1,), ring of each frequency)``: equal rings over ``[0, F_MAX]``, the last one closed."""
     edges = np.linspace(0.0, F_MAX, nbins + 1)

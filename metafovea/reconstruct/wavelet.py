@@ -65,6 +65,7 @@ import math
 import numpy as np
 
 from metafovea.errors import InputError
+from metafovea.reconstruct.spectra import rfft_weights
 
 #: wavelets :func:`shrink` accepts (PyWavelets names): Haar's piecewise-constant atoms and two smoother ones
 WAVELETS = ("haar", "db2", "sym4")
@@ -200,11 +201,7 @@ class StationaryFrame:
         """The mean over the image's pixels of a field whose power per unnormalised rfft bin is ``spec``
         ``(P, Q // 2 + 1)`` (Parseval, the half plane's inner columns counted twice)."""
         P, Q = self.shape
-        wt = np.full(Q // 2 + 1, 2.0)
-        wt[0] = 1.0
-        if Q % 2 == 0:
-            wt[-1] = 1.0
-        return float(np.sum(spec * wt) / float(P * Q) ** 2)
+        return float(np.sum(spec * rfft_weights(self.shape)) / float(P * Q) ** 2)
 
     def noise_variances(self, noise: np.ndarray) -> np.ndarray:
         """Each subband's mean square over the noise draws ``(K, P, Q)`` (Parseval on their spectra): ``(3 L + 1,)``."""
@@ -212,12 +209,8 @@ class StationaryFrame:
 
         P, Q = self.shape
         spec = np.mean(np.abs(rfft2(noise, axes=(-2, -1), workers=-1)) ** 2, axis=0)
-        wt = np.full(Q // 2 + 1, 2.0)
-        wt[0] = 1.0
-        if Q % 2 == 0:
-            wt[-1] = 1.0
         py, px = self._power_factors
-        return np.sum((py @ (spec * wt)) * px, axis=1) / float(P * Q) ** 2
+        return np.sum((py @ (spec * rfft_weights(self.shape))) * px, axis=1) / float(P * Q) ** 2
 
 
 def _surelet(w: np.ndarray, var: float) -> tuple[np.ndarray, float]:
