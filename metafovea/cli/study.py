@@ -11,7 +11,7 @@ from __future__ import annotations
 import argparse
 from typing import Any
 
-from metafovea.cli.options import add_shared, seed_arg, show_progress, workers_arg
+from metafovea.cli.options import SHARED_OPTIONS, add_shared, seed_arg, show_progress, workers_arg
 from metafovea.cli.output import out_dir
 from metafovea.errors import InputError
 from metafovea.io import prepare_output, to_json
@@ -25,7 +25,10 @@ def register(sub: argparse._SubParsersAction) -> None:
                                                        "page says which")
     add_shared(p, "--seed")  # the same seed gives the same JSON, apart from its 'timing' key
     p.add_argument("--out", help="output directory (default out/study-NAME-<time>/)")
-    add_shared(p, "--force", "--json", "--workers", "--scheduler")
+    add_shared(p, "--force", "--json", "--scheduler")
+    p.add_argument("--workers", **{**SHARED_OPTIONS["--workers"], "help": (
+        "local workers (default: one per core, never more than the cases; with --fast 1, the cases in this process: "
+        "at the fast sizes they cost less than worker processes that each import and compile the solvers again)")})
     p.set_defaults(func=run)
 
 
@@ -49,6 +52,8 @@ def run(args: argparse.Namespace) -> int:
     study_module(args.name)  # an unknown name before anything is created
     seed = seed_arg(args.seed)
     workers = workers_arg(None if str(args.workers).strip() == "0" else args.workers)  # 0: its old "every core"
+    if args.workers is None and args.fast:  # the library's own default (StudyOptions): fast cases in this process
+        workers = 1
     out = prepare_output(out_dir(args, "study", args.name), args.force, is_dir=True)
     opts = StudyOptions(fast=args.fast, seed=seed, workers=workers, scheduler=args.scheduler,
                         progress=show_progress(args))

@@ -200,7 +200,10 @@ def test_results_less_accurate_than_asked_are_one_line_naming_the_commands_optio
 
 
 #: options a command spells its own way, with the reason (none: every shared option has one default and one help)
-SHARED_PENDING: dict[tuple[str, str], str] = {}
+SHARED_PENDING: dict[tuple[str, str], str] = {
+    ("study", "--workers"): "with --fast the default is 1 (the cases in this process, as StudyOptions' default): at "
+                            "the fast sizes worker processes cost more than the cases (each compiles the solvers)",
+}
 
 
 def test_an_option_several_commands_take_has_one_default_and_one_help_text():

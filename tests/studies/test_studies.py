@@ -12,10 +12,10 @@ import pytest
 from metafovea.cli import main
 from metafovea.studies import STUDIES, StudyOptions, run_study
 
-#: a study's cases in the test's own process (``--workers 1``): at the fast sizes cheaper than worker processes that
-#: each import and compile the solvers again (the same JSON either way: tests/parallel/test_dask.py). The frames
-#: study keeps the command's default (a process per core), so that path still runs
-IN_PROCESS = ("--workers", "1")
+#: with --fast a study's cases run in the command's own process unless --workers says otherwise: at the fast sizes
+#: cheaper than worker processes that each import and compile the solvers again (the same JSON either way:
+#: tests/parallel/test_dask.py). The frames study runs in two worker processes, so that path still runs
+PROCESSES = ("--workers", "2")
 
 
 def _run_cli(name: str, out, capsys, *flags: str) -> dict:
@@ -39,7 +39,8 @@ def _run_cli(name: str, out, capsys, *flags: str) -> dict:
 def test_focal_ratio_fast(tmp_path, capsys):
     """Foveal PSNR nearly flat over the expansion (the paper's trend); the perifoveal one falls in the paper and, in
     this classical per-pixel model, does not: then the note says why and the texture per pixel it names grows."""
-    rep = _run_cli("focal-ratio", tmp_path / "fr", capsys, *IN_PROCESS)
+    rep = _run_cli("focal-ratio", tmp_path / "fr", capsys)
+    assert rep["timing"]["workers"] == 1  # --fast without --workers: this process
     by_k = rep["results"]["by_expansion"]
     ks = sorted(by_k, key=float)
     p1 = [by_k[k]["alternating"]["psnr_x1"] for k in ks]
@@ -53,7 +54,7 @@ def test_focal_ratio_fast(tmp_path, capsys):
 @pytest.mark.slow  # a study, at its --fast size
 def test_frames_fast(tmp_path, capsys):
     """4 frames leave alpha unidentified (channels mixed), the best window is 8-12 frames, longer ones blur."""
-    rep = _run_cli("frames", tmp_path / "fm", capsys)
+    rep = _run_cli("frames", tmp_path / "fm", capsys, *PROCESSES)
     rows = {r["window"]: r for r in rep["results"]["windows"]}
     assert rows[4]["alternating"]["alpha_mae"] > 10 * rows[8]["alternating"]["alpha_mae"]
     assert rep["trend"]["holds"] and 8 <= rep["trend"]["best_window"] <= 12
