@@ -40,6 +40,20 @@ quadratic surface that levels it with the data, alone or joined to the data's ed
 Nyquist frequency ``0.5 / scale``, whichever solution explains the foveal data better.
 ``boundary='unknown'`` solves for the scene beyond the crop instead (masked data, conjugate gradients).
 
+Foveal fusion (``method='wavelet'`` with ``foveal_scale``, ``foveal_fusion=True``): inside the fovea both channels
+image the same scene, the perifoveal one at 1/scale the resolution. On the foveal constraint's grid (``A = D s_1``,
+the foveal estimate averaged over the perifoveal pixels it covers; ``B = ratio C s_2``, the perifoveal estimate's
+crop), per ring ``k`` of frequency,
+
+    s_1 <- s_1 + U[F^-1 w_k F (B - A)],    w_k = V_1(k) / E|A - B|^2(k)                                   (5)
+
+(``U``: spread over the foveal pixels, low-passed as the surround), the mean-square-optimal weight when ``A``'s error
+is its noise ``V_1`` (the wavelet step's noise draws through the shrinkage's Jacobian,
+:func:`metafovea.reconstruct.wavelet.shrink_jacobian`, then ``D``): ``E|A - B|^2`` is ``V_1`` plus ``B``'s whole
+error, so ``w_k`` falls wherever the two estimates disagree by more than the foveal noise explains (the perifoveal
+channel's blur, a stated scale or gain ratio that is off). It helps the unfiltered foveal channel, whose chromatic
+haze leaves its coarse detail noisy; the perifoveal estimate is not changed.
+
 Temperatures: ``L_i = s_i (dL/dT)(300 K) / g_i`` is in-band radiance (``g_i``: DN per kelvin at 300 K) and
 
     T_i = L^-1(L_i)                                                                                       (4)
@@ -62,6 +76,8 @@ benchmarks judge on):
                                        ``'geometric'`` left the fewest channel cases far below the bound
                                        (BENCHMARKS.md, the tuning sweep)
 ``WAVELET_NOISE_SEED`` (here)          any fixed seed: the same data give the same estimate
+``FUSION_RING_STEPS`` (here)           a sampling choice: eq. (5)'s rings 4 frequency steps wide, dozens of
+                                       bins per ring (not swept)
 ``joint.MAX_CONDITION``                numerical: alpha that cannot separate the channels
 ``spectra.RADIAL_BINS``,               derived from the crop's and the grid's frequency steps (several
 ``spectra.TRUTH_RADIAL_BINS``          periodogram samples per ring)
@@ -142,6 +158,7 @@ from metafovea.reconstruct.wavelet import (
     NOISE_SAMPLES,
     TAUS,
     WAVELETS,
+    shrink_jacobian,
     shrink_linearised,
     stationary_frame,
     swt_levels,
@@ -162,6 +179,9 @@ __all__ = ["BETA_RANGE", "BOUNDARIES", "DECONVOLUTION_METHODS", "DEFAULT_DECONVO
 #: channel's Nyquist frequency 0.5 / scale cycles per foveal pixel (sigma = sqrt(ln 2 / 2) / (pi f))
 SURROUND_SIGMA_PER_SCALE = math.sqrt(math.log(2.0) / 2.0) / (math.pi * 0.5)
 
+#: the foveal fusion's rings (eq. 5) are this many frequency steps of the foveal constraint's grid wide, so that each
+#: ring's mean is over dozens of bins (the innermost ring excepted)
+FUSION_RING_STEPS = 4
 #: the seed of the noise draws that measure the wavelet step's subband noise (fixed: the same data give the same
 #: estimate)
 WAVELET_NOISE_SEED = 0
@@ -308,6 +328,49 @@ def _surround_solve(pb: Problem, s: np.ndarray, prior_inv: np.ndarray, scale: fl
                      "foveal_surround_surface_rms_dn": smooth}
 
 
+def _foveal_fusion(x: np.ndarray, scale: float, ratio: float, noise1: np.ndarray) -> tuple[np.ndarray, dict[str, Any]]:
+    """The foveal estimate's coarse detail combined with the perifoveal estimate's, eq. (5) of the module docstring.
+
+    ``x``: both crops' estimates ``(2, H, W)``, DN above the dark level; ``noise1``: draws of the foveal estimate's
+    noise ``(S, H, W)``. On the grid of the foveal constraint (``D``: the foveal estimate averaged over the
+    perifoveal pixels it covers, ``a = D x_1``; ``b = ratio C x_2``, the perifoveal crop in the foveal channel's
+    units), per ring ``k`` of frequency of that grid the weight
+
+        w_k = V_1(k) / E|A - B|^2 (k),    clipped to [0, 1]                                                   (5)
+
+    is the mean-square-optimal weight of ``B`` in ``A + w (B - A)`` when ``A``'s error is its noise alone
+    (``V_1``, the noise draws through ``D``): ``E|A - B|^2`` is then ``V_1`` plus ``B``'s whole error, noise, blur
+    and any error of the stated scale or gain ratio alike, so the weight falls wherever the two estimates disagree
+    by more than the foveal noise explains. The mean (the ring at 0) is kept: the foveal level is its own data's. The
+    correction ``w (B - A)`` is spread back over the foveal pixels and low-passed as the surround's
+    (``SURROUND_SIGMA_PER_SCALE``). The rings are 4 frequency steps of that grid wide (each a mean over dozens of
+    bins). Returns the new foveal estimate and the info entry.
+    """
+    from metafovea.reconstruct.operators import FovealOperator, lowpass
+
+    H, W = x.shape[1:]
+    op = FovealOperator((H, W), scale)
+    h, w = op.low_shape
+    A = np.fft.fft2(op.D(x[0]))
+    B = np.fft.fft2(ratio * op.C(x[1]))
+    N = np.fft.fft2(op.D(noise1.astype(np.float64)))
+    k = np.hypot(*np.meshgrid(np.fft.fftfreq(h), np.fft.fftfreq(w), indexing="ij"))
+    width = FUSION_RING_STEPS / min(h, w)
+    ring = np.minimum((k / width).astype(int), int(k.max() / width))
+    n_rings = int(ring.max()) + 1
+    v1 = np.bincount(ring.ravel(), (np.mean(np.abs(N) ** 2, axis=0)).ravel(), n_rings)
+    dd = np.bincount(ring.ravel(), (np.abs(A - B) ** 2).ravel(), n_rings)
+    weights = np.clip(v1 / np.maximum(dd, 1e-300), 0.0, 1.0)
+    weights[0] = 0.0
+    corr = np.real(np.fft.ifft2(weights[ring] * (B - A)))
+    corr = lowpass(op.upsample(corr), SURROUND_SIGMA_PER_SCALE * scale)
+    info = {"applied": True, "scale": scale, "gain_ratio": ratio, "grid": [h, w],
+            "ring_cycles_per_sample": [float(width * (i + 0.5)) for i in range(n_rings)],
+            "weights": [float(v) for v in weights],
+            "correction_rms_dn": float(np.sqrt(np.mean(corr ** 2)))}
+    return x[0] + corr, info
+
+
 def _tv_step(pb: Problem, s: np.ndarray, tv_weight: float | None, iterations: int) -> tuple[np.ndarray,
                                                                                              dict[str, Any]]:
     """TV, eq. (3), from the Wiener estimate ``s``: the weights ``tv_weight / mean |grad s_i|`` on the crop."""
@@ -323,14 +386,16 @@ def _tv_step(pb: Problem, s: np.ndarray, tv_weight: float | None, iterations: in
 
 
 def _wavelet_step(pb: Problem, C: np.ndarray, prior_inv: np.ndarray, surround: bool,
-                  wavelet: str) -> tuple[np.ndarray, dict[str, Any]]:
+                  wavelet: str) -> tuple[np.ndarray, np.ndarray, dict[str, Any]]:
     """The Fourier-wavelet estimate (:mod:`metafovea.reconstruct.wavelet`): per channel, the ``tau`` of
     :data:`~metafovea.reconstruct.wavelet.TAUS` whose shrunk estimate has the lowest estimated risk, eq. (2) there.
 
     ``surround``: the foveal channel's padding is the perifoveal channel's prediction, not its own edge values, so
     its noise draws are 0 there (the prediction's noise is the perifoveal estimate's, low-passed: neglected).
     With ``boundary='unknown'`` (no periodic data) the risk is eq. (2b) there: the prior's predicted bias plus SURE.
-    Returns the crop's estimates ``(2, H, W)`` (DN above the dark level) and the info entries.
+    Returns the crop's estimates ``(2, H, W)`` (DN above the dark level), draws of the foveal estimate's noise to
+    first order (the noise draws at its ``tau`` through the shrinkage's Jacobian, ``(NOISE_SAMPLES, H, W)``) and
+    the info entries.
     """
     g = pb.g
     H, W = pb.zc.shape[1:]
@@ -362,6 +427,7 @@ def _wavelet_step(pb: Problem, C: np.ndarray, prior_inv: np.ndarray, surround: b
     best: list[tuple[float, float, np.ndarray] | None] = [None, None]
     curve: list[list[dict[str, float]]] = [[], []]
     estimates: list[list[np.ndarray]] = [[], []]
+    fov: list[tuple[np.ndarray, np.ndarray]] = []  # the foveal image and noise draws before the shrinkage, per tau
     for tau in TAUS:
         if periodic:
             sol = g.irfft_crop(filt.solve(tau, B)).astype(np.float64)
@@ -376,6 +442,7 @@ def _wavelet_step(pb: Problem, C: np.ndarray, prior_inv: np.ndarray, surround: b
             pb.z = z0
             noise = np.stack(noise_list)
         parts = [shrink_linearised(x[i], noise[:, i], wavelet, levels) for i in range(2)]
+        fov.append((x[0], noise[:, 0]))
         if periodic:
             gain = np.stack([grid_frame.transfer(p[2]) for p in parts])  # type: ignore[union-attr]
             lin = filt.linear_risk(tau, gain, risk_data)
@@ -402,12 +469,14 @@ def _wavelet_step(pb: Problem, C: np.ndarray, prior_inv: np.ndarray, surround: b
         k = next(j for j in range(len(TAUS)) if risks[j] <= risks[k_min] + curve[i][k_min]["standard_error_dn2"])
         best[i] = (risks[k], TAUS[k], estimates[i][k])
     out = np.stack([b[2] for b in best])  # type: ignore[index]
+    # the foveal estimate's noise: the draws through the shrinkage's Jacobian at the chosen tau (the foveal fusion)
+    chosen1 = shrink_jacobian(*fov[TAUS.index(best[0][1])], wavelet, levels)  # type: ignore[index]
     info = {"wavelet": wavelet, "wavelet_levels": levels, "noise_samples": NOISE_SAMPLES,
             "tau": [b[1] for b in best],  # type: ignore[index]
             # the criterion at the chosen tau, up to a constant of each channel (periodic): a ranking, not an error
             "risk_criterion_dn2": [b[0] for b in best],  # type: ignore[index]
             "risk_curve": {"x1": curve[0], "x2": curve[1]}}
-    return out, info
+    return out, chosen1, info
 
 
 def _fit_priors(pb: Problem, C: np.ndarray, prior: str, scale: float,
@@ -440,7 +509,8 @@ def separate_deconvolve(frames: ArrayLike, alpha: ArrayLike, psfs: ChannelPSFs, 
                         boundary: str = "padded", pad_mode: str = "edge", prior: str = "hybrid",
                         foveal_scale: float | None = None, foveal_ratio: float = 1.0, fpn_error_dn: float = 0.0,
                         prior_scale: str = "geometric", wavelet: str = DEFAULT_WAVELET,
-                        field_psf: str = "auto", patch: PatchContext | None = None) -> Deconvolution:
+                        field_psf: str = "auto", patch: PatchContext | None = None,
+                        foveal_fusion: bool = True) -> Deconvolution:
     """The scene radiance of both channels from their mixed frames and PSFs.
 
     Parameters
@@ -483,6 +553,10 @@ def separate_deconvolve(frames: ArrayLike, alpha: ArrayLike, psfs: ChannelPSFs, 
         How the crop's per-pixel spectrum is spread over the padded grid (:data:`PRIOR_SCALES`).
     wavelet : {'haar', 'db2', 'sym4'}
         The wavelet of ``method='wavelet'`` (:data:`metafovea.reconstruct.wavelet.WAVELETS`).
+    foveal_fusion : bool
+        ``method='wavelet'`` with ``foveal_scale``: the foveal estimate's coarse detail (below the perifoveal
+        channel's Nyquist frequency) combined with the perifoveal estimate's, weighted per ring of frequency by
+        eq. (5) (:func:`_foveal_fusion`); ``info['foveal_fusion']`` gives the weights.
     field_psf : {'auto', 'patches', 'on-axis'}
         A field-dependent PSF (``psfs.patches``): the patches the data need, every one, or none, blended
         (:mod:`metafovea.reconstruct.field`); ``info['field']`` says what was modelled and why.
@@ -515,8 +589,12 @@ def separate_deconvolve(frames: ArrayLike, alpha: ArrayLike, psfs: ChannelPSFs, 
         kw = dict(method=method, offset=offset, sigma=sigma, iterations=iterations, tv_weight=tv_weight, meta=meta,
                   boundary=boundary, pad_mode=pad_mode, prior=prior, foveal_scale=foveal_scale, wavelet=wavelet,
                   foveal_ratio=foveal_ratio, fpn_error_dn=fpn_error_dn, prior_scale=prior_scale, field_psf="on-axis")
-        return field_deconvolve(psfs, lambda p, c: separate_deconvolve(frames, alpha, p, patch=c, **kw), field_psf,
-                                offset, lambda sc: temperatures(sc, offset, meta))
+        res = field_deconvolve(psfs, lambda p, c: separate_deconvolve(frames, alpha, p, patch=c, **kw), field_psf,
+                               offset, lambda sc: temperatures(sc, offset, meta))
+        if method == "wavelet" and foveal_fusion and foveal_scale is not None:
+            res.info.setdefault("foveal_fusion", {"applied": False, "reason": "field patches: each patch's solve "
+                                                  "has its own noise; the fusion runs on shift-invariant solves"})
+        return res
     if field_psf == "patches":
         raise InputError("field_psf", field_psf, "'auto' or 'on-axis' for PSFs without psf_patches_x1 / _x2")
     wavelet = check_choice("wavelet", wavelet, WAVELETS)
@@ -546,8 +624,10 @@ def separate_deconvolve(frames: ArrayLike, alpha: ArrayLike, psfs: ChannelPSFs, 
         s, tv_info = _tv_step(pb, s, tv_weight, iterations)
         info.update(tv_info)
     if method == "wavelet":
-        crop, w_info = _wavelet_step(pb, C, prior_inv, "foveal_surround" in info, wavelet)
+        crop, noise1, w_info = _wavelet_step(pb, C, prior_inv, "foveal_surround" in info, wavelet)
         info.update(w_info)
+        if foveal_fusion and foveal_scale is not None and patch is None:
+            crop[0], info["foveal_fusion"] = _foveal_fusion(crop, float(foveal_scale), float(foveal_ratio), noise1)
         scene = (crop[0] + offset, crop[1] + offset)
     else:
         scene = (s[0][g.crop] + offset, s[1][g.crop] + offset)

@@ -213,10 +213,9 @@ class StationaryFrame:
         return np.sum((py @ (spec * rfft_weights(self.shape))) * px, axis=1) / float(P * Q) ** 2
 
 
-def _surelet(w: np.ndarray, var: float) -> tuple[np.ndarray, float]:
-    """Eq. (1) on one subband: the shrunk coefficients and ``sum theta'(w) var`` (the divergence term of SURE)."""
-    if not var > 0:
-        return w, 0.0
+def _surelet_fit(w: np.ndarray, var: float) -> tuple[np.ndarray | None, np.ndarray, np.ndarray]:
+    """Eq. (1)'s coefficients ``(a_1, a_2)`` on one subband (None: nothing to shrink, the subband kept), its second
+    term's atom ``w exp(-w^2 / (12 var))`` and that atom's derivative in ``w``."""
     e = np.exp(-w * w / (12.0 * var))
     f2 = w * e
     d2 = e * (1.0 - w * w / (6.0 * var))
@@ -225,10 +224,50 @@ def _surelet(w: np.ndarray, var: float) -> tuple[np.ndarray, float]:
     try:
         a = np.linalg.solve(A, b)
     except np.linalg.LinAlgError:  # a subband of zeros: nothing to shrink
-        return w, var * w.size
-    if not np.all(np.isfinite(a)):
+        return None, f2, d2
+    return (a if np.all(np.isfinite(a)) else None), f2, d2
+
+
+def _surelet(w: np.ndarray, var: float) -> tuple[np.ndarray, float]:
+    """Eq. (1) on one subband: the shrunk coefficients and ``sum theta'(w) var`` (the divergence term of SURE)."""
+    if not var > 0:
+        return w, 0.0
+    a, f2, d2 = _surelet_fit(w, var)
+    if a is None:
         return w, var * w.size
     return a[0] * w + a[1] * f2, float(var * (a[0] * w.size + a[1] * np.sum(d2)))
+
+
+def shrink_jacobian(img: np.ndarray, noise: np.ndarray, wavelet: str = DEFAULT_WAVELET,
+                    levels: int | None = None) -> np.ndarray:
+    """The Jacobian of :func:`shrink` at ``img`` applied to each draw of ``noise``: the shrunk estimate's noise to
+    first order in the noise, ``F^T diag(theta'(F img)) F n``.
+
+    Parameters
+    ----------
+    img, noise, wavelet, levels
+        As :func:`shrink` (the draws set the thresholds, as there, and are the vectors the Jacobian is applied to).
+
+    Returns
+    -------
+    ndarray, shape (K, H, W)
+    """
+    img = np.asarray(img, dtype=np.float64)
+    noise = np.asarray(noise, dtype=np.float64)
+    levels = swt_levels(img.shape) if levels is None else int(levels)
+    frame = stationary_frame(img.shape, _check_wavelet(wavelet), levels)
+    var = frame.noise_variances(noise)
+    c = frame.analysis(img.astype(np.float32)).astype(np.float64)
+    out = np.empty_like(noise)
+    for k in range(noise.shape[0]):
+        cn = frame.analysis(noise[k].astype(np.float32))
+        for b in range(1, c.shape[0]):
+            if var[b] > 0:
+                a, _, d2 = _surelet_fit(c[b], float(var[b]))
+                if a is not None:
+                    cn[b] *= (a[0] + a[1] * d2).astype(np.float32)
+        out[k] = frame.synthesis(cn)
+    return out
 
 
 def shrink(img: np.ndarray, noise: np.ndarray, wavelet: str = DEFAULT_WAVELET,

@@ -290,6 +290,35 @@ def test_the_foveal_surround_carries_a_smooth_field_the_prediction_lacks():
     assert psnr(w.scene[0], truth[0]) > psnr(w0.scene[0], truth[0]) + 3.0
 
 
+@pytest.mark.parametrize("seed", [1, 2])
+def test_the_foveal_fusion_weighs_the_perifoveal_estimate_by_what_the_foveal_noise_explains(seed):
+    """Eq. (5) on the independent zoomed pair: where the perifoveal channel resolves the fovea's detail and the
+    foveal channel is hazy (5 % of its light in the core), its coarse detail gains from the perifoveal estimate; where
+    the fovea holds detail finer than the perifoveal channel resolves (spokes), the two disagree, the weights fall to
+    ~0 and the estimate is unchanged; with the scale stated 5 % off, or the gain ratio 10 % off, the weights drop
+    and nothing is lost. The perifoveal estimate is never changed."""
+    def both(fr, a, psfs, scale=6.0, ratio=1.0):
+        on = separate_deconvolve(fr, a, psfs, foveal_scale=scale, foveal_ratio=ratio)
+        off = separate_deconvolve(fr, a, psfs, foveal_scale=scale, foveal_ratio=ratio, foveal_fusion=False)
+        assert np.array_equal(on.scene[1], off.scene[1]) and "foveal_fusion" not in off.info
+        return on, off
+
+    fr, a, psfs, truth, _ = _zoomed_pair(seed, "zoom")
+    on, off = both(fr, a, psfs)
+    w = np.array(on.info["foveal_fusion"]["weights"])
+    assert w[0] == 0.0 and np.all((w >= 0) & (w <= 1)) and w[1:].max() > 0.02
+    gain = psnr(on.scene[0], truth[0]) - psnr(off.scene[0], truth[0])
+    assert gain > 0.1
+    for scale, ratio in ((6.3, 1.0), (6.0, 1.1)):
+        bad_on, bad_off = both(fr, a, psfs, scale, ratio)
+        assert psnr(bad_on.scene[0], truth[0]) > psnr(bad_off.scene[0], truth[0]) - 0.01
+    assert np.mean(bad_on.info["foveal_fusion"]["weights"][1:]) < np.mean(w[1:])  # the gain ratio's error
+    fr, a, psfs, truth, _ = _zoomed_pair(seed, "spokes", core=0.3)
+    on, off = both(fr, a, psfs)
+    assert max(on.info["foveal_fusion"]["weights"]) < 0.02
+    assert abs(psnr(on.scene[0], truth[0]) - psnr(off.scene[0], truth[0])) < 0.02
+
+
 def test_boundary_names_say_what_they_do():
     """``boundary='padded'`` (the crop extended by its edge values) is the default; the former name ``'mirror'``
     still gives the same result, with a DeprecationWarning; an unknown name is refused."""
