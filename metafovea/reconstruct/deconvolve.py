@@ -182,6 +182,9 @@ SURROUND_SIGMA_PER_SCALE = math.sqrt(math.log(2.0) / 2.0) / (math.pi * 0.5)
 #: the foveal fusion's rings (eq. 5) are this many frequency steps of the foveal constraint's grid wide, so that each
 #: ring's mean is over dozens of bins (the innermost ring excepted)
 FUSION_RING_STEPS = 4
+#: what ``info['foveal_fusion']`` says where the PSFs are solved patch by patch
+NO_FUSION_WITH_PATCHES = {"applied": False, "reason": "field patches: each patch's solve has its own noise; the "
+                                                      "fusion runs on shift-invariant solves"}
 #: the seed of the noise draws that measure the wavelet step's subband noise (fixed: the same data give the same
 #: estimate)
 WAVELET_NOISE_SEED = 0
@@ -494,6 +497,21 @@ def _fit_priors(pb: Problem, C: np.ndarray, prior: str, scale: float,
             for i in range(2)]
 
 
+def _priors(pb: Problem, C: np.ndarray, prior: str, prior_scale: str, patch: PatchContext | None,
+            info: dict[str, Any]) -> tuple[np.ndarray, list[tuple[np.ndarray, dict[str, Any]]]]:
+    """Both channels' scene priors fitted on the crop and spread over the grid by ``prior_scale``
+    (:data:`PRIOR_SCALES`); their radial profiles go into ``info``. Returns the inverse prior and the fits."""
+    g = pb.g
+    frac = pb.zc.shape[1] * pb.zc.shape[2] / float(g.shape[0] * g.shape[1])  # the crop's share of the grid
+    scale = {"grid": 1.0, "crop": frac, "geometric": math.sqrt(frac)}[prior_scale]
+    fits = _fit_priors(pb, C, prior, scale, patch)
+    radial = [radial_mean(g.f, f[0]) for f in fits]  # (ring centres, mean, counts) per channel
+    info.update(prior_scale=prior_scale, prior_scale_factor=scale,
+                prior_radial={"cycles_per_px": radial[0][0].tolist(),
+                              "x1": radial[0][1].tolist(), "x2": radial[1][1].tolist()})
+    return inverse_prior([f[0] for f in fits]), fits
+
+
 def _shift_invariant_info(p: int) -> dict[str, Any]:
     """``info['field']`` of a shift-invariant solve: the PSFs have no field dependence, or it was left out."""
     if p > 1:
@@ -554,9 +572,7 @@ def separate_deconvolve(frames: ArrayLike, alpha: ArrayLike, psfs: ChannelPSFs, 
     wavelet : {'haar', 'db2', 'sym4'}
         The wavelet of ``method='wavelet'`` (:data:`metafovea.reconstruct.wavelet.WAVELETS`).
     foveal_fusion : bool
-        ``method='wavelet'`` with ``foveal_scale``: the foveal estimate's coarse detail (below the perifoveal
-        channel's Nyquist frequency) combined with the perifoveal estimate's, weighted per ring of frequency by
-        eq. (5) (:func:`_foveal_fusion`); ``info['foveal_fusion']`` gives the weights.
+        ``method='wavelet'`` with ``foveal_scale``: eq. (5) of the module docstring (``info['foveal_fusion']``).
     field_psf : {'auto', 'patches', 'on-axis'}
         A field-dependent PSF (``psfs.patches``): the patches the data need, every one, or none, blended
         (:mod:`metafovea.reconstruct.field`); ``info['field']`` says what was modelled and why.
@@ -592,8 +608,7 @@ def separate_deconvolve(frames: ArrayLike, alpha: ArrayLike, psfs: ChannelPSFs, 
         res = field_deconvolve(psfs, lambda p, c: separate_deconvolve(frames, alpha, p, patch=c, **kw), field_psf,
                                offset, lambda sc: temperatures(sc, offset, meta))
         if method == "wavelet" and foveal_fusion and foveal_scale is not None:
-            res.info.setdefault("foveal_fusion", {"applied": False, "reason": "field patches: each patch's solve "
-                                                  "has its own noise; the fusion runs on shift-invariant solves"})
+            res.info.setdefault("foveal_fusion", dict(NO_FUSION_WITH_PATCHES))
         return res
     if field_psf == "patches":
         raise InputError("field_psf", field_psf, "'auto' or 'on-axis' for PSFs without psf_patches_x1 / _x2")
@@ -605,14 +620,7 @@ def separate_deconvolve(frames: ArrayLike, alpha: ArrayLike, psfs: ChannelPSFs, 
     t0 = time.perf_counter()
     pb, C, info = prepare_problem(frames, alpha, psfs, offset, sigma, boundary, pad_mode, fpn_error_dn)
     g = pb.g
-    frac = pb.zc.shape[1] * pb.zc.shape[2] / float(g.shape[0] * g.shape[1])  # the crop's share of the grid
-    scale = {"grid": 1.0, "crop": frac, "geometric": math.sqrt(frac)}[prior_scale]
-    fits = _fit_priors(pb, C, prior, scale, patch)
-    prior_inv = inverse_prior([f[0] for f in fits])
-    radial = [radial_mean(g.f, f[0]) for f in fits]  # (ring centres, mean, counts) per channel
-    info.update(prior_scale=prior_scale, prior_scale_factor=scale,
-                prior_radial={"cycles_per_px": radial[0][0].tolist(),
-                              "x1": radial[0][1].tolist(), "x2": radial[1][1].tolist()})
+    prior_inv, fits = _priors(pb, C, prior, prior_scale, patch, info)
     s, n_cg = linear_solve(pb, prior_inv, None)
     if foveal_scale is not None and boundary == "padded":
         s, n_sur, sur = _surround_solve(pb, s, prior_inv, float(foveal_scale), float(foveal_ratio),
@@ -631,8 +639,7 @@ def separate_deconvolve(frames: ArrayLike, alpha: ArrayLike, psfs: ChannelPSFs, 
         scene = (crop[0] + offset, crop[1] + offset)
     else:
         scene = (s[0][g.crop] + offset, s[1][g.crop] + offset)
-    info["field"] = _shift_invariant_info(psfs.n_patches)
-    info["seconds"] = time.perf_counter() - t0
+    info.update(field=_shift_invariant_info(psfs.n_patches), seconds=time.perf_counter() - t0)
     return Deconvolution(scene, temperatures(scene, offset, meta), info)
 
 
