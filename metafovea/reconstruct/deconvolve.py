@@ -214,8 +214,8 @@ class Deconvolution:
     info: dict[str, Any] = field(default_factory=dict)
 
     #: the entries of ``info`` a summary (``metafovea reconstruct --json``'s ``scene``) carries
-    SUMMARY_KEYS = ("method", "alpha_from", "sigma_dn", "scores", "foveal_surround", "seconds", "psf_source",
-                    "psf_refinement", "field")
+    SUMMARY_KEYS = ("method", "alpha_from", "sigma_dn", "scores", "foveal_surround", "foveal_fusion", "seconds",
+                    "psf_source", "psf_refinement", "field")
 
     def summary(self) -> dict[str, Any]:
         """The entries of ``info`` named in :attr:`SUMMARY_KEYS` that it has."""
@@ -232,6 +232,14 @@ class Deconvolution:
         if fld.get("patches", 1) > 1:
             out.append(f"field-dependent PSF ({fld['patches']} x {fld['patches']} patches): {fld['mode']}; "
                        f"{fld['why']}")
+        fus = self.info.get("foveal_fusion")
+        if fus and fus["applied"]:
+            w = ", ".join(f"{v:.2f}" for v in fus["weights"])
+            out.append(f"foveal fusion: the perifoveal estimate's weight in the fovea's coarse detail per ring of "
+                       f"{2 * fus['ring_cycles_per_sample'][0]:.2g} cycles per perifoveal pixel: {w} (the foveal "
+                       f"noise over the two estimates' disagreement); correction {fus['correction_rms_dn']:.3g} DN rms")
+        elif fus:
+            out.append(f"foveal fusion: {fus['reason']}")
         return out + list((self.info.get("psf_refinement") or {}).get("lines", []))
 
 

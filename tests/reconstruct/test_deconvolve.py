@@ -309,6 +309,8 @@ def test_the_foveal_fusion_weighs_the_perifoveal_estimate_by_what_the_foveal_noi
     assert w[0] == 0.0 and np.all((w >= 0) & (w <= 1)) and w[1:].max() > 0.02
     gain = psnr(on.scene[0], truth[0]) - psnr(off.scene[0], truth[0])
     assert gain > 0.1
+    assert any(line.startswith("foveal fusion: ") and f"{w[1]:.2f}" in line for line in on.lines())
+    assert on.summary()["foveal_fusion"]["weights"] == list(w)
     for scale, ratio in ((6.3, 1.0), (6.0, 1.1)):
         bad_on, bad_off = both(fr, a, psfs, scale, ratio)
         assert psnr(bad_on.scene[0], truth[0]) > psnr(bad_off.scene[0], truth[0]) - 0.01
