@@ -360,6 +360,9 @@ def _foveal_fusion(x: np.ndarray, scale: float, ratio: float, noise1: np.ndarray
     from metafovea.reconstruct.operators import FovealOperator, lowpass
 
     H, W = x.shape[1:]
+    if min(H, W) / scale < 2 * FUSION_RING_STEPS:  # fewer than two rings beside the mean
+        return x[0], {"applied": False, "reason": f"a crop of {H} x {W} px holds fewer than {2 * FUSION_RING_STEPS} "
+                                                  f"perifoveal pixels of the fovea across at scale {scale:g}"}
     op = FovealOperator((H, W), scale)
     h, w = op.low_shape
     A = np.fft.fft2(op.D(x[0]))

@@ -315,6 +315,8 @@ def test_the_foveal_fusion_weighs_the_perifoveal_estimate_by_what_the_foveal_noi
         bad_on, bad_off = both(fr, a, psfs, scale, ratio)
         assert psnr(bad_on.scene[0], truth[0]) > psnr(bad_off.scene[0], truth[0]) - 0.01
     assert np.mean(bad_on.info["foveal_fusion"]["weights"][1:]) < np.mean(w[1:])  # the gain ratio's error
+    small = separate_deconvolve(fr[:, :40, :40], a, psfs, foveal_scale=6.0, foveal_ratio=1.0)
+    assert small.info["foveal_fusion"]["applied"] is False  # under 8 perifoveal pixels of fovea: no rings to weigh
     fr, a, psfs, truth, _ = _zoomed_pair(seed, "spokes", core=0.3)
     on, off = both(fr, a, psfs)
     assert max(on.info["foveal_fusion"]["weights"]) < 0.02
