@@ -45,14 +45,14 @@ image the same scene, the perifoveal one at 1/scale the resolution. On the fovea
 the foveal estimate averaged over the perifoveal pixels it covers; ``B = ratio C s_2``, the perifoveal estimate's
 crop), per ring ``k`` of frequency,
 
-    s_1 <- s_1 + U[F^-1 w_k F (B - A)],    w_k = V_1(k) / E|A - B|^2(k)                                   (5)
+    A <- A + w_1(k) (B - A),  B <- B + w_2(k) (A - B),   w_i(k) = V_i(k) / E|A - B|^2(k)                 (5)
 
-(``U``: spread over the foveal pixels, low-passed as the surround), the mean-square-optimal weight when ``A``'s error
-is its noise ``V_1`` (the wavelet step's noise draws through the shrinkage's Jacobian,
-:func:`metafovea.reconstruct.wavelet.shrink_jacobian`, then ``D``): ``E|A - B|^2`` is ``V_1`` plus ``B``'s whole
-error, so ``w_k`` falls wherever the two estimates disagree by more than the foveal noise explains (the perifoveal
-channel's blur, a stated scale or gain ratio that is off). It helps the unfiltered foveal channel, whose chromatic
-haze leaves its coarse detail noisy; the perifoveal estimate is not changed.
+(the foveal change spread over its pixels and low-passed as the surround), ``V_i`` each estimate's noise (the
+wavelet step's noise draws through the shrinkage's Jacobian, :func:`metafovea.reconstruct.wavelet.shrink_jacobian`):
+the mean-square-optimal weight when an estimate's error is its noise alone, and lower than optimal when it holds
+more. ``E|A - B|^2`` holds the other estimate's whole error, so a weight falls wherever the two disagree by more
+than that noise explains (blur, a stated scale or gain ratio that is off). The foveal channel gains where its
+chromatic haze leaves its coarse detail noisy, the perifoveal one in its crop's detail.
 
 Temperatures: ``L_i = s_i (dL/dT)(300 K) / g_i`` is in-band radiance (``g_i``: DN per kelvin at 300 K) and
 
@@ -234,10 +234,12 @@ class Deconvolution:
                        f"{fld['why']}")
         fus = self.info.get("foveal_fusion")
         if fus and fus["applied"]:
-            w = ", ".join(f"{v:.2f}" for v in fus["weights"])
-            out.append(f"foveal fusion: the perifoveal estimate's weight in the fovea's coarse detail per ring of "
-                       f"{2 * fus['ring_cycles_per_sample'][0]:.2g} cycles per perifoveal pixel: {w} (the foveal "
-                       f"noise over the two estimates' disagreement); correction {fus['correction_rms_dn']:.3g} DN rms")
+            w1, w2 = (", ".join(f"{v:.2f}" for v in fus[f"weights_x{i}"]) for i in (1, 2))
+            out.append(f"foveal fusion, per ring of {2 * fus['ring_cycles_per_sample'][0]:.2g} cycles per perifoveal "
+                       f"pixel (each estimate's noise over the two estimates' disagreement): the perifoveal "
+                       f"estimate's weight in the fovea's coarse detail {w1}, the foveal estimate's in the perifoveal "
+                       f"crop {w2}; corrections {fus['correction_rms_dn'][0]:.3g} / {fus['correction_rms_dn'][1]:.3g} "
+                       "DN rms")
         elif fus:
             out.append(f"foveal fusion: {fus['reason']}")
         return out + list((self.info.get("psf_refinement") or {}).get("lines", []))
@@ -339,50 +341,60 @@ def _surround_solve(pb: Problem, s: np.ndarray, prior_inv: np.ndarray, scale: fl
                      "foveal_surround_surface_rms_dn": smooth}
 
 
-def _foveal_fusion(x: np.ndarray, scale: float, ratio: float, noise1: np.ndarray) -> tuple[np.ndarray, dict[str, Any]]:
-    """The foveal estimate's coarse detail combined with the perifoveal estimate's, eq. (5) of the module docstring.
+def _foveal_fusion(x: np.ndarray, scale: float, ratio: float,
+                   noise: Sequence[np.ndarray]) -> tuple[np.ndarray, dict[str, Any]]:
+    """Both channels' estimates combined where they image the same scene, eq. (5) of the module docstring.
 
-    ``x``: both crops' estimates ``(2, H, W)``, DN above the dark level; ``noise1``: draws of the foveal estimate's
-    noise ``(S, H, W)``. On the grid of the foveal constraint (``D``: the foveal estimate averaged over the
-    perifoveal pixels it covers, ``a = D x_1``; ``b = ratio C x_2``, the perifoveal crop in the foveal channel's
-    units), per ring ``k`` of frequency of that grid the weight
+    ``x``: both crops' estimates ``(2, H, W)``, DN above the dark level; ``noise``: draws of each estimate's noise,
+    ``(S, H, W)`` each. On the grid of the foveal constraint (``A = D x_1``: the foveal estimate averaged over the
+    perifoveal pixels it covers; ``B = ratio C x_2``: the perifoveal crop in the foveal channel's units), per ring
+    ``k`` of frequency of that grid the weights
 
-        w_k = V_1(k) / E|A - B|^2 (k),    clipped to [0, 1]                                                   (5)
+        w_1(k) = V_1(k) / E|A - B|^2(k),    w_2(k) = V_2(k) / E|A - B|^2(k),    clipped to [0, 1]               (5)
 
-    is the mean-square-optimal weight of ``B`` in ``A + w (B - A)`` when ``A``'s error is its noise alone
-    (``V_1``, the noise draws through ``D``): ``E|A - B|^2`` is then ``V_1`` plus ``B``'s whole error, noise, blur
-    and any error of the stated scale or gain ratio alike, so the weight falls wherever the two estimates disagree
-    by more than the foveal noise explains. The mean (the ring at 0) is kept: the foveal level is its own data's. The
-    correction ``w (B - A)`` is spread back over the foveal pixels and low-passed as the surround's
-    (``SURROUND_SIGMA_PER_SCALE``). The rings are 4 frequency steps of that grid wide (each a mean over dozens of
-    bins). Returns the new foveal estimate and the info entry.
+    move ``A`` towards ``B`` and ``B`` towards ``A``. ``w_1`` is the mean-square-optimal weight of ``B`` in
+    ``A + w (B - A)`` when ``A``'s error is its noise alone (``V_1``: the foveal noise draws through ``D``) and
+    independent of ``B``'s: ``E|A - B|^2`` is then ``V_1`` plus ``B``'s whole error (noise, blur, any error of the
+    stated scale or gain ratio), so the weight falls wherever the two disagree by more than the foveal noise explains.
+    Where ``A``'s error holds more than its noise (the shrinkage's bias), the optimal weight is larger: ``w_1`` errs
+    low, never high. ``w_2`` is the same for ``B`` (its noise ``V_2``, the perifoveal draws through ``C``). The means
+    (the ring at 0) are kept: each level is its own data's. The foveal correction ``w_1 (B - A)`` is spread back over
+    the foveal pixels and low-passed as the surround's (``SURROUND_SIGMA_PER_SCALE``); the perifoveal one
+    ``w_2 (A - B) / ratio`` is put back into the crop's pixels (the least-norm change that gives ``C x_2`` it). The
+    rings are :data:`FUSION_RING_STEPS` frequency steps of that grid wide. Returns both estimates and the info entry.
     """
     from metafovea.reconstruct.operators import FovealOperator, lowpass
 
     H, W = x.shape[1:]
     if min(H, W) / scale < 2 * FUSION_RING_STEPS:  # fewer than two rings beside the mean
-        return x[0], {"applied": False, "reason": f"a crop of {H} x {W} px holds fewer than {2 * FUSION_RING_STEPS} "
-                                                  f"perifoveal pixels of the fovea across at scale {scale:g}"}
+        return x, {"applied": False, "reason": f"a crop of {H} x {W} px holds fewer than {2 * FUSION_RING_STEPS} "
+                                               f"perifoveal pixels of the fovea across at scale {scale:g}"}
     op = FovealOperator((H, W), scale)
     h, w = op.low_shape
     A = np.fft.fft2(op.D(x[0]))
     B = np.fft.fft2(ratio * op.C(x[1]))
-    N = np.fft.fft2(op.D(noise1.astype(np.float64)))
     k = np.hypot(*np.meshgrid(np.fft.fftfreq(h), np.fft.fftfreq(w), indexing="ij"))
     width = FUSION_RING_STEPS / min(h, w)
     ring = np.minimum((k / width).astype(int), int(k.max() / width))
     n_rings = int(ring.max()) + 1
-    v1 = np.bincount(ring.ravel(), (np.mean(np.abs(N) ** 2, axis=0)).ravel(), n_rings)
-    dd = np.bincount(ring.ravel(), (np.abs(A - B) ** 2).ravel(), n_rings)
-    weights = np.clip(v1 / np.maximum(dd, 1e-300), 0.0, 1.0)
-    weights[0] = 0.0
-    corr = np.real(np.fft.ifft2(weights[ring] * (B - A)))
-    corr = lowpass(op.upsample(corr), SURROUND_SIGMA_PER_SCALE * scale)
+
+    def per_ring(power: np.ndarray) -> np.ndarray:
+        return np.bincount(ring.ravel(), power.ravel(), n_rings)
+
+    dd = np.maximum(per_ring(np.abs(A - B) ** 2), 1e-300)
+    weights = []
+    for draws in (op.D(noise[0]), ratio * op.C(noise[1])):
+        wk = np.clip(per_ring(np.mean(np.abs(np.fft.fft2(draws)) ** 2, axis=0)) / dd, 0.0, 1.0)
+        wk[0] = 0.0
+        weights.append(wk)
+    c1 = lowpass(op.upsample(np.real(np.fft.ifft2(weights[0][ring] * (B - A)))), SURROUND_SIGMA_PER_SCALE * scale)
+    c2 = np.real(np.fft.ifft2(weights[1][ring] * (A - B))) / ratio
+    c2 = op.CT(np.linalg.solve(op.Cy @ op.Cy.T, np.linalg.solve(op.Cx @ op.Cx.T, c2.T).T))
     info = {"applied": True, "scale": scale, "gain_ratio": ratio, "grid": [h, w],
             "ring_cycles_per_sample": [float(width * (i + 0.5)) for i in range(n_rings)],
-            "weights": [float(v) for v in weights],
-            "correction_rms_dn": float(np.sqrt(np.mean(corr ** 2)))}
-    return x[0] + corr, info
+            "weights_x1": [float(v) for v in weights[0]], "weights_x2": [float(v) for v in weights[1]],
+            "correction_rms_dn": [float(np.sqrt(np.mean(c ** 2))) for c in (c1, c2)]}
+    return np.stack([x[0] + c1, x[1] + c2]), info
 
 
 def _tv_step(pb: Problem, s: np.ndarray, tv_weight: float | None, iterations: int) -> tuple[np.ndarray,
@@ -407,8 +419,8 @@ def _wavelet_step(pb: Problem, C: np.ndarray, prior_inv: np.ndarray, surround: b
     ``surround``: the foveal channel's padding is the perifoveal channel's prediction, not its own edge values, so
     its noise draws are 0 there (the prediction's noise is the perifoveal estimate's, low-passed: neglected).
     With ``boundary='unknown'`` (no periodic data) the risk is eq. (2b) there: the prior's predicted bias plus SURE.
-    Returns the crop's estimates ``(2, H, W)`` (DN above the dark level), draws of the foveal estimate's noise to
-    first order (the noise draws at its ``tau`` through the shrinkage's Jacobian, ``(NOISE_SAMPLES, H, W)``) and
+    Returns the crop's estimates ``(2, H, W)`` (DN above the dark level), draws of each estimate's noise to first
+    order (its noise draws at its ``tau`` through the shrinkage's Jacobian, ``(NOISE_SAMPLES, H, W)`` each) and
     the info entries.
     """
     g = pb.g
@@ -441,7 +453,7 @@ def _wavelet_step(pb: Problem, C: np.ndarray, prior_inv: np.ndarray, surround: b
     best: list[tuple[float, float, np.ndarray] | None] = [None, None]
     curve: list[list[dict[str, float]]] = [[], []]
     estimates: list[list[np.ndarray]] = [[], []]
-    fov: list[tuple[np.ndarray, np.ndarray]] = []  # the foveal image and noise draws before the shrinkage, per tau
+    pre: list[list[tuple[np.ndarray, np.ndarray]]] = [[], []]  # each image and its noise draws before the shrinkage
     for tau in TAUS:
         if periodic:
             sol = g.irfft_crop(filt.solve(tau, B)).astype(np.float64)
@@ -456,7 +468,8 @@ def _wavelet_step(pb: Problem, C: np.ndarray, prior_inv: np.ndarray, surround: b
             pb.z = z0
             noise = np.stack(noise_list)
         parts = [shrink_linearised(x[i], noise[:, i], wavelet, levels) for i in range(2)]
-        fov.append((x[0], noise[:, 0]))
+        for i in range(2):
+            pre[i].append((x[i], noise[:, i]))
         if periodic:
             gain = np.stack([grid_frame.transfer(p[2]) for p in parts])  # type: ignore[union-attr]
             lin = filt.linear_risk(tau, gain, risk_data)
@@ -483,14 +496,14 @@ def _wavelet_step(pb: Problem, C: np.ndarray, prior_inv: np.ndarray, surround: b
         k = next(j for j in range(len(TAUS)) if risks[j] <= risks[k_min] + curve[i][k_min]["standard_error_dn2"])
         best[i] = (risks[k], TAUS[k], estimates[i][k])
     out = np.stack([b[2] for b in best])  # type: ignore[index]
-    # the foveal estimate's noise: the draws through the shrinkage's Jacobian at the chosen tau (the foveal fusion)
-    chosen1 = shrink_jacobian(*fov[TAUS.index(best[0][1])], wavelet, levels)  # type: ignore[index]
+    # each estimate's noise: its draws through the shrinkage's Jacobian at its tau (the foveal fusion's V_1, V_2)
+    jac = [shrink_jacobian(*pre[i][TAUS.index(best[i][1])], wavelet, levels) for i in range(2)]  # type: ignore[index]
     info = {"wavelet": wavelet, "wavelet_levels": levels, "noise_samples": NOISE_SAMPLES,
             "tau": [b[1] for b in best],  # type: ignore[index]
             # the criterion at the chosen tau, up to a constant of each channel (periodic): a ranking, not an error
             "risk_criterion_dn2": [b[0] for b in best],  # type: ignore[index]
             "risk_curve": {"x1": curve[0], "x2": curve[1]}}
-    return out, chosen1, info
+    return out, jac, info
 
 
 def _fit_priors(pb: Problem, C: np.ndarray, prior: str, scale: float,
@@ -643,10 +656,10 @@ def separate_deconvolve(frames: ArrayLike, alpha: ArrayLike, psfs: ChannelPSFs, 
         s, tv_info = _tv_step(pb, s, tv_weight, iterations)
         info.update(tv_info)
     if method == "wavelet":
-        crop, noise1, w_info = _wavelet_step(pb, C, prior_inv, "foveal_surround" in info, wavelet)
+        crop, noise, w_info = _wavelet_step(pb, C, prior_inv, "foveal_surround" in info, wavelet)
         info.update(w_info)
         if foveal_fusion and foveal_scale is not None and patch is None:
-            crop[0], info["foveal_fusion"] = _foveal_fusion(crop, float(foveal_scale), float(foveal_ratio), noise1)
+            crop, info["foveal_fusion"] = _foveal_fusion(crop, float(foveal_scale), float(foveal_ratio), noise)
         scene = (crop[0] + offset, crop[1] + offset)
     else:
         scene = (s[0][g.crop] + offset, s[1][g.crop] + offset)

@@ -293,34 +293,38 @@ def test_the_foveal_surround_carries_a_smooth_field_the_prediction_lacks():
 @pytest.mark.parametrize("seed", [1, 2])
 def test_the_foveal_fusion_weighs_the_perifoveal_estimate_by_what_the_foveal_noise_explains(seed):
     """Eq. (5) on the independent zoomed pair: where the perifoveal channel resolves the fovea's detail and the
-    foveal channel is hazy (5 % of its light in the core), its coarse detail gains from the perifoveal estimate; where
-    the fovea holds detail finer than the perifoveal channel resolves (spokes), the two disagree, the weights fall to
-    ~0 and the estimate is unchanged; with the scale stated 5 % off, or the gain ratio 10 % off, the weights drop
-    and nothing is lost. The perifoveal estimate is never changed."""
+    foveal channel is hazy (5 % of its light in the core), the foveal estimate's coarse detail gains from the
+    perifoveal estimate and the perifoveal crop from the foveal one; where the fovea holds detail finer than the
+    perifoveal channel resolves (spokes), the two disagree and the foveal weights fall to ~0, the estimate unchanged
+    (this model's perifoveal spokes are point samples, aliased, not the pixel means the relation holds for: there the
+    perifoveal crop may lose a little); with the scale stated 5 % off, or the gain ratio 10 % off, the foveal weights
+    drop and nothing is lost."""
     def both(fr, a, psfs, scale=6.0, ratio=1.0):
         on = separate_deconvolve(fr, a, psfs, foveal_scale=scale, foveal_ratio=ratio)
         off = separate_deconvolve(fr, a, psfs, foveal_scale=scale, foveal_ratio=ratio, foveal_fusion=False)
-        assert np.array_equal(on.scene[1], off.scene[1]) and "foveal_fusion" not in off.info
+        assert "foveal_fusion" not in off.info
         return on, off
 
     fr, a, psfs, truth, _ = _zoomed_pair(seed, "zoom")
     on, off = both(fr, a, psfs)
-    w = np.array(on.info["foveal_fusion"]["weights"])
+    w = np.array(on.info["foveal_fusion"]["weights_x1"])
     assert w[0] == 0.0 and np.all((w >= 0) & (w <= 1)) and w[1:].max() > 0.02
     gain = psnr(on.scene[0], truth[0]) - psnr(off.scene[0], truth[0])
-    assert gain > 0.1
-    assert any(line.startswith("foveal fusion: ") and f"{w[1]:.2f}" in line for line in on.lines())
-    assert on.summary()["foveal_fusion"]["weights"] == list(w)
+    assert gain > 0.1 and psnr(on.scene[1], truth[1]) > psnr(off.scene[1], truth[1]) + 0.01
+    assert any(line.startswith("foveal fusion, ") and f"{w[1]:.2f}" in line for line in on.lines())
+    assert on.summary()["foveal_fusion"]["weights_x1"] == list(w)
     for scale, ratio in ((6.3, 1.0), (6.0, 1.1)):
         bad_on, bad_off = both(fr, a, psfs, scale, ratio)
-        assert psnr(bad_on.scene[0], truth[0]) > psnr(bad_off.scene[0], truth[0]) - 0.01
-    assert np.mean(bad_on.info["foveal_fusion"]["weights"][1:]) < np.mean(w[1:])  # the gain ratio's error
+        for i in range(2):
+            assert psnr(bad_on.scene[i], truth[i]) > psnr(bad_off.scene[i], truth[i]) - 0.01
+    assert np.mean(bad_on.info["foveal_fusion"]["weights_x1"][1:]) < np.mean(w[1:])  # the gain ratio's error
     small = separate_deconvolve(fr[:, :40, :40], a, psfs, foveal_scale=6.0, foveal_ratio=1.0)
     assert small.info["foveal_fusion"]["applied"] is False  # under 8 perifoveal pixels of fovea: no rings to weigh
     fr, a, psfs, truth, _ = _zoomed_pair(seed, "spokes", core=0.3)
     on, off = both(fr, a, psfs)
-    assert max(on.info["foveal_fusion"]["weights"]) < 0.02
+    assert max(on.info["foveal_fusion"]["weights_x1"]) < 0.02
     assert abs(psnr(on.scene[0], truth[0]) - psnr(off.scene[0], truth[0])) < 0.02
+    assert psnr(on.scene[1], truth[1]) > psnr(off.scene[1], truth[1]) - 0.15
 
 
 def test_boundary_names_say_what_they_do():
