@@ -411,17 +411,17 @@ def _tv_step(pb: Problem, s: np.ndarray, tv_weight: float | None, iterations: in
     return s, {"tv_weight": [float(v) for v in lam], "tv_weight_multiplier": mult, "admm_iterations": its}
 
 
-def _wavelet_step(pb: Problem, C: np.ndarray, prior_inv: np.ndarray, surround: bool,
-                  wavelet: str) -> tuple[np.ndarray, np.ndarray, dict[str, Any]]:
+def _wavelet_step(pb: Problem, C: np.ndarray, prior_inv: np.ndarray, surround: bool, wavelet: str,
+                  noise_out: bool = False) -> tuple[np.ndarray, list[np.ndarray] | None, dict[str, Any]]:
     """The Fourier-wavelet estimate (:mod:`metafovea.reconstruct.wavelet`): per channel, the ``tau`` of
     :data:`~metafovea.reconstruct.wavelet.TAUS` whose shrunk estimate has the lowest estimated risk, eq. (2) there.
 
     ``surround``: the foveal channel's padding is the perifoveal channel's prediction, not its own edge values, so
     its noise draws are 0 there (the prediction's noise is the perifoveal estimate's, low-passed: neglected).
     With ``boundary='unknown'`` (no periodic data) the risk is eq. (2b) there: the prior's predicted bias plus SURE.
-    Returns the crop's estimates ``(2, H, W)`` (DN above the dark level), draws of each estimate's noise to first
-    order (its noise draws at its ``tau`` through the shrinkage's Jacobian, ``(NOISE_SAMPLES, H, W)`` each) and
-    the info entries.
+    Returns the crop's estimates ``(2, H, W)`` (DN above the dark level), with ``noise_out`` draws of each
+    estimate's noise to first order (its noise draws at its ``tau`` through the shrinkage's Jacobian,
+    ``(NOISE_SAMPLES, H, W)`` each; else None) and the info entries.
     """
     g = pb.g
     H, W = pb.zc.shape[1:]
@@ -468,7 +468,7 @@ def _wavelet_step(pb: Problem, C: np.ndarray, prior_inv: np.ndarray, surround: b
             pb.z = z0
             noise = np.stack(noise_list)
         parts = [shrink_linearised(x[i], noise[:, i], wavelet, levels) for i in range(2)]
-        for i in range(2):
+        for i in range(2 if noise_out else 0):
             pre[i].append((x[i], noise[:, i]))
         if periodic:
             gain = np.stack([grid_frame.transfer(p[2]) for p in parts])  # type: ignore[union-attr]
@@ -497,7 +497,8 @@ def _wavelet_step(pb: Problem, C: np.ndarray, prior_inv: np.ndarray, surround: b
         best[i] = (risks[k], TAUS[k], estimates[i][k])
     out = np.stack([b[2] for b in best])  # type: ignore[index]
     # each estimate's noise: its draws through the shrinkage's Jacobian at its tau (the foveal fusion's V_1, V_2)
-    jac = [shrink_jacobian(*pre[i][TAUS.index(best[i][1])], wavelet, levels) for i in range(2)]  # type: ignore[index]
+    jac = [shrink_jacobian(*pre[i][TAUS.index(best[i][1])], wavelet, levels)  # type: ignore[index]
+           for i in range(2)] if noise_out else None
     info = {"wavelet": wavelet, "wavelet_levels": levels, "noise_samples": NOISE_SAMPLES,
             "tau": [b[1] for b in best],  # type: ignore[index]
             # the criterion at the chosen tau, up to a constant of each channel (periodic): a ranking, not an error
@@ -643,7 +644,6 @@ def separate_deconvolve(frames: ArrayLike, alpha: ArrayLike, psfs: ChannelPSFs, 
     boundary = check_boundary(boundary)
     t0 = time.perf_counter()
     pb, C, info = prepare_problem(frames, alpha, psfs, offset, sigma, boundary, pad_mode, fpn_error_dn)
-    g = pb.g
     prior_inv, fits = _priors(pb, C, prior, prior_scale, patch, info)
     s, n_cg = linear_solve(pb, prior_inv, None)
     if foveal_scale is not None and boundary == "padded":
@@ -656,13 +656,14 @@ def separate_deconvolve(frames: ArrayLike, alpha: ArrayLike, psfs: ChannelPSFs, 
         s, tv_info = _tv_step(pb, s, tv_weight, iterations)
         info.update(tv_info)
     if method == "wavelet":
-        crop, noise, w_info = _wavelet_step(pb, C, prior_inv, "foveal_surround" in info, wavelet)
+        fuse = foveal_fusion and foveal_scale is not None and patch is None
+        crop, noise, w_info = _wavelet_step(pb, C, prior_inv, "foveal_surround" in info, wavelet, fuse)
+        if fuse:
+            crop, w_info["foveal_fusion"] = _foveal_fusion(crop, float(foveal_scale), float(foveal_ratio), noise)
         info.update(w_info)
-        if foveal_fusion and foveal_scale is not None and patch is None:
-            crop, info["foveal_fusion"] = _foveal_fusion(crop, float(foveal_scale), float(foveal_ratio), noise)
         scene = (crop[0] + offset, crop[1] + offset)
     else:
-        scene = (s[0][g.crop] + offset, s[1][g.crop] + offset)
+        scene = (s[0][pb.g.crop] + offset, s[1][pb.g.crop] + offset)
     info.update(field=_shift_invariant_info(psfs.n_patches), seconds=time.perf_counter() - t0)
     return Deconvolution(scene, temperatures(scene, offset, meta), info)
 
