@@ -76,8 +76,8 @@ benchmarks judge on):
                                        ``'geometric'`` left the fewest channel cases far below the bound
                                        (BENCHMARKS.md, the tuning sweep)
 ``WAVELET_NOISE_SEED`` (here)          any fixed seed: the same data give the same estimate
-``FUSION_RING_STEPS`` (here)           a sampling choice: eq. (5)'s rings 4 frequency steps wide, dozens of
-                                       bins per ring (not swept)
+``FUSION_RING_STEPS`` (here)           eq. (5)'s rings, 4 frequency steps wide: dozens of bins per ring; on
+                                       tuning seeds 2 steps tie with it, 8 gain less (BENCHMARKS.md)
 ``joint.MAX_CONDITION``                numerical: alpha that cannot separate the channels
 ``spectra.RADIAL_BINS``,               derived from the crop's and the grid's frequency steps (several
 ``spectra.TRUTH_RADIAL_BINS``          periodogram samples per ring)
