@@ -208,6 +208,13 @@ class FovealOperator:
         my, mx = self._mats(u, self.Cy, self.Cx)
         return my.T @ u @ mx
 
+    def CT_pinv(self, u: np.ndarray) -> np.ndarray:
+        """The pseudo-inverse of :meth:`C` (without rotation): the least-norm ``x2`` change ``(..., H, W)`` whose crop
+        is ``u`` ``(..., h, w)``, for any offset (a crop between pixels spreads over two)."""
+        if self.Cs is not None:
+            raise InputError("rotation_deg", self.rotation_deg, "0 for the crop's pseudo-inverse")
+        return np.linalg.pinv(self.Cy) @ u @ np.linalg.pinv(self.Cx).T
+
     def upsample(self, u: np.ndarray) -> np.ndarray:
         """Each constraint pixel spread over its box (``U``): ``(..., h, w) -> (..., H, W)``.
 

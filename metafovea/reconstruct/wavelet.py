@@ -258,14 +258,17 @@ def shrink_jacobian(img: np.ndarray, noise: np.ndarray, wavelet: str = DEFAULT_W
     frame = stationary_frame(img.shape, _check_wavelet(wavelet), levels)
     var = frame.noise_variances(noise)
     c = frame.analysis(img.astype(np.float32)).astype(np.float64)
+    deriv: dict[int, np.ndarray] = {}  # theta'(w) per shrunk subband (the others are kept: theta' = 1)
+    for b in range(1, c.shape[0]):
+        if var[b] > 0:
+            a, _, d2 = _surelet_fit(c[b], float(var[b]))
+            if a is not None:
+                deriv[b] = (a[0] + a[1] * d2).astype(np.float32)
     out = np.empty_like(noise)
     for k in range(noise.shape[0]):
         cn = frame.analysis(noise[k].astype(np.float32))
-        for b in range(1, c.shape[0]):
-            if var[b] > 0:
-                a, _, d2 = _surelet_fit(c[b], float(var[b]))
-                if a is not None:
-                    cn[b] *= (a[0] + a[1] * d2).astype(np.float32)
+        for b, d in deriv.items():
+            cn[b] *= d
         out[k] = frame.synthesis(cn)
     return out
 

@@ -27,6 +27,23 @@ def test_operator_adjoints_and_constraint(shape, scale, offset):
     assert np.allclose(op.D(np.ones(shape)), 1.0) and np.allclose(op.C(np.ones(shape)), 1.0)
 
 
+@pytest.mark.parametrize("offset", [(0.0, 0.0), (0.5, -1.25)])
+def test_the_crops_pseudo_inverse_is_the_least_norm_change_with_that_crop(offset):
+    """C (C^+ u) == u, on and between pixels, and C^+ u is the smallest such change: it lies in C^T's range (any
+    change with the same crop differs from it by a null-space part orthogonal to it); a rotated crop is refused."""
+    rng = np.random.default_rng(1)
+    op = FovealOperator((60, 72), 6.0, offset)
+    u = rng.standard_normal(op.low_shape)
+    x = op.CT_pinv(u)
+    assert np.allclose(op.C(x), u, atol=1e-12)
+    other = x + rng.standard_normal(x.shape)
+    other -= op.CT_pinv(op.C(other) - u)  # another change with the same crop
+    assert np.allclose(op.C(other), u, atol=1e-12) and np.sum(x * x) < np.sum(other * other)
+    assert abs(np.sum(x * (other - x))) < 1e-9 * np.sum(x * x)
+    with pytest.raises(InputError, match="rotation_deg"):
+        FovealOperator((60, 72), 6.0, rotation_deg=1.0).CT_pinv(u)
+
+
 def test_operator_adjoints_on_a_batch():
     """The operators act on leading batch axes ``(K, H, W)``; the dot-product identity holds over the batch."""
     rng = np.random.default_rng(3)
