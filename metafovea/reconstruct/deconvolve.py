@@ -23,7 +23,8 @@ OTFs, both channels are solved jointly on a grid padded by the kernels' radius:
   k = 1: the padding carries the crop's edge values, no texture); the mean is not shrunk;
 * ``method='wavelet'`` (default): the Fourier-wavelet estimate (:mod:`metafovea.reconstruct.wavelet`): (2) with the
   prior's weight ``tau <= 1`` (sharper, noisier), then each channel's noise shrunk in a stationary wavelet frame by
-  SURE-LET, ``tau`` per channel by its estimated risk (the risk of the shrinkage's linear fit estimated from the
+  SURE-LET (each coefficient's shrinkage split by its parent's size, eq. (1b) there), ``tau`` per channel by its
+  estimated risk (the risk of the shrinkage's linear fit estimated from the
   data where they show signal, plus Stein's unbiased risk estimate of what the non-linear shrinkage changes): the
   largest ``tau`` within one standard error of the lowest; non-linear, so not bound by the best linear estimate;
 * ``method='tv'``: total variation [2]_, started from the Wiener estimate and solved by ADMM [3]_,
@@ -102,6 +103,8 @@ benchmarks judge on):
                                        (the chosen tau reached 1/64 on the tuning seeds; with the range extended
                                        to 8 the criterion chose none above 1 there)
 ``wavelet.MIN_COARSEST_PX``            the coarsest atoms fit 8 times across the crop
+12 in ``wavelet`` eq. (1), (1b)        derived: SURE-LET's thresholds ``sqrt(6) sigma`` (Luisier, Blu and
+                                       Unser 2007), for a coefficient and for its parent
 one standard error (tau's choice)      the one-standard-error rule: the largest tau within one standard error
                                        (the noise draws' spread of the mean squared noise) of the lowest risk
 =====================================  =======================================================================

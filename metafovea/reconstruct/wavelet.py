@@ -12,7 +12,22 @@ subband ``j`` is mapped through the linear expansion of thresholds (SURE-LET, [3
     theta_j(w) = a_j1 w + a_j2 w exp(-w^2 / (12 sigma_j^2))                                         (1)
 
 with ``sigma_j^2`` the noise variance of subband ``j`` and ``(a_j1, a_j2)`` the minimisers of that subband's SURE, a
-2 x 2 linear system. The noise variances are measured, not modelled: :data:`NOISE_SAMPLES` draws of the data's noise
+2 x 2 linear system. Below the coarsest level a coefficient's parent ``q`` (the coefficient at the same position
+one level coarser, of the same orientation) says whether it lies on a feature: large wavelet coefficients persist
+across scales, noise does not. Eq. (1) is then split by the parent, as in the interscale SURE-LET of [3]_,
+
+    theta_j(w, q) = gamma(q) (a_j1 w + a_j2 w e(w)) + (1 - gamma(q)) (a_j3 w + a_j4 w e(w)),            (1b)
+
+    gamma(q) = exp(-q^2 / (12 sigma_q^2)),  e(w) = exp(-w^2 / (12 sigma_j^2)),
+
+``sigma_q^2`` the parent's noise variance: four coefficients, again the minimisers of the subband's SURE (a 4 x 4
+system). The parent's coefficient at the same position (no shift): the frame's atoms are causal filters, so the
+parent's would be centred ``2^j`` px away; aligned, the parents predicted no better on the scene generator's tuning
+seeds. In a redundant frame a coefficient's noise and its parent's are correlated (their filters share
+frequencies), so the divergence of eq. (1b) carries a second term: ``sum_k (d theta / d w) sigma_j^2 + rho_j sum_k
+(d theta / d q)``, ``rho_j`` the two coefficients' noise covariance (:meth:`StationaryFrame.parent_covariances`).
+Without it SURE undercounts the noise that the parent passes on and picked coefficients 2-4 dB worse on tuning
+cases. The noise variances are measured, not modelled: :data:`NOISE_SAMPLES` draws of the data's noise
 (per-pixel covariance ``C``, padded as the data are) are passed through the same filter and transform
 (:meth:`StationaryFrame.noise_variances`), so the padding and the joint 2 x 2 filter are counted exactly.
 
@@ -41,7 +56,8 @@ The linear fit's SURE (``theta_j'`` replaced by ``g_j``)::
 
     SURE_lin = (||L x - x||^2 - tr C_x + 2 sum_j g_j sigma_j^2 n_j) / n                              (3)
 
-Constants: :data:`NOISE_SAMPLES`, :data:`TAUS`, :data:`MIN_COARSEST_PX` (the module docstring of
+Constants: :data:`NOISE_SAMPLES`, :data:`TAUS`, :data:`MIN_COARSEST_PX`, and the 12 of eq. (1) and (1b) (the
+thresholds ``sqrt(6) sigma`` of [3]_) (the module docstring of
 :mod:`metafovea.reconstruct.deconvolve` lists where each comes from); the wavelet (``wavelet``, default
 :data:`DEFAULT_WAVELET`) is an option.
 
@@ -203,6 +219,22 @@ class StationaryFrame:
         P, Q = self.shape
         return float(np.sum(spec * rfft_weights(self.shape)) / float(P * Q) ** 2)
 
+    def parent_covariances(self, noise: np.ndarray) -> np.ndarray:
+        """Each subband's noise covariance with its parent's (:func:`parent_of`) at the same position, over the noise
+        draws ``(K, P, Q)`` (Parseval on their spectra: ``sum_f Re(F_b conj(F_q)) |N(f)|^2``): ``(3 L + 1,)``, 0
+        where there is no parent."""
+        from scipy.fft import rfft2
+
+        P, Q = self.shape
+        spec = np.mean(np.abs(rfft2(noise, axes=(-2, -1), workers=-1)) ** 2, axis=0) * rfft_weights(self.shape)
+        fy, fx = self.factors
+        out = np.zeros(fy.shape[0])
+        b = np.arange(4, fy.shape[0])
+        if b.size:
+            uy, vx = fy[b] * np.conj(fy[b - 3]), fx[b] * np.conj(fx[b - 3])
+            out[b] = (np.sum((uy.real @ spec) * vx.real, axis=1) - np.sum((uy.imag @ spec) * vx.imag, axis=1))
+        return out / float(P * Q) ** 2
+
     def noise_variances(self, noise: np.ndarray) -> np.ndarray:
         """Each subband's mean square over the noise draws ``(K, P, Q)`` (Parseval on their spectra): ``(3 L + 1,)``."""
         from scipy.fft import rfft2
@@ -213,39 +245,98 @@ class StationaryFrame:
         return np.sum((py @ (spec * rfft_weights(self.shape))) * px, axis=1) / float(P * Q) ** 2
 
 
-def _surelet_fit(w: np.ndarray, var: float) -> tuple[np.ndarray | None, np.ndarray, np.ndarray]:
-    """Eq. (1)'s coefficients ``(a_1, a_2)`` on one subband (None: nothing to shrink, the subband kept), its second
-    term's atom ``w exp(-w^2 / (12 var))`` and that atom's derivative in ``w``."""
-    e = np.exp(-w * w / (12.0 * var))
-    f2 = w * e
-    d2 = e * (1.0 - w * w / (6.0 * var))
-    A = np.array([[np.sum(w * w), np.sum(w * f2)], [np.sum(w * f2), np.sum(f2 * f2)]])
-    b = np.array([np.sum(w * w) - var * w.size, np.sum(w * f2) - var * np.sum(d2)])
-    try:
-        a = np.linalg.solve(A, b)
-    except np.linalg.LinAlgError:  # a subband of zeros: nothing to shrink
-        return None, f2, d2
-    return (a if np.all(np.isfinite(a)) else None), f2, d2
+def parent_of(b: int) -> int | None:
+    """The subband of :attr:`StationaryFrame.filters` one level coarser than subband ``b``, of its orientation
+    (None: the approximation or the coarsest level's details)."""
+    return b - 3 if b > 3 else None
 
 
-def _surelet(w: np.ndarray, var: float) -> tuple[np.ndarray, float]:
-    """Eq. (1) on one subband: the shrunk coefficients and ``sum theta'(w) var`` (the divergence term of SURE)."""
-    if not var > 0:
-        return w, 0.0
-    a, f2, d2 = _surelet_fit(w, var)
-    if a is None:
-        return w, var * w.size
-    return a[0] * w + a[1] * f2, float(var * (a[0] * w.size + a[1] * np.sum(d2)))
+class _Shrinkage:
+    """Eq. (1) (or (1b), given the parent's coefficients) fitted on one subband by its SURE: the shrunk coefficients
+    and their derivatives in the coefficient (:meth:`dw`) and in its parent (:meth:`dq`, None without one)."""
+
+    def __init__(self, w: np.ndarray, var: float, q: np.ndarray | None = None, q_var: float = 0.0,
+                 rho: float = 0.0):
+        n = w.size
+        e = np.exp(-w * w / (12.0 * var))
+        self._w, self._f2, self._d2 = w, w * e, e * (1.0 - w * w / (6.0 * var))
+        self._gam = self._dgam = None
+        # the atoms as rows, and the sums over the subband of their derivatives in w and in q
+        if q is None or not q_var > 0:
+            X = np.stack([w.ravel(), self._f2.ravel()])
+            sdw, sdq = np.array([n, np.sum(self._d2)]), np.zeros(2)
+        else:
+            gam = np.exp(-q * q / (12.0 * q_var))
+            self._gam, self._dgam = gam, -q / (6.0 * q_var) * gam
+            gw, gf = gam * w, gam * self._f2
+            X = np.stack([gw.ravel(), gf.ravel(), (w - gw).ravel(), (self._f2 - gf).ravel()])
+            sg, sgd, sd = float(np.sum(gam)), float(np.sum(gam * self._d2)), float(np.sum(self._d2))
+            qw, qf = float(np.sum(self._dgam * w)), float(np.sum(self._dgam * self._f2))
+            sdw, sdq = np.array([sg, sgd, n - sg, sd - sgd]), np.array([qw, qf, -qw, -qf])
+        # SURE of sum_k a_k atom_k is ||sum_k a_k atom_k - w||^2 + 2 (var sum dtheta/dw + rho sum dtheta/dq) + const:
+        # its minimiser solves (X X^T) a = X w - var sdw - rho sdq
+        try:
+            a = np.linalg.solve(X @ X.T, X @ w.ravel() - var * sdw - rho * sdq)
+        except np.linalg.LinAlgError:  # a subband of zeros: nothing to shrink
+            a = None
+        #: the coefficients (None: the subband is kept)
+        self.a = a if a is not None and np.all(np.isfinite(a)) else None
+        self._sdw, self._sdq, self._var, self._rho = sdw, sdq, var, rho
+
+    def _pair(self) -> tuple[float, float, float, float]:
+        """Eq. (1b) as ``(b1 + gamma c1) w + (b2 + gamma c2) w e(w)``: ``(b1, b2, c1, c2)``."""
+        a = self.a
+        if len(a) == 2:  # type: ignore[arg-type]
+            return a[0], a[1], 0.0, 0.0  # type: ignore[index]
+        return a[2], a[3], a[0] - a[2], a[1] - a[3]  # type: ignore[index]
+
+    def value(self) -> np.ndarray:
+        if self.a is None:
+            return self._w
+        b1, b2, c1, c2 = self._pair()
+        out = b1 * self._w + b2 * self._f2
+        return out if self._gam is None else out + self._gam * (c1 * self._w + c2 * self._f2)
+
+    def dw(self) -> np.ndarray | None:
+        if self.a is None:
+            return None
+        b1, b2, c1, c2 = self._pair()
+        out = b1 + b2 * self._d2
+        return out if self._gam is None else out + self._gam * (c1 + c2 * self._d2)
+
+    def dq(self) -> np.ndarray | None:
+        if self.a is None or self._dgam is None:
+            return None
+        _, _, c1, c2 = self._pair()
+        return self._dgam * (c1 * self._w + c2 * self._f2)
+
+    def divergence(self) -> float:
+        """``sum_k (var dtheta/dw + rho dtheta/dq)``, the divergence term of SURE (a kept subband: ``n var``)."""
+        if self.a is None:
+            return self._var * self._w.size
+        return float(self._var * self.a @ self._sdw + self._rho * self.a @ self._sdq)
+
+
+def _shrinkages(c: np.ndarray, var: np.ndarray, cov: np.ndarray | None) -> dict[int, _Shrinkage]:
+    """Each detail subband's fitted shrinkage (eq. 1 at the coarsest level, 1b below; eq. 1 everywhere where
+    ``cov`` is None), those with noise only."""
+    out = {}
+    for b in range(1, c.shape[0]):
+        if var[b] > 0:
+            p = None if cov is None else parent_of(b)
+            out[b] = _Shrinkage(c[b], float(var[b]), None if p is None else c[p],
+                                0.0 if p is None else float(var[p]), 0.0 if p is None else float(cov[b]))
+    return out
 
 
 def shrink_jacobian(img: np.ndarray, noise: np.ndarray, wavelet: str = DEFAULT_WAVELET,
-                    levels: int | None = None) -> np.ndarray:
+                    levels: int | None = None, interscale: bool = True) -> np.ndarray:
     """The Jacobian of :func:`shrink` at ``img`` applied to each draw of ``noise``: the shrunk estimate's noise to
     first order in the noise, ``F^T diag(theta'(F img)) F n``.
 
     Parameters
     ----------
-    img, noise, wavelet, levels
+    img, noise, wavelet, levels, interscale
         As :func:`shrink` (the draws set the thresholds, as there, and are the vectors the Jacobian is applied to).
 
     Returns
@@ -258,24 +349,26 @@ def shrink_jacobian(img: np.ndarray, noise: np.ndarray, wavelet: str = DEFAULT_W
     frame = stationary_frame(img.shape, _check_wavelet(wavelet), levels)
     var = frame.noise_variances(noise)
     c = frame.analysis(img.astype(np.float32)).astype(np.float64)
-    deriv: dict[int, np.ndarray] = {}  # theta'(w) per shrunk subband (the others are kept: theta' = 1)
-    for b in range(1, c.shape[0]):
-        if var[b] > 0:
-            a, _, d2 = _surelet_fit(c[b], float(var[b]))
-            if a is not None:
-                deriv[b] = (a[0] + a[1] * d2).astype(np.float32)
+    # d theta / d w and d theta / d q per shrunk subband (the others are kept: d theta / d w = 1)
+    deriv = {}
+    for b, sh in _shrinkages(c, var, frame.parent_covariances(noise) if interscale else None).items():
+        dw, dq = sh.dw(), sh.dq()
+        if dw is not None:
+            deriv[b] = (dw.astype(np.float32), None if dq is None else dq.astype(np.float32))
     out = np.empty_like(noise)
     for k in range(noise.shape[0]):
         cn = frame.analysis(noise[k].astype(np.float32))
-        for b, d in deriv.items():
-            cn[b] *= d
-        out[k] = frame.synthesis(cn)
+        jn = cn.copy()
+        for b, (dw, dq) in deriv.items():
+            jn[b] = dw * cn[b] if dq is None else dw * cn[b] + dq * cn[parent_of(b)]  # type: ignore[index]
+        out[k] = frame.synthesis(jn)
     return out
 
 
 def shrink(img: np.ndarray, noise: np.ndarray, wavelet: str = DEFAULT_WAVELET,
-           levels: int | None = None) -> tuple[np.ndarray, float]:
-    """SURE-LET shrinkage of a noisy image in the stationary wavelet transform, eq. (1).
+           levels: int | None = None, interscale: bool = True) -> tuple[np.ndarray, float]:
+    """SURE-LET shrinkage of a noisy image in the stationary wavelet transform, eq. (1b) (eq. (1) at the coarsest
+    level).
 
     Parameters
     ----------
@@ -289,6 +382,10 @@ def shrink(img: np.ndarray, noise: np.ndarray, wavelet: str = DEFAULT_WAVELET,
         One of :data:`WAVELETS`.
     levels : int, optional
         Transform depth (default :func:`swt_levels` of ``img.shape``).
+    interscale : bool
+        Eq. (1b), each coefficient's shrinkage split by its parent (default); False: eq. (1), each coefficient by
+        its own value only (the held-out set's comparison: BENCHMARKS.md, "PSF-aware reconstruction on scenes
+        never seen").
 
     Returns
     -------
@@ -300,21 +397,24 @@ def shrink(img: np.ndarray, noise: np.ndarray, wavelet: str = DEFAULT_WAVELET,
     -----
     The frame (:class:`StationaryFrame`) is Parseval, so its synthesis is its adjoint and the SURE of
     ``f(y) = F^T theta(F y)`` under Gaussian noise of any covariance ``C`` is
-    ``(||f(y) - y||^2 - tr C + 2 sum_jk theta_j'(w_jk) sigma_j^2) / n`` (``tr C``: the noise draws' mean energy).
-    The coefficients of eq. (1) minimise each subband's own SURE, so the total is slightly optimistic (by the
-    2 x 3 L fitted parameters' share of the coefficients).
+    ``(||f(y) - y||^2 - tr C + 2 sum_jk (theta_j,w(w_jk, q_jk) sigma_j^2 + theta_j,q(w_jk, q_jk) rho_j)) / n``
+    (``tr C``: the noise draws' mean energy; ``theta_j,w``, ``theta_j,q`` the derivatives of eq. (1b) in the
+    coefficient and in its parent, ``rho_j`` their noise covariance; eq. (1): ``theta_j,q = 0``). The coefficients
+    of eq. (1b) minimise each subband's own SURE, so the total is slightly optimistic (by the 4 x 3 (L - 1) + 2 x 3
+    fitted parameters' share of the coefficients).
     """
-    est, sure, _, _ = shrink_linearised(img, noise, wavelet, levels)
+    est, sure, _, _ = shrink_linearised(img, noise, wavelet, levels, interscale)
     return est, sure
 
 
 def shrink_linearised(img: np.ndarray, noise: np.ndarray, wavelet: str = DEFAULT_WAVELET,
-                      levels: int | None = None) -> tuple[np.ndarray, float, np.ndarray, float]:
+                      levels: int | None = None,
+                      interscale: bool = True) -> tuple[np.ndarray, float, np.ndarray, float]:
     """:func:`shrink`, with the shrinkage's best linear fit per subband and that fit's own SURE, eq. (3).
 
     Parameters
     ----------
-    img, noise, wavelet, levels
+    img, noise, wavelet, levels, interscale
         As :func:`shrink`.
 
     Returns
@@ -341,11 +441,10 @@ def shrink_linearised(img: np.ndarray, noise: np.ndarray, wavelet: str = DEFAULT
     div = float(var[0]) * c[0].size  # the approximation is kept: theta' = 1
     div_lin = div
     gains = np.ones(c.shape[0])
-    out = np.empty_like(c)
-    out[0] = c[0]
-    for b in range(1, c.shape[0]):
-        out[b], d = _surelet(c[b], float(var[b]))
-        div += d
+    out = c.copy()  # a subband without noise is kept
+    for b, sh in _shrinkages(c, var, frame.parent_covariances(noise) if interscale else None).items():
+        out[b] = sh.value()
+        div += sh.divergence()
         ww = float(np.sum(c[b] * c[b]))
         gains[b] = float(np.sum(out[b] * c[b])) / ww if ww > 0 else 1.0
         div_lin += gains[b] * float(var[b]) * c[b].size
