@@ -26,8 +26,8 @@ parent's would be centred ``2^j`` px away; aligned, the parents predicted no bet
 seeds. In a redundant frame a coefficient's noise and its parent's are correlated (their filters share
 frequencies), so the divergence of eq. (1b) carries a second term: ``sum_k (d theta / d w) sigma_j^2 + rho_j sum_k
 (d theta / d q)``, ``rho_j`` the two coefficients' noise covariance (:meth:`StationaryFrame.parent_covariances`).
-Without it SURE undercounts the noise that the parent passes on and picked coefficients 2-4 dB worse on tuning
-cases. The noise variances are measured, not modelled: :data:`NOISE_SAMPLES` draws of the data's noise
+Without it SURE undercounts the noise that the parent passes on, and the coefficients it picks are far from the
+best on tuning cases. The noise variances are measured, not modelled: :data:`NOISE_SAMPLES` draws of the data's noise
 (per-pixel covariance ``C``, padded as the data are) are passed through the same filter and transform
 (:meth:`StationaryFrame.noise_variances`), so the padding and the joint 2 x 2 filter are counted exactly.
 
