@@ -275,10 +275,16 @@ class _Shrinkage:
             sdw, sdq = np.array([sg, sgd, n - sg, sd - sgd]), np.array([qw, qf, -qw, -qf])
         # SURE of sum_k a_k atom_k is ||sum_k a_k atom_k - w||^2 + 2 (var sum dtheta/dw + rho sum dtheta/dq) + const:
         # its minimiser solves (X X^T) a = X w - var sdw - rho sdq
-        try:
-            a = np.linalg.solve(X @ X.T, X @ w.ravel() - var * sdw - rho * sdq)
-        except np.linalg.LinAlgError:  # a subband of zeros: nothing to shrink
-            a = None
+        # a numerically singular system (condition number above 1e12, double precision's 1e-16 leaving 1e-4 of the
+        # coefficients) has no stable minimiser: a parent that splits nothing (the same weight everywhere) falls back
+        # to eq. (1); a subband whose two atoms coincide (all of it far below its noise, or none) is kept
+        G = X @ X.T
+        a = None
+        if np.all(np.isfinite(G)) and np.linalg.cond(G) < 1e12:
+            a = np.linalg.solve(G, X @ w.ravel() - var * sdw - rho * sdq)
+        elif self._gam is not None:
+            self.__init__(w, var)  # type: ignore[misc]
+            return
         #: the coefficients (None: the subband is kept)
         self.a = a if a is not None and np.all(np.isfinite(a)) else None
         self._sdw, self._sdq, self._var, self._rho = sdw, sdq, var, rho

@@ -138,6 +138,22 @@ def test_a_flat_image_is_returned_flat_and_bad_input_is_refused():
     assert swt_levels((290, 290)) == 5 and swt_levels((16, 16)) == 1
 
 
+@pytest.mark.parametrize("interscale", [True, False])
+def test_degenerate_subbands_give_a_finite_risk_and_keep_the_image(interscale):
+    """A noise-free checkerboard: every subband but the finest diagonal one is zero (up to single-precision
+    rounding), so the parents split nothing and eq. (1)'s two atoms coincide; the image comes back as it is, with
+    the risk of keeping it (the stated noise) rather than the 1e13 that a near-singular fit gave."""
+    y = 5.0 * ((np.indices((64, 64)).sum(axis=0) % 2) - 0.5)
+    draws = np.random.default_rng(0).standard_normal((4, 64, 64))
+    est, sure = shrink(y, draws, "haar", interscale=interscale)
+    assert np.max(np.abs(est - y)) < 1e-5
+    assert 0.5 < sure < 1.5
+    # the noisy checkerboard is still shrunk
+    noisy = y + np.random.default_rng(1).standard_normal(y.shape)
+    est2, _ = shrink(noisy, draws, "haar", interscale=interscale)
+    assert np.mean((est2 - y) ** 2) < 0.1
+
+
 def test_the_linear_fit_of_the_shrinkage_and_its_sure():
     """``shrink_linearised``: the same estimate and SURE as ``shrink``; its gains are the least-squares fit of the
     shrunk subbands on the noisy ones, and its linear SURE is eq. (3) computed by the frame's synthesis; over repeated
