@@ -7,7 +7,8 @@ frames (its error counted), then each method of ``deconvolve_measurement`` on th
 (:func:`metafovea.studies.heldout.run_case`).
 
     python benchmarks/bench_generalise.py [--scenes 64] [--seed-offset 0] [--tuning] [--noise default|high|both]
-        [--bands 8-14um 10um] [--methods NAME ...] [--workers 1] [--json out.json] [--plot margins.png] [--quick]
+        [--bands 8-14um 10um] [--methods NAME ...] [--wavelet haar|db2|sym4] [--workers 1] [--json out.json]
+        [--plot margins.png] [--quick]
 
 Prints per case and channel: scene, kind, band, noise, channel, method PSNR, bound PSNR, margin (dB) and the method's
 time (s); per scene and noise the foveal PSNR of 8-14 um minus that of the 10 um filter; and per method the fraction
@@ -64,6 +65,7 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     ap.add_argument("--methods", nargs="+", default=None,
                     help="deconvolve_measurement's method names, passed unchanged, side by side on each measurement "
                          f"(known today: {', '.join(DECONVOLUTION_METHODS)}); default: its default method")
+    ap.add_argument("--wavelet", default=None, help="the wavelet of method 'wavelet' (default: its default)")
     ap.add_argument("--frames", type=int, default=CASE_FRAMES, help=f"frames per recording (default {CASE_FRAMES})")
     ap.add_argument("--calibration-frames", type=int, default=CASE_CALIBRATION_FRAMES,
                     help=f"shutter frames for the FPN (default {CASE_CALIBRATION_FRAMES})")
@@ -184,10 +186,12 @@ def main(argv: list[str] | None = None) -> int:
     print(f"{len(cases)} cases: {args.scenes} {'tuning' if args.tuning else 'held-out test'} scenes (seeds {first}-"
           f"{first + args.scenes - 1})"
           f" x {len(args.bands)} bands x noise {args.noise}; {args.frames} frames, {args.calibration_frames} shutter "
-          f"frames; methods {args.methods or 'default'}; {args.workers} worker(s)")
+          f"frames; methods {args.methods or 'default'}{'' if args.wavelet is None else ', wavelet ' + args.wavelet}; "
+          f"{args.workers} worker(s)")
     print(f"{'scene':<22} {'kind':<11} {'band':<6} {'noise':<7} {'channel':<10} {'method':<10} "
           f"{'PSNR':>7} {'bound':>7} {'margin':>7} {'s':>6}")
-    fn = functools.partial(run_case, SYSTEM, methods=args.methods, threads=1 if args.workers > 1 else None)
+    fn = functools.partial(run_case, SYSTEM, methods=args.methods, threads=1 if args.workers > 1 else None,
+                           options=None if args.wavelet is None else {"wavelet": args.wavelet})
     results: list[dict | None] = [None] * len(cases)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # the simulator's notes on the scenes (cold sky pixels and the like)

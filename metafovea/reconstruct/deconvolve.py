@@ -96,8 +96,8 @@ benchmarks judge on):
                                        prior on built-in scenes (issue 13), kept because the default method
                                        picks its regularisation by its risk on top of it; not re-swept
 ``spectra.PRIOR_FLOOR``                numerical: a bin without signal gets the largest penalty, not none
-``wavelet.WAVELETS``,                  an option; the three tie in median and mean margin on the tuning seeds
-``wavelet.DEFAULT_WAVELET``            (BENCHMARKS.md): Haar, the shortest filters, is the default
+``wavelet.WAVELETS``,                  an option; with eq. (1b) Haar leads db2 and sym4 in median and mean
+``wavelet.DEFAULT_WAVELET``            margin on the tuning seeds (BENCHMARKS.md), with the shortest filters
 ``wavelet.NOISE_SAMPLES``              derived: the subband variances' standard error (its comment)
 ``wavelet.TAUS``                       a search range: the Wiener filter down to 1/64 of its prior weight
                                        (the chosen tau reached 1/64 on the tuning seeds; with the range extended

@@ -85,9 +85,10 @@ from metafovea.reconstruct.spectra import rfft_weights
 
 #: wavelets :func:`shrink` accepts (PyWavelets names): Haar's piecewise-constant atoms and two smoother ones
 WAVELETS = ("haar", "db2", "sym4")
-#: the default wavelet: the three are within 0.05 dB in median and mean margin to the Wiener bound on the scene
-#: generator's tuning seeds (BENCHMARKS.md, "PSF-aware reconstruction on scenes never seen"); Haar has the shortest
-#: filters; an option of :func:`metafovea.reconstruct.deconvolve.separate_deconvolve` (``wavelet``)
+#: the default wavelet: with eq. (1b) Haar has the highest median and mean margin to the Wiener bound on the scene
+#: generator's tuning seeds, db2 and sym4 0.04-0.3 dB below it (BENCHMARKS.md, "PSF-aware reconstruction on scenes
+#: never seen"), and the shortest filters; an option of
+#: :func:`metafovea.reconstruct.deconvolve.separate_deconvolve` (``wavelet``)
 DEFAULT_WAVELET = "haar"
 #: draws of the noise through the filter per channel: the subband variances' relative standard error is about
 #: ``sqrt(2 / (NOISE_SAMPLES n_eff))`` with ``n_eff`` the subband's independent coefficients (> 100 at the coarsest

@@ -65,7 +65,8 @@ def simulate_case(system: SystemDesign, case: HeldOutCase) -> Measurement:
                     filter_enabled=case.filter_enabled, netd_k=case.netd_k, psf=case.psf, rng=case.seed)
 
 
-def score_psf_aware(m: Measurement, methods: Sequence[str] | None = None) -> dict[str, Any]:
+def score_psf_aware(m: Measurement, methods: Sequence[str] | None = None,
+                    options: dict[str, Any] | None = None) -> dict[str, Any]:
     """Each PSF-aware method on one measurement, both channels against the scene and the Wiener bound.
 
     Parameters
@@ -75,6 +76,8 @@ def score_psf_aware(m: Measurement, methods: Sequence[str] | None = None) -> dic
     methods : sequence of str, optional
         Names passed to :func:`~metafovea.reconstruct.deconvolve.deconvolve_measurement` as ``method``, unchanged;
         None: one run with its default method.
+    options : dict, optional
+        Further keyword arguments of every method's run (e.g. ``{"wavelet": "db2"}``), passed unchanged.
 
     Returns
     -------
@@ -94,7 +97,7 @@ def score_psf_aware(m: Measurement, methods: Sequence[str] | None = None) -> dic
     out: dict[str, Any] = {"fpn_error_dn": fe, "rows": []}
     ref = None  # (bound, hazy) PSNRs per channel, from the first method's scores
     for method in ([None] if methods is None else list(methods)):
-        kw = {} if method is None else {"method": method}
+        kw = dict(options or {}) if method is None else {**(options or {}), "method": method}
         t0 = time.perf_counter()
         d = deconvolve_measurement(m, fpn=fpn, fpn_error_dn=fe, score_truth=ref is None, **kw)
         seconds = time.perf_counter() - t0
@@ -112,7 +115,7 @@ def score_psf_aware(m: Measurement, methods: Sequence[str] | None = None) -> dic
 
 
 def run_case(system: SystemDesign | str | Path, case: HeldOutCase, methods: Sequence[str] | None = None, *,
-             threads: int | None = None) -> dict[str, Any]:
+             threads: int | None = None, options: dict[str, Any] | None = None) -> dict[str, Any]:
     """:func:`simulate_case` then :func:`score_psf_aware`: a process pool's task.
 
     Parameters
@@ -120,7 +123,7 @@ def run_case(system: SystemDesign | str | Path, case: HeldOutCase, methods: Sequ
     system : SystemDesign, str or Path
         A design or its TOML file.
     case : HeldOutCase
-    methods : sequence of str, optional
+    methods, options : optional
         As :func:`score_psf_aware`.
     threads : int, optional
         BLAS threads inside the case (1 when the cases run one per core); None: the library's.
@@ -130,7 +133,7 @@ def run_case(system: SystemDesign | str | Path, case: HeldOutCase, methods: Sequ
     dict
         The case's fields, ``simulate_seconds`` and :func:`score_psf_aware`'s result.
     """
-    return simulate_and_score(system, case, lambda m: score_psf_aware(m, methods), threads=threads)
+    return simulate_and_score(system, case, lambda m: score_psf_aware(m, methods, options), threads=threads)
 
 
 def simulate_and_score(system: SystemDesign | str | Path, case: HeldOutCase,

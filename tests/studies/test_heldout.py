@@ -33,6 +33,10 @@ def test_a_case_scores_every_method_on_one_measurement_against_one_bound():
         assert a["bound_db"] == b["bound_db"] and a["psnr_db"] == b["psnr_db"]
     for a, b in zip(rows, twice):  # the same seed: the same recording
         assert a["psnr_db"] == pytest.approx(b["psnr_db"]) and a["bound_db"] == pytest.approx(b["bound_db"])
+    # options reach every method's run: another wavelet, the same recording and bound, other estimates
+    other = run_case(system, case, methods=["wavelet"], options={"wavelet": "db2"})["rows"]
+    assert [r["bound_db"] for r in other] == pytest.approx([r["bound_db"] for r in rows])
+    assert any(abs(a["psnr_db"] - b["psnr_db"]) > 1e-6 for a, b in zip(rows, other))
 
 
 def test_margin_summary_counts_cases_at_or_above_the_bound():
