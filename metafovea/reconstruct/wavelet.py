@@ -220,30 +220,32 @@ class StationaryFrame:
         P, Q = self.shape
         return float(np.sum(spec * rfft_weights(self.shape)) / float(P * Q) ** 2)
 
-    def parent_covariances(self, noise: np.ndarray) -> np.ndarray:
-        """Each subband's noise covariance with its parent's (:func:`parent_of`) at the same position, over the noise
-        draws ``(K, P, Q)`` (Parseval on their spectra: ``sum_f Re(F_b conj(F_q)) |N(f)|^2``): ``(3 L + 1,)``, 0
-        where there is no parent."""
+    def noise_moments(self, noise: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`noise_variances` and :meth:`parent_covariances` of the draws ``(K, P, Q)``, their spectra taken
+        once."""
         from scipy.fft import rfft2
 
         P, Q = self.shape
         spec = np.mean(np.abs(rfft2(noise, axes=(-2, -1), workers=-1)) ** 2, axis=0) * rfft_weights(self.shape)
+        py, px = self._power_factors
+        var = np.sum((py @ spec) * px, axis=1)
         fy, fx = self.factors
-        out = np.zeros(fy.shape[0])
+        cov = np.zeros(fy.shape[0])
         b = np.arange(4, fy.shape[0])
-        if b.size:
+        if b.size:  # Re(u_y v_x) summed against the spectrum, u = F_b conj(F_q) along y, v along x
             uy, vx = fy[b] * np.conj(fy[b - 3]), fx[b] * np.conj(fx[b - 3])
-            out[b] = (np.sum((uy.real @ spec) * vx.real, axis=1) - np.sum((uy.imag @ spec) * vx.imag, axis=1))
-        return out / float(P * Q) ** 2
+            cov[b] = np.sum((uy.real @ spec) * vx.real, axis=1) - np.sum((uy.imag @ spec) * vx.imag, axis=1)
+        return var / float(P * Q) ** 2, cov / float(P * Q) ** 2
+
+    def parent_covariances(self, noise: np.ndarray) -> np.ndarray:
+        """Each subband's noise covariance with its parent's (:func:`parent_of`) at the same position, over the noise
+        draws ``(K, P, Q)`` (Parseval on their spectra: ``sum_f Re(F_b conj(F_q)) |N(f)|^2``): ``(3 L + 1,)``, 0
+        where there is no parent."""
+        return self.noise_moments(noise)[1]
 
     def noise_variances(self, noise: np.ndarray) -> np.ndarray:
         """Each subband's mean square over the noise draws ``(K, P, Q)`` (Parseval on their spectra): ``(3 L + 1,)``."""
-        from scipy.fft import rfft2
-
-        P, Q = self.shape
-        spec = np.mean(np.abs(rfft2(noise, axes=(-2, -1), workers=-1)) ** 2, axis=0)
-        py, px = self._power_factors
-        return np.sum((py @ (spec * rfft_weights(self.shape))) * px, axis=1) / float(P * Q) ** 2
+        return self.noise_moments(noise)[0]
 
 
 def parent_of(b: int) -> int | None:
@@ -354,11 +356,11 @@ def shrink_jacobian(img: np.ndarray, noise: np.ndarray, wavelet: str = DEFAULT_W
     noise = np.asarray(noise, dtype=np.float64)
     levels = swt_levels(img.shape) if levels is None else int(levels)
     frame = stationary_frame(img.shape, _check_wavelet(wavelet), levels)
-    var = frame.noise_variances(noise)
+    var, cov = frame.noise_moments(noise)
     c = frame.analysis(img.astype(np.float32)).astype(np.float64)
     # d theta / d w and d theta / d q per shrunk subband (the others are kept: d theta / d w = 1)
     deriv = {}
-    for b, sh in _shrinkages(c, var, frame.parent_covariances(noise) if interscale else None).items():
+    for b, sh in _shrinkages(c, var, cov if interscale else None).items():
         dw, dq = sh.dw(), sh.dq()
         if dw is not None:
             deriv[b] = (dw.astype(np.float32), None if dq is None else dq.astype(np.float32))
@@ -442,14 +444,14 @@ def shrink_linearised(img: np.ndarray, noise: np.ndarray, wavelet: str = DEFAULT
         raise InputError("noise", f"array of shape {noise.shape}", f"(K, H, W) draws with (H, W) = {img.shape}")
     levels = swt_levels(img.shape) if levels is None else int(levels)
     frame = stationary_frame(img.shape, _check_wavelet(wavelet), levels)
-    var = frame.noise_variances(noise)
+    var, cov = frame.noise_moments(noise)
     # the subbands in single precision (their rounding, ~1e-7 of the image's range, is far below any noise shrunk)
     c = frame.analysis(img.astype(np.float32)).astype(np.float64)
     div = float(var[0]) * c[0].size  # the approximation is kept: theta' = 1
     div_lin = div
     gains = np.ones(c.shape[0])
     out = c.copy()  # a subband without noise is kept
-    for b, sh in _shrinkages(c, var, frame.parent_covariances(noise) if interscale else None).items():
+    for b, sh in _shrinkages(c, var, cov if interscale else None).items():
         out[b] = sh.value()
         div += sh.divergence()
         ww = float(np.sum(c[b] * c[b]))
