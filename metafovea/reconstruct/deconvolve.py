@@ -391,8 +391,7 @@ def _foveal_fusion(x: np.ndarray, scale: float, ratio: float,
         wk[0] = 0.0
         weights.append(wk)
     c1 = lowpass(op.upsample(np.real(np.fft.ifft2(weights[0][ring] * (B - A)))), SURROUND_SIGMA_PER_SCALE * scale)
-    c2 = np.real(np.fft.ifft2(weights[1][ring] * (A - B))) / ratio
-    c2 = op.CT_pinv(c2)
+    c2 = op.C_pinv(np.real(np.fft.ifft2(weights[1][ring] * (A - B))) / ratio)
     info = {"applied": True, "scale": scale, "gain_ratio": ratio, "grid": [h, w],
             "ring_cycles_per_sample": [float(width * (i + 0.5)) for i in range(n_rings)],
             "weights_x1": [float(v) for v in weights[0]], "weights_x2": [float(v) for v in weights[1]],

@@ -208,7 +208,7 @@ class FovealOperator:
         my, mx = self._mats(u, self.Cy, self.Cx)
         return my.T @ u @ mx
 
-    def CT_pinv(self, u: np.ndarray) -> np.ndarray:
+    def C_pinv(self, u: np.ndarray) -> np.ndarray:
         """The pseudo-inverse of :meth:`C` (without rotation): the least-norm ``x2`` change ``(..., H, W)`` whose crop
         is ``u`` ``(..., h, w)``, for any offset (a crop between pixels spreads over two)."""
         if self.Cs is not None:

@@ -87,7 +87,7 @@ def scene(shape: tuple[int, int] | int = 96, scale: float = 6.0, *, offset: tupl
     op = FovealOperator((H, W), scale, offset, gain=foveal_gain, bias=foveal_offset)
     # replace C x2 by (D x1 - b) / g: x2 += C^+ ((D x1 - b) / g - C x2), C^+ the pseudo-inverse (exact for any offset)
     r = (op.D(x1) - op.bias) / op.gain - op.C(x2)
-    x2 = x2 + op.CT_pinv(r)
+    x2 = x2 + op.C_pinv(r)
     return x1.astype(dtype), x2.astype(dtype)
 
 

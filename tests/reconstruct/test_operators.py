@@ -34,14 +34,14 @@ def test_the_crops_pseudo_inverse_is_the_least_norm_change_with_that_crop(offset
     rng = np.random.default_rng(1)
     op = FovealOperator((60, 72), 6.0, offset)
     u = rng.standard_normal(op.low_shape)
-    x = op.CT_pinv(u)
+    x = op.C_pinv(u)
     assert np.allclose(op.C(x), u, atol=1e-12)
     other = x + rng.standard_normal(x.shape)
-    other -= op.CT_pinv(op.C(other) - u)  # another change with the same crop
+    other -= op.C_pinv(op.C(other) - u)  # another change with the same crop
     assert np.allclose(op.C(other), u, atol=1e-12) and np.sum(x * x) < np.sum(other * other)
     assert abs(np.sum(x * (other - x))) < 1e-9 * np.sum(x * x)
     with pytest.raises(InputError, match="rotation_deg"):
-        FovealOperator((60, 72), 6.0, rotation_deg=1.0).CT_pinv(u)
+        FovealOperator((60, 72), 6.0, rotation_deg=1.0).C_pinv(u)
 
 
 def test_operator_adjoints_on_a_batch():
