@@ -34,7 +34,9 @@ class InputError(ValueError):
         self.source = source
         self.detail = detail
         where = f"{source}: " if source else ""
-        msg = f"{where}{parameter} = {_shown(value)} is invalid; allowed: {allowed}"
+        # None: the value was not given (a required option, a file without the key)
+        stated = "is missing" if value is None else f"= {_shown(value)} is invalid"
+        msg = f"{where}{parameter} {stated}; allowed: {allowed}"
         if detail:
             msg += f" ({detail})"
         super().__init__(msg)

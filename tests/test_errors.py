@@ -14,6 +14,12 @@ def test_input_error_names_parameter_value_and_range():
                                                                       "from the file")
 
 
+def test_a_value_not_given_is_missing_not_none():
+    e = InputError("frame_rate_hz", None, "the camera's frame rate in Hz", source="rec.tif")
+    assert str(e) == "rec.tif: frame_rate_hz is missing; allowed: the camera's frame rate in Hz"
+    assert "is missing" in str(e.renamed("--frame-rate")) and "None" not in str(e.renamed("--frame-rate"))
+
+
 def test_validators():
     assert check_int("n", "7", 1, 10) == 7
     assert check_positive("x", "2.5", "um") == 2.5

@@ -14,6 +14,7 @@ Measured figures: BENCHMARKS.md, section "Reconstruction".
 from __future__ import annotations
 
 import contextlib
+import math
 import time
 from collections.abc import Sequence
 from dataclasses import replace
@@ -403,11 +404,15 @@ def _unidentifiable(m: Measurement, window: int, spec: PolarizerSpec) -> list[st
     calibrates the camera, then rests on few pixels)."""
     out = []
     if m.shape[0] > 1 and spec.rate_hz > 0:
-        span = float(np.median(np.diff(m.times_s))) * window
+        dt = float(np.median(np.diff(m.times_s)))
+        span = dt * window
         if span < 0.5 / spec.rate_hz:
+            need = math.ceil(0.5 / spec.rate_hz / dt - 1e-9)
+            longer = (f"a window of at least {need} frames (--window {need}; window={need} in Python)"
+                      if need <= m.shape[0] else f"a recording of at least {need} frames")
             out.append(f"a window of {window} frames spans {span:.3g} s, less than half a turn of the polariser "
                        f"({0.5 / spec.rate_hz:.3g} s at {spec.rate_hz:g} Hz): alpha's phase, rate and amplitude "
-                       "are not separable in it; use a longer window (window=...)")
+                       f"are not separable in it; use {longer}")
     bad = m.invalid_samples()
     if bad is not None:
         H, W = m.shape[1:]

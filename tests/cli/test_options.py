@@ -277,4 +277,4 @@ def test_stage_messages_in_the_words_of_the_flags():
     err = as_flag_error("export", InputError("tiles_dir", "t", "only with scheduler=... (local exports: one file)"))
     assert str(err) == "--tiles-dir = 't' is invalid; allowed: only with --scheduler (local exports: one file)"
     assert str(as_flag_error("import", InputError("frame_rate_hz", None, "a rate (or name them with times=...)"))) == \
-        "--frame-rate = None is invalid; allowed: a rate (or name them with --times)"
+        "--frame-rate is missing; allowed: a rate (or name them with --times)"

@@ -356,3 +356,25 @@ def test_the_dip_has_a_time_budget_for_the_whole_run():
                                    solver={**small, "steps": 100_000, "max_seconds": 1e-3})
     assert tiny.outputs == 1 and tiny.spans == ((0, 4),) and tiny.reconstruction.x1.shape == (1, 32, 32)
     assert tiny.summary()["dip"]["windows_planned"] == 3 and isinstance(tiny.metrics, dict)
+
+
+def test_a_window_shorter_than_half_a_polariser_turn_names_the_window_that_is_long_enough():
+    # a 0.5 Hz polariser at 12 frames/s: half a turn (alpha's period) is 1 s, 12 frames; the warning names the
+    # flag and the length, and that length clears it
+    T = 24
+    x1, x2 = scene(48)
+    a = np.cos(2 * np.pi * 0.5 * np.arange(T) / 12.0) ** 2
+    m = Measurement(frames=measure(x1, x2, a, sigma=0.01, rng=0, dtype=np.float32), times_s=np.arange(T) / 12.0,
+                    meta={"scale": 6.0, "polarizer_hz": 0.5, "polarizer_mode": "free"})
+
+    def window_warnings(meas, window):
+        rec = reconstruct_measurement(meas, method="alternating", window=window).reconstruction
+        return [w for w in rec.info.get("warnings") or [] if "half a turn of the polariser" in w]
+
+    (w8,) = window_warnings(m, 8)
+    assert "window of 8 frames spans 0.667 s" in w8 and "at least 12 frames (--window 12; window=12" in w8
+    assert len(window_warnings(m, 11)) == 1 and window_warnings(m, 12) == []
+    # a recording shorter than half a turn: no window can be long enough; the recording has to be
+    short = dataclasses.replace(m, frames=m.frames[:8], times_s=m.times_s[:8])
+    (ws,) = window_warnings(short, 8)
+    assert "use a recording of at least 12 frames" in ws and "--window" not in ws
