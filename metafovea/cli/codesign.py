@@ -4,6 +4,7 @@ design files (the same format as ``designs/``), the production check and the rep
 from __future__ import annotations
 
 import argparse
+import re
 from typing import Any
 
 from metafovea.cli.options import add_shared, show_progress
@@ -24,7 +25,7 @@ def register(sub: Any) -> None:
     p.add_argument("--steps", default="80", help="optimiser steps per lens (default 80)")
     p.add_argument("--learning-rate", default="0.1", help="Adam's step in waves (default 0.1)")
     p.add_argument("--size-px", default="31", help="sensor window of the objective's PSF, odd pixels (default 31)")
-    p.add_argument("--max-wavelengths", default="400",
+    p.add_argument("--max-wavelengths", default=None,
                    help="most spectral samples a run may take (the lens sets how many it needs; default 400)")
     p.add_argument("--no-check", action="store_true", help="skip the production engine's re-propagation")
     p.add_argument("--out", default="codesign", help="output folder (default ./codesign); resumed when it holds "
@@ -35,20 +36,30 @@ def register(sub: Any) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from metafovea.codesign import CodesignOptions, OptimizeOptions, run_codesign
-    from metafovea.errors import check_int, check_positive
+    from metafovea.errors import InputError, check_int, check_positive
     from metafovea.io import to_json
 
+    default_cap = CodesignOptions.max_wavelengths
     band = None if args.band is None else tuple(check_positive("--band", v, "um") for v in args.band)
     opts = CodesignOptions(objective=args.objective, band_um=band, lenses=tuple(args.lenses.split(",")),
                            n_coefficients=check_int("--coefficients", args.coefficients, 1, 8),
                            size_px=check_int("--size-px", args.size_px, 9, 255),
-                           max_wavelengths=check_int("--max-wavelengths", args.max_wavelengths, 3, 100_000),
+                           max_wavelengths=check_int("--max-wavelengths", args.max_wavelengths or default_cap, 3,
+                                                     100_000),
                            posts=args.posts,
                            optimize=OptimizeOptions(steps=check_int("--steps", args.steps, 1, 100_000),
                                                     learning_rate=check_positive("--learning-rate",
                                                                                  args.learning_rate),
                                                     progress=show_progress(args)))
-    summary = run_codesign(args.system_file, opts, args.out, force=args.force, check=not args.no_check)
+    try:
+        summary = run_codesign(args.system_file, opts, args.out, force=args.force, check=not args.no_check)
+    except InputError as e:  # the cap refused was the default, not a value the user typed: say so
+        if e.parameter != "max_wavelengths" or args.max_wavelengths is not None:
+            raise
+        need = re.match(r">= (\d+)", e.allowed)
+        raise InputError(e.parameter, e.value, e.allowed, source=e.source, detail=(
+            "400 is the default cap" + (f"; --max-wavelengths {need.group(1)} runs it (time and memory grow with "
+                                        "the count)" if need else ""))) from None
     if args.json:
         print(to_json(summary))
         return 0
