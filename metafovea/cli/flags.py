@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import argparse
 import re
+from typing import Any
 
 from metafovea.errors import InputError
 
@@ -104,6 +105,14 @@ def in_flags(text: str, flags: dict[str, str]) -> str:
         if name.isidentifier():
             text = re.sub(rf"(?<![\w.'-]){name}=('[^']*'|\"[^\"]*\"|[^\s,;)\]]+)", lambda m, t=to: flag(m, t), text)
     return text
+
+
+def warnings_in_flags(summary: dict[str, Any], command: str) -> dict[str, Any]:
+    """``summary`` with its ``'warnings'`` in the words of ``command``'s flags (:func:`in_flags`), for what the
+    command prints and writes as JSON."""
+    if not summary.get("warnings"):
+        return summary
+    return {**summary, "warnings": [in_flags(w, flag_map(command)) for w in summary["warnings"]]}
 
 
 def as_flag_error(command: str, err: InputError, args: argparse.Namespace | None = None) -> InputError:

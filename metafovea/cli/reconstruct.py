@@ -12,6 +12,7 @@ import argparse
 from pathlib import Path
 from typing import Any
 
+from metafovea.cli.flags import warnings_in_flags
 from metafovea.cli.options import add_shared, seed_arg, show_progress
 from metafovea.cli.output import out_file
 from metafovea.cli.polarizer import polarizer_args, polarizer_lines
@@ -145,7 +146,7 @@ def run(args: argparse.Namespace) -> int:
             dec = deconvolve_result(m, res, decon, args.psf, score_truth=not args.no_score,
                                     refine_psf=args.refine_psf, field_psf=args.field_psf)
         files += write_scene(dec, scene_out)
-    s = res.summary(files) | ({"scene": dec.summary()} if dec is not None else {})
+    s = warnings_in_flags(res.summary(files) | ({"scene": dec.summary()} if dec is not None else {}), "reconstruct")
     if args.json:
         print(to_json(s))
         return 0
@@ -173,8 +174,7 @@ def run(args: argparse.Namespace) -> int:
               f"on {iv.get('stuck_pixels', 0)} stuck (dead or saturated) pixel(s) found")
     if (s.get("polarizer") or {}).get("model"):
         print(polarizer_lines(s["polarizer"]["model"], s.get("calibration")))
-    for w in s.get("warnings") or []:  # the polariser's, the calibration's, what could not be identified
-        print(f"  warning: {w}")
+    print("".join(f"  warning: {w}\n" for w in s.get("warnings") or []), end="")  # polariser, calibration, ...
     if s.get("nonfinite_pixels"):
         print(f"  {s['nonfinite_pixels']} NaN value(s) in x1/x2: pixels without valid samples (e.g. dead pixels)")
     if isinstance(s.get("metrics"), dict):

@@ -408,7 +408,7 @@ def _unidentifiable(m: Measurement, window: int, spec: PolarizerSpec) -> list[st
         span = dt * window
         if span < 0.5 / spec.rate_hz:
             need = math.ceil(0.5 / spec.rate_hz / dt - 1e-9)
-            longer = (f"a window of at least {need} frames (--window {need}; window={need} in Python)"
+            longer = (f"a window of at least {need} frames (window={need})"
                       if need <= m.shape[0] else f"a recording of at least {need} frames")
             out.append(f"a window of {window} frames spans {span:.3g} s, less than half a turn of the polariser "
                        f"({0.5 / spec.rate_hz:.3g} s at {spec.rate_hz:g} Hz): alpha's phase, rate and amplitude "

@@ -517,3 +517,18 @@ def test_method_auto_says_what_it_chose_and_runs_the_psf_aware_step_it_chose(tmp
     assert not (tmp_path / "fast_scene.npz").exists()
     rc, _, err = _run([path, "--time-s", "1", "--force"], capsys)
     assert rc == 2 and err.count("\n") == 1 and "--time-s" in err and "--method auto" in err
+
+
+def test_the_solvers_warnings_name_the_flags_to_type(tmp_path, capsys):
+    # a 0.5 Hz polariser, 8-frame windows: the library advises window=12; the command says --window 12, printed and
+    # in its JSON
+    T = 24
+    x1, x2 = scene(48)
+    a = np.cos(2 * np.pi * 0.5 * np.arange(T) / 12.0) ** 2
+    f = _save(tmp_path / "slow.npz", T=T, meta={"scale": 6, "polarizer_hz": 0.5, "polarizer_mode": "free"},
+              frames=measure(x1, x2, a, sigma=0.01, rng=0, dtype=np.float32), alpha=None)
+    rc, out, _ = _run([f, "--method", "alternating", "--out", tmp_path / "r.npz", "--no-figures"], capsys)
+    (line,) = [s for s in out.splitlines() if "half a turn of the polariser" in s]
+    assert rc == 0 and line.startswith("  warning: ") and line.endswith("at least 12 frames (--window 12)")
+    rc, out, _ = _run([f, "--method", "alternating", "--out", tmp_path / "j.npz", "--no-figures", "--json"], capsys)
+    assert rc == 0 and any(w.endswith("(--window 12)") for w in json.loads(out)["warnings"])

@@ -372,9 +372,9 @@ def test_a_window_shorter_than_half_a_polariser_turn_names_the_window_that_is_lo
         return [w for w in rec.info.get("warnings") or [] if "half a turn of the polariser" in w]
 
     (w8,) = window_warnings(m, 8)
-    assert "window of 8 frames spans 0.667 s" in w8 and "at least 12 frames (--window 12; window=12" in w8
+    assert "window of 8 frames spans 0.667 s" in w8 and "at least 12 frames (window=12)" in w8
     assert len(window_warnings(m, 11)) == 1 and window_warnings(m, 12) == []
     # a recording shorter than half a turn: no window can be long enough; the recording has to be
     short = dataclasses.replace(m, frames=m.frames[:8], times_s=m.times_s[:8])
     (ws,) = window_warnings(short, 8)
-    assert "use a recording of at least 12 frames" in ws and "--window" not in ws
+    assert "use a recording of at least 12 frames" in ws and "window=" not in ws
