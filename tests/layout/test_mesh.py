@@ -30,7 +30,7 @@ def test_mesh_patch(tmp_path, design, small_frame, fmt):
         sum(abs(trimesh.Trimesh(m.vertices[8 * i:8 * i + 8], m.faces[12 * i:12 * i + 12] - 8 * i).volume)
             for i in range(len(m.faces) // 12)))
     assert (sz[:, 0] * sz[:, 1]).min() > 0
-    with pytest.raises(InputError, match="^patch_mm = "):
+    with pytest.raises(InputError, match="^patch_mm is missing"):
         patch_mesh(make_spec(design, **small_frame))
 
 
