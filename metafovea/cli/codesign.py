@@ -58,8 +58,8 @@ def run(args: argparse.Namespace) -> int:
             raise
         need = re.match(r">= (\d+)", e.allowed)
         raise InputError(e.parameter, e.value, e.allowed, source=e.source, detail=(
-            "400 is the default cap" + (f"; --max-wavelengths {need.group(1)} runs it (time and memory grow with "
-                                        "the count)" if need else ""))) from None
+            f"{default_cap} is the default cap" + (f"; --max-wavelengths {need.group(1)} lifts it (time and memory "
+                                                   "grow with the count)" if need else ""))) from None
     if args.json:
         print(to_json(summary))
         return 0

@@ -70,11 +70,11 @@ def test_the_paper_lens_is_refused_with_what_it_needs():
 
 def test_the_command_says_when_the_cap_it_refuses_is_its_default(tmp_path, capsys):
     # `metafovea codesign` on the paper's camera: the default cap (400 samples) is below what the foveal lens needs;
-    # the line says so and names the value that runs it, not only the flag the user never typed
+    # the line says so and names the value that lifts it, not only the flag the user never typed
     n, _ = spectral_sampling(SystemDesign.paper().foveal, 150_000.0, (8.0, 14.0))
     rc = main(["codesign", "--out", str(tmp_path / "d")])
     (line,) = capsys.readouterr().err.strip().splitlines()
-    assert rc == 2 and "line bound" in line and f"400 is the default cap; --max-wavelengths {n} runs it" in line
+    assert rc == 2 and "line bound" in line and f"400 is the default cap; --max-wavelengths {n} lifts it" in line
     rc = main(["codesign", "--out", str(tmp_path / "g"), "--max-wavelengths", "400"])
     (given,) = capsys.readouterr().err.strip().splitlines()
     assert rc == 2 and f">= {n}" in given and "default cap" not in given
