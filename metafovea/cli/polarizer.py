@@ -13,6 +13,15 @@ POLARIZER_OPTIONS = {"--polarizer-hz": "rate_hz", "--polarizer-mode": "mode", "-
                      "--extinction": "extinction", "--tau": "tau_s"}
 
 
+def _with_flag(assumed: str) -> str:
+    """An assumption ``"key = value (why)"`` with the flag that states the value instead: ``"... (why; --tau states
+    it)"``."""
+    from metafovea.measurement import POLARIZER_KEYS
+
+    flag = {POLARIZER_KEYS[name]: f for f, name in POLARIZER_OPTIONS.items()}.get(assumed.split(" = ")[0])
+    return f"{assumed[:-1]}; {flag} states it)" if flag and assumed.endswith(")") else assumed
+
+
 def polarizer_lines(spec: dict[str, Any], calibration: dict[str, Any] | None = None) -> str:
     """The polariser model a command used (:meth:`~metafovea.measurement.PolarizerSpec.summary`): one line, with each
     value's source, one line per assumption, and what the recording's calibration found (geometry, gain, alpha's
@@ -20,7 +29,8 @@ def polarizer_lines(spec: dict[str, Any], calibration: dict[str, Any] | None = N
     phase = "" if spec.get("phase_deg") is None else f", phase {spec['phase_deg']:g} deg"
     src = ", ".join(f"{k} {v}" for k, v in spec["sources"].items() if not v.startswith("ignored"))
     lines = [f"  polariser model: {spec['mode']} at {spec['rate_hz']:g} Hz{phase}, extinction {spec['extinction']:g}, "
-             f"bolometer tau {spec['tau_s']:g} s ({src})"] + [f"  assumed: {a}" for a in spec.get("assumed") or []]
+             f"bolometer tau {spec['tau_s']:g} s ({src})"]
+    lines += [f"  assumed: {_with_flag(a)}" for a in spec.get("assumed") or []]
     c = calibration or {}
     if "scale" in c:
         se = c.get("se") or {}

@@ -89,6 +89,11 @@ def test_cli_video_and_alternating(meas, tmp_path, capsys):
     text = _run([meas, "--method", "alternating", "--window", "10", "--out", tmp_path / "alt2.npz", "--no-figures"],
                 capsys)[1]
     assert s["polarizer"]["model"]["assumed"] and "assumed: polarizer_hz = 2.0" in text
+    # each assumption names the flag that states it instead
+    assumed = [ln for ln in text.splitlines() if ln.startswith("  assumed: ")]
+    flags = {"polarizer_hz": "--polarizer-hz", "polarizer_mode": "--polarizer-mode",
+             "polarizer_extinction": "--extinction", "bolometer_tau_s": "--tau"}
+    assert assumed and all(ln.endswith(f"; {flags[ln.split()[1]]} states it)") for ln in assumed)
     assert "what alpha's gauge leaves uncertain in the images" in text
     assert not Reconstruction.load(out2).info["alpha_identified"]
     # stated constants (the ideal device the data were made with): taken as exact, alpha identified
