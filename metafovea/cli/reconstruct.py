@@ -152,8 +152,7 @@ def run(args: argparse.Namespace) -> int:
         return 0
     print(f"{s['method']}: {s['frames']} frames -> {s['outputs']} reconstruction(s) in {s['seconds']:.3f} s "
           f"({s['ms_per_output']:.3f} ms each)\n" + "".join(f"  {line}\n" for line in auto_lines(auto, dec)), end="")
-    if "condition" in s:
-        print(f"  normal-matrix condition number: {s['condition']:.3g}")
+    print(f"  normal-matrix condition number: {s.get('condition', 0):.3g}\n" * ("condition" in s), end="")
     _print_dip(s.get("dip"), args)
     if "fpn_mode" in s:
         print(f"  fixed-pattern noise: {s['fpn_mode']}" + f", {s.get('fpn_auto')} (--fpn auto)" * ("fpn_auto" in s))
@@ -196,5 +195,6 @@ def _print_dip(d: dict[str, Any] | None, args: argparse.Namespace) -> None:
         done = f"after {d['windows']} of {d['windows_planned']} windows (the output holds those), " if short else ""
         line += (f"\n  warning: the time cap (--max-seconds {d['max_seconds']:g}) stopped the run {done}"
                  f"{d['stopped'].get('time', 0)} window(s) before their steps were done (each keeps its lowest-loss "
-                 "images); --max-seconds 0 for no cap, or fewer windows (--window, --stride)")
+                 f"images; the first step took {d['first_step_seconds']:.3g} s: it compiles a new shape's network); "
+                 "--max-seconds 0 for no cap, or fewer windows (--window, --stride)")
     print(line)

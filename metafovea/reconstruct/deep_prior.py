@@ -773,7 +773,8 @@ def dip(frames: ArrayLike, alpha: ArrayLike | None = None, options: DipOptions |
     Reconstruction
         ``info``: ``steps_run`` and ``stopped`` (one of :data:`STOP_REASONS`), ``loss_history``, the weights and
         learning rates used (``tv_weight_rule``: what eq. (2) found), ``checkpoints``, ``seconds_per_step``,
-        ``traces`` (compilations this call caused), ``device``; ``initial`` (the warm start's images).
+        ``first_step_seconds`` (with the step's compilation where ``traces`` > 0), ``traces`` (compilations this
+        call caused), ``device``; ``initial`` (the warm start's images).
 
     Notes
     -----
@@ -861,6 +862,7 @@ def dip(frames: ArrayLike, alpha: ArrayLike | None = None, options: DipOptions |
             "norm": opt.norm,
             "checkpoints": recorded, "initial_alpha": np.asarray(a0, np.float64),
             "seconds_per_step": tm.get("steps", 0.0) / max(stop["steps_run"] - 1, 1),
+            "first_step_seconds": tm.get("compile", 0.0),  # the jitted step's compilation when the shape was new
             "traces": _TRACES[0] - traces0, "device": str(data["y"].devices().pop())}
     if warm_start:
         info["initial"] = (xi1.astype(dt), xi2.astype(dt))

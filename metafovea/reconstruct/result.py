@@ -300,7 +300,8 @@ class PipelineResult:
 def _dip_summary(rec: Reconstruction) -> dict[str, Any] | None:
     """How the deep image prior's windows stopped: ``windows`` (done; ``windows_planned`` when the time cap stopped
     the run earlier), ``steps`` (the budget), ``steps_run_mean``, ``stopped`` (count per reason: steps, converged,
-    time) and ``max_seconds`` (the run's time cap); None for the other methods."""
+    time), ``max_seconds`` (the run's time cap) and ``first_step_seconds`` (the longest first step of a window: the
+    network's compilation where it was new); None for the other methods."""
     runs = rec.info.get("dip_windows")
     if runs is None and rec.method == "dip" and "steps_run" in rec.info:
         runs = [rec.info]
@@ -312,4 +313,5 @@ def _dip_summary(rec: Reconstruction) -> dict[str, Any] | None:
     return {"windows": len(runs), "windows_planned": rec.info.get("windows_planned", len(runs)),
             "steps": runs[0].get("steps"),
             "steps_run_mean": float(np.mean([r.get("steps_run") or 0 for r in runs])), "stopped": stopped,
-            "max_seconds": rec.info.get("max_seconds")}
+            "max_seconds": rec.info.get("max_seconds"),
+            "first_step_seconds": max(float(r.get("first_step_seconds") or 0.0) for r in runs)}

@@ -486,6 +486,9 @@ def test_dip_off_a_terminal_logs_progress_lines_and_says_when_the_time_cap_stopp
     assert re.search(r"metafovea: dip: \d+/100000 step \(\d+ %\), \d+ s, ETA ", err), err  # (the first step compiles)
     assert "dip: 1 window(s)" in out and "stopped: 1 by time" in out
     assert "warning: the time cap (--max-seconds 0.5) stopped the run 1 window(s) before their steps were done" in out
+    # and says how much of the cap the first step took (the network's compilation, for a shape new to the process)
+    first = float(re.search(r"the first step took ([0-9.e+-]+) s: it compiles a new shape's network", out).group(1))
+    assert 0 < first == pytest.approx(Reconstruction.load(tmp_path / "d.npz").info["first_step_seconds"], rel=0.01)
     rc, out, err = _run([four, "--method", "dip", "--known-alpha", "--window", "4", "--channels", "4",
                          "--steps", "5", "--no-figures", "--out", tmp_path / "q.npz", "-q"], capsys)
     assert rc == 0 and "metafovea: dip" not in err and "stopped: 1 by steps" in out  # --quiet: no progress
