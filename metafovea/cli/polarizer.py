@@ -34,7 +34,9 @@ def polarizer_lines(spec: dict[str, Any], calibration: dict[str, Any] | None = N
     c = calibration or {}
     if "scale" in c:
         se = c.get("se") or {}
-        lines.append(f"  calibrated from the recording ({c['frames']} frames): foveal scale {c['scale']:.4f} "
+        of = f"the first {c['frames']} of {c['frames_in_recording']}" if c.get("frames_in_recording", 0) > c["frames"] \
+            else str(c["frames"])
+        lines.append(f"  calibrated from the recording ({of} frames): foveal scale {c['scale']:.4f} "
                      f"+- {se.get('scale', 0):.2g}, centre ({c['centre_px'][0]:.2f}, {c['centre_px'][1]:.2f}) "
                      f"+- {se.get('centre_px', 0):.2g} perifoveal px, rotation {c['rotation_deg']:.3f} +- "
                      f"{se.get('rotation_deg', 0):.2g} deg, channel gain ratio {c['gain']:.4g} +- "

@@ -477,7 +477,7 @@ def _calibration_fit(m: Measurement, frames: np.ndarray, kw: dict[str, Any], fpn
     n = min(frames.shape[0], CALIBRATION_FRAMES)
     sub = replace(model, times_s=model.times_s[:n])
     geo = {k: kw[k] for k in ("scale", "foveal_gain", "foveal_offset") if k in kw}
-    info: dict[str, Any] = {"frames": n, "applied": False}
+    info: dict[str, Any] = {"frames": n, "frames_in_recording": int(frames.shape[0]), "applied": False}
     try:
         first = reconstruct(frames[:n], None, method="alternating", polarizer=sub, prior=None, strict=False,
                             **geo, **fpn_kw)

@@ -540,3 +540,17 @@ def test_the_solvers_warnings_name_the_flags_to_type(tmp_path, capsys):
     assert rc == 0 and line.startswith("  warning: ") and line.endswith("at least 12 frames (--window 12)")
     rc, out, _ = _run([f, "--method", "alternating", "--out", tmp_path / "j.npz", "--no-figures", "--json"], capsys)
     assert rc == 0 and any(w.endswith("(--window 12)") for w in json.loads(out)["warnings"])
+
+
+def test_the_calibration_line_says_which_frames_it_used(tmp_path, capsys):
+    # the calibration pass fits the first 24 frames (CALIBRATION_FRAMES) of a longer recording: the line says so
+    T = 30
+    x1, x2 = scene(96)  # a fovea the calibration can fit (16 x 16 perifoveal pixels)
+    a = np.cos(2 * np.pi * 2.0 * np.arange(T) / 12.0 + 0.3) ** 2
+    f = _save(tmp_path / "long.npz", T=T, n=96, meta={"scale": 6, "polarizer_hz": 2.0, "polarizer_mode": "free"},
+              frames=measure(x1, x2, a, sigma=0.01, rng=0, dtype=np.float32), alpha=None)
+    rc, out, _ = _run([f, "--method", "alternating", "--out", tmp_path / "r.npz", "--no-figures"], capsys)
+    assert rc == 0 and "  calibrated from the recording (the first 24 of 30 frames): foveal scale" in out
+    rc, out, _ = _run([f, "--method", "alternating", "--out", tmp_path / "j.npz", "--no-figures", "--json"], capsys)
+    c = json.loads(out)["calibration"]
+    assert rc == 0 and (c["frames"], c["frames_in_recording"]) == (24, 30)
