@@ -118,9 +118,8 @@ def _fpn_arg(v: str) -> Any:
 def run(args: argparse.Namespace) -> int:
     """Reconstruct, print the summary, write the outputs; 0 on success (an InputError is reported by main)."""
     from metafovea.measurement import FovealConstraint, Measurement
-    from metafovea.reconstruct import prepare_outputs, reconstruct_measurement, write_outputs
-    from metafovea.reconstruct.auto import auto_lines
-    from metafovea.reconstruct.files import scene_paths, write_scene
+    from metafovea.reconstruct import auto_lines, reconstruct_measurement
+    from metafovea.reconstruct.files import prepare_outputs, scene_paths, write_outputs, write_scene
 
     m = Measurement.load(args.measurement)
     solver = _solver_options(args)
@@ -152,7 +151,8 @@ def run(args: argparse.Namespace) -> int:
         return 0
     print(f"{s['method']}: {s['frames']} frames -> {s['outputs']} reconstruction(s) in {s['seconds']:.3f} s "
           f"({s['ms_per_output']:.3f} ms each)\n" + "".join(f"  {line}\n" for line in auto_lines(auto, dec)), end="")
-    print(f"  normal-matrix condition number: {s.get('condition', 0):.3g}\n" * ("condition" in s), end="")
+    if "condition" in s:
+        print(f"  normal-matrix condition number: {s['condition']:.3g}")
     _print_dip(s.get("dip"), args)
     if "fpn_mode" in s:
         print(f"  fixed-pattern noise: {s['fpn_mode']}" + f", {s.get('fpn_auto')} (--fpn auto)" * ("fpn_auto" in s))
