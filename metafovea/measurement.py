@@ -218,7 +218,8 @@ class FovealConstraint:
                              "1 <= scale <= 1000 (f1/f2 of the two lenses, 6 for the paper's)",
                              detail=None if scale is not None else "from the file's meta; override with scale=...")
         if not out.gain > 0:
-            raise InputError("foveal gain", out.gain, "a positive radiometric gain (NA1^2/NA2^2)")
+            raise InputError("gain" if gain is not None else "foveal_constraint.gain", out.gain,
+                             "a positive radiometric gain (NA1^2/NA2^2)")
         return out
 
     def as_kwargs(self) -> dict[str, float]:
@@ -768,7 +769,8 @@ class Measurement:
             if meta.get("frame_rate_hz") is None:
                 raise InputError("times_s", None, "a (T,) array of frame times, or frame_rate_hz in the metadata",
                                  source=str(p))
-            times = np.arange(arrays["frames"].shape[0]) / float(meta["frame_rate_hz"])
+            rate = _meta_number("frame_rate_hz", meta["frame_rate_hz"], *_META_NUMBERS["frame_rate_hz"], str(p))
+            times = np.arange(np.shape(arrays["frames"])[0] if np.ndim(arrays["frames"]) else 1) / rate
         extras = {k: arrays[k] for k in OPTIONAL[4:] if k in arrays}
         return cls(frames=arrays["frames"], times_s=times, alpha=arrays.get("alpha"), truth_x1=arrays.get("truth_x1"),
                    truth_x2=arrays.get("truth_x2"), fpn=arrays.get("fpn"), meta=meta, extras=extras, source=str(p))

@@ -130,7 +130,12 @@ def as_flag_error(command: str, err: InputError, args: argparse.Namespace | None
     if dest is not None and args is not None and getattr(args, dest, None) is not None:
         return err.located(f"--{dest.replace('_', '-')} {getattr(args, dest)}")
     head, _, rest = err.parameter.partition(" ")  # a part of a parameter ('filter_um width') names the flag too
-    if err.parameter in flags:
+    flag = flags.get(err.parameter) or (flags.get(head) if rest else None)
+    if flag not in (None, "--out") and _not_typed(flag, args):  # from a file or a default (--out: its own words)
+        note = f"not typed: the file's value or the default; {flag} sets it"
+        err = InputError(err.parameter, err.value, err.allowed, source=err.source,
+                         detail=note if err.detail is None else f"{err.detail}; {note}")
+    elif err.parameter in flags:
         err = err.renamed(flags[err.parameter])
     elif rest and head in flags:
         err = err.renamed(f"{flags[head]} {rest}")
@@ -142,6 +147,13 @@ def as_flag_error(command: str, err: InputError, args: argparse.Namespace | None
                           detail="the command's default: --out PATH writes elsewhere")
     typed = {new: old for old, new in getattr(args, "deprecated_options", [])}  # the spelling the user typed
     return err.renamed(typed[err.parameter]) if err.parameter in typed else err
+
+
+def _not_typed(flag: str, args: argparse.Namespace | None) -> bool:
+    """Whether ``flag`` is an option of ``args`` that the user left unset (None): an error about its parameter
+    then concerns a value from a file or a default, and must not read as if the user had typed the flag."""
+    dest = flag.split(" ")[0].lstrip("-").replace("-", "_")
+    return args is not None and flag.startswith("--") and hasattr(args, dest) and getattr(args, dest) is None
 
 
 def _advice_in_flags(command: str, err: InputError) -> InputError:

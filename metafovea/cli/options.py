@@ -89,6 +89,16 @@ def seed_arg(value: Any) -> int:
     return check_int("--seed", value, 0, 2 ** 63 - 1)
 
 
+def only_with(needed: str, on: bool, given: dict[str, Any]) -> None:
+    """Refuse the first flag of ``given`` (flag -> its value, falsy when not typed) that does nothing unless
+    ``needed`` is ``on``: a flag that changes nothing must not look as if it had."""
+    from metafovea.errors import InputError
+
+    for flag, value in given.items():
+        if value and not on:
+            raise InputError(flag, value, f"only with {needed} (without it, {flag} changes nothing)")
+
+
 def add_common(p: argparse.ArgumentParser) -> None:
     """``-q/--quiet`` and ``-v/--verbose`` on a command's parser (absent from the namespace unless given, so that
     ``metafovea -v design`` and ``metafovea design -v`` both count)."""

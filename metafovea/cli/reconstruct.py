@@ -13,7 +13,7 @@ from pathlib import Path
 from typing import Any
 
 from metafovea.cli.flags import warnings_in_flags
-from metafovea.cli.options import add_shared, seed_arg, show_progress
+from metafovea.cli.options import add_shared, only_with, seed_arg, show_progress
 from metafovea.cli.output import out_file
 from metafovea.cli.polarizer import polarizer_args, polarizer_lines
 from metafovea.errors import InputError, as_float
@@ -71,7 +71,7 @@ def register(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
                    help=f"also the scene (PSF-aware, static): <out>_scene.npz, .png in K ({DEFAULT_DECONVOLUTION})")
     p.add_argument("--psf", default=None, help="for --deconvolve: a PSF file (.npz: psf_x1, psf_x2) (not the file's)")
     p.add_argument("--refine-psf", choices=FAMILY_KINDS, help="for --deconvolve: refine the PSFs from the data")
-    p.add_argument("--field-psf", default="auto", choices=("auto", "patches", "on-axis"), help="for --deconvolve, a "
+    p.add_argument("--field-psf", default=None, choices=("auto", "patches", "on-axis"), help="for --deconvolve, a "
                    "field-dependent PSF (psf_patches_x*): the patches the data need (auto), every one, or none")
     p.add_argument("--out", default=None, help="output .npz (default: <measurement>_rec.npz); figures next to it")
     p.add_argument("--no-figures", action="store_true", help="do not write PNG figures")
@@ -85,6 +85,8 @@ def _solver_options(args: argparse.Namespace) -> dict[str, Any]:
     """The method's own keywords from the flags that set them."""
     if args.stride < 1:
         raise InputError("--stride", args.stride, "an integer >= 1")
+    only_with("--deconvolve", args.deconvolve is not None or args.method == "auto",  # auto may choose it
+              {"--psf": args.psf, "--refine-psf": args.refine_psf, "--field-psf": args.field_psf})
     seed = seed_arg(args.seed)
     kw: dict[str, Any] = {}
     if args.regularize is not None:
@@ -109,10 +111,8 @@ def _solver_options(args: argparse.Namespace) -> dict[str, Any]:
 
 def _fpn_arg(v: str) -> Any:
     """A mode name as is; anything else is a pattern file, loaded."""
-    from metafovea.reconstruct import FPN_MODES
-    from metafovea.reconstruct.files import load_pattern
-
-    return v.strip().lower() if v.strip().lower() in (*FPN_MODES, "file") else load_pattern(v)
+    from metafovea.reconstruct import FPN_MODES, files
+    return v.strip().lower() if v.strip().lower() in (*FPN_MODES, "file") else files.load_pattern(v)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -134,17 +134,17 @@ def run(args: argparse.Namespace) -> int:
     auto = res.reconstruction.info.get("auto")
     decon = auto["chose"]["deconvolve"] if auto else args.deconvolve  # what auto chose (or was given)
     scene_out = scene_paths(out, not args.no_figures, args.force) if decon else []  # before any file is written
-    files = write_outputs(res, out, figures, title=f"{res.reconstruction.method}: {Path(m.source).name}",
-                          units=m.meta.get("units") or "DN")
     dec = None
-    if decon:
+    if decon:  # before any file is written: a PSF or option it refuses leaves nothing behind
         from metafovea.parallel import heartbeat
         from metafovea.reconstruct.deconvolve import deconvolve_result  # only here: a plain run starts faster
 
         with heartbeat(f"deconvolve ({decon})", enabled=show_progress(args)):  # field patches: tens of seconds
             dec = deconvolve_result(m, res, decon, args.psf, score_truth=not args.no_score,
-                                    refine_psf=args.refine_psf, field_psf=args.field_psf)
-        files += write_scene(dec, scene_out)
+                                    refine_psf=args.refine_psf, field_psf=args.field_psf or "auto")
+    files = write_outputs(res, out, figures, title=f"{res.reconstruction.method}: {Path(m.source).name}",
+                          units=m.meta.get("units") or "DN")
+    files += write_scene(dec, scene_out) if dec is not None else []
     s = warnings_in_flags(res.summary(files) | ({"scene": dec.summary()} if dec is not None else {}), "reconstruct")
     if args.json:
         print(to_json(s))

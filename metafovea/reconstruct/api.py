@@ -16,6 +16,7 @@ from __future__ import annotations
 import contextlib
 import math
 import time
+import warnings
 from collections.abc import Sequence
 from dataclasses import replace
 from typing import Any
@@ -313,6 +314,9 @@ def _pipeline(m: Measurement, method: str, *, known_alpha: bool, window: int | N
         rec, spans = _solve(m, method, frames, alpha, kw, fpn_kw, window, stride, starts, denoise, frame, video_out,
                             progress)
     seconds = time.perf_counter() - t0
+    if video_out and starts is None and spans and spans[-1][1] < T:
+        rec = replace(rec, info={**rec.info, "warnings": [*(rec.info.get("warnings") or []),
+                                                          _uncovered(T, window, stride, spans[-1][1])]})
     if video_fpn is not None:
         rec = replace(rec, fpn=video_fpn[0].astype(np.float32), info={**rec.info, "fpn": video_fpn[1]})
     if method == "dip":
@@ -325,6 +329,15 @@ def _pipeline(m: Measurement, method: str, *, known_alpha: bool, window: int | N
     res = PipelineResult(reconstruction=rec, spans=spans, seconds=seconds, constraint=fc, frames=T, source=m.source)
     return replace(res, metrics=_metrics(m, res, level_free) if score_truth else None,
                    alpha_mae=_alpha_mae(m, res, alpha is None or nominal))
+
+
+def _uncovered(T: int, window: int, stride: int, end: int) -> str:
+    """The warning for the frames ``end``..``T - 1`` that no window reaches, naming the largest stride up to
+    ``stride`` whose windows end on the last frame."""
+    ok = max(s for s in range(1, stride + 1) if (T - window) % s == 0)
+    frames = f"frame {end}" if end == T - 1 else f"frames {end} to {T - 1}"
+    return (f"{frames} of {T} in no window (window={window}, stride={stride}: the last window ends at frame "
+            f"{end - 1}); stride={ok} reaches the last frame")
 
 
 def _auto(m: Measurement, time_s: float | None, deconvolve: str | None, kw: dict[str, Any]) -> PipelineResult:
@@ -581,6 +594,11 @@ def _polarizer_model(m: Measurement, method: str, alpha: np.ndarray | None, spec
     """``kw`` with ``polarizer``: for an unknown alpha (alternating, dip) the model of the polariser the file states
     (its keys, the caller's values, else the paper's: ``spec.assumed`` says which), unless ``polarizer='none'``."""
     if method in ("alternating", "dip") and alpha is None and kw.get("polarizer", "auto") == "auto":
+        if not spec.rate_hz > 0:  # a stopped polariser: named where its rate came from (file key or keyword)
+            file = spec.sources.get("rate_hz") == "file"
+            raise InputError("polarizer_hz" if file else "rate_hz", spec.rate_hz, "a rotating polariser, 0 Hz < rate "
+                             "<= 1000 Hz, for an unknown alpha (a stopped one fixes no alpha: method='lsq' with the "
+                             "file's alpha)", source=m.source if file else None)
         kw["polarizer"] = PolarizerModel.from_spec(spec, m.times_s)
     elif kw.get("polarizer") in ("none", "auto"):
         kw["polarizer"] = None
@@ -632,7 +650,8 @@ def _video_fpn(m: Measurement, method: str, frames: np.ndarray, alpha: np.ndarra
             kw = {**kw, "max_seconds": kw["max_seconds"] / 2}
         first = video(frames, alpha, window=window, stride=stride, starts=starts, method=method, progress=progress,
                       **kw)
-        with np.errstate(invalid="ignore"):
+        with warnings.catch_warnings():  # a dead pixel is NaN in every window: filled below
+            warnings.simplefilter("ignore", RuntimeWarning)
             x1m = np.nanmean(np.asarray(first.x1, dtype=np.float64), axis=0)
             x2m = np.nanmean(np.asarray(first.x2, dtype=np.float64), axis=0)
         geo = {k: kw[k] for k in ("scale", "foveal_gain", "foveal_offset") if k in kw}
@@ -650,7 +669,8 @@ def _stuck_pixels(frames: np.ndarray) -> np.ndarray | None:
     alone moves it by a level in a few frames); None when there are none or fewer than :data:`STUCK_MIN_FRAMES`."""
     if frames.shape[0] < STUCK_MIN_FRAMES:
         return None
-    with np.errstate(invalid="ignore"):
+    with warnings.catch_warnings():  # a pixel without one finite sample: NaN, masked anyway
+        warnings.simplefilter("ignore", RuntimeWarning)
         ptp = np.nanmax(frames, axis=0) - np.nanmin(frames, axis=0)
     stuck = ptp == 0
     if not stuck.any() or not np.nanmedian(ptp) > 0:
@@ -675,7 +695,8 @@ def _masked(m: Measurement, frames: np.ndarray, method: str) -> tuple[np.ndarray
             "bad_pixel_map": int(np.asarray(m.extras["bad_pixels"]).sum()) if "bad_pixels" in m.extras else 0}
     f = np.where(bad, np.nan, frames).astype(np.float32)
     if method == "dip":
-        with np.errstate(invalid="ignore"):
+        with warnings.catch_warnings():  # a pixel with no valid sample: the frames' mean below
+            warnings.simplefilter("ignore", RuntimeWarning)
             mean = np.nanmean(f, axis=0)
         mean = np.where(np.isfinite(mean), mean, np.nanmean(f))
         f = np.where(bad, mean[None], f).astype(np.float32)

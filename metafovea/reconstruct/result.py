@@ -145,8 +145,12 @@ class Reconstruction:
         return a
 
     def save(self, path: str | os.PathLike) -> None:
-        """Write atomically to ``path`` (``.npz``; info and timings as JSON metadata, :func:`save_npz_stored`)."""
-        arrays = {"x1": np.asarray(self.x1), "x2": np.asarray(self.x2), "alpha": np.asarray(self.alpha)}
+        """Write atomically to ``path`` (``.npz``; info and timings as JSON metadata, :func:`save_npz_stored`).
+        The file's ``alpha`` is :meth:`alpha_per_frame` (an unknown-alpha video's window estimates where the
+        sequence has none: a reader of the file sees the estimate, not NaN)."""
+        alpha = np.asarray(self.alpha)
+        alpha = self.alpha_per_frame(alpha.size) if alpha.ndim == 1 else alpha
+        arrays = {"x1": np.asarray(self.x1), "x2": np.asarray(self.x2), "alpha": alpha}
         if self.fpn is not None:
             arrays["fpn"] = np.asarray(self.fpn)
         meta = {"kind": KIND, "method": self.method, "timings": jsonable(self.timings),

@@ -22,7 +22,7 @@ import numpy as np
 
 from metafovea.errors import InputError, check_choice
 from metafovea.measurement import FovealConstraint, Measurement, PolarizerSpec
-from metafovea.radiometry import BAND_UM, check_band, check_filter
+from metafovea.radiometry import BAND_UM, check_band, check_filter, spectral_support_um
 from metafovea.recordings.calibration import (
     GAIN_MODES,
     PlanckConstants,
@@ -110,9 +110,21 @@ def _calibration_frames(path: str, opt: ImportOptions, shape: tuple[int, int]) -
     return np.nanmean(_saturated_as_nan(r.frames)[0], axis=0)
 
 
-def _saturated_as_nan(frames: np.ndarray) -> tuple[np.ndarray, int]:
-    """float32 frames with an integer dtype's full-scale samples as NaN, and their count."""
+def _saturated_as_nan(frames: np.ndarray, source: str | None = None) -> tuple[np.ndarray, int]:
+    """float32 frames with an integer dtype's full-scale samples as NaN, and their count. Frames that float32
+    cannot hold to 1/1000 of their range (counts on a large offset, e.g. int64 near 2^40) are an error naming
+    ``source``: cast, they would be silently flattened."""
     f = np.asarray(frames)
+    if f.dtype.itemsize > 2 and f.size:
+        with np.errstate(invalid="ignore", over="ignore"):
+            fin = f[np.isfinite(f)] if f.dtype.kind == "f" else f.reshape(-1)
+            if fin.size:
+                lo, hi = float(fin.min()), float(fin.max())
+                ulp = float(np.spacing(np.float32(max(abs(lo), abs(hi)))))
+                if ulp > 1e-3 * (hi - lo) and hi > lo:
+                    raise InputError("frames", f"{f.dtype} values {lo:.15g} to {hi:.15g}", "values that float32 "
+                                     "holds to 1/1000 of their range (subtract the offset before importing: here "
+                                     f"float32 steps by {ulp:.3g})", source=source)
     out = f.astype(np.float32)
     if f.dtype.kind in "iu":
         sat = f == np.iinfo(f.dtype).max
@@ -128,6 +140,8 @@ def _radiometry(frames: np.ndarray, rec: Recording, opt: ImportOptions) -> tuple
     """``(frames, model or None, bad pixels or None)`` after the calibration the options and the file give."""
     band = check_band(opt.band_um, "band_um")
     filt = check_filter(opt.filter_um, "filter_um")
+    if filt is not None:  # a filter outside the band passes nothing: refused with or without a calibration
+        spectral_support_um(band, filter_um=filt)
     if opt.calibration is not None:
         (t1, f1), (t2, f2) = parse_two_point(opt.calibration)
         mode = check_choice("calibration_gain", opt.calibration_gain, GAIN_MODES)
@@ -161,7 +175,10 @@ def to_measurement(rec: Recording, options: ImportOptions | None = None) -> tupl
     times, t_from = frame_times(rec.times_s, rec.frames.shape[0], opt.frame_rate_hz, rec.times_from)
     kept, timing = check_timing(rec.frames, times, times_from=t_from,
                                 frame_rate_hz=opt.frame_rate_hz if rec.times_s is not None else None)
-    frames, n_sat = _saturated_as_nan(rec.frames[kept])
+    frames, n_sat = _saturated_as_nan(rec.frames[kept], str(rec.source))
+    if min(frames.shape[1:]) < 2:  # what reconstruct needs: refused here, not after the file is written
+        raise InputError("recording", str(rec.source), "frames of at least 2 x 2 pixels",
+                         detail=f"its frames are {frames.shape[1]} x {frames.shape[2]}")
     times = times[kept]
     pol_kw, pol_meta = _polarizer(rec, kept, times, opt.polarizer_unit)
     frames, model, bad = _radiometry(frames, rec, opt)
@@ -229,6 +246,8 @@ def import_recording(path: str | Path, out: str | Path | None = None, options: I
 
     opt = options or ImportOptions()
     src = Path(path)
+    if not src.is_file():  # before the default output's name is made from it ('.' has none)
+        raise InputError("recording", str(path), "an existing recording file (.tif, .h5, .mat, FLIR .jpg/.seq/.fff)")
     dest = Path(out) if out is not None else src.with_suffix(".npz")
     if dest.suffix.lower() != ".npz":
         raise InputError("out", str(dest), "a file name ending in .npz")

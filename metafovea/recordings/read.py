@@ -129,9 +129,7 @@ def _tiff_store(path: Path) -> _Store:
 
     def frames() -> np.ndarray:
         a = tifffile.imread(path)
-        if a.ndim == 2:
-            a = a[None]
-        if a.ndim != 3:
+        if a.ndim not in (2, 3):
             raise InputError("recording", str(path), "a TIFF stack of (T, H, W) grey frames",
                              detail=f"its first series has shape {series_shape}")
         return a
@@ -207,21 +205,26 @@ def _pick(store: _Store, key: str | None, names: tuple[str, ...], parameter: str
 
 
 def _frames(store: _Store, key: str | None, path: Path, axis: str) -> tuple[np.ndarray, str | None]:
-    if store.frames is not None and key is None:
-        return store.frames(), None
-    k = _pick(store, key, FRAME_KEYS, "frames_key", path)
-    if k is None:
-        three = [n for n in store.keys if store.ndims.get(n) == 3]
-        if len(three) != 1:
-            raise InputError("frames_key", None, f"the name of the frames' array in {path.name} (it has "
-                             f"{len(three)} 3-D arrays: {', '.join(three) or 'none'})")
-        k = three[0]
-    a = np.asarray(store.get(k))
-    if a.ndim == 2:
-        a = a[None] if axis == "first" else a[..., None]
-    if a.ndim != 3 or a.dtype.kind not in "biuf":
-        raise InputError("frames_key", k, f"a 3-D numeric array of frames in {path.name}",
-                         detail=f"it has shape {a.shape}, dtype {a.dtype}")
+    if store.frames is not None and key is None:  # a TIFF's image stack: (T, H, W) as stored, or (H, W, T)
+        a, k = store.frames(), None
+        a = a if a.ndim == 3 else a[None] if axis == "first" else a[..., None]
+        if a.dtype.kind not in "iuf":
+            raise InputError("recording", str(path), "a TIFF stack of real grey values (integer or float)",
+                             detail=f"its pixels are {a.dtype}")
+    else:
+        k = _pick(store, key, FRAME_KEYS, "frames_key", path)
+        if k is None:
+            three = [n for n in store.keys if store.ndims.get(n) == 3]
+            if len(three) != 1:
+                raise InputError("frames_key", None, f"the name of the frames' array in {path.name} (it has "
+                                 f"{len(three)} 3-D arrays: {', '.join(three) or 'none'})")
+            k = three[0]
+        a = np.asarray(store.get(k))
+        if a.ndim == 2:
+            a = a[None] if axis == "first" else a[..., None]
+        if a.ndim != 3 or a.dtype.kind not in "iuf":
+            raise InputError("frames_key", k, f"a 3-D array of real numbers (integer or float) in {path.name}",
+                             detail=f"it has shape {a.shape}, dtype {a.dtype}")
     return (np.moveaxis(a, -1, 0) if axis == "last" else a), k
 
 
@@ -244,7 +247,7 @@ def _times(store: _Store, times: str | None, unit: str | None, n: int,
         if k is None:
             return _times_from_rate(store.attrs, n)
         t, src = store.get(k), f"key {k}"
-        unit = unit or _unit_attr(store.attrs, k)
+        unit = unit or _unit_attr(store.attrs, k, str(path))
     t = np.asarray(t, dtype=np.float64).reshape(-1) * TIME_UNITS[check_choice("time_unit", unit or "s",
                                                                               tuple(TIME_UNITS))]
     if t.size != n or not np.all(np.isfinite(t)):
@@ -253,12 +256,24 @@ def _times(store: _Store, times: str | None, unit: str | None, n: int,
     return t - t[0], src
 
 
-def _unit_attr(attrs: dict[str, Any], key: str) -> str | None:
-    """The ``units`` attribute of an HDF5 dataset, when it is one of :data:`TIME_UNITS`."""
+#: spellings of :data:`TIME_UNITS` met in files' ``units`` attributes
+UNIT_ALIASES = {"sec": "s", "secs": "s", "second": "s", "seconds": "s", "msec": "ms", "millisecond": "ms",
+                "milliseconds": "ms", "\u00b5s": "us", "\u03bcs": "us", "usec": "us", "microsecond": "us",
+                "microseconds": "us", "nsec": "ns", "nanosecond": "ns", "nanoseconds": "ns"}
+
+
+def _unit_attr(attrs: dict[str, Any], key: str, source: str | None = None) -> str | None:
+    """The ``units`` attribute of an HDF5 dataset as a key of :data:`TIME_UNITS` (None where it has none); a unit
+    that is not a time is an error naming the attribute (read as seconds it would be silently wrong)."""
     for a in ("units", "unit"):
         v = attrs.get(f"{key}.{a}")
-        if isinstance(v, str) and v.strip().lower() in TIME_UNITS:
-            return v.strip().lower()
+        if isinstance(v, str) and v.strip():
+            u = v.strip().lower()
+            u = UNIT_ALIASES.get(u, u)
+            if u not in TIME_UNITS:
+                raise InputError(f"{key}.{a}", v, f"a time unit ({', '.join(TIME_UNITS)}); --time-unit states it "
+                                 "instead", source=source)
+            return u
     return None
 
 
