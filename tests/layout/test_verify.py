@@ -49,13 +49,16 @@ def test_auto_reader_by_format_and_size():
 
 
 TAMPERS = {"swap": "of the wrong type for their site", "move": "already taken", "duplicate": "already taken",
-           "delete": "hold no post", "off_lattice": "off their lattice site"}
+           "delete": "hold no post", "off_lattice": "off their lattice site",
+           "rotate": "rotated, mirrored or magnified", "mirror": "rotated, mirrored or magnified"}
 
 
 def _tamper(src, dst, how: str, spec) -> None:
     """Rewrite an exported file with gdstk, one post changed: two neighbouring posts of different types swapped,
     one moved onto its (occupied) neighbour's site, one duplicated, one deleted, or one shifted 1 um off its
-    site. Counts per type stay the same for a swap and a move: what a verifier of counts alone would miss."""
+    site, or one turned by a quarter turn or mirrored in place (a rectangular post's x and y responses swapped: klayout
+    calls such a reference simple, not complex). Counts per type stay the same for a swap, a move, a turn and a
+    mirror: what a verifier of counts alone would miss."""
     import gdstk
 
     oas = str(src).endswith(".oas")
@@ -89,8 +92,9 @@ def _tamper(src, dst, how: str, spec) -> None:
         del plain[i]
     elif how == "off_lattice":
         plain[i] = (ci, (oi[0] + 1.0, oi[1]))
-    for c, o in plain:
-        top.add(gdstk.Reference(c, o))
+    turned = {"rotate": {"rotation": np.pi / 2}, "mirror": {"x_reflection": True}}.get(how, {})
+    for k, (c, o) in enumerate(plain):
+        top.add(gdstk.Reference(c, o, **(turned if k == i else {})))
     if oas:
         lib.write_oas(str(dst))
     else:

@@ -164,7 +164,8 @@ def _census(ly: kdb.Layout, top_ci: int, is_post: Callable[[kdb.Cell], bool], li
         for inst in cell.each_inst():
             cc = inst.cell_index
             n = inst.size()
-            if inst.is_complex():
+            t = inst.trans  # is_complex(): magnified or off the right angles only; a quarter turn or a mirror too
+            if inst.is_complex() or t.angle != 0 or t.is_mirror():
                 ob.anomalies.append(f"a reference to {kinds(cc)[1]} is rotated, mirrored or magnified")
             if cc in counts:
                 counts[cc] += n
