@@ -323,7 +323,7 @@ class PolarizerSpec:
 _META_NUMBERS = {
     "frame_rate_hz": (0.0, 1e6, True, "frames per second"),
     "pixel_pitch_um": (0.0, 1e4, True, "the pixel pitch in um"),
-    "netd_k": (0.0, 1e3, True, "the NETD in K"),
+    "netd_k": (0.0, 1e3, False, "the NETD in K (0: a noiseless camera, e.g. simulate --netd 0 or --no-noise)"),
     "scale": (1.0, 1000.0, False, "f1 / f2 of the two lenses (6 for the paper's)"),
     "dark_dn": (-1e15, 1e15, False, "the dark level in the frames' unit"),
     "saturation_dn": (-1e15, 1e15, False, "the ADC's full scale in the frames' unit"),

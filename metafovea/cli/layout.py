@@ -142,6 +142,9 @@ def run_export(args) -> int:
     opt = ExportOptions(flat=args.flat, max_refs=args.max_refs, dwl=args.dwl, compress=args.compress, force=args.force,
                         resume=not args.no_resume, workers=workers_arg(args.workers), scheduler=args.scheduler,
                         tiles_dir=args.tiles_dir, progress=progress(args))
+    dest = output_path(spec, fmt, out, flat=opt.flat, max_refs=opt.max_refs, dwl=opt.dwl) if fmt in FORMATS else out
+    if dest is not None and args.design and Path(dest).resolve() == Path(args.design).resolve():  # --force too
+        raise InputError("--out", str(dest), f"a path other than the design {args.design} (it would be overwritten)")
     notice = None if fmt not in FORMATS or ta is not None or args.quiet else size_notice(
         spec, output_path(spec, fmt, out, flat=opt.flat, max_refs=opt.max_refs, dwl=opt.dwl), fmt, opt)
     if notice:  # a multi-GB file is announced before its write starts

@@ -225,7 +225,8 @@ def camera_for(system: SystemDesign, opt: SimulationOptions) -> Camera:
         radiance, post_sets, posts, trains = _camera_optics.__wrapped__(system, fe, opt.posts, opt.optical_train)
     pol = Polarizer(rate_hz=system.polarizer_hz if opt.polarizer_hz is None else opt.polarizer_hz,
                     mode=opt.polarizer_mode,
-                    phase_rad=None if opt.polarizer_phase_deg is None else math.radians(opt.polarizer_phase_deg),
+                    phase_rad=None if opt.polarizer_phase_deg is None else math.radians(
+                        math.fmod(opt.polarizer_phase_deg, 360.0)),  # exact: 1e20 deg plus t's angle would not turn
                     extinction=system.polarizer_extinction if opt.extinction is None else opt.extinction,
                     tau_s=opt.bolometer_tau_s)
     return Camera(sensor, channels, fe, radiance, pol, trains, post_sets, posts)

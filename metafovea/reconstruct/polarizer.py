@@ -80,7 +80,7 @@ class PolarizerModel:
     def from_spec(cls, spec: PolarizerSpec, times_s: ArrayLike) -> PolarizerModel:
         """The model of a recording's polariser (:class:`~metafovea.measurement.PolarizerSpec`: its documented keys,
         flags, defaults) at the frame times ``times_s``."""
-        phase = None if spec.phase_deg is None else math.radians(spec.phase_deg)
+        phase = None if spec.phase_deg is None else math.radians(math.fmod(spec.phase_deg, 360.0))  # fmod: exact
         return cls(times_s, rate_hz=spec.rate_hz, mode=spec.mode, phase_rad=phase, extinction=spec.extinction,
                    tau_s=spec.tau_s)
 

@@ -91,6 +91,11 @@ def run_case(item: dict[str, Any]) -> dict[str, Any]:
             "alpha_mae": r.alpha_mae, "psf": meas.meta["psf"]["provider"], "n_sweep": item["radii"]}
 
 
+def _lp(limit: float) -> str:
+    """A resolution limit as the page and the summary print it: 'nowhere on the sweep' for NaN (never 'nan')."""
+    return f"{limit:.3g} lp/px" if np.isfinite(limit) else "nowhere on the sweep (no radius reaches 0.5)"
+
+
 def _trend(case: dict[str, Any]) -> dict[str, Any]:
     n = case["n_sweep"]
     m1 = np.array(case["curves"]["foveal"]["modulation"][:n])
@@ -107,14 +112,15 @@ def _trend(case: dict[str, Any]) -> dict[str, Any]:
     finer = bool(np.isnan(l2) or (np.isfinite(l1) and l1 > l2))
     return {"expected": "the foveal image resolves the spokes to much finer line pairs per pixel than the "
                         "upsampled perifoveal image, which loses contrast where the spokes get finer",
-            "observed": f"modulation >= 0.5 up to {l1:.3g} lp/px (foveal) and {l2:.3g} lp/px (perifoveal "
+            "observed": f"modulation >= 0.5 up to {_lp(l1)} (foveal) and {_lp(l2)} (perifoveal "
                         f"upsampled); foveal above perifoveal at {np.mean(m1 > m2):.0%} of the radii; perifoveal "
                         f"modulation {m2[-1]:.2f} at the largest radius, {m2[0]:.2f} at the finest radius",
             "holds": bool(better and peri_falls and finer), "foveal_limit_lp_per_px": l1,
             "perifoveal_limit_lp_per_px": l2,
             "note": "modulation = the spoke-frequency Michelson contrast of the reconstruction over the foveal "
                     "truth's on the same circle; the limit is the finest line pairs per pixel where it is still >= 0.5 "
-                    f"(NaN: nowhere). The perifoveal grid's Nyquist, 0.5 lp per perifoveal pixel, is 0.5/{EXPANSION} "
+                    "(null in the JSON, 'nowhere' in the text: no radius reaches it). The perifoveal grid's Nyquist, "
+                    f"0.5 lp per perifoveal pixel, is 0.5/{EXPANSION} "
                     f"lp per foveal pixel: its image can carry the 36 spokes only outside r = 36 x {EXPANSION} / pi "
                     f"= {36 * EXPANSION / np.pi:.0f} foveal px, so inside that radius its modulation is ~0 "
                     "(aliasing and blur), and the foveal one is limited by its own Nyquist (0.5 lp/px, the finest "

@@ -199,3 +199,14 @@ def test_a_large_write_is_announced_and_refused_without_the_space(tmp_path, caps
     assert rc == 2 and err.startswith("metafovea export: error: --out = ") and "enough free space" in err, err
     assert "1000 B free there" in err and len(err.splitlines()) == 1
     assert [p.name for p in tmp_path.iterdir()] == ["n.gds"]
+
+
+def test_export_never_overwrites_its_design_even_with_force(tmp_path, capsys, toml):
+    """`export d.gds --out d.gds --force` where d.gds is the design (a TOML under any name) replaced the design by
+    the layout; now refused with one line, the design intact."""
+    design = tmp_path / "d.gds"
+    design.write_text(toml.read_text())
+    assert main(["export", str(design), "--format", "gds", "--out", str(design), "--force"]) == 2
+    err = capsys.readouterr().err
+    assert "a path other than the design" in err and "Traceback" not in err
+    assert design.read_text() == toml.read_text()

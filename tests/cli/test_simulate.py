@@ -9,6 +9,7 @@ import pytest
 
 from metafovea.cli import main
 from metafovea.imaging.kernels import MAX_PSF_SIZE
+from metafovea.measurement import Measurement
 
 
 def test_cli_simulate(tmp_path, designs_dir, capsys):
@@ -249,3 +250,19 @@ def test_cli_simulate_says_which_psf_request_it_used(tmp_path, capsys):
     for c in ("foveal", "perifoveal"):
         line = next(ln for ln in text.splitlines() if ln.startswith(f"{c} PSF kernels: the recording asks for"))
         assert "one frame's noise" in line and "scene range" in line and "within the" in line
+
+
+def test_inputs_a_hunt_found_wrong(tmp_path, capsys):
+    """A pixel far below the wavelength (1 nm: the kernels asked for 454 GiB and crashed) is one line with the
+    range; a phase of 1e20 degrees still turns the polariser (its angle plus 1e20 was a constant in float64); a
+    noiseless camera (--netd 0, in the flag's range) writes a file the recording schema accepts."""
+    fast = ["--scene", "uniform", "--psf", "airy", "--no-tiff", "--no-preview"]
+    assert main(["simulate", *fast, "--frames", "2", "--pixel-um", "0.001", "--out", str(tmp_path / "p.npz")]) == 2
+    err = capsys.readouterr().err
+    assert "--pixel-um = 0.001 is invalid" in err and "1 um <= --pixel-um <= 1000 um" in err and "Traceback" not in err
+    assert main(["simulate", *fast, "--frames", "12", "--polarizer", "sync", "--phase-deg", "1e20",
+                 "--out", str(tmp_path / "ph.npz")]) == 0
+    a = Measurement.load(tmp_path / "ph.npz").alpha
+    assert a.max() - a.min() > 0.5
+    assert main(["simulate", *fast, "--frames", "2", "--netd", "0", "--out", str(tmp_path / "n.npz")]) == 0
+    assert Measurement.load(tmp_path / "n.npz").meta["netd_k"] == 0

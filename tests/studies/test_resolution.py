@@ -39,6 +39,9 @@ def test_resolution_fast(tmp_path, capsys):
     lp = np.array(res["lp_per_px"][:n])
     assert np.all(np.diff(lp) < 0) and lp[0] <= 0.5 + 1e-9  # finest first, no finer than the foveal Nyquist
     assert rep["trend"]["holds"]
+    # the perifoveal image reaches 0.5 nowhere on these radii: said in words, never 'nan' (page, summary), null in JSON
+    assert rep["trend"]["perifoveal_limit_lp_per_px"] is None and "nowhere on the sweep" in rep["trend"]["observed"]
+    assert "nan" not in printed.lower() and "nan lp" not in (out / "resolution.html").read_text()
     assert np.all(m1 > m2)
     assert m1[-1] > 0.5 and m1[-1] > m1[0]  # the foveal modulation falls toward the centre, as a real lens's
     assert np.all(m2 < 0.1)  # all these radii are inside the perifoveal Nyquist radius (~103 px)
