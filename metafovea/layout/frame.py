@@ -40,7 +40,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from metafovea.errors import InputError
-from metafovea.layout.bbox import union_bbox
+from metafovea.layout.bbox import moments, union_bbox
 from metafovea.units import NM_PER_UM
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -317,6 +317,16 @@ def expected_frame(spec: LayoutSpec) -> dict[tuple[int, int], tuple[int, tuple[i
     return {k: (v[0], tuple(v[1])) for k, v in out.items()}
 
 
+def expected_frame_moments(spec: LayoutSpec) -> dict[tuple[int, int], tuple[float, float, float]]:
+    """Per frame layer: the polygons' area and its first moments ``(A, Sx, Sy)`` (nm^2, nm^3,
+    :func:`~metafovea.layout.bbox.moments`) as an independent reader should find them: a mark moved, resized or
+    replaced inside its layer's bounding box changes them."""
+    out: dict[tuple[int, int], np.ndarray] = {}
+    for s in frame_shapes(spec):
+        out[s.layer] = out.get(s.layer, 0.0) + moments(s.points)
+    return {k: (float(v[0]), float(v[1]), float(v[2])) for k, v in out.items()}
+
+
 def frame_bbox_nm(spec: LayoutSpec) -> tuple[int, int, int, int] | None:
     """Bounding box of the whole frame (the wafer outline for a full lens), None for a patch."""
     ef = expected_frame(spec)
@@ -327,6 +337,7 @@ def frame_bbox_nm(spec: LayoutSpec) -> tuple[int, int, int, int] | None:
 
 
 __all__ = ["MAX_POINTS", "SEMI_FLAT_MM", "Shape", "annulus_sectors", "content_hash", "die_outline", "expected_frame",
+           "expected_frame_moments",
            "layout_date", "parse_label",
            "frame_bbox_nm", "frame_shapes", "mark2_boxes_nm", "mark_boxes_nm", "mark_centres_nm", "ring_polygons_nm",
            "vernier_origins_nm", "vernier_readout"]

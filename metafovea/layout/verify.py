@@ -23,7 +23,7 @@ from typing import Any
 import numpy as np
 
 from metafovea.errors import InputError, check_choice
-from metafovea.layout.frame import expected_frame, frame_bbox_nm
+from metafovea.layout.frame import expected_frame, expected_frame_moments, frame_bbox_nm
 from metafovea.layout.read import Observed, lattice_of, read_gdstk, read_klayout, read_stream, sniff_format
 from metafovea.layout.tiling import DBU_UM, Expected, LayoutSpec, drc_line, drc_summary, expected_content, has_frame
 
@@ -262,6 +262,7 @@ def frame_mismatches(ob: Observed, spec: LayoutSpec) -> list[str]:
     if ob.frame_layers is None:
         return []
     names = {v: k for k, v in vars(spec.layers).items()}
+    moms = expected_frame_moments(spec) if ob.frame_moments is not None else {}
     out = []
     for lay, (n, bb) in expected_frame(spec).items():
         got = ob.frame_layers.get(lay)
@@ -270,7 +271,34 @@ def frame_mismatches(ob: Observed, spec: LayoutSpec) -> list[str]:
         elif (got[0], tuple(got[1])) != (n, bb):
             out.append(f"layer {lay[0]}/{lay[1]} ({names.get(lay, '?')}): {got[0]} polygons in {tuple(got[1])} nm, "
                        f"expected {n} in {bb}")
+        elif ob.frame_moments is not None and lay in moms:
+            bad = moment_mismatch(ob.frame_moments.get(lay), moms[lay])
+            if bad:
+                out.append(f"layer {lay[0]}/{lay[1]} ({names.get(lay, '?')}): {bad}")
     return out
+
+
+#: the frame's area moments as read against the design's: relative area, and centroid shift in nm. The vertices
+#: are integers in nm on both sides (the layout's grid), so only the floating-point sums differ (~1e-12 relative,
+#: ~1e-3 nm far from the origin); a mark of a quarter of its layer's area moved by 1 nm shifts the centroid 0.25 nm
+FRAME_AREA_RTOL = 1e-9
+FRAME_CENTROID_NM = 0.1
+
+
+def moment_mismatch(got: Any, want: tuple[float, float, float]) -> str | None:
+    """What differs between a layer's moments as read (``(A, Sx, Sy)`` or None) and as designed, as a sentence, or
+    None when they agree within :data:`FRAME_AREA_RTOL` and :data:`FRAME_CENTROID_NM`."""
+    if got is None:
+        return None
+    a, sx, sy = (float(v) for v in got)
+    wa, wx, wy = want
+    if not abs(a - wa) <= FRAME_AREA_RTOL * abs(wa) + 1.0:
+        return f"polygons of {a:.10g} nm^2 in all, expected {wa:.10g}: a shape resized, added or removed"
+    cx, cy, wcx, wcy = sx / a, sy / a, wx / wa, wy / wa
+    if max(abs(cx - wcx), abs(cy - wcy)) > FRAME_CENTROID_NM:
+        return (f"the polygons' centroid at ({cx:.1f}, {cy:.1f}) nm, expected ({wcx:.1f}, {wcy:.1f}): a shape moved "
+                "inside the layer's bounding box")
+    return None
 
 
 def choose_reader(reader: str, fmt: str, size: int) -> str:

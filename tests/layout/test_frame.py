@@ -91,9 +91,11 @@ def test_vernier_reads_an_overlay_error(tmp_path, spec, exported):
             assert abs(got - want) <= spec.vernier_step_um / 2 + 1e-9, (axis, want, got)
 
 
-def _rewrite(src, dst, spec, *, drop_layer=None, move_layer=None, label=None):
+def _rewrite(src, dst, spec, *, drop_layer=None, move_layer=None, label=None, nudge=None, grow=None):
     """``src`` rewritten with gdstk: the top cell's first polygon on ``drop_layer`` removed, every polygon on
-    ``move_layer`` moved 10 um, or the text label replaced."""
+    ``move_layer`` moved 10 um, or the text label replaced; ``nudge=(layer, um)``: the layer's first polygon moved by
+    ``um`` towards its layer's centre along x and y (inside the layer's bounding box: the polygon count and the box
+    stay); ``grow=(layer, factor)``: that polygon scaled about its centre."""
     import gdstk
 
     oas = str(src).endswith(".oas")
@@ -105,6 +107,17 @@ def _rewrite(src, dst, spec, *, drop_layer=None, move_layer=None, label=None):
         for p in top.polygons:
             if (p.layer, p.datatype) == move_layer:
                 p.translate(10.0, 0.0)
+    for change in (nudge, grow):
+        if change is None:
+            continue
+        lay, v = change
+        polys = [p for p in top.polygons if (p.layer, p.datatype) == lay]
+        allp = np.concatenate([p.points for p in polys])
+        mid, c = (allp.min(0) + allp.max(0)) / 2, polys[0].points.mean(0)
+        if change is nudge:
+            polys[0].translate(*(v * np.sign(mid - c)))
+        else:
+            polys[0].scale(v, v, c)
     if label is not None:
         lb = top.labels[0]
         top.remove(lb)
@@ -112,10 +125,13 @@ def _rewrite(src, dst, spec, *, drop_layer=None, move_layer=None, label=None):
     lib.write_oas(str(dst)) if oas else lib.write_gds(str(dst))
 
 
-@pytest.mark.parametrize("fmt,reader", [("gds", "stream"), ("gds", "gdstk"), ("oas", "gdstk")])
+@pytest.mark.parametrize("fmt,reader", [("gds", "stream"), ("gds", "gdstk"), ("oas", "gdstk"), ("gds", "klayout"),
+                                        ("oas", "klayout")])
 def test_verify_fails_on_a_tampered_frame_or_label(tmp_path, tamper_spec, tamper_exported, fmt, reader):
     """A missing exposure-2 mark, a missing ring polygon, a moved label and a label of another design each fail (on
-    the tamper tests' smaller lens, its small frame); the untampered rewrite passes, also on another day."""
+    the tamper tests' smaller lens, its small frame); so do one alignment mark moved 20 nm or 10 um, and one made 1 %
+    larger, inside its layer's bounding box (the polygon count and the box unchanged: the layer's area moments catch
+    them); the untampered rewrite passes, also on another day."""
     spec = tamper_spec
     src = tamper_exported[fmt][0]
     L = spec.layers
@@ -124,7 +140,10 @@ def test_verify_fails_on_a_tampered_frame_or_label(tmp_path, tamper_spec, tamper
     assert verify_layout(same, spec, reader=reader).ok
     for name, kw, words in (("mark", dict(drop_layer=L.marks2), "4/0"),
                             ("ring", dict(drop_layer=L.aperture), "2/0"),
-                            ("label", dict(move_layer=L.printed), "6/0")):
+                            ("label", dict(move_layer=L.printed), "6/0"),
+                            ("nudge", dict(nudge=(L.marks, 0.02)), "moved inside the layer's bounding box"),
+                            ("move", dict(nudge=(L.marks2, 10.0)), "moved inside the layer's bounding box"),
+                            ("grow", dict(grow=(L.marks, 1.01)), "resized, added or removed")):
         bad = tmp_path / f"{name}.{fmt}"
         _rewrite(src, bad, spec, **kw)
         rep = verify_layout(bad, spec, reader=reader)

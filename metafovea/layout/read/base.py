@@ -9,9 +9,11 @@ import sys
 from collections import Counter
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 from metafovea.errors import InputError
 from metafovea.layout.bbox import BBox
+from metafovea.layout.bbox import moments as moments  # re-exported: the readers' home of the frame's geometry
 from metafovea.layout.bbox import union_bbox as union_bbox  # re-exported: the readers' old home of it
 from metafovea.layout.tiling import LayoutSpec
 
@@ -46,6 +48,20 @@ class Observed:
     #: (layer, datatype) -> [polygons, bbox] of every layer but the posts', through the hierarchy (None: not read)
     frame_layers: dict | None = None
     max_references: int = 0  # most reference records (SREF/AREF or instances) in one structure
+    #: (layer, datatype) -> [area, area x centroid x, area x centroid y] (nm^2, nm^3) of the same polygons
+    #: (:func:`moments`): a shape moved or resized inside its layer's bounding box changes them (None: not read)
+    frame_moments: dict | None = None
+
+
+def add_moments(table: dict, layer: tuple[int, int], m: Any, copies: int = 1, offsets: Any = None) -> None:
+    """Add ``copies`` placements of moments ``m`` (``(A, Sx, Sy)``) to ``table[layer]``; ``offsets``: the sum of the
+    placements' (x, y) offsets (nm; None: all at the origin)."""
+    e = table.setdefault(layer, [0.0, 0.0, 0.0])
+    a, sx, sy = (float(v) for v in m)
+    ox, oy = (0.0, 0.0) if offsets is None else (float(offsets[0]), float(offsets[1]))
+    e[0] += copies * a
+    e[1] += copies * sx + a * ox
+    e[2] += copies * sy + a * oy
 
 
 def read_label(path: Path, span: int = 4 << 20) -> str | None:

@@ -13,7 +13,7 @@ from typing import Any
 import numpy as np
 
 from metafovea.layout.bbox import union_bbox
-from metafovea.layout.read.base import Observed, captured_stderr, sniff_format
+from metafovea.layout.read.base import Observed, captured_stderr, moments, sniff_format
 
 
 def read_gdstk(path: Path, lattice: tuple[int, int, int] | None, posts_layer: tuple[int, int],
@@ -121,7 +121,8 @@ def read_gdstk(path: Path, lattice: tuple[int, int, int] | None, posts_layer: tu
     if sink is not None:
         _walk_posts(top, np.zeros(2, dtype=np.int64), is_post, list(post_names or []), posts_layer, sizes or {}, sink)
     refs, flatc, off, pbb, layers, frame = content(top)
-    ob.frame_layers = frame
+    ob.frame_layers = {k: v[:2] for k, v in frame.items()}
+    ob.frame_moments = {k: v[2:] for k, v in frame.items()}
     ob.ref_counts.update(refs)
     ob.flat_counts.update(flatc)
     ob.layers |= layers
@@ -140,19 +141,23 @@ def _frame_polygons(cell: Any, posts_layer: tuple[int, int], layers: set) -> dic
         layers.add((p.layer, p.datatype))
         if (p.layer, p.datatype) != posts_layer:
             pts = np.rint(p.points * 1e3).astype(np.int64)
-            e = frame.setdefault((p.layer, p.datatype), [0, None])
+            e = frame.setdefault((p.layer, p.datatype), [0, None, 0.0, 0.0, 0.0])
             e[0] += 1
             e[1] = union_bbox(e[1], (*pts.min(0).tolist(), *pts.max(0).tolist()))
+            e[2:] = (np.asarray(e[2:]) + moments(pts)).tolist()
     return frame
 
 
 def _add_placed(frame: dict, child: dict, pos: np.ndarray) -> None:
     """A child's per-layer polygons placed at ``pos`` (n, 2) nm, added to ``frame``."""
-    for lay, (fn, fb) in child.items():
-        e = frame.setdefault(lay, [0, None])
+    for lay, (fn, fb, a, sx, sy) in child.items():
+        e = frame.setdefault(lay, [0, None, 0.0, 0.0, 0.0])
         e[0] += len(pos) * fn
         e[1] = union_bbox(e[1], (fb[0] + int(pos[:, 0].min()), fb[1] + int(pos[:, 1].min()),
                                  fb[2] + int(pos[:, 0].max()), fb[3] + int(pos[:, 1].max())))
+        e[2] += len(pos) * a
+        e[3] += len(pos) * sx + a * float(pos[:, 0].sum())
+        e[4] += len(pos) * sy + a * float(pos[:, 1].sum())
 
 
 def _count_post_refs(origins: dict, placed: dict, s: float, lattice: tuple[int, int, int] | None, cell_rects: dict,

@@ -25,7 +25,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from metafovea.layout.read.base import Observed, sniff_format
+from metafovea.layout.read.base import Observed, moments, sniff_format
 
 if TYPE_CHECKING:
     import klayout.db as kdb
@@ -93,10 +93,11 @@ def read_klayout(path: Path, lattice: tuple[int, int, int] | None, posts_layer: 
                          {nm: k for k, nm in enumerate(post_names or [])})
     frame = _copy_frame(ly, frame)
     ly.update()
-    ob.frame_layers = {}
+    ob.frame_layers, ob.frame_moments = {}, {}
     for key, n, li in frame:
         fb = top.bbox_per_layer(li)
         ob.frame_layers[key] = [n, (fb.left, fb.bottom, fb.right, fb.top)]
+        ob.frame_moments[key] = _layer_moments(top, li)
     flatc, off, found = _flatten_posts(ly, top, passes, sizes or {}, lattice, sink)
     ob.flat_counts.update(flatc)
     ob.off_lattice = int(off)
@@ -230,6 +231,22 @@ def _frame_census(ly: kdb.Layout, held: Counter,
             info = ly.get_info(li)
             found.append(((info.layer, info.datatype), n, li, cells))
     return found
+
+
+def _layer_moments(top: kdb.Cell, li: int) -> list[float]:
+    """``[A, Sx, Sy]`` (:func:`~metafovea.layout.bbox.moments`, database units) of layer ``li``'s shapes in ``top``
+    through the hierarchy, each placed by its instances' transformations (holes subtracted)."""
+    tot = np.zeros(3)
+    it = top.begin_shapes_rec(li)
+    while not it.at_end():
+        poly = it.shape().polygon
+        if poly is not None:
+            poly = poly.transformed(it.trans())
+            tot += moments(np.array([(p.x, p.y) for p in poly.each_point_hull()], dtype=np.float64))
+            for h in range(poly.holes()):
+                tot -= moments(np.array([(p.x, p.y) for p in poly.each_point_hole(h)], dtype=np.float64))
+        it.next()
+    return tot.tolist()
 
 
 def _copy_frame(ly: kdb.Layout, found: list) -> list[tuple[tuple[int, int], int, int]]:

@@ -18,7 +18,7 @@ import numpy as np
 
 from metafovea.errors import InputError
 from metafovea.layout.bbox import union_bbox
-from metafovea.layout.read.base import Observed, sniff_format
+from metafovea.layout.read.base import Observed, add_moments, moments, sniff_format
 
 _SREF_T = np.array([0x00040A00, 0x00081206, 0, 0x000C1003, 0, 0, 0x00041100], dtype=np.uint32)
 _SREF_N = np.frombuffer(_SREF_T.astype(">u4").tobytes(), dtype=np.uint32)  # raw big-endian bytes, native view
@@ -96,6 +96,7 @@ class GdsScanner:
         self.structs: dict[str, None] = {}  # structure names, in file order
         self.refs: dict[str, dict[str, Any]] = {}  # structure -> sname -> {"n", "min", "max", "off"}
         self.flat: dict[str, dict[tuple, list]] = {}  # structure -> (layer, (w, h)) -> [n, bbox]
+        self.mom: dict[str, dict[tuple, list]] = {}  # structure -> layer -> [A, Sx, Sy] off the posts layer
         self.texts: dict[str, list] = {}
         self.off: dict[str, int] = {}  # posts off the lattice, per structure
         self.cand: dict[str, list] = {}  # SREF bounding-box candidates per structure
@@ -194,7 +195,7 @@ class GdsScanner:
     def _ref(self, name: str) -> dict[str, Any]:
         """The current structure's reference summary for child ``name``."""
         return self.refs.setdefault(self.cur, {}).setdefault(name, {"n": 0, "min": None, "max": None, "off": 0,
-                                                                          "records": 0})
+                                                                          "records": 0, "sx": 0, "sy": 0})
 
     def _sref_block(self, buf: bytes, pos: int) -> int:
         """Bytes of the run of plain 28-byte SREF groups (4-character SNAME, one point) at ``pos``, reduced
@@ -265,8 +266,11 @@ class GdsScanner:
             maxs = np.maximum.reduceat(xo, starts, axis=0)
             nbad = (np.add.reduceat(bad[order].astype(np.int64), starts) if bad is not None
                     else np.zeros(len(uw)))
+            sums = np.add.reduceat(xo, starts, axis=0)  # the placements' offsets summed (the frame's moments)
             for g, (w, n, b) in enumerate(zip(uw.tolist(), cnt.tolist(), nbad.tolist())):
                 rr = self._ref(_word_name(w))
+                rr["sx"] += int(sums[g, 0])
+                rr["sy"] += int(sums[g, 1])
                 rr["n"] += int(n)
                 rr["records"] += int(n)
                 rr["off"] += int(round(b))
@@ -281,15 +285,19 @@ class GdsScanner:
             inv = inv.reshape(-1)
             cnt = np.bincount(inv, minlength=len(uw))
             nbad = np.bincount(inv, weights=bad, minlength=len(uw)) if bad is not None else np.zeros(len(uw))
-            triples = zip(uw.tolist(), cnt.tolist(), nbad.tolist())
+            sums = np.stack([np.bincount(inv, weights=xy[:, k], minlength=len(uw)) for k in (0, 1)], 1)
+            triples = zip(uw.tolist(), cnt.tolist(), nbad.tolist(), sums.tolist())
         else:
             cnt = np.bincount(bins, minlength=65536)
             nz = np.flatnonzero(cnt)
             nbad = (np.bincount(bins, weights=bad, minlength=65536)[nz] if bad is not None
                     else np.zeros(nz.size))
-            triples = zip(rep[nz].tolist(), cnt[nz].tolist(), nbad.tolist())
-        for w, n, b in triples:
+            sums = np.stack([np.bincount(bins, weights=xy[:, k], minlength=65536)[nz] for k in (0, 1)], 1)
+            triples = zip(rep[nz].tolist(), cnt[nz].tolist(), nbad.tolist(), sums.tolist())
+        for w, n, b, (sx, sy) in triples:  # float sums of int offsets: exact below 2^53 (9e6 refs at 1e9 nm)
             rr = self._ref(_word_name(w))
+            rr["sx"] += sx
+            rr["sy"] += sy
             rr["n"] += int(n)
             rr["records"] += int(n)
             rr["off"] += int(round(b))
@@ -322,6 +330,12 @@ class GdsScanner:
                 kk = np.array([self.sizes.get((int(w), int(h)), -1)
                                for w, h in zip((x1 - x0)[onp].tolist(), (y1 - y0)[onp].tolist())], dtype=np.int64)
                 self.sink(((x0 + x1) // 2)[onp], ((y0 + y1) // 2)[onp], kk)
+        frame = ld != self.posts_layer[0] * 65536 + self.posts_layer[1]
+        if frame.any():  # the frame's area moments per layer (the posts' rectangles are checked one by one)
+            m = moments(xy[frame].reshape(-1, 5, 2))
+            md = self.mom.setdefault(cur, {})
+            for ldj in np.unique(ld[frame]).tolist():
+                add_moments(md, (ldj >> 16, ldj & 0xFFFF), m[ld[frame] == ldj].sum(0))
         key = ((x1 - x0) << 32) + (y1 - y0)
         comb = np.stack([ld, key], 1)
         uk, inv = np.unique(comb, axis=0, return_inverse=True)
@@ -356,6 +370,8 @@ class GdsScanner:
             rr["n"] += 1
             rr["records"] += 1
             p = xy[0]
+            rr["sx"] += int(p[0])
+            rr["sy"] += int(p[1])
             rr["min"] = p if rr["min"] is None else np.minimum(rr["min"], p)
             rr["max"] = p if rr["max"] is None else np.maximum(rr["max"], p)
             if el.get("strans") or el.get("magangle"):
@@ -374,6 +390,9 @@ class GdsScanner:
             rr = self._ref(el.get("sname", "?"))
             rr["n"] += cols * rows
             rr["records"] += 1
+            tot = cols * rows * o + dc * rows * cols * (cols - 1) // 2 + dr * cols * rows * (rows - 1) // 2
+            rr["sx"] += int(tot[0])
+            rr["sy"] += int(tot[1])
             corners = np.array([o, o + dc * (cols - 1), o + dr * (rows - 1), o + dc * (cols - 1) + dr * (rows - 1)])
             mn, mx = corners.min(0), corners.max(0)
             rr["min"] = mn if rr["min"] is None else np.minimum(rr["min"], mn)
@@ -404,6 +423,8 @@ class GdsScanner:
         if is_rect and lay == self.posts_layer and self.lattice is not None:
             cx, oP, P = self.lattice
             bad = int((((b[0] + b[2]) // 2 - cx - oP) % P != 0) or (((b[1] + b[3]) // 2 - cx - oP) % P != 0))
+        if lay != self.posts_layer:
+            add_moments(self.mom.setdefault(self.cur, {}), lay, moments(xy))
         # a general polygon: kept as a (layer, bbox) entry with a unique key
         e = fd.setdefault((lay, (b[2] - b[0], b[3] - b[1]) if is_rect else ("poly", len(fd))), [0, None])
         e[0] += 1
@@ -456,7 +477,7 @@ class GdsScanner:
     def _top(self, top: str, is_post) -> None:
         """Counts, layers, bounding boxes and posts off the lattice of the top cell, through the hierarchy."""
         ob = self.ob
-        P_, F_, off_top, T_ = self._content(top, is_post, {}, ())
+        P_, F_, off_top, T_, M_ = self._content(top, is_post, {}, ())
         pbb = None
         bb = None
         for nm, (n, _, mn, mx) in P_.items():
@@ -469,6 +490,7 @@ class GdsScanner:
                     pbb = union_bbox(pbb, b)
                 ob.layers.add((l_, d_))
         ob.frame_layers = {}
+        ob.frame_moments = {lay: list(m) for lay, m in M_.items() if lay != self.posts_layer}
         for (lay, wh), (n, b) in F_.items():
             ob.layers.add(lay)
             bb = union_bbox(bb, b)
@@ -494,9 +516,10 @@ class GdsScanner:
             return memo[S]
         if S in stack:
             self.ob.anomalies.append(f"structure {S} references itself")
-            return {}, {}, 0, []
+            return {}, {}, 0, [], {}
         P_: dict[str, list] = {}
         F_: dict = {k: [v[0], v[1]] for k, v in self.flat.get(S, {}).items()}
+        M_: dict = {k: list(v) for k, v in self.mom.get(S, {}).items()}
         offs = self.off.get(S, 0)
         T_ = list(self.texts.get(S, []))
         lat = self.lattice
@@ -515,7 +538,9 @@ class GdsScanner:
                     f"structure {nm} is placed {self.placements[nm]} time(s) at offsets {mn.tolist()}..{mx.tolist()}: "
                     "the streaming reader checks posts one by one only in structures placed once at the origin "
                     "(as metafovea writes them); use reader='gdstk'")
-            sP, sF, soff, sT = self._content(nm, is_post, memo, stack + (S,))
+            sP, sF, soff, sT, sM = self._content(nm, is_post, memo, stack + (S,))
+            for lay, m in sM.items():
+                add_moments(M_, lay, m, copies=n, offsets=(rr["sx"], rr["sy"]))
             if lat is not None and (np.any(mn != mx) or np.any(mn % lat[2] != 0)):
                 self.ob.anomalies.append(f"references to structure {nm} at offsets {mn.tolist()}..{mx.tolist()}: "
                                          "the lattice check needs them at one multiple of the period")
@@ -532,7 +557,7 @@ class GdsScanner:
                 e[1] = union_bbox(e[1], (b[0] + int(mn[0]), b[1] + int(mn[1]), b[2] + int(mx[0]), b[3] + int(mx[1])))
             offs += n * soff
             T_ += [(lay, x + int(mn[0]), y + int(mn[1])) for (lay, x, y) in sT]
-        memo[S] = (P_, F_, offs, T_)
+        memo[S] = (P_, F_, offs, T_, M_)
         return memo[S]
 
 
