@@ -310,6 +310,27 @@ def choose_reader(reader: str, fmt: str, size: int) -> str:
     return "klayout" if size < (16 << 20) else "gdstk"
 
 
+#: the GDSII end-of-library record (length 4, ENDLIB, no data)
+ENDLIB = b"\x00\x04\x04\x00"
+
+
+def trailing_bytes(path: Path, span: int = 1 << 20) -> list[str]:
+    """The mismatch for bytes after a GDSII file's last ENDLIB record that are not zero padding (tape-block padding
+    to 2048 bytes is zeros; anything else was appended), read from the file's last ``span`` bytes; none when the
+    file ends as written (or holds no ENDLIB there: the readers report a truncated file)."""
+    size = path.stat().st_size
+    with open(path, "rb") as fh:
+        fh.seek(max(0, size - span))
+        tail = fh.read()
+    end = tail.rfind(ENDLIB)
+    if end < 0:
+        return []
+    rest = tail[end + len(ENDLIB):]
+    junk = len(rest) - rest.count(0)
+    return [f"{len(rest):,} bytes after the library's end record (ENDLIB), {junk:,} of them not zero padding: "
+            "appended to the file"] if junk else []
+
+
 def label_spec(path: Path, spec: LayoutSpec) -> tuple[LayoutSpec, list[str]]:
     """``spec`` as the file's text label completes it (its date, which the printed label shows, and the patch when
     ``spec`` has none), and the mismatches the label shows: no label, a patch other than ``spec``'s, a content
@@ -334,6 +355,13 @@ def label_spec(path: Path, spec: LayoutSpec) -> tuple[LayoutSpec, list[str]]:
     if lab["hash"] != content_hash(spec):
         mm.append(f"the label's content hash {lab['hash']}, the design gives {content_hash(spec)} (another design, "
                   "post set, frame or write bias)")
+    if not mm:  # the hash fits: every other word of the label must be the design's too (an edited f=, D=, ...)
+        want = (replace(spec, patch_um=lab["patch_um"]) if lab["patch_um"] is not None else spec).label_text()
+        got_words, want_words = text.strip().split(" "), want.strip().split(" ")
+        if got_words != want_words:
+            diff = [w for w in got_words if w not in want_words][:3]
+            mm.append(f"the label reads {' '.join(diff) or 'other words'} where the design writes "
+                      f"{' '.join(w for w in want_words if w not in got_words)[:120] or 'them in another order'}")
     return spec, mm
 
 
@@ -360,9 +388,10 @@ def verify_layout(path: str | os.PathLike, spec: LayoutSpec, *, reader: str = "a
     fmt = sniff_format(path)
     size = path.stat().st_size
     reader = choose_reader(reader, fmt, size)
-    label_mm: list[str] = []
+    label_mm: list[str] = trailing_bytes(path) if fmt == "gds" else []
     if test_array is None:
-        spec, label_mm = label_spec(path, spec)
+        spec, more = label_spec(path, spec)
+        label_mm += more
     lat = lattice_of(spec)
     t0 = time.perf_counter()
     if test_array is not None:

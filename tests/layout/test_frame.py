@@ -156,6 +156,18 @@ def test_verify_fails_on_a_tampered_frame_or_label(tmp_path, tamper_spec, tamper
     assert not rep.ok and any("content hash" in m for m in rep.mismatches)
     later = replace(spec, date="2031-07-04")  # verified on another day: the file's date is used
     assert verify_layout(same, later, reader=reader).ok
+    # a label whose hash is kept but whose focal length is edited fails, naming the word
+    text = spec.label_text().replace(f" f={spec.design.f_mm:g}mm ", f" f={spec.design.f_mm + 1:g}mm ")
+    bad = tmp_path / f"f.{fmt}"
+    _rewrite(src, bad, spec, label=text)
+    rep = verify_layout(bad, spec, reader=reader)
+    assert not rep.ok and any(f"the label reads f={spec.design.f_mm + 1:g}mm" in m for m in rep.mismatches)
+    if fmt == "gds":  # bytes appended after the end record fail; zero padding to a tape block passes
+        (tmp_path / "pad.gds").write_bytes(same.read_bytes() + bytes(2048 - same.stat().st_size % 2048))
+        assert verify_layout(tmp_path / "pad.gds", spec, reader=reader).ok
+        (tmp_path / "junk.gds").write_bytes(same.read_bytes() + b"garbage\n")
+        rep = verify_layout(tmp_path / "junk.gds", spec, reader=reader)
+        assert not rep.ok and any("8 bytes after the library's end record" in m for m in rep.mismatches)
 
 
 def test_date_is_recorded_and_kept_on_resume(tmp_path, design, small_frame, monkeypatch):
