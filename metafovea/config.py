@@ -399,13 +399,20 @@ class _Reader:
             return default
         return check(self._key(key), self.t[key])
 
+    def _unquoted(self, k: str, v: Any) -> Any:
+        """``v`` unless it is a string: a TOML number is written without quotes (``"0.05"`` is text, which the
+        checks below would otherwise read as a number, as they do a command-line flag)."""
+        if isinstance(v, str):
+            raise InputError(k, v, "a number (TOML: without quotes)", self.src)
+        return v
+
     def num(self, key: str, default: Any, lo: float | None = 0.0, hi: float | None = None,
             unit: str = "", lo_inclusive: bool = False) -> float:
-        return self.get(key, default, lambda k, v: check_range(k, v, lo, hi, unit=unit, source=self.src,
-                                                              lo_inclusive=lo_inclusive))
+        return self.get(key, default, lambda k, v: check_range(k, self._unquoted(k, v), lo, hi, unit=unit,
+                                                              source=self.src, lo_inclusive=lo_inclusive))
 
     def int(self, key: str, default: Any, lo: int, hi: int) -> int:
-        return self.get(key, default, lambda k, v: check_int(k, v, lo, hi, source=self.src))
+        return self.get(key, default, lambda k, v: check_int(k, self._unquoted(k, v), lo, hi, source=self.src))
 
     def choice(self, key: str, default: Any, choices: tuple[str, ...]) -> str:
         return self.get(key, default, lambda k, v: check_choice(k, v, choices, source=self.src))
@@ -430,8 +437,9 @@ class _Reader:
             if not isinstance(v, list) or (n is not None and len(v) != n) or not v:
                 raise InputError(k, v, f"a list of {n if n else 'one or more'} numbers", self.src)
             if integer:
-                return tuple(check_int(k, x, int(lo) + 1, None if hi is None else int(hi), self.src) for x in v)
-            return tuple(check_range(k, x, lo, hi, source=self.src) for x in v)
+                return tuple(check_int(k, self._unquoted(k, x), int(lo) + 1, None if hi is None else int(hi), self.src)
+                             for x in v)
+            return tuple(check_range(k, self._unquoted(k, x), lo, hi, source=self.src) for x in v)
         return self.get(key, default, chk)
 
     def table(self, key: str) -> _Reader:
@@ -537,6 +545,9 @@ def load_system(path: str | Path) -> SystemDesign:
     path = Path(path)
     t = _read_toml(path)
     src = str(path)
+    if not t:  # every key has a default, so an empty file (a failed save, the wrong file) would pass as the paper's
+        raise InputError("system file", src, "a system TOML holding its keys ([files], [sensor], ...): this one is "
+                         "empty (no file at all runs the paper's prototype)")
     r = _Reader(t, src)
     r.text("name", "system")
     files = r.table("files")
@@ -572,7 +583,7 @@ def load_system(path: str | Path) -> SystemDesign:
         pixel_pitch_um=pitch,
         pitch_variants_um=s.nums("pitch_variants_um", ds.pitch_variants_um, None, 0.0, 1000.0),
         pixels=s.nums("pixels", ds.pixels, 2, 0, 100000, integer=True),
-        crop=s.nums("crop", ds.crop, 2, 0, 100000, integer=True),
+        crop=s.nums("crop", ds.crop, 2, 7, 8192, integer=True),  # 8..8192: imaging.sensor.SensorModel's range
         frame_rate_hz=s.num("frame_rate_hz", ds.frame_rate_hz, 0.0, 1e5),
         netd_k=s.num("netd_k", ds.netd_k, 0.0, 10.0, lo_inclusive=True),
         fpn_rank=s.int("fpn_rank", ds.fpn_rank, 0, 1000),

@@ -138,6 +138,9 @@ def load_npz(path: str | os.PathLike, name: str = "path") -> tuple[dict[str, np.
     p = Path(path)
     if not p.is_file():
         raise InputError(name, str(p), "an existing .npz file")
+    if not zipfile.is_zipfile(p) and not _is_npy(p):  # numpy's own message calls any other file "pickled"
+        raise InputError(name, str(p), "a readable .npz file written by metafovea",
+                         detail="not an .npz (zip) archive: another kind of file")
     try:
         z0 = np.load(p, allow_pickle=False)
         if not hasattr(z0, "files"):
@@ -151,6 +154,12 @@ def load_npz(path: str | os.PathLike, name: str = "path") -> tuple[dict[str, np.
     if not isinstance(meta, dict):
         raise InputError(name, str(p), "an .npz whose __meta__ is a JSON object")
     return arrays, meta
+
+
+def _is_npy(p: Path) -> bool:
+    """Whether ``p`` starts as a .npy file does (numpy's magic string)."""
+    with open(p, "rb") as fh:
+        return fh.read(6) == b"\x93NUMPY"
 
 
 def file_stem(name: str) -> str:

@@ -21,7 +21,9 @@ import concurrent.futures as cf
 import contextlib
 import os
 import sys
+import threading
 import time
+import weakref
 from collections.abc import Callable, Iterable, Iterator
 from typing import Any
 
@@ -46,8 +48,10 @@ def _duration(s: float) -> str:
 class LineProgress:
     """Progress as log lines on ``stream`` (default: stderr at each write), at most one per ``interval_s``:
     ``metafovea: DESC: 120/2000 step (6 %), 1 min 24 s, ETA 21 min 56 s; loss 0.0123``; on :meth:`close` a last
-    line with the total time, when a line was written before (a quick loop writes nothing). The methods are
-    tqdm's that the project uses (``update``, ``set_postfix``, ``set_postfix_str``, ``close``, context manager)."""
+    line with the total time, when a line was written before (a quick loop writes nothing). A loop whose steps take
+    longer than ``interval_s`` still writes a line every ``interval_s`` (a timer thread, holding the progress only
+    weakly and ending at :meth:`close`): a first task of minutes is not silent. The methods are tqdm's that the
+    project uses (``update``, ``set_postfix``, ``set_postfix_str``, ``close``, context manager)."""
 
     def __init__(self, total: int | None = None, desc: str = "", unit: str = "it", *, initial: int = 0,
                  interval_s: float | None = None, stream: Any = None):
@@ -59,6 +63,24 @@ class LineProgress:
         self.start_n = self.n
         self.lines = 0
         self.closed = False
+        self._lock = threading.Lock()
+        self._stop = threading.Event()
+        if type(self) is LineProgress and self.interval_s > 0:  # not the silent subclass; 0: a line per update
+            threading.Thread(target=LineProgress._tick, args=(weakref.ref(self), self._stop, self.interval_s),
+                             name="metafovea-progress", daemon=True).start()
+
+    @staticmethod
+    def _tick(ref: Any, stop: threading.Event, every: float) -> None:
+        """A line when ``every`` seconds passed without one (the loop's steps are slow), until closed."""
+        while not stop.wait(max(every, 0.01)):
+            bar = ref()
+            if bar is None or bar.closed:
+                return
+            with bar._lock:
+                if time.monotonic() - bar.last >= bar.interval_s:
+                    bar.last = time.monotonic()
+                    bar._write(bar._line())
+            del bar
 
     def _line(self, final: bool = False) -> str:
         el = time.monotonic() - self.t0
@@ -85,8 +107,9 @@ class LineProgress:
         self.n += int(n)
         now = time.monotonic()
         if now - self.last >= self.interval_s:
-            self.last = now
-            self._write(self._line())
+            with self._lock:
+                self.last = now
+                self._write(self._line())
 
     def set_postfix(self, ordered_dict: Any = None, refresh: bool = True, **kw: Any) -> None:
         items = {**(ordered_dict or {}), **kw}
@@ -96,9 +119,11 @@ class LineProgress:
         self.postfix = str(s)
 
     def close(self) -> None:
-        if not self.closed and self.lines:
-            self._write(self._line(final=True))
-        self.closed = True
+        self._stop.set()
+        with self._lock:
+            if not self.closed and self.lines:
+                self._write(self._line(final=True))
+            self.closed = True
 
     def __enter__(self) -> LineProgress:
         return self

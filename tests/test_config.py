@@ -95,6 +95,17 @@ def test_system_errors(tmp_path, designs_dir):
     sysf.write_text(text.replace("netd_k = 0.05", "netd_k = -0.05"))
     with pytest.raises(InputError, match="sensor.netd_k"):
         load_system(sysf)
+    # a number in quotes is text, not a number (it was read as one); a crop below the simulator's 8 px is refused
+    # at load with the file and key (it failed later without them); an empty file is not the paper's prototype
+    for old, new, key in (("netd_k = 0.05", 'netd_k = "0.05"', "sensor.netd_k = '0.05'"),
+                          ("crop = [290, 290]", "crop = [1, 1]", "sensor.crop = 1 is invalid; allowed: integer 8 <=")):
+        sysf.write_text(text.replace(old, new))
+        with pytest.raises(InputError, match=key) as e:
+            load_system(sysf)
+        assert str(sysf) in str(e.value)
+    sysf.write_text("")
+    with pytest.raises(InputError, match="this one is empty"):
+        load_system(sysf)
 
 
 def test_dataclass_validation():

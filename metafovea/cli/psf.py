@@ -17,7 +17,7 @@ import warnings
 from typing import Any
 
 from metafovea.cli.flags import flag_map, in_flags
-from metafovea.cli.options import add_shared, alias, emit, progress, workers_arg
+from metafovea.cli.options import add_shared, alias, emit, progress, show_progress, workers_arg
 from metafovea.cli.output import out_dir, stage_printer
 from metafovea.errors import InputError, NotConvergedWarning, PhysicsWarning, check_int, check_positive
 from metafovea.io import to_json
@@ -138,12 +138,16 @@ def run(args: argparse.Namespace) -> int:
     if args.window_um is not None:
         check_positive("--window-um", args.window_um, "um")
     jobs = workers_arg(args.workers)
-    summary = psf_reports(designs, out_dir(args, "psf"), force=args.force, fields_deg=args.field_deg, band_um=band,
-                          filter_um=filt, temperature_k=args.temperature_k, n_wavelengths=args.wavelength_bins,
-                          pixel_pitch_um=pixel_um, error=args.error, wavelength_um=args.wavelength_um,
-                          window_um=args.window_um, jobs=jobs, relay_magnification=relay, distances_um=distances,
-                          progress=progress(args), system=system, posts=args.posts, scheduler=args.scheduler,
-                          say=stage_printer(args, "psf"))
+    from metafovea.parallel import heartbeat
+
+    with heartbeat("psf reports", enabled=show_progress(args)):  # minutes (a far-defocused sensor): a line per 10 s
+        summary = psf_reports(designs, out_dir(args, "psf"), force=args.force, fields_deg=args.field_deg,
+                              band_um=band, filter_um=filt, temperature_k=args.temperature_k,
+                              n_wavelengths=args.wavelength_bins, pixel_pitch_um=pixel_um, error=args.error,
+                              wavelength_um=args.wavelength_um, window_um=args.window_um, jobs=jobs,
+                              relay_magnification=relay, distances_um=distances, progress=progress(args),
+                              system=system, posts=args.posts, scheduler=args.scheduler,
+                              say=stage_printer(args, "psf"))
     lenses = {k: v for k, v in summary.items() if k not in ("optical_train", "timing")}
     for name, s in lenses.items():  # each distinct one once, on one line (also those from worker processes)
         emit([f"{name}: {in_flags(w, flag_map('psf'))}" for w in s["warnings"]], PhysicsWarning)

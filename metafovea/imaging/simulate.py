@@ -34,6 +34,7 @@ import logging
 import math
 import os
 import time
+import warnings
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -691,6 +692,20 @@ def _model_meta(reduce: tuple[str, ...], plan: Plan | None) -> dict[str, Any]:
             **({"plan": plan.summary()} if plan is not None else {})}
 
 
+def _warn_if_looped(sc: Scene, times: np.ndarray) -> None:
+    """A video raster shorter than the recording repeats from its start (:class:`RasterScene`): said, since a
+    user who gave 5 frames for 24 sees their scene run through about five times."""
+    tk = getattr(sc, "temperature_k", None)
+    if tk is None or np.ndim(tk) != 3 or sc.static or not len(times):
+        return
+    rate = float(sc.frame_rate_hz)
+    used = math.floor(float(times[-1]) * rate + 1e-9) + 1  # scene frames the recording runs through
+    if used > tk.shape[0]:
+        warnings.warn(f"the scene's {tk.shape[0]} frames at {rate:g} frames/s last {tk.shape[0] / rate:.3g} s, "
+                      f"shorter than the recording ({len(times)} frames, {float(times[-1]):.3g} s): it plays "
+                      f"{used / tk.shape[0]:.2g} times, from its start again each time", UserWarning, stacklevel=3)
+
+
 def _simulate_with(system: SystemDesign, camera: Camera, scene: str | Path | Scene | np.ndarray,
                    opt: SimulationOptions, reduce: tuple[str, ...], tol: float | None,
                    rng: np.random.Generator | int | None, t_start: float, cache: dict | None = None) -> Measurement:
@@ -703,6 +718,7 @@ def _simulate_with(system: SystemDesign, camera: Camera, scene: str | Path | Sce
 
     times = sensor.frame_times(n_frames, opt.t0_s)
     sc = _scene_for(scene, system, camera, times, opt)
+    _warn_if_looped(sc, times)
     ss = check_int("supersample", opt.supersample if opt.supersample is not None else (3 if sc.static else 2), 1, 8)
     n_cal = check_int("calibration_frames", opt.calibration_frames, 0, 100_000)
     check_memory(n_frames, sensor.shape, video=not sc.static, calibration_frames=n_cal)

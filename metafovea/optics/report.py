@@ -582,8 +582,12 @@ def psf_reports(designs: Sequence[str | Path | LensDesign], out_dir: str | Path,
         check_positive(f"distance of lens '{name}'", z, "um")
     check_choice("posts", posts, POST_SOURCES)
     system = system or SystemDesign.paper()
+    made = not Path(out_dir).exists()
     with contextlib.ExitStack() as stack:
-        # a bad --scheduler is refused before out_dir is made
+        # a bad --scheduler is refused before out_dir is made; a folder this call made is removed again when a
+        # late error (a window too small for the PSF, found seconds in) leaves it empty
+        stack.callback(lambda: made and Path(out_dir).is_dir() and not any(Path(out_dir).iterdir())
+                       and Path(out_dir).rmdir())
         from metafovea.parallel import get_executor
 
         ex = stack.enter_context(get_executor(scheduler=scheduler)) if scheduler else None

@@ -19,7 +19,9 @@ there is an :class:`~metafovea.errors.InputError` naming its flag and the keys t
 
 from __future__ import annotations
 
-from collections.abc import Callable
+import contextlib
+import logging
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -116,10 +118,23 @@ def _scalar(v: Any) -> Any:
     return None
 
 
+@contextlib.contextmanager
+def _quiet_tifffile() -> Iterator[None]:
+    """tifffile's own log warnings (``invalid offset`` and the like) kept off stderr: a file it cannot read is one
+    line of ours (:func:`open_store`, :func:`read_recording`), not its log lines first."""
+    log = logging.getLogger("tifffile")
+    level = log.level
+    log.setLevel(logging.CRITICAL + 1)  # its ERROR lines too: our one line follows
+    try:
+        yield
+    finally:
+        log.setLevel(level)
+
+
 def _tiff_store(path: Path) -> _Store:
     import tifffile
 
-    with tifffile.TiffFile(path) as tif:
+    with _quiet_tifffile(), tifffile.TiffFile(path) as tif:
         attrs: dict[str, Any] = {}
         for md in (tif.imagej_metadata or {}, *(tif.shaped_metadata or ())):
             attrs.update({k: v for k, v in md.items() if k not in ("shape", "axes")})
@@ -128,7 +143,11 @@ def _tiff_store(path: Path) -> _Store:
     scalars = {k: s for k, v in attrs.items() if (s := _scalar(v)) is not None}
 
     def frames() -> np.ndarray:
-        a = tifffile.imread(path)
+        with _quiet_tifffile():
+            try:
+                a = tifffile.imread(path)
+            except (OSError, ValueError, KeyError, TypeError, IndexError) as e:
+                raise InputError("recording", str(path), "a readable TIFF stack", detail=str(e)[:200]) from None
         if a.ndim not in (2, 3):
             raise InputError("recording", str(path), "a TIFF stack of (T, H, W) grey frames",
                              detail=f"its first series has shape {series_shape}")

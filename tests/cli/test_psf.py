@@ -178,6 +178,7 @@ def test_bad_input_exit_2_one_line(tiny_toml, tmp_path, capsys, args, param):
     assert rc == 2
     lines = error_lines(err)
     assert len(lines) == 1 and param in lines[0] and "Traceback" not in err, err
+    assert not (tmp_path / "o").exists()  # nothing written: a late error left the folder it made (now removed)
 
 
 def test_field_limit_is_the_lens_field(tiny_toml, tmp_path):

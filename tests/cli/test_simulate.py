@@ -266,3 +266,13 @@ def test_inputs_a_hunt_found_wrong(tmp_path, capsys):
     assert a.max() - a.min() > 0.5
     assert main(["simulate", *fast, "--frames", "2", "--netd", "0", "--out", str(tmp_path / "n.npz")]) == 0
     assert Measurement.load(tmp_path / "n.npz").meta["netd_k"] == 0
+
+
+def test_a_video_scene_shorter_than_the_recording_is_said_to_repeat(tmp_path, capsys):
+    np.save(tmp_path / "vid.npy", 290.0 + 10.0 * np.random.default_rng(0).random((5, 32, 32)))
+    fast = ["--scene", str(tmp_path / "vid.npy"), "--psf", "airy", "--no-tiff", "--no-preview"]
+    assert main(["simulate", *fast, "--frames", "24", "--out", str(tmp_path / "a.npz")]) == 0
+    err = capsys.readouterr().err
+    assert "the scene's 5 frames at 12 frames/s last 0.417 s" in err and "it plays 4.8 times" in err, err
+    assert main(["simulate", *fast, "--frames", "5", "--out", str(tmp_path / "b.npz")]) == 0
+    assert "plays" not in capsys.readouterr().err

@@ -86,3 +86,20 @@ def test_a_long_step_without_a_loop_says_it_is_alive():
     with heartbeat("off", enabled=False, interval_s=0.01, stream=quiet):
         time.sleep(0.05)
     assert quiet.getvalue() == ""
+
+
+def test_a_loop_whose_first_step_is_slow_still_writes_a_line_every_interval():
+    """`design --period-um 100` started a library of ~28 s rows on 2 workers and printed nothing in its first minute
+    (a line came only with an update): the progress now writes on a timer when the steps are slower than the
+    interval, and stops at close."""
+    out = io.StringIO()
+    with LineProgress(3, "RCWA library", "task", interval_s=0.1, stream=out) as bar:
+        time.sleep(0.45)
+        assert len(out.getvalue().splitlines()) >= 3  # no update yet: the timer's lines
+        assert all(re.fullmatch(r"metafovea: RCWA library: 0/3 task \(0 %\), \d+ s", ln)
+                   for ln in out.getvalue().splitlines())
+        bar.update(3)
+    n = len(out.getvalue().splitlines())
+    time.sleep(0.3)
+    assert len(out.getvalue().splitlines()) == n  # closed: silent
+    assert re.search(r"3/3 task \(100 %\) in \d+ s$", out.getvalue().strip())

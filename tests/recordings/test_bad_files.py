@@ -88,3 +88,21 @@ def test_a_filter_outside_the_band_is_refused_without_a_calibration_too(tmp_path
     rc, out, err = cli("import", tmp_path / "r.tif", "--frame-rate", 12, "--filter-um", 100, 0.5, "--no-preview")
     assert rc == 2 and "--filter-um" in err and "inside the band 8-14 um" in err
     assert cli("import", tmp_path / "r.tif", "--frame-rate", 12, "--filter-um", 10, 0.5, "--no-preview")[0] == 0
+
+
+def test_a_truncated_tiff_is_our_one_line_without_tifffiles_log(tmp_path, cli):
+    tifffile.imwrite(tmp_path / "r.tif", _frames().astype(np.uint16))
+    (tmp_path / "cut.tif").write_bytes((tmp_path / "r.tif").read_bytes()[:3000])
+    rc, out, err = cli("import", tmp_path / "cut.tif", "--frame-rate", 12, "--no-preview")
+    # tifffile logs through logging (its last-resort handler writes to sys.stderr, which cli captures)
+    assert rc == 2 and "cut.tif" in err and "a readable TIFF stack" in err
+    assert "tifffile" not in err and len([ln for ln in err.splitlines() if ln.strip()]) == 1, err
+
+
+def test_a_file_that_is_no_npz_is_not_called_pickled(tmp_path, capsys):
+    from metafovea.cli import main
+
+    (tmp_path / "m.npz").write_text("hello")
+    assert main(["reconstruct", str(tmp_path / "m.npz")]) == 2
+    err = capsys.readouterr().err
+    assert "not an .npz (zip) archive" in err and "pickled" not in err
