@@ -59,6 +59,8 @@ def _shown(value: Any) -> str:
     ``6274.495703445411``), anything else as its repr."""
     if isinstance(value, float) or type(value).__name__ in ("float64", "float32"):
         return f"{float(value):.6g}"
+    if isinstance(value, (list, tuple)) and len(value) > 8:  # a recording's 96 alphas: the first few and the count
+        return "[" + ", ".join(_shown(v) for v in value[:4]) + f", ... ({len(value)} values)]"
     return repr(value)
 
 

@@ -22,6 +22,8 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from numpy.typing import ArrayLike
 
+from metafovea.errors import check_int
+
 if TYPE_CHECKING:
     from matplotlib.axes import Axes
     from matplotlib.colors import Colormap, Normalize
@@ -421,10 +423,10 @@ def plot_measurement(m: Measurement, ax: Axes | Sequence[Axes] | None = None, *,
     -------
     matplotlib Figure
     """
+    T = m.shape[0]
+    k = check_int("frame", frame, -T, T - 1) % T  # -1: the last; 99 of 12 showed frame 3
     fig, (a0, a1) = panels(ax, 2)
     units = m.meta.get("units", "DN")
-    T = m.shape[0]
-    k = int(frame) % T
     title = f"frame {k} of {T}, t = {m.times_s[k]:.3f} s"
     if m.alpha is not None and np.isfinite(m.alpha[k]):
         title += f", alpha = {m.alpha[k]:.2f}"

@@ -83,7 +83,14 @@ KEYWORD_ADVICE: dict[str, dict[str, str]] = {
 FILE_KEYS: dict[str, dict[str, str]] = {
     "simulate": {"temperature_k": "scene", "emissivity": "scene", "image": "scene"},
     "validate": {"temperature_k": "scene", "emissivity": "scene", "image": "scene"},
+    "reconstruct": {**{k: "measurement" for k in ("frames", "alpha", "times_s", "calibration", "flat_field",
+                                                  "theta_rad", "bad_pixels", "polarizer mode",
+                                                  "foveal_constraint.scale", "foveal_constraint.gain",
+                                                  "foveal_constraint.offset_dn")},
+                    "psf_x1": "psf", "psf_x2": "psf"},
 }
+#: the dests of FILE_KEYS that are positional arguments (the error names the file alone, not an option)
+POSITIONAL_FILES = {"measurement"}
 
 
 def flag_map(command: str) -> dict[str, str]:
@@ -128,7 +135,8 @@ def as_flag_error(command: str, err: InputError, args: argparse.Namespace | None
         return err
     dest = FILE_KEYS.get(command, {}).get(err.parameter)
     if dest is not None and args is not None and getattr(args, dest, None) is not None:
-        return err.located(f"--{dest.replace('_', '-')} {getattr(args, dest)}")
+        value = getattr(args, dest)
+        return err.located(str(value) if dest in POSITIONAL_FILES else f"--{dest.replace('_', '-')} {value}")
     head, _, rest = err.parameter.partition(" ")  # a part of a parameter ('filter_um width') names the flag too
     flag = flags.get(err.parameter) or (flags.get(head) if rest else None)
     if flag not in (None, "--out") and _not_typed(flag, args):  # from a file or a default (--out: its own words)

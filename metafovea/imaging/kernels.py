@@ -505,9 +505,11 @@ def build_channel_optics(channel: Channel, provider: PSFProvider, radiance: Band
     tr = check_positive("transmitted", transmitted, hi=1.0)
     ss = check_int("supersample", ss, 1, 8)
     pitch = channel.focal_pitch_um / ss
-    size = psf_size_px or (2 * int(math.ceil(3 * ss)) + 1)
+    size = 2 * int(math.ceil(3 * ss)) + 1 if psf_size_px is None else psf_size_px  # 0 is not "the default"
     size = check_int("psf_size_px", size, 1, MAX_PSF_SIZE)
-    size += 1 - size % 2
+    if size % 2 == 0:  # it was rounded up without a word
+        raise InputError("psf_size_px", size, f"an odd number of samples 1 <= psf_size_px <= {MAX_PSF_SIZE} (the "
+                         "PSF's centre is a sample)")
     lam_psf, w_psf = radiance.psf_wavelengths(channel.lens.wavelength_um, scene_temperature_k, n_psf_wavelengths)
     get, request, s_bound = _kernel_getter(channel, provider, pitch, lam_psf, w_psf, size, tr, accuracy)
     k0 = get(0.0)

@@ -1025,8 +1025,14 @@ def make_scene(name: str | Path | Scene | np.ndarray, geometry: SceneGeometry | 
         return name
     unit = _scene_unit(scene_unit)
     g = geometry or SceneGeometry()
+    if isinstance(name, (list, tuple)):  # nested lists of temperatures: an array (as a str they named a file)
+        name = np.asarray(name)
+        if name.dtype.kind not in "iuf":
+            raise InputError("scene", f"a list of {name.dtype}", "temperatures (nested lists of numbers, kelvin)")
     if isinstance(name, np.ndarray):
         return _array_scene(name, g, unit, **params)
+    if not isinstance(name, (str, Path)):
+        raise InputError("scene", type(name).__name__, "a scene name, a file, a Scene or an array of temperatures")
     key = str(name).strip()
     prefix, colon, spec = key.partition(":")
     family = SCENE_FAMILIES.get(prefix.lower()) if colon else None

@@ -43,7 +43,7 @@ from typing import Any
 import numpy as np
 
 from metafovea.config import SystemDesign, load_system
-from metafovea.errors import InputError, as_rng, check_int
+from metafovea.errors import InputError, as_float, as_rng, check_int
 from metafovea.imaging.channel import Channel, channels_for
 from metafovea.imaging.kernels import (
     KERNEL_NOISE_SHARE,
@@ -380,6 +380,10 @@ def _options(options: SimulationOptions | None, overrides: dict[str, Any]) -> Si
         if bad:
             raise InputError("option", sorted(bad)[0], "a field of SimulationOptions")
         opt = replace(opt, **overrides)
+    for name in ("polarizer_phase_deg", "t0_s"):  # NaN ran the whole model into all-NaN frames, blamed on them
+        v = getattr(opt, name)
+        if v is not None:
+            as_float(name, v)
     return opt
 
 

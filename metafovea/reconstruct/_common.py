@@ -11,7 +11,7 @@ from typing import Any, TypeVar
 import numpy as np
 from numpy.typing import ArrayLike
 
-from metafovea.errors import InputError
+from metafovea.errors import InputError, as_float
 
 #: methods of the PSF-aware step (:func:`metafovea.reconstruct.deconvolve.separate_deconvolve`), named here so that
 #: the command line lists them without loading that step
@@ -94,6 +94,7 @@ def valid_mask(frames: np.ndarray, saturation: float | None = None) -> np.ndarra
     """Boolean ``(T, H, W)`` mask of usable samples, or ``None`` when every sample is usable."""
     bad = ~np.isfinite(frames)
     if saturation is not None:
+        saturation = as_float("saturation", saturation)  # 'x' reached numpy's UFuncTypeError
         with np.errstate(invalid="ignore"):
             bad |= frames >= saturation
     if not bad.any():
@@ -111,6 +112,19 @@ class Timings(dict):
             yield
         finally:
             self[name] = self.get(name, 0.0) + (time.perf_counter() - t0)
+
+
+#: the foveal constraint's keywords, which the pipeline hands every solver and the known-alpha ones do not use
+GEOMETRY_KEYWORDS = ("scale", "foveal_gain", "foveal_offset")
+
+
+def check_keywords(kw: dict[str, Any], allowed: Any, where: str) -> None:
+    """Refuse the first keyword of ``kw`` not in ``allowed`` (a typo, ``windw=4``, was silently ignored or reached
+    a solver as Python's own TypeError), naming ``where`` and what it takes."""
+    for k, v in kw.items():
+        if k not in allowed:
+            takes = ", ".join(sorted(allowed)) or "no further keywords"
+            raise InputError(k, v, f"a keyword that {where} takes ({takes})")
 
 
 def with_overrides(cls: type[O], options: O | None, overrides: dict[str, Any]) -> O:

@@ -14,6 +14,7 @@ Measured figures: BENCHMARKS.md, section "Reconstruction".
 from __future__ import annotations
 
 import contextlib
+import inspect
 import math
 import time
 import warnings
@@ -26,7 +27,13 @@ from numpy.typing import ArrayLike
 
 from metafovea.errors import InputError, check_choice
 from metafovea.measurement import FovealConstraint, Measurement, PolarizerSpec
-from metafovea.reconstruct._common import CALIBRATION_FRAMES, DEFAULT_WINDOW, SHORT_SEQUENCE
+from metafovea.reconstruct._common import (
+    CALIBRATION_FRAMES,
+    DEFAULT_WINDOW,
+    GEOMETRY_KEYWORDS,
+    SHORT_SEQUENCE,
+    check_keywords,
+)
 from metafovea.reconstruct.auto import choose_method
 from metafovea.reconstruct.denoise import denoise as denoise_image
 from metafovea.reconstruct.fpn import estimate_fpn
@@ -127,7 +134,8 @@ def reconstruct(frames: ArrayLike, alpha: ArrayLike | None = None, method: str =
         if alpha is None:
             raise InputError("alpha", None, "mixing ratios (T,) for method='lsq'; use method='alternating' or 'dip' "
                              "when they are unknown")
-        kw = {k: v for k, v in kw.items() if k not in ("scale", "foveal_gain", "foveal_offset")}
+        kw = {k: v for k, v in kw.items() if k not in GEOMETRY_KEYWORDS}
+        check_keywords(kw, tuple(inspect.signature(lsq_known_alpha).parameters)[2:], "lsq_known_alpha")
         rec = lsq_known_alpha(frames, alpha, **kw)
     elif method == "alternating":
         if alpha is not None:

@@ -34,6 +34,7 @@ Measured figures: BENCHMARKS.md, section "Reconstruction".
 
 from __future__ import annotations
 
+import inspect
 import logging
 import math
 from collections import deque
@@ -42,8 +43,16 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, DTypeLike
 
-from metafovea.errors import InputError, as_float, check_int
-from metafovea.reconstruct._common import Timings, as_alpha, as_frames, estimate_noise, image_dtype, valid_mask
+from metafovea.errors import InputError, as_float, check_int, check_range
+from metafovea.reconstruct._common import (
+    Timings,
+    as_alpha,
+    as_frames,
+    check_keywords,
+    estimate_noise,
+    image_dtype,
+    valid_mask,
+)
 from metafovea.reconstruct.denoise import denoise as denoise_image
 from metafovea.reconstruct.result import Reconstruction
 
@@ -259,7 +268,12 @@ def lsq_known_alpha(frames: ArrayLike, alpha: ArrayLike, *, max_condition: float
         Y = as_frames(frames, min_frames=2)
         T, H, W = Y.shape
         a = as_alpha(alpha, T)
-        max_condition = as_float("max_condition", max_condition)
+        max_condition = check_range("max_condition", max_condition, 1.0, None, lo_inclusive=True)  # <= 0 blamed alpha
+        if noise_sigma is not None:
+            noise_sigma = check_range("noise_sigma", noise_sigma, 0.0, None)
+        if denoise_kw:
+            check_keywords(dict(denoise_kw), tuple(inspect.signature(denoise_image).parameters)[3:],
+                           f"denoise '{denoise}'")
         Wt, info = solve_weights(a, max_condition=max_condition, regularize=regularize)
         dt = image_dtype(Y)
         M = valid_mask(Y, saturation)

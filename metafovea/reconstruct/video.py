@@ -30,7 +30,15 @@ from numpy.typing import ArrayLike
 
 from metafovea.errors import InputError, check_choice, check_int
 from metafovea.parallel import progress_iter
-from metafovea.reconstruct._common import Timings, as_alpha, as_frames, image_dtype, valid_mask
+from metafovea.reconstruct._common import (
+    GEOMETRY_KEYWORDS,
+    Timings,
+    as_alpha,
+    as_frames,
+    check_keywords,
+    image_dtype,
+    valid_mask,
+)
 from metafovea.reconstruct.denoise import denoise as denoise_image
 from metafovea.reconstruct.lsq import MAX_CONDITION, lsq_known_alpha, residual_sigma, solve_weights
 from metafovea.reconstruct.result import Reconstruction
@@ -277,6 +285,7 @@ def video(frames: ArrayLike, alpha: ArrayLike | None = None, *, window: int = 8,
     it = progress_iter(range(K), f"reconstruct ({method})", "window", enabled=progress)
     gains = None
     if method == "lsq":
+        check_keywords({k: v for k, v in kw.items() if k not in GEOMETRY_KEYWORDS}, (), "video with method='lsq'")
         if alpha is None:
             raise InputError("alpha", None, "mixing ratios (T,) for method='lsq' (or use method='alternating')")
         a = as_alpha(alpha, T)

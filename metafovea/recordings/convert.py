@@ -20,7 +20,7 @@ from typing import Any
 
 import numpy as np
 
-from metafovea.errors import InputError, check_choice
+from metafovea.errors import InputError, as_float, check_choice
 from metafovea.measurement import FovealConstraint, Measurement, PolarizerSpec
 from metafovea.radiometry import BAND_UM, check_band, check_filter, spectral_support_um
 from metafovea.recordings.calibration import (
@@ -33,7 +33,7 @@ from metafovea.recordings.calibration import (
     parse_two_point,
     two_point,
 )
-from metafovea.recordings.read import Recording, read_recording
+from metafovea.recordings.read import FORMATS, FRAME_AXES, TIME_UNITS, Recording, read_recording
 from metafovea.recordings.timestamps import check_timing, frame_times
 
 #: ``--polarizer-unit`` choices: angles in radians or degrees, or the mixing ratio alpha itself
@@ -62,6 +62,19 @@ class ImportOptions:
     #: the polariser (:class:`~metafovea.measurement.PolarizerSpec` keywords: rate_hz, mode, phase_deg, extinction,
     #: tau_s): written as the recording schema's keys, before what the recorded angles give
     polarizer: dict[str, Any] | None = None
+
+    def __post_init__(self) -> None:
+        """The options checked when made (a string rate reached numpy's TypeError; a calibration mode or time unit
+        was never looked at when the file had no calibration or times to apply it to)."""
+        for name in ("frame_rate_hz", "foveal_gain", "scale"):
+            v = getattr(self, name)
+            if v is not None:
+                object.__setattr__(self, name, as_float(name, v))
+        check_choice("calibration_gain", self.calibration_gain, GAIN_MODES)
+        check_choice("format", self.format, FORMATS)
+        check_choice("frame_axis", self.frame_axis, FRAME_AXES)
+        if self.time_unit is not None:
+            check_choice("time_unit", self.time_unit, tuple(TIME_UNITS))
 
 
 def _polarizer(rec: Recording, kept: np.ndarray, times: np.ndarray, unit: str | None) -> tuple[dict[str, Any],

@@ -25,7 +25,7 @@ from typing import Any
 
 import numpy as np
 
-from metafovea.errors import InputError
+from metafovea.errors import InputError, check_range
 
 #: an interval longer than this many nominal intervals is a gap of dropped frames
 GAP_FACTOR = 1.5
@@ -105,8 +105,15 @@ def check_timing(frames: np.ndarray, times_s: np.ndarray, *, times_from: str = "
 
     ``frame_rate_hz``: the nominal rate when known (the user's ``frame_rate_hz`` next to the file's times); the
     median interval otherwise."""
-    t = np.asarray(times_s, dtype=np.float64)
+    t = np.asarray(times_s, dtype=np.float64).reshape(-1)
     n = t.size
+    nf = int(np.shape(frames)[0]) if np.ndim(frames) else 0
+    if n != nf or n < 1:  # 12 frames with 5 times kept 5 frames without a word; 5 with 12 ran past the frames
+        raise InputError("times", f"{n} timestamps", f"one per frame ({nf}), at least one")
+    if not np.all(np.isfinite(t)):
+        raise InputError("times", f"{int(np.sum(~np.isfinite(t)))} NaN/inf timestamp(s)", "finite times in seconds")
+    if frame_rate_hz is not None:
+        check_range("frame_rate_hz", frame_rate_hz, 0.0, 1e6, unit="Hz")
     dt = np.diff(t)
     if np.any(dt < 0):
         i = int(np.argmax(dt < 0))

@@ -117,3 +117,19 @@ def test_a_dead_pixel_prints_no_numpy_warning(tmp_path, capsys, method):
     assert rc == 0, err
     assert "slice" not in err and "RuntimeWarning" not in err, err
     assert "NaN value(s) in x1/x2" in out
+
+
+def test_an_error_in_the_files_arrays_names_the_file_and_keeps_to_one_short_line(tmp_path, capsys):
+    """A NaN alpha was printed as all its 24 values with no file named; a NaN calibration named no file."""
+    path, a = _save(tmp_path / "m.npz")
+    with np.load(path) as z:
+        arrays = {k: z[k] for k in z.files}
+    arrays["alpha"] = np.full(24, np.nan)
+    np.savez(tmp_path / "a.npz", **arrays)
+    rc, _, err = _run([tmp_path / "a.npz", "--out", tmp_path / "r.npz"], capsys)
+    assert rc == 2 and "a.npz: alpha = [nan, nan, nan, nan, ... (24 values)] is invalid" in err, err
+    arrays["alpha"] = a
+    arrays["calibration"] = np.full((4, 48, 48), np.nan, dtype=np.float32)
+    np.savez(tmp_path / "c.npz", **arrays)
+    rc, _, err = _run([tmp_path / "c.npz", "--out", tmp_path / "r.npz"], capsys)
+    assert rc == 2 and "c.npz: calibration = " in err, err

@@ -236,3 +236,23 @@ def test_the_focal_shift_correction_brings_the_direction_sine_model_closer_to_th
         assert e_corr < 0.3 * e_raw, (lens.name, e_corr, e_raw)
     pu = build_pupils(LensDesign("d15", 3000.0, 2000.0), 10.0).focus
     assert pu.li_wolf() == (pu, 1.0)
+
+
+def test_encircled_energy_holds_over_many_rings_against_the_airy_closed_form():
+    """An ideal lens of NA 0.025 (paraxial: the Airy pattern's ``1 - J0(v)^2 - J1(v)^2``, v = k NA r, holds to
+    ~NA^2): each radius alone, out to 1,600 rings (r = 10 cm), within 5e-5, the same as all radii in one call, and
+    never falling as the radius grows. With 400 nodes over the whole interval the fraction was 5e-4 and 8e-4 off at
+    6 and 10 cm (and on the paper's perifoveal lens fell from 0.91 to 0.80 between 3 and 10 cm)."""
+    from scipy.special import j0, j1
+
+    from metafovea.config import LensDesign
+    from metafovea.optics import encircled_energy_on_axis
+
+    lens = LensDesign("airy", 1.0e5, 5.0e3)
+    r = np.array([50.0, 1e3, 1e4, 3e4, 6e4, 1e5])
+    single = np.array([encircled_energy_on_axis(lens, x, quantize=False, lattice=False) for x in r])
+    together = encircled_energy_on_axis(lens, r, quantize=False, lattice=False)
+    v = 2 * np.pi / lens.wavelength_um * lens.na * r
+    assert np.max(np.abs(single - (1 - j0(v) ** 2 - j1(v) ** 2))) < 5e-5
+    assert np.max(np.abs(single - together)) < 1e-10
+    assert np.all(np.diff(single) > 0)
