@@ -462,6 +462,9 @@ _REQUIRED = object()
 def load_platform(path: str | Path) -> PlatformDesign:
     """Load ``platform.toml``."""
     t = _read_toml(path)
+    if not t:  # every key has a default: an empty file would pass as the paper's platform
+        raise InputError("platform file", str(path), "a platform TOML holding its keys (period_um, height_um, ...): "
+                         "this one is empty (no file at all uses the paper's platform)")
     r = _Reader(t, str(path))
     d = PlatformDesign()
     r.text("name", "platform")

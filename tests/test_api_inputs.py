@@ -92,3 +92,12 @@ def test_timing_and_import_options():
         with pytest.raises(InputError) as e:
             ImportOptions(**kw)
         assert e.value.parameter == next(iter(kw))
+
+
+def test_a_scene_hotter_than_the_radiance_table_is_refused_when_made():
+    """validate --scene of 1e9 K ran the design and PSF stages (~3 s) and left an empty folder before its radiance
+    was looked up and refused."""
+    from metafovea.imaging.scene import make_scene
+
+    with pytest.raises(InputError, match=r"\[0, 3000\] K"):
+        make_scene(np.full((16, 16), 1e9))

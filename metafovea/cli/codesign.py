@@ -7,6 +7,7 @@ import argparse
 import re
 from typing import Any
 
+from metafovea.cli.flags import flag_map, in_flags
 from metafovea.cli.options import add_shared, show_progress
 
 
@@ -68,7 +69,8 @@ def run(args: argparse.Namespace) -> int:
               f"(co-designed): {d['gain']:.3f}x; no phase profile can exceed {d['line_bound_gain_limit']:.3f}x")
         for line in d["bandwidth_limit"]:
             print(f"  {line}")
-        print(f"  {d['sampling']['why']}")
+        print(f"  {d['sampling']['why']}" + "".join(f"\n  warning: {in_flags(w, flag_map('codesign'))}"
+                                                     for w in d.get("warnings") or []))
         if "production_check" in d:
             print(f"  production engine: {d['production_check']['gain_production']:.3f}x")
     print(f"written to {args.out}: system.toml, foveal.toml, perifoveal.toml, platform.toml, codesign.json, "

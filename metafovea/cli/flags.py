@@ -141,8 +141,9 @@ def as_flag_error(command: str, err: InputError, args: argparse.Namespace | None
     flag = flags.get(err.parameter) or (flags.get(head) if rest else None)
     if flag not in (None, "--out") and _not_typed(flag, args):  # from a file or a default (--out: its own words)
         note = f"not typed: the file's value or the default; {flag} sets it"
-        err = InputError(err.parameter, err.value, err.allowed, source=err.source,
-                         detail=note if err.detail is None else f"{err.detail}; {note}")
+        if flag not in (err.detail or ""):  # a detail that already names the flag says it (codesign's cap)
+            err = InputError(err.parameter, err.value, err.allowed, source=err.source,
+                             detail=note if err.detail is None else f"{err.detail}; {note}")
     elif err.parameter in flags:
         err = err.renamed(flags[err.parameter])
     elif rest and head in flags:

@@ -55,6 +55,7 @@ def run(args: argparse.Namespace) -> int:
     from metafovea.io import prepare_output, to_json
     from metafovea.library import LibraryOptions, PlatformSweep, choose_harmonics
     from metafovea.library.report import library_report
+    from metafovea.library.select import MAX_BIAS_WEIGHT
 
     src = args.platform_file
     plat = load_platform(src) if src else PlatformDesign()
@@ -70,7 +71,7 @@ def run(args: argparse.Namespace) -> int:
                              use_cache=not args.no_cache,
                              workers=workers_arg(args.workers), scheduler=args.scheduler,
                              progress=show_progress(args))
-    bias_weight = check_range("--bias-weight", args.bias_weight, 0.0, None, lo_inclusive=True)
+    bias_weight = check_range("--bias-weight", args.bias_weight, 0.0, MAX_BIAS_WEIGHT, lo_inclusive=True)
     sweep = PlatformSweep(plat, levels, step, wls, options, source=src,  # checks the platform and the grid
                           bias_weight=bias_weight)
     out = prepare_output(args.out, args.force, is_dir=True) if args.out else None

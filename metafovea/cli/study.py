@@ -57,7 +57,10 @@ def run(args: argparse.Namespace) -> int:
     out = prepare_output(out_dir(args, "study", args.name), args.force, is_dir=True)
     opts = StudyOptions(fast=args.fast, seed=seed, workers=workers, scheduler=args.scheduler,
                         progress=show_progress(args))
-    res = run_study(args.name, opts, out, force=True)
+    from metafovea.parallel import heartbeat
+
+    with heartbeat(f"study {args.name}", enabled=show_progress(args)):  # a full-size study's first minutes
+        res = run_study(args.name, opts, out, force=True)
     if args.json:
         print(to_json(res.to_json()))
         return 0

@@ -165,13 +165,23 @@ def run_codesign(system_file: str | Path | None, options: Any, out_dir: str | Pa
     (:func:`metafovea.codesign.run.codesign`, checkpoints in ``out_dir``: a stopped run resumes), write everything
     (:func:`write_codesign`) and return the summary."""
     from metafovea.config import SystemDesign, load_system
+    from metafovea.errors import InputError
 
     from .run import codesign
 
     system = SystemDesign.paper() if system_file is None else load_system(system_file)
     out = Path(out_dir)
+    if system_file is not None and Path(system_file).resolve().parent == out.resolve():  # --force included
+        raise InputError("out", str(out), f"a folder other than the input's ({system_file}): the run writes "
+                         "system.toml and the lens files there, over the files it reads")
+    made = not out.exists()
     _prepare(out, force)
-    result = codesign(system, options, checkpoint_dir=out)
+    try:
+        result = codesign(system, options, checkpoint_dir=out)
+    except BaseException:  # refused before any step (a cap, a bad band): the folder this call made goes again
+        if made and out.is_dir() and not any(out.iterdir()):
+            out.rmdir()
+        raise
     write_codesign(result, out, check=check)
     import json
 

@@ -47,6 +47,7 @@ from metafovea.config import (
     PAPER_RELAY_MAGNIFICATION,
 )
 from metafovea.errors import InputError, check_positive, check_range
+from metafovea.radiometry import T_MAX_K
 
 log = logging.getLogger(__name__)
 
@@ -633,9 +634,10 @@ class RasterScene(Scene):
         t = np.asarray(self.temperature_k, dtype=np.float64)
         if t.ndim not in (2, 3) or min(t.shape[-2:]) < 2:
             raise InputError("temperature_k", f"array of shape {t.shape}", "a (h, w) or (T, h, w) array, h, w >= 2")
-        if not np.all(np.isfinite(t)) or float(t.min()) < 0:
-            raise InputError("temperature_k", _worst(t, 0.0, math.inf),
-                             "finite temperatures >= 0 K (kelvin, not Celsius)")
+        if not np.all(np.isfinite(t)) or float(t.min()) < 0 or float(t.max()) > T_MAX_K:  # the radiance table's end:
+            # a 1e9 K raster was refused only when its radiance was looked up, after the optics' work
+            raise InputError("temperature_k", _worst(t, 0.0, T_MAX_K),
+                             f"finite temperatures in [0, {T_MAX_K:g}] K (kelvin, not Celsius)")
         check_positive("half_width_rad", self.half_width_rad, "rad", hi=math.pi / 2)
         e = np.asarray(self.emissivity, dtype=np.float64)
         if e.ndim and e.shape != t.shape[-2:]:

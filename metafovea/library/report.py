@@ -137,11 +137,17 @@ def library_report(sweep: PlatformSweep, *, harmonics_choice: HarmonicsChoice | 
     t0 = time.perf_counter()
     lib = sweep.library()
     elapsed = time.perf_counter() - t0
-    sets = sweep.select(lib)
-    bound = convergence_bounds(lib, sweep)
-    delta = sweep.platform.edge_bias_um
-    il = int(np.argmin(np.abs(lib.wavelengths_um - sweep.design_wavelength_um)))
-    bias = {pol: bias_table(lib, ps.widths_um, pol, delta, il) for pol, ps in sets.items()} if delta > 0 else {}
+    from metafovea.parallel import heartbeat
+
+    # the library may come from the cache in no time; what follows solves posts directly (the convergence bound's
+    # extra sweep, the edge-bias table: 6 s on idle cores, ~50 s under load): a line every 10 s says so
+    with heartbeat("library: post selection, convergence bound and edge-bias table (direct RCWA solves)",
+                   enabled=sweep.options.progress):
+        sets = sweep.select(lib)
+        bound = convergence_bounds(lib, sweep)
+        delta = sweep.platform.edge_bias_um
+        il = int(np.argmin(np.abs(lib.wavelengths_um - sweep.design_wavelength_um)))
+        bias = {pol: bias_table(lib, ps.widths_um, pol, delta, il) for pol, ps in sets.items()} if delta > 0 else {}
     return LibraryReport(lib, sets, sweep.design_wavelength_um, elapsed, bias, bound, harmonics_choice)
 
 
@@ -212,8 +218,9 @@ def selected_posts_png(lib: Library, il: int, post_sets: dict[str, PostSet]) -> 
     fig, axs = plt.subplots(2, 2, figsize=(10, 8))
     for j, (pol, ps) in enumerate(post_sets.items()):
         t = getattr(lib, f"t_{pol}")[il]
-        axs[0, j].imshow(np.angle(t) % (2 * np.pi), origin="lower", extent=ext, cmap="twilight", vmin=0,
-                         vmax=2 * np.pi, aspect="auto")
+        im = axs[0, j].imshow(np.angle(t) % (2 * np.pi), origin="lower", extent=ext, cmap="twilight", vmin=0,
+                              vmax=2 * np.pi, aspect="auto")
+        fig.colorbar(im, ax=axs[0, j], label=f"phase of t_{pol} (rad)")
         axs[0, j].plot(ps.widths_um[:, 1] / p, ps.widths_um[:, 0] / p, "o", mfc="none", mec="k", ms=9)
         for k, (a, b) in enumerate(ps.widths_um):
             axs[0, j].annotate(str(k), (b / p, a / p), textcoords="offset points", xytext=(5, 5), fontsize=8)

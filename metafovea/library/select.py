@@ -63,6 +63,9 @@ BIAS_CASES = (("-", -1.0), ("0", 0.0), ("+", 1.0))
 JOINT_MAX_ROUNDS = 50
 #: ends of the coordinate descent that the swap search of the joint search starts from (the best ones)
 JOINT_POLISH = 8
+#: the largest ``bias_weight``: the bias cases against the nominal one weighted 1; at 1e6 the nominal case has no say
+#: left in double precision sums of phase errors, and 1e308 overflowed (the nominal selection came back, claimed joint)
+MAX_BIAS_WEIGHT = 1e6
 
 
 def _candidates(lib: Library, wavelength_um: float | None, max_error: float | None, platform: PlatformDesign | None,
@@ -311,7 +314,7 @@ def select_posts(lib: Library, polarization: str, levels: int = 8, *, wavelength
     pw = check_range("pass_weight", pass_weight, 0.0, None, lo_inclusive=True)
     tw = check_range("transmission_weight", transmission_weight, 0.0, None, lo_inclusive=True)
     n_off = check_int("n_offsets", n_offsets, 4, 720)
-    bias_weight = check_range("bias_weight", bias_weight, 0.0, None, lo_inclusive=True)
+    bias_weight = check_range("bias_weight", bias_weight, 0.0, MAX_BIAS_WEIGHT, lo_inclusive=True)
     il = _wavelength_index(lib, wavelength_um)
     tf_all = (lib.t_x if pol == "x" else lib.t_y)[il]
     tp_all = (lib.t_y if pol == "x" else lib.t_x)[il]

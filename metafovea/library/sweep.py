@@ -225,6 +225,8 @@ def _checked_sweep(wx_um: ArrayLike, wy_um: ArrayLike | None, wavelengths_um: Ar
         if w.size < 1 or not np.all(np.isfinite(w)) or np.any(w <= 0) or np.any(w >= period):
             raise InputError(name, w.tolist()[:5], f"widths with 0 < w < period_um = {period:g} um")
     wls = np.asarray(list(np.atleast_1d(wavelengths_um)), dtype=float).ravel()
+    if np.unique(wls).size != wls.size:  # each repeat solved the whole library again
+        raise InputError("wavelengths_um", wls.tolist(), "distinct wavelengths (um): each is a library of its own")
     if wls.size < 1 or not np.all(np.isfinite(wls)) or np.any(wls <= 0):
         raise InputError("wavelengths_um", wls.tolist(), "positive wavelengths (um)")
     M = check_int("harmonics", opts.harmonics, 5 if opts.estimate else 3, 40)

@@ -151,3 +151,19 @@ def test_library_tolerance_rad_chooses_the_harmonics_and_says_why(tmp_path, caps
     assert main(argv + ["--harmonics", "8"]) == 2
     err = _err(capsys)
     assert err.startswith("metafovea library: error: --harmonics") and "--tolerance-rad" in err
+
+
+@pytest.mark.parametrize("argv,words", [
+    (["--bias-weight", "1e308"], "0 <= --bias-weight <= 1e+06"),  # overflowed into the nominal selection, "joint"
+    (["--wavelengths-um", "9", "9", "9"], "distinct wavelengths"),  # solved the library three times
+])
+def test_values_that_ran_wrong_or_thrice_are_refused(argv, words, capsys):
+    assert main(["library", *argv]) == 2
+    err = capsys.readouterr().err
+    assert words in err and "Traceback" not in err
+
+
+def test_an_empty_platform_file_is_not_the_papers_platform(tmp_path, capsys):
+    (tmp_path / "p.toml").write_text("")
+    assert main(["library", str(tmp_path / "p.toml")]) == 2
+    assert "this one is empty" in capsys.readouterr().err

@@ -52,6 +52,18 @@ def test_the_run_gains_within_the_line_bound_and_production_agrees(result):
     assert any("short" in line for line in d["bandwidth_limit"])
 
 
+def test_a_gain_above_the_line_bound_is_said_to_be_an_artefact(result):
+    """A 9-px window on a 0.1 um band reported 1.155x against a bound of 1.004x that no phase can exceed, without a
+    word: such a gain is now a warning naming the window; the default window's 1.006x against 1.004x is not."""
+    from metafovea.codesign.run import bound_warnings
+
+    (w,) = bound_warnings(1.155, 1.004, 9, 34.0)
+    assert "exceeds the line bound's 1.004x" in w and "9 px of 34 um" in w and "size_px" in w
+    assert bound_warnings(1.006, 1.004, 31, 34.0) == []
+    d = result[0]["lenses"]["foveal"]
+    assert bool(d["warnings"]) == (d["gain"] > d["line_bound_gain_limit"] * 1.01)  # the run's own summary
+
+
 def test_the_written_files_are_a_design(result):
     summary, out = result
     s = load_system(out / "system.toml")
@@ -116,3 +128,19 @@ def test_the_band_weights_follow_the_system_filter():
     assert float(w_off @ wl) > 10.5 and w_off.sum() == pytest.approx(1.0)
     b = band_mtf_bound(on.foveal, (8.0, 14.0), [5.0, 10.0], filter_um=system_filter_um(on))
     assert b.gain_limit < 1.01
+
+
+def test_the_run_never_writes_over_its_input_and_a_refusal_leaves_no_folder(small_system_file, tmp_path, capsys):
+    """`codesign cd/system.toml --out cd --force` rewrote the system and lens files it had read; a run refused
+    before its first step (the default cap on the paper's lens) left an empty --out folder."""
+    import shutil
+
+    d = tmp_path / "cd"
+    shutil.copytree(small_system_file.parent, d)
+    before = {p.name: p.read_bytes() for p in d.iterdir()}
+    assert main(["codesign", str(d / "system.toml"), "--out", str(d), "--force", "--steps", "2", "--size-px", "9",
+                 "--no-check"]) == 2
+    assert "a folder other than the input's" in capsys.readouterr().err
+    assert {p.name: p.read_bytes() for p in d.iterdir()} == before
+    assert main(["codesign", "--out", str(tmp_path / "cd0")]) == 2
+    assert "max_wavelengths" in capsys.readouterr().err and not (tmp_path / "cd0").exists()
