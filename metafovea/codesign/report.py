@@ -141,14 +141,17 @@ OUTPUT_FILES = ("codesign.json", "report.html", "system.toml", "foveal.toml", "p
 
 
 def _prepare(out: Path, force: bool) -> None:
-    """A fresh or empty folder starts a run; one holding only this command's checkpoints resumes it; anything else
-    (a finished run, other files) needs ``force``, which also drops the old checkpoints."""
+    """A fresh or empty folder starts a run; one holding only this command's checkpoints resumes it, and so does one
+    whose final writes a Ctrl-C stopped (checkpoints and some of :data:`OUTPUT_FILES`, without the page written
+    last: the rerun writes them again); anything else (a finished run, other files) needs ``force``, which also
+    drops the old checkpoints."""
     from metafovea.errors import InputError
     from metafovea.io import prepare_output
 
     if out.is_dir() and any(out.iterdir()):
         names = {p.name for p in out.iterdir()}
-        only_checkpoints = all(n.startswith("checkpoint_") and n.endswith(".npz") for n in names)
+        ckpt = {n for n in names if n.startswith("checkpoint_") and n.endswith(".npz")}
+        only_checkpoints = names == ckpt or (bool(ckpt) and names - ckpt <= set(OUTPUT_FILES) - {"report.html"})
         if force:
             for p in out.glob("checkpoint_*.npz"):
                 p.unlink()

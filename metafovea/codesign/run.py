@@ -21,6 +21,7 @@ Every result states the achromatic limit (:mod:`metafovea.codesign.limits`) and 
 from __future__ import annotations
 
 import math
+import warnings
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
@@ -205,6 +206,10 @@ def codesign_lens(system: SystemDesign, name: str, options: CodesignOptions, *,
     from metafovea.optics import jaxpsf
 
     lens: LensDesign = getattr(system, name)
+    if lens.phase_poly_rad:  # it was dropped without a word
+        warnings.warn(f"the {name} lens already carries an added phase (phase_poly_rad, {len(lens.phase_poly_rad)} "
+                      "coefficient(s)): the co-design starts from the plain hyperbola and replaces it; its gain is "
+                      "against the hyperbola, not against the input", UserWarning, stacklevel=2)
     band = options.band_um or tuple(system.band_um)
     z = float(system.lens_to_sensor_um[0 if name == "foveal" else 1])
     n_wl, why = spectral_sampling(lens, z, band)

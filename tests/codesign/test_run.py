@@ -144,3 +144,32 @@ def test_the_run_never_writes_over_its_input_and_a_refusal_leaves_no_folder(smal
     assert {p.name: p.read_bytes() for p in d.iterdir()} == before
     assert main(["codesign", "--out", str(tmp_path / "cd0")]) == 2
     assert "max_wavelengths" in capsys.readouterr().err and not (tmp_path / "cd0").exists()
+
+
+def test_a_run_stopped_in_its_final_writes_resumes(result, small_system_file, tmp_path):
+    """A Ctrl-C between the design files and the page left checkpoints and system files; the rerun was refused
+    (only a folder of checkpoints resumed). It resumes now; a folder with the page (a finished run) still does not."""
+    import shutil
+
+    _, out = result
+    part = tmp_path / "part"
+    part.mkdir()
+    for name in ("checkpoint_foveal.npz", "system.toml", "foveal.toml", "platform.toml"):
+        shutil.copy(out / name, part / name)
+    summary = run_codesign(small_system_file, OPTS, part, check=False)
+    assert (part / "report.html").is_file() and summary["lenses"]["foveal"]["gain"] > 1.0
+    with pytest.raises(InputError, match="an empty folder"):
+        run_codesign(small_system_file, OPTS, part, check=False)
+
+
+def test_an_input_lens_with_an_added_phase_is_said_to_be_replaced():
+    """Co-designing a co-designed system started from the hyperbola again and dropped the input's phase_poly_rad
+    without a word."""
+    from dataclasses import replace
+
+    from metafovea.codesign.run import codesign_lens
+
+    system = SystemDesign.paper()
+    system = replace(system, foveal=replace(system.foveal, phase_poly_rad=(0.5, -0.2)))
+    with pytest.warns(UserWarning, match="already carries an added phase"), pytest.raises(InputError):
+        codesign_lens(system, "foveal", CodesignOptions(max_wavelengths=3))  # refused right after: no run
