@@ -5,6 +5,7 @@ import numpy as np
 import pytest
 
 from metafovea.config import LensDesign
+from metafovea.errors import InputError
 from metafovea.optics import diffraction_mtf, encircled_energy, fwhm_um, psf, pupil_mtf
 
 F1 = LensDesign.perifoveal()  # F/1, D = 25 mm
@@ -71,3 +72,15 @@ def test_key_figures_of_a_perfect_slow_lens_are_the_airy_pattern():
     fx, fy = fwhm_um(P)
     assert fx == pytest.approx(fy, rel=1e-9)
     assert fx == pytest.approx(1.02899 * lens.wavelength_um * 10, rel=2e-3)
+
+
+def test_a_sampled_psfs_mtf_is_refused_above_its_sample_nyquist():
+    """At 49 cycles/mm a PSF sampled every 20.4 um (sample Nyquist 24.5) read 0.9998, where a lens of cutoff 19.9
+    cycles/mm has none: the aliased transform. Up to the sample Nyquist it is the MTF; above, an InputError."""
+    from metafovea.optics import mtf_slices, psf
+
+    p = psf(LensDesign(name="t", f_um=5000.0, diameter_um=1000.0))
+    nyq = 1000.0 / (2 * p.pitch_um)
+    assert mtf_slices(p, [2.0, nyq])["tangential"][1] < 0.02
+    with pytest.raises(InputError, match="sample Nyquist"):
+        mtf_slices(p, [2.0, 2 * nyq])
