@@ -530,6 +530,10 @@ def load_lens(path: str | Path, platform: PlatformDesign | None = None) -> LensD
                       lattice=lattice, n_substrate=p.n_substrate, phase_poly_rad=poly)
 
 
+#: the top-level keys of a system file (:func:`load_system`)
+SYSTEM_SECTIONS = ("name", "files", "distances", "relay", "polarizer", "sensor", "spectral")
+
+
 def load_system(path: str | Path) -> SystemDesign:
     """Load ``system.toml``; lens and platform files are resolved relative to it.
 
@@ -552,6 +556,10 @@ def load_system(path: str | Path) -> SystemDesign:
         raise InputError("system file", src, "a system TOML holding its keys ([files], [sensor], ...): this one is "
                          "empty (no file at all runs the paper's prototype)")
     r = _Reader(t, src)
+    foreign = sorted(set(t) - set(SYSTEM_SECTIONS))
+    if foreign:  # a lens or platform file given as the system: said before its default [files] are looked for
+        raise InputError(foreign[0], t[foreign[0]], "one of the system file's keys: " + ", ".join(SYSTEM_SECTIONS)
+                         + " (is this a lens or platform file? a system file names them in [files])", src)
     r.text("name", "system")
     files = r.table("files")
     base = path.parent

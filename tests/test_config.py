@@ -106,6 +106,11 @@ def test_system_errors(tmp_path, designs_dir):
     sysf.write_text("")
     with pytest.raises(InputError, match="this one is empty"):
         load_system(sysf)
+    # a platform file given as the system: its keys named (it said "design file = 'platform.toml'", a file the user
+    # never typed: the defaults of [files], looked for first)
+    with pytest.raises(InputError, match="is this a lens or platform file") as e:
+        load_system(tmp_path / "platform.toml")
+    assert "platform.toml" in str(e.value)
 
 
 def test_dataclass_validation():

@@ -482,7 +482,10 @@ def bench_reconstruct(sizes: BenchSizes, say: Callable[[str], None]) -> dict[str
             "notes": "Separation: the scikit-image camera / astronaut pair of benchmarks/bench_reconstruct.py, "
                      "mean PSNR of both images (data range 1). Deconvolution: one simulated recording, the fixed "
                      "pattern estimated from its shutter frames, each method against the scene; bound_db is the "
-                     "linear Wiener bound of that recording (dashed lines). Field-dependent PSF: the same scene "
+                     "linear Wiener bound of that recording (dashed lines): the filter the scene's own spectrum, "
+                     "the true PSFs and noise give, the best stationary linear one on average over the noise, not a "
+                     "strict limit on one recording of a scene that is not stationary (a method, the data-driven "
+                     "wiener among them, can sit above it). Field-dependent PSF: the same scene "
                      "simulated in 3 x 3 field patches, wiener with the on-axis kernel alone and with the file's "
                      "patches (reconstruct --field-psf)."}
 
