@@ -54,7 +54,7 @@ def run(args: argparse.Namespace) -> int:
     from metafovea.config import PlatformDesign, load_platform
     from metafovea.io import prepare_output, to_json
     from metafovea.library import LibraryOptions, PlatformSweep, choose_harmonics
-    from metafovea.library.report import library_report
+    from metafovea.library.report import LibraryReport, library_report
     from metafovea.library.select import MAX_BIAS_WEIGHT
 
     src = args.platform_file
@@ -74,7 +74,8 @@ def run(args: argparse.Namespace) -> int:
     bias_weight = check_range("--bias-weight", args.bias_weight, 0.0, MAX_BIAS_WEIGHT, lo_inclusive=True)
     sweep = PlatformSweep(plat, levels, step, wls, options, source=src,  # checks the platform and the grid
                           bias_weight=bias_weight)
-    out = prepare_output(args.out, args.force, is_dir=True) if args.out else None
+    out = (prepare_output(args.out, args.force or LibraryReport.stopped_write(args.out), is_dir=True)  # completes
+           if args.out else None)  # a write a Ctrl-C stopped (no library.json yet): not someone else's files
     choice = choose_harmonics(args.tolerance_rad, sweep) if args.tolerance_rad is not None else None
     sweep = choice.applied(sweep) if choice is not None else sweep
     check_sweep_cost(args, sweep, sweep.options)

@@ -114,6 +114,18 @@ class LibraryReport:
                 lines += _bias_lines(eb, p["bias_weight"])
         return "\n".join(lines)
 
+    #: what :meth:`write` writes, in its order (``library.json`` last: a folder without it is a stopped write)
+    FILES = ("library.npz", "postset_x.npz", "postset_y.npz", "fig7b_phase_maps.png", "fig7c_selected_posts.png",
+             "library.json")
+
+    @classmethod
+    def stopped_write(cls, out_dir: str | Path) -> bool:
+        """Whether ``out_dir`` holds some of :data:`FILES` and nothing else, without the ``library.json`` written
+        last: a Ctrl-C during :meth:`write` (each file atomic, the set not), which a rerun completes."""
+        p = Path(out_dir)
+        names = {q.name for q in p.iterdir()} if p.is_dir() else set()
+        return bool(names) and names <= set(cls.FILES) - {"library.json"}
+
     def write(self, out_dir: Path) -> list[Path]:
         """Write the library, both post sets, Fig. 7b/7c and library.json into ``out_dir`` (which must exist)."""
         out_dir = Path(out_dir)

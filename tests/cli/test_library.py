@@ -167,3 +167,23 @@ def test_an_empty_platform_file_is_not_the_papers_platform(tmp_path, capsys):
     (tmp_path / "p.toml").write_text("")
     assert main(["library", str(tmp_path / "p.toml")]) == 2
     assert "this one is empty" in capsys.readouterr().err
+
+
+def test_a_write_stopped_by_ctrl_c_is_completed_and_other_files_are_not_taken(tmp_path, capsys):
+    """Ctrl-C during the final writes left the library and post sets without figures or library.json, and the rerun
+    was refused without --force; such a folder is now recognised (LibraryReport.stopped_write), a folder with any
+    other file, or with library.json (a finished run), is not."""
+    from metafovea.library.report import LibraryReport
+
+    d = tmp_path / "lib"
+    d.mkdir()
+    (d / "library.npz").write_bytes(b"x")
+    (d / "postset_x.npz").write_bytes(b"x")
+    assert LibraryReport.stopped_write(d)
+    (d / "library.json").write_text("{}")
+    assert not LibraryReport.stopped_write(d)
+    (d / "library.json").unlink()
+    (d / "notes.txt").write_text("mine")
+    assert not LibraryReport.stopped_write(d) and not LibraryReport.stopped_write(tmp_path / "none")
+    assert main(["library", "--out", str(d)]) == 2  # someone else's file: refused before any work
+    assert "pass --force" in capsys.readouterr().err
