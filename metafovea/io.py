@@ -220,6 +220,20 @@ def input_hash(obj: Any) -> str:
     return hashlib.sha256(to_json(obj, indent=None).encode()).hexdigest()[:16]
 
 
+@contextlib.contextmanager
+def dropped_if_empty(path: str | os.PathLike) -> Iterator[None]:
+    """Run the block; when it fails, a folder ``path`` that did not exist before it and is still empty is removed
+    again (a refusal found after the output folder was made leaves nothing behind)."""
+    p = Path(path)
+    made = not p.exists()
+    try:
+        yield
+    except BaseException:
+        if made and p.is_dir() and not any(p.iterdir()):
+            p.rmdir()
+        raise
+
+
 def prepare_output(path: str | os.PathLike, force: bool = False, *, is_dir: bool = False,
                    name: str = "out") -> Path:
     """Check that ``path`` can be written without clobbering anything.

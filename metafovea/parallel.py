@@ -50,7 +50,7 @@ class LineProgress:
     ``metafovea: DESC: 120/2000 step (6 %), 1 min 24 s, ETA 21 min 56 s; loss 0.0123``; on :meth:`close` a last
     line with the total time, when a line was written before (a quick loop writes nothing). A loop whose steps take
     longer than ``interval_s`` still writes a line every ``interval_s`` (a timer thread, holding the progress only
-    weakly and ending at :meth:`close`): a first task of minutes is not silent. The methods are tqdm's that the
+    weakly and ending at :meth:`close`). The methods are tqdm's that the
     project uses (``update``, ``set_postfix``, ``set_postfix_str``, ``close``, context manager)."""
 
     def __init__(self, total: int | None = None, desc: str = "", unit: str = "it", *, initial: int = 0,

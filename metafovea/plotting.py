@@ -424,7 +424,7 @@ def plot_measurement(m: Measurement, ax: Axes | Sequence[Axes] | None = None, *,
     matplotlib Figure
     """
     T = m.shape[0]
-    k = check_int("frame", frame, -T, T - 1) % T  # -1: the last; 99 of 12 showed frame 3
+    k = check_int("frame", frame, -T, T - 1) % T  # -1: the last
     fig, (a0, a1) = panels(ax, 2)
     units = m.meta.get("units", "DN")
     title = f"frame {k} of {T}, t = {m.times_s[k]:.3f} s"

@@ -19,7 +19,7 @@ import numpy as np
 
 from metafovea.config import platform_toml, system_toml
 from metafovea.design_report import design_toml
-from metafovea.io import atomic_write_json, atomic_write_text
+from metafovea.io import atomic_write_json, atomic_write_text, dropped_if_empty
 from metafovea.report import HtmlReport, fig_to_png
 
 from .run import CodesignResult, LensResult, band_weights
@@ -177,14 +177,9 @@ def run_codesign(system_file: str | Path | None, options: Any, out_dir: str | Pa
     if system_file is not None and Path(system_file).resolve().parent == out.resolve():  # --force included
         raise InputError("out", str(out), f"a folder other than the input's ({system_file}): the run writes "
                          "system.toml and the lens files there, over the files it reads")
-    made = not out.exists()
-    _prepare(out, force)
-    try:
+    with dropped_if_empty(out):  # refused before any step (a cap, a bad band): no empty folder left
+        _prepare(out, force)
         result = codesign(system, options, checkpoint_dir=out)
-    except BaseException:  # refused before any step (a cap, a bad band): the folder this call made goes again
-        if made and out.is_dir() and not any(out.iterdir()):
-            out.rmdir()
-        raise
     write_codesign(result, out, check=check)
     import json
 

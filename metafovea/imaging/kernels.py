@@ -507,7 +507,7 @@ def build_channel_optics(channel: Channel, provider: PSFProvider, radiance: Band
     pitch = channel.focal_pitch_um / ss
     size = 2 * int(math.ceil(3 * ss)) + 1 if psf_size_px is None else psf_size_px  # 0 is not "the default"
     size = check_int("psf_size_px", size, 1, MAX_PSF_SIZE)
-    if size % 2 == 0:  # it was rounded up without a word
+    if size % 2 == 0:
         raise InputError("psf_size_px", size, f"an odd number of samples 1 <= psf_size_px <= {MAX_PSF_SIZE} (the "
                          "PSF's centre is a sample)")
     lam_psf, w_psf = radiance.psf_wavelengths(channel.lens.wavelength_um, scene_temperature_k, n_psf_wavelengths)

@@ -634,8 +634,7 @@ class RasterScene(Scene):
         t = np.asarray(self.temperature_k, dtype=np.float64)
         if t.ndim not in (2, 3) or min(t.shape[-2:]) < 2:
             raise InputError("temperature_k", f"array of shape {t.shape}", "a (h, w) or (T, h, w) array, h, w >= 2")
-        if not np.all(np.isfinite(t)) or float(t.min()) < 0 or float(t.max()) > T_MAX_K:  # the radiance table's end:
-            # a 1e9 K raster was refused only when its radiance was looked up, after the optics' work
+        if not np.all(np.isfinite(t)) or float(t.min()) < 0 or float(t.max()) > T_MAX_K:  # the radiance table's end
             raise InputError("temperature_k", _worst(t, 0.0, T_MAX_K),
                              f"finite temperatures in [0, {T_MAX_K:g}] K (kelvin, not Celsius)")
         check_positive("half_width_rad", self.half_width_rad, "rad", hi=math.pi / 2)
@@ -1027,7 +1026,7 @@ def make_scene(name: str | Path | Scene | np.ndarray, geometry: SceneGeometry | 
         return name
     unit = _scene_unit(scene_unit)
     g = geometry or SceneGeometry()
-    if isinstance(name, (list, tuple)):  # nested lists of temperatures: an array (as a str they named a file)
+    if isinstance(name, (list, tuple)):  # nested lists of temperatures: an array
         name = np.asarray(name)
         if name.dtype.kind not in "iuf":
             raise InputError("scene", f"a list of {name.dtype}", "temperatures (nested lists of numbers, kelvin)")

@@ -82,8 +82,8 @@ class SensorModel:
     quantize: bool = True
 
     def __post_init__(self) -> None:
-        # from a tenth of the 10 um wavelength up: finer, the pixel kernels outgrow memory (0.5 um: 1 GB for two
-        # frames; 0.1 um: 4 GB) while no LWIR detector comes near (bolometers: 10-50 um)
+        # from a tenth of the 10 um wavelength up: finer, the supersampled pixel kernels outgrow memory, while LWIR
+        # bolometers are 10-50 um
         check_range("pixel_pitch_um", self.pixel_pitch_um, 1.0, 1000.0, lo_inclusive=True, unit="um")
         if len(self.shape) != 2:
             raise InputError("shape", self.shape, "(rows, columns)")

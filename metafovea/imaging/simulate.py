@@ -380,7 +380,7 @@ def _options(options: SimulationOptions | None, overrides: dict[str, Any]) -> Si
         if bad:
             raise InputError("option", sorted(bad)[0], "a field of SimulationOptions")
         opt = replace(opt, **overrides)
-    for name in ("polarizer_phase_deg", "t0_s"):  # NaN ran the whole model into all-NaN frames, blamed on them
+    for name in ("polarizer_phase_deg", "t0_s"):  # checked before the work (NaN would make every frame NaN)
         v = getattr(opt, name)
         if v is not None:
             as_float(name, v)

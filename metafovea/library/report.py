@@ -152,7 +152,7 @@ def library_report(sweep: PlatformSweep, *, harmonics_choice: HarmonicsChoice | 
     from metafovea.parallel import heartbeat
 
     # the library may come from the cache in no time; what follows solves posts directly (the convergence bound's
-    # extra sweep, the edge-bias table: 6 s on idle cores, ~50 s under load): a line every 10 s says so
+    # extra sweep, the edge-bias table, not cached): a line every 10 s says so
     with heartbeat("library: post selection, convergence bound and edge-bias table (direct RCWA solves)",
                    enabled=sweep.options.progress):
         sets = sweep.select(lib)

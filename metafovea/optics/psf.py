@@ -553,8 +553,7 @@ def encircled_energy_on_axis(lens: LensDesign, radius_um: ArrayLike, *, waveleng
     Gauss nodes on [0, r_1] and on each interval between consecutive sorted radii). An interval wider than ``n``
     nodes resolve (``|U|^2 r`` oscillates at up to twice the pupil's band limit ``k S``: the Gauss-Legendre count
     for that phase, :func:`~metafovea.optics.propagate.nodes_for_phase`, exceeds ``n``) is split into panels of a
-    phase of 60 rad each, with that count's nodes on each: a radius of many rings (10 cm on the perifoveal lens)
-    was integrated with 400 nodes over 2,000 rings, and the fraction fell as the radius grew.
+    phase of :data:`EE_PANEL_PHASE_RAD` each, with that count's nodes on each.
     """
     scalar = np.ndim(radius_um) == 0
     radii = np.atleast_1d(np.asarray(radius_um, dtype=float)).reshape(-1)

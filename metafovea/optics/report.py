@@ -19,7 +19,7 @@ import numpy as np
 
 from metafovea.config import PAPER_BAND_UM, PAPER_PIXEL_PITCH_UM, LensDesign, SystemDesign, load_lens
 from metafovea.errors import InputError, NotConvergedWarning, check_choice, check_int, check_positive
-from metafovea.io import atomic_write_bytes, atomic_write_json, file_stem, prepare_output
+from metafovea.io import atomic_write_bytes, atomic_write_json, dropped_if_empty, file_stem, prepare_output
 from metafovea.library import POST_SOURCES, ObliqueResponse, PostSet, oblique_response, rcwa_post_sets, system_post_sets
 from metafovea.parallel import DaskExecutor, StoppableThreadPool, blas_threads, default_workers
 from metafovea.radiometry import psf_wavelengths
@@ -582,12 +582,10 @@ def psf_reports(designs: Sequence[str | Path | LensDesign], out_dir: str | Path,
         check_positive(f"distance of lens '{name}'", z, "um")
     check_choice("posts", posts, POST_SOURCES)
     system = system or SystemDesign.paper()
-    made = not Path(out_dir).exists()
     with contextlib.ExitStack() as stack:
-        # a bad --scheduler is refused before out_dir is made; a folder this call made is removed again when a
-        # late error (a window too small for the PSF, found seconds in) leaves it empty
-        stack.callback(lambda: made and Path(out_dir).is_dir() and not any(Path(out_dir).iterdir())
-                       and Path(out_dir).rmdir())
+        # a bad --scheduler is refused before out_dir is made; a late error (a window too small for the PSF, found
+        # seconds in) leaves no empty folder
+        stack.enter_context(dropped_if_empty(out_dir))
         from metafovea.parallel import get_executor
 
         ex = stack.enter_context(get_executor(scheduler=scheduler)) if scheduler else None

@@ -94,7 +94,7 @@ def valid_mask(frames: np.ndarray, saturation: float | None = None) -> np.ndarra
     """Boolean ``(T, H, W)`` mask of usable samples, or ``None`` when every sample is usable."""
     bad = ~np.isfinite(frames)
     if saturation is not None:
-        saturation = as_float("saturation", saturation)  # 'x' reached numpy's UFuncTypeError
+        saturation = as_float("saturation", saturation)
         with np.errstate(invalid="ignore"):
             bad |= frames >= saturation
     if not bad.any():
@@ -119,8 +119,8 @@ GEOMETRY_KEYWORDS = ("scale", "foveal_gain", "foveal_offset")
 
 
 def check_keywords(kw: dict[str, Any], allowed: Any, where: str) -> None:
-    """Refuse the first keyword of ``kw`` not in ``allowed`` (a typo, ``windw=4``, was silently ignored or reached
-    a solver as Python's own TypeError), naming ``where`` and what it takes."""
+    """Refuse the first keyword of ``kw`` not in ``allowed`` (a typo such as ``windw=4``), naming ``where`` and what
+    it takes."""
     for k, v in kw.items():
         if k not in allowed:
             takes = ", ".join(sorted(allowed)) or "no further keywords"

@@ -268,7 +268,7 @@ def lsq_known_alpha(frames: ArrayLike, alpha: ArrayLike, *, max_condition: float
         Y = as_frames(frames, min_frames=2)
         T, H, W = Y.shape
         a = as_alpha(alpha, T)
-        max_condition = check_range("max_condition", max_condition, 1.0, None, lo_inclusive=True)  # <= 0 blamed alpha
+        max_condition = check_range("max_condition", max_condition, 1.0, None, lo_inclusive=True)
         if noise_sigma is not None:
             noise_sigma = check_range("noise_sigma", noise_sigma, 0.0, None)
         if denoise_kw:

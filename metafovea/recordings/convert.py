@@ -33,7 +33,7 @@ from metafovea.recordings.calibration import (
     parse_two_point,
     two_point,
 )
-from metafovea.recordings.read import FORMATS, FRAME_AXES, TIME_UNITS, Recording, read_recording
+from metafovea.recordings.read import FORMATS, FRAME_AXES, TIME_UNITS, Recording, existing_recording, read_recording
 from metafovea.recordings.timestamps import check_timing, frame_times
 
 #: ``--polarizer-unit`` choices: angles in radians or degrees, or the mixing ratio alpha itself
@@ -64,13 +64,13 @@ class ImportOptions:
     polarizer: dict[str, Any] | None = None
 
     def __post_init__(self) -> None:
-        """The options checked when made (a string rate reached numpy's TypeError; a calibration mode or time unit
-        was never looked at when the file had no calibration or times to apply it to)."""
+        """The options checked when made, whether or not the file has a calibration or times to apply them to."""
         for name in ("frame_rate_hz", "foveal_gain", "scale"):
             v = getattr(self, name)
             if v is not None:
                 object.__setattr__(self, name, as_float(name, v))
-        check_choice("calibration_gain", self.calibration_gain, GAIN_MODES)
+        gain_mode = check_choice("calibration_gain", self.calibration_gain, GAIN_MODES)
+        object.__setattr__(self, "calibration_gain", gain_mode)
         check_choice("format", self.format, FORMATS)
         check_choice("frame_axis", self.frame_axis, FRAME_AXES)
         if self.time_unit is not None:
@@ -157,7 +157,7 @@ def _radiometry(frames: np.ndarray, rec: Recording, opt: ImportOptions) -> tuple
         spectral_support_um(band, filter_um=filt)
     if opt.calibration is not None:
         (t1, f1), (t2, f2) = parse_two_point(opt.calibration)
-        mode = check_choice("calibration_gain", opt.calibration_gain, GAIN_MODES)
+        mode = opt.calibration_gain  # checked by ImportOptions
         cold, hot = (_calibration_frames(f, opt, frames.shape[1:]) for f in (f1, f2))
         model, g, o, bad = two_point(cold, t1, hot, t2, mode=mode, band_um=band, filter_um=filt, spec=opt.calibration)
         if g is not None:
@@ -258,9 +258,7 @@ def import_recording(path: str | Path, out: str | Path | None = None, options: I
     from metafovea.io import prepare_output
 
     opt = options or ImportOptions()
-    src = Path(path)
-    if not src.is_file():  # before the default output's name is made from it ('.' has none)
-        raise InputError("recording", str(path), "an existing recording file (.tif, .h5, .mat, FLIR .jpg/.seq/.fff)")
+    src = existing_recording(path)  # before the default output's name is made from it ('.' has none)
     dest = Path(out) if out is not None else src.with_suffix(".npz")
     if dest.suffix.lower() != ".npz":
         raise InputError("out", str(dest), "a file name ending in .npz")

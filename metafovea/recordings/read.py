@@ -91,6 +91,13 @@ class _Store:
     ndims: dict[str, int] = field(default_factory=dict)  # each key's number of dimensions (without reading it)
 
 
+def existing_recording(path: str | Path) -> Path:
+    """``path`` as a Path when it is an existing file, else an InputError naming it (a folder, ``''``)."""
+    if not Path(path).is_file():
+        raise InputError("recording", str(path), "an existing recording file (.tif, .h5, .mat, FLIR .jpg/.seq/.fff)")
+    return Path(path)
+
+
 def detect_format(path: Path, fmt: str = "auto") -> str:
     """The reader for ``path``: ``fmt`` unless ``'auto'``, else from the suffix (:data:`SUFFIXES`)."""
     fmt = check_choice("format", fmt, FORMATS)
@@ -338,9 +345,7 @@ def read_recording(path: str | Path, *, format: str = "auto", frames_key: str | 
     frame_axis : {'first', 'last'}
         Where the frame index is in the stored array (MATLAB videos are usually H x W x T: ``'last'``).
     """
-    p = Path(path)
-    if not p.is_file():
-        raise InputError("recording", str(p), "an existing recording file (.tif, .h5, .mat, FLIR .jpg/.seq/.fff)")
+    p = existing_recording(path)
     fmt = detect_format(p, format)
     axis = check_choice("frame_axis", frame_axis, FRAME_AXES)
     if fmt == "flir":

@@ -108,7 +108,7 @@ def check_timing(frames: np.ndarray, times_s: np.ndarray, *, times_from: str = "
     t = np.asarray(times_s, dtype=np.float64).reshape(-1)
     n = t.size
     nf = int(np.shape(frames)[0]) if np.ndim(frames) else 0
-    if n != nf or n < 1:  # 12 frames with 5 times kept 5 frames without a word; 5 with 12 ran past the frames
+    if n != nf or n < 1:
         raise InputError("times", f"{n} timestamps", f"one per frame ({nf}), at least one")
     if not np.all(np.isfinite(t)):
         raise InputError("times", f"{int(np.sum(~np.isfinite(t)))} NaN/inf timestamp(s)", "finite times in seconds")
