@@ -40,6 +40,11 @@ from metafovea.polarizer import ALPHA_MEAN, RotatingPolarizer, check_mode
 ALPHA_SE_MAX = 5e-3
 #: residual rms above this many times the data-term noise of alpha_hat: an irregular rotation
 JITTER_FACTOR = 3.0
+#: a free-running polariser's rate is searched on this many points over +- ``rate_tolerance`` (numerical: the
+#: parabolic refinement resolves the minimum far below the step), and this many steps past either end, so that a
+#: rate at the tolerance's very end is refined and its error estimated like any other
+RATE_GRID_POINTS = 201
+RATE_GRID_MARGIN = 3
 
 
 @dataclass(frozen=True)
@@ -120,14 +125,19 @@ def _design(t: np.ndarray, w: float) -> np.ndarray:
     return np.stack([np.ones_like(t), np.cos(w * t), np.sin(w * t)], axis=1)
 
 
-def _free_omega(t: np.ndarray, y: np.ndarray, model: PolarizerModel) -> tuple[float, float]:
+def _free_omega(t: np.ndarray, y: np.ndarray, model: PolarizerModel) -> tuple[float, float, bool]:
     """The alpha frequency within the model's tolerance with the smallest sinusoid-fit residual (grid, then a
-    parabolic refinement), and the residual's curvature there (d^2 rss / d omega^2; 0 when not resolved)."""
+    parabolic refinement), the residual's curvature there (d^2 rss / d omega^2; 0 when not resolved) and whether the
+    minimum lies on the search's edge (the rate may be outside the tolerance). The grid runs
+    :data:`RATE_GRID_MARGIN` steps past either end of the tolerance, so that a rate at its very end is bracketed and
+    refined like any other."""
     w0 = model.omega
     tol = model.rate_tolerance
     if tol == 0:
-        return w0, 0.0
-    grid = w0 * (1 + np.linspace(-tol, tol, 201))
+        return w0, 0.0, False
+    step_rel = 2 * tol / (RATE_GRID_POINTS - 1)
+    span = tol + RATE_GRID_MARGIN * step_rel
+    grid = w0 * (1 + np.linspace(-span, span, RATE_GRID_POINTS + 2 * RATE_GRID_MARGIN))
 
     def rss(w: float) -> float:
         X = _design(t, w)
@@ -143,8 +153,8 @@ def _free_omega(t: np.ndarray, y: np.ndarray, model: PolarizerModel) -> tuple[fl
             w = float(grid[i] + 0.5 * step * (r[i - 1] - r[i + 1]) / den)
             h = 0.25 * step
             curv = (rss(w - h) - 2 * rss(w) + rss(w + h)) / (h * h)
-            return w, max(curv, 0.0)
-    return float(grid[i]), 0.0
+            return w, max(curv, 0.0), False
+    return float(grid[i]), 0.0, i in (0, len(grid) - 1)
 
 
 def polarizer_gauge(alpha_hat: np.ndarray, model: PolarizerModel, *,
@@ -180,7 +190,7 @@ def polarizer_gauge(alpha_hat: np.ndarray, model: PolarizerModel, *,
     else:
         tm = float(t.mean())
         tc = t - tm  # centred: the phase at the window's middle and the frequency are nearly uncorrelated
-        w, curv = _free_omega(tc, y, model)
+        w, curv, edge = _free_omega(tc, y, model)
         X = _design(tc, w)
         coef, *_ = np.linalg.lstsq(X, y, rcond=None)
         res = y - X @ coef
@@ -207,7 +217,8 @@ def polarizer_gauge(alpha_hat: np.ndarray, model: PolarizerModel, *,
             cov = cov + np.outer(dab, dab)
         phi_c = -math.atan2(C, B)
         out.update(omega=w, rate_hz=w / (4 * math.pi), phase=phi_c - w * tm, phase_centre=phi_c, t_centre=tm,
-                   var_phase_centre=float(gp @ S @ gp), var_omega=var_w, swap_ambiguous=True)
+                   var_phase_centre=float(gp @ S @ gp), var_omega=var_w, swap_ambiguous=True,
+                   rate_at_search_edge=edge)
     rms = math.sqrt(float(np.mean(res ** 2)))
     # few degrees of freedom: the residual variance is itself uncertain; scale the covariance so that 1.96 SE is
     # the two-sided 95 % t interval of T - n_par degrees of freedom

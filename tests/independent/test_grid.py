@@ -48,7 +48,7 @@ def test_the_oracle_reaches_the_noise_floor(tmp_path):
 #: are calibrated or left out; a leaky polariser's or a slow bolometer's amplitude is calibrated from the foveal
 #: relation; an uncorrected fixed pattern that biases that relation beyond an ideal polariser's amplitude is not
 #: taken for one; and the polariser model fixes alpha whatever they are)
-FULL = ("nominal", "vignetting 20 %", "bad pixels 0.1 %", "scale -3 %", "centre (3, -3) px", "rotation 0.5 deg",
+FULL = ("nominal", "rate +5 %", "rate -5 %", "vignetting 20 %", "bad pixels 0.1 %", "scale -3 %", "centre (3, -3) px", "rotation 0.5 deg",
         "gain ratio +10 %", "defocus 1/4 wave", "extinction 5 %", "tau 12 ms", "fpn 8 DN + drift 4 DN")
 #: a jittering polariser: alpha MAE <= 2e-3 on this draw of the jitter (followed frame by frame), the images within
 #: LOOSE_DB: at this camera's noise (the oracle's PSNR ~57 dB over 24 frames) the gauge's 5e-4 error costs ~8 dB
@@ -182,3 +182,14 @@ def test_an_unstated_polariser_is_calibrated_and_its_error_stated(tmp_path, name
     for k, c in enumerate(("x1", "x2")):
         err = float(np.sqrt(np.nanmean((getattr(est, c).astype(np.float64) - getattr(truth, c)) ** 2)))
         assert err <= 1.5 * se[k], f"{c}: error {err:.3g} against the stated {se[k]:.3g}"
+
+
+def test_a_rate_beyond_the_searched_tolerance_is_said_and_not_called_identified(tmp_path):
+    """A free-running polariser 10 % fast, twice the rate tolerance searched (+-5 %): the fit stops at the search's
+    end, so alpha is not called identified and the summary says that the rate may lie outside the range and how to
+    state it (a rate at the tolerance's very end, +-5 %, is refined and identified: the grid above)."""
+    m = recording(tmp_path, Deviations(rate_error=0.10))
+    res = reconstruct_measurement(m, "alternating", window=FRAMES)
+    assert not res.reconstruction.info["alpha_identified"]
+    said = [w for w in res.summary()["warnings"] if "at the end of the search" in w]
+    assert said and "2 Hz +- 5 %" in said[0] and "rate_hz=" in said[0], res.summary()["warnings"]
