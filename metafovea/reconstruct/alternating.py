@@ -692,8 +692,8 @@ def polarizer_gauge_step(win: _Window, x1: np.ndarray, x2: np.ndarray, alpha: np
                           + ("using the fitted rotation" if use == "model" else "following each frame"))
     if fit.get("rate_at_search_edge"):
         edge = (f"the polariser's fitted rate {fit['rate_hz']:.4g} Hz is at the end of the search, "
-                f"{model.rate_hz:.4g} Hz +- {100 * model.rate_tolerance:.3g} %: it may run outside that range, and alpha's "
-                "error is not estimated (state the rate: rate_hz=...)")
+                f"{model.rate_hz:.4g} Hz +- {100 * model.rate_tolerance:.3g} %: it may run outside that range, "
+                "and alpha's error is not estimated (state the rate: rate_hz=...)")
         rep["warning"] = "; ".join(w for w in (rep.get("warning"), edge) if w)
     if len(cands) > 1:
         rep["channel_assignment"] = {"by": "foveal constraint", "misfit_ratio": cands[1][0] / max(mis, 1e-300)}

@@ -48,8 +48,9 @@ def test_the_oracle_reaches_the_noise_floor(tmp_path):
 #: are calibrated or left out; a leaky polariser's or a slow bolometer's amplitude is calibrated from the foveal
 #: relation; an uncorrected fixed pattern that biases that relation beyond an ideal polariser's amplitude is not
 #: taken for one; and the polariser model fixes alpha whatever they are)
-FULL = ("nominal", "rate +5 %", "rate -5 %", "vignetting 20 %", "bad pixels 0.1 %", "scale -3 %", "centre (3, -3) px", "rotation 0.5 deg",
-        "gain ratio +10 %", "defocus 1/4 wave", "extinction 5 %", "tau 12 ms", "fpn 8 DN + drift 4 DN")
+FULL = ("nominal", "rate +5 %", "rate -5 %", "vignetting 20 %", "bad pixels 0.1 %", "scale -3 %", "centre (3, -3) px",
+        "rotation 0.5 deg", "gain ratio +10 %", "defocus 1/4 wave", "extinction 5 %", "tau 12 ms",
+        "fpn 8 DN + drift 4 DN")
 #: a jittering polariser: alpha MAE <= 2e-3 on this draw of the jitter (followed frame by frame), the images within
 #: LOOSE_DB: at this camera's noise (the oracle's PSNR ~57 dB over 24 frames) the gauge's 5e-4 error costs ~8 dB
 ALPHA = ("jitter 2 deg",)
