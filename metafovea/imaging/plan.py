@@ -51,15 +51,16 @@ The planner (:func:`plan_model`)
    each effect's change of the image by recombination, without another render.
 2. Estimates. Effects whose change the pilot computes (haze, glare, train, train_field, relative illumination,
    field patches, the polariser's) get ``(1 + SAFETY)`` times the pilot's rms change plus the pilot's own sampling
-   error carried through the effect. Sampling effects are estimated from a symmetric pair of shifted samplings: the
-   scene sampled at ``+-(s - 1) / s`` of a pixel along a diagonal (``s`` the full model's samples per pixel), the
-   pair's mean minus the centre sample through the kernel, times ``SAMPLING_SAFETY``: for a white texture 1.3 times
-   the full model's 3 x 3 mean minus its centre, for a smooth scene several times (the first-order terms cancel in
-   both), for an edge at any phase more (the pair crosses every edge the 3 x 3 samples cross; a pair at whole
-   samples would be blind to structure periodic at the sample spacing: bars, window grids); the far components
-   the same with two pairs at ``+-2/3`` of a coarse sample, plus the difference of the two grids' linear
-   interpolations and edge clamping. Glare components whose bound (twice their weight times the scene's range) is
-   below ``SMALL_SHARE`` of the tolerance are bounded, not rendered. Spectral sampling: the far haze with 11 bins
+   error carried through the effect. Sampling effects: the scene sampled where the full model samples it, each
+   pixel's ``s x s`` samples (``s`` the full model's samples per pixel), their mean minus the pilot's centre sample
+   through the (binned) kernel, or where larger the mean of a pair of samplings shifted by ``(s - 1) / s`` of a pixel
+   along a diagonal minus the centre sample (it reaches the neighbouring pixels' samples: a step at the crop's edge),
+   times ``SAMPLING_SAFETY`` (for the kernel's shape within a pixel, which the binned kernel does not see); the far
+   components rendered as the full model renders them (3 x 3 samples per coarse
+   sample, on its own coarse grid, interpolated and clamped as it does), their change computed (a sub-pixel hot wire
+   that the full model's samples see and the pilot's coarse grid straddles is counted). Glare components whose
+   bound (twice their weight times the scene's range) is below ``SMALL_SHARE`` of the tolerance are bounded, not
+   rendered. Spectral sampling: the far haze with 11 bins
    computed, the kernel's own change bounded by ``(|K| + |K'|) * |L - L_haze|`` with
    ``sum K' <= (1 + SAFETY) sum K``. The sensor's terms are analytic (NETD, the fixed pattern's largest value, the
    ADC's step; the rounding difference of two quantised frames, ``1/sqrt(6)`` DN rms, included).
@@ -72,8 +73,8 @@ The planner (:func:`plan_model`)
    component's coarse grid, the glare's interpolation into the PSF that the file stores), as a share of the full
    model's.
 
-Structure smaller than one sample of the reduced model that falls between the pilot's samplings (a sub-pixel hot wire)
-is not seen by the sampling estimates; such a scene needs the full model.
+Structure that falls between the full model's own samples (narrower than a third of a pixel, between its samples) is
+seen by neither model: the full model is the reference, not the scene.
 """
 
 from __future__ import annotations
@@ -276,12 +277,11 @@ def _conv(img: np.ndarray, k: np.ndarray, mode: str = "valid") -> np.ndarray:
     return img * k[0, 0] if k.shape == (1, 1) else fftconvolve(img, k, mode=mode)
 
 
-#: the symmetric pairs of shifted samplings of the sampling estimates, as (row, column) signs of the offset: the fine
-#: grid's pair along one diagonal, the coarse grids' pairs along both
+#: the symmetric pair of shifted samplings of the supersampling estimate, as (row, column) signs of the offset
 FINE_PAIRS = (((1, -1), (-1, 1)),)
-COARSE_PAIRS = (((1, -1), (-1, 1)), ((1, 1), (-1, -1)))
-#: the factor on the sampling estimates (a symmetric pair's second difference against the full model's 3 x 3 mean:
-#: 1.3x on white texture, more on smooth scenes and edges; the factor covers the kernel's shape within a pixel)
+#: the factor on the supersampling estimate (the full model's s x s samples of each pixel, their mean less the centre
+#: sample, through the binned kernel: the factor covers the kernel's shape within a pixel, which the binned kernel
+#: does not see)
 SAMPLING_SAFETY = 1.5
 
 
@@ -308,13 +308,14 @@ class _Pilot:
 
 def _pilot(scene: Scene, optics: ChannelOptics, radiance: Any, ri_on: bool, field_factor: Any, t: float,
            small: float) -> _Pilot:
-    """The channel at 1 sample per pixel and per coarse sample, and the estimated changes of its image with the full
-    model's sampling: the mean of a symmetric pair of samplings shifted by ``(s - 1) / s`` of a pixel along a diagonal
-    (``s`` the full model's samples per pixel; :data:`FINE_PAIRS`) minus the centre sampling, through the kernel; the
-    same with ``2/3`` of a coarse sample for each far component (:data:`COARSE_PAIRS`), through its kernel, plus the
-    difference of two linear interpolations of its coarse grid. A glare component whose bound ``2 w R`` (``R``: the
-    scene's radiance range over the haze's and the widest glare's coarse grids) is below ``small`` (radiance) is not
-    rendered: its bound stands for it."""
+    """The channel at 1 sample per pixel and per coarse sample, and the changes of its image with the full model's
+    sampling: the scene at the full model's ``s x s`` samples of each pixel (``s`` its samples per pixel), their mean
+    minus the pilot's centre sample, through the kernel, or where larger that of a pair shifted by ``(s - 1) / s`` of a
+    pixel along a diagonal (:data:`FINE_PAIRS`), times :data:`SAMPLING_SAFETY` (an estimate: the kernel is binned);
+    each far component rendered as the full model renders it (3 x 3 samples per coarse sample on its own
+    grid), its difference from the pilot's (computed, so only :data:`SAFETY`). A glare component whose bound ``2 w R``
+    (``R``: the scene's radiance range over the haze's and the widest glare's coarse grids) is below ``small``
+    (radiance) is not rendered: its bound stands for it."""
     o1 = resample_optics(optics, 1) if optics.ss > 1 else optics
     ch = optics.channel
     H, W = ch.shape
@@ -339,60 +340,30 @@ def _pilot(scene: Scene, optics: ChannelOptics, radiance: Any, ri_on: bool, fiel
     ri = rd.ri if rd.ri is not None else np.ones((H, W))
     cos4 = relative_illumination_map(ch) if ri_on else np.ones((H, W))
     m = rd.optics.margin
-    d = (optics.ss - 1) / optics.ss if optics.ss > 1 else 0.0
-    ms = np.zeros((H, W))
-    if d > 0:
+    s = optics.ss
+    fine_err = np.zeros((H, W))
+    if s > 1:
+        # the full model's s x s samples in each pixel, their mean minus the pilot's centre sample, through the kernel
+        # (it sees structure at any of the samples' phases: a point between the pilot's samples), and the pair of
+        # samplings shifted by (s - 1) / s of a pixel along a diagonal (it sees the neighbouring pixels' samples:
+        # a step at the crop's edge), whichever is larger
         py, px = ch.positions_um(H, 1, m), ch.positions_um(W, 1, m)
+        offs = [((a + 0.5) / s - 0.5) * p for a in range(s)]
+        e = sum(rd.radiance_at(py + oy, px + ox, t) for oy in offs for ox in offs) / (s * s) - comps["L"]
+        fine_err = np.abs(rd.kernel_image(e) * ri)
+        d = (s - 1) / s * p
+        ms = np.zeros((H, W))
         for pair in FINE_PAIRS:
-            e = 0.5 * sum(rd.radiance_at(py + sy * d * p, px + sx * d * p, t) for sy, sx in pair) - comps["L"]
+            e = 0.5 * sum(rd.radiance_at(py + sy * d, px + sx * d, t) for sy, sx in pair) - comps["L"]
             ms += np.square(rd.kernel_image(e) * ri) / len(FINE_PAIRS)
-    pilot = _Pilot(rd, comps, ri, cos4, n_haze, SAMPLING_SAFETY * np.sqrt(ms), bounded=bounded,
-                   has_glare=bool(glare))
-    dc = (ChannelRenderer.SUB - 1) / ChannelRenderer.SUB  # the full model's 3 x 3 samples per coarse sample
-    for part, Lc, hz in zip(rd.parts, comps["Lc"], comps["hz"]):
-        km, q = part["kernel"].shape[0] // 2, part["q"]
-        py, px = ch.positions_um(H, 1, km, coarse=q), ch.positions_um(W, 1, km, coarse=q)
-        acc = 0.0
-        for pair in COARSE_PAIRS:
-            e = 0.5 * sum(rd.radiance_at(py + sy * dc * q * p, px + sx * dc * q * p, t) for sy, sx in pair) - Lc
-            acc += float(np.mean(np.square(_conv(e, part["kernel"])))) / len(COARSE_PAIRS)
-        edge = _edge_error(comps["far"][len(pilot.far_err)], (H, W), km, q)
-        pilot.far_err.append(part["weight"] * (SAMPLING_SAFETY * math.sqrt(acc) + 2 * _interpolation_error(hz))
-                             + SAMPLING_SAFETY * edge)
+        fine_err = SAMPLING_SAFETY * np.maximum(fine_err, np.sqrt(ms))
+    pilot = _Pilot(rd, comps, ri, cos4, n_haze, fine_err, bounded=bounded, has_glare=bool(glare))
+    # the far components as the full model samples them (3 x 3 samples per coarse sample, on its own coarse grid,
+    # interpolated and clamped as it does): their difference from the pilot's is the far sampling's change itself
+    full_far = ChannelRenderer(scene, o1, radiance, False, sub=ChannelRenderer.SUB).far_images(t)
+    for f_full, f_pilot in zip(full_far, comps["far"]):
+        pilot.far_err.append((1.0 + SAFETY) * _rms(f_full - f_pilot))
     return pilot
-
-
-def _interpolation_error(c: np.ndarray) -> float:
-    """The rms error of a coarse grid's linear interpolation between its samples, ``(|d2/dy2| + |d2/dx2|) / 8``
-    (second differences): the reduced model's coarse grid lies elsewhere (its sample count is rounded), so the two
-    interpolations differ by at most twice this."""
-    if min(c.shape) < 3:
-        return 0.0
-    dy = np.abs(c[2:, 1:-1] - 2 * c[1:-1, 1:-1] + c[:-2, 1:-1])
-    dx = np.abs(c[1:-1, 2:] - 2 * c[1:-1, 1:-1] + c[1:-1, :-2])
-    return _rms((dy + dx) / 8.0)
-
-
-def _clamped_cells(n: int, km: int, q: int, sub: int) -> np.ndarray:
-    """Per pixel along an axis of ``n`` pixels: how many coarse samples beyond the last one of its grid (``sub``
-    samples per coarse sample; the renderer's geometry) the pixel's interpolation is clamped."""
-    m = round(n * sub / q)
-    cells = (m + 2 * km * sub) // sub - 2 * km
-    r = (np.arange(n) + 0.5 - n / 2.0) / q + m / (2.0 * sub) - 0.5
-    return np.maximum(np.maximum(-r, r - (cells - 1)), 0.0)
-
-
-def _edge_error(far: np.ndarray, shape: tuple[int, int], km: int, q: int) -> float:
-    """The rms difference (radiance) between the full model's and the reduced model's clamping of a far
-    component's image ``far`` (weighted, on the pixels) at the crop's edges, where one grid ends before the crop
-    does: the clamped distance's difference (pixels) times the image's gradient."""
-    H, W = shape
-    dy = np.abs(_clamped_cells(H, km, q, ChannelRenderer.SUB) - _clamped_cells(H, km, q, 1)) * q
-    dx = np.abs(_clamped_cells(W, km, q, ChannelRenderer.SUB) - _clamped_cells(W, km, q, 1)) * q
-    if not (dy.any() or dx.any()):
-        return 0.0
-    gy, gx = np.gradient(far)
-    return _rms(np.abs(gy) * dy[:, None] + np.abs(gx) * dx[None, :])
 
 
 def _scene_radiance(scene: Scene, radiance: Any, tan_y: np.ndarray, tan_x: np.ndarray, t: float) -> np.ndarray:
@@ -752,7 +723,7 @@ def plan_model(inp: PlanInputs, tolerance_k: float, ss_full: int) -> Plan:
         rows.append(PlanRow(e, value, inc, saved, _why(e, inc, value, budget - spent, e in candidates, budget)))
     notes = (f"pilot: 1 sample per pixel and per coarse sample, at {len(ts)} time(s); estimates in K at the "
              f"design's scene temperature {inp.scene_temperature_k:g} K",
-             "the sampling estimates see the scene at the pilot's and two shifted samplings: structure smaller than a "
-             "pixel that falls between them (a sub-pixel hot wire) is not seen; such a scene needs the full model")
+             "the sampling estimates sample the scene where the full model does (s x s per pixel, 3 x 3 per coarse "
+             "sample): structure that falls between the full model's own samples is seen by neither")
     return Plan(tol, tuple(rows), chosen, budget, spent, works[chosen] / full_work, time.perf_counter() - t_start,
                 float(inp.scene_temperature_k), notes, tuple(reuse) if scene.static else None)
