@@ -198,22 +198,27 @@ class Plan:
     seconds: float
     scene_temperature_k: float
     notes: tuple[str, ...] = ()
-    #: per channel, the pilot's parts a reduced model at its sampling reuses (a static scene): ``fine`` the kernel
-    #: image at 1 sample per pixel, ``samples`` its fine samples, ``haze`` the far haze at 1 sample per coarse sample,
-    #: ``ri`` the relative illumination map
+    #: per channel, the pilot's parts a reduced model reuses (a static scene): ``fine`` the kernel image at 1 sample
+    #: per pixel, ``samples`` its fine samples, ``far`` and ``far_full`` the far components (the haze first, then the
+    #: glare the pilot rendered) at 1 and at 3 x 3 samples per coarse sample, ``n_haze`` (1 with a far haze),
+    #: ``glare_complete`` (the pilot rendered every glare component), ``ri`` the relative illumination map
     pilot: tuple[dict[str, Any], ...] | None = field(default=None, compare=False, repr=False)
 
     def reusable(self, i: int) -> dict[str, Any]:
         """Keywords of :meth:`~metafovea.imaging.render.ChannelRenderer.render_static` for channel ``i`` of the model
-        this plan chose: the pilot's fine image where the model samples 1 per pixel with the pilot's kernels, its far
-        haze where the model samples the far components as the pilot and spreads the glare as a uniform level."""
+        this plan chose: the pilot's fine image where the model samples 1 per pixel with the pilot's kernels; its far
+        components at the model's far sampling (the pilot rendered both), the haze alone where the model spreads the
+        glare as a uniform level, all of them where the pilot rendered every glare component."""
         if self.pilot is None:
             return {}
         p, out = self.pilot[i], {}
         if "supersample" in self.reduce and "field_patches" not in self.reduce:
             out.update(fine=p["fine"], samples=p["samples"])
-        if "far_sampling" in self.reduce and "glare" in self.reduce:
-            out["far"] = [p["haze"]] if p["haze"] is not None else []
+        far = p["far"] if "far_sampling" in self.reduce else p["far_full"]
+        if "glare" in self.reduce:
+            out["far"] = list(far[:p["n_haze"]])
+        elif p["glare_complete"]:
+            out["far"] = list(far)
         return out
 
     def illumination(self, i: int) -> np.ndarray | None:
@@ -298,6 +303,7 @@ class _Pilot:
     far_err: list[float] = field(default_factory=list)  # per far component: the estimated rms of its sampling error
     bounded: float = 0.0  # the bound (radiance) of the glare components not rendered
     has_glare: bool = False  # the full model's optics have far glare components
+    full_far: list[np.ndarray] = field(default_factory=list)  # the far components as the full model samples them
 
     @property
     def image(self) -> np.ndarray:
@@ -360,8 +366,8 @@ def _pilot(scene: Scene, optics: ChannelOptics, radiance: Any, ri_on: bool, fiel
     pilot = _Pilot(rd, comps, ri, cos4, n_haze, fine_err, bounded=bounded, has_glare=bool(glare))
     # the far components as the full model samples them (3 x 3 samples per coarse sample, on its own coarse grid,
     # interpolated and clamped as it does): their difference from the pilot's is the far sampling's change itself
-    full_far = ChannelRenderer(scene, o1, radiance, False, sub=ChannelRenderer.SUB).far_images(t)
-    for f_full, f_pilot in zip(full_far, comps["far"]):
+    pilot.full_far = ChannelRenderer(scene, o1, radiance, False, sub=ChannelRenderer.SUB).far_images(t)
+    for f_full, f_pilot in zip(pilot.full_far, comps["far"]):
         pilot.far_err.append((1.0 + SAFETY) * _rms(f_full - f_pilot))
     return pilot
 
@@ -695,8 +701,9 @@ def plan_model(inp: PlanInputs, tolerance_k: float, ss_full: int) -> Plan:
                 per_channel[i].setdefault(e, []).append(v)
             if t == ts[0]:
                 pilots.append(p)
-                reuse.append({"fine": p.comps["fine"], "samples": p.comps["L"],
-                              "haze": p.comps["far"][0] if p.n_haze else None, "ri": p.rd.ri})
+                reuse.append({"fine": p.comps["fine"], "samples": p.comps["L"], "far": p.comps["far"],
+                              "far_full": p.full_far, "n_haze": p.n_haze, "ri": p.rd.ri,
+                              "glare_complete": len(p.rd.optics.extra_far) == len(inp.optics[i].extra_far)})
                 scale = sensor.counts_per_k * cam.gains[i] / dldt300
                 dn.append(sensor.to_dn(p.image, cam.gains[i], dldt300))
                 fid_dn.append(_fidelity(p) * scale)

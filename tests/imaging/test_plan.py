@@ -291,3 +291,19 @@ def test_sub_pixel_wires_and_points_are_counted_by_the_sampling_estimates(seed):
     for e in ("supersample", "far_sampling"):
         assert est[e] >= r.errors[e], (e, est[e], r.errors[e])
     assert r.realised_error_k <= TOLERANCE_K
+
+
+@pytest.mark.parametrize(("scene", "tolerance_k"), [("siemens-star", 0.003), ("bars", 0.01), ("bars", 0.03),
+                                                    ("bars", 0.1), ("bars", 1.0)])
+def test_the_pilots_parts_reused_give_the_models_own_images(scene, tolerance_k):
+    """A reduced model reuses what the pilot rendered (its fine image at 1 sample per pixel, its far components at
+    either far sampling): its images are bit for bit those of the model rendered afresh with the same effects
+    replaced, whichever effects the plan replaced (none, the glare alone, with the far sampling or the
+    supersampling, or all three)."""
+    system = SystemDesign.paper()
+    system = replace(system, sensor=replace(system.sensor, crop=(50, 50)))
+    quiet = dict(noise=False, fpn_rank=0, quantize=False, calibration_frames=0)
+    red = simulate(system, scene, frames=2, psf="airy", tolerance_k=tolerance_k, **quiet)
+    again = simulate(system, scene, frames=2, psf="airy", reduce=tuple(red.meta["model"]["reduce"]), **quiet)
+    np.testing.assert_array_equal(red.truth_x1, again.truth_x1)
+    np.testing.assert_array_equal(red.truth_x2, again.truth_x2)
