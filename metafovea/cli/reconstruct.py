@@ -1,9 +1,8 @@
 """``metafovea reconstruct``: separate a Measurement file into foveal and perifoveal images.
 
 ``run(args)`` reads the file (:meth:`metafovea.measurement.Measurement.load`, which checks it), checks the outputs,
-calls :func:`metafovea.reconstruct.reconstruct_measurement` (the pipeline's rules: windows, FPN, denoising,
-scoring against the file's truth), prints a summary (``--json``: as JSON) and writes the Reconstruction ``.npz``
-and its figures. Exit status 0, or 2 on bad input (one line, from :func:`metafovea.cli.main`).
+calls :func:`metafovea.reconstruct.reconstruct_measurement` (windows, FPN, denoising, scoring against the truth),
+prints a summary (``--json``: JSON), writes the Reconstruction ``.npz`` and figures; exit 0, or 2 on bad input.
 """
 
 from __future__ import annotations
@@ -59,7 +58,7 @@ def register(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
                    help="alternating with the polariser model: alpha of the fitted constant-rate rotation (model), "
                         "each frame's own (frames: follows a jittering polariser), or auto (default: frames when the "
                         "rotation is irregular beyond the noise)")
-    p.add_argument("--frame", type=int, default=0, help="frame index for --method snapshot (default 0)")
+    p.add_argument("--frame", type=int, default=None, help="--method snapshot's frame (default: alpha nearest 1/2)")
     p.add_argument("--steps", type=int, default=2000, help="DIP step budget: at most this many (default 2000)")
     p.add_argument("--channels", type=int, default=None, help="DIP network channels (default 16)")
     p.add_argument("--init", default="random", choices=("random", "classical"), help="DIP start: random (the "
@@ -150,7 +149,8 @@ def run(args: argparse.Namespace) -> int:
         print(to_json(s))
         return 0
     print(f"{s['method']}: {s['frames']} frames -> {s['outputs']} reconstruction(s) in {s['seconds']:.3f} s "
-          f"({s['ms_per_output']:.3f} ms each)\n" + "".join(f"  {line}\n" for line in auto_lines(auto, dec)), end="")
+          f"({s['ms_per_output']:.3f} ms each)\n" + "".join(f"  {line}\n" for line in auto_lines(auto, dec))
+          + ("  frame {index}: {why}\n".format(**s["frame"]) if "frame" in s else ""), end="")
     if "condition" in s:
         print(f"  normal-matrix condition number: {s['condition']:.3g}")
     _print_dip(s.get("dip"), args)

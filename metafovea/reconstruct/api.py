@@ -188,7 +188,7 @@ def fpn_mode(m: Measurement) -> tuple[str, str]:
 
 def reconstruct_measurement(m: Measurement, method: str = "lsq", *, known_alpha: bool = False,
                             window: int | None = None, stride: int = 1, starts: Sequence[int] | None = None,
-                            fpn: str | np.ndarray = "auto", denoise: str | None = None, frame: int = 0,
+                            fpn: str | np.ndarray = "auto", denoise: str | None = None, frame: int | None = None,
                             constraint: FovealConstraint | None = None, solver: dict[str, Any] | None = None,
                             level_free: bool = False, progress: bool = False,
                             score_truth: bool = True, polarizer: dict[str, Any] | None = None,
@@ -200,7 +200,9 @@ def reconstruct_measurement(m: Measurement, method: str = "lsq", *, known_alpha:
     ----------
     m : Measurement
     method : {'lsq', 'alternating', 'dip', 'snapshot', 'auto'}
-        ``lsq`` uses the file's alpha; ``snapshot`` separates the single frame ``frame``; ``auto`` chooses the solver,
+        ``lsq`` uses the file's alpha; ``snapshot`` separates the single frame ``frame`` (default: the frame whose
+        file alpha is nearest 1/2, both channels most evenly mixed; frame 0 where the file has none); ``auto`` chooses
+        the solver,
         window and stride (and the PSF-aware step to run after: ``deconvolve``) from what the file knows of alpha,
         the scene's motion and ``time_s`` (:func:`~metafovea.reconstruct.auto.choose_method`), and records the
         choice, why, and the time it took in ``reconstruction.info['auto']`` (a given ``window`` or a ``stride``
@@ -613,12 +615,26 @@ def _polarizer_model(m: Measurement, method: str, alpha: np.ndarray | None, spec
     return kw
 
 
+def snapshot_frame(m: Measurement) -> tuple[int, str]:
+    """The frame a snapshot separates when none is asked: the one whose file alpha is nearest 1/2 (both channels
+    most evenly mixed, the best-conditioned split of one frame), or frame 0 where the file states no alpha.
+    Returns ``(index, why)``."""
+    a = None if m.alpha is None else np.asarray(m.alpha, dtype=np.float64)
+    if a is None or a.size == 0 or not np.all(np.isfinite(a)):
+        return 0, "the first: the file states no alpha"
+    k = int(np.argmin(np.abs(a - 0.5)))
+    return k, f"the file's frame nearest alpha 1/2 (alpha {a[k]:.2f}): both channels most evenly mixed"
+
+
 def _solve(m: Measurement, method: str, frames: np.ndarray, alpha: np.ndarray | None, kw: dict[str, Any],
            fpn_kw: dict[str, Any], window: int, stride: int, starts: Sequence[int] | None, denoise: str | None,
-           frame: int, video_out: bool, progress: bool) -> tuple[Reconstruction, tuple]:
+           frame: int | None, video_out: bool, progress: bool) -> tuple[Reconstruction, tuple]:
     """The solver call of :func:`reconstruct_measurement`: ``(reconstruction, spans)``."""
     T = m.shape[0]
     if method == "snapshot":
+        why = None
+        if frame is None:
+            frame, why = snapshot_frame(m)
         if not 0 <= frame < T:
             raise InputError("frame", frame, f"0 <= frame < {T}")
         a = None if alpha is None else alpha[frame:frame + 1]
@@ -627,6 +643,7 @@ def _solve(m: Measurement, method: str, frames: np.ndarray, alpha: np.ndarray | 
                              "both channels in its frame (this one holds only one; choose another frame=N)",
                              source=m.source)
         rec = _denoised(reconstruct(frames[frame][None], a, method="snapshot", **kw, **fpn_kw), denoise)
+        rec.info["frame"] = {"index": int(frame), "why": why or "as asked (frame)"}
         spans = ((frame, frame + 1),)
     elif video_out:
         rec = video(frames, alpha, window=window, stride=stride, starts=starts, method=method, denoise=denoise,

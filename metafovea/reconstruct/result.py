@@ -296,6 +296,8 @@ class PipelineResult:
         if self.metrics is not None:  # with the estimated alpha's error against the file's, where both exist
             add = isinstance(self.metrics, dict) and self.alpha_mae is not None
             out["metrics"] = {**self.metrics, "alpha_mae": self.alpha_mae} if add else self.metrics
+        if rec.info.get("frame"):  # the snapshot's frame, and why it was that one
+            out["frame"] = rec.info["frame"]
         if rec.info.get("auto"):  # what method='auto' chose, why, and the time it took
             out["auto"] = rec.info["auto"]
         return out

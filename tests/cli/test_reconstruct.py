@@ -554,3 +554,24 @@ def test_the_calibration_line_says_which_frames_it_used(tmp_path, capsys):
     rc, out, _ = _run([f, "--method", "alternating", "--out", tmp_path / "j.npz", "--no-figures", "--json"], capsys)
     c = json.loads(out)["calibration"]
     assert rc == 0 and (c["frames"], c["frames_in_recording"]) == (24, 30)
+
+
+def test_snapshot_without_a_frame_takes_the_frame_whose_alpha_is_nearest_a_half(tmp_path, capsys):
+    """`--method snapshot` without `--frame` separates the frame whose file alpha is nearest 1/2 (both channels most
+    evenly mixed: frame 0, at alpha 0.91 on the paper's polariser, did worse than the unseparated frame on 6 of 36
+    cases of an independent check) and says which and why; with `--frame` that one; without a file alpha frame 0."""
+    m = _save(tmp_path / "m.npz", T=10)
+    a = np.load(m)["alpha"]
+    best = int(np.argmin(np.abs(a - 0.5)))
+    assert best != 0
+    rc, out, err = _run([m, "--method", "snapshot", "--no-figures", "--json", "--out", tmp_path / "a.npz"], capsys)
+    assert rc == 0, err
+    assert json.loads(out)["frame"]["index"] == best and "nearest alpha 1/2" in json.loads(out)["frame"]["why"]
+    rc, out, _ = _run([m, "--method", "snapshot", "--no-figures", "--out", tmp_path / "b.npz"], capsys)
+    assert rc == 0 and f"  frame {best}: the file's frame nearest alpha 1/2 (alpha {a[best]:.2f})" in out
+    rc, out, _ = _run([m, "--method", "snapshot", "--frame", "2", "--no-figures", "--json", "--out",
+                       tmp_path / "c.npz"], capsys)
+    assert rc == 0 and json.loads(out)["frame"]["index"] == 2
+    bare = _save(tmp_path / "bare.npz", T=10, alpha=None)
+    rc, out, _ = _run([bare, "--method", "snapshot", "--no-figures", "--json", "--out", tmp_path / "d.npz"], capsys)
+    assert rc == 0 and json.loads(out)["frame"]["index"] == 0
