@@ -89,6 +89,10 @@ FOVEAL_BLUR = 0.0
 PSF_GRID = (0.0, 0.5, 0.75, 1.0, 1.25, 1.5)
 #: relative scale changes probed by the guard's geometry check (rejects when one halves the misfit)
 SCALE_PROBES = (0.9, 0.95, 1.05, 1.1)
+#: a foveal gauge fix whose constraint misfit stays above this many times its noise is applied where it explains the
+#: images far better than before, but alpha is not called identified by it: the constraint itself (its offset, gain
+#: or geometry) does not describe the recording (the channels' PSF difference leaves a few times the noise)
+FOVEAL_UNEXPLAINED = 10.0
 
 
 def frame_mean_alpha(Y: np.ndarray) -> np.ndarray:
@@ -330,6 +334,12 @@ def foveal_gauge(x1: np.ndarray, x2: np.ndarray, alpha: np.ndarray, op: FovealOp
         log.info("foveal gauge fix rejected: %s", rep["reason"])
         return x1, x2, alpha, rep
     rep.update(applied=True, reason="improves the fit")
+    if rep["foveal_rms_after"] > FOVEAL_UNEXPLAINED * rep["foveal_rms_expected"]:
+        rep["unexplained"] = True
+        rep["warning"] = (f"the foveal constraint fixed alpha's gauge but does not explain the images (misfit "
+                          f"{rep['foveal_rms_after']:.3g} against a noise of {rep['foveal_rms_expected']:.3g}): its "
+                          "offset, gain or geometry is not the recording's (scale, foveal_gain, foveal_offset); alpha "
+                          "is not identified")
     return n1.astype(x1.dtype), n2.astype(x2.dtype), a_new, rep
 
 
@@ -782,7 +792,8 @@ def alternating(frames: ArrayLike, options: AlternatingOptions | None = None, **
             x1, x2, a, cond, history, it_done = _alternate(win, x1, x2, a, cond, opt, prior, sig, gain, fixed)
     se_max = prep["alpha_se_max"] if by_pol else None
     info.update(iterations=it_done, loss_history=history, condition=float(cond),
-                alpha_identified=bool(grep["applied"] or (by_pol and se_max <= ALPHA_SE_MAX)),
+                alpha_identified=bool((grep["applied"] and not grep.get("unexplained"))
+                                      or (by_pol and se_max <= ALPHA_SE_MAX)),
                 alpha_se_max=se_max, alpha_se_threshold=ALPHA_SE_MAX,
                 images_gauge_se=prep.get("images_gauge_se") if by_pol else None,
                 noise_gain=_channel_noise_gain(np.asarray(a, dtype=np.float64)).tolist(),

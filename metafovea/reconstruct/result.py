@@ -281,7 +281,8 @@ class PipelineResult:
         if cal:  # what the recording showed of its camera (geometry, gain, amplitude), with standard errors
             out["calibration"] = dict(cal)
         warns = list(rec.info.get("warnings") or [])
-        warns += [w for w in (pg.get("warning") if pg else None, (cal or {}).get("warning")) if w]
+        warns += [w for w in (pg.get("warning") if pg else None, (cal or {}).get("warning"),
+                              (rec.info.get("gauge") or {}).get("warning")) if w]
         if warns:
             out["warnings"] = warns
         if "fpn" in rec.info:
