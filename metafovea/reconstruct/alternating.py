@@ -89,6 +89,10 @@ FOVEAL_BLUR = 0.0
 PSF_GRID = (0.0, 0.5, 0.75, 1.0, 1.25, 1.5)
 #: relative scale changes probed by the guard's geometry check (rejects when one halves the misfit)
 SCALE_PROBES = (0.9, 0.95, 1.05, 1.1)
+#: a frame with fewer valid samples than this share of the window's median (saturated, dropped) is left out of the
+#: polariser model's fit, and its alpha is the fitted rotation's: its own rests on another part of the image than the
+#: other frames', whose errors differ (half a frame masked: 0.07 rms off, taken for an irregular rotation)
+FRAME_VALID_MIN = 0.9
 #: a foveal gauge fix whose constraint misfit stays above this many times its noise is applied where it explains the
 #: images far better than before, but alpha is not called identified by it: the constraint itself (its offset, gain
 #: or geometry) does not describe the recording (the channels' PSF difference leaves a few times the noise)
@@ -662,8 +666,18 @@ def polarizer_gauge_step(win: _Window, x1: np.ndarray, x2: np.ndarray, alpha: np
     # data-term noise of alpha_hat: the per-frame alpha-step's std, sig / ||d|| over the valid pixels
     n_valid = d.size if win.M is None else float(np.mean(win.M.sum(axis=(1, 2))))
     dnorm = math.sqrt(float(np.mean(d ** 2)) * n_valid)
-    fit = polarizer_gauge(alpha, model, alpha_noise=sig / dnorm if dnorm > 0 else None)
+    # frames with under FRAME_VALID_MIN of the window's typical valid samples (a saturated or dropped frame) say
+    # little or nothing of their alpha (a frame without any gives 0): the rotation is fitted without them, and
+    # their alpha is the fitted rotation's
+    keep = np.ones(alpha.shape[0], dtype=bool)
+    if win.M is not None:
+        counts = win.M.sum(axis=(1, 2)).astype(np.float64)
+        keep = counts >= FRAME_VALID_MIN * float(np.median(counts))
+    fit = polarizer_gauge(alpha[keep], model if keep.all() else replace(model, times_s=model.times_s[keep]),
+                          alpha_noise=sig / dnorm if dnorm > 0 else None)
     rep: dict[str, Any] = {"applied": False, "fit": {k: v for k, v in fit.items() if k != "cov"}}
+    if not keep.all():
+        rep["frames_left_out"] = [int(k) for k in np.flatnonzero(~keep)]
     if fit["status"] != "ok":
         rep["reason"] = fit.get("reason", fit["status"])
         return x1, x2, alpha, rep
@@ -688,7 +702,10 @@ def polarizer_gauge_step(win: _Window, x1: np.ndarray, x2: np.ndarray, alpha: np
     if use == "model":
         al_f = al
         al, se = model_alpha(model, fit, sign)
-        rep["frames_vs_model_rms"] = float(np.sqrt(np.mean((al_f - al) ** 2)))
+        rep["frames_vs_model_rms"] = float(np.sqrt(np.mean((al_f - al)[keep] ** 2)))
+    elif not keep.all():  # the frames left out of the fit: the fitted rotation's alpha
+        al_m, se_m = model_alpha(model, fit, sign)
+        al, se = np.where(keep, al, al_m), np.where(keep, se, se_m)
     f1, f2 = gauge_image_factors(fit, sign, use)
     rms_d = math.sqrt(float(np.mean(d ** 2)))
     rep.update(applied=True, reason="polariser model (known mean and amplitude of alpha)", sign=sign, alpha_from=use,
@@ -700,6 +717,12 @@ def polarizer_gauge_step(win: _Window, x1: np.ndarray, x2: np.ndarray, alpha: np
         rep["warning"] = (f"alpha deviates from a constant-rate rotation by {fit['jitter_rms']:.2g} rms beyond the "
                           f"noise ({fit['alpha_noise_absolute']:.2g}); {why}; "
                           + ("using the fitted rotation" if use == "model" else "following each frame"))
+    if not keep.all():
+        left = rep["frames_left_out"]
+        said = ", ".join(str(k) for k in left[:8]) + (f" and {len(left) - 8} more" if len(left) > 8 else "")
+        rep["warning"] = "; ".join(w for w in (rep.get("warning"), (
+            f"frame(s) {said} left out of the polariser's fit (under {FRAME_VALID_MIN:.0%} of their samples valid: "
+            "saturated or dropped); their alpha is the fitted rotation's")) if w)
     if fit.get("rate_at_search_edge"):
         edge = (f"the polariser's fitted rate {fit['rate_hz']:.4g} Hz is at the end of the search, "
                 f"{model.rate_hz:.4g} Hz +- {100 * model.rate_tolerance:.3g} %: it may run outside that range, "

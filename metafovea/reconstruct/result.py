@@ -272,7 +272,8 @@ class PipelineResult:
             out["polarizer"] = {"applied": pg["applied"], "reason": pg.get("reason"), "mode": fit.get("mode"),
                                 "rate_hz": fit.get("rate_hz"), "irregular": fit.get("irregular"),
                                 "warning": pg.get("warning"), "alpha_from": pg.get("alpha_from"),
-                                "deviation_shared": pg.get("deviation_shared")}
+                                "deviation_shared": pg.get("deviation_shared"),
+                                **({"frames_left_out": pg["frames_left_out"]} if pg.get("frames_left_out") else {})}
         if rec.info.get("polarizer_spec") is not None:  # the model used: each value with its source
             out.setdefault("polarizer", {})["model"] = rec.info["polarizer_spec"]
         if rec.info.get("gauge_pooled"):  # windows whose gauges were chained into one polariser fit
