@@ -61,7 +61,7 @@ PARAMETER_FLAGS: dict[str, dict[str, str]] = {
                "time_unit": "--time-unit", "frame_rate_hz": "--frame-rate", "polarizer_key": "--polarizer-key",
                "polarizer_unit": "--polarizer-unit", "calibration": "--calibration", "planck": "--planck",
                "calibration_gain": "--calibration-gain", "band_um": "--band-um", "filter_um": "--filter-um",
-               "foveal_gain": "--foveal-gain", "scale": "--scale", **_POLARIZER},
+               "foveal_gain": "--foveal-gain", "scale": "--scale", "adc_bits": "--adc-bits", **_POLARIZER},
     "codesign": {"objective": "--objective", "band_um": "--band", "lenses": "--lenses",
                  "n_coefficients": "--coefficients", "size_px": "--size-px", "max_wavelengths": "--max-wavelengths",
                  "steps": "--steps", "learning_rate": "--learning-rate", "out": "--out", "posts": "--posts"},

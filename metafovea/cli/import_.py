@@ -61,6 +61,8 @@ def register(subparsers: Any) -> argparse.ArgumentParser:
     c.add_argument("--foveal-gain", type=float, default=None, help="flat-field ratio of the channels G1/G2 (the "
                    "foveal constraint's gain; default 1): splits the calibration between the channels")
     c.add_argument("--scale", type=float, default=None, help="f1/f2 of the two lenses (default: reconstruct's 6)")
+    g.add_argument("--adc-bits", type=int, default=None, metavar="N", help="the camera's ADC bits: samples at 2^N - 1 "
+                   "are saturated, left out (default: the file's integer full scale, 65535 for 16-bit)")
     p.add_argument("--out", default=None, help="output .npz (default: the recording's name with .npz)")
     p.add_argument("--no-preview", action="store_true", help="do not write the preview PNG (<out>_preview.png)")
     add_shared(p, "--force", "--json")
@@ -82,7 +84,7 @@ def run(args: argparse.Namespace) -> int:
                         calibration_gain=args.calibration_gain, planck=args.planck,
                         band_um=tuple(args.band_um) if args.band_um else BAND_UM,
                         filter_um=tuple(args.filter_um) if args.filter_um else None, foveal_gain=args.foveal_gain,
-                        scale=args.scale, polarizer=polarizer_args(args))
+                        scale=args.scale, polarizer=polarizer_args(args), adc_bits=args.adc_bits)
     out, s = import_recording(args.recording, out_file(args, None), opt, force=args.force,
                               preview=not args.no_preview)
     s["warnings"] = [in_flags(w, flag_map("import")) for w in s["warnings"]]  # the flags for the options they advise

@@ -20,7 +20,7 @@ from typing import Any
 
 import numpy as np
 
-from metafovea.errors import InputError, as_float, check_choice
+from metafovea.errors import InputError, as_float, check_choice, check_int
 from metafovea.measurement import FovealConstraint, Measurement, PolarizerSpec
 from metafovea.radiometry import BAND_UM, check_band, check_filter, spectral_support_um
 from metafovea.recordings.calibration import (
@@ -62,9 +62,14 @@ class ImportOptions:
     #: the polariser (:class:`~metafovea.measurement.PolarizerSpec` keywords: rate_hz, mode, phase_deg, extinction,
     #: tau_s): written as the recording schema's keys, before what the recorded angles give
     polarizer: dict[str, Any] | None = None
+    #: the camera's ADC bits: samples at its full scale, 2^bits - 1, are saturated (default: the full scale of the
+    #: file's integer type, e.g. 65535 for 16-bit counts, which a 14-bit camera never reaches)
+    adc_bits: int | None = None
 
     def __post_init__(self) -> None:
         """The options checked when made, whether or not the file has a calibration or times to apply them to."""
+        if self.adc_bits is not None:
+            object.__setattr__(self, "adc_bits", check_int("adc_bits", self.adc_bits, 1, 32))
         for name in ("frame_rate_hz", "foveal_gain", "scale"):
             v = getattr(self, name)
             if v is not None:
@@ -123,8 +128,10 @@ def _calibration_frames(path: str, opt: ImportOptions, shape: tuple[int, int]) -
     return np.nanmean(_saturated_as_nan(r.frames)[0], axis=0)
 
 
-def _saturated_as_nan(frames: np.ndarray, source: str | None = None) -> tuple[np.ndarray, int]:
-    """float32 frames with an integer dtype's full-scale samples as NaN, and their count. Frames that float32
+def _saturated_as_nan(frames: np.ndarray, source: str | None = None,
+                      full_scale: float | None = None) -> tuple[np.ndarray, int]:
+    """float32 frames with the full-scale samples as NaN (``full_scale``, else an integer dtype's largest value),
+    and their count. Frames that float32
     cannot hold to 1/1000 of their range (counts on a large offset, e.g. int64 near 2^40) are an error naming
     ``source``: cast, they would be silently flattened."""
     f = np.asarray(frames)
@@ -139,8 +146,9 @@ def _saturated_as_nan(frames: np.ndarray, source: str | None = None) -> tuple[np
                                      "holds to 1/1000 of their range (subtract the offset before importing: here "
                                      f"float32 steps by {ulp:.3g})", source=source)
     out = f.astype(np.float32)
-    if f.dtype.kind in "iu":
-        sat = f == np.iinfo(f.dtype).max
+    if full_scale is not None or f.dtype.kind in "iu":
+        with np.errstate(invalid="ignore"):
+            sat = f >= (np.iinfo(f.dtype).max if full_scale is None else full_scale)
         n = int(sat.sum())
         if n:
             out[sat] = np.nan
@@ -188,7 +196,8 @@ def to_measurement(rec: Recording, options: ImportOptions | None = None) -> tupl
     times, t_from = frame_times(rec.times_s, rec.frames.shape[0], opt.frame_rate_hz, rec.times_from)
     kept, timing = check_timing(rec.frames, times, times_from=t_from,
                                 frame_rate_hz=opt.frame_rate_hz if rec.times_s is not None else None)
-    frames, n_sat = _saturated_as_nan(rec.frames[kept], str(rec.source))
+    full = None if opt.adc_bits is None else float(2 ** opt.adc_bits - 1)
+    frames, n_sat = _saturated_as_nan(rec.frames[kept], str(rec.source), full)
     if min(frames.shape[1:]) < 2:  # what reconstruct needs: refused here, not after the file is written
         raise InputError("recording", str(rec.source), "frames of at least 2 x 2 pixels",
                          detail=f"its frames are {frames.shape[1]} x {frames.shape[2]}")
@@ -232,7 +241,8 @@ def to_measurement(rec: Recording, options: ImportOptions | None = None) -> tupl
     m = Measurement(frames=frames, times_s=times, alpha=pol_kw.get("alpha"), meta=meta, extras=extras)
     warn = timing.warnings()
     if n_sat:
-        warn.append(f"{n_sat} sample(s) at the {rec.frames.dtype} full scale: left out (NaN) as saturated")
+        warn.append(f"{n_sat} sample(s) at the " + (f"{rec.frames.dtype} full scale" if full is None else
+                    f"{opt.adc_bits}-bit full scale ({full:.0f})") + ": left out (NaN) as saturated")
     if model is not None and model.info.get("fit_max_error_k", 0) > 0.25:
         warn.append(f"the Planck curve departs from the {model.band_um[0]:g}-{model.band_um[1]:g} um band model by "
                     f"up to {model.info['fit_max_error_k']:.2g} K: set band_um=... to the camera's band")

@@ -198,3 +198,28 @@ def test_a_free_running_recording_imported_from_tiff_reconstructs_as_simulated(t
         maes.append(float(np.mean(np.abs(rec.alpha - sim.alpha))))
         assert json.loads(out)["polarizer"]["model"]["sources"]["rate_hz"] == "file"
     assert maes[0] < 2e-3 and maes[1] < 2e-3 and abs(maes[1] - maes[0]) < 2e-4, maes
+
+
+def test_a_14_bit_cameras_full_scale_is_saturated_with_adc_bits(tmp_path, cli):
+    """A 14-bit camera's counts in a 16-bit TIFF: its full scale, 16383, is not the file type's 65535, so without
+    `--adc-bits` nothing was left out and its clipped samples biased the separation ("the polariser is stopped...");
+    `--adc-bits 14` leaves them out, counted and said. A bit count outside 1-32 is one line naming the flag."""
+    import tifffile
+
+    rng = np.random.default_rng(0)
+    frames = rng.integers(1500, 9000, (12, 16, 20)).astype(np.uint16)
+    frames[0:4, :, :10] = 16383
+    tifffile.imwrite(tmp_path / "rec.tif", frames, photometric="minisblack")
+    rc, out, err = cli("import", tmp_path / "rec.tif", "--frame-rate", 12, "--out", tmp_path / "a.npz", "--json")
+    assert rc == 0, err
+    assert Measurement.load(tmp_path / "a.npz").meta["saturated_samples"] == 0
+    rc, out, err = cli("import", tmp_path / "rec.tif", "--frame-rate", 12, "--adc-bits", 14, "--out",
+                       tmp_path / "b.npz", "--json")
+    assert rc == 0, err
+    m = Measurement.load(tmp_path / "b.npz")
+    assert m.meta["saturated_samples"] == 4 * 16 * 10 and np.isnan(m.frames[0:4, :, :10]).all()
+    assert np.isfinite(m.frames[4:]).all() and "14-bit full scale (16383)" in out
+    for bad in (0, 33):
+        rc, _, err = cli("import", tmp_path / "rec.tif", "--frame-rate", 12, "--adc-bits", bad, "--out",
+                         tmp_path / f"c{bad}.npz")
+        assert rc == 2 and "--adc-bits" in err and len(err.strip().splitlines()) == 1, err
