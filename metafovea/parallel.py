@@ -128,8 +128,13 @@ class LineProgress:
     def __enter__(self) -> LineProgress:
         return self
 
-    def __exit__(self, *exc: Any) -> None:
-        self.close()
+    def __exit__(self, exc_type: Any, *exc: Any) -> None:
+        if exc_type is None:
+            self.close()
+            return
+        self._stop.set()  # a loop stopped by an exception (Ctrl-C, an error, a generator closed): no final line after
+        with self._lock:  # the command's own one-line message
+            self.closed = True
 
 
 class _NoProgress(LineProgress):

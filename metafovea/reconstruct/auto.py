@@ -110,7 +110,7 @@ class Motion:
     def why(self) -> str:
         if self.frames < 3:
             return f"static {self.noise_from}"
-        return (f"{'moving' if self.moving else 'static'}: {100 * self.fraction:.2g} % of the pixels change beyond "
+        return (f"{'moving' if self.moving else 'static'}: {100 * self.fraction:.3g} % of the pixels change beyond "
                 f"{self.threshold:.3g} x the noise variance (limit {100 * MOTION_FRACTION:g} %; noise "
                 f"{self.noise_dn:.3g} DN {self.noise_from})")
 

@@ -103,3 +103,22 @@ def test_a_loop_whose_first_step_is_slow_still_writes_a_line_every_interval():
     time.sleep(0.3)
     assert len(out.getvalue().splitlines()) == n  # closed: silent
     assert re.search(r"3/3 task \(100 %\) in \d+ s$", out.getvalue().strip())
+
+
+def test_a_loop_stopped_by_an_exception_writes_no_final_line():
+    """Ctrl-C (or an error) inside a loop: no 'N/M ... in S' line after the command's own one-line message (the
+    progress of a generator, closed when collected, wrote it after 'interrupted'); a loop that ends writes it."""
+    out = io.StringIO()
+    with pytest.raises(KeyboardInterrupt):
+        for k in progress_iter(range(5), "windows", "window", interval_s=0.0, stream=out):
+            if k == 2:
+                raise KeyboardInterrupt
+    lines = out.getvalue().splitlines()
+    assert lines and not any(" in " in ln and "ETA" not in ln for ln in lines), lines
+    it = progress_iter(range(5), "windows", "window", interval_s=0.0, stream=out)
+    next(it)
+    it.close()  # a generator closed early (GeneratorExit)
+    assert not any(" in " in ln and "ETA" not in ln for ln in out.getvalue().splitlines())
+    done = io.StringIO()
+    assert list(progress_iter(range(3), "windows", "window", interval_s=0.0, stream=done)) == [0, 1, 2]
+    assert re.fullmatch(r"metafovea: windows: 3/3 window \(100 %\) in \d+ s", done.getvalue().splitlines()[-1])
