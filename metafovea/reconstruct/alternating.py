@@ -36,7 +36,10 @@ only if all of these hold (the reasons are in ``info['gauge']``):
    decreases;
 4. no scale 5-10 % off (:data:`SCALE_PROBES`) halves the misfit (the geometry is right).
 
-``gauge='foveal'`` applies the fix whenever it is computable, ``'none'`` never.
+A fix applied because it halved the misfit, which still leaves it above :data:`FOVEAL_UNEXPLAINED` times its noise,
+does not make alpha identified (``info['gauge']['warning']``): the constraint's offset, gain or geometry is not the
+recording's. ``gauge='foveal'`` applies the fix whenever it is computable, ``'none'`` never. With the polariser model,
+frames with under :data:`FRAME_VALID_MIN` of the window's typical valid samples are left out of its fit.
 
 Algorithm
 ---------
