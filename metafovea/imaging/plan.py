@@ -49,19 +49,18 @@ The planner (:func:`plan_model`)
    each estimate the largest of the three).
    Its parts (kernel image, each far component, relative illumination; :meth:`ChannelRenderer.components`) give
    each effect's change of the image by recombination, without another render.
-2. Estimates. Effects whose change the pilot computes (haze, glare, train, train_field, relative illumination,
-   field patches, the polariser's) get ``(1 + SAFETY)`` times the pilot's rms change plus the pilot's own sampling
-   error carried through the effect. Sampling effects: the scene sampled where the full model samples it, each
-   pixel's ``s x s`` samples (``s`` the full model's samples per pixel), their mean minus the pilot's centre sample
-   through the (binned) kernel, or where larger the mean of a pair of samplings shifted by ``(s - 1) / s`` of a pixel
-   along a diagonal minus the centre sample (it reaches the neighbouring pixels' samples: a step at the crop's edge),
-   times ``SAMPLING_SAFETY`` (for the kernel's shape within a pixel, which the binned kernel does not see); the far
-   components rendered as the full model renders them (3 x 3 samples per coarse
-   sample, on its own coarse grid, interpolated and clamped as it does), their change computed (a sub-pixel hot wire
-   that the full model's samples see and the pilot's coarse grid straddles is counted). Glare components whose
-   bound (twice their weight times the scene's range) is below ``SMALL_SHARE`` of the tolerance are bounded, not
-   rendered. Spectral sampling: the far haze with 11 bins
-   computed, the kernel's own change bounded by ``(|K| + |K'|) * |L - L_haze|`` with
+2. Estimates. Effects whose change the pilot computes (haze, glare, train, train_field, relative illumination, field
+   patches, the polariser's) get ``(1 + SAFETY)`` times the pilot's rms change plus the pilot's own sampling error
+   carried through the effect. Sampling effects: the scene sampled where the full model samples it, each pixel's
+   ``s x s`` samples (``s`` the full model's samples per pixel), their mean minus the pilot's centre sample through
+   the (binned) kernel, or where larger the mean of a pair of samplings shifted by ``(s - 1) / s`` of a pixel along a
+   diagonal minus the centre sample (it reaches the neighbouring pixels' samples: a step at the crop's edge), times
+   ``SAMPLING_SAFETY`` (for the kernel's shape within a pixel, which the binned kernel does not see); the far
+   components rendered as the full model renders them (3 x 3 samples per coarse sample, on its own coarse grid,
+   interpolated and clamped as it does), their change computed (a sub-pixel hot wire that the full model's samples
+   see and the pilot's coarse grid straddles is counted). Glare components whose bound (twice their weight times the
+   scene's range) is below ``SMALL_SHARE`` of the tolerance are bounded, not rendered. Spectral sampling: the far
+   haze with 11 bins computed, the kernel's own change bounded by ``(|K| + |K'|) * |L - L_haze|`` with
    ``sum K' <= (1 + SAFETY) sum K``. The sensor's terms are analytic (NETD, the fixed pattern's largest value, the
    ADC's step; the rounding difference of two quantised frames, ``1/sqrt(6)`` DN rms, included).
 3. Budget: an effect may be replaced only where its alternative saves work; the planner keeps the set of

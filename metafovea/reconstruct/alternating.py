@@ -94,12 +94,17 @@ PSF_GRID = (0.0, 0.5, 0.75, 1.0, 1.25, 1.5)
 SCALE_PROBES = (0.9, 0.95, 1.05, 1.1)
 #: a frame with fewer valid samples than this share of the window's median (saturated, dropped) is left out of the
 #: polariser model's fit, and its alpha is the fitted rotation's: its own rests on another part of the image than the
-#: other frames', whose errors differ (half a frame masked: 0.07 rms off, taken for an irregular rotation)
+#: other frames', whose errors differ
 FRAME_VALID_MIN = 0.9
 #: a foveal gauge fix whose constraint misfit stays above this many times its noise is applied where it explains the
 #: images far better than before, but alpha is not called identified by it: the constraint itself (its offset, gain
 #: or geometry) does not describe the recording (the channels' PSF difference leaves a few times the noise)
 FOVEAL_UNEXPLAINED = 10.0
+
+
+def _add_warning(rep: dict[str, Any], text: str) -> None:
+    """``text`` appended to ``rep['warning']`` (``'; '`` between warnings)."""
+    rep["warning"] = f"{rep['warning']}; {text}" if rep.get("warning") else text
 
 
 def frame_mean_alpha(Y: np.ndarray) -> np.ndarray:
@@ -723,14 +728,12 @@ def polarizer_gauge_step(win: _Window, x1: np.ndarray, x2: np.ndarray, alpha: np
     if not keep.all():
         left = rep["frames_left_out"]
         said = ", ".join(str(k) for k in left[:8]) + (f" and {len(left) - 8} more" if len(left) > 8 else "")
-        rep["warning"] = "; ".join(w for w in (rep.get("warning"), (
-            f"frame(s) {said} left out of the polariser's fit (under {FRAME_VALID_MIN:.0%} of their samples valid: "
-            "saturated or dropped); their alpha is the fitted rotation's")) if w)
+        _add_warning(rep, f"frame(s) {said} left out of the polariser's fit (under {FRAME_VALID_MIN:.0%} of their "
+                          "samples valid: saturated or dropped); their alpha is the fitted rotation's")
     if fit.get("rate_at_search_edge"):
-        edge = (f"the polariser's fitted rate {fit['rate_hz']:.4g} Hz is at the end of the search, "
-                f"{model.rate_hz:.4g} Hz +- {100 * model.rate_tolerance:.3g} %: it may run outside that range, "
-                "and alpha's error is not estimated (state the rate: rate_hz=...)")
-        rep["warning"] = "; ".join(w for w in (rep.get("warning"), edge) if w)
+        _add_warning(rep, f"the polariser's fitted rate {fit['rate_hz']:.4g} Hz is at the end of the search, "
+                          f"{model.rate_hz:.4g} Hz +- {100 * model.rate_tolerance:.3g} %: it may run outside that "
+                          "range, and alpha's error is not estimated (state the rate: rate_hz=...)")
     if len(cands) > 1:
         rep["channel_assignment"] = {"by": "foveal constraint", "misfit_ratio": cands[1][0] / max(mis, 1e-300)}
     return n1.astype(x1.dtype), n2.astype(x2.dtype), al, rep

@@ -70,16 +70,14 @@ MOTION_MAX_FRAMES = 128
 #: never seen": wavelet above wiener against the Wiener bound)
 SCENE_METHODS = ("wavelet", "wiener")
 #: seconds per unit of work (see :func:`predicted_seconds`): twice what 192 x 192 simulated recordings of 48 frames
-#: took on the 2-core development machine at load 1-1.5 (benchmarks/bench_auto.py, 2026-12-07, 5 repeats: the best
-#: of each; the factor 2 for a busier machine and for larger frames, where a 576 x 576 alternating run took 0.6 of its
-#: prediction); the snapshot's and TV's from BENCHMARKS.md at 290 x 290
+#: took on the 2-core development machine (benchmarks/bench_auto.py, BENCHMARKS.md: the best of 5 repeats; the
+#: factor 2 for a busier machine and larger frames); the snapshot's and TV's from BENCHMARKS.md at 290 x 290
 SECONDS_PER = {
     "call": 0.02,                     # every run: masks, the fixed pattern, the windows' set-up (0.02-0.03 s)
     "lsq_frame_px": 2e-8,             # lsq, one window: per frame and pixel (9.6e-9)
     "lsq_window_frame_px": 3e-9,      # lsq, sliding windows: per window, frame and pixel (1.6e-9)
     "alternating_frame_px": 2e-7,     # alternating, per window, frame and pixel (1.06e-7)
-    "calibration_frame_px": 5e-7,     # alternating's calibration pass: per frame and pixel (2.1e-7; it was 6e-6 at
-                                      # load 7-11 before the pass got faster: 12x too long at 640 x 512)
+    "calibration_frame_px": 5e-7,     # alternating's calibration pass: per frame and pixel (2.1e-7)
     "snapshot_px": 4e-5,              # one frame (100 L-BFGS iterations: 2.7 s at 290^2, BENCHMARKS.md)
     "denoise_window_px": 1.5e-6,      # TV denoising of both images, per window and pixel (6e-7 to 7e-7)
     "deconvolve_wiener_px": 1e-5,     # the PSF-aware step, per pixel (4.9e-6)

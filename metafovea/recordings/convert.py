@@ -131,9 +131,8 @@ def _calibration_frames(path: str, opt: ImportOptions, shape: tuple[int, int]) -
 def _saturated_as_nan(frames: np.ndarray, source: str | None = None,
                       full_scale: float | None = None) -> tuple[np.ndarray, int]:
     """float32 frames with the full-scale samples as NaN (``full_scale``, else an integer dtype's largest value),
-    and their count. Frames that float32
-    cannot hold to 1/1000 of their range (counts on a large offset, e.g. int64 near 2^40) are an error naming
-    ``source``: cast, they would be silently flattened."""
+    and their count. Frames that float32 cannot hold to 1/1000 of their range (counts on a large offset, e.g. int64
+    near 2^40) are an error naming ``source``: cast, they would be silently flattened."""
     f = np.asarray(frames)
     if f.dtype.itemsize > 2 and f.size:
         with np.errstate(invalid="ignore", over="ignore"):
