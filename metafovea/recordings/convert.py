@@ -66,6 +66,11 @@ class ImportOptions:
     #: file's integer type, e.g. 65535 for 16-bit counts, which a 14-bit camera never reaches)
     adc_bits: int | None = None
 
+    @property
+    def full_scale(self) -> float | None:
+        """The camera's full scale in counts, ``2^adc_bits - 1`` (None: the file's integer type's)."""
+        return None if self.adc_bits is None else float(2 ** self.adc_bits - 1)
+
     def __post_init__(self) -> None:
         """The options checked when made, whether or not the file has a calibration or times to apply them to."""
         if self.adc_bits is not None:
@@ -125,7 +130,7 @@ def _calibration_frames(path: str, opt: ImportOptions, shape: tuple[int, int]) -
     if r.frames.shape[1:] != shape:
         raise InputError("calibration", path, f"blackbody frames of the recording's size {shape}",
                          detail=f"they are {r.frames.shape[1:]}")
-    return np.nanmean(_saturated_as_nan(r.frames)[0], axis=0)
+    return np.nanmean(_saturated_as_nan(r.frames, path, opt.full_scale)[0], axis=0)
 
 
 def _saturated_as_nan(frames: np.ndarray, source: str | None = None,
@@ -195,7 +200,7 @@ def to_measurement(rec: Recording, options: ImportOptions | None = None) -> tupl
     times, t_from = frame_times(rec.times_s, rec.frames.shape[0], opt.frame_rate_hz, rec.times_from)
     kept, timing = check_timing(rec.frames, times, times_from=t_from,
                                 frame_rate_hz=opt.frame_rate_hz if rec.times_s is not None else None)
-    full = None if opt.adc_bits is None else float(2 ** opt.adc_bits - 1)
+    full = opt.full_scale
     frames, n_sat = _saturated_as_nan(rec.frames[kept], str(rec.source), full)
     if min(frames.shape[1:]) < 2:  # what reconstruct needs: refused here, not after the file is written
         raise InputError("recording", str(rec.source), "frames of at least 2 x 2 pixels",

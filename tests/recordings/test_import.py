@@ -223,3 +223,26 @@ def test_a_14_bit_cameras_full_scale_is_saturated_with_adc_bits(tmp_path, cli):
         rc, _, err = cli("import", tmp_path / "rec.tif", "--frame-rate", 12, "--adc-bits", bad, "--out",
                          tmp_path / f"c{bad}.npz")
         assert rc == 2 and "--adc-bits" in err and len(err.strip().splitlines()) == 1, err
+
+
+def test_adc_bits_also_masks_the_blackbody_frames(tmp_path, cli, camera_constants, truth, linear_camera):
+    """`--adc-bits` is the camera's: a blackbody frame clipped at the 14-bit full scale is left out of that pixel's
+    mean as a recording frame is, so the pixel's two-point calibration stays within a tenth of the bias the clipped
+    sample gives when it is counted (it was counted: only the recording's frames were masked)."""
+    rec, cold, hot, hot_clip = (tmp_path / n for n in ("rec.tif", "cold.tif", "hot.tif", "hot_clip.tif"))
+    tifffile.imwrite(rec, linear_camera.frames, metadata={"alpha": truth.alpha.tolist()}, photometric="minisblack")
+    tifffile.imwrite(cold, linear_camera.blackbody[293.15], photometric="minisblack")
+    bb = np.array(linear_camera.blackbody[323.15])
+    assert bb.ndim == 3 and bb.shape[0] > 1 and bb.max() < 16383
+    tifffile.imwrite(hot, bb, photometric="minisblack")
+    bb[0, 3, 4] = 16383
+    tifffile.imwrite(hot_clip, bb, photometric="minisblack")
+    px = {}
+    for name, h, bits in (("clean", hot, ["--adc-bits", 14]), ("masked", hot_clip, ["--adc-bits", 14]),
+                          ("counted", hot_clip, [])):
+        rc, _, err = cli("import", rec, "--frame-rate", camera_constants.FPS, "--polarizer-key", "alpha", *bits,
+                         "--calibration", f"two-point:293.15={cold},323.15={h}", "--out", tmp_path / f"{name}.npz")
+        assert rc == 0, err
+        px[name] = Measurement.load(tmp_path / f"{name}.npz").frames[:, 3, 4].astype(np.float64)
+    bias = np.abs(px["counted"] - px["clean"]).max()
+    assert bias > 1.0 and np.abs(px["masked"] - px["clean"]).max() < 0.1 * bias
