@@ -33,13 +33,21 @@ OTFs, both channels are solved jointly on a grid padded by the kernels' radius:
 
   (the scale of a Laplace prior on the Wiener estimate's gradients).
 
-Boundary (``boundary='padded'``, default): each channel's crop is padded with its edge values (``pad_mode``) and
-(2) is one 2 x 2 system per frequency. The foveal channel's padding is then replaced by what the perifoveal
+Boundary (``boundary='solved'``, default): each channel's crop is padded with its edge values (``pad_mode``) and
+(2) is one 2 x 2 system per frequency. The perifoveal channel's padding next to the crop is then replaced by what
+the scene beyond the crop, solved for, puts there: the PSF split into its core (radius ``EXTERIOR_PX``) and the
+rest, the rest's light taken from the edge-padded solve, the core's part of the data solved for with only the crop as
+data in a ring of that width (:func:`~metafovea.reconstruct.joint.solved_exterior`). A raster scene's edge meeting
+its surround, or a hot object just outside the field, shows in the crop's edge pixels through the core; edge values
+continue the crop instead. Both are hypotheses: the solved ring is kept where it explains the data within its width
+of the crop's edge better than the edge values by more than that misfit's standard error (``info['exterior']``),
+else the edge values stay (``boundary='padded'``: always). The foveal channel's padding is then replaced by what the perifoveal
 estimate predicts there, ``ratio s_2(p / scale)`` through ``K_1`` (the foveal haze gathers light from several
 crop widths around the fovea, which the perifoveal channel images; ``foveal_scale``, ``foveal_ratio``), plus the
 quadratic surface that levels it with the data, alone or joined to the data's edge values below the perifoveal
 Nyquist frequency ``0.5 / scale``, whichever solution explains the foveal data better.
-``boundary='unknown'`` solves for the scene beyond the crop instead (masked data, conjugate gradients).
+``boundary='unknown'`` solves for the scene beyond the crop over the whole padding instead (masked data, conjugate
+gradients; slow).
 
 Foveal fusion (``method='wavelet'`` with ``foveal_scale``, ``foveal_fusion=True``): inside the fovea both channels
 image the same scene, the perifoveal one at 1/scale the resolution. On the foveal constraint's grid (``A = D s_1``,
@@ -80,6 +88,16 @@ benchmarks judge on):
 ``FUSION_RING_STEPS`` (here)           eq. (5)'s rings, 4 frequency steps wide: dozens of bins per ring; on
                                        tuning seeds 2 steps tie with it, 8 gain less (BENCHMARKS.md)
 ``joint.MAX_CONDITION``                numerical: alpha that cannot separate the channels
+``joint.EXTERIOR_PX``                  the PSF's core and the solved ring (``exterior_px``, an option): the
+                                       filtered perifoveal PSF's core, nearly all of its power (the 8-14 um
+                                       one's haze reaches further: from the edge-padded solve); its share in
+                                       ``info['exterior']['core_power']``, its effect in BENCHMARKS.md
+``joint.EXTERIOR_ITERATIONS``          a cap on the ring's CG (``exterior_iterations``): speed against error
+                                       in BENCHMARKS.md
+``joint.EXTERIOR_CHI2_STEP``           derived: an iteration that lowers the chi-square by less than 1 (one
+                                       standard deviation of one parameter) ends the ring's solve
+one standard error (the exterior)      the solved ring is kept only where it lowers the edge band's misfit by
+                                       more than the misfit's standard error for white noise
 ``spectra.RADIAL_BINS``,               derived from the crop's and the grid's frequency steps (several
 ``spectra.TRUTH_RADIAL_BINS``          periodogram samples per ring)
 ``spectra.BETA_RANGE``,                natural scenes' power spectra, ``|f|^-2`` (Field 1987), the fit clipped
@@ -138,6 +156,9 @@ from metafovea.reconstruct._common import DECONVOLUTION_METHODS, DEFAULT_DECONVO
 from metafovea.reconstruct.field import FIELD_MODES, PatchContext, field_deconvolve
 from metafovea.reconstruct.joint import (
     BOUNDARIES,
+    DEFAULT_BOUNDARY,
+    EXTERIOR_ITERATIONS,
+    EXTERIOR_PX,
     ChannelPSFs,
     Grid,
     PeriodicFilter,
@@ -145,6 +166,7 @@ from metafovea.reconstruct.joint import (
     check_boundary,
     linear_solve,
     prepare_problem,
+    solved_exterior,
     tv_admm,
 )
 from metafovea.reconstruct.metrics import score_deconvolution, true_fpn_error_dn, wiener_bound
@@ -217,8 +239,8 @@ class Deconvolution:
     info: dict[str, Any] = field(default_factory=dict)
 
     #: the entries of ``info`` a summary (``metafovea reconstruct --json``'s ``scene``) carries
-    SUMMARY_KEYS = ("method", "alpha_from", "sigma_dn", "scores", "foveal_surround", "foveal_fusion", "seconds",
-                    "psf_source", "psf_refinement", "field")
+    SUMMARY_KEYS = ("method", "alpha_from", "sigma_dn", "scores", "boundary", "exterior", "foveal_surround",
+                    "foveal_fusion", "seconds", "psf_source", "psf_refinement", "field")
 
     def summary(self) -> dict[str, Any]:
         """The entries of ``info`` named in :attr:`SUMMARY_KEYS` that it has."""
@@ -419,7 +441,9 @@ def _wavelet_step(pb: Problem, C: np.ndarray, prior_inv: np.ndarray, surround: b
     :data:`~metafovea.reconstruct.wavelet.TAUS` whose shrunk estimate has the lowest estimated risk, eq. (2) there.
 
     ``surround``: the foveal channel's padding is the perifoveal channel's prediction, not its own edge values, so
-    its noise draws are 0 there (the prediction's noise is the perifoveal estimate's, low-passed: neglected).
+    its noise draws are 0 there (the prediction's noise is the perifoveal estimate's, low-passed: neglected). The
+    perifoveal channel's draws keep its edge values' noise (with ``boundary='solved'`` its padding is edge values
+    beyond a ring of :data:`~metafovea.reconstruct.joint.EXTERIOR_PX`).
     With ``boundary='unknown'`` (no periodic data) the risk is eq. (2b) there: the prior's predicted bias plus SURE.
     Returns the crop's estimates ``(2, H, W)`` (DN above the dark level), with ``noise_out`` draws of each
     estimate's noise to first order (its noise draws at its ``tau`` through the shrinkage's Jacobian,
@@ -429,7 +453,7 @@ def _wavelet_step(pb: Problem, C: np.ndarray, prior_inv: np.ndarray, surround: b
     H, W = pb.zc.shape[1:]
     rng = np.random.default_rng(WAVELET_NOISE_SEED)
     chol = np.linalg.cholesky(C)
-    periodic = pb.boundary == "padded"
+    periodic = pb.periodic
     filt = PeriodicFilter(pb, prior_inv)
     draws = []
     for _ in range(NOISE_SAMPLES):
@@ -529,14 +553,71 @@ def _priors(pb: Problem, C: np.ndarray, prior: str, prior_scale: str, patch: Pat
     """Both channels' scene priors fitted on the crop and spread over the grid by ``prior_scale``
     (:data:`PRIOR_SCALES`); their radial profiles go into ``info``. Returns the inverse prior and the fits."""
     g = pb.g
-    frac = pb.zc.shape[1] * pb.zc.shape[2] / float(g.shape[0] * g.shape[1])  # the crop's share of the grid
-    scale = {"grid": 1.0, "crop": frac, "geometric": math.sqrt(frac)}[prior_scale]
+    scale = _prior_scale_factor(prior_scale, pb.zc.shape[1:], g)
     fits = _fit_priors(pb, C, prior, scale, patch)
     radial = [radial_mean(g.f, f[0]) for f in fits]  # (ring centres, mean, counts) per channel
     info.update(prior_scale=prior_scale, prior_scale_factor=scale,
                 prior_radial={"cycles_per_px": radial[0][0].tolist(),
                               "x1": radial[0][1].tolist(), "x2": radial[1][1].tolist()})
     return inverse_prior([f[0] for f in fits]), fits
+
+
+def _prior_scale_factor(prior_scale: str, crop: tuple[int, int], g: Grid) -> float:
+    """``prior_scale`` (:data:`PRIOR_SCALES`) as the factor on the crop's per-pixel spectrum for grid ``g``."""
+    frac = crop[0] * crop[1] / float(g.shape[0] * g.shape[1])  # the crop's share of the grid
+    return {"grid": 1.0, "crop": frac, "geometric": math.sqrt(frac)}[prior_scale]
+
+
+def _solve_exterior(pb: Problem, C: np.ndarray, psfs: ChannelPSFs, prior: str, prior_scale: str,
+                    prior_inv: np.ndarray, width_px: int, iterations: int,
+                    info: dict[str, Any]) -> tuple[np.ndarray, int]:
+    """``boundary='solved'``: the perifoveal channel's padding (``pb.z[1]``, edge values) replaced by its data
+    extended through the scene beyond the crop solved for (:func:`~metafovea.reconstruct.joint.solved_exterior`, its
+    prior fitted as the full solve's on the ring's grid, the PSF's wide part from the edge-padded solve), where that
+    explains the crop's data better. Returns the Wiener solve of eq. (3) on the padding kept, and its CG iterations.
+
+    Both paddings are hypotheses about the scene beyond the crop (it continues the crop's edge values; it is what
+    the data near the edge say through the PSF's core): the solved one is kept when the perifoveal data within the
+    ring's width of the crop's edge (where the ring's scene reaches through the core) misfit its solve by less than
+    the padded one's, by more than the misfit's standard error there (``C_22 sqrt(2 / n)`` for ``n`` pixels of
+    white noise: the one-standard-error rule, as for ``tau``); otherwise the edge values stay. ``info['exterior']``
+    says what was solved and which was kept.
+    """
+    width_px = check_int("exterior_px", width_px, 1, 10_000)
+    iterations = check_int("exterior_iterations", iterations, 0, 100_000)
+    g, z = pb.g, pb.zc[1]
+
+    def inverse_prior_on(gs: Grid) -> np.ndarray:
+        spec, _ = fitted_spectrum(z, gs.padded(z - np.mean(z)), gs.D[1], C[1, 1], prior,
+                                  _prior_scale_factor(prior_scale, z.shape, gs))
+        return inverse_prior([spec, spec])[1]
+
+    padded, n_pad = linear_solve(pb, prior_inv, None)
+    edge = pb.z[1].copy()
+    pb.z[1], ex = solved_exterior(g, 1, z, psfs.kernels[1], float(C[1, 1]), inverse_prior_on, padded[1],
+                                  width_px, iterations)
+    solved, n_sol = linear_solve(pb, prior_inv, None)
+    w = ex["width_px"]
+    band = np.ones(z.shape, dtype=bool)
+    band[w:-w, w:-w] = False
+    misfit = [float(np.mean((z - g.irfft(g.D[1] * g.rfft(e[1]))[g.crop])[band] ** 2)) for e in (padded, solved)]
+    se = float(C[1, 1]) * math.sqrt(2.0 / int(np.sum(band)))
+    kept = misfit[0] - misfit[1] > se
+    if not kept:
+        pb.z[1] = edge
+    ex.update(kept="solved" if kept else "padded", edge_band_px=w,
+              edge_misfit_dn2={"padded": misfit[0], "solved": misfit[1]}, misfit_standard_error_dn2=se)
+    seen = (f"the perifoveal scene beyond the crop seen through the PSF's core (radius {w} px, "
+            f"{100 * ex['core_power']:.0f} % of its power), solved for in a ring of that width (masked data, "
+            f"{ex['iterations']} conjugate-gradient iterations, the PSF's wider part from the edge-padded solve)")
+    ex["why"] = (f"{seen}: it explains the data within {w} px of the crop's edge better than the edge values "
+                 f"(misfit {misfit[1]:.4g} against {misfit[0]:.4g} DN^2, standard error {se:.2g}), so it is kept, "
+                 "edge values beyond the ring" if kept else
+                 f"{seen}: it does not explain the data within {w} px of the crop's edge better than the edge values "
+                 f"by more than its standard error (misfit {misfit[1]:.4g} against {misfit[0]:.4g} DN^2, standard "
+                 f"error {se:.2g}): the edge values are kept")
+    info["exterior"] = {"channel": "x2", **ex}
+    return (solved, n_pad + n_sol) if kept else (padded, n_pad + n_sol)
 
 
 def _shift_invariant_info(p: int) -> dict[str, Any]:
@@ -551,11 +632,12 @@ def _shift_invariant_info(p: int) -> dict[str, Any]:
 def separate_deconvolve(frames: ArrayLike, alpha: ArrayLike, psfs: ChannelPSFs, *, method: str = DEFAULT_DECONVOLUTION,
                         offset: float = 0.0, sigma: float | None = None, iterations: int = 100,
                         tv_weight: float | None = None, meta: dict[str, Any] | RadiometricCalibration | None = None,
-                        boundary: str = "padded", pad_mode: str = "edge", prior: str = "hybrid",
+                        boundary: str = DEFAULT_BOUNDARY, pad_mode: str = "edge", prior: str = "hybrid",
                         foveal_scale: float | None = None, foveal_ratio: float = 1.0, fpn_error_dn: float = 0.0,
                         prior_scale: str = "geometric", wavelet: str = DEFAULT_WAVELET,
                         field_psf: str = "auto", patch: PatchContext | None = None,
-                        foveal_fusion: bool = True) -> Deconvolution:
+                        foveal_fusion: bool = True, exterior_px: int = EXTERIOR_PX,
+                        exterior_iterations: int = EXTERIOR_ITERATIONS) -> Deconvolution:
     """The scene radiance of both channels from their mixed frames and PSFs.
 
     Parameters
@@ -579,9 +661,15 @@ def separate_deconvolve(frames: ArrayLike, alpha: ArrayLike, psfs: ChannelPSFs, 
         A multiplier of the automatic TV weights ``1 / mean |grad s_i|``.
     meta : dict or RadiometricCalibration, optional
         A Measurement's metadata, for the temperatures (:func:`temperatures`).
-    boundary : {'padded', 'unknown'}
-        ``'padded'``: the crop extended by its edge values (``pad_mode``), the foveal surround predicted;
-        ``'unknown'``: the scene beyond the crop solved for. ``'mirror'``: deprecated spelling of ``'padded'``.
+    boundary : {'solved', 'padded', 'unknown'}
+        ``'solved'`` (default): the perifoveal scene beyond the crop solved for in a ring of ``exterior_px``
+        (:func:`~metafovea.reconstruct.joint.solved_exterior`; ``info['exterior']``), the foveal surround predicted
+        from the perifoveal estimate; ``'padded'``: the crop extended by its edge values (``pad_mode``), the foveal
+        surround predicted; ``'unknown'``: the scene beyond the crop solved for over the whole padding (slow).
+        ``'mirror'``: deprecated spelling of ``'padded'``.
+    exterior_px, exterior_iterations : int
+        ``boundary='solved'``: the ring's width and its solve's iterations at most
+        (:data:`~metafovea.reconstruct.joint.EXTERIOR_PX`, :data:`~metafovea.reconstruct.joint.EXTERIOR_ITERATIONS`).
     pad_mode : str
         ``numpy.pad`` mode of the padding (``'edge'``).
     prior : {'hybrid', 'power-law', 'empirical'}
@@ -631,6 +719,7 @@ def separate_deconvolve(frames: ArrayLike, alpha: ArrayLike, psfs: ChannelPSFs, 
     if psfs.n_patches > 1 and field_psf != "on-axis":  # each patch shift-invariant (field.py)
         kw = dict(method=method, offset=offset, sigma=sigma, iterations=iterations, tv_weight=tv_weight, meta=meta,
                   boundary=boundary, pad_mode=pad_mode, prior=prior, foveal_scale=foveal_scale, wavelet=wavelet,
+                  exterior_px=exterior_px, exterior_iterations=exterior_iterations,
                   foveal_ratio=foveal_ratio, fpn_error_dn=fpn_error_dn, prior_scale=prior_scale, field_psf="on-axis")
         res = field_deconvolve(psfs, lambda p, c: separate_deconvolve(frames, alpha, p, patch=c, **kw), field_psf,
                                offset, lambda sc: temperatures(sc, offset, meta))
@@ -647,8 +736,12 @@ def separate_deconvolve(frames: ArrayLike, alpha: ArrayLike, psfs: ChannelPSFs, 
     t0 = time.perf_counter()
     pb, C, info = prepare_problem(frames, alpha, psfs, offset, sigma, boundary, pad_mode, fpn_error_dn)
     prior_inv, fits = _priors(pb, C, prior, prior_scale, patch, info)
-    s, n_cg = linear_solve(pb, prior_inv, None)
-    if foveal_scale is not None and boundary == "padded":
+    if boundary == "solved":
+        s, n_cg = _solve_exterior(pb, C, psfs, prior, prior_scale, prior_inv, exterior_px, exterior_iterations,
+                                  info)
+    else:
+        s, n_cg = linear_solve(pb, prior_inv, None)
+    if foveal_scale is not None and boundary != "unknown":
         s, n_sur, sur = _surround_solve(pb, s, prior_inv, float(foveal_scale), float(foveal_ratio),
                                         None if patch is None else patch.perifoveal_dn)
         n_cg += n_sur
@@ -743,7 +836,7 @@ def deconvolve_measurement(m: Measurement, *, alpha: ArrayLike | None = None, fp
         refined = refine_measurement(m, frames, a, psfs, refine_psf, offset=offset, sigma=kw.get("sigma"),
                                      fpn_error_dn=kw.get("fpn_error_dn", 0.0), estimate=wiener)
         psfs = refined.psfs
-    kw["boundary"] = check_boundary(kw.get("boundary", "padded"))
+    kw["boundary"] = check_boundary(kw.get("boundary", DEFAULT_BOUNDARY))
     if "foveal_scale" not in kw and m.recorded_scale:
         g1, g2 = m.channel_gains
         kw.update(foveal_scale=m.recorded_scale, foveal_ratio=g1 / g2)

@@ -28,10 +28,11 @@ Measured figures: BENCHMARKS.md, section "PSF-aware reconstruction against the s
 from __future__ import annotations
 
 import math
+import time
 import warnings
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Callable
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -44,13 +45,26 @@ if TYPE_CHECKING:
     from metafovea.measurement import Measurement
 
 #: how the data are extended beyond the crop (:func:`prepare_problem` ``boundary``): ``'padded'`` pads each channel
-#: with its edge values (or ``pad_mode``'s) and solves a periodic problem, ``'unknown'`` solves for the scene
-#: beyond the crop (seen only through the PSFs' tails: far less determined)
-BOUNDARIES = ("padded", "unknown")
+#: with its edge values (or ``pad_mode``'s) and solves a periodic problem; ``'solved'`` does too, once the
+#: perifoveal channel's padding is replaced by its data extended through the scene beyond the crop solved for in a
+#: ring (:func:`solved_exterior`, in :func:`metafovea.reconstruct.deconvolve.separate_deconvolve`); ``'unknown'``
+#: solves for the scene beyond the crop over the whole padding (seen only through the PSFs' tails: far less
+#: determined, and slow)
+BOUNDARIES = ("solved", "padded", "unknown")
+#: the default: the perifoveal scene beyond the crop solved for in a ring (:func:`solved_exterior`)
+DEFAULT_BOUNDARY = "solved"
 #: old spellings of :data:`BOUNDARIES` still accepted: ``'mirror'`` padded with edge values, not a mirror image
 DEPRECATED_BOUNDARIES = {"mirror": "padded"}
 #: ``alpha`` whose 2 x 2 normal matrix is worse conditioned than this cannot separate the channels
 MAX_CONDITION = 1e8
+#: :func:`solved_exterior`'s ring beyond the crop, px (``exterior_px``): the PSF's core, which carries the ring's
+#: scene into the crop's edge pixels (the haze's wide disks gather from beyond any ring: a pedestal there)
+EXTERIOR_PX = 16
+#: :func:`solved_exterior`'s iterations at most (``exterior_iterations``): its speed against error in BENCHMARKS.md
+EXTERIOR_ITERATIONS = 100
+#: :func:`solved_exterior` stops at an iteration that lowers its objective (a chi-square) by less than this: a change
+#: of the log-likelihood by 1/2, one standard deviation of one parameter
+EXTERIOR_CHI2_STEP = 1.0
 
 
 def check_boundary(boundary: str) -> str:
@@ -335,13 +349,16 @@ def _solve2(m11: Any, m12: Any, m22: Any, det: Any, b: np.ndarray) -> np.ndarray
 
 class Problem:
     """The joint problem on the grid: data ``zc`` (2, H, W) on the crop with per-pixel noise covariance ``C``
-    (2, 2). With ``boundary='padded'`` the data are extended onto the padding (``pad_mode``) and the problem is
-    periodic (``region``: the whole grid); with ``'unknown'`` only the crop is data (``region``: the crop)."""
+    (2, 2). With ``boundary='padded'`` (or ``'solved'``) the data are extended onto the padding (``pad_mode``) and
+    the problem is periodic (``region``: the whole grid); with ``'unknown'`` only the crop is data (``region``: the
+    crop)."""
 
     def __init__(self, g: Grid, z: np.ndarray, C: np.ndarray, boundary: str = "padded", pad_mode: str = "edge"):
         self.g, self.Cinv, self.boundary, self.pad_mode = g, np.linalg.inv(C), boundary, pad_mode
         self.crop, self.zc = g.crop, z
-        if boundary == "padded":
+        #: data on the whole grid (padded or solved beyond the crop): the problem is periodic
+        self.periodic = boundary != "unknown"
+        if self.periodic:
             self.z = np.stack([g.padded(zi, pad_mode) for zi in z])
             self.region = (slice(None), slice(None))
         else:
@@ -422,7 +439,7 @@ def linear_solve(pb: Problem, prior_inv: np.ndarray, x0: np.ndarray | None, iter
         return g.irfft(_solve2(*Mpre, det_pre, g.rfft(r)))
 
     b = pb.data_rhs()
-    if pb.boundary == "padded":  # the preconditioner is the system itself: CG's one step, done directly
+    if pb.periodic:  # the preconditioner is the system itself: CG's one step, done directly
         return pre(b), 1
     x = np.zeros_like(b) if x0 is None else x0.copy()
     r = b - op(x)
@@ -442,6 +459,114 @@ def linear_solve(pb: Problem, prior_inv: np.ndarray, x0: np.ndarray | None, iter
         p = zz + (rz_new / rz) * p
         rz = rz_new
     return x, iterations
+
+
+def solved_exterior(g: Grid, channel: int, z: np.ndarray, kernel: np.ndarray, noise_var: float,
+                    inverse_prior_on: Callable[[Grid], np.ndarray], estimate: np.ndarray,
+                    width_px: int = EXTERIOR_PX,
+                    iterations: int = EXTERIOR_ITERATIONS) -> tuple[np.ndarray, dict[str, Any]]:
+    """One channel's data extended over the grid ``g`` by the scene beyond the crop solved for, not padded.
+
+    The PSF is split into its core (the kernel within ``width_px`` of its centre) and the rest (wider disks,
+    pedestal): the rest carries the scene from far beyond the crop into it, smoothly, and is taken from ``estimate``
+    (the edge-padded solve's scene on ``g``): ``R = (D - D_core) estimate``. The core's part of the data,
+    ``z - R``, is then solved for with only the crop as data (eq. 3 with ``M``, the Wiener estimate) on a small
+    periodic grid, the crop and a ring of ``width_px`` around it, by conjugate gradients preconditioned by the
+    periodic system and started from the edge-padded core data's estimate; blurred by the core and ``R`` added
+    back, it is the data the ring would hold. The crop keeps its data, the ring gets the prediction and the rest
+    of ``g``'s padding the crop's edge values (as ``boundary='padded'``). It stops after ``iterations`` or at the
+    first iteration that lowers the objective (the data misfit in units of the noise plus the prior's term, a
+    chi-square) by less than :data:`EXTERIOR_CHI2_STEP`.
+
+    Parameters
+    ----------
+    g : Grid
+        The full solve's grid.
+    channel : int
+        0 or 1: the channel (``g.D[channel]`` is its transfer function).
+    z : ndarray, shape (H, W)
+        Its data on the crop (DN above the dark level).
+    kernel : ndarray, shape (n, n)
+        Its PSF on the pixel grid.
+    noise_var : float
+        The data's noise variance per pixel, DN^2.
+    inverse_prior_on : callable
+        ``Grid -> ndarray (P, Q // 2 + 1)``: the channel's inverse prior per unnormalised bin of a grid, 0 at DC.
+    estimate : ndarray, shape (P, Q)
+        The channel's scene on ``g`` from the edge-padded data (DN above the dark level).
+    width_px : int
+        The ring's width and the core's radius.
+    iterations : int
+        At most this many iterations.
+
+    Returns
+    -------
+    data : ndarray, shape (P, Q)
+        On ``g``.
+    info : dict
+        ``width_px``, ``core_power`` (the core's share of the PSF's power), ``grid`` (the ring's), ``iterations``,
+        ``last_step_chi2`` and ``seconds``.
+    """
+    from scipy.fft import irfft2, rfft2
+
+    t0 = time.perf_counter()
+    H, W = z.shape
+    c = kernel.shape[0] // 2
+    r = min(int(width_px), c, g.pad)
+    core = kernel[c - r:c + r + 1, c - r:c + r + 1]
+    rest = g.irfft((g.D[channel] - g._otf(core, 0.0)) * g.rfft(estimate))
+    z_core = z - rest[g.crop]
+    gs = Grid((H, W), (core, core), (0.0, 0.0))
+    P, Q = gs.shape
+    D = gs.D[0]
+    q = P * Q * inverse_prior_on(gs)
+    w = np.abs(D) ** 2 / noise_var
+    data = np.zeros((P, Q), dtype=bool)
+    data[gs.crop] = True
+    eps = 1e-12 * float(np.max(w))
+    # single precision: the solve's rounding (~1e-7 of the data's range) is far below the noise
+    Df, Dc = D.astype(np.complex64), np.conj(D).astype(np.complex64) / np.float32(noise_var)
+    qf = q.astype(np.float32)
+    pre_f = (1.0 / (float(np.mean(data)) * w + q + eps)).astype(np.float32)
+
+    def op(s: np.ndarray) -> np.ndarray:
+        S = rfft2(s, workers=-1)
+        blurred = irfft2(Df * S, s=(P, Q), workers=-1)
+        blurred[~data] = 0.0
+        return irfft2(Dc * rfft2(blurred, workers=-1) + qf * S, s=(P, Q), workers=-1)
+
+    def pre(v: np.ndarray) -> np.ndarray:
+        return irfft2(pre_f * rfft2(v, workers=-1), s=(P, Q), workers=-1)
+
+    zz = np.zeros((P, Q), dtype=np.float32)
+    zz[gs.crop] = z_core
+    b = irfft2(Dc * rfft2(zz, workers=-1), s=(P, Q), workers=-1)
+    x = irfft2((1.0 / (w + q + eps)).astype(np.float32) * Dc * rfft2(gs.padded(z_core).astype(np.float32),
+                                                                      workers=-1), s=(P, Q), workers=-1)
+    res = b - op(x)
+    y = pre(res)
+    p = y.copy()
+    ry = float(np.vdot(res, y))
+    it, step = 0, math.inf
+    for it in range(1, int(iterations) + 1):
+        Ap = op(p)
+        a = ry / float(np.vdot(p, Ap))
+        x += a * p
+        res -= a * Ap
+        step = a * ry  # twice the objective's decrease (1/2 a r.y): chi-square units
+        if step < EXTERIOR_CHI2_STEP:
+            break
+        y = pre(res)
+        ry_new = float(np.vdot(res, y))
+        p = y + (ry_new / ry) * p
+        ry = ry_new
+    pred = irfft2(Df * rfft2(x, workers=-1), s=(P, Q), workers=-1).astype(np.float64)
+    out = g.padded(z)
+    ring = (slice(g.pad - r, g.pad + H + r), slice(g.pad - r, g.pad + W + r))
+    out[ring] = pred[:H + 2 * r, :W + 2 * r] + rest[ring]
+    out[g.crop] = z
+    return out, {"width_px": r, "core_power": float(np.sum(core) / np.sum(kernel)), "grid": [P, Q],
+                 "iterations": it, "last_step_chi2": float(step), "seconds": time.perf_counter() - t0}
 
 
 class PeriodicFilter:

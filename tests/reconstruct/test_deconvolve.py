@@ -328,17 +328,23 @@ def test_the_foveal_fusion_weighs_the_perifoveal_estimate_by_what_the_foveal_noi
 
 
 def test_boundary_names_say_what_they_do():
-    """``boundary='padded'`` (the crop extended by its edge values) is the default; the former name ``'mirror'``
-    still gives the same result, with a DeprecationWarning; an unknown name is refused."""
+    """``boundary='solved'`` (the perifoveal scene beyond the crop solved for) is the default and says so;
+    ``'padded'`` (the crop extended by its edge values) is the option, the former name ``'mirror'`` still gives
+    its result, with a DeprecationWarning; an unknown name is refused."""
     frames, a, psfs, _, _ = _case(6, n=32, T=6)
-    padded = separate_deconvolve(frames, a, psfs)
-    assert padded.info["boundary"] == "padded"
+    default = separate_deconvolve(frames, a, psfs)
+    assert default.info["boundary"] == "solved" and default.info["exterior"]["channel"] == "x2"
+    padded = separate_deconvolve(frames, a, psfs, boundary="padded")
+    assert padded.info["boundary"] == "padded" and "exterior" not in padded.info
     with pytest.warns(DeprecationWarning, match="padded"):
         old = separate_deconvolve(frames, a, psfs, boundary="mirror")
     assert old.info["boundary"] == "padded"
     assert all(np.array_equal(x, y) for x, y in zip(old.scene, padded.scene))
     with pytest.raises(InputError, match="boundary"):
         separate_deconvolve(frames, a, psfs, boundary="periodic")
+    for name, v in (("exterior_px", 0), ("exterior_iterations", -1)):
+        with pytest.raises(InputError, match=name):
+            separate_deconvolve(frames, a, psfs, **{name: v})
 
 
 def test_a_field_the_camera_does_not_see_is_refused_with_its_cause():
@@ -361,3 +367,44 @@ def test_a_field_the_camera_does_not_see_is_refused_with_its_cause():
     frames = rng.normal(100.0, 1.0, (6, H, W))
     with pytest.raises(InputError, match=r"illumination_x1.*25\.0 % of the crop.*vignettes"):
         separate_deconvolve(frames, alpha, psfs, method="wiener")
+
+
+@pytest.mark.parametrize("seed", [2, 9])
+def test_the_perifoveal_scene_beyond_the_crop_is_solved_for_not_padded(seed):
+    """A scene that does not continue its edge beyond the crop (a warmer surround all round, as a raster scene's
+    background meets its edge): the default ``boundary='solved'`` (the scene beyond the crop solved for in a ring)
+    recovers the perifoveal channel far better than the edge-padded solve, and beats the linear bound, which pads
+    with edge values; a scene that continues beyond the crop loses nothing by it."""
+    rng = np.random.default_rng(seed)
+    n, T, sigma = 96, 24, 0.5
+    big = 3 * n
+    c = slice(n, 2 * n)
+    k1 = gauss_kernel(1.0, 9)
+    k2 = 0.6 * np.pad(gauss_kernel(0.7, 9), 6) + 0.4 * disk_kernel(4, 21)
+    s1, s2 = _scene(rng, big), _scene(rng, big)
+    surround = s2.copy()
+    surround[:n] += 150.0
+    surround[2 * n:] += 150.0
+    surround[:, :n] += 150.0
+    surround[:, 2 * n:] += 150.0
+    a = np.cos(np.linspace(0, 2 * np.pi, T, endpoint=False) + 0.3) ** 2
+    noise = rng.normal(0, sigma, (T, n, n))
+    u1 = fftconvolve(s1, k1, mode="same")[c, c]
+    psfs = ChannelPSFs((k1, k2))
+    gains = []
+    for scene2 in (surround, s2):
+        u2 = fftconvolve(scene2, k2, mode="same")[c, c]
+        frames = a[:, None, None] * u1 + (1 - a[:, None, None]) * u2 + noise
+        truth = (s1[c, c], scene2[c, c])
+        solved = separate_deconvolve(frames, a, psfs)
+        padded = separate_deconvolve(frames, a, psfs, boundary="padded")
+        bound = wiener_bound(frames, a, psfs, truth, sigma=sigma)
+        p_solved, p_padded = psnr(solved.scene[1], truth[1]), psnr(padded.scene[1], truth[1])
+        assert p_solved > psnr(bound[1], truth[1]), (p_solved, psnr(bound[1], truth[1]))
+        gains.append(p_solved - p_padded)
+        ex = solved.info["exterior"]
+        assert ex["iterations"] >= 1 and ex["kept"] in ("solved", "padded") and ex["why"]
+        if scene2 is surround:  # the edge values misfit the data the surround's light reaches through the core
+            assert ex["kept"] == "solved", ex
+            assert ex["edge_misfit_dn2"]["padded"] - ex["edge_misfit_dn2"]["solved"] > ex["misfit_standard_error_dn2"]
+    assert gains[0] > 3.0 and gains[1] > -0.3, gains
