@@ -41,10 +41,10 @@ data in a ring of that width (:func:`~metafovea.reconstruct.joint.solved_exterio
 its surround, or a hot object just outside the field, shows in the crop's edge pixels through the core; edge values
 continue the crop instead. Both are hypotheses: the solved ring is kept where it explains the data within its width
 of the crop's edge better than the edge values by more than that misfit's standard error (``info['exterior']``),
-else the edge values stay (``boundary='padded'``: always). The foveal channel's padding is then replaced by what the perifoveal
-estimate predicts there, ``ratio s_2(p / scale)`` through ``K_1`` (the foveal haze gathers light from several
-crop widths around the fovea, which the perifoveal channel images; ``foveal_scale``, ``foveal_ratio``), plus the
-quadratic surface that levels it with the data, alone or joined to the data's edge values below the perifoveal
+else the edge values stay (``boundary='padded'``: always). The foveal channel's padding is then replaced by what
+the perifoveal estimate predicts there, ``ratio s_2(p / scale)`` through ``K_1`` (the foveal haze gathers light from
+several crop widths around the fovea, which the perifoveal channel images; ``foveal_scale``, ``foveal_ratio``), plus
+the quadratic surface that levels it with the data, alone or joined to the data's edge values below the perifoveal
 Nyquist frequency ``0.5 / scale``, whichever solution explains the foveal data better.
 ``boundary='unknown'`` solves for the scene beyond the crop over the whole padding instead (masked data, conjugate
 gradients; slow).
@@ -568,56 +568,75 @@ def _prior_scale_factor(prior_scale: str, crop: tuple[int, int], g: Grid) -> flo
     return {"grid": 1.0, "crop": frac, "geometric": math.sqrt(frac)}[prior_scale]
 
 
-def _solve_exterior(pb: Problem, C: np.ndarray, psfs: ChannelPSFs, prior: str, prior_scale: str,
-                    prior_inv: np.ndarray, width_px: int, iterations: int,
-                    info: dict[str, Any]) -> tuple[np.ndarray, int]:
-    """``boundary='solved'``: the perifoveal channel's padding (``pb.z[1]``, edge values) replaced by its data
-    extended through the scene beyond the crop solved for (:func:`~metafovea.reconstruct.joint.solved_exterior`, its
-    prior fitted as the full solve's on the ring's grid, the PSF's wide part from the edge-padded solve), where that
-    explains the crop's data better. Returns the Wiener solve of eq. (3) on the padding kept, and its CG iterations.
+def _solve_exterior(pb: Problem, C: np.ndarray, c: int, kernel: np.ndarray, prior_inv: np.ndarray,
+                    options: tuple[str, str, int, int], current: tuple[np.ndarray, int]) -> tuple[np.ndarray, int,
+                                                                                               dict[str, Any]]:
+    """``boundary='solved'``: channel ``c``'s padding next to the crop (``pb.z[c]``, edge values; the perifoveal
+    channel's) replaced by its data extended through the scene beyond the crop solved for
+    (:func:`~metafovea.reconstruct.joint.solved_exterior`, its prior fitted as the full solve's on the ring's grid,
+    the PSF's wide part from the edge-padded solve), where that explains the crop's data better. ``options``: prior,
+    prior scale, ring width, iterations; ``current``: the Wiener solve on the edge values and its CG iterations.
+    Returns the solve on the padding kept, the CG iterations and the info entry.
 
     Both paddings are hypotheses about the scene beyond the crop (it continues the crop's edge values; it is what
-    the data near the edge say through the PSF's core): the solved one is kept when the perifoveal data within the
+    the data near the edge say through the PSF's core): the solved one is kept when the channel's data within the
     ring's width of the crop's edge (where the ring's scene reaches through the core) misfit its solve by less than
-    the padded one's, by more than the misfit's standard error there (``C_22 sqrt(2 / n)`` for ``n`` pixels of
-    white noise: the one-standard-error rule, as for ``tau``); otherwise the edge values stay. ``info['exterior']``
-    says what was solved and which was kept.
+    the edge values' solve, by more than the misfit's standard error there (``C_cc sqrt(2 / n)`` for ``n`` pixels of
+    white noise: the one-standard-error rule, as for ``tau``); otherwise the edge values stay.
     """
+    prior, prior_scale, width_px, iterations = options
     width_px = check_int("exterior_px", width_px, 1, 10_000)
     iterations = check_int("exterior_iterations", iterations, 0, 100_000)
-    g, z = pb.g, pb.zc[1]
+    g, z = pb.g, pb.zc[c]
 
     def inverse_prior_on(gs: Grid) -> np.ndarray:
-        spec, _ = fitted_spectrum(z, gs.padded(z - np.mean(z)), gs.D[1], C[1, 1], prior,
+        spec, _ = fitted_spectrum(z, gs.padded(z - np.mean(z)), gs.D[c], C[c, c], prior,
                                   _prior_scale_factor(prior_scale, z.shape, gs))
-        return inverse_prior([spec, spec])[1]
+        return inverse_prior([spec, spec])[c]
 
-    padded, n_pad = linear_solve(pb, prior_inv, None)
-    edge = pb.z[1].copy()
-    pb.z[1], ex = solved_exterior(g, 1, z, psfs.kernels[1], float(C[1, 1]), inverse_prior_on, padded[1],
-                                  width_px, iterations)
+    before, n_before = current
+    kept_padding = pb.z[c].copy()
+    pb.z[c], ex = solved_exterior(g, c, z, kernel, float(C[c, c]), inverse_prior_on, before[c], width_px,
+                                  iterations, padding=kept_padding)
     solved, n_sol = linear_solve(pb, prior_inv, None)
     w = ex["width_px"]
     band = np.ones(z.shape, dtype=bool)
     band[w:-w, w:-w] = False
-    misfit = [float(np.mean((z - g.irfft(g.D[1] * g.rfft(e[1]))[g.crop])[band] ** 2)) for e in (padded, solved)]
-    se = float(C[1, 1]) * math.sqrt(2.0 / int(np.sum(band)))
+    misfit = [float(np.mean((z - g.irfft(g.D[c] * g.rfft(e[c]))[g.crop])[band] ** 2)) for e in (before, solved)]
+    se = float(C[c, c]) * math.sqrt(2.0 / int(np.sum(band)))
     kept = misfit[0] - misfit[1] > se
     if not kept:
-        pb.z[1] = edge
+        pb.z[c] = kept_padding
+    other = "the edge values"
     ex.update(kept="solved" if kept else "padded", edge_band_px=w,
               edge_misfit_dn2={"padded": misfit[0], "solved": misfit[1]}, misfit_standard_error_dn2=se)
-    seen = (f"the perifoveal scene beyond the crop seen through the PSF's core (radius {w} px, "
-            f"{100 * ex['core_power']:.0f} % of its power), solved for in a ring of that width (masked data, "
-            f"{ex['iterations']} conjugate-gradient iterations, the PSF's wider part from the edge-padded solve)")
-    ex["why"] = (f"{seen}: it explains the data within {w} px of the crop's edge better than the edge values "
-                 f"(misfit {misfit[1]:.4g} against {misfit[0]:.4g} DN^2, standard error {se:.2g}), so it is kept, "
-                 "edge values beyond the ring" if kept else
-                 f"{seen}: it does not explain the data within {w} px of the crop's edge better than the edge values "
-                 f"by more than its standard error (misfit {misfit[1]:.4g} against {misfit[0]:.4g} DN^2, standard "
-                 f"error {se:.2g}): the edge values are kept")
-    info["exterior"] = {"channel": "x2", **ex}
-    return (solved, n_pad + n_sol) if kept else (padded, n_pad + n_sol)
+    seen = (f"the scene beyond the crop seen through the PSF's core (radius {w} px, {100 * ex['core_power']:.0f} % of "
+            f"its power), solved for in a ring of that width (masked data, {ex['iterations']} conjugate-gradient "
+            "iterations, the PSF's wider part from the edge-padded solve)")
+    ex["why"] = (f"{seen}: it explains the data within {w} px of the crop's edge better than {other} (misfit "
+                 f"{misfit[1]:.4g} against {misfit[0]:.4g} DN^2, standard error {se:.2g}), so it is kept, {other} "
+                 "beyond the ring" if kept else
+                 f"{seen}: it does not explain the data within {w} px of the crop's edge better than {other} by more "
+                 f"than its standard error (misfit {misfit[1]:.4g} against {misfit[0]:.4g} DN^2, standard error "
+                 f"{se:.2g}): {other} kept")
+    return (solved if kept else before), n_before + n_sol, {"channel": f"x{c + 1}", **ex}
+
+
+def _linear_estimate(pb: Problem, C: np.ndarray, psfs: ChannelPSFs, prior_inv: np.ndarray, info: dict[str, Any],
+                     exterior: tuple[str, str, int, int], foveal: tuple[float, float] | None,
+                     patch: PatchContext | None) -> tuple[np.ndarray, int]:
+    """The Wiener estimate of eq. (3) on the boundary asked (``pb.boundary``): the perifoveal exterior solved for
+    (``'solved'``: ``exterior`` = prior, prior scale, ring width, iterations), then the foveal surround predicted
+    (``foveal`` = scale, gain ratio; not with ``'unknown'``). Returns the estimate on the grid and the CG iterations;
+    ``info`` gets what each step chose."""
+    s, n_cg = linear_solve(pb, prior_inv, None)
+    if pb.boundary == "solved":
+        s, n_cg, info["exterior"] = _solve_exterior(pb, C, 1, psfs.kernels[1], prior_inv, exterior, (s, n_cg))
+    if foveal is not None and pb.boundary != "unknown":
+        s, n_sur, sur = _surround_solve(pb, s, prior_inv, *foveal, None if patch is None else patch.perifoveal_dn)
+        n_cg += n_sur
+        info.update(sur)
+    return s, n_cg
 
 
 def _shift_invariant_info(p: int) -> dict[str, Any]:
@@ -662,14 +681,10 @@ def separate_deconvolve(frames: ArrayLike, alpha: ArrayLike, psfs: ChannelPSFs, 
     meta : dict or RadiometricCalibration, optional
         A Measurement's metadata, for the temperatures (:func:`temperatures`).
     boundary : {'solved', 'padded', 'unknown'}
-        ``'solved'`` (default): the perifoveal scene beyond the crop solved for in a ring of ``exterior_px``
-        (:func:`~metafovea.reconstruct.joint.solved_exterior`; ``info['exterior']``), the foveal surround predicted
-        from the perifoveal estimate; ``'padded'``: the crop extended by its edge values (``pad_mode``), the foveal
-        surround predicted; ``'unknown'``: the scene beyond the crop solved for over the whole padding (slow).
-        ``'mirror'``: deprecated spelling of ``'padded'``.
-    exterior_px, exterior_iterations : int
-        ``boundary='solved'``: the ring's width and its solve's iterations at most
-        (:data:`~metafovea.reconstruct.joint.EXTERIOR_PX`, :data:`~metafovea.reconstruct.joint.EXTERIOR_ITERATIONS`).
+        The crop extended by its edge values (``pad_mode``), the foveal surround predicted, and with ``'solved'``
+        (default) the perifoveal scene beyond the crop solved for in a ring of ``exterior_px`` at most
+        ``exterior_iterations`` CG iterations (the module docstring; ``info['exterior']``); ``'unknown'``: solved
+        for over the whole padding (slow). ``'mirror'``: deprecated spelling of ``'padded'``.
     pad_mode : str
         ``numpy.pad`` mode of the padding (``'edge'``).
     prior : {'hybrid', 'power-law', 'empirical'}
@@ -719,8 +734,8 @@ def separate_deconvolve(frames: ArrayLike, alpha: ArrayLike, psfs: ChannelPSFs, 
     if psfs.n_patches > 1 and field_psf != "on-axis":  # each patch shift-invariant (field.py)
         kw = dict(method=method, offset=offset, sigma=sigma, iterations=iterations, tv_weight=tv_weight, meta=meta,
                   boundary=boundary, pad_mode=pad_mode, prior=prior, foveal_scale=foveal_scale, wavelet=wavelet,
-                  exterior_px=exterior_px, exterior_iterations=exterior_iterations,
-                  foveal_ratio=foveal_ratio, fpn_error_dn=fpn_error_dn, prior_scale=prior_scale, field_psf="on-axis")
+                  exterior_px=exterior_px, exterior_iterations=exterior_iterations, foveal_ratio=foveal_ratio,
+                  fpn_error_dn=fpn_error_dn, prior_scale=prior_scale, field_psf="on-axis")
         res = field_deconvolve(psfs, lambda p, c: separate_deconvolve(frames, alpha, p, patch=c, **kw), field_psf,
                                offset, lambda sc: temperatures(sc, offset, meta))
         if method == "wavelet" and foveal_fusion and foveal_scale is not None:
@@ -736,16 +751,8 @@ def separate_deconvolve(frames: ArrayLike, alpha: ArrayLike, psfs: ChannelPSFs, 
     t0 = time.perf_counter()
     pb, C, info = prepare_problem(frames, alpha, psfs, offset, sigma, boundary, pad_mode, fpn_error_dn)
     prior_inv, fits = _priors(pb, C, prior, prior_scale, patch, info)
-    if boundary == "solved":
-        s, n_cg = _solve_exterior(pb, C, psfs, prior, prior_scale, prior_inv, exterior_px, exterior_iterations,
-                                  info)
-    else:
-        s, n_cg = linear_solve(pb, prior_inv, None)
-    if foveal_scale is not None and boundary != "unknown":
-        s, n_sur, sur = _surround_solve(pb, s, prior_inv, float(foveal_scale), float(foveal_ratio),
-                                        None if patch is None else patch.perifoveal_dn)
-        n_cg += n_sur
-        info.update(sur)
+    s, n_cg = _linear_estimate(pb, C, psfs, prior_inv, info, (prior, prior_scale, exterior_px, exterior_iterations),
+                               None if foveal_scale is None else (float(foveal_scale), float(foveal_ratio)), patch)
     info.update(method=method, prior=prior, prior_fit=[f[1] for f in fits], cg_iterations=n_cg)
     if method == "tv":
         s, tv_info = _tv_step(pb, s, tv_weight, iterations)

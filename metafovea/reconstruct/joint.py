@@ -32,7 +32,7 @@ import time
 import warnings
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Callable
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -42,6 +42,8 @@ from metafovea.measurement import check_illumination, check_kernel, check_patche
 from metafovea.reconstruct.spectra import rfft_frequencies, rfft_weights
 
 if TYPE_CHECKING:
+    from collections.abc import Callable
+
     from metafovea.measurement import Measurement
 
 #: how the data are extended beyond the crop (:func:`prepare_problem` ``boundary``): ``'padded'`` pads each channel
@@ -463,8 +465,8 @@ def linear_solve(pb: Problem, prior_inv: np.ndarray, x0: np.ndarray | None, iter
 
 def solved_exterior(g: Grid, channel: int, z: np.ndarray, kernel: np.ndarray, noise_var: float,
                     inverse_prior_on: Callable[[Grid], np.ndarray], estimate: np.ndarray,
-                    width_px: int = EXTERIOR_PX,
-                    iterations: int = EXTERIOR_ITERATIONS) -> tuple[np.ndarray, dict[str, Any]]:
+                    width_px: int = EXTERIOR_PX, iterations: int = EXTERIOR_ITERATIONS,
+                    padding: np.ndarray | None = None) -> tuple[np.ndarray, dict[str, Any]]:
     """One channel's data extended over the grid ``g`` by the scene beyond the crop solved for, not padded.
 
     The PSF is split into its core (the kernel within ``width_px`` of its centre) and the rest (wider disks,
@@ -498,6 +500,8 @@ def solved_exterior(g: Grid, channel: int, z: np.ndarray, kernel: np.ndarray, no
         The ring's width and the core's radius.
     iterations : int
         At most this many iterations.
+    padding : ndarray, shape (P, Q), optional
+        The data beyond the ring (default: the crop's edge values; the foveal channel's: its surround).
 
     Returns
     -------
@@ -548,7 +552,8 @@ def solved_exterior(g: Grid, channel: int, z: np.ndarray, kernel: np.ndarray, no
     p = y.copy()
     ry = float(np.vdot(res, y))
     it, step = 0, math.inf
-    for it in range(1, int(iterations) + 1):
+    while it < int(iterations):
+        it += 1
         Ap = op(p)
         a = ry / float(np.vdot(p, Ap))
         x += a * p
@@ -561,7 +566,7 @@ def solved_exterior(g: Grid, channel: int, z: np.ndarray, kernel: np.ndarray, no
         p = y + (ry_new / ry) * p
         ry = ry_new
     pred = irfft2(Df * rfft2(x, workers=-1), s=(P, Q), workers=-1).astype(np.float64)
-    out = g.padded(z)
+    out = g.padded(z) if padding is None else padding.copy()
     ring = (slice(g.pad - r, g.pad + H + r), slice(g.pad - r, g.pad + W + r))
     out[ring] = pred[:H + 2 * r, :W + 2 * r] + rest[ring]
     out[g.crop] = z
