@@ -248,11 +248,15 @@ class Deconvolution:
 
     def lines(self) -> list[str]:
         """What a person reads: the method, alpha's source, the time and the scores against the scene (when
-        scored), the field-dependent PSF's choice (when the PSFs have one) and the PSF refinement's lines."""
+        scored), what was taken beyond the perifoveal crop and why (``boundary='solved'``), the field-dependent PSF's
+        choice (when the PSFs have one) and the PSF refinement's lines."""
         sc = self.info.get("scores") or {}
         out = [f"scene ({self.info['method']}, alpha from {self.info.get('alpha_from', 'given')}, "
                f"{self.info['seconds']:.1f} s)" + ("" if not sc else ": against the scene " + ", ".join(
                    f"{k} {v:.4g}" for k, v in sc.items() if isinstance(v, float) and "second" not in k))]
+        ex = self.info.get("exterior")
+        if ex:
+            out.append(f"beyond the perifoveal crop ({ex['kept']}): {ex['why']}")
         fld = self.info.get("field") or {}
         if fld.get("patches", 1) > 1:
             out.append(f"field-dependent PSF ({fld['patches']} x {fld['patches']} patches): {fld['mode']}; "

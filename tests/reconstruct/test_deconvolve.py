@@ -404,6 +404,7 @@ def test_the_perifoveal_scene_beyond_the_crop_is_solved_for_not_padded(seed):
         gains.append(p_solved - p_padded)
         ex = solved.info["exterior"]
         assert ex["iterations"] >= 1 and ex["kept"] in ("solved", "padded") and ex["why"]
+        assert any(line.startswith(f"beyond the perifoveal crop ({ex['kept']})") for line in solved.lines())
         if scene2 is surround:  # the edge values misfit the data the surround's light reaches through the core
             assert ex["kept"] == "solved", ex
             assert ex["edge_misfit_dn2"]["padded"] - ex["edge_misfit_dn2"]["solved"] > ex["misfit_standard_error_dn2"]
