@@ -60,7 +60,7 @@ DEPRECATED_BOUNDARIES = {"mirror": "padded"}
 #: ``alpha`` whose 2 x 2 normal matrix is worse conditioned than this cannot separate the channels
 MAX_CONDITION = 1e8
 #: :func:`solved_exterior`'s ring beyond the crop, px (``exterior_px``): the PSF's core, which carries the ring's
-#: scene into the crop's edge pixels (the haze's wide disks gather from beyond any ring: a pedestal there)
+#: scene into the crop's edge pixels (the PSF's wider part gathers from beyond any ring: from the edge-padded solve)
 EXTERIOR_PX = 16
 #: :func:`solved_exterior`'s iterations at most (``exterior_iterations``): its speed against error in BENCHMARKS.md
 EXTERIOR_ITERATIONS = 100
@@ -501,7 +501,7 @@ def solved_exterior(g: Grid, channel: int, z: np.ndarray, kernel: np.ndarray, no
     iterations : int
         At most this many iterations.
     padding : ndarray, shape (P, Q), optional
-        The data beyond the ring (default: the crop's edge values; the foveal channel's: its surround).
+        The data beyond the ring (default: the crop's edge values).
 
     Returns
     -------
