@@ -94,8 +94,7 @@ benchmarks judge on):
                                        ``info['exterior']['core_power']``, its effect in BENCHMARKS.md
 ``joint.EXTERIOR_ITERATIONS``          a cap on the ring's CG (``exterior_iterations``): speed against error
                                        in BENCHMARKS.md
-``joint.EXTERIOR_CHI2_STEP``           derived: an iteration that lowers the chi-square by less than 1 (one
-                                       standard deviation of one parameter) ends the ring's solve
+``joint.EXTERIOR_RESIDUAL_REDUCTION``  numerical: the ring's CG has converged in single precision
 one standard error (the exterior)      the solved ring is kept only where it lowers the edge band's misfit by
                                        more than the misfit's standard error for white noise
 ``spectra.RADIAL_BINS``,               derived from the crop's and the grid's frequency steps (several

@@ -80,3 +80,53 @@ def test_mean_square_is_parseval():
     rng, g, *_ = _setup(1.0)
     v = rng.standard_normal(g.shape)
     assert np.isclose(mean_square(g, np.abs(rfft2(v)) ** 2), np.mean(v ** 2), rtol=1e-12)
+
+
+def test_the_solved_exterior_is_the_masked_wiener_estimate_of_a_dense_solve():
+    """:func:`~metafovea.reconstruct.joint.solved_exterior` (CG on the ring's periodic grid, single precision) against
+    the same estimate by a dense solve written here: the normal equations ``(D^T M D / c + Q) s = D^T M z / c`` with
+    the blur and the prior built column by column and ``M`` the crop; the ring's data ``D s`` agree to a small part of
+    the noise. A PSF within the ring (no wider part), so the edge-padded estimate plays no role."""
+    from metafovea.reconstruct.joint import solved_exterior
+
+    rng = np.random.default_rng(5)
+    H = W = 20
+    kernel = gauss_kernel(1.0, 7)
+    g = Grid((H, W), (kernel, kernel), (0.0, 0.0))
+    c = 0.5  # noise variance, DN^2
+    big = rng.normal(0.0, 1.0, (H + 12, W + 12)).cumsum(0).cumsum(1) * 0.3 + 40.0
+    big[:6] += 25.0  # a warmer band beyond the crop's top edge
+    z = irfft2(rfft2(big) * rfft2(np.pad(kernel, ((0, H + 12 - 7), (0, W + 12 - 7)))), s=big.shape)
+    z = np.roll(z, (-3, -3), axis=(0, 1))[6:6 + H, 6:6 + W] + rng.normal(0.0, np.sqrt(c), (H, W))
+
+    def inverse_prior_on(gs: Grid) -> np.ndarray:
+        f = np.maximum(gs.f, 1.0 / max(gs.shape))
+        inv = f ** 2 / (30.0 * gs.shape[0] * gs.shape[1])
+        inv[0, 0] = 0.0
+        return inv
+
+    out, info = solved_exterior(g, 1, z, kernel, c, inverse_prior_on, np.zeros(g.shape), width_px=8, iterations=500)
+    r = info["width_px"]
+    assert r == 3 and info["core_power"] == pytest.approx(1.0)
+    gs = Grid((H, W), (kernel, kernel), (0.0, 0.0))
+    P, Q = gs.shape
+    n = P * Q
+    q = n * inverse_prior_on(gs)
+    eye = np.eye(n).reshape(n, P, Q)
+    Dm = irfft2(gs.D[0] * rfft2(eye), s=(P, Q)).reshape(n, n).T  # column j: the blur of pixel j
+    Qm = irfft2(q * rfft2(eye), s=(P, Q)).reshape(n, n).T
+    mask = np.zeros((P, Q), dtype=bool)
+    mask[gs.crop] = True
+    m = mask.ravel()
+    zfull = np.zeros((P, Q))
+    zfull[gs.crop] = z
+    A = Dm[m].T @ Dm[m] / c + Qm
+    s = np.linalg.solve(A, Dm[m].T @ zfull.ravel()[m] / c)
+    pred = (Dm @ s).reshape(P, Q)[:H + 2 * r, :W + 2 * r]
+    ring = out[g.pad - r:g.pad + H + r, g.pad - r:g.pad + W + r]
+    outside = np.ones(ring.shape, dtype=bool)
+    outside[r:r + H, r:r + W] = False
+    err = np.abs(ring - pred)[outside]
+    assert np.max(err) < 0.1 * np.sqrt(c), (np.max(err), info)
+    # the warmer band is seen: the solved ring above the crop is warmer than the crop's edge values
+    assert np.mean(ring[:r, r:r + W]) > np.mean(z[0]) + 5.0
