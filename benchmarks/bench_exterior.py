@@ -20,6 +20,7 @@ from __future__ import annotations
 import argparse
 import datetime
 import json
+import os
 import sys
 import time
 import warnings
@@ -32,19 +33,12 @@ from metafovea.imaging.generator import tuning_scenes
 from metafovea.imaging.scene import AMBIENT_K, RasterScene, SceneGeometry
 from metafovea.parallel import run_tasks
 from metafovea.reconstruct.joint import EXTERIOR_ITERATIONS, EXTERIOR_PX
+from metafovea.studies.bench import load_average
 
 SYSTEM = Path(__file__).resolve().parents[1] / "designs" / "system.toml"
 BANDS = {"8-14um": False, "10um": True}
 #: the raster's pixels across the perifoveal field (finer than the sensor's crop)
 RASTER_PX = 600
-
-
-def _load() -> str:
-    try:
-        with open("/proc/loadavg") as f:
-            return " ".join(f.read().split()[:3])
-    except OSError:
-        return "n/a"
 
 
 def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
@@ -119,7 +113,7 @@ def main(argv: list[str] | None = None) -> int:
     args = parse_args(argv)
     if args.quick:
         args.scenes, args.bands, args.widths, args.iterations = 1, ["10um"], [EXTERIOR_PX], [EXTERIOR_ITERATIONS]
-    print(f"nproc {len(__import__('os').sched_getaffinity(0))}, load {_load()}, "
+    print(f"nproc {len(os.sched_getaffinity(0))}, load {load_average()}, "
           f"{datetime.datetime.now(datetime.UTC).isoformat(timespec='seconds')}")
     sets = settings(args)
     items = [(name, form, band, sets) for name, _ in tuning_scenes(args.scenes)
@@ -148,9 +142,9 @@ def main(argv: list[str] | None = None) -> int:
                 x = summary[-1]
                 print(f"  {form:<9} {band:<6} {x['setting']:<24} {x['mean_gain_db']:+6.2f} / {x['worst_gain_db']:+6.2f}"
                       f"  {t:5.2f} s  solved kept {x['kept_solved']} of {x['cases']}")
-    print(f"load {_load()}; wall {time.time() - t0:.0f} s")
+    print(f"load {load_average()}; wall {time.time() - t0:.0f} s")
     if args.json:
-        args.json.write_text(json.dumps({"meta": {"load": _load(), "argv": sys.argv[1:]}, "rows": rows,
+        args.json.write_text(json.dumps({"meta": {"load": load_average(), "argv": sys.argv[1:]}, "rows": rows,
                                          "summary": summary}, indent=1))
     return 0
 

@@ -610,18 +610,17 @@ def _solve_exterior(pb: Problem, C: np.ndarray, c: int, kernel: np.ndarray, prio
     kept = misfit[0] - misfit[1] > se
     if not kept:
         pb.z[c] = kept_padding
-    other = "the edge values"
     ex.update(kept="solved" if kept else "padded", edge_band_px=w,
               edge_misfit_dn2={"padded": misfit[0], "solved": misfit[1]}, misfit_standard_error_dn2=se)
     seen = (f"the scene beyond the crop seen through the PSF's core (radius {w} px, {100 * ex['core_power']:.0f} % of "
             f"its power), solved for in a ring of that width (masked data, {ex['iterations']} conjugate-gradient "
             "iterations, the PSF's wider part from the edge-padded solve)")
-    ex["why"] = (f"{seen}: it explains the data within {w} px of the crop's edge better than {other} (misfit "
-                 f"{misfit[1]:.4g} against {misfit[0]:.4g} DN^2, standard error {se:.2g}), so it is kept, {other} "
-                 "beyond the ring" if kept else
-                 f"{seen}: it does not explain the data within {w} px of the crop's edge better than {other} by more "
-                 f"than its standard error (misfit {misfit[1]:.4g} against {misfit[0]:.4g} DN^2, standard error "
-                 f"{se:.2g}): {other} kept")
+    ex["why"] = (f"{seen}: it explains the data within {w} px of the crop's edge better than the edge values (misfit "
+                 f"{misfit[1]:.4g} against {misfit[0]:.4g} DN^2, standard error {se:.2g}), so it is kept, the edge "
+                 "values beyond the ring" if kept else
+                 f"{seen}: it does not explain the data within {w} px of the crop's edge better than the edge values "
+                 f"by more than its standard error (misfit {misfit[1]:.4g} against {misfit[0]:.4g} DN^2, standard "
+                 f"error {se:.2g}): the edge values kept")
     return (solved if kept else before), n_before + n_sol, {"channel": f"x{c + 1}", **ex}
 
 
