@@ -180,6 +180,20 @@ def cache_dir(stage: str) -> Path:
     return cache_root() / stage
 
 
+def use_jax_cache() -> None:
+    """Keep JAX's compiled programs on disk, in ``cache_dir("jax")``, unless a folder is already chosen
+    (``JAX_COMPILATION_CACHE_DIR`` or ``jax.config``): the deep image prior's and the co-design's jitted steps
+    (seconds to compile each, once per shape and switches) then compile once per machine, not once per process.
+    JAX's own persistent cache (``jax_compilation_cache_dir``; programs that took at least
+    ``jax_persistent_cache_min_compile_time_secs`` to compile, keyed by the program, the options and the JAX and
+    XLA versions). JAX decides at a process's first compilation whether it uses the cache, so each module calls
+    this before it compiles anything."""
+    import jax
+
+    if jax.config.jax_compilation_cache_dir is None:
+        jax.config.update("jax_compilation_cache_dir", str(cache_dir("jax")))
+
+
 #: files shipped with the package: read-only seeds of the caches, each under its cache file's name (which holds the
 #: hash of every input), so a seed serves exactly the inputs it was made from (``python -m metafovea.library.seed``)
 DATA_DIR = Path(__file__).resolve().parent / "data"

@@ -121,3 +121,34 @@ def test_cache_lock_serialises_two_holders(tmp_path):
     a.join(), b.join()
     assert events == [("a", "in"), ("a", "out"), ("b", "in"), ("b", "out")]
     assert (tmp_path / "entry.npz.lock").is_file()
+
+
+_DIP_IN_A_PROCESS = """
+import numpy as np
+from metafovea.reconstruct.deep_prior import dip
+rng = np.random.default_rng(0)
+Y = rng.random((2, 16, 16)).astype(np.float32)
+r = dip(Y, alpha=[0.3, 0.7], steps=2, rng=0, depth=1, channels=4)
+print(r.info["traces"])
+"""
+
+
+@pytest.mark.parametrize("user_folder", [False, True])
+def test_jax_programs_are_kept_in_the_cache_folder_unless_the_user_chose_one(tmp_path, user_folder):
+    """A DIP fitted in a fresh process leaves its compiled step in ``$METAFOVEA_CACHE/jax`` (JAX's persistent
+    compilation cache), or in the folder the user named with ``JAX_COMPILATION_CACHE_DIR``, and nowhere else."""
+    import os
+    import subprocess
+    import sys
+
+    env = {**os.environ, "METAFOVEA_CACHE": str(tmp_path / "c"), "JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS": "0"}
+    env.pop("JAX_COMPILATION_CACHE_DIR", None)
+    if user_folder:
+        env["JAX_COMPILATION_CACHE_DIR"] = str(tmp_path / "mine")
+    out = subprocess.run([sys.executable, "-c", _DIP_IN_A_PROCESS], env=env, capture_output=True, text=True,
+                         timeout=300)
+    assert out.returncode == 0, out.stderr
+    ours, mine = tmp_path / "c" / "jax", tmp_path / "mine"
+    kept, empty = (mine, ours) if user_folder else (ours, mine)
+    assert kept.is_dir() and any(kept.iterdir())
+    assert not empty.exists()

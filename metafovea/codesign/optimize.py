@@ -24,7 +24,7 @@ from typing import Any
 import numpy as np
 
 from metafovea.errors import InputError, check_int, check_positive
-from metafovea.io import atomic_save_npz, load_npz
+from metafovea.io import atomic_save_npz, load_npz, use_jax_cache
 from metafovea.parallel import progress_bar
 
 #: the checkpoint file's format (raise when the layout changes: an old file is then refused, not misread)
@@ -135,6 +135,7 @@ def minimize(loss: Callable[[dict[str, Any]], tuple[Any, dict[str, Any]]], x0: d
     OptimizeResult
         The best iterate (the lowest loss seen, the start included).
     """
+    use_jax_cache()
     import jax
 
     if set(x0) != set(bounds):

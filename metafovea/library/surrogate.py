@@ -50,7 +50,7 @@ from numpy.typing import ArrayLike
 
 from metafovea.config import PAPER_BAND_UM, PlatformDesign
 from metafovea.errors import InputError, check_int, check_positive
-from metafovea.io import atomic_save_npz, cache_lock, input_hash
+from metafovea.io import atomic_save_npz, cache_lock, input_hash, use_jax_cache
 from metafovea.io import cache_dir as io_cache_dir
 
 from .postset import _load_checked
@@ -197,6 +197,7 @@ class Surrogate:
 @functools.cache
 def _kernel() -> Any:
     """The jitted spline evaluation (made on first use: importing this module never imports jax)."""
+    use_jax_cache()
     import jax
     import jax.numpy as jnp
 

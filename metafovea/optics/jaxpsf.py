@@ -76,12 +76,15 @@ from numpy.typing import ArrayLike
 
 from metafovea.config import LensDesign, SystemDesign
 from metafovea.errors import InputError, check_choice, check_int, check_positive, check_range
+from metafovea.io import use_jax_cache
 from metafovea.library.postset import PostSet
 
 from .propagate import _gl, disk_nodes, nodes_for_phase
 from .psf import check_wavelengths, diffraction_radius_um, nyquist_pitch_um
 from .pupil import field_direction, level_transmissions, max_field_deg
 from .sensor import disk_pixels
+
+use_jax_cache()  # before this module compiles anything (JAX checks once per process)
 
 #: engines of :func:`imaging_model` ('auto': debye on axis, rs off axis)
 JAX_ENGINES = ("auto", "debye", "rs")

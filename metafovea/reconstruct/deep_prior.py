@@ -57,6 +57,7 @@ from numpy.typing import ArrayLike
 
 from metafovea import stopping
 from metafovea.errors import InputError, as_float, as_rng, check_choice, check_int
+from metafovea.io import use_jax_cache
 from metafovea.reconstruct._common import Timings, as_alpha, as_frames, image_dtype, with_overrides
 from metafovea.reconstruct.alternating import alternating, frame_mean_alpha
 from metafovea.reconstruct.denoise import denoise
@@ -800,6 +801,7 @@ def dip(frames: ArrayLike, alpha: ArrayLike | None = None, options: DipOptions |
     normalised range internally). Memory bound: ``channels x H x W <= MAX_CHANNEL_PIXELS`` (an
     :class:`InputError` otherwise).
     """
+    use_jax_cache()
     import jax.numpy as jnp
 
     opt = with_overrides(DipOptions, options, overrides)
