@@ -428,7 +428,9 @@ def linear_solve(pb: Problem, prior_inv: np.ndarray, x0: np.ndarray | None, iter
     frac = float(np.ones(g.shape)[cy, cx].size) / n_bins  # the data region's share: the preconditioner's weight
     Mpre = (Ci[0, 0] * frac * np.abs(D1) ** 2 + prior_inv[0] * n_bins, Ci[0, 1] * frac * np.conj(D1) * D2,
             Ci[1, 1] * frac * np.abs(D2) ** 2 + prior_inv[1] * n_bins)
-    eps = 1e-12 * float(np.max(np.abs(Mpre[0])) + np.max(np.abs(Mpre[2])))
+    # a floor far below the data's own weight (not the prior's, whose floor reaches 1e9 of its least value: an eps
+    # scaled by it shrank the unregularised mean of a flat scene by several per cent)
+    eps = 1e-12 * float(np.max(Ci[0, 0] * frac * np.abs(D1) ** 2) + np.max(Ci[1, 1] * frac * np.abs(D2) ** 2))
     Mpre = (Mpre[0] + eps, Mpre[1], Mpre[2] + eps)
 
     def op(s: np.ndarray) -> np.ndarray:
