@@ -591,13 +591,16 @@ def _solve_exterior(pb: Problem, C: np.ndarray, c: int, kernel: np.ndarray, prio
     width_px = check_int("exterior_px", width_px, 1, 10_000)
     iterations = check_int("exterior_iterations", iterations, 0, 100_000)
     g, z = pb.g, pb.zc[c]
+    before, n_before = current
+    if min(width_px, kernel.shape[0] // 2, g.pad) < 1:  # a one-pixel PSF: nothing beyond the crop reaches it
+        return before, n_before, {"channel": f"x{c + 1}", "width_px": 0, "kept": "padded", "why": (
+            "the PSF is one pixel wide: no light from beyond the crop reaches it, the edge values kept")}
 
     def inverse_prior_on(gs: Grid) -> np.ndarray:
         spec, _ = fitted_spectrum(z, gs.padded(z - np.mean(z)), gs.D[c], C[c, c], prior,
                                   _prior_scale_factor(prior_scale, z.shape, gs))
         return inverse_prior([spec, spec])[c]
 
-    before, n_before = current
     kept_padding = pb.z[c].copy()
     pb.z[c], ex = solved_exterior(g, c, z, kernel, float(C[c, c]), inverse_prior_on, before[c], width_px,
                                   iterations, padding=kept_padding)

@@ -37,7 +37,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from numpy.typing import ArrayLike
 
-from metafovea.errors import InputError
+from metafovea.errors import InputError, check_choice
 from metafovea.measurement import check_illumination, check_kernel, check_patches
 from metafovea.reconstruct.spectra import rfft_frequencies, rfft_weights
 
@@ -53,6 +53,9 @@ if TYPE_CHECKING:
 #: solves for the scene beyond the crop over the whole padding (seen only through the PSFs' tails: far less
 #: determined, and slow)
 BOUNDARIES = ("solved", "padded", "unknown")
+#: ``numpy.pad`` modes the padding of a periodic problem takes (:func:`prepare_problem` ``pad_mode``; ``'reflect'``
+#: becomes ``'symmetric'`` where the padding is wider than the crop)
+PAD_MODES = ("edge", "reflect", "symmetric", "wrap", "mean", "median", "linear_ramp", "constant")
 #: the default: the perifoveal scene beyond the crop solved for in a ring (:func:`solved_exterior`)
 DEFAULT_BOUNDARY = "solved"
 #: old spellings of :data:`BOUNDARIES` still accepted: ``'mirror'`` padded with edge values, not a mirror image
@@ -811,7 +814,7 @@ def prepare_problem(frames: ArrayLike, alpha: ArrayLike, psfs: ChannelPSFs, offs
     boundary : {'padded', 'unknown'}
         (Already checked by :func:`check_boundary`.)
     pad_mode : str
-        ``numpy.pad`` mode of the padding.
+        ``numpy.pad`` mode of the padding (:data:`PAD_MODES`).
     fpn_error_dn : float
         The rms error (DN) of the fixed pattern subtracted from the frames.
 
@@ -833,6 +836,7 @@ def prepare_problem(frames: ArrayLike, alpha: ArrayLike, psfs: ChannelPSFs, offs
     if fr.ndim != 3 or fr.shape[0] < 3:
         raise InputError("frames", f"array of shape {fr.shape}", "(T, H, W) frames with T >= 3")
     T, H, W = fr.shape
+    pad_mode = check_choice("pad_mode", pad_mode, PAD_MODES)
     a = np.asarray(alpha, dtype=np.float64).reshape(-1)
     if a.shape != (T,) or not np.all(np.isfinite(a)):
         raise InputError("alpha", f"array of shape {a.shape}", f"({T},) finite mixing ratios")

@@ -29,6 +29,8 @@ from typing import Any
 
 import numpy as np
 
+from metafovea.errors import InputError
+
 #: the rfft grid's largest ``|f|`` (its corner), cycles per pixel: the radial bins span ``[0, F_MAX]``
 F_MAX = 0.5 * math.sqrt(2.0)
 #: rings of the fitted spectrum and of ``info['prior_radial']``: 0.011 cycles/px wide, about three of a 290 px
@@ -282,6 +284,10 @@ def fitted_spectrum(z: np.ndarray, z_padded: np.ndarray, D: np.ndarray, noise_va
     else:  # too few detected rings for a fit: the level that makes the whole periodogram likeliest
         valid = np.isfinite(pz) & (fc > 0) & (pd > 0) & (cnt > 0)
         valid[0] = False
+        if not valid.any():
+            raise InputError("frames", f"a crop of {z.shape[0]} x {z.shape[1]} px",
+                             "a crop holding a frequency besides the mean that the channel's PSF transmits (a few "
+                             "pixels across): the scene's spectrum cannot be estimated from this one")
         logc = whittle_level(fc[valid], pz[valid], pd[valid], cnt[valid], noise_var, beta)
         level_from = "likelihood"
     f = np.maximum(f_grid, 1.0 / max(shape))

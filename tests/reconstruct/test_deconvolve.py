@@ -139,6 +139,21 @@ def test_bad_input_is_refused():
     assert ChannelPSFs((np.ones((3, 3)), np.ones((3, 3))), pedestals=(0.0, -2.2e-16)).pedestals == (0.0, 0.0)
     with pytest.raises(InputError, match="method"):
         separate_deconvolve(frames, a, psfs, method="richardson")
+    with pytest.raises(InputError, match="pad_mode"):  # numpy's own ValueError before
+        separate_deconvolve(frames, a, psfs, pad_mode="bogus")
+    with pytest.raises(InputError, match="1 x 1 px"):  # a crop without a frequency: numpy's ValueError before
+        separate_deconvolve(frames[:, :1, :1], a, psfs)
+
+
+def test_a_one_pixel_psf_takes_nothing_from_beyond_the_crop():
+    """A perifoveal PSF of one pixel: no light from beyond the crop reaches it, so the edge values stay and the
+    output says why (the ring had width 0 and its misfit was taken over the whole crop, said to be its edge)."""
+    frames, a, psfs, _, _ = _case(4, n=32, T=6)
+    one = ChannelPSFs((psfs.kernels[0], np.ones((1, 1))))
+    d = separate_deconvolve(frames, a, one, method="wiener")
+    padded = separate_deconvolve(frames, a, one, method="wiener", boundary="padded")
+    assert d.info["exterior"]["kept"] == "padded" and "one pixel" in d.info["exterior"]["why"]
+    assert np.array_equal(d.scene, padded.scene)
 
 
 def test_simulator_psfs_reproduce_its_images(designs_dir):
