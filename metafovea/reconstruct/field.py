@@ -198,7 +198,8 @@ def field_deconvolve(psfs: ChannelPSFs, solve: Callable[[ChannelPSFs, PatchConte
     Deconvolution
         The on-axis solve's ``info`` with ``field``: ``mode``, ``patches`` (p), ``solved`` (``[i, j, channels]``:
         the patches solved with their own kernels and the channels that take that solve), ``change_over_noise``
-        (p, p, 2) and ``why``; ``seconds`` the whole.
+        (p, p, 2) and ``why``; ``seconds`` the whole; with ``boundary='solved'``, ``exterior`` gets
+        ``kept_per_patch`` (``'i,j'`` -> ``'solved'`` or ``'padded'``, each patch's own choice) and says it.
     """
     mode = check_choice("field_psf", mode, FIELD_MODES[:2])
     p = psfs.n_patches
@@ -233,6 +234,13 @@ def field_deconvolve(psfs: ChannelPSFs, solve: Callable[[ChannelPSFs, PatchConte
         why = (f"no patch's kernels change the predicted data by more than {FIELD_NOISE_SHARE:g} x the noise "
                f"(up to {worst:.3g} x): the on-axis kernels everywhere")
     info = dict(base.info)
+    kept = {f"{i},{j}": r.info["exterior"]["kept"] for (i, j), r in results.items() if "exterior" in r.info}
+    if kept and "exterior" in info:  # each patch's solve chose its own padding beyond the perifoveal crop
+        ex = info["exterior"]
+        n_solved = sum(k == "solved" for k in kept.values())
+        info["exterior"] = {**ex, "kept_per_patch": kept, "why": (
+            f"{ex['why']} (the on-axis solve; of the {len(kept)} patches solved with their own kernels, "
+            f"{n_solved} kept the solved ring and {len(kept) - n_solved} the edge values, each by the same test)")}
     info["field"] = {"mode": f"{p} x {p} patches" if n_need else "on-axis (field variation below the noise)",
                      "patches": p, "solved": solved, "change_over_noise": change.round(4).tolist(), "why": why,
                      **({"tau_per_patch": taus} if taus else {})}

@@ -162,6 +162,10 @@ def test_the_simulators_field_patches_reach_the_reconstruction_through_the_file(
     assert auto.info["field"]["solved"] and sc["wiener_bound_psf"].startswith("sectioned")
     assert sc["psnr_x2"] > on["psnr_x2"] + 10.0  # measured 5.7 -> 25.8 dB
     assert sc["psnr_x1"] > on["psnr_x1"] - 0.05  # measured 25.4 -> 25.9 dB (24.3 with a patch's own surround)
+    # each patch solved with its own kernels chose its own padding beyond the perifoveal crop: the output says so
+    ex = auto.info["exterior"]
+    assert set(ex["kept_per_patch"]) == {f"{i},{j}" for i, j, _ in auto.info["field"]["solved"]}
+    assert set(ex["kept_per_patch"].values()) <= {"solved", "padded"} and "patches solved with their own" in ex["why"]
 
 
 @pytest.fixture(scope="module")
