@@ -10,7 +10,8 @@ Identifiability
    spatial mean (the mean of ``f`` is never identifiable and is set to 0), low-rank by optimal singular-value
    shrinkage (default, :func:`shrink_lowrank`: M. Gavish and D. L. Donoho, "Optimal shrinkage of singular
    values", IEEE Trans. Inf. Theory 63, 2137 (2017), Frobenius loss, the noise of the mean known from the
-   frames' scatter) or projected on rank ``rank`` when one is given (the paper's 20), and clipped to ``+-bound``;
+   frames' scatter, plus, for frames of whole counts, the rounding that noise below a count does not dither:
+   :func:`quantisation_bias_variance`) or projected on rank ``rank`` when one is given (the paper's 20), and clipped to ``+-bound``;
    identified up to that constant and the calibration noise. ``info['error_rms_dn']`` estimates the estimate's
    rms error: Stein's unbiased risk estimate of the shrinkage (E. J. Candes, C. A. Sing-Long and J. D. Trzasko,
    IEEE Trans. Signal Process. 61, 4643 (2013)), or split halves for a fixed rank.
@@ -197,12 +198,17 @@ def _from_calibration(calibration: ArrayLike, rank: int | None, bound: float) ->
                             "unidentified": "the mean of the pattern (set to 0) and the calibration noise "
                                             f"(~sigma/sqrt({T}) per pixel)", "clipped_fraction": clipped}
     if rank is None and T >= 2:
-        # the noise of the mean from the frames' scatter (white, the same at every pixel)
-        noise = float(np.sqrt(np.mean(C.astype(np.float64).var(axis=0, ddof=1)) / T))
+        # the noise of the mean from the frames' scatter (white, the same at every pixel), and for frames of whole
+        # counts the rounding that the scatter does not show (noise far below one count does not dither it)
+        v = float(np.mean(C.astype(np.float64).var(axis=0, ddof=1)))
+        step = 1.0 if np.all(C == np.round(C)) else 0.0
+        q = step ** 2 * quantisation_bias_variance(v / step ** 2) if step else 0.0
+        noise = float(np.sqrt(v / T + q))
         f, kept, err = shrink_lowrank(raw, noise)
         f = np.clip(f, -bound, bound)
         f = f - f.mean()
-        info.update(rank=kept, rank_rule="shrinkage", noise_of_mean_dn=noise, error_rms_dn=err, error_rms_from="sure")
+        info.update(rank=kept, rank_rule="shrinkage", noise_of_mean_dn=noise, error_rms_dn=err, error_rms_from="sure",
+                    rounding_dn=math.sqrt(q))
     else:
         rank = 20 if rank is None else rank  # one frame: no noise estimate to shrink with; the paper's rank
         f = project_lowrank(raw, rank, bound)
@@ -278,6 +284,36 @@ def shrink_lowrank(f: np.ndarray, noise: float) -> tuple[np.ndarray, int, float]
     sure = -H * W * sig ** 2 + float(np.sum((eta - s) ** 2)) + 2.0 * sig ** 2 * div
     est = (U * eta) @ Vt
     return est - est.mean(), int(keep.sum()), math.sqrt(max(sure, 0.0) / (H * W))
+
+
+def quantisation_bias_variance(noise_var: float, terms: int = 256) -> float:
+    """The variance, over values spread across the quantiser's step, of the mean error that rounding to whole steps
+    leaves in the average of many samples with Gaussian noise of variance ``noise_var`` (steps^2).
+
+    The rounding error ``e(c) = Q(c) - c`` is a sawtooth, ``sum_k (-1)^k sin(2 pi k c) / (pi k)``; noise of
+    standard deviation ``s`` averages each harmonic by ``exp(-2 pi^2 k^2 s^2)`` (its characteristic function), so
+    the mean error's variance over ``c`` is
+
+        sum_k exp(-4 pi^2 k^2 s^2) / (2 pi^2 k^2)                                                      (1)
+
+    ``1/12`` without noise (the plain rounding error, which no number of frames averages away), below 2e-3 from
+    ``s = 0.3`` steps on (the noise dithers it). The frames' own scatter stands in for ``s^2``.
+
+    Parameters
+    ----------
+    noise_var : float
+        >= 0, in steps^2.
+    terms : int
+        Harmonics summed (the rest is below ``1 / (2 pi^2 terms)``, 2e-4 steps^2 at the default).
+
+    Returns
+    -------
+    float
+        steps^2.
+    """
+    k = np.arange(1, int(terms) + 1, dtype=np.float64)
+    s2 = max(float(noise_var), 0.0)
+    return float(np.sum(np.exp(-4.0 * math.pi ** 2 * k ** 2 * s2) / (2.0 * math.pi ** 2 * k ** 2)))
 
 
 def calibration_error_rms(calibration: np.ndarray, rank: int, bound: float = math.inf) -> float | None:

@@ -176,3 +176,36 @@ def test_calibration_shrinkage_beats_a_fixed_rank_and_knows_its_error(seed, T, s
     # one frame: no noise to shrink with: the paper's rank, no error estimate
     one, info1 = estimate_fpn(calibration=cal[:1])
     assert info1["rank"] == 20 and "error_rms_dn" not in info1
+
+
+def test_the_rounding_bias_of_a_mean_of_quantised_samples_is_the_brute_force_ones():
+    """Eq. (1) of ``quantisation_bias_variance`` against the mean of many rounded noisy samples of values spread
+    over a step, averaged by brute force: 1/12 without noise, and the noise's dithering after it."""
+    from metafovea.reconstruct.fpn import quantisation_bias_variance
+
+    rng = np.random.default_rng(3)
+    c = rng.uniform(0.0, 1.0, 20000)
+    assert quantisation_bias_variance(0.0) == pytest.approx(1.0 / 12.0, rel=0.01)
+    for s in (0.08, 0.15, 0.25):
+        mean_err = np.mean([np.round(c + rng.normal(0.0, s, c.size)) - c for _ in range(400)], axis=0)
+        brute = float(np.var(mean_err)) - s ** 2 / 400  # less the 400 samples' own noise of the mean
+        assert quantisation_bias_variance(s ** 2) == pytest.approx(brute, rel=0.1, abs=2e-4), s
+
+
+def test_calibration_frames_without_noise_keep_their_rounding_in_the_error():
+    """Closed-shutter frames of whole counts without temporal noise (a noise-free simulation): their scatter is 0,
+    yet their mean carries each pixel's rounding, which no number of frames averages away. The estimate shrinks
+    that rounding as noise (it kept every component and all of the rounding before: 0.29 counts rms) and its stated
+    error is the true one (it said 0)."""
+    rng = np.random.default_rng(8)
+    H, W = 90, 80
+    f_true = rng.normal(0, 6.0, (H, 3)) @ rng.normal(0, 1.0, (3, W)) / 3 + 0.37
+    cal = np.repeat(np.round(500.0 + f_true)[None], 16, axis=0)
+    f, info = estimate_fpn(calibration=cal)
+    true_err = float(np.sqrt(np.mean(((f - f.mean()) - (f_true - f_true.mean())) ** 2)))
+    assert true_err < 0.15 and info["rank"] < 10, (true_err, info["rank"])
+    assert info["error_rms_dn"] == pytest.approx(true_err, rel=0.3)
+    # with noise that dithers the rounding the estimate is as before (the scatter alone)
+    noisy = np.round(500.0 + f_true[None] + rng.normal(0, 2.0, (16, H, W)))
+    _, info2 = estimate_fpn(calibration=noisy)
+    assert info2["rounding_dn"] < 1e-6
