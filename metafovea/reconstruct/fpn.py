@@ -11,7 +11,8 @@ Identifiability
    shrinkage (default, :func:`shrink_lowrank`: M. Gavish and D. L. Donoho, "Optimal shrinkage of singular
    values", IEEE Trans. Inf. Theory 63, 2137 (2017), Frobenius loss, the noise of the mean known from the
    frames' scatter, plus, for frames of whole counts, the rounding that noise below a count does not dither:
-   :func:`quantisation_bias_variance`) or projected on rank ``rank`` when one is given (the paper's 20), and clipped to ``+-bound``;
+   :func:`quantisation_bias_variance`) or projected on rank ``rank`` when one is given (the paper's 20), and
+   clipped to ``+-bound``;
    identified up to that constant and the calibration noise. ``info['error_rms_dn']`` estimates the estimate's
    rms error: Stein's unbiased risk estimate of the shrinkage (E. J. Candes, C. A. Sing-Long and J. D. Trzasko,
    IEEE Trans. Signal Process. 61, 4643 (2013)), or split halves for a fixed rank.
