@@ -131,12 +131,19 @@ Y = rng.random((2, 16, 16)).astype(np.float32)
 r = dip(Y, alpha=[0.3, 0.7], steps=2, rng=0, depth=1, channels=4)
 print(r.info["traces"])
 """
+#: the folder's choice alone: the cache asked for, then one small program compiled
+_JIT_IN_A_PROCESS = """
+from metafovea.io import use_jax_cache
+use_jax_cache()
+import jax
+print(jax.jit(lambda x: 2.0 * x + 1.0)(1.0))
+"""
 
 
 @pytest.mark.parametrize("user_folder", [False, True])
 def test_jax_programs_are_kept_in_the_cache_folder_unless_the_user_chose_one(tmp_path, user_folder):
     """A DIP fitted in a fresh process leaves its compiled step in ``$METAFOVEA_CACHE/jax`` (JAX's persistent
-    compilation cache), or in the folder the user named with ``JAX_COMPILATION_CACHE_DIR``, and nowhere else."""
+    compilation cache); with ``JAX_COMPILATION_CACHE_DIR`` set, a program goes to the user's folder, nowhere else."""
     import os
     import subprocess
     import sys
@@ -145,8 +152,8 @@ def test_jax_programs_are_kept_in_the_cache_folder_unless_the_user_chose_one(tmp
     env.pop("JAX_COMPILATION_CACHE_DIR", None)
     if user_folder:
         env["JAX_COMPILATION_CACHE_DIR"] = str(tmp_path / "mine")
-    out = subprocess.run([sys.executable, "-c", _DIP_IN_A_PROCESS], env=env, capture_output=True, text=True,
-                         timeout=300)
+    program = _JIT_IN_A_PROCESS if user_folder else _DIP_IN_A_PROCESS
+    out = subprocess.run([sys.executable, "-c", program], env=env, capture_output=True, text=True, timeout=300)
     assert out.returncode == 0, out.stderr
     ours, mine = tmp_path / "c" / "jax", tmp_path / "mine"
     kept, empty = (mine, ours) if user_folder else (ours, mine)
