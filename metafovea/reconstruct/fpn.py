@@ -202,8 +202,7 @@ def _from_calibration(calibration: ArrayLike, rank: int | None, bound: float) ->
         # the noise of the mean from the frames' scatter (white, the same at every pixel), and for frames of whole
         # counts the rounding that the scatter does not show (noise far below one count does not dither it)
         v = float(np.mean(C.astype(np.float64).var(axis=0, ddof=1)))
-        step = 1.0 if np.all(C == np.round(C)) else 0.0
-        q = step ** 2 * quantisation_bias_variance(v / step ** 2) if step else 0.0
+        q = quantisation_bias_variance(v) if np.all(C == np.round(C)) else 0.0  # whole counts: a step of 1
         noise = float(np.sqrt(v / T + q))
         f, kept, err = shrink_lowrank(raw, noise)
         f = np.clip(f, -bound, bound)
