@@ -202,7 +202,8 @@ def _from_calibration(calibration: ArrayLike, rank: int | None, bound: float) ->
         # the noise of the mean from the frames' scatter (white, the same at every pixel), and for frames of whole
         # counts the rounding that the scatter does not show (noise far below one count does not dither it)
         v = float(np.mean(C.astype(np.float64).var(axis=0, ddof=1)))
-        q = quantisation_bias_variance(v) if np.all(C == np.round(C)) else 0.0  # whole counts: a step of 1
+        step = quantiser_step(C)
+        q = 0.0 if step is None else step ** 2 * quantisation_bias_variance(noise_variance(v / step ** 2))
         noise = float(np.sqrt(v / T + q))
         f, kept, err = shrink_lowrank(raw, noise)
         f = np.clip(f, -bound, bound)
@@ -286,6 +287,53 @@ def shrink_lowrank(f: np.ndarray, noise: float) -> tuple[np.ndarray, int, float]
     return est - est.mean(), int(keep.sum()), math.sqrt(max(sure, 0.0) / (H * W))
 
 
+def quantiser_step(frames: np.ndarray) -> float | None:
+    """The step of the quantiser the frames went through, from their values: the greatest common divisor of the
+    differences between their distinct values when these are whole numbers (1 for counts, 16 for 12-bit counts
+    stored in the top bits of 16), None for frames of fractional values (no rounding known) or a single value.
+
+    Parameters
+    ----------
+    frames : ndarray
+
+    Returns
+    -------
+    float or None
+    """
+    a = np.asarray(frames, dtype=np.float64)
+    if not np.all(a == np.round(a)):
+        return None
+    u = np.unique(a)
+    if u.size < 2:
+        return None
+    step = int(np.gcd.reduce(np.diff(u).astype(np.int64)))
+    return float(step) if step > 0 else None
+
+
+def noise_variance(rounded_var: float) -> float:
+    """The variance ``s^2`` of Gaussian noise (in steps^2) whose samples, rounded to whole steps from values spread
+    across the step, scatter with variance ``rounded_var``: the inverse of ``s^2 + 1/12 - q(s^2)``
+    (:func:`quantisation_bias_variance` ``q``: the rounding adds its own 1/12 less the part that stays in the mean),
+    which rises monotonically from 0 at ``s = 0``.
+
+    Parameters
+    ----------
+    rounded_var : float
+        >= 0, steps^2.
+
+    Returns
+    -------
+    float
+        steps^2.
+    """
+    from scipy.optimize import brentq
+
+    v = max(float(rounded_var), 0.0)
+    if v <= 0.0:
+        return 0.0
+    return float(brentq(lambda s2: s2 + 1.0 / 12.0 - quantisation_bias_variance(s2) - v, 0.0, v, xtol=1e-12))
+
+
 def quantisation_bias_variance(noise_var: float, terms: int = 256) -> float:
     """The variance, over values spread across the quantiser's step, of the mean error that rounding to whole steps
     leaves in the average of many samples with Gaussian noise of variance ``noise_var`` (steps^2).
@@ -297,7 +345,7 @@ def quantisation_bias_variance(noise_var: float, terms: int = 256) -> float:
         sum_k exp(-4 pi^2 k^2 s^2) / (2 pi^2 k^2)                                                      (1)
 
     ``1/12`` without noise (the plain rounding error, which no number of frames averages away), below 2e-3 from
-    ``s = 0.3`` steps on (the noise dithers it). The frames' own scatter stands in for ``s^2``.
+    ``s = 0.3`` steps on (the noise dithers it). ``s^2`` from the rounded frames' scatter: :func:`noise_variance`.
 
     Parameters
     ----------
