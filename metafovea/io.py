@@ -187,11 +187,19 @@ def use_jax_cache() -> None:
     JAX's own persistent cache (``jax_compilation_cache_dir``; programs that took at least
     ``jax_persistent_cache_min_compile_time_secs`` to compile, keyed by the program, the options and the JAX and
     XLA versions). JAX decides at a process's first compilation whether it uses the cache, so each module calls
-    this before it compiles anything."""
+    this before it compiles anything. A folder that cannot be made or written (a read-only file system, a file in
+    its place) leaves the cache off: JAX would warn at every program it could not keep."""
     import jax
 
     if jax.config.jax_compilation_cache_dir is None:
-        jax.config.update("jax_compilation_cache_dir", str(cache_dir("jax")))
+        folder = cache_dir("jax")
+        try:
+            folder.mkdir(parents=True, exist_ok=True)
+            writable = os.access(folder, os.W_OK | os.X_OK)
+        except OSError:
+            writable = False
+        if writable:
+            jax.config.update("jax_compilation_cache_dir", str(folder))
 
 
 #: files shipped with the package: read-only seeds of the caches, each under its cache file's name (which holds the

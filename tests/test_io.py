@@ -159,3 +159,20 @@ def test_jax_programs_are_kept_in_the_cache_folder_unless_the_user_chose_one(tmp
     kept, empty = (mine, ours) if user_folder else (ours, mine)
     assert kept.is_dir() and any(kept.iterdir())
     assert not empty.exists()
+
+
+def test_an_unwritable_jax_cache_folder_leaves_the_cache_off_quietly(tmp_path):
+    """A cache folder that cannot be written (here a file stands where the folder would be): JAX would warn at
+    every program it could not keep (27 warnings for a small DIP); the cache is left off and nothing is said."""
+    import os
+    import subprocess
+    import sys
+
+    (tmp_path / "c").write_text("a file, not a folder")
+    env = {**os.environ, "METAFOVEA_CACHE": str(tmp_path / "c"), "JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS": "0"}
+    env.pop("JAX_COMPILATION_CACHE_DIR", None)
+    program = _JIT_IN_A_PROCESS + "print(jax.config.jax_compilation_cache_dir)\n"
+    out = subprocess.run([sys.executable, "-W", "always", "-c", program], env=env, capture_output=True, text=True,
+                         timeout=300)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.split()[-1] == "None" and "cache" not in out.stderr.lower(), out.stderr

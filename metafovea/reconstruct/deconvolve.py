@@ -428,6 +428,10 @@ def _tv_step(pb: Problem, s: np.ndarray, tv_weight: float | None, iterations: in
                                                                                              dict[str, Any]]:
     """TV, eq. (3), from the Wiener estimate ``s``: the weights ``tv_weight / mean |grad s_i|`` on the crop."""
     cy, cx = pb.g.crop
+    H, W = pb.zc.shape[1:]
+    if min(H, W) < 2:  # no gradient in both directions: the weight's scale is undefined (it was NaN)
+        raise InputError("frames", f"a crop of {H} x {W} px", "at least 2 x 2 px for method='tv' (its weight is the "
+                         "scale of the image's gradients); 'wiener' or 'wavelet' take thinner crops")
     grad = [float(np.mean(np.hypot(np.diff(s[i][cy, cx], axis=0)[:, :-1], np.diff(s[i][cy, cx], axis=1)[:-1])))
             for i in range(2)]
     mult = 1.0 if tv_weight is None else float(tv_weight)

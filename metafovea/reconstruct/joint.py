@@ -54,8 +54,9 @@ if TYPE_CHECKING:
 #: determined, and slow)
 BOUNDARIES = ("solved", "padded", "unknown")
 #: ``numpy.pad`` modes the padding of a periodic problem takes (:func:`prepare_problem` ``pad_mode``; ``'reflect'``
-#: becomes ``'symmetric'`` where the padding is wider than the crop)
-PAD_MODES = ("edge", "reflect", "symmetric", "wrap", "mean", "median", "linear_ramp", "constant")
+#: becomes ``'symmetric'`` where the padding is wider than the crop): the crop's own values continued; numpy's
+#: ``'constant'`` and ``'linear_ramp'`` pad towards 0 DN, a scene the data do not show (errors of hundreds of DN)
+PAD_MODES = ("edge", "reflect", "symmetric", "wrap", "mean", "median")
 #: the default: the perifoveal scene beyond the crop solved for in a ring (:func:`solved_exterior`)
 DEFAULT_BOUNDARY = "solved"
 #: old spellings of :data:`BOUNDARIES` still accepted: ``'mirror'`` padded with edge values, not a mirror image

@@ -143,6 +143,10 @@ def test_bad_input_is_refused():
         separate_deconvolve(frames, a, psfs, pad_mode="bogus")
     with pytest.raises(InputError, match="1 x 1 px"):  # a crop without a frequency: numpy's ValueError before
         separate_deconvolve(frames[:, :1, :1], a, psfs)
+    with pytest.raises(InputError, match="pad_mode"):  # pads towards 0 DN: hundreds of DN off before
+        separate_deconvolve(frames, a, psfs, pad_mode="constant")
+    with pytest.raises(InputError, match="1 x 32 px"):  # TV's weight has no gradient to scale by: all NaN before
+        separate_deconvolve(frames[:, :1, :], a, psfs, method="tv")
 
 
 def test_a_one_pixel_psf_takes_nothing_from_beyond_the_crop():
