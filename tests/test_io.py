@@ -140,16 +140,23 @@ print(jax.jit(lambda x: 2.0 * x + 1.0)(1.0))
 """
 
 
+def _jax_env(tmp_path):
+    """The environment of a fresh process: the cache root in ``tmp_path / 'c'``, no user folder, every program kept."""
+    import os
+
+    env = {**os.environ, "METAFOVEA_CACHE": str(tmp_path / "c"), "JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS": "0"}
+    env.pop("JAX_COMPILATION_CACHE_DIR", None)
+    return env
+
+
 @pytest.mark.parametrize("user_folder", [False, True])
 def test_jax_programs_are_kept_in_the_cache_folder_unless_the_user_chose_one(tmp_path, user_folder):
     """A DIP fitted in a fresh process leaves its compiled step in ``$METAFOVEA_CACHE/jax`` (JAX's persistent
     compilation cache); with ``JAX_COMPILATION_CACHE_DIR`` set, a program goes to the user's folder, nowhere else."""
-    import os
     import subprocess
     import sys
 
-    env = {**os.environ, "METAFOVEA_CACHE": str(tmp_path / "c"), "JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS": "0"}
-    env.pop("JAX_COMPILATION_CACHE_DIR", None)
+    env = _jax_env(tmp_path)
     if user_folder:
         env["JAX_COMPILATION_CACHE_DIR"] = str(tmp_path / "mine")
     program = _JIT_IN_A_PROCESS if user_folder else _DIP_IN_A_PROCESS
@@ -164,13 +171,11 @@ def test_jax_programs_are_kept_in_the_cache_folder_unless_the_user_chose_one(tmp
 def test_an_unwritable_jax_cache_folder_leaves_the_cache_off_quietly(tmp_path):
     """A cache folder that cannot be written (here a file stands where the folder would be): JAX would warn at
     every program it could not keep (27 warnings for a small DIP); the cache is left off and nothing is said."""
-    import os
     import subprocess
     import sys
 
     (tmp_path / "c").write_text("a file, not a folder")
-    env = {**os.environ, "METAFOVEA_CACHE": str(tmp_path / "c"), "JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS": "0"}
-    env.pop("JAX_COMPILATION_CACHE_DIR", None)
+    env = _jax_env(tmp_path)
     program = _JIT_IN_A_PROCESS + "print(jax.config.jax_compilation_cache_dir)\n"
     out = subprocess.run([sys.executable, "-W", "always", "-c", program], env=env, capture_output=True, text=True,
                          timeout=300)

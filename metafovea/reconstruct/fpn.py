@@ -193,7 +193,8 @@ def _from_calibration(calibration: ArrayLike, rank: int | None, bound: float) ->
     if not np.all(np.isfinite(C)):
         raise InputError("calibration", "frames with NaN/inf", "finite calibration frames")
     T = int(C.shape[0])
-    raw = C.astype(np.float64).mean(axis=0)
+    Cf = C.astype(np.float64)
+    raw = Cf.mean(axis=0)
     clipped = float(np.mean(np.abs(raw - raw.mean()) > bound))
     info: dict[str, Any] = {"identified": "calibration", "bound": bound, "calibration_frames": T,
                             "unidentified": "the mean of the pattern (set to 0) and the calibration noise "
@@ -201,8 +202,8 @@ def _from_calibration(calibration: ArrayLike, rank: int | None, bound: float) ->
     if rank is None and T >= 2:
         # the noise of the mean from the frames' scatter (white, the same at every pixel), and for frames of whole
         # counts the rounding that the scatter does not show (noise far below one count does not dither it)
-        v = float(np.mean(C.astype(np.float64).var(axis=0, ddof=1)))
-        step = quantiser_step(C)
+        v = float(np.mean(Cf.var(axis=0, ddof=1)))
+        step = quantiser_step(Cf)
         q = 0.0 if step is None else step ** 2 * quantisation_bias_variance(noise_variance(v / step ** 2))
         noise = float(np.sqrt(v / T + q))
         f, kept, err = shrink_lowrank(raw, noise)
