@@ -113,6 +113,13 @@ one standard error (the exterior)      the solved ring is kept only where it low
                                        prior on built-in scenes (issue 13), kept because the default method
                                        picks its regularisation by its risk on top of it; not re-swept
 ``spectra.PRIOR_FLOOR``                numerical: a bin without signal gets the largest penalty, not none
+``spectra.NOISE_FLOOR_CRITICAL``       derived: the noise model is raised to the data's flat excess (eq. 5 of
+                                       ``spectra``) at a false-alarm rate of 5e-4 (chi^2, one degree of freedom)
+``spectra.NOISE_FLOOR_INFLATION``      derived: the Hann taper's variance inflation (Percival and Walden 1993)
+``spectra.NOISE_FLOOR_BETA_RANGE``     derived: from a white scene (never taken for noise) to ``BETA_RANGE``'s
+                                       steepest
+1/2 in ``spectra`` eq. (6)             derived: the nearer of the two causes of an excess, shared by both
+                                       channels (correlation 1) or each channel's own (0)
 ``wavelet.WAVELETS``,                  an option; with eq. (1b) Haar leads db2 and sym4 in median and mean
 ``wavelet.DEFAULT_WAVELET``            margin on the tuning seeds (BENCHMARKS.md), with the shortest filters
 ``wavelet.NOISE_SAMPLES``              derived: the subband variances' standard error (its comment)
@@ -238,8 +245,8 @@ class Deconvolution:
     info: dict[str, Any] = field(default_factory=dict)
 
     #: the entries of ``info`` a summary (``metafovea reconstruct --json``'s ``scene``) carries
-    SUMMARY_KEYS = ("method", "alpha_from", "sigma_dn", "scores", "boundary", "exterior", "foveal_surround",
-                    "foveal_fusion", "seconds", "psf_source", "psf_refinement", "field")
+    SUMMARY_KEYS = ("method", "alpha_from", "sigma_dn", "noise_floor", "scores", "boundary", "exterior",
+                    "foveal_surround", "foveal_fusion", "seconds", "psf_source", "psf_refinement", "field")
 
     def summary(self) -> dict[str, Any]:
         """The entries of ``info`` named in :attr:`SUMMARY_KEYS` that it has."""
@@ -253,6 +260,9 @@ class Deconvolution:
         out = [f"scene ({self.info['method']}, alpha from {self.info.get('alpha_from', 'given')}, "
                f"{self.info['seconds']:.1f} s)" + ("" if not sc else ": against the scene " + ", ".join(
                    f"{k} {v:.4g}" for k, v in sc.items() if isinstance(v, float) and "second" not in k))]
+        nf = self.info.get("noise_floor")
+        if nf and any(nf["raised"]):
+            out.append(f"noise raised to what the data show: {nf['why']}")
         ex = self.info.get("exterior")
         if ex:
             out.append(f"beyond the perifoveal crop ({ex['kept']}): {ex['why']}")

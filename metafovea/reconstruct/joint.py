@@ -39,7 +39,7 @@ from numpy.typing import ArrayLike
 
 from metafovea.errors import InputError, check_choice
 from metafovea.measurement import check_illumination, check_kernel, check_patches
-from metafovea.reconstruct.spectra import rfft_frequencies, rfft_weights
+from metafovea.reconstruct.spectra import common_excess, noise_floor, rfft_frequencies, rfft_weights
 
 if TYPE_CHECKING:
     from collections.abc import Callable
@@ -796,6 +796,23 @@ def tv_admm(pb: Problem, s0: np.ndarray, lam: np.ndarray, iterations: int) -> tu
     return g.irfft(S), iterations
 
 
+def _floor_info(fits: list[dict[str, Any]], shared: float) -> dict[str, Any]:
+    """``info['noise_floor']``: both channels' fits (:func:`~metafovea.reconstruct.spectra.noise_floor`) and why
+    the noise model was or was not raised."""
+    used = [i for i, f in enumerate(fits) if f["used"]]
+    if used:
+        why = "; ".join(
+            f"x{i + 1}: the data hold {fits[i]['ratio']:.3g}x the modelled noise ({fits[i]['modelled_dn2']:.3g} DN^2) "
+            f"flat in frequency (likelihood ratio {fits[i]['statistic']:.3g} > {fits[i]['threshold']:.4g})"
+            for i in used) + (f", {shared:.3g} DN^2 of it shared by both channels" if shared > 0 else "") + (
+            "; used as noise: something the noise model leaves out (undithered rounding, a fixed pattern subtracted "
+            "with a larger error than stated, a PSF that differs from the data's)")
+    else:
+        why = ("the data's power flat in frequency is what the noise model predicts (likelihood ratio "
+               + ", ".join(f"{f['statistic']:.3g}" for f in fits) + f" <= {fits[0]['threshold']:.4g}): kept")
+    return {"raised": [f["used"] for f in fits], "x1": fits[0], "x2": fits[1], "shared_dn2": shared, "why": why}
+
+
 def prepare_problem(frames: ArrayLike, alpha: ArrayLike, psfs: ChannelPSFs, offset: float, sigma: float | None,
                     boundary: str = "padded", pad_mode: str = "edge",
                     fpn_error_dn: float = 0.0) -> tuple[Problem, np.ndarray, dict[str, Any]]:
@@ -865,8 +882,13 @@ def prepare_problem(frames: ArrayLike, alpha: ArrayLike, psfs: ChannelPSFs, offs
         raise InputError("fpn_error_dn", fpn_error_dn, "the rms error (DN) of the subtracted fixed pattern, >= 0")
     # the separated channels' noise covariance: temporal noise through the 2 x 2 fit, plus the FPN estimate's error
     C = (sig ** 2 * np.linalg.inv(N) + fe ** 2 * np.ones((2, 2))) * np.outer(r_rms, r_rms)
+    # what the data show beyond that model: an excess flat in frequency (eq. 5 of metafovea.reconstruct.spectra)
+    floors = [noise_floor(z[i], g.D[i], g.shape, float(C[i, i])) for i in range(2)]
+    excess = (floors[0][0] - C[0, 0], floors[1][0] - C[1, 1])
+    shared = common_excess(z[0], z[1], float(C[0, 1]), excess)  # an error in every frame alike: in both (eq. 6)
+    C = C + np.array([[excess[0], shared], [shared, excess[1]]])
     info = {"sigma_dn": sig, "sigma_source": "residuals" if sigma is None else "given",
-            "fpn_error_dn": fe,
+            "noise_floor": _floor_info([f[1] for f in floors], shared), "fpn_error_dn": fe,
             "noise_std_dn": [float(math.sqrt(C[0, 0])), float(math.sqrt(C[1, 1]))],
             "noise_correlation": float(C[0, 1] / math.sqrt(C[0, 0] * C[1, 1])),
             "grid": list(g.shape), "pad_px": g.pad, "psf_source": psfs.source,

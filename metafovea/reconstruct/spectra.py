@@ -58,6 +58,18 @@ MEASURED_SNR = 4.0
 MIN_FIT_BINS = 3
 #: ``'hybrid'`` fits only the tail beyond the spectrum's peak when at least this many rings are detected
 MIN_HYBRID_BINS = 6
+#: the Hann taper's inflation of the Whittle likelihood ratio (:func:`noise_floor`): neighbouring periodogram
+#: samples of a Hann-tapered crop are correlated (the taper's spectral window spans three of them), so a ring holds
+#: about half as many independent samples as it has bins (Percival and Walden, *Spectral Analysis for Physical
+#: Applications*, 1993, sec. 6.7: the Hann taper's variance inflation 1.94); rounded up to 2
+NOISE_FLOOR_INFLATION = 2.0
+#: the scene's spectral slopes :func:`noise_floor` allows: from white (0: a scene of dense small sources is as flat
+#: as noise, and is not taken for it) to the steepest of :data:`BETA_RANGE`
+NOISE_FLOOR_BETA_RANGE = (0.0, BETA_RANGE[1])
+#: the corrected likelihood ratio above which the data's excess noise is used (:func:`noise_floor`): the 0.999
+#: quantile of chi^2 with one degree of freedom, i.e. a false alarm rate of 5e-4 on the boundary (half of the
+#: statistic's mass is at 0)
+NOISE_FLOOR_CRITICAL = 10.83
 #: a bin without signal gets the prior of this fraction of the spectrum's largest value (the largest penalty,
 #: not none) in :func:`inverse_prior`
 PRIOR_FLOOR = 1e-9
@@ -220,6 +232,139 @@ def whittle_level(fc: np.ndarray, power: np.ndarray, otf2: np.ndarray, counts: n
     lo = math.log(noise_var * 1e-8 / float(np.max(a)))
     hi = math.log(noise_var * 1e8 / float(np.min(a)))
     return float(minimize_scalar(nll, bounds=(lo, hi), method="bounded").x)
+
+
+def noise_floor(z: np.ndarray, D: np.ndarray, grid_shape: tuple[int, int], noise_var: float,
+                nbins: int = RADIAL_BINS) -> tuple[float, dict[str, Any]]:
+    """The data's white noise level per pixel, fitted with the scene's spectrum, never below the modelled one: eq. (5).
+
+    Parameters
+    ----------
+    z : ndarray, shape (H, W)
+        One channel's separated data on the crop (DN).
+    D : ndarray, shape (P, Q // 2 + 1)
+        The channel's transfer function on the solve's grid ``grid_shape``.
+    grid_shape : tuple of int
+        ``(P, Q)``.
+    noise_var : float
+        The modelled noise variance per pixel (> 0), DN^2.
+    nbins : int
+        Rings.
+
+    Returns
+    -------
+    variance : float
+        ``noise_var`` plus the excess eq. (5) finds, where the likelihood ratio shows one (else ``noise_var``).
+    info : dict
+        ``modelled_dn2``, ``fitted_dn2`` (the fit's level, ``noise_var`` or more), ``ratio``, ``beta``,
+        ``statistic`` (the likelihood ratio's ``2 delta log L`` over :data:`NOISE_FLOOR_INFLATION`), ``threshold``
+        (:data:`NOISE_FLOOR_CRITICAL`) and ``used``.
+
+    Notes
+    -----
+    The rings' periodograms (eq. 1) have mean ``mu_r = <|D|^2>_r c f_r^-beta + sigma^2 + e``: the scene through the
+    PSF, the modelled noise and an excess ``e >= 0`` that is flat in frequency, which a scene seen through a PSF is not
+    (``beta`` in :data:`NOISE_FLOOR_BETA_RANGE`, down to a scene as flat as white noise: only an excess that the
+    PSF's shape cannot have made counts; through a PSF that passes every frequency alike, none can be told from a
+    scene, and none needs to be: nothing is amplified): data whose noise model leaves something out (rounding
+    without dither, the same in every frame, a fixed pattern subtracted with a larger error than stated, a PSF that
+    differs from the data's). ``(c, beta, e)`` maximise the Whittle likelihood (eq. 4), and ``e = 0`` (the noise
+    model as stated) is tested against it by the likelihood ratio, whose ``2 delta log L`` is ``chi^2`` with one
+    degree of freedom on the boundary (half of it 0) for independent samples; the Hann taper makes neighbouring
+    samples correlated and the ratio larger by :data:`NOISE_FLOOR_INFLATION`. The excess is used when the ratio so
+    corrected exceeds :data:`NOISE_FLOOR_CRITICAL`.
+
+        sigma_used^2 = sigma^2 + e   if  2 delta log L / NOISE_FLOOR_INFLATION > NOISE_FLOOR_CRITICAL      (5)
+    """
+    from scipy.optimize import minimize
+
+    fc, pz, cnt = crop_periodogram(z, nbins)
+    _, pd, _ = radial_mean(rfft_frequencies(grid_shape), np.abs(D) ** 2, nbins)
+    ok = np.isfinite(pz) & np.isfinite(pd) & (fc > 0) & (pd > 0) & (cnt > 0)
+    info: dict[str, Any] = {"modelled_dn2": float(noise_var), "fitted_dn2": float(noise_var), "ratio": 1.0,
+                            "beta": None, "statistic": 0.0, "threshold": NOISE_FLOOR_CRITICAL, "used": False}
+    if ok.sum() < MIN_FIT_BINS + 1:  # three parameters and one degree of freedom
+        return float(noise_var), info
+    fc, pz, pd, m = fc[ok], pz[ok], pd[ok], cnt[ok].astype(np.float64)
+    nv = float(noise_var)
+    scale = float(np.mean(pz))  # the likelihood in units of the data's power (well scaled for the optimiser)
+
+    def nll(p: np.ndarray, a: np.ndarray) -> tuple[float, np.ndarray]:
+        c, e = math.exp(p[0]), math.exp(p[1])
+        mu = (a * c + nv + e) / scale
+        r = m * (1.0 / mu - pz / scale / mu ** 2) / scale
+        return float(np.sum(m * (np.log(mu) + pz / scale / mu))), np.array([np.sum(r * a * c), np.sum(r * e)])
+
+    e0 = math.log(nv) - 60.0  # e = 0 (to 1e-26 of the noise)
+
+    def nll0(q: np.ndarray, a: np.ndarray) -> tuple[float, np.ndarray]:  # the null: the level alone, e = 0
+        v, grad = nll(np.array([q[0], e0]), a)
+        return v, grad[:1]
+
+    best0 = best1 = (math.inf, 0.0, 0.0)
+    for beta in np.arange(NOISE_FLOOR_BETA_RANGE[0], NOISE_FLOOR_BETA_RANGE[1] + 1e-9, 0.1):
+        a = pd * fc ** -beta
+        # the level's start: the signal's mean over the PSF's and the law's shape (>= 1e-12 of the data's power)
+        c0 = math.log(max(float(np.sum(m * (pz - nv)) / np.sum(m * a)), 1e-12 * scale / float(np.max(a))))
+        r0 = minimize(nll0, np.array([c0]), args=(a,), jac=True, method="L-BFGS-B",
+                      bounds=[(c0 - 30.0, c0 + 30.0)])
+        f0 = float(r0.fun)
+        best0 = min(best0, (f0, float(beta), 0.0))
+        c0 = float(r0.x[0])
+        r = minimize(nll, np.array([c0, math.log(max(float(np.median(pz[-5:])) - nv, nv * 1e-6))]), args=(a,),
+                     jac=True, method="L-BFGS-B", bounds=[(c0 - 30.0, c0 + 30.0), (e0, math.log(scale) + 30.0)])
+        f1 = min(float(r.fun), f0)
+        e = math.exp(float(r.x[1])) if float(r.fun) < f0 else 0.0
+        best1 = min(best1, (f1, float(beta), e))
+    stat = max(2.0 * (best0[0] - best1[0]), 0.0) / NOISE_FLOOR_INFLATION
+    used = stat > NOISE_FLOOR_CRITICAL
+    fitted = nv + best1[2]
+    info.update(fitted_dn2=float(fitted), ratio=float(fitted / nv), beta=best1[1], statistic=float(stat), used=used)
+    return (float(fitted) if used else nv), info
+
+
+def common_excess(z1: np.ndarray, z2: np.ndarray, modelled_cov: float, excess: tuple[float, float]) -> float:
+    """The part of both channels' excess noise (:func:`noise_floor`) that they share, DN^2: eq. (6).
+
+    Parameters
+    ----------
+    z1, z2 : ndarray, shape (H, W)
+        The two channels' separated data on the crop (DN).
+    modelled_cov : float
+        Their modelled noise covariance per pixel, DN^2.
+    excess : tuple of 2 float
+        Each channel's excess variance (>= 0), DN^2.
+
+    Returns
+    -------
+    float
+        ``sqrt(excess_1 excess_2)`` (shared in full) or 0 (each channel's own).
+
+    Notes
+    -----
+    The excess has two kinds of cause. An error that is the same in every frame (undithered rounding, a fixed
+    pattern's error) enters both separated channels in full, ``u + [1, 1] e``: correlation 1. A PSF or a model that
+    differs from the data's acts on each channel's own scene: correlation 0. The two channels image different scenes
+    (the fovea magnified, the field around it), whose cross-spectrum averages to 0, so the mean cross-periodogram over
+    the upper half of the frequencies (beyond 0.25 cycles per pixel, where the scenes are weakest), less the modelled
+    covariance, estimates the shared part; the nearer of the two causes is taken (the estimate's own scatter, from
+    the scenes' detail, is large next to its 0-1 range, and a correlation estimated short of 1 costs the joint
+    solve several dB where the error is in fact shared):
+
+        rho = (<Re P_12(f)>_{|f| > 1/4} - C_12) / sqrt(e_1 e_2),   e_12 = sqrt(e_1 e_2) if rho > 1/2 else 0   (6)
+    """
+    from scipy.fft import rfft2
+
+    if min(excess) <= 0.0:
+        return 0.0
+    H, W = z1.shape
+    w = np.outer(np.hanning(H + 2)[1:-1], np.hanning(W + 2)[1:-1])
+    F1, F2 = (rfft2((z - np.mean(z)) * w) for z in (z1, z2))
+    hi = rfft_frequencies((H, W)) > 0.25
+    wt = np.broadcast_to(rfft_weights((H, W)), hi.shape)[hi]
+    cross = float(np.sum(wt * np.real(F1[hi] * np.conj(F2[hi]))) / np.sum(wt)) / float(np.sum(w ** 2))
+    both = math.sqrt(excess[0] * excess[1])
+    return both if cross - modelled_cov > 0.5 * both else 0.0
 
 
 def fitted_spectrum(z: np.ndarray, z_padded: np.ndarray, D: np.ndarray, noise_var: float, prior: str = "power-law",

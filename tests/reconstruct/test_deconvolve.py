@@ -182,8 +182,9 @@ def test_simulator_psfs_reproduce_its_images(designs_dir):
 @pytest.mark.parametrize("seed", [4, 12])
 def test_the_fixed_patterns_error_counts_as_noise(seed):
     """A static error left by the FPN estimate (low-rank stripes, the same in every frame) does not average over the
-    frames: counted in the noise model (``fpn_error_dn``) the estimate gains several dB; the bound computed with it
-    is no better than the estimate by more than the usual margin."""
+    frames: counted in the noise model (``fpn_error_dn``), or left unstated and found in the data's flat excess
+    (spectra eq. 5; before it, the unstated error cost over 5 dB), the estimate is within the usual margin of the
+    bound computed with it."""
     frames, a, psfs, truth, _ = _case(seed, T=48)
     rng = np.random.default_rng(seed + 100)
     n = frames.shape[-1]
@@ -194,10 +195,11 @@ def test_the_fixed_patterns_error_counts_as_noise(seed):
     counted = separate_deconvolve(fr, a, psfs, fpn_error_dn=0.5)
     assert counted.info["fpn_error_dn"] == 0.5
     bound = wiener_bound(fr, a, psfs, truth, sigma=1.0, fpn_error_dn=0.5)
+    assert plain.info["noise_floor"]["raised"] == [True, True]
+    assert counted.info["noise_floor"]["raised"] == [False, False]
     for i in range(2):
-        p0, p1 = psnr(plain.scene[i], truth[i]), psnr(counted.scene[i], truth[i])
-        assert p1 > p0 + 5.0, (i, p0, p1)
-        assert p1 > psnr(bound[i], truth[i]) - 1.0
+        p0, p1, pb = psnr(plain.scene[i], truth[i]), psnr(counted.scene[i], truth[i]), psnr(bound[i], truth[i])
+        assert p1 > pb - 1.0 and p0 > pb - 1.0, (i, p0, p1, pb)
     with pytest.raises(InputError, match="fpn_error_dn"):
         separate_deconvolve(fr, a, psfs, fpn_error_dn=-1.0)
 
@@ -446,3 +448,42 @@ def test_the_mean_of_a_flat_scene_is_not_shrunk(method):
     res = separate_deconvolve(frames, a, ChannelPSFs((k1, k2)), method=method)
     for est, v in zip(res.scene, level):
         assert abs(float(np.mean(est)) - v) < 0.5, (method, float(np.mean(est)), v)
+
+
+@pytest.mark.parametrize("seed", [0, 3])
+def test_noise_the_model_leaves_out_is_taken_from_the_data(seed):
+    """Frames with almost no temporal noise but a white error the same in every frame (undithered rounding, a fixed
+    pattern subtracted with a larger error than stated): the residuals see 0.02 DN, the data hold 0.5 DN. Unmodelled,
+    the deconvolution amplifies it into an image 30-50 dB below the Wiener bound with the true noise; the data's flat
+    excess (spectra eq. 5) raises the noise model to within 20 % of the truth, said in the output, and the Wiener
+    estimate is within 1.5 dB of that bound (its prior is estimated, the bound's is the truth). Frames with the noise
+    their model states are left as they were."""
+    frames, a, psfs, truth, _ = _case(seed, sigma=0.02, T=48)
+    fr = frames + np.random.default_rng(seed + 300).normal(0.0, 0.5, frames.shape[1:])[None]
+    bound = wiener_bound(fr, a, psfs, truth, sigma=0.02, fpn_error_dn=0.5)
+    for method in ("wiener", None):
+        res = separate_deconvolve(fr, a, psfs, **({"method": method} if method else {}))
+        nf = res.info["noise_floor"]
+        assert nf["raised"] == [True, True] and "noise raised to what the data show" in "\n".join(res.lines())
+        for i in range(2):
+            assert nf[f"x{i + 1}"]["fitted_dn2"] == pytest.approx(0.25, rel=0.2)
+            # the default method at this low noise: see test_low_noise_crops_of_a_wider_scene_lose_the_default_method
+            margin = psnr(res.scene[i], truth[i]) - psnr(bound[i], truth[i])
+            assert margin > (-1.5 if method else -15.0), (method, i, margin)
+    plain = separate_deconvolve(*_case(seed, sigma=1.0)[:3])
+    assert plain.info["noise_floor"]["raised"] == [False, False]
+    assert "noise raised" not in "\n".join(plain.lines())
+
+
+@pytest.mark.xfail(strict=True, reason="known: at low noise the wavelet step's risk counts bins the padding's model "
+                   "error dominates as seen and picks a small tau (issue 31; a padding-error term in the split fixed "
+                   "this case but lost 0.02-0.08 dB on average on the tuning scenes)")
+@pytest.mark.parametrize("seed", [0, 5])
+def test_low_noise_crops_of_a_wider_scene_lose_the_default_method(seed):
+    """Piecewise-constant crops of a wider scene through a hazy PSF at 0.3 DN of noise: the default method should be
+    within 1 dB of the Wiener bound on both channels, as the Wiener filter is."""
+    frames, a, psfs, truth, _ = _case(seed, sigma=0.3, T=48)
+    bound = wiener_bound(frames, a, psfs, truth, sigma=0.3)
+    res = separate_deconvolve(frames, a, psfs)
+    for i in range(2):
+        assert psnr(res.scene[i], truth[i]) > psnr(bound[i], truth[i]) - 1.0, i
