@@ -693,6 +693,15 @@ class PeriodicFilter:
         ``1 / |D|^2`` magnifies where the PSF passes almost nothing; there (``|D_i|^2 P_i`` below ``detection_snr``
         times the noise ``n C_ii``) ``T_i`` is replaced by its expectation under the prior ``P`` (channels
         independent): ``L_i^2 E|(G z)_i|^2 - 2 L_i Re(G_ii D_i) P_i``.
+
+        A padding error ``p`` left in a seen bin enters ``T`` with the wrong sign: for one channel and
+        ``G = conj(D) / (|D|^2 + t)``, its part of ``T`` is ``-|p|^2 (|D|^2 + 2 t) / (|D|^2 + t)^2`` where the true
+        error holds ``+|p|^2 |D|^2 / (|D|^2 + t)^2``, both near ``|p|^2 / |D|^2`` for ``t << |D|^2``: where ``p``
+        outweighs the noise in bins that the split still counts as seen (low noise, a PSF with near zeros, a crop of a
+        wider scene with sharp edges), the estimate prefers a small ``t`` that in truth amplifies ``p``. Subtracting
+        ``|p|^2`` from ``z_i conj(z_i)``, like the noise, would remove it, given an estimate of ``|p|^2`` that does not
+        overstate it (the difference of two padding rules overstates it where the padding is a solved or predicted
+        one: see the strict xfail in ``tests/reconstruct/test_deconvolve.py``).
         """
         m11, m12, m22 = self._m(tau)
         det = _det2(m11, m12, m22)

@@ -475,9 +475,10 @@ def test_noise_the_model_leaves_out_is_taken_from_the_data(seed):
     assert "noise raised" not in "\n".join(plain.lines())
 
 
-@pytest.mark.xfail(strict=True, reason="known: at low noise the wavelet step's risk counts bins the padding's model "
-                   "error dominates as seen and picks a small tau (issue 31; a padding-error term in the split fixed "
-                   "this case but lost 0.02-0.08 dB on average on the tuning scenes)")
+@pytest.mark.xfail(strict=True, reason="known (issue 31): the padding's model error enters the wavelet step's risk "
+                   "(joint eq. 4) with the wrong sign, magnified by 1/|D|^2, and at low noise it picks a small tau; "
+                   "the difference of two padding rules as its estimate fixed this case but lost 0.02-0.26 dB on "
+                   "average on the tuning scenes")
 @pytest.mark.parametrize("seed", [0, 5])
 def test_low_noise_crops_of_a_wider_scene_lose_the_default_method(seed):
     """Piecewise-constant crops of a wider scene through a hazy PSF at 0.3 DN of noise: the default method should be
