@@ -199,7 +199,10 @@ def wiener_bound(frames: ArrayLike, alpha: ArrayLike, psfs: ChannelPSFs, truth: 
     offset : float
         The dark level, DN.
     sigma : float
-        The frames' true temporal noise, DN.
+        The frames' true temporal noise, DN. With ``fpn_error_dn`` the noise model, raised like the estimate's to the
+        data's flat excess where a likelihood ratio shows one (:func:`~metafovea.reconstruct.spectra.noise_floor`):
+        what the data hold beyond the stated truth (the ADC's rounding, a kernel error the stored PSF lacks) is noise
+        to any linear estimate, the best one included.
     boundary : {'padded', 'unknown'}
         As :func:`~metafovea.reconstruct.deconvolve.separate_deconvolve` (``'mirror'``: deprecated ``'padded'``).
     pad_mode : str
