@@ -116,8 +116,8 @@ one standard error (the exterior)      the solved ring is kept only where it low
 ``spectra.NOISE_FLOOR_CRITICAL``       derived: the noise model is raised to the data's flat excess (eq. 5 of
                                        ``spectra``) at a false-alarm rate of 5e-4 (chi^2, one degree of freedom)
 ``spectra.NOISE_FLOOR_INFLATION``      derived: the Hann taper's variance inflation (Percival and Walden 1993)
-``spectra.NOISE_FLOOR_BETA_RANGE``     derived: from a white scene (never taken for noise) to ``BETA_RANGE``'s
-                                       steepest
+``spectra.NOISE_FLOOR_BETA_RANGE``,    derived: from a white scene (never taken for noise) to ``BETA_RANGE``'s
+``spectra.NOISE_FLOOR_BETA_STEP``      steepest, in steps of 0.1 (numerical: the slope's likelihood is smooth)
 1/2 in ``spectra`` eq. (6)             derived: the nearer of the two causes of an excess, shared by both
                                        channels (correlation 1) or each channel's own (0)
 ``wavelet.WAVELETS``,                  an option; with eq. (1b) Haar leads db2 and sym4 in median and mean

@@ -66,6 +66,8 @@ NOISE_FLOOR_INFLATION = 2.0
 #: the scene's spectral slopes :func:`noise_floor` allows: from white (0: a scene of dense small sources is as flat
 #: as noise, and is not taken for it) to the steepest of :data:`BETA_RANGE`
 NOISE_FLOOR_BETA_RANGE = (0.0, BETA_RANGE[1])
+#: the step of :func:`noise_floor`'s slopes (each costs two FFTs of the grid)
+NOISE_FLOOR_BETA_STEP = 0.1
 #: the corrected likelihood ratio above which the data's excess noise is used (:func:`noise_floor`): the 0.999
 #: quantile of chi^2 with one degree of freedom, i.e. a false alarm rate of 5e-4 on the boundary (half of the
 #: statistic's mass is at 0)
@@ -258,7 +260,8 @@ def noise_floor(z: np.ndarray, D: np.ndarray, grid_shape: tuple[int, int], noise
     info : dict
         ``modelled_dn2``, ``fitted_dn2`` (the fit's level, ``noise_var`` or more), ``ratio``, ``beta``,
         ``statistic`` (the likelihood ratio's ``2 delta log L`` over :data:`NOISE_FLOOR_INFLATION`), ``threshold``
-        (:data:`NOISE_FLOOR_CRITICAL`) and ``used``.
+        (:data:`NOISE_FLOOR_CRITICAL`), ``used`` and ``model`` (``'sampled'``: the screen found no excess;
+        ``'leakage'``: the exact expectation decided).
 
     Notes
     -----
@@ -275,18 +278,66 @@ def noise_floor(z: np.ndarray, D: np.ndarray, grid_shape: tuple[int, int], noise
     corrected exceeds :data:`NOISE_FLOOR_CRITICAL`.
 
         sigma_used^2 = sigma^2 + e   if  2 delta log L / NOISE_FLOOR_INFLATION > NOISE_FLOOR_CRITICAL      (5)
+
+    The taper's spectral window smooths the periodogram: a PSF's near zeros and a steep spectrum's tail fill with
+    their neighbours' power, which the spectrum sampled at the rings takes for a flat excess. The test is therefore
+    made twice: with ``mu_r`` sampled (cheap, a screen), and, where that finds an excess, with the tapered
+    periodogram's exact expectation on the solve's grid, ``FFT(R A_w) / sum w^2`` (``R``: the autocovariance of
+    ``|D|^2 c f^-beta``; ``A_w``: the taper's), whose verdict stands. The leakage adds power mostly where the sampled
+    spectrum is low (zeros, the tail), so the screen's statistic is the larger one; an excess only the exact test
+    would find is not looked for (the exact fit costs two FFTs of the grid per slope).
     """
+    betas = np.arange(NOISE_FLOOR_BETA_RANGE[0], NOISE_FLOOR_BETA_RANGE[1] + 1e-9, NOISE_FLOOR_BETA_STEP)
+    info: dict[str, Any] = {"modelled_dn2": float(noise_var), "fitted_dn2": float(noise_var), "ratio": 1.0,
+                            "beta": None, "statistic": 0.0, "threshold": NOISE_FLOOR_CRITICAL, "used": False,
+                            "model": None}
+    for model in ("sampled", "leakage"):  # the screen, then (where it finds an excess) the exact expectation
+        fit = _floor_fit(z, D, grid_shape, float(noise_var), betas, nbins, model == "leakage")
+        if fit is None:
+            return float(noise_var), info
+        stat, beta, e = fit
+        used = stat > NOISE_FLOOR_CRITICAL
+        fitted = float(noise_var) + e
+        info.update(fitted_dn2=float(fitted), ratio=float(fitted / noise_var), beta=beta, statistic=float(stat),
+                    used=used, model=model)
+        if not used:
+            return float(noise_var), info
+    return float(info["fitted_dn2"]), info
+
+
+def _floor_fit(z: np.ndarray, D: np.ndarray, grid_shape: tuple[int, int], nv: float, betas: np.ndarray, nbins: int,
+               leakage: bool) -> tuple[float, float, float] | None:
+    """:func:`noise_floor`'s fit: ``(statistic, beta, e)``, or None with too few rings. ``leakage``: the exact
+    expectation of the tapered periodogram (the scene's spectrum convolved with the taper's), else the spectrum
+    sampled at the rings (eq. 5's screen)."""
+    from scipy.fft import irfft2, rfft2
     from scipy.optimize import minimize
 
-    fc, pz, cnt = crop_periodogram(z, nbins)
-    _, pd, _ = radial_mean(rfft_frequencies(grid_shape), np.abs(D) ** 2, nbins)
-    ok = np.isfinite(pz) & np.isfinite(pd) & (fc > 0) & (pd > 0) & (cnt > 0)
-    info: dict[str, Any] = {"modelled_dn2": float(noise_var), "fitted_dn2": float(noise_var), "ratio": 1.0,
-                            "beta": None, "statistic": 0.0, "threshold": NOISE_FLOOR_CRITICAL, "used": False}
+    H, W = z.shape
+    P, Q = grid_shape
+    f = rfft_frequencies(grid_shape)
+    D2 = np.abs(D) ** 2
+    if not leakage:
+        fc, pz, cnt = crop_periodogram(z, nbins)
+        _, pd, _ = radial_mean(f, D2, nbins)
+        shapes = pd[None, :] * np.where(fc > 0, fc, np.inf)[None, :] ** -betas[:, None]
+        m = cnt.astype(np.float64)
+    else:
+        # the crop's tapered periodogram on the grid's frequencies (zero-padded: the same one, sampled finer) and its
+        # expectation for a scene spectrum S, FFT(R A_w) / sum w^2 (R: S's autocovariance, A_w: the taper's, on the
+        # grid): a PSF's near zeros fill with their neighbours' power, which is no flat excess
+        w = np.outer(np.hanning(H + 2)[1:-1], np.hanning(W + 2)[1:-1])
+        sw2 = float(np.sum(w ** 2))
+        fc, pz, cnt = radial_mean(f, np.abs(rfft2((z - np.mean(z)) * w, s=(P, Q), workers=-1)) ** 2 / sw2, nbins)
+        taper_acf = irfft2(np.abs(rfft2(w, s=(P, Q), workers=-1)) ** 2, s=(P, Q), workers=-1)
+        f_dc = np.where(f > 0, f, np.inf)  # the mean removed: no power at 0
+        shapes = np.array([radial_mean(f, np.real(rfft2(irfft2(D2 * f_dc ** -b, s=(P, Q), workers=-1) * taper_acf,
+                                                         workers=-1)) / sw2, nbins)[1] for b in betas])
+        m = cnt.astype(np.float64) * (H * W) / (P * Q)  # a ring's independent samples: its bins on the crop's grid
+    ok = np.isfinite(pz) & (fc > 0) & (cnt > 0) & np.all(np.isfinite(shapes) & (shapes > 0), axis=0)
     if ok.sum() < MIN_FIT_BINS + 1:  # three parameters and one degree of freedom
-        return float(noise_var), info
-    fc, pz, pd, m = fc[ok], pz[ok], pd[ok], cnt[ok].astype(np.float64)
-    nv = float(noise_var)
+        return None
+    pz, shapes, m = pz[ok], shapes[:, ok], m[ok]
     scale = float(np.mean(pz))  # the likelihood in units of the data's power (well scaled for the optimiser)
 
     def nll(p: np.ndarray, a: np.ndarray) -> tuple[float, np.ndarray]:
@@ -302,8 +353,7 @@ def noise_floor(z: np.ndarray, D: np.ndarray, grid_shape: tuple[int, int], noise
         return v, grad[:1]
 
     best0 = best1 = (math.inf, 0.0, 0.0)
-    for beta in np.arange(NOISE_FLOOR_BETA_RANGE[0], NOISE_FLOOR_BETA_RANGE[1] + 1e-9, 0.1):
-        a = pd * fc ** -beta
+    for beta, a in zip(betas, shapes):
         # the level's start: the signal's mean over the PSF's and the law's shape (>= 1e-12 of the data's power)
         c0 = math.log(max(float(np.sum(m * (pz - nv)) / np.sum(m * a)), 1e-12 * scale / float(np.max(a))))
         r0 = minimize(nll0, np.array([c0]), args=(a,), jac=True, method="L-BFGS-B",
@@ -316,11 +366,7 @@ def noise_floor(z: np.ndarray, D: np.ndarray, grid_shape: tuple[int, int], noise
         f1 = min(float(r.fun), f0)
         e = math.exp(float(r.x[1])) if float(r.fun) < f0 else 0.0
         best1 = min(best1, (f1, float(beta), e))
-    stat = max(2.0 * (best0[0] - best1[0]), 0.0) / NOISE_FLOOR_INFLATION
-    used = stat > NOISE_FLOOR_CRITICAL
-    fitted = nv + best1[2]
-    info.update(fitted_dn2=float(fitted), ratio=float(fitted / nv), beta=best1[1], statistic=float(stat), used=used)
-    return (float(fitted) if used else nv), info
+    return max(2.0 * (best0[0] - best1[0]), 0.0) / NOISE_FLOOR_INFLATION, best1[1], best1[2]
 
 
 def common_excess(z1: np.ndarray, z2: np.ndarray, modelled_cov: float, excess: tuple[float, float]) -> float:
