@@ -39,6 +39,8 @@ SKIPS = {
                                      "flirpy; the FLIR i7 image is in some flirpy releases only",
     "tests/reconstruct/test_deconvolve.py": "a known loss of the default PSF-aware method (issue 31), kept as a strict "
                                             "xfail: it fails the suite the day it is fixed, so its test is turned on",
+    "tests/reconstruct/test_spectra.py": "a known false alarm of the noise floor (an anisotropic scene through a PSF "
+                                         "that passes everything), kept as a strict xfail until fixed",
 }
 
 

@@ -291,6 +291,8 @@ def noise_floor(z: np.ndarray, D: np.ndarray, grid_shape: tuple[int, int], noise
     info: dict[str, Any] = {"modelled_dn2": float(noise_var), "fitted_dn2": float(noise_var), "ratio": 1.0,
                             "beta": None, "statistic": 0.0, "threshold": NOISE_FLOOR_CRITICAL, "used": False,
                             "model": None}
+    if not (math.isfinite(noise_var) and noise_var > 0.0 and np.all(np.isfinite(z))):
+        return float(noise_var), info  # nothing to compare with (prepare_problem passes neither)
     for model in ("sampled", "leakage"):  # the screen, then (where it finds an excess) the exact expectation
         fit = _floor_fit(z, D, grid_shape, float(noise_var), betas, nbins, model == "leakage")
         if fit is None:
@@ -339,6 +341,8 @@ def _floor_fit(z: np.ndarray, D: np.ndarray, grid_shape: tuple[int, int], nv: fl
         return None
     pz, shapes, m = pz[ok], shapes[:, ok], m[ok]
     scale = float(np.mean(pz))  # the likelihood in units of the data's power (well scaled for the optimiser)
+    if not scale > 0.0:  # a constant crop: nothing to fit
+        return None
 
     def nll(p: np.ndarray, a: np.ndarray) -> tuple[float, np.ndarray]:
         c, e = math.exp(p[0]), math.exp(p[1])

@@ -137,7 +137,7 @@ def test_a_psfs_zeros_filled_by_the_taper_are_not_taken_for_noise(beta, radius, 
     """A defocus (disk) PSF's OTF has rings of zeros, which the Hann-tapered periodogram of a crop fills with the
     neighbouring frequencies' power: with the noise stated right that is no excess (the periodogram's expectation
     includes the taper's leakage; the spectrum sampled at the rings alone raised these three 3-13x); an excess
-    of 9x the noise is still found (a scene nearly as flat as noise takes up part of it: 0.6-1.2 of the truth)."""
+    of 9x the noise is still found (0.6-1.2 of the truth: a scene nearly as flat as noise takes up part of it)."""
     from scipy.special import j1
 
     rng = np.random.default_rng(seed)
@@ -154,3 +154,29 @@ def test_a_psfs_zeros_filled_by_the_taper_are_not_taken_for_noise(beta, radius, 
     assert not info["used"] and v == var, info
     v, info = noise_floor(noisy + rng.normal(0.0, np.sqrt(9.0 * var), z.shape), otf, (P, P), var)
     assert info["used"] and 6.0 * var < v < 12.0 * var, info
+
+
+def test_a_constant_crop_is_not_raised():
+    """A constant crop (no scene, no noise) has nothing to fit: not raised, no error (a math domain error before)."""
+    n = 64
+    v, info = noise_floor(np.full((n, n), 300.0), np.ones((n, n // 2 + 1)), (n, n), 0.09)
+    assert not info["used"] and v == 0.09, info
+
+
+@pytest.mark.xfail(strict=True, reason="known: through a PSF that passes everything, an anisotropic scene's power in "
+                   "the partial rings beyond 1/2 cycle per pixel (the diagonals) is taken for a flat excess; fitting "
+                   "whole rings only fixes it but loses the excess on blurred crops (5 deconvolution tests fail)")
+def test_an_anisotropic_scene_seen_sharply_is_not_taken_for_noise():
+    """A stationary scene whose spectrum is elongated along the diagonal, (u'^2 + 0.05 v'^2)^-1 in axes turned by 45
+    degrees, through a PSF that passes everything, noise stated right, should not be raised (an independent check
+    found it raised 6e4-1.4e5x, costing 30-46 dB downstream)."""
+    rng = np.random.default_rng(3)
+    n = 128
+    fy, fx = np.fft.fftfreq(n)[:, None], np.fft.fftfreq(n)[None, :]
+    a = np.deg2rad(45.0)
+    u, v = np.cos(a) * fx + np.sin(a) * fy, -np.sin(a) * fx + np.cos(a) * fy
+    spec = np.where((u == 0) & (v == 0), 0.0, 1.0 / np.maximum(u ** 2 + 0.05 * v ** 2, 1e-12))
+    s = np.real(np.fft.ifft2(np.fft.fft2(rng.normal(size=(n, n))) * np.sqrt(spec)))
+    z = 100.0 * s / s.std() + rng.normal(0.0, 0.3, (n, n))
+    v_, info = noise_floor(z, np.ones((n, n // 2 + 1)), (n, n), 0.09)
+    assert not info["used"] and v_ == 0.09, info
