@@ -157,6 +157,11 @@ def radial_field(f: np.ndarray, profile: np.ndarray) -> np.ndarray:
     return np.nan_to_num(profile, nan=0.0)[idx]
 
 
+def hann_taper(shape: tuple[int, int]) -> np.ndarray:
+    """The separable Hann taper of eq. (1), without its zero end points, ``shape``."""
+    return np.outer(np.hanning(shape[0] + 2)[1:-1], np.hanning(shape[1] + 2)[1:-1])
+
+
 def crop_periodogram(z: np.ndarray, nbins: int = RADIAL_BINS) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The radially averaged, Hann-tapered periodogram of ``z`` per pixel, eq. (1).
 
@@ -179,7 +184,7 @@ def crop_periodogram(z: np.ndarray, nbins: int = RADIAL_BINS) -> tuple[np.ndarra
     from scipy.fft import rfft2
 
     H, W = z.shape
-    w = np.outer(np.hanning(H + 2)[1:-1], np.hanning(W + 2)[1:-1])
+    w = hann_taper((H, W))
     P = np.abs(rfft2((z - np.mean(z)) * w)) ** 2
     fc, mean, cnt = radial_mean(rfft_frequencies((H, W)), P, nbins)
     return fc, mean / float(np.sum(w ** 2)), cnt
@@ -328,7 +333,7 @@ def _floor_fit(z: np.ndarray, D: np.ndarray, grid_shape: tuple[int, int], nv: fl
         # the crop's tapered periodogram on the grid's frequencies (zero-padded: the same one, sampled finer) and its
         # expectation for a scene spectrum S, FFT(R A_w) / sum w^2 (R: S's autocovariance, A_w: the taper's, on the
         # grid): a PSF's near zeros fill with their neighbours' power, which is no flat excess
-        w = np.outer(np.hanning(H + 2)[1:-1], np.hanning(W + 2)[1:-1])
+        w = hann_taper((H, W))
         sw2 = float(np.sum(w ** 2))
         fc, pz, cnt = radial_mean(f, np.abs(rfft2((z - np.mean(z)) * w, s=(P, Q), workers=-1)) ** 2 / sw2, nbins)
         taper_acf = irfft2(np.abs(rfft2(w, s=(P, Q), workers=-1)) ** 2, s=(P, Q), workers=-1)
@@ -408,7 +413,7 @@ def common_excess(z1: np.ndarray, z2: np.ndarray, modelled_cov: float, excess: t
     if min(excess) <= 0.0:
         return 0.0
     H, W = z1.shape
-    w = np.outer(np.hanning(H + 2)[1:-1], np.hanning(W + 2)[1:-1])
+    w = hann_taper((H, W))
     F1, F2 = (rfft2((z - np.mean(z)) * w) for z in (z1, z2))
     hi = rfft_frequencies((H, W)) > 0.25
     wt = np.broadcast_to(rfft_weights((H, W)), hi.shape)[hi]
